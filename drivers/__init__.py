@@ -1,0 +1,1 @@
+"""One interface per instrument kind, and the transports that speak to hardware."""

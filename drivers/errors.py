@@ -1,0 +1,23 @@
+"""Typed instrument errors: the contract between drivers and the sequencer's fault policies."""
+
+from __future__ import annotations
+
+
+class InstrumentError(Exception):
+    """Base of every error an instrument driver raises; ``instrument`` names which one."""
+
+    def __init__(self, instrument: str, message: str):
+        super().__init__(f"{instrument}: {message}")
+        self.instrument = instrument
+
+
+class InstrumentTimeout(InstrumentError):
+    """No (complete) answer within the driver's timeout."""
+
+
+class InstrumentFault(InstrumentError):
+    """The instrument answered with an error, garbage, an alarm, or lost tracking."""
+
+
+class OutOfLimits(InstrumentError):
+    """A commanded target lies outside the configured soft limits; nothing was sent."""

@@ -1,0 +1,164 @@
+"""The ``rtcal`` command line. User mistakes exit 2 with a located message, never a traceback."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from rtcal import __version__
+from rtcal.yamlfile import FileProblems
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+class UserError(Exception):
+    """A mistake the user can fix; printed as one line, exit code 2."""
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from rtcal.runner import run_procedure
+
+    try:
+        outcome = run_procedure(args.procedure, args.scenario, args.seed, args.out)
+    except FileExistsError as exc:
+        raise UserError(str(exc)) from None
+    paper = outcome.results["estimates"]["paper"]
+    print(f"run complete: {outcome.results['raw_readings']} readings, "
+          f"σΔθ (eq. 34) = ±{paper['sigma_arcsec']:.2f}″")
+    print(f"deviation per station (arcsec): {', '.join(f'{v:+.2f}' for v in paper['deviation_arcsec'])}")
+    print(f"results in {outcome.run_dir}/ (results.json, deviations.csv, deviation.png, report.md, run.sqlite)")
+    return EXIT_OK
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from rtcal.procedure.loader import is_procedure_text, load_procedure, load_scenario
+
+    problems = []
+    for name in args.files:
+        path = Path(name)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            problems.append(f"{path}:1:1: (file): cannot read: {exc}")
+            continue
+        try:
+            if is_procedure_text(text):
+                proc = load_procedure(path)
+                if proc.bench is not None:
+                    load_scenario(path.parent / proc.bench)
+            else:
+                load_scenario(path)
+            print(f"{path}: ok")
+        except FileProblems as exc:
+            problems += [str(p) for p in exc.problems]
+    for p in problems:
+        print(p, file=sys.stderr)
+    return EXIT_USAGE if problems else EXIT_OK
+
+
+def _cmd_schema(args: argparse.Namespace) -> int:
+    from rtcal.procedure.loader import procedure_schema, scenario_schema
+
+    print(scenario_schema() if args.scenario else procedure_schema())
+    return EXIT_OK
+
+
+def read_stations_csv(path: Path) -> np.ndarray:
+    """Station centres from a CSV with header X,Y,Z (mm), one station per row, in order."""
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            fields = [f.strip() for f in (reader.fieldnames or [])]
+            if not {"X", "Y", "Z"} <= set(fields):
+                raise UserError(f"{path}:1: header must name X,Y,Z (found {','.join(fields) or 'nothing'})")
+            rows = []
+            for k, row in enumerate(reader, start=2):
+                row = {key.strip(): v for key, v in row.items() if key}
+                try:
+                    rows.append([float(row["X"]), float(row["Y"]), float(row["Z"])])
+                except (TypeError, ValueError):
+                    raise UserError(f"{path}:{k}: X, Y and Z must be numbers (mm)") from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read: {exc}") from None
+    if len(rows) < 4:
+        raise UserError(f"{path}: {len(rows)} stations; at least 4 are needed (eq. 2)")
+    return np.array(rows)
+
+
+def _cmd_solve_stations(args: argparse.Namespace) -> int:
+    from rtcal.solvers.paper000 import PAPER_NOTES, chain_from_stations
+
+    stations = read_stations_csv(Path(args.file))
+    if not 0 < args.step_deg < 180:
+        raise UserError("--step-deg must lie in (0, 180)")
+    nominal = np.deg2rad(args.first_deg + args.step_deg * np.arange(len(stations)))
+    try:
+        chain = chain_from_stations(stations, nominal)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise UserError(f"{args.file}: stations do not define a plane and a circle: {exc}") from None
+    out = {
+        "plane": {"a": chain.plane.a, "b": chain.plane.b, "c": chain.plane.c, "e": chain.plane.e},
+        "projected_stations_mm": np.round(chain.projected_mm, 6).tolist(),
+        "center_mm": np.round(chain.center_mm, 6).tolist(),
+        "deviation_arcsec": np.round(chain.deviation_arcsec, 4).tolist(),
+        "sigma_arcsec": round(chain.sigma_arcsec, 4),
+        "algorithm_error_arcsec": chain.algorithm_error_arcsec,
+        "notes": list(PAPER_NOTES),
+    }
+    print(json.dumps(out, indent=2))
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rtcal", description="Angular positioning calibration of rotary tables.")
+    parser.add_argument("--version", action="version", version=f"rtcal {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a procedure and write a run directory")
+    run.add_argument("procedure", help="procedure YAML file")
+    run.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
+    run.add_argument("--seed", type=int, help="seed of the run's random generator (default: the scenario's)")
+    run.add_argument("--out", help="run directory (default: runs/<time>-<method>)")
+    run.set_defaults(func=_cmd_run)
+
+    val = sub.add_parser("validate", help="check procedure or scenario files; problems as file:line:column")
+    val.add_argument("files", nargs="+")
+    val.set_defaults(func=_cmd_validate)
+
+    schema = sub.add_parser("schema", help="print the JSON Schema of procedure files")
+    schema.add_argument("--scenario", action="store_true", help="print the scenario schema instead")
+    schema.set_defaults(func=_cmd_schema)
+
+    solve = sub.add_parser("solve", help="run a solver on data files")
+    solve_sub = solve.add_subparsers(dest="solver", required=True)
+    st = solve_sub.add_parser("stations", help="plane, circle and deviations from station centres (CSV X,Y,Z)")
+    st.add_argument("file")
+    st.add_argument("--step-deg", type=float, required=True, help="nominal angle between adjacent stations")
+    st.add_argument("--first-deg", type=float, default=0.0, help="nominal angle of the first station")
+    st.set_defaults(func=_cmd_solve_stations)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except FileProblems as exc:
+        for p in exc.problems:
+            print(p, file=sys.stderr)
+        return EXIT_USAGE
+    except UserError as exc:
+        print(f"rtcal: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("rtcal: interrupted; readings taken so far are in the run store", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,39 @@
+"""Clocks: simulated runs use a virtual clock so that settle times and motions cost no real time."""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+
+class Clock(Protocol):
+    def now_s(self) -> float: ...
+    def sleep(self, seconds: float) -> None: ...
+
+
+class VirtualClock:
+    """Time that advances only when someone waits: motions and settle times of simulated runs."""
+
+    def __init__(self, start_s: float = 0.0):
+        self._t = float(start_s)
+
+    def now_s(self) -> float:
+        return self._t
+
+    def sleep(self, seconds: float) -> None:
+        if seconds < 0:
+            raise ValueError("cannot sleep a negative time")
+        self._t += seconds
+
+
+class RealClock:
+    """Wall-clock time since construction, for runs against hardware."""
+
+    def __init__(self) -> None:
+        self._t0 = time.monotonic()
+
+    def now_s(self) -> float:
+        return time.monotonic() - self._t0
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(max(0.0, seconds))

@@ -1,0 +1,42 @@
+"""Logged readings → solver inputs. Reads the store only; knows nothing of instruments."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rtcal.store import RunStore
+
+
+@dataclass(frozen=True)
+class MultistationData:
+    """Arrays for the seed-000 solvers, from the raw readings."""
+
+    points_mm: np.ndarray  # n×3, CMM-reported, averaged over visits
+    lengths_mm: np.ndarray  # n×m, tracer samples averaged
+    segments: np.ndarray  # n×m tracking segment of each length
+    nominal_angles_deg: np.ndarray  # m
+    raw_readings: int  # planned readings present (point, station pairs with a length)
+
+
+def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int) -> MultistationData:
+    m = len(nominal_angles_deg)
+    pos_sum = np.zeros((n_points, 3))
+    pos_count = np.zeros((n_points, 3))
+    for r in store.readings(instrument="cmm"):
+        axis = "xyz".index(r.quantity[len("position_")])
+        pos_sum[r.point, axis] += r.value
+        pos_count[r.point, axis] += 1
+    len_sum = np.zeros((n_points, m))
+    len_count = np.zeros((n_points, m))
+    segments = np.full((n_points, m), -1)
+    for r in store.readings(instrument="laser_tracer", quantity="length_mm"):
+        len_sum[r.point, r.station] += r.value
+        len_count[r.point, r.station] += 1
+        segments[r.point, r.station] = r.segment
+    if np.any(len_count == 0) or np.any(pos_count == 0):
+        missing = int(np.sum(len_count == 0))
+        raise ValueError(f"the run is incomplete: {missing} of {n_points * m} planned lengths are missing")
+    return MultistationData(pos_sum / pos_count, len_sum / len_count, segments,
+                            np.asarray(nominal_angles_deg, float), int(np.sum(len_count > 0)))

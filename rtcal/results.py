@@ -1,0 +1,70 @@
+"""Estimator results → the run directory's machine-readable files (results.json, deviations.csv)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate
+
+
+def _round(values, digits: int = 6):
+    return np.round(np.asarray(values, dtype=float), digits).tolist()
+
+
+def paper_estimate_dict(est: PaperEstimate) -> dict[str, Any]:
+    """The ``estimates.paper`` block: eq. 33 deviations, eq. 34 σ, eq. 36 error, and the chain."""
+    ch = est.chain
+    dev = np.asarray(ch.deviation_arcsec)
+    return {
+        "deviation_arcsec": _round(dev, 4),
+        "cumulative_deviation_arcsec": _round(np.concatenate([[0.0], np.cumsum(dev)]), 4),
+        "uncertainty_arcsec": _round(est.uncertainty_arcsec, 4),
+        "sigma_arcsec": round(float(ch.sigma_arcsec), 4),
+        "algorithm_error_arcsec": float(ch.algorithm_error_arcsec),
+        "stations_mm": [_round([*f.center_mm, f.dead_path_mm]) for f in est.stations],
+        "station_rms_residual_um": _round([f.rms_residual_um for f in est.stations], 4),
+        "station_iterations": [f.iterations for f in est.stations],
+        "converged": all(f.converged for f in est.stations),
+        "plane": {"a": ch.plane.a, "b": ch.plane.b, "c": ch.plane.c, "e": ch.plane.e},
+        "projected_stations_mm": [_round(p) for p in ch.projected_mm],
+        "center_mm": _round(ch.center_mm),
+        "notes": list(PAPER_NOTES),
+    }
+
+
+def write_results(run_dir: Path, results: dict[str, Any]) -> Path:
+    path = run_dir / "results.json"
+    path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+def write_deviation_csv(run_dir: Path, results: dict[str, Any]) -> Path:
+    """One row per station: nominal angle, then each estimator's step deviation and uncertainty."""
+    path = run_dir / "deviations.csv"
+    angles = results["nominal_angles_deg"]
+    names = list(results["estimates"])
+    truth = results.get("truth", {}).get("deviation_arcsec")
+    header = ["station", "nominal_angle_deg"]
+    for n in names:
+        header += [f"{n}_deviation_arcsec", f"{n}_uncertainty_arcsec", f"{n}_cumulative_arcsec"]
+    if truth is not None:
+        header.append("truth_deviation_arcsec")
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for j, angle in enumerate(angles):
+            row: list[Any] = [j + 1, angle]
+            for n in names:
+                e = results["estimates"][n]
+                row += ["" if j == 0 else e["deviation_arcsec"][j - 1],
+                        "" if j == 0 else e["uncertainty_arcsec"][j - 1],
+                        e["cumulative_deviation_arcsec"][j]]
+            if truth is not None:
+                row.append("" if j == 0 else round(truth[j - 1], 4))
+            w.writerow(row)
+    return path

@@ -1,0 +1,17 @@
+"""Motion helpers shared by every procedure."""
+
+from __future__ import annotations
+
+from drivers.interfaces import RotaryStage
+
+
+def approach(stage: RotaryStage, target_deg: float, direction: int, overshoot_deg: float) -> None:
+    """Move so that the target is reached moving in ``direction`` (+1/−1), as ISO 230-2 asks.
+
+    A move that would arrive the other way first passes the target by ``overshoot_deg``.
+    """
+    here = stage.position_deg()
+    arriving = 1 if target_deg > here else -1 if target_deg < here else direction
+    if arriving != direction and overshoot_deg > 0:
+        stage.move_to(target_deg - direction * overshoot_deg)
+    stage.move_to(target_deg)

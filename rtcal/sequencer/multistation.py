@@ -1,0 +1,84 @@
+"""Sequencer of the laser-tracer multi-station procedure (seed 000).
+
+Point-major (the paper): for each CMM point, the table indexes through every station.
+Station-major: for each station, the CMM visits every point. Either way each reading — the
+CMM's reported position at each visit, every tracer sample — is stored before the next motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import numpy as np
+
+from drivers.interfaces import Cmm, LaserTracer, RotaryStage
+from rtcal.clock import Clock
+from rtcal.procedure.models import LaserTracerMultistation
+from rtcal.sequencer.motion import approach
+from rtcal.store import Reading, RunStore
+
+
+@dataclass(frozen=True)
+class MultistationInstrumentSet:
+    stage: RotaryStage
+    cmm: Cmm
+    laser_tracer: LaserTracer
+
+
+def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int]]:
+    """(point, station) pairs in measuring order; each pair is one planned tracer reading."""
+    n, m = len(proc.points_array()), proc.stations.count
+    if proc.order == "point_major":
+        return [(i, j) for i in range(n) for j in range(m)]
+    return [(i, j) for j in range(m) for i in range(n)]
+
+
+def run_multistation(
+    proc: LaserTracerMultistation,
+    inst: MultistationInstrumentSet,
+    store: RunStore,
+    clock: Clock,
+    progress: Callable[[Iterator], Iterator] = lambda it: it,
+) -> int:
+    """Execute the procedure; returns the number of tracer readings stored."""
+    points = proc.points_array()
+    angles = proc.stations.angles_deg()
+    direction = 1 if proc.stations.approach == "positive" else -1
+    plan = planned_readings(proc)
+    for p in points:  # refuse the whole plan before moving anything
+        inst.cmm.check_target(p)
+    for a in angles:
+        inst.stage.check_target(a)
+        inst.stage.check_target(a - direction * proc.stations.overshoot_deg)
+
+    at_point: int | None = None
+    at_station: int | None = None
+    segment: int | None = None
+    stored = 0
+    for i, j in progress(iter(plan)):
+        moved = False
+        if at_station != j:
+            approach(inst.stage, float(angles[j]), direction, proc.stations.overshoot_deg)
+            at_station, moved = j, True
+        if at_point != i:
+            inst.cmm.move_to(points[i])
+            at_point, moved = i, True
+        if moved:
+            clock.sleep(proc.settle_time_s)
+        readings: list[Reading] = []
+        state = dict(point=i, station=j, commanded_angle_deg=float(angles[j]),
+                     commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
+        if moved:
+            xyz = inst.cmm.position_mm()
+            t = clock.now_s()
+            readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
+        if segment is None:
+            segment = inst.laser_tracer.reference()
+            store.add_event(clock.now_s(), "reference", f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
+        for s in range(proc.samples_per_reading):
+            r = inst.laser_tracer.read_length()
+            readings.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=s, segment=r.segment, **state))
+        store.add_readings(readings)
+        stored += 1
+    return stored

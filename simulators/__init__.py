@@ -1,0 +1,1 @@
+"""The simulated bench (one geometric error model), simulated instruments, protocol servers."""

@@ -1,0 +1,159 @@
+"""The simulated bench: one geometric error model that every simulated instrument observes.
+
+It holds the physical state (table angle, probe position, tracer reference) and the truth.
+Instruments ask it where things really are; they add only their own reading noise.
+
+Frames: the CMM frame is the reference; its origin lies on the table on the nominal axis.
+A point p fixed to the table (table frame, mm) is, at commanded angle θ and actual angle θa,
+
+    p_cmm = O + R_axis · ( c + δ(θ) + R(εx(θ), εy(θ)) · (Rz(θa)·p − c) )
+
+with O the axis point, R_axis the axis squareness to the CMM table, c the tilt centre on the
+axis, δ = (δx, δy, δz) and εx, εy the error motions (see :mod:`simulators.scenario`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rtcal.clock import Clock, VirtualClock
+from rtcal.harmonics import evaluate
+from rtcal.units import arcsec_to_rad, um_to_mm
+from simulators.scenario import Scenario
+
+
+def rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class StageMove:
+    """Truth of one table move: commanded and actual angle (rad), approach direction."""
+
+    commanded_rad: float
+    actual_rad: float
+    direction: int
+
+
+@dataclass
+class Truth:
+    """What really happened, for tests and for a simulated run's results; never for solvers."""
+
+    stage_moves: list[StageMove] = field(default_factory=list)
+
+
+class Bench:
+    """The physical state of a simulated bench, built from a :class:`Scenario`."""
+
+    def __init__(self, scenario: Scenario, clock: Clock | None = None, seed: int | None = None):
+        self.scenario = scenario
+        self.clock = clock if clock is not None else VirtualClock()
+        self.seed = scenario.seed if seed is None else seed
+        self._seeds = np.random.SeedSequence(self.seed)
+        self._rngs: dict[str, np.random.Generator] = {}
+        st = scenario.stage
+        self._eps_z = [h.to_rad() for h in st.positioning_error]
+        self._dx = [h.to_mm() for h in st.radial_motion_x]
+        self._dy = [h.to_mm() for h in st.radial_motion_y]
+        self._dz = [h.to_mm() for h in st.axial_motion]
+        self._ex = [h.to_rad() for h in st.tilt_motion_x]
+        self._ey = [h.to_rad() for h in st.tilt_motion_y]
+        self.axis_point_mm = np.array(st.axis_point_mm, dtype=float)
+        self.axis_rotation = rot_y(arcsec_to_rad(st.axis_tilt_y_arcsec)) @ rot_x(arcsec_to_rad(st.axis_tilt_x_arcsec))
+        self.tilt_center = np.array([0.0, 0.0, st.tilt_center_height_mm])
+        cmm = scenario.cmm
+        sx, sy, sz = (p * 1e-6 for p in cmm.scale_error_ppm)
+        self.cmm_matrix = np.array(
+            [
+                [1.0 + sx, 0.0, 0.0],
+                [arcsec_to_rad(cmm.squareness_xy_arcsec), 1.0 + sy, 0.0],
+                [arcsec_to_rad(cmm.squareness_xz_arcsec), arcsec_to_rad(cmm.squareness_yz_arcsec), 1.0 + sz],
+            ]
+        )
+        mount = scenario.laser_tracer.mount
+        az = math.radians(mount.azimuth_deg)
+        self.tracer_in_table_mm = np.array([mount.radius_mm * math.cos(az), mount.radius_mm * math.sin(az), mount.height_mm])
+        # state
+        self.commanded_rad = 0.0
+        self.actual_rad = 0.0
+        self.last_direction = +1
+        self.probe_target_mm = np.zeros(3)
+        self.truth = Truth()
+
+    # -- randomness: one stream per named consumer, so interleaving never changes a draw
+    def rng(self, name: str) -> np.random.Generator:
+        if name not in self._rngs:
+            key = int.from_bytes(name.encode(), "little") % (2**32)
+            self._rngs[name] = np.random.default_rng([self.seed, key])
+        return self._rngs[name]
+
+    # -- stage
+    def positioning_error_rad(self, commanded_rad, direction: int = +1):
+        """Systematic εz at the commanded angle (rad), with the reversal for a negative approach."""
+        value = evaluate(self._eps_z, commanded_rad)
+        if direction < 0:
+            value = value - arcsec_to_rad(self.scenario.stage.reversal_arcsec)
+        return value
+
+    def move_stage(self, commanded_rad: float, direction: int) -> float:
+        """Put the table at a commanded angle approached in ``direction``; returns the actual angle."""
+        noise = arcsec_to_rad(self.scenario.stage.repeatability_arcsec) * self.rng("stage").standard_normal()
+        self.commanded_rad = float(commanded_rad)
+        self.last_direction = +1 if direction >= 0 else -1
+        self.actual_rad = self.commanded_rad + float(self.positioning_error_rad(commanded_rad, self.last_direction)) + noise
+        self.truth.stage_moves.append(StageMove(self.commanded_rad, self.actual_rad, self.last_direction))
+        return self.actual_rad
+
+    def error_motions(self, commanded_rad: float) -> tuple[np.ndarray, float, float]:
+        """(δx, δy, δz) in mm and (εx, εy) in rad at the commanded angle."""
+        delta = np.array([evaluate(self._dx, commanded_rad), evaluate(self._dy, commanded_rad), evaluate(self._dz, commanded_rad)])
+        return delta, float(evaluate(self._ex, commanded_rad)), float(evaluate(self._ey, commanded_rad))
+
+    def table_point_in_axis_frame(self, p_table_mm: np.ndarray) -> np.ndarray:
+        """A table point in the housing frame (origin at the axis point, z along the axis)."""
+        delta, ex, ey = self.error_motions(self.commanded_rad)
+        c = self.tilt_center
+        rotated = rot_z(self.actual_rad) @ np.asarray(p_table_mm, dtype=float)
+        return c + delta + rot_y(ey) @ rot_x(ex) @ (rotated - c)
+
+    def table_point_in_cmm(self, p_table_mm: np.ndarray) -> np.ndarray:
+        return self.axis_point_mm + self.axis_rotation @ self.table_point_in_axis_frame(p_table_mm)
+
+    # -- CMM and tracer
+    def move_probe(self, target_mm: np.ndarray) -> None:
+        self.probe_target_mm = np.asarray(target_mm, dtype=float).copy()
+
+    def reflector_mm(self) -> np.ndarray:
+        """Where the cat-eye really is: the commanded target through the CMM's geometric errors."""
+        return self.cmm_matrix @ self.probe_target_mm
+
+    def tracer_center_mm(self) -> np.ndarray:
+        return self.table_point_in_cmm(self.tracer_in_table_mm)
+
+    def tracer_length_mm(self) -> float:
+        """True distance from the tracer's reference centre to the reflector."""
+        return float(np.linalg.norm(self.reflector_mm() - self.tracer_center_mm()))
+
+    # -- truth summaries
+    def tracer_truth_center_mm(self, actual_rad: float, commanded_rad: float) -> np.ndarray:
+        """Where the tracer centre is at a given stage state, without changing the state."""
+        saved = self.commanded_rad, self.actual_rad
+        self.commanded_rad, self.actual_rad = commanded_rad, actual_rad
+        try:
+            return self.tracer_center_mm()
+        finally:
+            self.commanded_rad, self.actual_rad = saved
