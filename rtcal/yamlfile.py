@@ -8,6 +8,7 @@ loader): a procedure file cannot execute code.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -53,6 +54,8 @@ def _field_name(path: Path_) -> str:
 
 def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file: str) -> Any:
     out[path] = (node.start_mark.line + 1, node.start_mark.column + 1)
+    if not node.tag.startswith("tag:yaml.org,2002:"):
+        raise FileProblems([Problem(file, *out[path], _field_name(path), f"YAML tag {node.tag!r} is not allowed: plain data only")])
     if isinstance(node, yaml.MappingNode):
         result: dict[Any, Any] = {}
         for key_node, value_node in node.value:
@@ -98,22 +101,27 @@ def locate(path: Path_, locations: dict[Path_, tuple[int, int]]) -> tuple[int, i
 
 
 def problems_from_validation(exc: ValidationError, locations: dict[Path_, tuple[int, int]], file: str) -> list[Problem]:
-    """Translate pydantic errors into located problems, dropping union-tag noise from paths."""
+    """Translate pydantic errors into located problems.
+
+    Union tags in pydantic's locations (e.g. ``grid`` of a discriminated union) are not keys
+    of the file and are dropped. A model-level check names its field by starting its message
+    with ``field.path: ``.
+    """
+    keys = {p for path in locations for p in path if isinstance(p, str)}
     problems = []
     for err in exc.errors(include_url=False):
-        data_path = tuple(p for p in err["loc"] if p in _keys_and_indices(locations) or isinstance(p, int))
-        line, col = locate(data_path, locations)
-        message = err["msg"]
-        if err["type"] == "extra_forbidden":
+        path = tuple(p for p in err["loc"] if isinstance(p, int) or p in keys)
+        message = str(err["msg"]).removeprefix("Value error, ")
+        named = re.match(r"^([A-Za-z_][\w.]*): (.*)$", message, re.S) if not path else None
+        if named:
+            path, message = tuple(named.group(1).split(".")), named.group(2)
+        elif err["type"] == "extra_forbidden":
             message = "unknown key (check the spelling; `rtcal schema` lists the keys)"
         elif err["type"] == "missing":
-            message = "required key is missing"
-        problems.append(Problem(file, line, col, _field_name(tuple(err["loc"])) if not data_path else _field_name(data_path), message))
+            message = "too few items" if path and isinstance(path[-1], int) else "required key is missing"
+        line, col = locate(path, locations)
+        problems.append(Problem(file, line, col, _field_name(path), message))
     return problems
-
-
-def _keys_and_indices(locations: dict[Path_, tuple[int, int]]) -> set[Any]:
-    return {p for path in locations for p in path}
 
 
 def validate_text(text: str, model: type[M], file: str, context: dict[str, Any] | None = None) -> M:

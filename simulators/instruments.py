@@ -60,6 +60,7 @@ class SimCmm(Cmm):
         sc = bench.scenario.cmm
         self.volume_min_mm, self.volume_max_mm = tuple(sc.volume_min_mm), tuple(sc.volume_max_mm)
         self._rng = bench.rng("cmm")
+        self._reading_error_mm = np.zeros(3)
 
     def home(self) -> None:
         self.bench.move_probe(np.zeros(3))
@@ -69,10 +70,11 @@ class SimCmm(Cmm):
         distance = float(np.linalg.norm(np.asarray(xyz_mm) - self.bench.probe_target_mm))
         self.bench.clock.sleep(distance / self.bench.scenario.cmm.speed_mm_per_s)
         self.bench.move_probe(xyz_mm)
+        self._reading_error_mm = um_to_mm(self.bench.scenario.cmm.point_noise_um) * self._rng.standard_normal(3)
 
     def position_mm(self) -> np.ndarray:
-        noise = um_to_mm(self.bench.scenario.cmm.point_noise_um) * self._rng.standard_normal(3)
-        return self.bench.probe_target_mm + noise
+        """The CMM's scales: the target plus this move's point error (fixed while at rest)."""
+        return self.bench.probe_target_mm + self._reading_error_mm
 
     def stop(self) -> None:
         pass

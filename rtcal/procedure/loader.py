@@ -23,7 +23,7 @@ def load_procedure(path: str | Path) -> Procedure:
     if not isinstance(data, dict):
         raise FileProblems([Problem(str(path), 1, 1, "(document)", "expected a mapping with a `method` key")])
     method = data.get("method")
-    if method not in PROCEDURE_MODELS:
+    if not isinstance(method, str) or method not in PROCEDURE_MODELS:
         line, col = locate(("method",), locations)
         known = ", ".join(sorted(PROCEDURE_MODELS))
         msg = "required key is missing" if method is None else f"unknown method {method!r}"

@@ -115,16 +115,16 @@ class LaserTracerMultistation(_Strict):
         pts = self.points_array()
         n, m = len(pts), self.stations.count
         if n < 16:
-            raise ValueError(f"the point plan has {n} points; eq. 2 needs n ≥ 16")
+            raise ValueError(f"points: the plan has {n} points; eq. 2 needs n ≥ 16")
         if m * n < 4 * m + 3 * n:
-            raise ValueError(f"m·n = {m * n} < 4m + 3n = {4 * m + 3 * n} (eq. 2): too few stations or points")
+            raise ValueError(f"points: m·n = {m * n} < 4m + 3n = {4 * m + 3 * n} (eq. 2): too few stations or points")
         centred = pts - pts.mean(axis=0)
         sv = np.linalg.svd(centred, compute_uv=False)
         if sv[-1] < 1e-6 * max(sv[0], 1e-12):
-            raise ValueError("the CMM points are coplanar or collinear: station height cannot be determined")
+            raise ValueError("points: the CMM points are coplanar or collinear: station height cannot be determined")
         span = abs(self.stations.step_deg) * (self.stations.count - 1)
         if span >= 360.0:
-            raise ValueError(f"stations span {span}° ≥ 360°: stations would repeat")
+            raise ValueError(f"stations: they span {span}° ≥ 360°: stations would repeat")
         return self
 
 

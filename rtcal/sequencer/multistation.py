@@ -57,19 +57,20 @@ def run_multistation(
     segment: int | None = None
     stored = 0
     for i, j in progress(iter(plan)):
-        moved = False
-        if at_station != j:
+        stage_moved = at_station != j
+        cmm_moved = at_point != i
+        if stage_moved:
             approach(inst.stage, float(angles[j]), direction, proc.stations.overshoot_deg)
-            at_station, moved = j, True
-        if at_point != i:
+            at_station = j
+        if cmm_moved:
             inst.cmm.move_to(points[i])
-            at_point, moved = i, True
-        if moved:
+            at_point = i
+        if stage_moved or cmm_moved:
             clock.sleep(proc.settle_time_s)
         readings: list[Reading] = []
         state = dict(point=i, station=j, commanded_angle_deg=float(angles[j]),
                      commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
-        if moved:
+        if cmm_moved:
             xyz = inst.cmm.position_mm()
             t = clock.now_s()
             readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
