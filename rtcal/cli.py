@@ -27,10 +27,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         outcome = run_procedure(args.procedure, args.scenario, args.seed, args.out)
     except FileExistsError as exc:
         raise UserError(str(exc)) from None
-    paper = outcome.results["estimates"]["paper"]
-    print(f"run complete: {outcome.results['raw_readings']} readings, "
-          f"σΔθ (eq. 34) = ±{paper['sigma_arcsec']:.2f}″")
-    print(f"deviation per station (arcsec): {', '.join(f'{v:+.2f}' for v in paper['deviation_arcsec'])}")
+    print(f"run complete: {outcome.results['raw_readings']} readings")
+    for name, est in outcome.results["estimates"].items():
+        devs = ", ".join(f"{v:+.2f}" for v in est["deviation_arcsec"])
+        worst = max(est["uncertainty_arcsec"])
+        print(f"{name}: deviation per station (arcsec) {devs}; 1σ ≤ {worst:.2f}″, σΔθ (eq. 34) = ±{est['sigma_arcsec']:.2f}″")
     print(f"results in {outcome.run_dir}/ (results.json, deviations.csv, deviation.png, report.md, run.sqlite)")
     return EXIT_OK
 

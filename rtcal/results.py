@@ -9,31 +9,49 @@ from typing import Any
 
 import numpy as np
 
-from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate
+from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate, StationChain
+from rtcal.solvers.shared_dead_path import SharedDeadPathEstimate
 
 
 def _round(values, digits: int = 6):
     return np.round(np.asarray(values, dtype=float), digits).tolist()
 
 
-def paper_estimate_dict(est: PaperEstimate) -> dict[str, Any]:
-    """The ``estimates.paper`` block: eq. 33 deviations, eq. 34 σ, eq. 36 error, and the chain."""
-    ch = est.chain
+def chain_dict(ch: StationChain, uncertainty_arcsec: np.ndarray) -> dict[str, Any]:
+    """What every station-based estimator reports: eq. 33 deviations, eq. 34 σ, eq. 36, the chain."""
     dev = np.asarray(ch.deviation_arcsec)
     return {
         "deviation_arcsec": _round(dev, 4),
         "cumulative_deviation_arcsec": _round(np.concatenate([[0.0], np.cumsum(dev)]), 4),
-        "uncertainty_arcsec": _round(est.uncertainty_arcsec, 4),
+        "uncertainty_arcsec": _round(uncertainty_arcsec, 4),
         "sigma_arcsec": round(float(ch.sigma_arcsec), 4),
         "algorithm_error_arcsec": float(ch.algorithm_error_arcsec),
+        "plane": {"a": ch.plane.a, "b": ch.plane.b, "c": ch.plane.c, "e": ch.plane.e},
+        "projected_stations_mm": [_round(p) for p in ch.projected_mm],
+        "center_mm": _round(ch.center_mm),
+    }
+
+
+def paper_estimate_dict(est: PaperEstimate) -> dict[str, Any]:
+    """The ``estimates.paper`` block: the printed method, station by station."""
+    return {
+        **chain_dict(est.chain, est.uncertainty_arcsec),
         "stations_mm": [_round([*f.center_mm, f.dead_path_mm]) for f in est.stations],
         "station_rms_residual_um": _round([f.rms_residual_um for f in est.stations], 4),
         "station_iterations": [f.iterations for f in est.stations],
         "converged": all(f.converged for f in est.stations),
-        "plane": {"a": ch.plane.a, "b": ch.plane.b, "c": ch.plane.c, "e": ch.plane.e},
-        "projected_stations_mm": [_round(p) for p in ch.projected_mm],
-        "center_mm": _round(ch.center_mm),
         "notes": list(PAPER_NOTES),
+    }
+
+
+def shared_dead_path_dict(est: SharedDeadPathEstimate) -> dict[str, Any]:
+    """The ``estimates.shared_dead_path`` block: all stations jointly, one dead path per segment."""
+    return {
+        **chain_dict(est.chain, est.uncertainty_arcsec),
+        "stations_mm": [_round(c) for c in est.centers_mm],
+        "dead_paths_mm": {str(int(s)): round(float(d), 6) for s, d in zip(est.segment_ids, est.dead_paths_mm)},
+        "rms_residual_um": round(est.rms_residual_um, 4),
+        "converged": est.converged,
     }
 
 

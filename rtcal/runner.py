@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime as _dt
-import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,10 +18,11 @@ from rtcal.instruments import multistation_instruments
 from rtcal.procedure.loader import load_procedure, load_scenario
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.report import plot_deviation, write_report
-from rtcal.results import paper_estimate_dict, write_deviation_csv, write_results
+from rtcal.results import paper_estimate_dict, shared_dead_path_dict, write_deviation_csv, write_results
 from rtcal.sequencer.multistation import planned_readings, run_multistation
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.paper000 import solve_paper
+from rtcal.solvers.shared_dead_path import solve_shared_dead_path
 from rtcal.store import RunStore
 from simulators.bench import Bench
 from simulators.scenario import Scenario
@@ -98,9 +98,9 @@ def run_procedure(
 
     angles = proc.stations.angles_deg()
     data = multistation_data(store, angles, len(proc.points_array()))
-    estimate = solve_paper(data.points_mm, data.lengths_mm, np.deg2rad(angles),
-                           np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm),
-                           lm_parameters(proc))
+    guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
+    estimate = solve_paper(data.points_mm, data.lengths_mm, np.deg2rad(angles), guess, axis, lm_parameters(proc))
+    shared = solve_shared_dead_path(data.points_mm, data.lengths_mm, data.segments, np.deg2rad(angles), guess, axis)
     direction = 1 if proc.stations.approach == "positive" else -1
     results: dict[str, Any] = {
         "rtcal_version": __version__,
@@ -110,7 +110,7 @@ def run_procedure(
         "nominal_angles_deg": [float(a) for a in angles],
         "raw_readings": data.raw_readings,
         "virtual_duration_s": round(clock.now_s(), 1),
-        "estimates": {"paper": paper_estimate_dict(estimate)},
+        "estimates": {"paper": paper_estimate_dict(estimate), "shared_dead_path": shared_dead_path_dict(shared)},
         "truth": station_truth(bench, angles, direction),
         "events": store.events(),
     }

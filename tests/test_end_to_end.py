@@ -40,10 +40,11 @@ def test_results_contract(noise_free_run):
     assert r["raw_readings"] == 704
 
 
-def test_noise_free_run_recovers_injected_deviations(noise_free_run):
-    """No noise anywhere, εz + reversal + a 22″ axis tilt: the printed chain is exact to 0.01″."""
+@pytest.mark.parametrize("estimator", ["paper", "shared_dead_path"])
+def test_noise_free_run_recovers_injected_deviations(noise_free_run, estimator):
+    """No noise anywhere, εz + reversal + a 22″ axis tilt: every estimator is exact to 0.01″."""
     r = json.loads((noise_free_run / "results.json").read_text())
-    err = np.array(r["estimates"]["paper"]["deviation_arcsec"]) - np.array(r["truth"]["deviation_arcsec"])
+    err = np.array(r["estimates"][estimator]["deviation_arcsec"]) - np.array(r["truth"]["deviation_arcsec"])
     assert np.max(np.abs(err)) < 0.01
 
 
@@ -61,7 +62,8 @@ def test_store_keeps_every_raw_reading_with_its_state(noise_free_run):
     assert nulls == 0
 
 
-def test_paper_bench_noisy_run_error_is_within_its_uncertainty(tmp_path):
+@pytest.mark.parametrize("estimator", ["paper", "shared_dead_path"])
+def test_paper_bench_noisy_run_error_is_within_its_uncertainty(tmp_path, estimator):
     """The shipped paper-like bench (0.2 µm + 0.3 ppm length noise, 0.3 µm CMM point noise, error
     motions, repeatability 0.2″). Each deviation's error must lie within 3.5σ of the reported
     uncertainty (per-deviation 3.5σ: about 1 in 2000 by chance), and the RMS error within a
@@ -69,9 +71,9 @@ def test_paper_bench_noisy_run_error_is_within_its_uncertainty(tmp_path):
     out = tmp_path / "paper"
     assert main(["run", str(PROCEDURE), "--out", str(out)]) == 0
     r = json.loads((out / "results.json").read_text())
-    paper = r["estimates"]["paper"]
-    err = np.array(paper["deviation_arcsec"]) - np.array(r["truth"]["realized_deviation_arcsec"])
-    unc = np.array(paper["uncertainty_arcsec"])
+    est = r["estimates"][estimator]
+    err = np.array(est["deviation_arcsec"]) - np.array(r["truth"]["realized_deviation_arcsec"])
+    unc = np.array(est["uncertainty_arcsec"])
     assert np.all(np.abs(err) < 3.5 * unc), (err, unc)
     ratio = np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(unc**2))
     assert 0.3 < ratio < 2.5

@@ -79,13 +79,20 @@ def chain_from_stations(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray)
     return StationChain(plane, projected, lam, center, steps, deviation, sigma, alg)
 
 
-def deviation_uncertainty(
-    stations_mm: np.ndarray, station_cov_mm2: list[np.ndarray], nominal_angles_rad: np.ndarray
-) -> np.ndarray:
-    """1σ of each deviation (arcsec): station covariances propagated through the chain.
+def block_covariance(station_cov_mm2: list[np.ndarray]) -> np.ndarray:
+    """3m×3m covariance of independent stations from their (X, Y, Z, …) covariances."""
+    m = len(station_cov_mm2)
+    cov = np.zeros((3 * m, 3 * m))
+    for j, c in enumerate(station_cov_mm2):
+        cov[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] = c[:3, :3]
+    return cov
+
+
+def deviation_uncertainty(stations_mm: np.ndarray, cov_mm2: np.ndarray, nominal_angles_rad: np.ndarray) -> np.ndarray:
+    """1σ of each deviation (arcsec): the 3m×3m station covariance propagated through the chain.
 
     The chain's Jacobian is taken by central differences (0.1 µm steps, far inside its linear
-    range); stations are independent in the per-station model.
+    range).
     """
     base = np.asarray(stations_mm, dtype=float)
     m = base.shape[0]
@@ -99,10 +106,7 @@ def deviation_uncertainty(
             chain_from_stations(plus, nominal_angles_rad).deviation_arcsec
             - chain_from_stations(minus, nominal_angles_rad).deviation_arcsec
         ) / (2 * h)
-    cov = np.zeros((3 * m, 3 * m))
-    for j, c in enumerate(station_cov_mm2):
-        cov[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] = c[:3, :3]
-    return np.sqrt(np.clip(np.diag(jac @ cov @ jac.T), 0.0, None))
+    return np.sqrt(np.clip(np.diag(jac @ cov_mm2 @ jac.T), 0.0, None))
 
 
 def solve_paper(
@@ -125,5 +129,5 @@ def solve_paper(
     fits = [solve_station(points_mm, lengths_mm[:, j], guesses[j], params) for j in range(m)]
     centers = np.array([f.center_mm for f in fits])
     chain = chain_from_stations(centers, nominal_angles_rad)
-    unc = deviation_uncertainty(centers, [f.covariance_mm2 for f in fits], nominal_angles_rad)
+    unc = deviation_uncertainty(centers, block_covariance([f.covariance_mm2 for f in fits]), nominal_angles_rad)
     return PaperEstimate(fits, chain, unc)
