@@ -38,17 +38,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_validate(args: argparse.Namespace) -> int:
     from rtcal.procedure.loader import is_procedure_text, load_procedure, load_scenario
+    from rtcal.yamlfile import read_text
 
     problems = []
     for name in args.files:
         path = Path(name)
         try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            problems.append(f"{path}:1:1: (file): cannot read: {exc}")
-            continue
-        try:
-            if is_procedure_text(text):
+            if is_procedure_text(read_text(path)):
                 proc = load_procedure(path)
                 if proc.bench is not None:
                     load_scenario(path.parent / proc.bench)

@@ -135,11 +135,14 @@ def validate_text(text: str, model: type[M], file: str, context: dict[str, Any] 
         raise FileProblems(problems_from_validation(exc, locations, file)) from None
 
 
-def validate_file(path: str | Path, model: type[M], context: dict[str, Any] | None = None) -> M:
-    """Read and validate a YAML file; unreadable files are a located problem too."""
-    path = Path(path)
+def read_text(path: str | Path) -> str:
+    """A user's file as text; unreadable files are a located problem too."""
     try:
-        text = path.read_text(encoding="utf-8")
+        return Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise FileProblems([Problem(str(path), 1, 1, "(file)", f"cannot read: {exc}")]) from None
-    return validate_text(text, model, str(path), context)
+
+
+def validate_file(path: str | Path, model: type[M], context: dict[str, Any] | None = None) -> M:
+    """Read and validate a YAML file."""
+    return validate_text(read_text(path), model, str(path), context)

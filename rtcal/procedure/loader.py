@@ -8,17 +8,14 @@ from pathlib import Path
 from pydantic import TypeAdapter
 
 from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
-from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, validate_text
+from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, read_text, validate_file, validate_text
 from simulators.scenario import Scenario
 
 
 def load_procedure(path: str | Path) -> Procedure:
     """Validate a procedure file; raises :class:`FileProblems` naming file, line and field."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FileProblems([Problem(str(path), 1, 1, "(file)", f"cannot read: {exc}")]) from None
+    text = read_text(path)
     data, locations = load_yaml(text, str(path))
     if not isinstance(data, dict):
         raise FileProblems([Problem(str(path), 1, 1, "(document)", "expected a mapping with a `method` key")])
@@ -33,12 +30,7 @@ def load_procedure(path: str | Path) -> Procedure:
 
 def load_scenario(path: str | Path) -> Scenario:
     """Validate a bench scenario file."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FileProblems([Problem(str(path), 1, 1, "(file)", f"cannot read: {exc}")]) from None
-    return validate_text(text, Scenario, str(path))
+    return validate_file(path, Scenario)
 
 
 def is_procedure_text(text: str) -> bool:
