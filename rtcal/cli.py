@@ -21,18 +21,17 @@ class UserError(Exception):
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from rtcal.runner import run_procedure
+    from rtcal.runner import METHODS, run_procedure
 
     try:
         outcome = run_procedure(args.procedure, args.scenario, args.seed, args.out)
     except FileExistsError as exc:
         raise UserError(str(exc)) from None
-    print(f"run complete: {outcome.results['raw_readings']} readings")
-    for name, est in outcome.results["estimates"].items():
-        devs = ", ".join(f"{v:+.2f}" for v in est["deviation_arcsec"])
-        worst = max(est["uncertainty_arcsec"])
-        print(f"{name}: deviation per station (arcsec) {devs}; 1σ ≤ {worst:.2f}″, σΔθ (eq. 34) = ±{est['sigma_arcsec']:.2f}″")
-    print(f"results in {outcome.run_dir}/ (results.json, deviations.csv, deviation.png, report.md, run.sqlite)")
+    print(f"run complete: {outcome.results['raw_readings']} readings stored")
+    for line in METHODS[outcome.results["method"]].summary(outcome.results):
+        print(line)
+    files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith("run.sqlite-")))
+    print(f"results in {outcome.run_dir}/ ({files})")
     return EXIT_OK
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rtcal.solvers.abbe import AbbeVisits
 from rtcal.store import RunStore
 
 
@@ -40,3 +41,28 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         raise ValueError(f"the run is incomplete: {missing} of {n_points * m} planned lengths are missing")
     return MultistationData(pos_sum / pos_count, len_sum / len_count, segments,
                             np.asarray(nominal_angles_deg, float), int(np.sum(len_count > 0)))
+
+
+def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:
+    """One row per stage visit (seating, run, direction, step), samples averaged per instrument."""
+    sums: dict[tuple, dict[str, list[float]]] = {}
+    commanded: dict[tuple, float] = {}
+    for r in store.readings():
+        key = (r.seating, r.run, r.direction, r.station)
+        commanded[key] = r.commanded_angle_deg
+        sums.setdefault(key, {}).setdefault(f"{r.instrument}.{r.quantity}", []).append(r.value)
+    keys = list(sums)
+
+    def column(name: str) -> np.ndarray:
+        return np.array([np.mean(sums[k][name]) if name in sums[k] else np.nan for k in keys])
+
+    return AbbeVisits(
+        commanded_deg=np.array([commanded[k] for k in keys]),
+        seating_deg=np.array([seatings_deg[k[0]] for k in keys]),
+        seating_index=np.array([k[0] for k in keys]),
+        direction=np.array([k[2] for k in keys]),
+        encoder_deg=column("encoder.angle_deg"),
+        autocollimator_arcsec=column("autocollimator.x_arcsec"),
+        indicator1_um=column("dial_indicator_1.y_um"),
+        indicator2_um=column("dial_indicator_2.y_um"),
+    )

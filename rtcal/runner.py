@@ -1,4 +1,8 @@
-"""A run end to end: procedure → instruments → sequencer → store → dataset → solvers → results."""
+"""A run end to end: procedure → instruments → sequencer → store → dataset → solvers → results.
+
+The method modules (:mod:`rtcal.methods`) hold what differs between methods; this module holds
+what every run shares: the run directory, the store's metadata, the bench, the progress bar.
+"""
 
 from __future__ import annotations
 
@@ -6,27 +10,23 @@ import datetime as _dt
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
-import numpy as np
 from tqdm import tqdm
 
 from rtcal import __version__
 from rtcal.clock import VirtualClock
-from rtcal.dataset import multistation_data
-from rtcal.instruments import multistation_instruments
+from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import load_procedure, load_scenario
-from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.report import plot_deviation, write_report
-from rtcal.results import paper_estimate_dict, shared_dead_path_dict, write_deviation_csv, write_results
-from rtcal.sequencer.multistation import planned_readings, run_multistation
-from rtcal.solvers.lm import LMParameters
-from rtcal.solvers.paper000 import solve_paper
-from rtcal.solvers.shared_dead_path import solve_shared_dead_path
+from rtcal.procedure.models import Procedure
+from rtcal.report import write_report, write_results
 from rtcal.store import RunStore
+from rtcal.yamlfile import read_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
-from simulators.truth import station_truth
+
+METHODS: dict[str, ModuleType] = {"laser_tracer_multistation": multistation, "encoder_abbe_error": abbe}
 
 
 @dataclass(frozen=True)
@@ -40,19 +40,17 @@ def default_run_dir(method: str) -> Path:
     return Path("runs") / f"{stamp}-{method}"
 
 
-def lm_parameters(proc: LaserTracerMultistation) -> LMParameters:
-    lm = proc.solver.lm
-    return LMParameters(beta=lm.beta, sigma=lm.sigma, epsilon=lm.epsilon,
-                        mu0=None if lm.mu0 == "residual_norm" else float(lm.mu0), max_iterations=lm.max_iterations)
-
-
-def resolve_scenario(procedure_path: Path, proc: LaserTracerMultistation, scenario_path: Path | None) -> tuple[Scenario, str]:
+def resolve_scenario(procedure_path: Path, proc: Procedure, scenario_path: Path | None) -> tuple[Scenario, str]:
     """The bench: ``--scenario`` if given, else the procedure's ``bench`` (relative to it), else ideal."""
     if scenario_path is None and proc.bench is not None:
-        scenario_path = (procedure_path.parent / proc.bench)
+        scenario_path = procedure_path.parent / proc.bench
     if scenario_path is None:
         return Scenario(), ""
-    return load_scenario(scenario_path), Path(scenario_path).read_text(encoding="utf-8")
+    return load_scenario(scenario_path), read_text(scenario_path)
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat()
 
 
 def run_procedure(
@@ -65,59 +63,41 @@ def run_procedure(
     """Run a procedure on the simulated bench and write the run directory. Raises FileProblems on bad input."""
     procedure_path = Path(procedure_path)
     proc = load_procedure(procedure_path)
+    method = METHODS[proc.method]
     scenario, scenario_text = resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)
     seed = scenario.seed if seed is None else int(seed)
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
     store = RunStore.create(run_dir, {
-        "method": proc.method,
-        "procedure_path": str(procedure_path),
-        "procedure_yaml": procedure_path.read_text(encoding="utf-8"),
-        "scenario_yaml": scenario_text,
-        "seed": str(seed),
-        "software_version": __version__,
-        "started_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(),
-        "status": "running",
+        "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": read_text(procedure_path),
+        "scenario_yaml": scenario_text, "seed": str(seed), "software_version": __version__,
+        "started_utc": _now(), "status": "running",
     })
-    clock = VirtualClock()
-    bench = Bench(scenario, clock, seed)
-    inst = multistation_instruments(proc, bench)
-    plan_len = len(planned_readings(proc))
+    bench = Bench(scenario, VirtualClock(), seed)
     disable = (not sys.stderr.isatty()) if show_progress is None else not show_progress
 
     def progress(it):
-        return tqdm(it, total=plan_len, desc="readings", unit="rd", disable=disable, file=sys.stderr)
+        return tqdm(it, total=method.plan_length(proc), desc="readings", unit="rd", disable=disable, file=sys.stderr)
 
     try:
-        run_multistation(proc, inst, store, clock, progress)
+        method.measure(proc, bench, store, progress)
     except BaseException as exc:
         store.set_meta({"status": "interrupted", "error": repr(exc)})
         store.close()
         raise
-    store.set_meta({"status": "measured", "finished_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(),
-                    "virtual_duration_s": f"{clock.now_s():.1f}"})
+    store.set_meta({"status": "measured", "finished_utc": _now(), "virtual_duration_s": f"{bench.clock.now_s():.1f}"})
 
-    angles = proc.stations.angles_deg()
-    data = multistation_data(store, angles, len(proc.points_array()))
-    guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
-    estimate = solve_paper(data.points_mm, data.lengths_mm, np.deg2rad(angles), guess, axis, lm_parameters(proc))
-    shared = solve_shared_dead_path(data.points_mm, data.lengths_mm, data.segments, np.deg2rad(angles), guess, axis)
-    direction = 1 if proc.stations.approach == "positive" else -1
     results: dict[str, Any] = {
         "rtcal_version": __version__,
         "method": proc.method,
         "procedure": {"name": proc.name, "path": str(procedure_path)},
         "seed": seed,
-        "nominal_angles_deg": [float(a) for a in angles],
-        "raw_readings": data.raw_readings,
-        "virtual_duration_s": round(clock.now_s(), 1),
-        "estimates": {"paper": paper_estimate_dict(estimate), "shared_dead_path": shared_dead_path_dict(shared)},
-        "truth": station_truth(bench, angles, direction),
+        "virtual_duration_s": round(bench.clock.now_s(), 1),
+        **method.analyse(proc, store, bench),
         "events": store.events(),
     }
     store.set_meta({"status": "solved"})
     store.close()
     write_results(run_dir, results)
-    write_deviation_csv(run_dir, results)
-    plot_deviation(run_dir, results)
-    write_report(run_dir, results)
+    method.write_files(run_dir, results)
+    write_report(run_dir, results, method.report_body(results))
     return RunOutcome(run_dir, results)

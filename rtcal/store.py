@@ -29,7 +29,10 @@ CREATE TABLE IF NOT EXISTS readings (
     commanded_angle_deg REAL,
     commanded_x_mm REAL,
     commanded_y_mm REAL,
-    commanded_z_mm REAL
+    commanded_z_mm REAL,
+    seating INTEGER,
+    run INTEGER,
+    direction INTEGER
 );
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY,
@@ -42,7 +45,7 @@ CREATE TABLE IF NOT EXISTS events (
 
 READING_COLUMNS = (
     "t_s", "instrument", "quantity", "value", "unit", "point", "station", "sample", "segment",
-    "commanded_angle_deg", "commanded_x_mm", "commanded_y_mm", "commanded_z_mm",
+    "commanded_angle_deg", "commanded_x_mm", "commanded_y_mm", "commanded_z_mm", "seating", "run", "direction",
 )
 
 
@@ -63,6 +66,9 @@ class Reading:
     commanded_x_mm: float | None = None
     commanded_y_mm: float | None = None
     commanded_z_mm: float | None = None
+    seating: int | None = None
+    run: int | None = None
+    direction: int | None = None
 
 
 class RunStore:

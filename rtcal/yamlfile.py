@@ -112,9 +112,9 @@ def problems_from_validation(exc: ValidationError, locations: dict[Path_, tuple[
     for err in exc.errors(include_url=False):
         path = tuple(p for p in err["loc"] if isinstance(p, int) or p in keys)
         message = str(err["msg"]).removeprefix("Value error, ")
-        named = re.match(r"^([A-Za-z_][\w.]*): (.*)$", message, re.S) if not path else None
+        named = re.match(r"^([A-Za-z_][\w.]*): (.*)$", message, re.S) if err["type"] == "value_error" else None
         if named:
-            path, message = tuple(named.group(1).split(".")), named.group(2)
+            path, message = path + tuple(named.group(1).split(".")), named.group(2)
         elif err["type"] == "extra_forbidden":
             message = "unknown key (check the spelling; `rtcal schema` lists the keys)"
         elif err["type"] == "missing":

@@ -15,7 +15,9 @@ axis, δ = (δx, δy, δz) and εx, εy the error motions (see :mod:`simulators.
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Iterator
 
 import numpy as np
 
@@ -87,6 +89,16 @@ class Bench:
         mount = scenario.laser_tracer.mount
         az = math.radians(mount.azimuth_deg)
         self.tracer_in_table_mm = np.array([mount.radius_mm * math.cos(az), mount.radius_mm * math.sin(az), mount.height_mm])
+        enc = scenario.encoder
+        self._graduation = [h.to_rad() for h in enc.graduation_error]
+        poly = scenario.polygon
+        errors = np.array(poly.face_errors_arcsec or [0.0] * poly.faces, dtype=float)
+        self.face_errors_arcsec = errors - errors.mean()  # a polygon closes: Σ = 0
+        self.face_certificate_arcsec = self.face_errors_arcsec + poly.certificate_uncertainty_arcsec * self.rng("certificate").standard_normal(poly.faces)
+        self.polygon_pitch_rad = 2 * math.pi / poly.faces
+        self.polygon_rotation_rad = 0.0
+        st_ = scenario.stepper
+        self.step_rad = 2 * math.pi / (st_.steps_per_revolution * st_.worm_ratio) if st_.steps_per_revolution else 0.0
         # state
         self.commanded_rad = 0.0
         self.actual_rad = 0.0
@@ -109,10 +121,14 @@ class Bench:
             value = value - arcsec_to_rad(self.scenario.stage.reversal_arcsec)
         return value
 
+    def quantise_command(self, commanded_rad: float) -> float:
+        """The angle an open-loop stepper really commands: a whole number of steps."""
+        return round(commanded_rad / self.step_rad) * self.step_rad if self.step_rad else float(commanded_rad)
+
     def move_stage(self, commanded_rad: float, direction: int) -> float:
         """Put the table at a commanded angle approached in ``direction``; returns the actual angle."""
         noise = arcsec_to_rad(self.scenario.stage.repeatability_arcsec) * self.rng("stage").standard_normal()
-        self.commanded_rad = float(commanded_rad)
+        self.commanded_rad = self.quantise_command(commanded_rad)
         self.last_direction = +1 if direction >= 0 else -1
         self.actual_rad = self.commanded_rad + float(self.positioning_error_rad(commanded_rad, self.last_direction)) + noise
         self.truth.stage_moves.append(StageMove(self.commanded_rad, self.actual_rad, self.last_direction))
@@ -148,12 +164,46 @@ class Bench:
         """True distance from the tracer's reference centre to the reflector."""
         return float(np.linalg.norm(self.reflector_mm() - self.tracer_center_mm()))
 
+    # -- shaft, encoder, polygon (seed 001)
+    def shaft_y_mm(self, below_tilt_center_mm: float) -> float:
+        """Y displacement of the shaft at a height below the tilt centre: δy + εx·below."""
+        delta, ex, _ = self.error_motions(self.commanded_rad)
+        return float(delta[1] + ex * below_tilt_center_mm)
+
+    def grating_shift_mm(self) -> float:
+        """Tangential (Y) shift of the grating under the read head: δy + Zs·εx + eccentricity."""
+        enc = self.scenario.encoder
+        ecc = um_to_mm(enc.eccentricity_um) * math.sin(self.actual_rad + math.radians(enc.eccentricity_phase_deg))
+        return self.shaft_y_mm(enc.grating_offset_mm) + ecc
+
+    def encoder_true_rad(self) -> float:
+        """What a noise-free encoder reads: actual angle + Abbe shift/rE + graduation error."""
+        return self.actual_rad + self.encoder_error_rad()
+
+    def encoder_error_rad(self) -> float:
+        shift = self.grating_shift_mm() / self.scenario.encoder.radius_mm
+        return float(shift + evaluate(self._graduation, self.actual_rad))
+
+    def reseat_polygon(self, offset_deg: float) -> None:
+        """The operator turns the polygon on the table so faces come in front at offset + k·pitch."""
+        err = arcsec_to_rad(self.scenario.polygon.seating_error_arcsec) * self.rng("seating").standard_normal()
+        self.polygon_rotation_rad = math.radians(offset_deg) + err
+
+    def autocollimator_true(self) -> tuple[float, int]:
+        """(deflection about the axis, rad; index of the face in front) for a noise-free autocollimator."""
+        rel = self.actual_rad - self.polygon_rotation_rad
+        k = round(rel / self.polygon_pitch_rad)
+        face = k % self.scenario.polygon.faces
+        x = rel - k * self.polygon_pitch_rad + arcsec_to_rad(self.face_errors_arcsec[face])
+        return float(x), int(face)
+
     # -- truth summaries
-    def tracer_truth_center_mm(self, actual_rad: float, commanded_rad: float) -> np.ndarray:
-        """Where the tracer centre is at a given stage state, without changing the state."""
+    @contextmanager
+    def stage_state(self, commanded_rad: float, actual_rad: float) -> Iterator[None]:
+        """Evaluate physics at another stage state, restoring the present one afterwards."""
         saved = self.commanded_rad, self.actual_rad
         self.commanded_rad, self.actual_rad = commanded_rad, actual_rad
         try:
-            return self.tracer_center_mm()
+            yield
         finally:
             self.commanded_rad, self.actual_rad = saved

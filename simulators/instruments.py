@@ -19,6 +19,7 @@ from drivers.interfaces import (
     LengthReading,
     RotaryStage,
 )
+from drivers.errors import InstrumentFault
 from rtcal.units import rad_to_arcsec, um_to_mm
 from simulators.bench import Bench
 
@@ -106,20 +107,22 @@ class SimLaserTracer(LaserTracer):
 
 
 class SimEncoder(Encoder):
-    """An ideal encoder on the axis (the seed-001 work adds the Abbe shift of its grating)."""
+    """The encoder below the tilt centre: reads the Abbe-shifted grating (seed 001)."""
 
     name = "encoder"
 
     def __init__(self, bench: Bench):
         self.bench = bench
+        self._rng = bench.rng("encoder")
 
     def read_angle_deg(self) -> float:
-        step = self.bench.scenario.encoder.resolution_arcsec / 3600.0
-        return _quantise(math.degrees(self.bench.actual_rad), step)
+        enc = self.bench.scenario.encoder
+        value = rad_to_arcsec(self.bench.encoder_true_rad()) + enc.noise_arcsec * self._rng.standard_normal()
+        return _quantise(value, enc.resolution_arcsec) / 3600.0
 
 
 class SimAutocollimator(Autocollimator):
-    """Reads the polygon face nearest its axis: x = actual − nominal face angle, arcsec."""
+    """Reads the polygon face in front of it: x about the table axis, arcsec."""
 
     name = "autocollimator"
 
@@ -128,23 +131,24 @@ class SimAutocollimator(Autocollimator):
         self._rng = bench.rng("autocollimator")
 
     def read_arcsec(self) -> tuple[float, float]:
-        pitch = 2 * math.pi / self.bench.scenario.polygon.faces
-        angle = self.bench.actual_rad
-        x = rad_to_arcsec(angle - round(angle / pitch) * pitch)
-        x += self.bench.scenario.autocollimator.noise_arcsec * self._rng.standard_normal()
-        return float(x), 0.0
+        ac = self.bench.scenario.autocollimator
+        x_rad, _ = self.bench.autocollimator_true()
+        x = rad_to_arcsec(x_rad) + ac.noise_arcsec * self._rng.standard_normal()
+        if abs(x) > ac.range_arcsec:
+            raise InstrumentFault(self.name, f"no polygon face within ±{ac.range_arcsec:g}″ (deflection {x:.0f}″)")
+        return float(_quantise(x, ac.resolution_arcsec)), 0.0
 
 
 class SimDialIndicator(DialIndicator):
-    """Radial (Y) displacement of the shaft at a height below the tilt centre, µm."""
+    """Y displacement of the shaft at a height below the tilt centre, µm."""
 
     def __init__(self, bench: Bench, index: int):
         self.bench = bench
         self.index = index
         self.name = f"dial_indicator_{index + 1}"
+        self._rng = bench.rng(self.name)
 
     def read_um(self) -> float:
-        delta, ex, _ = self.bench.error_motions(self.bench.commanded_rad)
-        below = self.bench.scenario.dial_indicators.heights_mm[self.index]
-        y_mm = delta[1] + ex * below  # εx about X moves a point below the centre by +εx·below in Y
-        return _quantise(y_mm * 1e3, self.bench.scenario.dial_indicators.resolution_um)
+        di = self.bench.scenario.dial_indicators
+        y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + di.noise_um * self._rng.standard_normal()
+        return _quantise(y_um, di.resolution_um)

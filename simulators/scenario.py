@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rtcal.harmonics import Harmonic
 from rtcal.units import arcsec_to_rad, um_to_mm
@@ -99,26 +99,63 @@ class LaserTracerScenario(_Strict):
     length_noise_ppm: float = Field(0.0, ge=0.0)  # µm per m of length
 
 
-class EncoderScenario(_Strict):
-    """The rotary encoder (completed by the seed-001 work): read-head radius and resolution."""
+class StepperScenario(_Strict):
+    """Open-loop stepper through a worm: commanded angles are whole (micro)steps."""
 
-    radius_mm: float = Field(32.0, gt=0.0)
+    steps_per_revolution: int = Field(0, ge=0)  # motor (micro)steps per motor turn; 0 = continuous
+    worm_ratio: float = Field(1.0, gt=0.0)  # motor turns per table turn
+
+
+class EncoderScenario(_Strict):
+    """The rotary encoder below the tilt centre (seed 001).
+
+    The read head sits at radius rE on +X of the housing; the grating plane lies Zs below the
+    tilt centre. A tangential (Y) shift Δt of the grating under the head reads as an extra
+    angle Δt/rE: Δt = δy + Zs·εx + e·sin(θ + ψ) for grating eccentricity e at phase ψ.
+    """
+
+    radius_mm: float = Field(32.0, gt=0.0)  # rE
     grating_offset_mm: float = 0.0  # Zs, grating plane below the tilt centre
+    eccentricity_um: float = Field(0.0, ge=0.0)
+    eccentricity_phase_deg: float = 0.0
+    graduation_error: list[AngularHarmonic] = []  # of the grating angle
     resolution_arcsec: float = Field(0.0, ge=0.0)
+    noise_arcsec: float = Field(0.0, ge=0.0)
 
 
 class AutocollimatorScenario(_Strict):
+    """Reads the polygon face in front of it; ``range_arcsec`` either side of its axis."""
+
     noise_arcsec: float = Field(0.0, ge=0.0)
+    resolution_arcsec: float = Field(0.0, ge=0.0)
     range_arcsec: float = Field(150.0, gt=0.0)
 
 
 class PolygonScenario(_Strict):
-    faces: int = Field(24, ge=3)
+    """An optical polygon on the table. Face k is in front of the autocollimator at table angle
+    k·360°/faces (seated at offset 0). ``face_errors_arcsec``: each face normal's deviation,
+    positive counterclockwise; their mean is removed, since a polygon closes (Σ = 0).
+    Its certificate is the truth plus noise of ``certificate_uncertainty_arcsec``; each
+    re-seating lands within ``seating_error_arcsec`` (1σ) of the nominal offset."""
+
+    faces: int = Field(24, ge=3, le=360)
+    face_errors_arcsec: list[float] = []
+    certificate_uncertainty_arcsec: float = Field(0.0, ge=0.0)
+    seating_error_arcsec: float = Field(0.0, ge=0.0)
+
+    @model_validator(mode="after")
+    def _one_error_per_face(self) -> "PolygonScenario":
+        if self.face_errors_arcsec and len(self.face_errors_arcsec) != self.faces:
+            raise ValueError(f"face_errors_arcsec: {len(self.face_errors_arcsec)} values for {self.faces} faces")
+        return self
 
 
 class DialIndicatorScenario(_Strict):
+    """Two indicators touching the shaft in Y (the grating's tangential direction at the head)."""
+
     heights_mm: tuple[float, float] = (50.0, 70.0)  # L1, L2 below the tilt centre
     resolution_um: float = Field(0.0, ge=0.0)
+    noise_um: float = Field(0.0, ge=0.0)
 
 
 class Scenario(_Strict):
@@ -132,3 +169,4 @@ class Scenario(_Strict):
     autocollimator: AutocollimatorScenario = AutocollimatorScenario()
     polygon: PolygonScenario = PolygonScenario()
     dial_indicators: DialIndicatorScenario = DialIndicatorScenario()
+    stepper: StepperScenario = StepperScenario()

@@ -30,3 +30,20 @@ def station_truth(bench: Bench, angles_deg: np.ndarray, direction: int) -> dict:
         "realized_deviation_arcsec": rad_to_arcsec(np.abs(np.diff(realized)) - nominal_step).tolist(),
         "positioning_error_arcsec": rad_to_arcsec(systematic - cmd).tolist(),
     }
+
+
+def abbe_truth(bench: Bench, angles_deg: np.ndarray, directions: np.ndarray) -> dict:
+    """Per step (commanded angle, direction): the systematic encoder error and εz, arcsec.
+
+    The encoder error is what a noise-free encoder misreads at the step's systematic actual
+    angle: Abbe shift/rE, eccentricity and graduation. Also the polygon's true face errors.
+    """
+    enc, eps = [], []
+    for a, d in zip(angles_deg, directions):
+        cmd = bench.quantise_command(math.radians(a))
+        e = float(bench.positioning_error_rad(cmd, int(d)))
+        with bench.stage_state(cmd, cmd + e):
+            enc.append(rad_to_arcsec(bench.encoder_error_rad()))
+        eps.append(rad_to_arcsec(e))
+    return {"encoder_error_arcsec": np.round(enc, 6).tolist(), "positioning_error_arcsec": np.round(eps, 6).tolist(),
+            "face_error_arcsec": np.round(bench.face_errors_arcsec, 6).tolist()}

@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from pydantic import TypeAdapter
+from typing import Annotated, Union
+
+from pydantic import Field, TypeAdapter
 
 from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
 from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, read_text, validate_file, validate_text
@@ -43,11 +45,9 @@ def is_procedure_text(text: str) -> bool:
 
 
 def procedure_schema() -> str:
-    """JSON Schema of procedure files (and of scenarios under ``$defs``), for editors."""
-    models = list(PROCEDURE_MODELS.values())
-    schema = TypeAdapter(models[0]).json_schema() if len(models) == 1 else {
-        "oneOf": [TypeAdapter(m).json_schema() for m in models]
-    }
+    """JSON Schema of procedure files (one branch per ``method``), for editors."""
+    union = Annotated[Union[tuple(PROCEDURE_MODELS.values())], Field(discriminator="method")]
+    schema = TypeAdapter(union).json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "rtcal procedure"
     return json.dumps(schema, indent=2)

@@ -128,5 +128,100 @@ class LaserTracerMultistation(_Strict):
         return self
 
 
-Procedure = LaserTracerMultistation
-PROCEDURE_MODELS: dict[str, type[BaseModel]] = {"laser_tracer_multistation": LaserTracerMultistation}
+class AbbeInstruments(_Strict):
+    stage: InstrumentChoice = InstrumentChoice()
+    encoder: InstrumentChoice = InstrumentChoice()
+    autocollimator: InstrumentChoice = InstrumentChoice()
+    dial_indicators: InstrumentChoice = InstrumentChoice()
+
+
+class AbbeSteps(_Strict):
+    """A full turn per pass: ``faces × steps_per_face`` steps from the seating's offset."""
+
+    steps_per_face: int = Field(1, ge=1, le=100)  # finer than the polygon: autocollimator read at faces only
+    directions: list[Literal["positive", "negative"]] = Field(["positive"], min_length=1, max_length=2)
+    runs: int = Field(1, ge=1, le=100)
+    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0)
+
+
+class PolygonSetup(_Strict):
+    """The polygon as the user knows it.
+
+    ``certificate_arcsec``: face errors from its calibration certificate (one per face), or
+    ``bench`` to take the simulated polygon's certificate, or ``none`` to trust nothing and
+    separate face and table errors by closure (needs ≥ 2 whole-face seatings).
+    ``seatings_deg``: offsets at which the operator seats the polygon in turn; whole multiples of
+    the face pitch for closure, fractions of it to sample the table between faces.
+    """
+
+    faces: int = Field(24, ge=3, le=360)
+    certificate_arcsec: list[float] | Literal["bench", "none"] = "bench"
+    certificate_uncertainty_arcsec: float = Field(0.0, ge=0.0)
+    seatings_deg: list[float] = Field([0.0], min_length=1, max_length=360)
+
+    @property
+    def pitch_deg(self) -> float:
+        return 360.0 / self.faces
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "PolygonSetup":
+        if isinstance(self.certificate_arcsec, list) and len(self.certificate_arcsec) != self.faces:
+            raise ValueError(f"certificate_arcsec: {len(self.certificate_arcsec)} values for {self.faces} faces")
+        whole = {round(s / self.pitch_deg) % self.faces for s in self.seatings_deg
+                 if abs(s / self.pitch_deg - round(s / self.pitch_deg)) < 1e-9}
+        if self.certificate_arcsec == "none" and len(whole) < 2:
+            raise ValueError("seatings_deg: closure (certificate_arcsec: none) needs at least two seatings "
+                             "a whole number of faces apart")
+        if len(set(self.seatings_deg)) != len(self.seatings_deg):
+            raise ValueError("seatings_deg: offsets repeat")
+        return self
+
+
+class AbbeGeometry(_Strict):
+    """Design sizes of the stage the solver uses (from drawings or measurement), mm."""
+
+    encoder_radius_mm: float = Field(32.0, gt=0.0)  # rE
+    grating_offset_mm: float = 60.0  # Zs below the tilt centre
+    indicator_heights_mm: tuple[float, float] = (50.0, 70.0)  # L1, L2 below the tilt centre
+
+    @model_validator(mode="after")
+    def _separated(self) -> "AbbeGeometry":
+        if abs(self.indicator_heights_mm[1] - self.indicator_heights_mm[0]) < 1.0:
+            raise ValueError("indicator_heights_mm: the indicators must be at least 1 mm apart to separate tilt from radial motion")
+        return self
+
+
+class EncoderAbbeError(_Strict):
+    """Seed 001: encoder error from tilt and radial motion, against an autocollimator and polygon."""
+
+    method: Literal["encoder_abbe_error"]
+    name: str = ""
+    bench: str | None = None
+    instruments: AbbeInstruments = AbbeInstruments()
+    steps: AbbeSteps = AbbeSteps()
+    polygon: PolygonSetup = PolygonSetup()
+    geometry: AbbeGeometry = AbbeGeometry()
+    samples_per_reading: int = Field(1, ge=1, le=1000)
+    settle_time_s: float = Field(1.0, ge=0.0)
+    max_harmonic_order: int = Field(24, ge=1, le=360)
+
+    @property
+    def step_deg(self) -> float:
+        return self.polygon.pitch_deg / self.steps.steps_per_face
+
+    def pass_angles_deg(self, seating_deg: float) -> np.ndarray:
+        """Commanded angles of one positive pass (a full turn, in [0, 360)) for a seating."""
+        n = self.polygon.faces * self.steps.steps_per_face
+        return np.sort(np.round(np.mod(seating_deg + self.step_deg * np.arange(n), 360.0), 9) % 360.0)
+
+    def face_in_front(self, angle_deg: float, seating_deg: float) -> bool:
+        """Whether a polygon face faces the autocollimator at this commanded angle."""
+        k = (angle_deg - seating_deg) / self.step_deg
+        return round(k) % self.steps.steps_per_face == 0
+
+
+Procedure = Union[LaserTracerMultistation, EncoderAbbeError]
+PROCEDURE_MODELS: dict[str, type[BaseModel]] = {
+    "laser_tracer_multistation": LaserTracerMultistation,
+    "encoder_abbe_error": EncoderAbbeError,
+}

@@ -1,0 +1,263 @@
+"""The encoder Abbe-error method (seed 001): measure, analyse, write files, report."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtcal.dataset import abbe_visits
+from rtcal.procedure.models import EncoderAbbeError
+from rtcal.report import finite_or_none, plt
+from rtcal.sequencer.abbe import AbbeInstrumentSet, planned_visits, run_abbe
+from rtcal.sequencer.operator import BenchOperator
+from rtcal.solvers.abbe import AbbeEstimate, AbbeSetup, analyse_abbe
+from rtcal.solvers.harmonic_analysis import HarmonicFit
+from rtcal.store import RunStore
+from simulators.bench import Bench
+from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimStage
+from simulators.truth import abbe_truth
+
+NOTES = (
+    "Seed 001's equations (1) and (2) are missing from its text; rtcal uses the model its words give: "
+    "tangential grating shift Δt = δy + Zs·εx and encoder error Δt/rE (positive: the encoder reads more).",
+    "Indicator, encoder and autocollimator zeros are arbitrary: encoder errors and εz are given up to a constant "
+    "(mean over the faces removed) per direction and polygon seating.",
+)
+
+
+def plan_length(proc: EncoderAbbeError) -> int:
+    return len(planned_visits(proc))
+
+
+def measure(proc: EncoderAbbeError, bench: Bench, store: RunStore, progress) -> None:
+    inst = AbbeInstrumentSet(SimStage(bench), SimEncoder(bench), SimAutocollimator(bench),
+                             (SimDialIndicator(bench, 0), SimDialIndicator(bench, 1)))
+    run_abbe(proc, inst, store, bench.clock, BenchOperator(bench), progress)
+
+
+def _certificate(proc: EncoderAbbeError, bench: Bench | None) -> np.ndarray | None:
+    cert = proc.polygon.certificate_arcsec
+    if cert == "none":
+        return None
+    if cert == "bench":
+        if bench is None:
+            raise ValueError("polygon.certificate_arcsec: `bench` needs a simulated bench; give the certificate's values")
+        return np.asarray(bench.face_certificate_arcsec, float)
+    return np.asarray(cert, float)
+
+
+def harmonics_dict(fit: HarmonicFit) -> list[dict[str, Any]]:
+    return [{"order": t.order, "amplitude": round(t.amplitude, 4), "amplitude_sigma": round(t.amplitude_sigma, 4),
+             "phase_deg": round(float(np.degrees(t.phase_rad)), 3), "phase_sigma_deg": round(float(np.degrees(t.phase_sigma_rad)), 3),
+             "significant": t.significant} for t in fit.terms]
+
+
+def estimate_dict(est: AbbeEstimate, source: str) -> dict[str, Any]:
+    residual = est.residual_arcsec[np.isfinite(est.residual_arcsec)]
+    return {
+        "angle_deg": [round(float(a), 6) for a in est.angle_deg],
+        "direction": [int(d) for d in est.direction],
+        "tilt_x_arcsec": finite_or_none(est.tilt_x_arcsec),
+        "radial_y_um": finite_or_none(est.radial_y_um),
+        "predicted_encoder_error_arcsec": finite_or_none(est.predicted_encoder_error_arcsec),
+        "measured_encoder_error_arcsec": finite_or_none(est.measured_encoder_error_arcsec),
+        "residual_arcsec": finite_or_none(est.residual_arcsec),
+        "positioning_error_arcsec": finite_or_none(est.positioning_error_arcsec),
+        "encoder_vs_command_arcsec": finite_or_none(est.encoder_vs_command_arcsec),
+        "residual_rms_arcsec": round(float(np.sqrt(np.mean(residual**2))), 4) if residual.size else None,
+        "reversal_arcsec": None if est.reversal_arcsec is None else round(est.reversal_arcsec, 4),
+        "extrapolation_factor": round(est.extrapolation_factor, 6),
+        "face_errors_used_arcsec": finite_or_none(est.face_error_arcsec),
+        "polygon_source": source,
+        "harmonics": {name: harmonics_dict(fit) for name, fit in est.harmonics.items()},
+        "notes": list(NOTES),
+    }
+
+
+def closure_dict(est: AbbeEstimate) -> dict[str, Any]:
+    c = est.closure
+    return {
+        "table_angle_deg": [round(float(a), 6) for a in est.closure_table_angle_deg],
+        "direction": [int(d) for d in est.closure_table_direction],
+        "table_error_arcsec": finite_or_none(c.table_error),
+        "table_uncertainty_arcsec": finite_or_none(c.table_sigma),
+        "face_error_arcsec": finite_or_none(c.face_error),
+        "face_uncertainty_arcsec": finite_or_none(c.face_sigma),
+        "seating_offset_arcsec": finite_or_none(c.offsets),
+        "residual_rms_arcsec": round(c.residual_rms, 4),
+    }
+
+
+def analyse(proc: EncoderAbbeError, store: RunStore, bench: Bench | None) -> dict[str, Any]:
+    visits = abbe_visits(store, proc.polygon.seatings_deg)
+    cert = _certificate(proc, bench)
+    setup = AbbeSetup(proc.polygon.faces, proc.geometry.indicator_heights_mm, proc.geometry.grating_offset_mm,
+                      proc.geometry.encoder_radius_mm, cert, proc.max_harmonic_order)
+    est = analyse_abbe(visits, setup)
+    estimates: dict[str, Any] = {"abbe": estimate_dict(est, "closure" if cert is None else "certificate")}
+    if est.closure is not None:
+        estimates["closure"] = closure_dict(est)
+    out: dict[str, Any] = {
+        "nominal_angles_deg": [round(float(a), 6) for a in est.angle_deg],
+        "raw_readings": len(visits.commanded_deg),
+        "estimates": estimates,
+    }
+    if bench is not None:
+        out["truth"] = abbe_truth(bench, est.angle_deg, est.direction)
+    return out
+
+
+def _series(results: dict[str, Any], key: str, direction: int) -> tuple[np.ndarray, np.ndarray]:
+    a = results["estimates"]["abbe"]
+    sel = [i for i, d in enumerate(a["direction"]) if d == direction]
+    x = np.array([a["angle_deg"][i] for i in sel])
+    y = np.array([np.nan if a[key][i] is None else a[key][i] for i in sel], dtype=float)
+    return x, y
+
+
+def _directions(results: dict[str, Any]) -> list[int]:
+    return sorted(set(results["estimates"]["abbe"]["direction"]), reverse=True)
+
+
+def _figure(run_dir: Path, name: str, draw) -> Path:
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    draw(ax)
+    ax.set_xlabel("table angle / °")
+    ax.set_xlim(0, 360)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = run_dir / name
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_files(run_dir: Path, results: dict[str, Any]) -> list[Path]:
+    """abbe_steps.csv and figures in the manner of seed 001's Figures 9–12, plus harmonics and closure."""
+    a = results["estimates"]["abbe"]
+    keys = ["angle_deg", "direction", "tilt_x_arcsec", "radial_y_um", "predicted_encoder_error_arcsec",
+            "measured_encoder_error_arcsec", "residual_arcsec", "positioning_error_arcsec", "encoder_vs_command_arcsec"]
+    csv_path = run_dir / "abbe_steps.csv"
+    with csv_path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(keys)
+        for i in range(len(a["angle_deg"])):
+            w.writerow(["" if a[k][i] is None else a[k][i] for k in keys])
+    dirs = _directions(results)
+    tag = {1: "↑", -1: "↓"}
+
+    def fig9(ax):
+        for d in dirs:
+            ax.plot(*_series(results, "tilt_x_arcsec", d), marker=".", label=f"tilt εx / ″ {tag[d]}")
+            ax.plot(*_series(results, "radial_y_um", d), marker=".", ls="--", label=f"radial δy / µm {tag[d]}")
+        ax.set_title("Fig. 9 — tilt motion about X and radial motion in Y (from the dial indicators)")
+
+    def fig10(ax):
+        for d in dirs:
+            x, y = _series(results, "positioning_error_arcsec", d)
+            ok = np.isfinite(y)
+            ax.plot(x[ok], y[ok], marker="o", label=f"autocollimator + polygon (εz) {tag[d]}")
+            ax.plot(*_series(results, "encoder_vs_command_arcsec", d), marker=".", label=f"encoder − command {tag[d]}")
+        ax.set_ylabel("arcsec")
+        ax.set_title("Fig. 10 — angular positioning error")
+
+    def fig11(ax):
+        for d in dirs:
+            ax.plot(*_series(results, "predicted_encoder_error_arcsec", d), marker=".", label=f"predicted (δy + Zs·εx)/rE {tag[d]}")
+            x, y = _series(results, "measured_encoder_error_arcsec", d)
+            ok = np.isfinite(y)
+            ax.plot(x[ok], y[ok], marker="o", label=f"measured (encoder − reference) {tag[d]}")
+        ax.set_ylabel("encoder error / arcsec")
+        ax.set_title("Fig. 11 — predicted and measured encoder error")
+
+    def fig12(ax):
+        for d in dirs:
+            x, y = _series(results, "residual_arcsec", d)
+            ok = np.isfinite(y)
+            ax.plot(x[ok], y[ok], marker="o", label=f"measured − predicted {tag[d]}")
+        ax.axhline(0, color="0.6", lw=0.8)
+        ax.set_ylabel("arcsec")
+        ax.set_title(f"Fig. 12 — residual (RMS {a['residual_rms_arcsec']}″)")
+
+    paths = [csv_path] + [_figure(run_dir, n, f) for n, f in (("fig09_tilt_radial.png", fig9), ("fig10_positioning.png", fig10),
+                                                              ("fig11_encoder_error.png", fig11), ("fig12_residual.png", fig12))]
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    series = [s for s in ("positioning_error_arcsec", "encoder_vs_command_arcsec", "measured_encoder_error_arcsec",
+                          "predicted_encoder_error_arcsec") if s in a["harmonics"]]
+    width = 0.8 / max(len(series), 1)
+    for k, s in enumerate(series):
+        terms = a["harmonics"][s]
+        ax.bar([t["order"] + (k - len(series) / 2 + 0.5) * width for t in terms], [t["amplitude"] for t in terms],
+               width, yerr=[t["amplitude_sigma"] for t in terms], label=s.removesuffix("_arcsec"))
+    ax.set_xlabel("harmonic order (per revolution)")
+    ax.set_ylabel("amplitude / arcsec")
+    ax.set_title("Harmonic analysis")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(run_dir / "harmonics.png", dpi=110)
+    plt.close(fig)
+    paths.append(run_dir / "harmonics.png")
+    if "closure" in results["estimates"]:
+        c = results["estimates"]["closure"]
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6))
+        ax1.errorbar(range(len(c["face_error_arcsec"])), c["face_error_arcsec"], yerr=c["face_uncertainty_arcsec"], marker="o", capsize=3)
+        ax1.set_xlabel("polygon face")
+        ax1.set_ylabel("face error / ″")
+        for d in sorted(set(c["direction"]), reverse=True):
+            sel = [i for i, x in enumerate(c["direction"]) if x == d]
+            ax2.errorbar([c["table_angle_deg"][i] for i in sel], [c["table_error_arcsec"][i] for i in sel],
+                         yerr=[c["table_uncertainty_arcsec"][i] for i in sel], marker="o", capsize=3, label=tag[d])
+        ax2.set_xlabel("table angle / °")
+        ax2.set_ylabel("table error εz / ″")
+        ax2.legend()
+        ax1.set_title("Closure: polygon face errors and table errors, separated (1σ)")
+        fig.tight_layout()
+        fig.savefig(run_dir / "closure.png", dpi=110)
+        plt.close(fig)
+        paths.append(run_dir / "closure.png")
+    return paths
+
+
+def report_body(results: dict[str, Any]) -> list[str]:
+    a = results["estimates"]["abbe"]
+    lines = [f"- polygon face errors from: {a['polygon_source']}",
+             f"- extrapolation factor a = (Zs − L1)/(L2 − L1) = {a['extrapolation_factor']:.3f} "
+             f"(indicator errors reach the grating ×{abs(1 - a['extrapolation_factor']) + abs(a['extrapolation_factor']):.2f})",
+             f"- residual (measured − predicted encoder error): RMS {a['residual_rms_arcsec']}″"]
+    if a["reversal_arcsec"] is not None:
+        lines.append(f"- reversal (↑ − ↓, from the encoder): {a['reversal_arcsec']:+.2f}″")
+    lines += ["", "## Harmonics (significant: amplitude > 3σ)", "", "| series | order | amplitude | 1σ | phase / ° |", "|---|---|---|---|---|"]
+    for name, terms in a["harmonics"].items():
+        for t in terms:
+            if t["significant"]:
+                lines.append(f"| {name} | {t['order']} | {t['amplitude']:.3f} | {t['amplitude_sigma']:.3f} | {t['phase_deg']:.1f} |")
+    lines.append("")
+    if "closure" in results["estimates"]:
+        c = results["estimates"]["closure"]
+        lines += ["## Closure", "", f"Face errors and table errors separated from {len(c['seating_offset_arcsec'])} "
+                  f"seating-direction passes; residual RMS {c['residual_rms_arcsec']}″; 1σ of a face error up to "
+                  f"{max(c['face_uncertainty_arcsec']):.3f}″.", "", "![closure](closure.png)", ""]
+    lines += [f"![{n}]({n}.png)" for n in ("fig09_tilt_radial", "fig10_positioning", "fig11_encoder_error", "fig12_residual", "harmonics")]
+    lines += ["", "## Notes", ""] + [f"- {n}" for n in a["notes"]] + [""]
+    return lines
+
+
+def summary(results: dict[str, Any]) -> list[str]:
+    a = results["estimates"]["abbe"]
+    pred = [abs(v) for v in a["predicted_encoder_error_arcsec"] if v is not None]
+    lines = [f"encoder error predicted from tilt and radial motion: up to ±{max(pred):.2f}″; "
+             f"measured − predicted RMS {a['residual_rms_arcsec']}″ (polygon from {a['polygon_source']})"]
+    for series in ("positioning_error_arcsec", "encoder_vs_command_arcsec"):
+        sig = [t for t in a["harmonics"].get(series, []) if t["significant"]]
+        if sig:
+            lines.append(f"{series.removesuffix('_arcsec')}: significant harmonics "
+                         + ", ".join(f"{t['order']}× {t['amplitude']:.2f}″" for t in sig))
+    if "closure" in results["estimates"]:
+        c = results["estimates"]["closure"]
+        lines.append(f"closure: polygon face errors 1σ ≤ {max(c['face_uncertainty_arcsec']):.3f}″, "
+                     f"table errors 1σ ≤ {max(c['table_uncertainty_arcsec']):.3f}″")
+    return lines

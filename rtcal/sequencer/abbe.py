@@ -1,0 +1,87 @@
+"""Sequencer of the encoder Abbe-error procedure (seed 001).
+
+For each polygon seating (an operator step), each run and each direction: a full turn in
+steps; at each step the encoder, both dial indicators and — where a polygon face is in front —
+the autocollimator are read, and stored before the next motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+from drivers.interfaces import Autocollimator, DialIndicator, Encoder, RotaryStage
+from rtcal.clock import Clock
+from rtcal.procedure.models import EncoderAbbeError
+from rtcal.sequencer.motion import approach
+from rtcal.sequencer.operator import Operator
+from rtcal.store import Reading, RunStore
+
+
+@dataclass(frozen=True)
+class AbbeInstrumentSet:
+    stage: RotaryStage
+    encoder: Encoder
+    autocollimator: Autocollimator
+    indicators: tuple[DialIndicator, DialIndicator]
+
+
+@dataclass(frozen=True)
+class Visit:
+    seating: int
+    run: int
+    direction: int
+    step: int
+    angle_deg: float
+    face_in_front: bool
+
+
+def planned_visits(proc: EncoderAbbeError) -> list[Visit]:
+    visits = []
+    for j, seating in enumerate(proc.polygon.seatings_deg):
+        angles = proc.pass_angles_deg(seating)
+        for r in range(proc.steps.runs):
+            for d in proc.steps.directions:
+                direction = 1 if d == "positive" else -1
+                order = range(len(angles)) if direction > 0 else range(len(angles) - 1, -1, -1)
+                visits += [Visit(j, r, direction, i, float(angles[i]), proc.face_in_front(float(angles[i]), seating)) for i in order]
+    return visits
+
+
+def run_abbe(
+    proc: EncoderAbbeError,
+    inst: AbbeInstrumentSet,
+    store: RunStore,
+    clock: Clock,
+    operator: Operator,
+    progress: Callable[[Iterator], Iterator] = lambda it: it,
+) -> int:
+    """Execute the procedure; returns the number of visits stored."""
+    plan = planned_visits(proc)
+    for v in plan:
+        inst.stage.check_target(v.angle_deg)
+        inst.stage.check_target(v.angle_deg - v.direction * proc.steps.overshoot_deg)
+    seating = None
+    stored = 0
+    for v in progress(iter(plan)):
+        if v.seating != seating:
+            offset = proc.polygon.seatings_deg[v.seating]
+            store.add_event(clock.now_s(), "operator", f"polygon seated at {offset:g}° (seating {v.seating + 1})")
+            operator.reseat_polygon(offset, proc.polygon.pitch_deg)
+            seating = v.seating
+        approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg)
+        clock.sleep(proc.settle_time_s)
+        state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg)
+        readings: list[Reading] = []
+        for s in range(proc.samples_per_reading):
+            readings.append(Reading(clock.now_s(), "encoder", "angle_deg", inst.encoder.read_angle_deg(), "deg", sample=s, **state))
+            if v.face_in_front:
+                x, y = inst.autocollimator.read_arcsec()
+                readings.append(Reading(clock.now_s(), "autocollimator", "x_arcsec", x, "arcsec", sample=s, **state))
+                readings.append(Reading(clock.now_s(), "autocollimator", "y_arcsec", y, "arcsec", sample=s, **state))
+            for k, ind in enumerate(inst.indicators):
+                readings.append(Reading(clock.now_s(), f"dial_indicator_{k + 1}", "y_um", ind.read_um(), "um", sample=s, **state))
+        store.add_readings(readings)
+        stored += 1
+    return stored
+
