@@ -39,15 +39,18 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
     procedure = REPO / "procedures" / "laser_tracer_multistation.yaml"
+    abbe = REPO / "procedures" / "encoder_abbe_error.yaml"
     with tempfile.TemporaryDirectory() as tmp:
         counter = iter(range(10**6))
         run_times = timed(lambda: run_procedure(procedure, out_dir=Path(tmp) / f"r{next(counter)}", show_progress=False), args.repeat)
+        abbe_times = timed(lambda: run_procedure(abbe, out_dir=Path(tmp) / f"r{next(counter)}", show_progress=False), args.repeat)
     rng = np.random.default_rng(0)
     points, lengths, _ = dataset(np.zeros(11), 0.2, rng)
     assert lengths.size == 704
     solve_times = timed(lambda: solve_paper(points, lengths, PAPER_ANGLES_RAD, FIRST_GUESS_MM), args.repeat)
     for name, ts in (("full simulated run (paper-000 procedure, 704 readings)", run_times),
-                     ("paper solver chain on 704 lengths (with uncertainty)", solve_times)):
+                     ("paper solver chain on 704 lengths (with uncertainty)", solve_times),
+                     ("full simulated run (seed-001 procedure, 96 visits, 5 figures)", abbe_times)):
         print(f"{name}: best {min(ts):.3f} s, median {statistics.median(ts):.3f} s over {len(ts)}")
 
 
