@@ -1,0 +1,57 @@
+"""Instrument address strings: the one notation for where an instrument is.
+
+- ``modbus-tcp://HOST:PORT?unit=1&steps_per_rev=10000&gear=36`` — a stepper drive over Modbus TCP
+- ``modbus-rtu:///dev/ttyUSB0?unit=1&baud=115200&steps_per_rev=...`` — the same over RS-485
+- ``ipp://HOST:PORT`` — a CMM speaking I++ DME (default port 1294)
+- ``/dev/ttyUSB0`` or ``socket://HOST:PORT`` (``?baud=9600&...``) — a serial ASCII instrument
+- ``sim-operator://HOST:PORT`` — the simulated operator of a protocol-simulator bench
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from urllib.parse import parse_qsl, urlsplit
+
+
+class AddressError(ValueError):
+    """An address string that cannot be understood."""
+
+
+@dataclass(frozen=True)
+class Address:
+    scheme: str  # modbus-tcp, modbus-rtu, ipp, serial, sim-operator
+    host: str = ""
+    port: int = 0
+    path: str = ""  # device path for serial and modbus-rtu; the URL for socket://
+    options: dict[str, str] = field(default_factory=dict)
+
+    def option(self, name: str, default: float) -> float:
+        try:
+            return float(self.options.get(name, default))
+        except ValueError:
+            raise AddressError(f"option {name}={self.options[name]!r} is not a number") from None
+
+
+def parse_address(text: str) -> Address:
+    text = text.strip()
+    if not text:
+        raise AddressError("empty address")
+    if text.startswith(("/", "socket://", "rfc2217://", "loop://")):
+        url, _, query = text.partition("?")
+        return Address("serial", path=url, options=dict(parse_qsl(query)))
+    parts = urlsplit(text)
+    options = dict(parse_qsl(parts.query))
+    if parts.scheme in ("modbus-tcp", "ipp", "sim-operator"):
+        default_port = {"modbus-tcp": 502, "ipp": 1294, "sim-operator": 0}[parts.scheme]
+        try:
+            port = parts.port or default_port
+        except ValueError:
+            raise AddressError(f"{text!r}: bad port") from None
+        if not parts.hostname or not port:
+            raise AddressError(f"{text!r}: needs HOST:PORT")
+        return Address(parts.scheme, host=parts.hostname, port=port, options=options)
+    if parts.scheme == "modbus-rtu":
+        if not parts.path:
+            raise AddressError(f"{text!r}: needs a device path, e.g. modbus-rtu:///dev/ttyUSB0")
+        return Address("modbus-rtu", path=parts.path, options=options)
+    raise AddressError(f"{text!r}: unknown kind of address (modbus-tcp://, modbus-rtu://, ipp://, /dev/..., socket://)")

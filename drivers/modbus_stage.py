@@ -1,0 +1,104 @@
+"""A rotary stage driven by an AZ-series stepper drive over Modbus (TCP or RTU), with pymodbus.
+
+Degrees ↔ steps: steps per motor revolution × gear (worm) ratio per table revolution. A move
+writes the direct-data block (type, position, speed, rates, current, trigger) in one request and
+polls the output status until IN-POS, raising on alarms and timeouts.
+"""
+
+from __future__ import annotations
+
+import time
+
+from pymodbus import FramerType
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from drivers import az_registers as az
+from drivers.addresses import Address
+from drivers.errors import InstrumentFault, InstrumentTimeout
+from drivers.interfaces import RotaryStage
+
+EXCEPTION_TEXT = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "server device failure",
+                  6: "server device busy"}
+
+
+class ModbusStage(RotaryStage):
+    name = "stage"
+
+    def __init__(self, address: Address, limits_deg: tuple[float, float] = (-360.0, 360.0), timeout_s: float = 2.0):
+        self.unit = int(address.option("unit", 1))
+        self.steps_per_deg = address.option("steps_per_rev", 10000) * address.option("gear", 36) / 360.0
+        self.speed_hz = max(1, round(address.option("speed_deg_per_s", 10.0) * self.steps_per_deg))
+        self.limits_deg = limits_deg
+        self.timeout_s = timeout_s
+        if address.scheme == "modbus-tcp":
+            self.client = ModbusTcpClient(address.host, port=address.port, timeout=timeout_s, retries=0)
+            where = f"{address.host}:{address.port}"
+        else:
+            self.client = ModbusSerialClient(address.path, framer=FramerType.RTU, baudrate=int(address.option("baud", 115200)),
+                                             timeout=timeout_s, retries=0)
+            where = address.path
+        if not self.client.connect():
+            raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}")
+
+    # -- register access with typed errors
+    def _call(self, what: str, fn, *args, **kwargs):
+        try:
+            response = fn(*args, device_id=self.unit, **kwargs)
+        except ModbusException as exc:
+            raise InstrumentTimeout(self.name, f"{what}: no valid reply ({exc})") from None
+        if response.isError():
+            code = getattr(response, "exception_code", 0)
+            raise InstrumentFault(self.name, f"{what}: Modbus exception {code} ({EXCEPTION_TEXT.get(code, 'unknown')})")
+        return response
+
+    def _read32(self, register: int, count: int = 1) -> list[int]:
+        regs = self._call(f"read 0x{register:04X}", self.client.read_holding_registers, register, count=2 * count).registers
+        return [az.join32(regs[2 * k], regs[2 * k + 1]) for k in range(count)]
+
+    def _write32(self, register: int, values: list[int]) -> None:
+        words = [w for v in values for w in az.split32(v)]
+        self._call(f"write 0x{register:04X}", self.client.write_registers, register, words)
+
+    def _input_pulse(self, bit: int) -> None:
+        self._write32(az.INPUT_COMMAND, [bit])
+        self._write32(az.INPUT_COMMAND, [0])
+
+    def _wait_in_position(self, what: str) -> None:
+        deadline = time.monotonic() + max(self.timeout_s, 1.0) * 10
+        while True:
+            status, alarm = self._read32(az.OUTPUT_STATUS, 2)
+            if status & az.OUT_ALM_A:
+                raise InstrumentFault(self.name, f"{what}: drive alarm 0x{alarm:02X} ({az.ALARM_TEXT.get(alarm, 'see the drive manual')})")
+            if status & az.OUT_IN_POS and not status & az.OUT_MOVE:
+                return
+            if time.monotonic() > deadline:
+                raise InstrumentTimeout(self.name, f"{what}: not in position in time")
+            time.sleep(0.01)
+
+    # -- the interface
+    def move_to(self, angle_deg: float) -> None:
+        self.check_target(angle_deg)
+        steps = round(angle_deg * self.steps_per_deg)
+        # operation type, position, speed, acceleration, deceleration, current, trigger: one request
+        self._write32(az.OPERATION_TYPE, [1, steps, self.speed_hz, self.speed_hz, self.speed_hz, 1000, 1])
+        self._wait_in_position(f"move to {angle_deg:.6f}°")
+
+    def home(self) -> None:
+        self._input_pulse(az.IN_ZHOME)
+        self._wait_in_position("homing")
+
+    def stop(self) -> None:
+        self._input_pulse(az.IN_STOP)
+
+    def reset_alarm(self) -> None:
+        self._input_pulse(az.IN_ALM_RST)
+
+    def position_deg(self) -> float:
+        return self._read32(az.COMMAND_POSITION)[0] / self.steps_per_deg
+
+    def feedback_deg(self) -> float:
+        return self._read32(az.FEEDBACK_POSITION)[0] / self.steps_per_deg
+
+    def close(self) -> None:
+        self.client.close()

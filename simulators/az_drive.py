@@ -1,0 +1,130 @@
+"""A simulated AZ-series stepper drive: the register semantics, backed by the bench stage.
+
+Pure Python (no Modbus here): ``read`` and ``write`` take register addresses and values and
+return values or a Modbus exception code. :mod:`simulators.servers.modbus_stage` puts it behind
+pymodbus servers (TCP and RTU). Motions complete at once in virtual time (the bench clock
+advances by their duration); faults raise drive alarms.
+"""
+
+from __future__ import annotations
+
+from drivers import az_registers as az
+from simulators.instruments import SimStage
+
+ILLEGAL_FUNCTION, ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE = 1, 2, 3, 4
+
+
+class AzDriveModel:
+    """Registers and state of one drive; ``steps_per_deg`` converts for the bench stage."""
+
+    def __init__(self, stage: SimStage, steps_per_deg: float):
+        self.stage = stage
+        self.steps_per_deg = steps_per_deg
+        self.direct = {az.OPERATION_DATA_NUMBER: 0, az.OPERATION_TYPE: 1, az.POSITION: 0, az.SPEED: 1000,
+                       az.ACCELERATION: 1000, az.DECELERATION: 1000, az.CURRENT: 1000, az.TRIGGER: 0}
+        self.input_command = 0
+        self.alarm = az.ALARM_NONE
+        self.free = False
+        self.homed = False
+        self.command_steps = round(stage.position_deg() * steps_per_deg)
+
+    # -- what the registers show
+    def status(self) -> int:
+        bits = az.OUT_IN_POS
+        if self.alarm:
+            bits |= az.OUT_ALM_A
+        elif not self.free:
+            bits |= az.OUT_READY
+        if self.homed:
+            bits |= az.OUT_HOME_END
+        return bits
+
+    def value32(self, address: int) -> int:
+        if address in self.direct:
+            return self.direct[address]
+        return {az.INPUT_COMMAND: self.input_command, az.OUTPUT_STATUS: self.status(), az.PRESENT_ALARM: self.alarm,
+                az.COMMAND_POSITION: self.command_steps, az.FEEDBACK_POSITION: self.command_steps}[address]
+
+    def read(self, address: int, count: int) -> list[int] | int:
+        """Registers [address, address + count) or an exception code."""
+        out = []
+        for reg in range(address, address + count):
+            base = reg - ((reg - az.OPERATION_DATA_NUMBER) % 2) if reg >= az.OPERATION_DATA_NUMBER else reg
+            if base not in az.WRITABLE_32 + az.READONLY_32:
+                return ILLEGAL_ADDRESS
+            out.append(az.split32(self.value32(base))[reg - base])
+        return out
+
+    # -- writes
+    def write(self, address: int, values: list[int]) -> int | None:
+        """Apply a write of whole 32-bit values; None or an exception code."""
+        if (address - az.OPERATION_DATA_NUMBER) % 2 or len(values) % 2:
+            return ILLEGAL_VALUE  # half of a 32-bit value
+        for k in range(0, len(values), 2):
+            reg = address + k
+            if reg in az.READONLY_32:
+                return ILLEGAL_ADDRESS
+            if reg not in az.WRITABLE_32:
+                return ILLEGAL_ADDRESS
+        for k in range(0, len(values), 2):
+            reg, value = address + k, az.join32(values[k], values[k + 1])
+            code = self._write32(reg, value)
+            if code:
+                return code
+        return None
+
+    def _write32(self, reg: int, value: int) -> int | None:
+        if reg == az.INPUT_COMMAND:
+            rising = value & ~self.input_command
+            self.input_command = value & 0xFFFF
+            return self._inputs(rising)
+        if reg == az.OPERATION_TYPE and value not in (1, 2):
+            return ILLEGAL_VALUE
+        if reg in (az.SPEED, az.ACCELERATION, az.DECELERATION) and value <= 0:
+            return ILLEGAL_VALUE
+        if reg == az.CURRENT and not 0 <= value <= 1000:
+            return ILLEGAL_VALUE
+        if reg == az.TRIGGER:
+            return self._trigger() if value == 1 else None
+        self.direct[reg] = value
+        return None
+
+    def _inputs(self, rising: int) -> int | None:
+        if rising & az.IN_ALM_RST:
+            self.alarm = az.ALARM_NONE
+        if rising & az.IN_FREE:
+            self.free = True
+        if rising & az.IN_STOP:
+            return None
+        if rising & az.IN_ZHOME:
+            return self._move_to_steps(0, homing=True)
+        if rising & az.IN_START:
+            return self._trigger()
+        return None
+
+    def _trigger(self) -> int | None:
+        target = self.direct[az.POSITION]
+        if self.direct[az.OPERATION_TYPE] == 2:
+            target += self.command_steps
+        return self._move_to_steps(target)
+
+    def _move_to_steps(self, target: int, homing: bool = False) -> int | None:
+        if self.alarm:
+            return DEVICE_FAILURE  # the drive refuses to move while an alarm is present
+        lo, hi = self.stage.limits_deg
+        deg = target / self.steps_per_deg
+        if not lo <= deg <= hi:
+            self.alarm = az.ALARM_SOFTWARE_OVERTRAVEL
+            return None  # accepted on the wire; the drive alarms
+        self.free = False
+        self.stage.move_to(deg)
+        self.command_steps = int(target)
+        self.homed = self.homed or homing
+        return None
+
+
+def steps_per_degree(steps_per_revolution: int, gear_ratio: float) -> float:
+    """Motor steps per degree of table rotation."""
+    return steps_per_revolution * gear_ratio / 360.0
+
+

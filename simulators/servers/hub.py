@@ -1,0 +1,242 @@
+"""All protocol simulators around one bench, served from one asyncio thread.
+
+Every instrument speaks its real protocol on a real endpoint: the stage drive as a Modbus
+server (TCP, or RTU on a pseudo-terminal), the CMM as an I++ DME server, the serial ASCII
+instruments on pseudo-terminals (or TCP sockets, for pyserial's ``socket://``). One thread runs
+every server, so the bench is only ever touched by one thread at a time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import threading
+import tty
+from dataclasses import dataclass, field
+from typing import Literal
+
+from rtcal.clock import VirtualClock
+from simulators.az_drive import AzDriveModel, steps_per_degree
+from simulators.bench import Bench
+from simulators.instruments import SimAutocollimator, SimCmm, SimDialIndicator, SimEncoder, SimLaserTracer, SimStage
+from simulators.scenario import Scenario
+from simulators.servers import modbus_stage
+from simulators.servers.ipp_server import serve_ipp
+from simulators.servers.serial_protocols import ElcomatHandler, LineHandler, QsbHandler, SylvacHandler, TracerHandler
+
+DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # 0.001° per step when the scenario names no stepper
+
+
+def free_port(host: str) -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def raw_pty() -> tuple[int, int, str]:
+    """A pseudo-terminal in raw mode: (master fd, slave fd, slave path)."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    return master, slave, os.ttyname(slave)
+
+
+@dataclass
+class SimulatorHub:
+    scenario: Scenario
+    seed: int | None = None
+    host: str = "127.0.0.1"
+    serial: Literal["pty", "tcp"] = "pty"
+    modbus: Literal["tcp", "rtu"] = "tcp"
+    addresses: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.bench = Bench(self.scenario, VirtualClock(), self.seed)
+        b = self.bench
+        stepper = self.scenario.stepper
+        self.steps_per_rev = stepper.steps_per_revolution or DEFAULT_STEPS_PER_REV
+        self.gear = stepper.worm_ratio if stepper.steps_per_revolution else DEFAULT_GEAR
+        self.drive = AzDriveModel(SimStage(b), steps_per_degree(self.steps_per_rev, self.gear))
+        self.cmm = SimCmm(b)
+        res = self.scenario.encoder.resolution_arcsec
+        self.counts_per_rev = round(1296000 / res) if res > 0 else 2**30
+        self.handlers: dict[str, LineHandler] = {
+            "laser_tracer": TracerHandler(SimLaserTracer(b)),
+            "encoder": QsbHandler(SimEncoder(b), self.counts_per_rev),
+            "autocollimator": ElcomatHandler(SimAutocollimator(b)),
+            "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0)),
+            "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1)),
+        }
+        self._fds: list[int] = []
+        self._loop = asyncio.new_event_loop()
+        self._thread: threading.Thread | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._servers: list = []
+
+    # -- life cycle
+    def start(self, timeout_s: float = 10.0) -> dict[str, str]:
+        """Start every server; return the address of each instrument once all listen."""
+        self._thread = threading.Thread(target=self._run, name="rtcal-sim", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(timeout_s) or self._error:
+            self.stop()
+            raise RuntimeError(f"simulators did not start: {self._error!r}")
+        return dict(self.addresses)
+
+    def stop(self) -> None:
+        if self._thread and self._thread.is_alive():
+            asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop)
+            self._thread.join(5)
+        for fd in self._fds:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self._fds.clear()
+
+    def __enter__(self) -> "SimulatorHub":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(self._start_all())
+        except BaseException as exc:  # reported by start()
+            self._error = exc
+            self._ready.set()
+            return
+        self._ready.set()
+        self._loop.run_forever()
+        self._loop.close()
+
+    async def _shutdown(self) -> None:
+        """Close every server and connection, then stop the loop."""
+        for fd in self._fds:
+            try:
+                self._loop.remove_reader(fd)
+            except (ValueError, OSError):
+                pass
+        for server in self._servers:
+            if isinstance(server, asyncio.base_events.Server):
+                server.close()
+        tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        self._loop.stop()
+
+    async def _start_all(self) -> None:
+        h = self.host
+        stage_query = f"unit=1&steps_per_rev={self.steps_per_rev}&gear={self.gear:g}"
+        if self.modbus == "tcp":
+            port = free_port(h)
+            server = modbus_stage.tcp_server(self.drive, h, port)
+            self._servers.append(asyncio.ensure_future(server.serve_forever()))
+            await self._wait_listening(h, port)
+            self.addresses["stage"] = f"modbus-tcp://{h}:{port}?{stage_query}"
+        else:
+            client_path = await self._start_rtu()
+            self.addresses["stage"] = f"modbus-rtu://{client_path}?{stage_query}&baud=115200"
+        cmm_server = await serve_ipp(self.cmm, h, 0)
+        self._servers.append(cmm_server)
+        self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
+        for name, handler in self.handlers.items():
+            self.addresses[name] = await self._serve_line(handler)
+        self.addresses["encoder"] += f"?counts_per_rev={self.counts_per_rev}"
+        op = await asyncio.start_server(self._operator_client, h, 0)
+        self._servers.append(op)
+        self.addresses["operator"] = f"sim-operator://{h}:{op.sockets[0].getsockname()[1]}"
+
+    async def _wait_listening(self, host: str, port: int) -> None:
+        for _ in range(200):
+            try:
+                _, writer = await asyncio.open_connection(host, port)
+                writer.close()
+                return
+            except OSError:
+                await asyncio.sleep(0.02)
+        raise RuntimeError(f"Modbus server did not listen on {host}:{port}")
+
+    async def _start_rtu(self) -> str:
+        """A null-modem pair of pseudo-terminals: the drive on one end, the client on the other."""
+        m1, s1, p1 = raw_pty()
+        m2, s2, p2 = raw_pty()
+        self._fds += [m1, s1, m2, s2]
+
+        def forward(src: int, dst: int) -> None:
+            try:
+                os.write(dst, os.read(src, 4096))
+            except OSError:
+                pass
+
+        self._loop.add_reader(m1, forward, m1, m2)
+        self._loop.add_reader(m2, forward, m2, m1)
+        server = modbus_stage.rtu_server(self.drive, p1)
+        self._servers.append(asyncio.ensure_future(server.serve_forever()))
+        await asyncio.sleep(0.2)
+        return p2
+
+    async def _serve_line(self, handler: LineHandler) -> str:
+        if self.serial == "tcp":
+            async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+                buffer = b""
+                try:
+                    while chunk := await reader.read(4096):
+                        buffer = self._answer(handler, buffer + chunk, writer.write)
+                        await writer.drain()
+                except (ConnectionError, asyncio.CancelledError):
+                    pass
+                finally:
+                    writer.close()
+
+            server = await asyncio.start_server(client, self.host, 0)
+            self._servers.append(server)
+            return f"socket://{self.host}:{server.sockets[0].getsockname()[1]}"
+        master, slave, path = raw_pty()
+        self._fds += [master, slave]  # holding the slave open keeps the master readable between clients
+        state = {"buffer": b""}
+
+        def readable() -> None:
+            try:
+                data = os.read(master, 4096)
+            except OSError:
+                return
+            state["buffer"] = self._answer(handler, state["buffer"] + data, lambda out: os.write(master, out))
+
+        self._loop.add_reader(master, readable)
+        return path
+
+    @staticmethod
+    def _answer(handler: LineHandler, buffer: bytes, send) -> bytes:
+        """Answer every complete request in the buffer; return what is left."""
+        while handler.terminator in buffer:
+            line, buffer = buffer.split(handler.terminator, 1)
+            if line.strip():
+                send(handler.handle(line))
+        if len(buffer) > 1024:
+            buffer = b""  # a line this long is garbage; drop it
+        return buffer
+
+    async def _operator_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench."""
+        try:
+            while line := await reader.readline():
+                words = line.decode(errors="replace").split()
+                if len(words) == 2 and words[0] == "RESEAT":
+                    try:
+                        self.bench.reseat_polygon(float(words[1]))
+                        writer.write(b"OK\n")
+                    except ValueError:
+                        writer.write(b"ERR ARG\n")
+                else:
+                    writer.write(b"ERR CMD\n")
+                await writer.drain()
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            writer.close()

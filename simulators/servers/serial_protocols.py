@@ -1,0 +1,79 @@
+"""Instrument ends of the serial ASCII protocols, backed by the simulated instruments.
+
+Each handler turns one request line into one reply (bytes in, bytes out, terminators included)
+and knows nothing of pseudo-terminals or sockets: :mod:`simulators.servers.hub` carries bytes.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from drivers.errors import InstrumentFault
+from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimLaserTracer
+
+
+class LineHandler(Protocol):
+    terminator: bytes
+
+    def handle(self, request: bytes) -> bytes: ...
+
+
+class ElcomatHandler:
+    terminator = b"\r"
+
+    def __init__(self, instrument: SimAutocollimator):
+        self.instrument = instrument
+
+    def handle(self, request: bytes) -> bytes:
+        if request.strip() != b"M":
+            return b"9 0 0\r"
+        try:
+            x, y = self.instrument.read_arcsec()
+        except InstrumentFault:
+            return b"1 0 0\r"
+        return f"0 {x:+.4f} {y:+.4f}\r".encode()
+
+
+class SylvacHandler:
+    terminator = b"\r"
+
+    def __init__(self, instrument: SimDialIndicator):
+        self.instrument = instrument
+
+    def handle(self, request: bytes) -> bytes:
+        if request.strip() != b"?":
+            return b"ERR3\r"
+        return f"{self.instrument.read_um() / 1000.0:+.6f}\r".encode()
+
+
+class QsbHandler:
+    terminator = b"\r"
+
+    def __init__(self, instrument: SimEncoder, counts_per_rev: int):
+        self.instrument = instrument
+        self.counts_per_rev = counts_per_rev
+
+    def handle(self, request: bytes) -> bytes:
+        if request.strip().upper() != b"R0E":
+            return b"!\r\n"
+        count = round(self.instrument.read_angle_deg() / 360.0 * self.counts_per_rev)
+        return f"0E{count & 0xFFFFFFFF:08X}\r\n".encode()
+
+
+class TracerHandler:
+    terminator = b"\n"
+
+    def __init__(self, instrument: SimLaserTracer):
+        self.instrument = instrument
+
+    def handle(self, request: bytes) -> bytes:
+        command = request.strip()
+        if command == b"REF":
+            return f"OK REF {self.instrument.reference()}\r\n".encode()
+        if command == b"LEN?":
+            try:
+                r = self.instrument.read_length()
+            except InstrumentFault:
+                return b"ERR LOST\r\n"
+            return f"LEN {r.length_mm * 1e6:.3f} {r.segment}\r\n".encode()
+        return b"ERR CMD\r\n"
