@@ -5,11 +5,14 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from drivers.addresses import AddressError
+from drivers.errors import InstrumentError
 from rtcal import __version__
 from rtcal.yamlfile import FileProblems
 
@@ -21,17 +24,69 @@ class UserError(Exception):
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from rtcal.runner import METHODS, run_procedure
+    from rtcal.methods.abbe import CertificateUnavailable
+    from rtcal.runner import METHODS, default_run_dir, run_procedure
 
+    addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    out = args.out or str(default_run_dir(Path(args.procedure).stem))
     try:
-        outcome = run_procedure(args.procedure, args.scenario, args.seed, args.out)
+        outcome = run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
+                                virtual_clock=args.virtual_clock)
     except FileExistsError as exc:
         raise UserError(str(exc)) from None
+    except CertificateUnavailable as exc:
+        raise UserError(f"{args.procedure}: {exc}") from None
+    except InstrumentError as exc:
+        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        print(f"rtcal: every reading taken so far is in {out}/run.sqlite", file=sys.stderr)
+        return EXIT_FAILED
     print(f"run complete: {outcome.results['raw_readings']} readings stored")
     for line in METHODS[outcome.results["method"]].summary(outcome.results):
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith("run.sqlite-")))
     print(f"results in {outcome.run_dir}/ ({files})")
+    return EXIT_OK
+
+
+def parse_instruments_option(text: str) -> dict[str, str]:
+    """``--instruments``: a JSON object of name → address, inline or in a file."""
+    source = text
+    if not text.lstrip().startswith("{"):
+        try:
+            source = Path(text).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise UserError(f"--instruments: cannot read {text}: {exc}") from None
+    try:
+        data = json.loads(source.strip().splitlines()[0] if source.strip() else "")
+    except (json.JSONDecodeError, IndexError) as exc:
+        raise UserError(f"--instruments: not a JSON object of instrument addresses ({exc})") from None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        raise UserError("--instruments: expected a JSON object mapping instrument names to address strings")
+    return data
+
+
+def _cmd_sim_serve(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from rtcal.procedure.loader import load_scenario
+    from simulators.scenario import Scenario
+    from simulators.servers.hub import SimulatorHub
+
+    scenario = load_scenario(args.scenario) if args.scenario else Scenario()
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"rtcal: warning: serving on {args.host}, not only on this machine", file=sys.stderr)
+    hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus)
+    try:
+        addresses = hub.start()
+    except (RuntimeError, OSError) as exc:
+        raise UserError(f"simulators could not start: {exc}") from None
+    print(json.dumps(addresses), flush=True)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    stop.wait()
+    hub.stop()
     return EXIT_OK
 
 
@@ -119,8 +174,24 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("procedure", help="procedure YAML file")
     run.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
     run.add_argument("--seed", type=int, help="seed of the run's random generator (default: the scenario's)")
-    run.add_argument("--out", help="run directory (default: runs/<time>-<method>)")
+    run.add_argument("--out", help="run directory (default: runs/<time>-<procedure>)")
+    run.add_argument("--instruments", help="JSON object (or file) of instrument addresses, e.g. what `rtcal sim serve` "
+                                           "prints; replaces the procedure's instrument section")
+    run.add_argument("--virtual-clock", action="store_true",
+                     help="do not wait settle times in real time (for protocol simulators, never for hardware)")
     run.set_defaults(func=_cmd_run)
+
+    sim = sub.add_parser("sim", help="simulated instruments")
+    sim_sub = sim.add_subparsers(dest="sim_command", required=True)
+    serve = sim_sub.add_parser("serve", help="serve every instrument over its real protocol around one simulated bench; "
+                                             "prints one JSON line of addresses, then serves until interrupted")
+    serve.add_argument("--scenario", help="bench scenario YAML (default: an ideal bench)")
+    serve.add_argument("--seed", type=int, help="seed (default: the scenario's)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to bind (default: loopback only)")
+    serve.add_argument("--serial", choices=["pty", "tcp"], default="pty",
+                       help="serial instruments on pseudo-terminals (default) or TCP sockets (socket:// addresses)")
+    serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
+    serve.set_defaults(func=_cmd_sim_serve)
 
     val = sub.add_parser("validate", help="check procedure or scenario files; problems as file:line:column")
     val.add_argument("files", nargs="+")
@@ -148,9 +219,15 @@ def main(argv: list[str] | None = None) -> int:
         for p in exc.problems:
             print(p, file=sys.stderr)
         return EXIT_USAGE
-    except UserError as exc:
+    except (UserError, AddressError) as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except InstrumentError as exc:
+        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except BrokenPipeError:  # the reader of our output went away (| head): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
     except KeyboardInterrupt:
         print("rtcal: interrupted; readings taken so far are in the run store", file=sys.stderr)
         return 130

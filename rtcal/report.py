@@ -22,8 +22,12 @@ def write_report(run_dir: Path, results: dict[str, Any], body: list[str]) -> Pat
     """The Markdown report: a header every run shares, the method's body, the run's events."""
     lines = [f"# rtcal run — {results['procedure'].get('name') or results['method']}", ""]
     lines += [f"- method: `{results['method']}`", f"- software: rtcal {results['rtcal_version']}",
-              f"- seed: {results['seed']}", f"- raw readings: {results['raw_readings']}",
-              f"- bench: {'simulated' if 'truth' in results else 'hardware'}", ""]
+              f"- raw readings: {results['raw_readings']}"]
+    if isinstance(results.get("instruments"), dict):
+        lines += ["- instruments:"] + [f"  - {k}: `{v}`" for k, v in results["instruments"].items()]
+    else:
+        lines += [f"- instruments: {results.get('instruments')}, seed {results['seed']}"]
+    lines.append("")
     lines += body
     if results.get("events"):
         lines += ["## Events", ""] + [f"- t = {ev['t_s']:.1f} s, {ev['kind']}: {ev['message']}" for ev in results["events"]] + [""]

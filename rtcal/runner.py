@@ -13,16 +13,18 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from pydantic import ValidationError
 from tqdm import tqdm
 
 from rtcal import __version__
-from rtcal.clock import VirtualClock
+from rtcal.clock import RealClock, VirtualClock
 from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import load_procedure, load_scenario
 from rtcal.procedure.models import Procedure
 from rtcal.report import write_report, write_results
+from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.store import RunStore
-from rtcal.yamlfile import read_text
+from rtcal.yamlfile import FileProblems, Problem, read_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
@@ -53,45 +55,87 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat()
 
 
+def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
+    """The procedure with its instruments moved to the given addresses, validated again."""
+    section = proc.instruments.model_dump()
+    for name in section:
+        if name in addresses:
+            section[name].update(address=addresses[name], backend=None)
+    try:
+        instruments = type(proc.instruments).model_validate(section)
+    except ValidationError as exc:
+        raise FileProblems([Problem("--instruments", 1, 1, ".".join(map(str, e["loc"])) or "(instruments)",
+                                    str(e["msg"]).removeprefix("Value error, ")) for e in exc.errors()]) from None
+    return proc.model_copy(update={"instruments": instruments})
+
+
 def run_procedure(
     procedure_path: str | Path,
     scenario_path: str | Path | None = None,
     seed: int | None = None,
     out_dir: str | Path | None = None,
     show_progress: bool | None = None,
+    addresses: dict[str, str] | None = None,
+    virtual_clock: bool = False,
 ) -> RunOutcome:
-    """Run a procedure on the simulated bench and write the run directory. Raises FileProblems on bad input."""
+    """Run a procedure and write the run directory.
+
+    All instruments ``sim``: an in-process bench (from the scenario) with a virtual clock, and
+    the results carry its truth. Otherwise real transports at the procedure's addresses (or
+    ``addresses``, e.g. what `rtcal sim serve` printed), a real clock unless ``virtual_clock``,
+    and no truth. Raises FileProblems on bad input and InstrumentError on instrument failure.
+    """
     procedure_path = Path(procedure_path)
     proc = load_procedure(procedure_path)
+    if addresses:
+        proc = with_addresses(proc, addresses)
     method = METHODS[proc.method]
+    simulated = proc.instruments.all_sim()
     scenario, scenario_text = resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)
     seed = scenario.seed if seed is None else int(seed)
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
-    store = RunStore.create(run_dir, {
+    bench = Bench(scenario, VirtualClock(), seed) if simulated else None
+    clock = bench.clock if bench else (VirtualClock() if virtual_clock else RealClock())
+    if bench:
+        operator = BenchOperator(bench)
+    else:
+        operator = RemoteSimOperator(addresses["operator"]) if addresses and "operator" in addresses else ConsoleOperator()
+    prepared = method.prepare(proc, operator)
+    store = RunStore.create(run_dir, {**prepared,
         "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": read_text(procedure_path),
-        "scenario_yaml": scenario_text, "seed": str(seed), "software_version": __version__,
+        "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text if simulated else "",
+        "seed": str(seed) if simulated else "", "software_version": __version__,
         "started_utc": _now(), "status": "running",
     })
-    bench = Bench(scenario, VirtualClock(), seed)
+    try:
+        inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
+    except BaseException as exc:
+        store.set_meta({"status": "not started", "error": repr(exc)})
+        store.close()
+        raise
     disable = (not sys.stderr.isatty()) if show_progress is None else not show_progress
 
     def progress(it):
         return tqdm(it, total=method.plan_length(proc), desc="readings", unit="rd", disable=disable, file=sys.stderr)
 
     try:
-        method.measure(proc, bench, store, progress)
+        method.measure(proc, inst, store, clock, operator, progress)
     except BaseException as exc:
         store.set_meta({"status": "interrupted", "error": repr(exc)})
         store.close()
         raise
-    store.set_meta({"status": "measured", "finished_utc": _now(), "virtual_duration_s": f"{bench.clock.now_s():.1f}"})
+    finally:
+        inst.close()
+    store.set_meta({"status": "measured", "finished_utc": _now(), "clock_s": f"{clock.now_s():.1f}"})
 
     results: dict[str, Any] = {
         "rtcal_version": __version__,
         "method": proc.method,
         "procedure": {"name": proc.name, "path": str(procedure_path)},
-        "seed": seed,
-        "virtual_duration_s": round(bench.clock.now_s(), 1),
+        "seed": seed if simulated else None,
+        "instruments": "simulated in process" if simulated else {
+            f: getattr(proc.instruments, f).address for f in type(proc.instruments).model_fields},
+        "duration_s": round(clock.now_s(), 1),
         **method.analyse(proc, store, bench),
         "events": store.events(),
     }

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from drivers import factory
 from rtcal.dataset import abbe_visits
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.report import finite_or_none, plt
 from rtcal.sequencer.abbe import AbbeInstrumentSet, planned_visits, run_abbe
-from rtcal.sequencer.operator import BenchOperator
 from rtcal.solvers.abbe import AbbeEstimate, AbbeSetup, analyse_abbe
 from rtcal.solvers.harmonic_analysis import HarmonicFit
 from rtcal.store import RunStore
@@ -32,21 +33,49 @@ def plan_length(proc: EncoderAbbeError) -> int:
     return len(planned_visits(proc))
 
 
-def measure(proc: EncoderAbbeError, bench: Bench, store: RunStore, progress) -> None:
-    inst = AbbeInstrumentSet(SimStage(bench), SimEncoder(bench), SimAutocollimator(bench),
+def sim_instruments(proc: EncoderAbbeError, bench: Bench) -> AbbeInstrumentSet:
+    return AbbeInstrumentSet(SimStage(bench), SimEncoder(bench), SimAutocollimator(bench),
                              (SimDialIndicator(bench, 0), SimDialIndicator(bench, 1)))
-    run_abbe(proc, inst, store, bench.clock, BenchOperator(bench), progress)
 
 
-def _certificate(proc: EncoderAbbeError, bench: Bench | None) -> np.ndarray | None:
+def transport_instruments(proc: EncoderAbbeError) -> AbbeInstrumentSet:
+    i = proc.instruments
+    return AbbeInstrumentSet(
+        factory.open_stage(i.stage.address, i.stage.soft_limits_deg, i.stage.timeout_s),
+        factory.open_encoder(i.encoder.address, i.encoder.timeout_s),
+        factory.open_autocollimator(i.autocollimator.address, i.autocollimator.timeout_s),
+        (factory.open_dial_indicator(i.dial_indicator_1.address, "dial_indicator_1", i.dial_indicator_1.timeout_s),
+         factory.open_dial_indicator(i.dial_indicator_2.address, "dial_indicator_2", i.dial_indicator_2.timeout_s)),
+    )
+
+
+def prepare(proc: EncoderAbbeError, operator) -> dict[str, str]:
+    """Before any motion: fix the polygon certificate; the store records it for the analysis."""
+    return {"polygon_certificate_arcsec": json.dumps(resolve_certificate(proc, operator))}
+
+
+def measure(proc: EncoderAbbeError, inst: AbbeInstrumentSet, store: RunStore, clock, operator, progress) -> None:
+    run_abbe(proc, inst, store, clock, operator, progress)
+
+
+class CertificateUnavailable(Exception):
+    """``certificate_arcsec: bench`` on a bench that cannot hand one over (hardware)."""
+
+
+def resolve_certificate(proc: EncoderAbbeError, operator) -> list[float] | None:
+    """The face errors the analysis will use, fixed before the first motion (None: closure)."""
     cert = proc.polygon.certificate_arcsec
     if cert == "none":
         return None
     if cert == "bench":
-        if bench is None:
-            raise ValueError("polygon.certificate_arcsec: `bench` needs a simulated bench; give the certificate's values")
-        return np.asarray(bench.face_certificate_arcsec, float)
-    return np.asarray(cert, float)
+        values = operator.polygon_certificate_arcsec()
+        if values is None:
+            raise CertificateUnavailable("polygon.certificate_arcsec: `bench` takes a simulated polygon's certificate; "
+                                         f"on hardware list the certificate's {proc.polygon.faces} face errors (arcsec)")
+        if len(values) != proc.polygon.faces:
+            raise CertificateUnavailable(f"the bench's polygon has {len(values)} faces, the procedure {proc.polygon.faces}")
+        return [float(v) for v in values]
+    return [float(v) for v in cert]
 
 
 def harmonics_dict(fit: HarmonicFit) -> list[dict[str, Any]]:
@@ -93,7 +122,8 @@ def closure_dict(est: AbbeEstimate) -> dict[str, Any]:
 
 def analyse(proc: EncoderAbbeError, store: RunStore, bench: Bench | None) -> dict[str, Any]:
     visits = abbe_visits(store, proc.polygon.seatings_deg)
-    cert = _certificate(proc, bench)
+    recorded = json.loads(store.meta().get("polygon_certificate_arcsec", "null"))
+    cert = None if recorded is None else np.asarray(recorded, float)
     setup = AbbeSetup(proc.polygon.faces, proc.geometry.indicator_heights_mm, proc.geometry.grating_offset_mm,
                       proc.geometry.encoder_radius_mm, cert, proc.max_harmonic_order)
     est = analyse_abbe(visits, setup)

@@ -17,6 +17,7 @@ from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate, StationChain, sol
 from rtcal.solvers.shared_dead_path import SharedDeadPathEstimate, solve_shared_dead_path
 from rtcal.store import RunStore
 from simulators.bench import Bench
+from drivers import factory
 from simulators.instruments import SimCmm, SimLaserTracer, SimStage
 from simulators.truth import station_truth
 
@@ -100,10 +101,25 @@ def plan_length(proc: LaserTracerMultistation) -> int:
     return len(planned_readings(proc))
 
 
-def measure(proc: LaserTracerMultistation, bench: Bench, store: RunStore, progress) -> None:
-    """Every backend is ``sim`` today; real transports plug in here by address."""
-    inst = MultistationInstrumentSet(stage=SimStage(bench), cmm=SimCmm(bench), laser_tracer=SimLaserTracer(bench))
-    run_multistation(proc, inst, store, bench.clock, progress)
+def sim_instruments(proc: LaserTracerMultistation, bench: Bench) -> MultistationInstrumentSet:
+    return MultistationInstrumentSet(stage=SimStage(bench), cmm=SimCmm(bench), laser_tracer=SimLaserTracer(bench))
+
+
+def transport_instruments(proc: LaserTracerMultistation) -> MultistationInstrumentSet:
+    i = proc.instruments
+    stage = factory.open_stage(i.stage.address, i.stage.soft_limits_deg, i.stage.timeout_s)
+    cmm = factory.open_cmm(i.cmm.address, i.cmm.volume_min_mm, i.cmm.volume_max_mm, i.cmm.timeout_s)
+    tracer = factory.open_laser_tracer(i.laser_tracer.address, i.laser_tracer.timeout_s)
+    return MultistationInstrumentSet(stage=stage, cmm=cmm, laser_tracer=tracer)
+
+
+def prepare(proc: LaserTracerMultistation, operator) -> dict[str, str]:
+    """Nothing to fix before the first motion."""
+    return {}
+
+
+def measure(proc: LaserTracerMultistation, inst: MultistationInstrumentSet, store: RunStore, clock, operator, progress) -> None:
+    run_multistation(proc, inst, store, clock, progress)
 
 
 def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None) -> dict[str, Any]:

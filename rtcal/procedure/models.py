@@ -20,14 +20,67 @@ class _Strict(BaseModel):
 
 
 class InstrumentChoice(_Strict):
-    """Which backend serves an instrument. ``sim``: in-process, on the simulated bench."""
+    """Which backend serves an instrument: ``backend: sim`` (in-process, on the simulated bench)
+    or an ``address`` of a real transport (see drivers/addresses.py): a Modbus drive, an I++
+    CMM, a serial device path or ``socket://`` URL."""
 
-    backend: Literal["sim"] = "sim"
+    backend: Literal["sim"] | None = None
+    address: str | None = None
+    timeout_s: float = Field(2.0, gt=0.0, le=600.0)
+
+    @model_validator(mode="after")
+    def _one_backend(self) -> "InstrumentChoice":
+        if self.backend is not None and self.address is not None:
+            raise ValueError("give either `backend: sim` or an `address`, not both")
+        if self.address is not None:
+            from drivers.addresses import AddressError, parse_address
+
+            try:
+                parse_address(self.address)
+            except AddressError as exc:
+                raise ValueError(f"address: {exc}") from None
+        return self
+
+    @property
+    def is_sim(self) -> bool:
+        return self.address is None
 
 
-class MultistationInstruments(_Strict):
-    stage: InstrumentChoice = InstrumentChoice()
-    cmm: InstrumentChoice = InstrumentChoice()
+class StageChoice(InstrumentChoice):
+    """The stage, with soft limits rtcal enforces before any command reaches a transport."""
+
+    soft_limits_deg: tuple[float, float] = (-360.0, 360.0)
+
+
+class CmmChoice(InstrumentChoice):
+    """The CMM, with an optional measuring volume rtcal enforces before any command is sent."""
+
+    volume_min_mm: Vec3 = (-1e6, -1e6, -1e6)
+    volume_max_mm: Vec3 = (1e6, 1e6, 1e6)
+
+
+class _Instruments(_Strict):
+    def all_sim(self) -> bool:
+        return all(getattr(self, f).is_sim for f in type(self).model_fields)
+
+    @model_validator(mode="after")
+    def _one_bench(self) -> "_Instruments":
+        kinds = {getattr(self, f).is_sim for f in type(self).model_fields}
+        if len(kinds) > 1:
+            raise ValueError("mixing `backend: sim` with addresses would put instruments on two different benches; "
+                             "use addresses for all (e.g. from `rtcal sim serve`) or sim for all")
+        return self
+
+    def with_addresses(self, addresses: dict[str, str]):
+        """A copy with the named instruments moved to the given addresses (others keep theirs)."""
+        update = {f: getattr(self, f).model_copy(update={"address": addresses[f], "backend": None})
+                  for f in type(self).model_fields if f in addresses}
+        return self.model_copy(update=update)
+
+
+class MultistationInstruments(_Instruments):
+    stage: StageChoice = StageChoice()
+    cmm: CmmChoice = CmmChoice()
     laser_tracer: InstrumentChoice = InstrumentChoice()
 
 
@@ -128,11 +181,12 @@ class LaserTracerMultistation(_Strict):
         return self
 
 
-class AbbeInstruments(_Strict):
-    stage: InstrumentChoice = InstrumentChoice()
+class AbbeInstruments(_Instruments):
+    stage: StageChoice = StageChoice()
     encoder: InstrumentChoice = InstrumentChoice()
     autocollimator: InstrumentChoice = InstrumentChoice()
-    dial_indicators: InstrumentChoice = InstrumentChoice()
+    dial_indicator_1: InstrumentChoice = InstrumentChoice()  # at L1
+    dial_indicator_2: InstrumentChoice = InstrumentChoice()  # at L2
 
 
 class AbbeSteps(_Strict):

@@ -25,6 +25,10 @@ class AbbeInstrumentSet:
     autocollimator: Autocollimator
     indicators: tuple[DialIndicator, DialIndicator]
 
+    def close(self) -> None:
+        for i in (self.stage, self.encoder, self.autocollimator, *self.indicators):
+            i.close()
+
 
 @dataclass(frozen=True)
 class Visit:

@@ -25,6 +25,10 @@ class MultistationInstrumentSet:
     cmm: Cmm
     laser_tracer: LaserTracer
 
+    def close(self) -> None:
+        for i in (self.stage, self.cmm, self.laser_tracer):
+            i.close()
+
 
 def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int]]:
     """(point, station) pairs in measuring order; each pair is one planned tracer reading."""

@@ -10,6 +10,9 @@ from typing import Callable, Protocol
 class Operator(Protocol):
     def reseat_polygon(self, offset_deg: float, face_pitch_deg: float) -> None: ...
 
+    def polygon_certificate_arcsec(self) -> list[float] | None:
+        """A simulated polygon's certificate (the operator hands it over); None on hardware."""
+
 
 class ConsoleOperator:
     """Prints what to do and waits for Enter; refuses to continue without a terminal."""
@@ -27,6 +30,9 @@ class ConsoleOperator:
             raise RuntimeError("the procedure needs an operator (polygon re-seating) but there is no terminal")
         self._ask(message + " ")
 
+    def polygon_certificate_arcsec(self) -> list[float] | None:
+        return None
+
 
 class BenchOperator:
     """The simulated bench re-seats its own polygon."""
@@ -36,3 +42,35 @@ class BenchOperator:
 
     def reseat_polygon(self, offset_deg: float, face_pitch_deg: float) -> None:
         self.bench.reseat_polygon(offset_deg)
+
+    def polygon_certificate_arcsec(self) -> list[float] | None:
+        return [float(v) for v in self.bench.face_certificate_arcsec]
+
+
+class RemoteSimOperator:
+    """The simulated operator of a protocol-simulator hub (``sim-operator://HOST:PORT``)."""
+
+    def __init__(self, address: str, timeout_s: float = 5.0):
+        from drivers.addresses import parse_address
+
+        a = parse_address(address)
+        self.where = (a.host, a.port)
+        self.timeout_s = timeout_s
+
+    def _ask(self, line: str) -> str:
+        import socket
+
+        with socket.create_connection(self.where, timeout=self.timeout_s) as s:
+            s.sendall(line.encode() + b"\n")
+            return s.makefile("rb").readline().decode(errors="replace").strip()
+
+    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float) -> None:
+        reply = self._ask(f"RESEAT {offset_deg!r}")
+        if reply != "OK":
+            raise RuntimeError(f"simulated operator refused to re-seat the polygon: {reply!r}")
+
+    def polygon_certificate_arcsec(self) -> list[float] | None:
+        words = self._ask("CERT?").split()
+        if not words or words[0] != "CERT":
+            raise RuntimeError(f"simulated operator has no certificate: {words!r}")
+        return [float(w) for w in words[1:]]

@@ -223,7 +223,8 @@ class SimulatorHub:
         return buffer
 
     async def _operator_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench."""
+        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench; ``CERT?``
+        hands over the polygon's calibration certificate (face errors, arcsec)."""
         try:
             while line := await reader.readline():
                 words = line.decode(errors="replace").split()
@@ -233,6 +234,9 @@ class SimulatorHub:
                         writer.write(b"OK\n")
                     except ValueError:
                         writer.write(b"ERR ARG\n")
+                elif words == ["CERT?"]:
+                    values = " ".join(f"{v:.6f}" for v in self.bench.face_certificate_arcsec)
+                    writer.write(f"CERT {values}\n".encode())
                 else:
                     writer.write(b"ERR CMD\n")
                 await writer.drain()
