@@ -1,0 +1,103 @@
+"""Every procedure over real transports against `rtcal sim serve` (a separate process), compared
+with the in-process run of the same scenario and seed.
+
+Tolerance: the protocols carry CMM coordinates to 1 nm, tracer lengths to 1 pm, autocollimator
+readings to 0.0001″, indicator readings to 1 nm and encoder counts at the simulated encoder's own
+resolution. A 0.5 nm rounding of a coordinate moves a station by about as much, which the
+per-station model turns into at most a few thousandths of an arcsecond (3.2″ per µm at 65 mm,
+amplified by its weak geometry); we allow 0.01″. Seed 001 quantities agree exactly here.
+"""
+
+from __future__ import annotations
+
+import json
+import select
+import subprocess
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rtcal.runner import run_procedure
+
+REPO = Path(__file__).resolve().parents[1]
+PROC = REPO / "procedures"
+TOLERANCE_ARCSEC = 0.01
+
+
+@contextmanager
+def sim_serve(scenario: Path, *options: str):
+    proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "sim", "serve", "--scenario", str(scenario), *options],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], 30)
+        assert ready, "rtcal sim serve printed nothing in 30 s"
+        line = proc.stdout.readline()
+        assert line, proc.stderr.read()
+        yield json.loads(line)
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert proc.returncode == 0, proc.stderr.read()
+
+
+def _values(results: dict, estimator: str, key: str) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in results["estimates"][estimator][key]], float)
+
+
+def _compare(procedure: Path, scenario: Path, tmp_path: Path, checks: dict[str, list[str]], *options: str) -> dict:
+    local = run_procedure(procedure, scenario, out_dir=tmp_path / "local", show_progress=False).results
+    with sim_serve(scenario, *options) as addresses:
+        assert set(addresses) >= {"stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2"}
+        remote = run_procedure(procedure, out_dir=tmp_path / "remote", show_progress=False, addresses=addresses,
+                               virtual_clock=True).results
+    assert remote["raw_readings"] == local["raw_readings"]
+    assert "truth" not in remote and isinstance(remote["instruments"], dict)
+    for estimator, keys in checks.items():
+        for key in keys:
+            a, b = _values(local, estimator, key), _values(remote, estimator, key)
+            assert np.array_equal(np.isnan(a), np.isnan(b))
+            assert np.nanmax(np.abs(a - b)) < TOLERANCE_ARCSEC, (estimator, key, np.nanmax(np.abs(a - b)))
+    return remote
+
+
+def test_paper000_over_modbus_tcp_ipp_and_ptys(tmp_path):
+    remote = _compare(PROC / "laser_tracer_multistation.yaml", PROC / "scenarios" / "paper000_bench.yaml", tmp_path,
+                      {"paper": ["deviation_arcsec"], "shared_dead_path": ["deviation_arcsec"]})
+    assert remote["instruments"]["stage"].startswith("modbus-tcp://127.0.0.1:")
+    assert remote["instruments"]["laser_tracer"].startswith("/dev/pts/")
+
+
+def test_seed001_over_modbus_rtu_and_sockets(tmp_path):
+    remote = _compare(PROC / "encoder_abbe_error.yaml", PROC / "scenarios" / "abbe_bench.yaml", tmp_path,
+                      {"abbe": ["predicted_encoder_error_arcsec", "measured_encoder_error_arcsec", "positioning_error_arcsec"]},
+                      "--modbus", "rtu", "--serial", "tcp")
+    assert remote["instruments"]["stage"].startswith("modbus-rtu:///dev/pts/")
+    assert remote["instruments"]["encoder"].startswith("socket://127.0.0.1:")
+
+
+def test_closure_with_the_simulated_operator(tmp_path):
+    _compare(PROC / "polygon_closure.yaml", PROC / "scenarios" / "abbe_bench.yaml", tmp_path,
+             {"closure": ["face_error_arcsec", "table_error_arcsec"]})
+
+
+def test_unreachable_instrument_is_a_clean_error(tmp_path, capsys):
+    from rtcal.cli import main
+
+    addresses = json.dumps({"stage": "modbus-tcp://127.0.0.1:9?unit=1", "cmm": "ipp://127.0.0.1:9",
+                            "laser_tracer": "/dev/nonexistent-tty"})
+    code = main(["run", str(PROC / "laser_tracer_multistation.yaml"), "--instruments", addresses, "--out", str(tmp_path / "x")])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "instrument error" in err and "cannot connect" in err
+
+
+def test_mixed_sim_and_address_is_refused(tmp_path, capsys):
+    from rtcal.cli import main
+
+    code = main(["run", str(PROC / "laser_tracer_multistation.yaml"), "--instruments", '{"stage": "modbus-tcp://127.0.0.1:502"}',
+                 "--out", str(tmp_path / "x")])
+    assert code == 2
+    assert "two different benches" in capsys.readouterr().err
