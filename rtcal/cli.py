@@ -25,7 +25,7 @@ class UserError(Exception):
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from rtcal.methods.abbe import CertificateUnavailable
-    from rtcal.runner import METHODS, default_run_dir, run_procedure
+    from rtcal.runner import default_run_dir, run_procedure
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
@@ -38,13 +38,33 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise UserError(f"{args.procedure}: {exc}") from None
     except InstrumentError as exc:
         print(f"rtcal: instrument error: {exc}", file=sys.stderr)
-        print(f"rtcal: every reading taken so far is in {out}/run.sqlite", file=sys.stderr)
+        print(f"rtcal: every reading taken so far is in {out}/run.sqlite; `rtcal resume {out}` goes on", file=sys.stderr)
         return EXIT_FAILED
+    _print_outcome(outcome)
+    return EXIT_OK
+
+
+def _print_outcome(outcome) -> None:
+    from rtcal.runner import METHODS
+
     print(f"run complete: {outcome.results['raw_readings']} readings stored")
     for line in METHODS[outcome.results["method"]].summary(outcome.results):
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith("run.sqlite-")))
     print(f"results in {outcome.run_dir}/ ({files})")
+
+
+def _cmd_resume(args: argparse.Namespace) -> int:
+    from rtcal.runner import resume_run
+
+    addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    try:
+        outcome = resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock)
+    except InstrumentError as exc:
+        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        print(f"rtcal: every reading taken so far is in {args.run_dir}/run.sqlite; `rtcal resume` again to go on", file=sys.stderr)
+        return EXIT_FAILED
+    _print_outcome(outcome)
     return EXIT_OK
 
 
@@ -180,6 +200,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--virtual-clock", action="store_true",
                      help="do not wait settle times in real time (for protocol simulators, never for hardware)")
     run.set_defaults(func=_cmd_run)
+
+    resume = sub.add_parser("resume", help="continue an interrupted run: every planned reading not yet stored, once")
+    resume.add_argument("run_dir")
+    resume.add_argument("--instruments", help="new instrument addresses (JSON object or file), e.g. of a restarted simulator")
+    resume.add_argument("--virtual-clock", action="store_true", help="as for `run`")
+    resume.set_defaults(func=_cmd_resume)
 
     sim = sub.add_parser("sim", help="simulated instruments")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True)

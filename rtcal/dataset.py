@@ -15,8 +15,8 @@ class MultistationData:
     """Arrays for the seed-000 solvers, from the raw readings."""
 
     points_mm: np.ndarray  # n×3, CMM-reported, averaged over visits
-    lengths_mm: np.ndarray  # n×m, tracer samples averaged
-    segments: np.ndarray  # n×m tracking segment of each length
+    lengths_mm: np.ndarray  # n×m, tracer samples averaged; NaN where the reading was skipped
+    segments: np.ndarray  # n×m tracking segment of each length (−1 where skipped)
     nominal_angles_deg: np.ndarray  # m
     raw_readings: int  # planned readings present (point, station pairs with a length)
 
@@ -36,10 +36,11 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         len_sum[r.point, r.station] += r.value
         len_count[r.point, r.station] += 1
         segments[r.point, r.station] = r.segment
-    if np.any(len_count == 0) or np.any(pos_count == 0):
-        missing = int(np.sum(len_count == 0))
-        raise ValueError(f"the run is incomplete: {missing} of {n_points * m} planned lengths are missing")
-    return MultistationData(pos_sum / pos_count, len_sum / len_count, segments,
+    if np.any(pos_count == 0):
+        raise ValueError(f"the CMM position of {int(np.sum(pos_count[:, 0] == 0))} points was never read")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
+    return MultistationData(pos_sum / pos_count, lengths, segments,
                             np.asarray(nominal_angles_deg, float), int(np.sum(len_count > 0)))
 
 

@@ -20,11 +20,11 @@ from rtcal import __version__
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import load_procedure, load_scenario
-from rtcal.procedure.models import Procedure
+from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
 from rtcal.report import write_report, write_results
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.store import RunStore
-from rtcal.yamlfile import FileProblems, Problem, read_text
+from rtcal.yamlfile import FileProblems, Problem, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
@@ -69,6 +69,12 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
     return proc.model_copy(update={"instruments": instruments})
 
 
+def _operator(bench: Bench | None, addresses: dict[str, str] | None):
+    if bench:
+        return BenchOperator(bench)
+    return RemoteSimOperator(addresses["operator"]) if addresses and "operator" in addresses else ConsoleOperator()
+
+
 def run_procedure(
     procedure_path: str | Path,
     scenario_path: str | Path | None = None,
@@ -95,18 +101,62 @@ def run_procedure(
     seed = scenario.seed if seed is None else int(seed)
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
     bench = Bench(scenario, VirtualClock(), seed) if simulated else None
-    clock = bench.clock if bench else (VirtualClock() if virtual_clock else RealClock())
-    if bench:
-        operator = BenchOperator(bench)
-    else:
-        operator = RemoteSimOperator(addresses["operator"]) if addresses and "operator" in addresses else ConsoleOperator()
+    operator = _operator(bench, addresses)
     prepared = method.prepare(proc, operator)
     store = RunStore.create(run_dir, {**prepared,
         "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": read_text(procedure_path),
         "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text if simulated else "",
         "seed": str(seed) if simulated else "", "software_version": __version__,
-        "started_utc": _now(), "status": "running",
+        "started_utc": _now(), "status": "running", "generation": "0",
     })
+    return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0)
+
+
+def resume_run(
+    run_dir: str | Path,
+    addresses: dict[str, str] | None = None,
+    virtual_clock: bool = False,
+    show_progress: bool | None = None,
+) -> RunOutcome:
+    """Continue an interrupted run from its store: every planned reading not yet stored, once.
+
+    The procedure, instrument section, scenario and seed come from the store, not from files
+    that may have changed since. Simulated instruments get a new bench generation (fresh random
+    draws); transports reconnect (``addresses`` replaces the stored ones, e.g. a restarted
+    `rtcal sim serve`). The first pending reading re-approaches its targets from the
+    procedure's direction and re-references the tracer.
+    """
+    run_dir = Path(run_dir)
+    try:
+        store = RunStore.open(run_dir)
+    except FileNotFoundError as exc:
+        raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: {exc}")]) from None
+    meta = store.meta()
+    where = f"{run_dir / RunStore.FILENAME}"
+    model = PROCEDURE_MODELS[meta["method"]]
+    proc = validate_text(meta["procedure_yaml"], model, f"{where} (stored procedure)")
+    proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta["instruments"])})
+    if addresses:
+        proc = with_addresses(proc, addresses)
+    simulated = proc.instruments.all_sim()
+    generation = int(meta.get("generation", "0")) + 1
+    bench = None
+    if simulated:
+        scenario = validate_text(meta["scenario_yaml"], Scenario, f"{where} (stored scenario)") if meta["scenario_yaml"] else Scenario()
+        bench = Bench(scenario, VirtualClock(store.last_time_s()), int(meta["seed"]), generation)
+    done = len(store.done_plan_indices())
+    store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
+    store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
+                    f"{METHODS[proc.method].plan_length(proc)} planned readings were already stored")
+    return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation)
+
+
+def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
+                       virtual_clock: bool, show_progress: bool | None, generation: int) -> RunOutcome:
+    """Open the instruments, take every pending planned reading, then analyse and write the outputs."""
+    method = METHODS[proc.method]
+    simulated = bench is not None
+    clock = bench.clock if bench else (VirtualClock(store.last_time_s()) if virtual_clock else RealClock())
     try:
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
@@ -114,27 +164,30 @@ def run_procedure(
         store.close()
         raise
     disable = (not sys.stderr.isatty()) if show_progress is None else not show_progress
+    already = len(store.done_plan_indices())
 
     def progress(it):
-        return tqdm(it, total=method.plan_length(proc), desc="readings", unit="rd", disable=disable, file=sys.stderr)
+        return tqdm(it, total=method.plan_length(proc), initial=already, desc="readings", unit="rd", disable=disable,
+                    file=sys.stderr)
 
     try:
-        method.measure(proc, inst, store, clock, operator, progress)
+        method.measure(proc, inst, store, clock, operator, progress, generation)
     except BaseException as exc:
         store.set_meta({"status": "interrupted", "error": repr(exc)})
         store.close()
         raise
     finally:
         inst.close()
-    store.set_meta({"status": "measured", "finished_utc": _now(), "clock_s": f"{clock.now_s():.1f}"})
-
+    store.set_meta({"status": "measured", "finished_utc": _now()})
+    meta = store.meta()
     results: dict[str, Any] = {
         "rtcal_version": __version__,
         "method": proc.method,
-        "procedure": {"name": proc.name, "path": str(procedure_path)},
-        "seed": seed if simulated else None,
+        "procedure": {"name": proc.name, "path": meta.get("procedure_path", "")},
+        "seed": int(meta["seed"]) if simulated else None,
         "instruments": "simulated in process" if simulated else {
             f: getattr(proc.instruments, f).address for f in type(proc.instruments).model_fields},
+        "starts": generation + 1,
         "duration_s": round(clock.now_s(), 1),
         **method.analyse(proc, store, bench),
         "events": store.events(),

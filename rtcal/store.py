@@ -32,7 +32,8 @@ CREATE TABLE IF NOT EXISTS readings (
     commanded_z_mm REAL,
     seating INTEGER,
     run INTEGER,
-    direction INTEGER
+    direction INTEGER,
+    plan_index INTEGER
 );
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY,
@@ -46,6 +47,7 @@ CREATE TABLE IF NOT EXISTS events (
 READING_COLUMNS = (
     "t_s", "instrument", "quantity", "value", "unit", "point", "station", "sample", "segment",
     "commanded_angle_deg", "commanded_x_mm", "commanded_y_mm", "commanded_z_mm", "seating", "run", "direction",
+    "plan_index",
 )
 
 
@@ -69,6 +71,7 @@ class Reading:
     seating: int | None = None
     run: int | None = None
     direction: int | None = None
+    plan_index: int | None = None  # the planned reading this belongs to (see the sequencers)
 
 
 class RunStore:
@@ -136,6 +139,20 @@ class RunStore:
             sql += " WHERE " + " AND ".join(clauses)
         for row in self._db.execute(sql + " ORDER BY id", args):
             yield Reading(*row)
+
+    def done_plan_indices(self) -> set[int]:
+        """Planned readings already stored (each committed whole, so present means complete)."""
+        return {row[0] for row in self._db.execute("SELECT DISTINCT plan_index FROM readings WHERE plan_index IS NOT NULL")}
+
+    def last_time_s(self) -> float:
+        """Time of the last reading or event (0 for an empty run): where a resumed clock goes on."""
+        row = self._db.execute("SELECT MAX(t) FROM (SELECT MAX(t_s) AS t FROM readings UNION ALL SELECT MAX(t_s) FROM events)").fetchone()
+        return float(row[0] or 0.0)
+
+    def max_segment(self) -> int:
+        """The highest tracking segment stored so far, −1 if none."""
+        row = self._db.execute("SELECT MAX(segment) FROM readings").fetchone()
+        return -1 if row[0] is None else int(row[0])
 
     def events(self) -> list[dict]:
         cur = self._db.execute("SELECT t_s, kind, instrument, message FROM events ORDER BY id")

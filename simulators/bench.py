@@ -61,10 +61,11 @@ class Truth:
 class Bench:
     """The physical state of a simulated bench, built from a :class:`Scenario`."""
 
-    def __init__(self, scenario: Scenario, clock: Clock | None = None, seed: int | None = None):
+    def __init__(self, scenario: Scenario, clock: Clock | None = None, seed: int | None = None, generation: int = 0):
         self.scenario = scenario
         self.clock = clock if clock is not None else VirtualClock()
         self.seed = scenario.seed if seed is None else seed
+        self.generation = generation  # 0 for a run's first start, +1 for each resume: fresh draws
         self._seeds = np.random.SeedSequence(self.seed)
         self._rngs: dict[str, np.random.Generator] = {}
         st = scenario.stage
@@ -94,7 +95,8 @@ class Bench:
         poly = scenario.polygon
         errors = np.array(poly.face_errors_arcsec or [0.0] * poly.faces, dtype=float)
         self.face_errors_arcsec = errors - errors.mean()  # a polygon closes: Σ = 0
-        self.face_certificate_arcsec = self.face_errors_arcsec + poly.certificate_uncertainty_arcsec * self.rng("certificate").standard_normal(poly.faces)
+        cert_rng = self.persistent_rng("certificate")  # one polygon, one certificate
+        self.face_certificate_arcsec = self.face_errors_arcsec + poly.certificate_uncertainty_arcsec * cert_rng.standard_normal(poly.faces)
         self.polygon_pitch_rad = 2 * math.pi / poly.faces
         self.polygon_rotation_rad = 0.0
         st_ = scenario.stepper
@@ -110,8 +112,13 @@ class Bench:
     def rng(self, name: str) -> np.random.Generator:
         if name not in self._rngs:
             key = int.from_bytes(name.encode(), "little") % (2**32)
-            self._rngs[name] = np.random.default_rng([self.seed, key])
+            self._rngs[name] = np.random.default_rng([self.seed, key] + ([self.generation] if self.generation else []))
         return self._rngs[name]
+
+    def persistent_rng(self, name: str) -> np.random.Generator:
+        """Draws of physical facts that a software restart does not change (how a polygon sits)."""
+        key = int.from_bytes(name.encode()[-8:], "little") % (2**32)
+        return np.random.default_rng([self.seed, key])
 
     # -- stage
     def positioning_error_rad(self, commanded_rad, direction: int = +1):
@@ -185,8 +192,11 @@ class Bench:
         return float(shift + evaluate(self._graduation, self.actual_rad))
 
     def reseat_polygon(self, offset_deg: float) -> None:
-        """The operator turns the polygon on the table so faces come in front at offset + k·pitch."""
-        err = arcsec_to_rad(self.scenario.polygon.seating_error_arcsec) * self.rng("seating").standard_normal()
+        """The operator turns the polygon on the table so faces come in front at offset + k·pitch.
+
+        Each seating lands with its own error, the same whenever that seating is (re)visited
+        after a software restart: the polygon did not move because the program died."""
+        err = arcsec_to_rad(self.scenario.polygon.seating_error_arcsec) * self.persistent_rng(f"seating {offset_deg!r}").standard_normal()
         self.polygon_rotation_rad = math.radians(offset_deg) + err
 
     def autocollimator_true(self) -> tuple[float, int]:

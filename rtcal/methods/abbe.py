@@ -54,8 +54,9 @@ def prepare(proc: EncoderAbbeError, operator) -> dict[str, str]:
     return {"polygon_certificate_arcsec": json.dumps(resolve_certificate(proc, operator))}
 
 
-def measure(proc: EncoderAbbeError, inst: AbbeInstrumentSet, store: RunStore, clock, operator, progress) -> None:
-    run_abbe(proc, inst, store, clock, operator, progress)
+def measure(proc: EncoderAbbeError, inst: AbbeInstrumentSet, store: RunStore, clock, operator, progress,
+            generation: int = 0) -> None:
+    run_abbe(proc, inst, store, clock, operator, progress, generation)
 
 
 class CertificateUnavailable(Exception):

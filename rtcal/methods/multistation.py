@@ -118,7 +118,8 @@ def prepare(proc: LaserTracerMultistation, operator) -> dict[str, str]:
     return {}
 
 
-def measure(proc: LaserTracerMultistation, inst: MultistationInstrumentSet, store: RunStore, clock, operator, progress) -> None:
+def measure(proc: LaserTracerMultistation, inst: MultistationInstrumentSet, store: RunStore, clock, operator, progress,
+            generation: int = 0) -> None:
     run_multistation(proc, inst, store, clock, progress)
 
 
@@ -128,7 +129,7 @@ def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None)
     data = multistation_data(store, angles, len(proc.points_array()))
     nominal = np.deg2rad(angles)
     guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
-    paper = solve_paper(data.points_mm, data.lengths_mm, nominal, guess, axis, lm_parameters(proc))
+    paper = solve_paper(data.points_mm, data.lengths_mm, nominal, guess, axis, lm_parameters(proc), data.segments)
     shared = solve_shared_dead_path(data.points_mm, data.lengths_mm, data.segments, nominal, guess, axis)
     out: dict[str, Any] = {
         "nominal_angles_deg": [float(a) for a in angles],

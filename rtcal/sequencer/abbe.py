@@ -59,23 +59,34 @@ def run_abbe(
     clock: Clock,
     operator: Operator,
     progress: Callable[[Iterator], Iterator] = lambda it: it,
+    generation: int = 0,
 ) -> int:
-    """Execute the procedure; returns the number of visits stored."""
+    """Execute the visits not yet in the store; returns how many it stored.
+
+    Readings carry the run's ``generation`` (0, +1 per resume) as their segment, for the record.
+    A resumed run asks the operator to confirm the polygon's seating (it stays where it was
+    unless someone moved it).
+    """
     plan = planned_visits(proc)
     for v in plan:
         inst.stage.check_target(v.angle_deg)
         inst.stage.check_target(v.angle_deg - v.direction * proc.steps.overshoot_deg)
+    done = store.done_plan_indices()
     seating = None
     stored = 0
-    for v in progress(iter(plan)):
+    for k, v in progress(iter(list(enumerate(plan)))):
+        if k in done:
+            continue
         if v.seating != seating:
             offset = proc.polygon.seatings_deg[v.seating]
-            store.add_event(clock.now_s(), "operator", f"polygon seated at {offset:g}° (seating {v.seating + 1})")
-            operator.reseat_polygon(offset, proc.polygon.pitch_deg)
+            resumed = seating is None and k > 0
+            store.add_event(clock.now_s(), "operator", f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {v.seating + 1})")
+            operator.reseat_polygon(offset, proc.polygon.pitch_deg, resumed)
             seating = v.seating
         approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg)
         clock.sleep(proc.settle_time_s)
-        state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg)
+        state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg,
+                     plan_index=k, segment=generation)
         readings: list[Reading] = []
         for s in range(proc.samples_per_reading):
             readings.append(Reading(clock.now_s(), "encoder", "angle_deg", inst.encoder.read_angle_deg(), "deg", sample=s, **state))

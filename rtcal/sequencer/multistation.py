@@ -45,7 +45,12 @@ def run_multistation(
     clock: Clock,
     progress: Callable[[Iterator], Iterator] = lambda it: it,
 ) -> int:
-    """Execute the procedure; returns the number of tracer readings stored."""
+    """Execute the planned readings not yet in the store; returns how many it stored.
+
+    A fresh start and a resume are the same: the first pending reading moves both machines
+    (approaching from the procedure's direction) and references the tracer, which starts a new
+    tracking segment numbered after every segment already stored.
+    """
     points = proc.points_array()
     angles = proc.stations.angles_deg()
     direction = 1 if proc.stations.approach == "positive" else -1
@@ -56,11 +61,14 @@ def run_multistation(
         inst.stage.check_target(a)
         inst.stage.check_target(a - direction * proc.stations.overshoot_deg)
 
+    done = store.done_plan_indices()
     at_point: int | None = None
     at_station: int | None = None
     segment: int | None = None
     stored = 0
-    for i, j in progress(iter(plan)):
+    for k, (i, j) in progress(iter(list(enumerate(plan)))):
+        if k in done:
+            continue
         stage_moved = at_station != j
         cmm_moved = at_point != i
         if stage_moved:
@@ -72,18 +80,19 @@ def run_multistation(
         if stage_moved or cmm_moved:
             clock.sleep(proc.settle_time_s)
         readings: list[Reading] = []
-        state = dict(point=i, station=j, commanded_angle_deg=float(angles[j]),
+        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]),
                      commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
         if cmm_moved:
             xyz = inst.cmm.position_mm()
             t = clock.now_s()
             readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
         if segment is None:
-            segment = inst.laser_tracer.reference()
+            inst.laser_tracer.reference()
+            segment = store.max_segment() + 1
             store.add_event(clock.now_s(), "reference", f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
         for s in range(proc.samples_per_reading):
             r = inst.laser_tracer.read_length()
-            readings.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=s, segment=r.segment, **state))
+            readings.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=s, segment=segment, **state))
         store.add_readings(readings)
         stored += 1
     return stored

@@ -8,7 +8,7 @@ from typing import Callable, Protocol
 
 
 class Operator(Protocol):
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float) -> None: ...
+    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None: ...
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
         """A simulated polygon's certificate (the operator hands it over); None on hardware."""
@@ -20,12 +20,16 @@ class ConsoleOperator:
     def __init__(self, ask: Callable[[str], str] = input):
         self._ask = ask
 
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float) -> None:
+    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
         faces = offset_deg / face_pitch_deg
         what = f"{faces:g} face(s)" if abs(faces - round(faces)) < 1e-9 else f"{offset_deg:g}°"
-        message = (f"\nOperator: seat the polygon turned by {what} from its home seating "
-                   f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
-                   "align it to the autocollimator within its range, then press Enter.")
+        if resumed:
+            message = (f"\nOperator: the run resumes with the polygon seated turned by {what}. Do not move it; "
+                       "if it was moved, abort and start the seating again. Press Enter to continue.")
+        else:
+            message = (f"\nOperator: seat the polygon turned by {what} from its home seating "
+                       f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
+                       "align it to the autocollimator within its range, then press Enter.")
         if not sys.stdin.isatty() and self._ask is input:
             raise RuntimeError("the procedure needs an operator (polygon re-seating) but there is no terminal")
         self._ask(message + " ")
@@ -40,8 +44,8 @@ class BenchOperator:
     def __init__(self, bench) -> None:
         self.bench = bench
 
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float) -> None:
-        self.bench.reseat_polygon(offset_deg)
+    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
+        self.bench.reseat_polygon(offset_deg)  # deterministic per seating: a resume finds it as it was
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
         return [float(v) for v in self.bench.face_certificate_arcsec]
@@ -64,7 +68,7 @@ class RemoteSimOperator:
             s.sendall(line.encode() + b"\n")
             return s.makefile("rb").readline().decode(errors="replace").strip()
 
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float) -> None:
+    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
         reply = self._ask(f"RESEAT {offset_deg!r}")
         if reply != "OK":
             raise RuntimeError(f"simulated operator refused to re-seat the polygon: {reply!r}")

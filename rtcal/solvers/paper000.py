@@ -109,6 +109,18 @@ def deviation_uncertainty(stations_mm: np.ndarray, cov_mm2: np.ndarray, nominal_
     return np.sqrt(np.clip(np.diag(jac @ cov_mm2 @ jac.T), 0.0, None))
 
 
+def _station_problem(points_mm: np.ndarray, lengths: np.ndarray, segments: np.ndarray, guess: np.ndarray):
+    """One station's valid lengths, their segment indices and a start with one d per segment."""
+    valid = np.isfinite(lengths)
+    seg_ids, seg = np.unique(segments[valid], return_inverse=True)
+    if valid.sum() < 3 + len(seg_ids) + 1:
+        raise ValueError(f"a station has {int(valid.sum())} lengths for {3 + len(seg_ids)} unknowns")
+    pts, ls = points_mm[valid], lengths[valid]
+    dist = np.linalg.norm(pts - guess[:3], axis=1)
+    d0 = [float(np.mean((dist - ls)[seg == s])) for s in range(len(seg_ids))]
+    return pts, ls, seg, np.concatenate([guess[:3], d0])
+
+
 def solve_paper(
     points_mm: np.ndarray,
     lengths_mm: np.ndarray,
@@ -116,17 +128,25 @@ def solve_paper(
     first_station_guess_mm: np.ndarray,
     axis_point_mm: np.ndarray = np.zeros(3),
     params: LMParameters = LMParameters(),
+    segments: np.ndarray | None = None,
 ) -> PaperEstimate:
-    """Run the printed method on n points × m stations of lengths (mm, n×m)."""
+    """Run the printed method on n points × m stations of lengths (mm, n×m; NaN: not measured).
+
+    ``segments`` (n×m) names each length's tracking segment; a station whose lengths span
+    several segments gets one dead path per segment (the printed model has one)."""
     points_mm = np.asarray(points_mm, dtype=float)
     lengths_mm = np.asarray(lengths_mm, dtype=float)
     n, m = lengths_mm.shape
     if points_mm.shape != (n, 3):
         raise ValueError(f"points are {points_mm.shape}, lengths are {lengths_mm.shape}: need n×3 and n×m")
+    segments = np.zeros((n, m), int) if segments is None else np.asarray(segments)
     guesses = initial_guesses(
         first_station_guess_mm, nominal_angles_rad, np.asarray(axis_point_mm, float), points_mm, lengths_mm
     )
-    fits = [solve_station(points_mm, lengths_mm[:, j], guesses[j], params) for j in range(m)]
+    fits = []
+    for j in range(m):
+        pts, ls, seg, x0 = _station_problem(points_mm, lengths_mm[:, j], segments[:, j], guesses[j])
+        fits.append(solve_station(pts, ls, x0, params, seg if seg.max() > 0 else None))
     centers = np.array([f.center_mm for f in fits])
     chain = chain_from_stations(centers, nominal_angles_rad)
     unc = deviation_uncertainty(centers, block_covariance([f.covariance_mm2 for f in fits]), nominal_angles_rad)

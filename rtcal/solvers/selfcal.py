@@ -6,7 +6,9 @@ The paper's per-station model: for station j the unknowns are its reference cent
     f_i(X, Y, Z, d) = |A_i − P_j| − d − l_ij        (eq. 5)
 
 is solved station by station with the LM iteration of :mod:`rtcal.solvers.lm`.
-All lengths in mm.
+When the tracer was re-referenced within a station's lengths (a beam break, a resumed run),
+each tracking segment gets its own d: x = (X, Y, Z, d_0, …, d_k−1). With one segment this is
+exactly eq. 5. All lengths in mm.
 """
 
 from __future__ import annotations
@@ -24,24 +26,28 @@ class StationFit:
     """One station: centre (mm), dead path (mm), fit diagnostics."""
 
     center_mm: np.ndarray
-    dead_path_mm: float
+    dead_path_mm: float  # of the first segment
     rms_residual_um: float
-    covariance_mm2: np.ndarray  # 4×4 of (X, Y, Z, d) from σ̂²(JᵀJ)⁻¹
+    covariance_mm2: np.ndarray  # of (X, Y, Z, d…) from σ̂²(JᵀJ)⁻¹
     iterations: int
     converged: bool
     message: str
 
 
-def station_residuals(x: np.ndarray, points_mm: np.ndarray, lengths_mm: np.ndarray) -> np.ndarray:
-    """Eq. 5: |A_i − P| − d − l_i for x = (X, Y, Z, d)."""
-    return np.linalg.norm(points_mm - x[:3], axis=1) - x[3] - lengths_mm
+def station_residuals(x: np.ndarray, points_mm: np.ndarray, lengths_mm: np.ndarray, seg: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 5: |A_i − P| − d_seg(i) − l_i for x = (X, Y, Z, d_0, …)."""
+    d = x[3:][seg] if seg is not None else x[3]
+    return np.linalg.norm(points_mm - x[:3], axis=1) - d - lengths_mm
 
 
-def station_jacobian(x: np.ndarray, points_mm: np.ndarray, lengths_mm: np.ndarray) -> np.ndarray:
-    """Eq. 10's n×4 matrix: ((X−x_i)/L, (Y−y_i)/L, (Z−z_i)/L, −1)."""
+def station_jacobian(x: np.ndarray, points_mm: np.ndarray, lengths_mm: np.ndarray, seg: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 10's matrix: ((X−x_i)/L, (Y−y_i)/L, (Z−z_i)/L, −1 in the column of the point's segment)."""
     diff = x[:3] - points_mm
     dist = np.linalg.norm(diff, axis=1)
-    return np.column_stack([diff / dist[:, None], -np.ones(len(points_mm))])
+    k = len(x) - 3
+    d_cols = np.zeros((len(points_mm), k))
+    d_cols[np.arange(len(points_mm)), seg if seg is not None else 0] = -1.0
+    return np.column_stack([diff / dist[:, None], d_cols])
 
 
 def _covariance(result_residuals: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
@@ -66,21 +72,24 @@ def _fit(result: LMResult) -> StationFit:
 
 
 def solve_station(
-    points_mm: np.ndarray, lengths_mm: np.ndarray, x0: np.ndarray, params: LMParameters = LMParameters()
+    points_mm: np.ndarray, lengths_mm: np.ndarray, x0: np.ndarray, params: LMParameters = LMParameters(),
+    seg: np.ndarray | None = None,
 ) -> StationFit:
-    """Self-calibrate one station with the paper's LM from the guess x0 = (X, Y, Z, d)."""
+    """Self-calibrate one station with the paper's LM from the guess x0 = (X, Y, Z, d_0, …).
+
+    ``seg`` gives each length's segment as an index into the d's (None: one segment)."""
     points_mm = np.asarray(points_mm, dtype=float)
     lengths_mm = np.asarray(lengths_mm, dtype=float)
     result = levenberg_marquardt(
-        lambda x: station_residuals(x, points_mm, lengths_mm),
-        lambda x: station_jacobian(x, points_mm, lengths_mm),
+        lambda x: station_residuals(x, points_mm, lengths_mm, seg),
+        lambda x: station_jacobian(x, points_mm, lengths_mm, seg),
         np.asarray(x0, dtype=float),
         params,
     )
     return _fit(result)
 
 
-def solve_station_scipy(points_mm: np.ndarray, lengths_mm: np.ndarray, x0: np.ndarray) -> StationFit:
+def solve_station_scipy(points_mm: np.ndarray, lengths_mm: np.ndarray, x0: np.ndarray, seg: np.ndarray | None = None) -> StationFit:
     """The same problem solved by scipy's MINPACK LM: the independent cross-check."""
     points_mm = np.asarray(points_mm, dtype=float)
     lengths_mm = np.asarray(lengths_mm, dtype=float)
@@ -88,7 +97,7 @@ def solve_station_scipy(points_mm: np.ndarray, lengths_mm: np.ndarray, x0: np.nd
         station_residuals,
         np.asarray(x0, dtype=float),
         jac=station_jacobian,
-        args=(points_mm, lengths_mm),
+        args=(points_mm, lengths_mm, seg),
         method="lm",
         xtol=1e-15,
         ftol=1e-15,
@@ -109,7 +118,7 @@ def initial_guesses(
 
     Station 1's nominal centre is rotated about the nominal axis (vertical through
     ``axis_point_mm``) by each station's nominal angle; d follows from the first point's
-    length, d = |A_1 − P_j| − l_1j (eq. 1).
+    length, d = |A_1 − P_j| − l_1j (eq. 1), or the first point measured at that station.
     """
     first = np.asarray(first_guess_mm, dtype=float)
     rel = first[:2] - axis_point_mm[:2]
@@ -117,5 +126,7 @@ def initial_guesses(
     c, s = np.cos(delta), np.sin(delta)
     xy = np.column_stack([c * rel[0] - s * rel[1], s * rel[0] + c * rel[1]]) + axis_point_mm[:2]
     centers = np.column_stack([xy, np.full(len(delta), first[2])])
-    d = np.linalg.norm(points_mm[0] - centers, axis=1) - lengths_mm[0, :]
+    first_row = np.argmax(np.isfinite(lengths_mm), axis=0)
+    cols = np.arange(lengths_mm.shape[1])
+    d = np.linalg.norm(points_mm[first_row] - centers, axis=1) - lengths_mm[first_row, cols]
     return np.column_stack([centers, d])

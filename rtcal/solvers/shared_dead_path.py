@@ -47,33 +47,35 @@ def solve_shared_dead_path(
     points = np.asarray(points_mm, dtype=float)
     lengths = np.asarray(lengths_mm, dtype=float)
     n, m = lengths.shape
-    seg_ids, seg_index = np.unique(np.asarray(segments), return_inverse=True)
-    seg_index = seg_index.reshape(n, m)
+    valid = np.isfinite(lengths)  # NaN: a reading that was skipped
+    pi, sj = np.nonzero(valid)  # point and station of each observation
+    obs = lengths[valid]
+    seg_ids, seg_index = np.unique(np.asarray(segments)[valid], return_inverse=True)
     k = len(seg_ids)
     guess = initial_guesses(first_station_guess_mm, nominal_angles_rad, np.asarray(axis_point_mm, float), points, lengths)
-    d0 = [float(np.mean((np.linalg.norm(points[:, None, :] - guess[None, :, :3], axis=2) - lengths)[seg_index == s])) for s in range(k)]
+    start = np.linalg.norm(points[pi] - guess[sj, :3], axis=1) - obs
+    d0 = [float(np.mean(start[seg_index == s])) for s in range(k)]
     x0 = np.concatenate([guess[:, :3].ravel(), d0])
+    rows = np.arange(len(obs))
 
     def residuals(x: np.ndarray) -> np.ndarray:
         centers = x[: 3 * m].reshape(m, 3)
-        dist = np.linalg.norm(points[:, None, :] - centers[None, :, :], axis=2)
-        return (dist - x[3 * m :][seg_index] - lengths).ravel()
+        return np.linalg.norm(points[pi] - centers[sj], axis=1) - x[3 * m :][seg_index] - obs
 
     def jacobian(x: np.ndarray) -> np.ndarray:
         centers = x[: 3 * m].reshape(m, 3)
-        diff = centers[None, :, :] - points[:, None, :]  # n×m×3
-        unit = diff / np.linalg.norm(diff, axis=2)[:, :, None]
-        J = np.zeros((n * m, 3 * m + k))
-        rows = np.arange(n * m).reshape(n, m)
-        for j in range(m):
-            J[rows[:, j], 3 * j : 3 * j + 3] = unit[:, j, :]
-        J[np.arange(n * m), 3 * m + seg_index.ravel()] = -1.0
+        diff = centers[sj] - points[pi]
+        unit = diff / np.linalg.norm(diff, axis=1)[:, None]
+        J = np.zeros((len(obs), 3 * m + k))
+        for c in range(3):
+            J[rows, 3 * sj + c] = unit[:, c]
+        J[rows, 3 * m + seg_index] = -1.0
         return J
 
     sol = least_squares(residuals, x0, jac=jacobian, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     centers = sol.x[: 3 * m].reshape(m, 3)
     J = sol.jac
-    dof = max(n * m - J.shape[1], 1)
+    dof = max(len(obs) - J.shape[1], 1)
     cov = float(sol.fun @ sol.fun) / dof * np.linalg.pinv(J.T @ J)
     cov_centers = cov[: 3 * m, : 3 * m]
     chain = chain_from_stations(centers, nominal_angles_rad)
