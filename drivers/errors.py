@@ -21,3 +21,7 @@ class InstrumentFault(InstrumentError):
 
 class OutOfLimits(InstrumentError):
     """A commanded target lies outside the configured soft limits; nothing was sent."""
+
+
+class TrackingLost(InstrumentFault):
+    """The laser tracer lost the reflector: its count is invalid until it is re-referenced."""

@@ -47,6 +47,9 @@ class RotaryStage(Instrument):
     @abstractmethod
     def stop(self) -> None: ...
 
+    def reset_alarm(self) -> None:  # noqa: B027 — drives without alarms need nothing
+        """Clear a drive alarm so that it can move again (not an emergency stop)."""
+
 
 class Cmm(Instrument):
     """A CMM moving its probe (here carrying the tracer's cat-eye reflector); mm, CMM frame."""
@@ -91,7 +94,7 @@ class LaserTracer(Instrument):
 
     @abstractmethod
     def read_length(self) -> LengthReading:
-        """One relative length; raises InstrumentFault if tracking was lost since the reference."""
+        """One relative length; raises TrackingLost if tracking was lost since the reference."""
 
 
 class Encoder(Instrument):

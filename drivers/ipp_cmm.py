@@ -31,6 +31,7 @@ class IppCmm(Cmm):
             try:
                 chunk = self.sock.recv(4096)
             except socket.timeout:
+                self._buffer = b""  # a partial line will never complete: start clean next time
                 raise InstrumentTimeout(self.name, "no reply within the timeout") from None
             except OSError as exc:
                 raise InstrumentFault(self.name, f"connection failed: {exc}") from None
@@ -53,6 +54,7 @@ class IppCmm(Cmm):
             line = self._readline()
             m = ipp.LINE.fullmatch(line)
             if m is None:
+                self._buffer = b""
                 raise InstrumentFault(self.name, f"malformed reply {line!r}")
             if m.group(1) != tag:
                 continue  # events and other tags are not ours

@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 
 from drivers.addresses import Address
-from drivers.errors import InstrumentFault
+from drivers.errors import InstrumentFault, TrackingLost
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, LaserTracer, LengthReading
 from drivers.serial_line import SerialLine
 
@@ -101,8 +101,10 @@ class LineLaserTracer(LaserTracer):
 
     def read_length(self) -> LengthReading:
         m = _match(self.name, self.LEN_REPLY, self.line.query(b"LEN?\r\n"))
+        if m.group(3) == "LOST":
+            raise TrackingLost(self.name, "tracer error LOST: tracking lost")
         if m.group(3):
-            raise InstrumentFault(self.name, f"tracer error {m.group(3)}" + (": tracking lost" if m.group(3) == "LOST" else ""))
+            raise InstrumentFault(self.name, f"tracer error {m.group(3)}")
         return LengthReading(float(m.group(1)) * 1e-6, int(m.group(2)))
 
     def close(self) -> None:

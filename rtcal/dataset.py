@@ -26,6 +26,8 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
     pos_sum = np.zeros((n_points, 3))
     pos_count = np.zeros((n_points, 3))
     for r in store.readings(instrument="cmm"):
+        if not r.quantity.startswith("position_"):
+            continue
         axis = "xyz".index(r.quantity[len("position_")])
         pos_sum[r.point, axis] += r.value
         pos_count[r.point, axis] += 1

@@ -22,6 +22,7 @@ from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
 from rtcal.report import write_report, write_results
+from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.store import RunStore
 from rtcal.yamlfile import FileProblems, Problem, read_text, validate_text
@@ -97,15 +98,17 @@ def run_procedure(
         proc = with_addresses(proc, addresses)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
-    scenario, scenario_text = resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)
-    seed = scenario.seed if seed is None else int(seed)
+    bench, scenario_text = None, ""
+    if simulated:  # a run over transports has no bench here: the instruments are elsewhere
+        scenario, scenario_text = resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)
+        seed = scenario.seed if seed is None else int(seed)
+        bench = Bench(scenario, VirtualClock(), seed)
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
-    bench = Bench(scenario, VirtualClock(), seed) if simulated else None
     operator = _operator(bench, addresses)
     prepared = method.prepare(proc, operator)
     store = RunStore.create(run_dir, {**prepared,
         "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": read_text(procedure_path),
-        "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text if simulated else "",
+        "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text,
         "seed": str(seed) if simulated else "", "software_version": __version__,
         "started_utc": _now(), "status": "running", "generation": "0",
     })
@@ -173,7 +176,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     try:
         method.measure(proc, inst, store, clock, operator, progress, generation)
     except BaseException as exc:
-        store.set_meta({"status": "interrupted", "error": repr(exc)})
+        store.set_meta({"status": "aborted" if isinstance(exc, RunAborted) else "interrupted", "error": repr(exc)})
         store.close()
         raise
     finally:
@@ -190,6 +193,8 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         "starts": generation + 1,
         "duration_s": round(clock.now_s(), 1),
         **method.analyse(proc, store, bench),
+        "skipped_readings": len(store.skipped_plan_indices()),
+        "faults": sum(1 for e in store.events() if e["kind"] == "fault"),
         "events": store.events(),
     }
     store.set_meta({"status": "solved"})

@@ -144,6 +144,10 @@ class RunStore:
         """Planned readings already stored (each committed whole, so present means complete)."""
         return {row[0] for row in self._db.execute("SELECT DISTINCT plan_index FROM readings WHERE plan_index IS NOT NULL")}
 
+    def skipped_plan_indices(self) -> set[int]:
+        """Planned readings the fault policy skipped (they are done; their data are missing)."""
+        return {row[0] for row in self._db.execute("SELECT DISTINCT plan_index FROM readings WHERE quantity = 'skipped'")}
+
     def last_time_s(self) -> float:
         """Time of the last reading or event (0 for an empty run): where a resumed clock goes on."""
         row = self._db.execute("SELECT MAX(t) FROM (SELECT MAX(t_s) AS t FROM readings UNION ALL SELECT MAX(t_s) FROM events)").fetchone()

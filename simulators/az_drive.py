@@ -3,12 +3,18 @@
 Pure Python (no Modbus here): ``read`` and ``write`` take register addresses and values and
 return values or a Modbus exception code. :mod:`simulators.servers.modbus_stage` puts it behind
 pymodbus servers (TCP and RTU). Motions complete at once in virtual time (the bench clock
-advances by their duration); faults raise drive alarms.
+advances by their duration).
+
+Injected faults (scenario ``faults``, one draw per motion trigger): drive alarms (stall 0x30,
+following error 0x10, limit switch 0x66), emergency stop 0x68 (ALM-RST cannot clear it), an
+exception reply, and a lost or corrupted reply, which the server adapter applies to the frame
+(``reply_fault``) after the drive has acted.
 """
 
 from __future__ import annotations
 
 from drivers import az_registers as az
+from simulators.faults import ALARM_CODES
 from simulators.instruments import SimStage
 
 ILLEGAL_FUNCTION, ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE = 1, 2, 3, 4
@@ -27,6 +33,7 @@ class AzDriveModel:
         self.free = False
         self.homed = False
         self.command_steps = round(stage.position_deg() * steps_per_deg)
+        self.reply_fault: str | None = None  # "no_reply" or "crc_error" for the next reply frame
 
     # -- what the registers show
     def status(self) -> int:
@@ -90,7 +97,7 @@ class AzDriveModel:
         return None
 
     def _inputs(self, rising: int) -> int | None:
-        if rising & az.IN_ALM_RST:
+        if rising & az.IN_ALM_RST and not self.stage.bench.emergency_stop:
             self.alarm = az.ALARM_NONE
         if rising & az.IN_FREE:
             self.free = True
@@ -106,7 +113,23 @@ class AzDriveModel:
         target = self.direct[az.POSITION]
         if self.direct[az.OPERATION_TYPE] == 2:
             target += self.command_steps
-        return self._move_to_steps(target)
+        if self.alarm:
+            return DEVICE_FAILURE  # the drive refuses to move while an alarm is present
+        fault = self.stage.bench.faults.draw("stage")
+        if fault is not None and fault.kind == "alarm":
+            self.alarm = ALARM_CODES[fault.alarm]
+        elif fault is not None and fault.kind == "emergency_stop":
+            self.stage.bench.emergency_stop = True
+        elif fault is not None and fault.kind == "modbus_exception":
+            return DEVICE_FAILURE
+        if self.stage.bench.emergency_stop:
+            self.alarm = az.ALARM_EMERGENCY_STOP
+        if self.alarm:
+            return None  # accepted on the wire; the drive shows its alarm
+        code = self._move_to_steps(target)
+        if fault is not None and fault.kind in ("no_reply", "crc_error"):
+            self.reply_fault = fault.kind
+        return code
 
     def _move_to_steps(self, target: int, homing: bool = False) -> int | None:
         if self.alarm:

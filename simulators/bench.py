@@ -24,6 +24,7 @@ import numpy as np
 from rtcal.clock import Clock, VirtualClock
 from rtcal.harmonics import evaluate
 from rtcal.units import arcsec_to_rad, um_to_mm
+from simulators.faults import FaultInjector
 from simulators.scenario import Scenario
 
 
@@ -106,7 +107,10 @@ class Bench:
         self.actual_rad = 0.0
         self.last_direction = +1
         self.probe_target_mm = np.zeros(3)
+        self.beam_broken = False  # the tracer's beam was interrupted since its last reference
+        self.emergency_stop = False  # pressed: no motion until an operator releases it
         self.truth = Truth()
+        self.faults = FaultInjector(scenario.faults, self.rng)
 
     # -- randomness: one stream per named consumer, so interleaving never changes a draw
     def rng(self, name: str) -> np.random.Generator:

@@ -2,6 +2,10 @@
 
 Physics comes from :class:`simulators.bench.Bench`; an instrument adds only its own reading
 noise and resolution. Motions advance the bench's (virtual) clock by their duration.
+
+With ``inject=True`` (in-process runs) each request first draws from the bench's fault
+injector and raises the typed error a real driver would raise; the protocol simulators build
+them with ``inject=False`` and inject on the wire instead.
 """
 
 from __future__ import annotations
@@ -19,27 +23,72 @@ from drivers.interfaces import (
     LengthReading,
     RotaryStage,
 )
-from drivers.errors import InstrumentFault
+from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, TrackingLost
 from rtcal.units import rad_to_arcsec, um_to_mm
 from simulators.bench import Bench
+from simulators.faults import ALARM_CODES
+from simulators.scenario import FaultSpec
 
 
 def _quantise(value: float, step: float) -> float:
     return value if step <= 0 else round(value / step) * step
 
 
-class SimStage(RotaryStage):
+def communication_fault(name: str, kind: str) -> InstrumentError:
+    """The typed error a driver raises for a fault on the wire."""
+    return {
+        "no_reply": InstrumentTimeout(name, "no reply (injected)"),
+        "truncated": InstrumentTimeout(name, "truncated reply (injected)"),
+        "crc_error": InstrumentTimeout(name, "no valid reply: CRC error (injected)"),
+        "garbled": InstrumentFault(name, "unexpected reply (injected garbage)"),
+        "modbus_exception": InstrumentFault(name, "Modbus exception 4 (server device failure, injected)"),
+    }[kind]
+
+
+class _Injecting:
+    """Draws one fault per request when ``inject`` is set."""
+
+    bench: Bench
+    inject: bool = True
+    name: str
+
+    def _fault(self) -> FaultSpec | None:
+        return self.bench.faults.draw(self.name) if self.inject else None
+
+
+class SimStage(_Injecting, RotaryStage):
     name = "stage"
 
-    def __init__(self, bench: Bench):
+    def __init__(self, bench: Bench, inject: bool = True):
         self.bench = bench
+        self.inject = inject
         self.limits_deg = tuple(bench.scenario.stage.soft_limits_deg)
+        self.alarm: str | None = None
 
     def home(self) -> None:
         self.move_to(0.0)
 
+    def reset_alarm(self) -> None:
+        self.alarm = None
+
     def move_to(self, angle_deg: float) -> None:
         self.check_target(angle_deg)
+        fault = self._fault()
+        if fault is not None and fault.kind == "alarm":
+            self.alarm = f"drive alarm 0x{ALARM_CODES[fault.alarm]:02X} ({fault.alarm.replace('_', ' ')}, injected)"
+        if fault is not None and fault.kind == "emergency_stop":
+            self.bench.emergency_stop = True
+        if self.bench.emergency_stop:
+            raise InstrumentFault(self.name, "emergency stop: release it on the machine")
+        if self.alarm:
+            raise InstrumentFault(self.name, self.alarm)
+        if fault is not None and fault.kind == "modbus_exception":
+            raise communication_fault(self.name, fault.kind)
+        self._move(angle_deg)
+        if fault is not None and fault.kind in ("no_reply", "crc_error"):
+            raise communication_fault(self.name, fault.kind)  # the drive moved; its reply was lost
+
+    def _move(self, angle_deg: float) -> None:
         target = math.radians(angle_deg)
         delta = target - self.bench.commanded_rad
         direction = self.bench.last_direction if delta == 0 else (1 if delta > 0 else -1)
@@ -53,11 +102,12 @@ class SimStage(RotaryStage):
         pass
 
 
-class SimCmm(Cmm):
+class SimCmm(_Injecting, Cmm):
     name = "cmm"
 
-    def __init__(self, bench: Bench):
+    def __init__(self, bench: Bench, inject: bool = True):
         self.bench = bench
+        self.inject = inject
         sc = bench.scenario.cmm
         self.volume_min_mm, self.volume_max_mm = tuple(sc.volume_min_mm), tuple(sc.volume_max_mm)
         self._rng = bench.rng("cmm")
@@ -68,6 +118,9 @@ class SimCmm(Cmm):
 
     def move_to(self, xyz_mm: np.ndarray) -> None:
         self.check_target(xyz_mm)
+        fault = self._fault()
+        if fault is not None:
+            raise communication_fault(self.name, fault.kind)
         distance = float(np.linalg.norm(np.asarray(xyz_mm) - self.bench.probe_target_mm))
         self.bench.clock.sleep(distance / self.bench.scenario.cmm.speed_mm_per_s)
         self.bench.move_probe(xyz_mm)
@@ -81,23 +134,32 @@ class SimCmm(Cmm):
         pass
 
 
-class SimLaserTracer(LaserTracer):
+class SimLaserTracer(_Injecting, LaserTracer):
     """Relative length = true length − length at the last reference, plus noise a + b·L."""
 
     name = "laser_tracer"
 
-    def __init__(self, bench: Bench):
+    def __init__(self, bench: Bench, inject: bool = True):
         self.bench = bench
+        self.inject = inject
         self._rng = bench.rng("laser_tracer")
         self._reference_mm: float | None = None
         self._segment = -1
 
     def reference(self) -> int:
+        self.bench.beam_broken = False  # re-acquired: the beam reaches the reflector again
         self._reference_mm = self.bench.tracer_length_mm()
         self._segment += 1
         return self._segment
 
     def read_length(self) -> LengthReading:
+        fault = self._fault()
+        if fault is not None and fault.kind == "beam_break":
+            self.bench.beam_broken = True
+        elif fault is not None:
+            raise communication_fault(self.name, fault.kind)
+        if self.bench.beam_broken:
+            raise TrackingLost(self.name, "tracking lost: re-reference the tracer")
         if self._reference_mm is None:
             self.reference()
         length = self.bench.tracer_length_mm()
@@ -106,31 +168,39 @@ class SimLaserTracer(LaserTracer):
         return LengthReading(length - self._reference_mm + sigma_mm * self._rng.standard_normal(), self._segment)
 
 
-class SimEncoder(Encoder):
+class SimEncoder(_Injecting, Encoder):
     """The encoder below the tilt centre: reads the Abbe-shifted grating (seed 001)."""
 
     name = "encoder"
 
-    def __init__(self, bench: Bench):
+    def __init__(self, bench: Bench, inject: bool = True):
         self.bench = bench
+        self.inject = inject
         self._rng = bench.rng("encoder")
 
     def read_angle_deg(self) -> float:
+        fault = self._fault()
+        if fault is not None:
+            raise communication_fault(self.name, fault.kind)
         enc = self.bench.scenario.encoder
         value = rad_to_arcsec(self.bench.encoder_true_rad()) + enc.noise_arcsec * self._rng.standard_normal()
         return _quantise(value, enc.resolution_arcsec) / 3600.0
 
 
-class SimAutocollimator(Autocollimator):
+class SimAutocollimator(_Injecting, Autocollimator):
     """Reads the polygon face in front of it: x about the table axis, arcsec."""
 
     name = "autocollimator"
 
-    def __init__(self, bench: Bench):
+    def __init__(self, bench: Bench, inject: bool = True):
         self.bench = bench
+        self.inject = inject
         self._rng = bench.rng("autocollimator")
 
     def read_arcsec(self) -> tuple[float, float]:
+        fault = self._fault()
+        if fault is not None:
+            raise communication_fault(self.name, fault.kind)
         ac = self.bench.scenario.autocollimator
         x_rad, _ = self.bench.autocollimator_true()
         x = rad_to_arcsec(x_rad) + ac.noise_arcsec * self._rng.standard_normal()
@@ -139,16 +209,20 @@ class SimAutocollimator(Autocollimator):
         return float(_quantise(x, ac.resolution_arcsec)), 0.0
 
 
-class SimDialIndicator(DialIndicator):
+class SimDialIndicator(_Injecting, DialIndicator):
     """Y displacement of the shaft at a height below the tilt centre, µm."""
 
-    def __init__(self, bench: Bench, index: int):
+    def __init__(self, bench: Bench, index: int, inject: bool = True):
         self.bench = bench
+        self.inject = inject
         self.index = index
         self.name = f"dial_indicator_{index + 1}"
         self._rng = bench.rng(self.name)
 
     def read_um(self) -> float:
+        fault = self._fault()
+        if fault is not None:
+            raise communication_fault(self.name, fault.kind)
         di = self.bench.scenario.dial_indicators
         y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + di.noise_um * self._rng.standard_normal()
         return _quantise(y_um, di.resolution_um)

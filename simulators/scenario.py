@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rtcal.harmonics import Harmonic
@@ -158,6 +160,42 @@ class DialIndicatorScenario(_Strict):
     noise_um: float = Field(0.0, ge=0.0)
 
 
+InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2"]
+FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_exception", "crc_error", "alarm", "emergency_stop"]
+STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop"}
+
+
+class FaultSpec(_Strict):
+    """A fault to inject: on an instrument's k-th request (``at_request``, counting from 1; a
+    request is a motion command or a reading) and/or at random with ``probability`` per request.
+
+    beam_break (laser tracer): tracking is lost until the tracer is re-referenced.
+    no_reply, garbled, truncated: the reply never comes, is noise, or stops half-way.
+    modbus_exception, crc_error (stage): an exception reply, or a reply with a corrupted frame.
+    alarm (stage: stall, following_error, limit_switch) and emergency_stop: the drive alarms.
+    """
+
+    instrument: InstrumentName
+    kind: FaultKind
+    alarm: Literal["stall", "following_error", "limit_switch"] = "stall"
+    probability: float = Field(0.0, ge=0.0, le=1.0)
+    at_request: list[int] = []
+
+    @model_validator(mode="after")
+    def _fits_instrument(self) -> "FaultSpec":
+        if self.kind == "beam_break" and self.instrument != "laser_tracer":
+            raise ValueError("kind: beam_break happens to the laser_tracer only")
+        if self.kind in STAGE_ONLY and self.instrument != "stage":
+            raise ValueError(f"kind: {self.kind} happens to the stage drive only")
+        if self.instrument == "stage" and self.kind in ("garbled", "truncated"):
+            raise ValueError("kind: a Modbus reply cannot be garbled or truncated undetected; use crc_error")
+        if not self.probability and not self.at_request:
+            raise ValueError("probability: give a probability or at_request, or the fault never happens")
+        if any(k < 1 for k in self.at_request):
+            raise ValueError("at_request: requests count from 1")
+        return self
+
+
 class Scenario(_Strict):
     """A whole bench. ``seed`` makes every random draw of a run reproducible."""
 
@@ -170,3 +208,4 @@ class Scenario(_Strict):
     polygon: PolygonScenario = PolygonScenario()
     dial_indicators: DialIndicatorScenario = DialIndicatorScenario()
     stepper: StepperScenario = StepperScenario()
+    faults: list[FaultSpec] = []

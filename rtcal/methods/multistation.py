@@ -120,7 +120,7 @@ def prepare(proc: LaserTracerMultistation, operator) -> dict[str, str]:
 
 def measure(proc: LaserTracerMultistation, inst: MultistationInstrumentSet, store: RunStore, clock, operator, progress,
             generation: int = 0) -> None:
-    run_multistation(proc, inst, store, clock, progress)
+    run_multistation(proc, inst, store, clock, progress, operator)
 
 
 def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None) -> dict[str, Any]:

@@ -84,6 +84,48 @@ class MultistationInstruments(_Instruments):
     laser_tracer: InstrumentChoice = InstrumentChoice()
 
 
+class FaultPolicy(_Strict):
+    """What the sequencer does when an instrument fails: retry with doubling backoff, then act.
+
+    abort: stop the stage and CMM, close sessions, keep every reading; `rtcal resume` goes on.
+    skip: mark the planned reading as skipped and go on (solvers use what was measured).
+    pause: ask the operator to clear the fault, then try once more before aborting.
+    reacquire (laser tracer): re-reference the tracer and go on in a new tracking segment.
+    """
+
+    retries: int = Field(2, ge=0, le=20)
+    backoff_s: float = Field(0.5, ge=0.0, le=600.0)
+    then: Literal["abort", "skip", "pause", "reacquire"] = "abort"
+
+
+class MultistationOnFault(_Strict):
+    stage: FaultPolicy = FaultPolicy()
+    cmm: FaultPolicy = FaultPolicy()
+    laser_tracer: FaultPolicy = FaultPolicy(then="reacquire")
+
+    @model_validator(mode="after")
+    def _reacquire_is_for_the_tracer(self) -> "MultistationOnFault":
+        for name in ("stage", "cmm"):
+            if getattr(self, name).then == "reacquire":
+                raise ValueError(f"{name}.then: only the laser_tracer can be re-acquired")
+        return self
+
+
+class AbbeOnFault(_Strict):
+    stage: FaultPolicy = FaultPolicy()
+    encoder: FaultPolicy = FaultPolicy()
+    autocollimator: FaultPolicy = FaultPolicy()
+    dial_indicator_1: FaultPolicy = FaultPolicy()
+    dial_indicator_2: FaultPolicy = FaultPolicy()
+
+    @model_validator(mode="after")
+    def _no_reacquire(self) -> "AbbeOnFault":
+        for name in type(self).model_fields:
+            if getattr(self, name).then == "reacquire":
+                raise ValueError(f"{name}.then: reacquire is for a laser tracer")
+        return self
+
+
 class Stations(_Strict):
     """Table stations: first angle, constant step, count (eq. 2 needs m ≥ 4)."""
 
@@ -158,6 +200,7 @@ class LaserTracerMultistation(_Strict):
     order: Literal["point_major", "station_major"] = "point_major"
     samples_per_reading: int = Field(1, ge=1, le=1000)
     settle_time_s: float = Field(2.0, ge=0.0)
+    on_fault: MultistationOnFault = MultistationOnFault()
     solver: MultistationSolver = MultistationSolver()
 
     def points_array(self) -> np.ndarray:
@@ -257,6 +300,7 @@ class EncoderAbbeError(_Strict):
     geometry: AbbeGeometry = AbbeGeometry()
     samples_per_reading: int = Field(1, ge=1, le=1000)
     settle_time_s: float = Field(1.0, ge=0.0)
+    on_fault: AbbeOnFault = AbbeOnFault()
     max_harmonic_order: int = Field(24, ge=1, le=360)
 
     @property

@@ -13,6 +13,7 @@ from typing import Callable, Iterator
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import EncoderAbbeError
+from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 from rtcal.sequencer.operator import Operator
 from rtcal.store import Reading, RunStore
@@ -71,6 +72,11 @@ def run_abbe(
     for v in plan:
         inst.stage.check_target(v.angle_deg)
         inst.stage.check_target(v.angle_deg - v.direction * proc.steps.overshoot_deg)
+    def safe_state() -> None:
+        inst.stage.stop()
+
+    policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
+    faults = FaultHandler(policies, store, clock, operator, safe_state)
     done = store.done_plan_indices()
     seating = None
     stored = 0
@@ -83,20 +89,26 @@ def run_abbe(
             store.add_event(clock.now_s(), "operator", f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {v.seating + 1})")
             operator.reseat_polygon(offset, proc.polygon.pitch_deg, resumed)
             seating = v.seating
-        approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg)
-        clock.sleep(proc.settle_time_s)
         state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg,
                      plan_index=k, segment=generation)
+        moved = faults.call("stage", lambda: approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg),
+                            recover=inst.stage.reset_alarm, what=f"move to {v.angle_deg:g}°")
+        if moved is SKIPPED:
+            store.add_readings([Reading(clock.now_s(), "stage", "skipped", 0.0, "", **state)])
+            continue
+        clock.sleep(proc.settle_time_s)
         readings: list[Reading] = []
         for s in range(proc.samples_per_reading):
-            readings.append(Reading(clock.now_s(), "encoder", "angle_deg", inst.encoder.read_angle_deg(), "deg", sample=s, **state))
+            taken = [("encoder", "angle_deg", "deg", inst.encoder.read_angle_deg)]
             if v.face_in_front:
-                x, y = inst.autocollimator.read_arcsec()
-                readings.append(Reading(clock.now_s(), "autocollimator", "x_arcsec", x, "arcsec", sample=s, **state))
-                readings.append(Reading(clock.now_s(), "autocollimator", "y_arcsec", y, "arcsec", sample=s, **state))
-            for k, ind in enumerate(inst.indicators):
-                readings.append(Reading(clock.now_s(), f"dial_indicator_{k + 1}", "y_um", ind.read_um(), "um", sample=s, **state))
+                taken.append(("autocollimator", "x_arcsec", "arcsec", lambda: inst.autocollimator.read_arcsec()[0]))
+            taken += [(f"dial_indicator_{n + 1}", "y_um", "um", ind.read_um) for n, ind in enumerate(inst.indicators)]
+            for instrument, quantity, unit, read in taken:
+                value = faults.call(instrument, read, what=f"reading at {v.angle_deg:g}°")
+                if value is SKIPPED:
+                    readings.append(Reading(clock.now_s(), instrument, "skipped", 0.0, "", sample=s, **state))
+                else:
+                    readings.append(Reading(clock.now_s(), instrument, quantity, float(value), unit, sample=s, **state))
         store.add_readings(readings)
         stored += 1
     return stored
-

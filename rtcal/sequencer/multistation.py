@@ -15,6 +15,7 @@ import numpy as np
 from drivers.interfaces import Cmm, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
+from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 from rtcal.store import Reading, RunStore
 
@@ -44,12 +45,14 @@ def run_multistation(
     store: RunStore,
     clock: Clock,
     progress: Callable[[Iterator], Iterator] = lambda it: it,
+    operator=None,
 ) -> int:
     """Execute the planned readings not yet in the store; returns how many it stored.
 
     A fresh start and a resume are the same: the first pending reading moves both machines
     (approaching from the procedure's direction) and references the tracer, which starts a new
-    tracking segment numbered after every segment already stored.
+    tracking segment numbered after every segment already stored. Faults go through the
+    procedure's ``on_fault`` policies.
     """
     points = proc.points_array()
     angles = proc.stations.angles_deg()
@@ -61,38 +64,82 @@ def run_multistation(
         inst.stage.check_target(a)
         inst.stage.check_target(a - direction * proc.stations.overshoot_deg)
 
+    def safe_state() -> None:
+        inst.stage.stop()
+        inst.cmm.stop()
+
+    policies = {"stage": proc.on_fault.stage, "cmm": proc.on_fault.cmm, "laser_tracer": proc.on_fault.laser_tracer}
+    faults = FaultHandler(policies, store, clock, operator, safe_state)
     done = store.done_plan_indices()
+    next_segment = store.max_segment() + 1
     at_point: int | None = None
     at_station: int | None = None
     segment: int | None = None
     stored = 0
+
+    def reference(i: int, j: int, why: str) -> None:
+        nonlocal segment, next_segment
+        inst.laser_tracer.reference()
+        segment, next_segment = next_segment, next_segment + 1
+        store.add_event(clock.now_s(), why, f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
+
     for k, (i, j) in progress(iter(list(enumerate(plan)))):
         if k in done:
             continue
-        stage_moved = at_station != j
-        cmm_moved = at_point != i
+        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]),
+                     commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
+
+        def skip(instrument: str) -> None:
+            store.add_readings([Reading(clock.now_s(), instrument, "skipped", 0.0, "", **state)])
+
+        stage_moved, cmm_moved = at_station != j, at_point != i
         if stage_moved:
-            approach(inst.stage, float(angles[j]), direction, proc.stations.overshoot_deg)
+            at_station = None
+            if faults.call("stage", lambda: approach(inst.stage, float(angles[j]), direction, proc.stations.overshoot_deg),
+                           recover=inst.stage.reset_alarm, what=f"move to station {j + 1}") is SKIPPED:
+                skip("stage")
+                continue
             at_station = j
         if cmm_moved:
-            inst.cmm.move_to(points[i])
+            at_point = None
+            if faults.call("cmm", lambda: inst.cmm.move_to(points[i]), what=f"move to point {i + 1}") is SKIPPED:
+                skip("cmm")
+                continue
             at_point = i
         if stage_moved or cmm_moved:
             clock.sleep(proc.settle_time_s)
         readings: list[Reading] = []
-        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]),
-                     commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
         if cmm_moved:
-            xyz = inst.cmm.position_mm()
+            xyz = faults.call("cmm", inst.cmm.position_mm, what=f"position at point {i + 1}")
+            if xyz is SKIPPED:
+                skip("cmm")
+                at_point = None
+                continue
             t = clock.now_s()
             readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
         if segment is None:
-            inst.laser_tracer.reference()
-            segment = store.max_segment() + 1
-            store.add_event(clock.now_s(), "reference", f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
-        for s in range(proc.samples_per_reading):
-            r = inst.laser_tracer.read_length()
-            readings.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=s, segment=segment, **state))
-        store.add_readings(readings)
+            faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference")
+        samples: list[Reading] = []
+        reacquired = False
+
+        def reacquire() -> None:
+            nonlocal reacquired
+            reference(i, j, "reacquire")
+            reacquired = True
+
+        while len(samples) < proc.samples_per_reading:
+            r = faults.call("laser_tracer", inst.laser_tracer.read_length, reacquire=reacquire,
+                            what=f"length at point {i + 1}, station {j + 1}")
+            if r is SKIPPED:
+                break
+            if reacquired:  # a reading never mixes two tracking segments
+                samples, reacquired = [], False
+            samples.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=len(samples),
+                                   segment=segment, **state))
+        if len(samples) < proc.samples_per_reading:
+            store.add_readings(readings)
+            skip("laser_tracer")
+            continue
+        store.add_readings(readings + samples)
         stored += 1
     return stored

@@ -13,6 +13,9 @@ class Operator(Protocol):
     def polygon_certificate_arcsec(self) -> list[float] | None:
         """A simulated polygon's certificate (the operator hands it over); None on hardware."""
 
+    def clear_fault(self, message: str) -> None:
+        """The run pauses: the operator clears the fault (releases an e-stop, frees the beam)."""
+
 
 class ConsoleOperator:
     """Prints what to do and waits for Enter; refuses to continue without a terminal."""
@@ -37,6 +40,11 @@ class ConsoleOperator:
     def polygon_certificate_arcsec(self) -> list[float] | None:
         return None
 
+    def clear_fault(self, message: str) -> None:
+        if not sys.stdin.isatty() and self._ask is input:
+            raise RuntimeError(f"the run paused for the operator ({message}) but there is no terminal")
+        self._ask(f"\nOperator: {message}. Clear the fault, then press Enter to try again. ")
+
 
 class BenchOperator:
     """The simulated bench re-seats its own polygon."""
@@ -49,6 +57,9 @@ class BenchOperator:
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
         return [float(v) for v in self.bench.face_certificate_arcsec]
+
+    def clear_fault(self, message: str) -> None:
+        self.bench.emergency_stop = False
 
 
 class RemoteSimOperator:
@@ -72,6 +83,10 @@ class RemoteSimOperator:
         reply = self._ask(f"RESEAT {offset_deg!r}")
         if reply != "OK":
             raise RuntimeError(f"simulated operator refused to re-seat the polygon: {reply!r}")
+
+    def clear_fault(self, message: str) -> None:
+        if self._ask("CLEAR") != "OK":
+            raise RuntimeError("simulated operator could not clear the fault")
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
         words = self._ask("CERT?").split()

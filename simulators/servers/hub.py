@@ -23,7 +23,7 @@ from simulators.instruments import SimAutocollimator, SimCmm, SimDialIndicator, 
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
 from simulators.servers.ipp_server import serve_ipp
-from simulators.servers.serial_protocols import ElcomatHandler, LineHandler, QsbHandler, SylvacHandler, TracerHandler
+from simulators.servers.serial_protocols import ElcomatHandler, FaultyLine, LineHandler, QsbHandler, SylvacHandler, TracerHandler
 
 DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # 0.001° per step when the scenario names no stepper
 
@@ -56,17 +56,19 @@ class SimulatorHub:
         stepper = self.scenario.stepper
         self.steps_per_rev = stepper.steps_per_revolution or DEFAULT_STEPS_PER_REV
         self.gear = stepper.worm_ratio if stepper.steps_per_revolution else DEFAULT_GEAR
-        self.drive = AzDriveModel(SimStage(b), steps_per_degree(self.steps_per_rev, self.gear))
-        self.cmm = SimCmm(b)
+        # the instruments inject no faults themselves: the protocol ends do, on the wire
+        self.drive = AzDriveModel(SimStage(b, inject=False), steps_per_degree(self.steps_per_rev, self.gear))
+        self.cmm = SimCmm(b, inject=False)
         res = self.scenario.encoder.resolution_arcsec
         self.counts_per_rev = round(1296000 / res) if res > 0 else 2**30
-        self.handlers: dict[str, LineHandler] = {
-            "laser_tracer": TracerHandler(SimLaserTracer(b)),
-            "encoder": QsbHandler(SimEncoder(b), self.counts_per_rev),
-            "autocollimator": ElcomatHandler(SimAutocollimator(b)),
-            "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0)),
-            "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1)),
+        lines = {
+            "laser_tracer": TracerHandler(SimLaserTracer(b, inject=False)),
+            "encoder": QsbHandler(SimEncoder(b, inject=False), self.counts_per_rev),
+            "autocollimator": ElcomatHandler(SimAutocollimator(b, inject=False)),
+            "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False)),
+            "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False)),
         }
+        self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
         self._fds: list[int] = []
         self._loop = asyncio.new_event_loop()
         self._thread: threading.Thread | None = None
@@ -142,7 +144,7 @@ class SimulatorHub:
         else:
             client_path = await self._start_rtu()
             self.addresses["stage"] = f"modbus-rtu://{client_path}?{stage_query}&baud=115200"
-        cmm_server = await serve_ipp(self.cmm, h, 0)
+        cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults)
         self._servers.append(cmm_server)
         self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
         for name, handler in self.handlers.items():
@@ -217,14 +219,17 @@ class SimulatorHub:
         while handler.terminator in buffer:
             line, buffer = buffer.split(handler.terminator, 1)
             if line.strip():
-                send(handler.handle(line))
+                reply = handler.handle(line)
+                if reply:  # an injected no_reply answers nothing
+                    send(reply)
         if len(buffer) > 1024:
             buffer = b""  # a line this long is garbage; drop it
         return buffer
 
     async def _operator_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench; ``CERT?``
-        hands over the polygon's calibration certificate (face errors, arcsec)."""
+        hands over the polygon's calibration certificate (face errors, arcsec); ``CLEAR``
+        releases an emergency stop."""
         try:
             while line := await reader.readline():
                 words = line.decode(errors="replace").split()
@@ -234,6 +239,9 @@ class SimulatorHub:
                         writer.write(b"OK\n")
                     except ValueError:
                         writer.write(b"ERR ARG\n")
+                elif words == ["CLEAR"]:
+                    self.bench.emergency_stop = False
+                    writer.write(b"OK\n")
                 elif words == ["CERT?"]:
                     values = " ".join(f"{v:.6f}" for v in self.bench.face_certificate_arcsec)
                     writer.write(f"CERT {values}\n".encode())

@@ -14,8 +14,9 @@ from simulators.instruments import SimCmm
 class IppSession:
     """One client's session: turns request lines into reply lines."""
 
-    def __init__(self, cmm: SimCmm):
+    def __init__(self, cmm: SimCmm, faults=None):
         self.cmm = cmm
+        self.faults = faults  # the bench's injector: one draw per motion command
         self.started = False
         self.homed = False
         self.tool = "Probe"
@@ -48,6 +49,13 @@ class IppSession:
             self.tool = args.strip().strip('"') or self.tool
             return ack + done
         if name in ("GoTo", "PtMeas"):
+            fault = self.faults.draw("cmm") if self.faults else None
+            if fault is not None and fault.kind == "no_reply":
+                return ""
+            if fault is not None and fault.kind == "garbled":
+                return "\x15#?% garbage\r\n"
+            if fault is not None and fault.kind == "truncated":
+                return f"{tag} "
             values = ipp.axes(args)
             if set(values) != {"X", "Y", "Z"}:
                 return ack + ipp.error_line(tag, 2, ipp.BAD_ARGUMENT_COUNT, name, "Needs X(), Y() and Z()")
@@ -71,11 +79,11 @@ class IppSession:
         return ack + ipp.error_line(tag, 2, ipp.UNSUPPORTED_COMMAND, name, "Unsupported command")
 
 
-async def serve_ipp(cmm: SimCmm, host: str, port: int) -> asyncio.base_events.Server:
+async def serve_ipp(cmm: SimCmm, host: str, port: int, faults=None) -> asyncio.base_events.Server:
     """Start an I++ server; one session per connection."""
 
     async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        session = IppSession(cmm)
+        session = IppSession(cmm, faults)
         try:
             while line := await reader.readline():
                 writer.write(session.handle(line.decode("ascii", errors="replace")).encode("ascii"))

@@ -35,9 +35,28 @@ def drive_device(model: AzDriveModel, unit: int = 1) -> SimDevice:
     return SimDevice(id=unit, simdata=[SimData(0, count=az.FEEDBACK_POSITION + 2, values=0, datatype=DataType.REGISTERS)], action=action)
 
 
+def frame_faults(model: AzDriveModel, rtu: bool):
+    """pymodbus ``trace_packet`` hook: lose or corrupt the reply frame the drive model asks for.
+
+    A corrupted RTU frame fails its CRC; Modbus TCP carries no CRC, so there the frame loses
+    its last byte (a broken frame the client cannot complete) instead.
+    """
+
+    def trace(sending: bool, data: bytes) -> bytes:
+        if not sending or model.reply_fault is None:
+            return data
+        fault, model.reply_fault = model.reply_fault, None
+        if fault == "no_reply":
+            return b""
+        return data[:-1] + bytes([data[-1] ^ 0xFF]) if rtu else data[:-1]
+
+    return trace
+
+
 def tcp_server(model: AzDriveModel, host: str, port: int, unit: int = 1) -> ModbusTcpServer:
-    return ModbusTcpServer(drive_device(model, unit), address=(host, port))
+    return ModbusTcpServer(drive_device(model, unit), address=(host, port), trace_packet=frame_faults(model, rtu=False))
 
 
 def rtu_server(model: AzDriveModel, device_path: str, unit: int = 1, baudrate: int = 115200) -> ModbusSerialServer:
-    return ModbusSerialServer(drive_device(model, unit), framer=FramerType.RTU, port=device_path, baudrate=baudrate)
+    return ModbusSerialServer(drive_device(model, unit), framer=FramerType.RTU, port=device_path, baudrate=baudrate,
+                              trace_packet=frame_faults(model, rtu=True))

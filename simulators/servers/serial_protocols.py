@@ -8,21 +8,55 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from drivers.errors import InstrumentFault
+from drivers.errors import InstrumentFault, TrackingLost
 from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimLaserTracer
 
 
 class LineHandler(Protocol):
-    terminator: bytes
+    terminator: bytes  # of requests
+    reply_terminator: bytes
 
     def handle(self, request: bytes) -> bytes: ...
 
+    def counted(self, request: bytes) -> bool:
+        """Whether a request is a reading (the fault injector counts readings)."""
+
+
+class FaultyLine:
+    """Wraps a line handler with the bench's fault injector: one draw per reading.
+
+    beam_break interrupts the tracer's beam (the reply then says so); no_reply answers nothing;
+    garbled answers noise; truncated stops half-way, without the terminator. A faulted request
+    does not reach the instrument, as in process.
+    """
+
+    def __init__(self, handler: LineHandler, name: str, bench):
+        self.handler, self.name, self.bench = handler, name, bench
+        self.terminator = handler.terminator
+
+    def handle(self, request: bytes) -> bytes:
+        fault = self.bench.faults.draw(self.name) if self.handler.counted(request) else None
+        if fault is None:
+            return self.handler.handle(request)
+        if fault.kind == "beam_break":
+            self.bench.beam_broken = True
+            return self.handler.handle(request)
+        if fault.kind == "no_reply":
+            return b""
+        if fault.kind == "garbled":
+            return b"\x15#?%!~" + self.handler.reply_terminator
+        return b"0 +1"  # truncated: no terminator follows
+
 
 class ElcomatHandler:
+    reply_terminator = b"\r"
     terminator = b"\r"
 
     def __init__(self, instrument: SimAutocollimator):
         self.instrument = instrument
+
+    def counted(self, request: bytes) -> bool:
+        return True
 
     def handle(self, request: bytes) -> bytes:
         if request.strip() != b"M":
@@ -35,10 +69,14 @@ class ElcomatHandler:
 
 
 class SylvacHandler:
+    reply_terminator = b"\r"
     terminator = b"\r"
 
     def __init__(self, instrument: SimDialIndicator):
         self.instrument = instrument
+
+    def counted(self, request: bytes) -> bool:
+        return True
 
     def handle(self, request: bytes) -> bytes:
         if request.strip() != b"?":
@@ -47,11 +85,15 @@ class SylvacHandler:
 
 
 class QsbHandler:
+    reply_terminator = b"\r\n"
     terminator = b"\r"
 
     def __init__(self, instrument: SimEncoder, counts_per_rev: int):
         self.instrument = instrument
         self.counts_per_rev = counts_per_rev
+
+    def counted(self, request: bytes) -> bool:
+        return True
 
     def handle(self, request: bytes) -> bytes:
         if request.strip().upper() != b"R0E":
@@ -61,10 +103,14 @@ class QsbHandler:
 
 
 class TracerHandler:
+    reply_terminator = b"\r\n"
     terminator = b"\n"
 
     def __init__(self, instrument: SimLaserTracer):
         self.instrument = instrument
+
+    def counted(self, request: bytes) -> bool:
+        return request.strip() == b"LEN?"
 
     def handle(self, request: bytes) -> bytes:
         command = request.strip()
@@ -73,7 +119,7 @@ class TracerHandler:
         if command == b"LEN?":
             try:
                 r = self.instrument.read_length()
-            except InstrumentFault:
+            except TrackingLost:
                 return b"ERR LOST\r\n"
             return f"LEN {r.length_mm * 1e6:.3f} {r.segment}\r\n".encode()
         return b"ERR CMD\r\n"

@@ -1,0 +1,82 @@
+"""Fault policies: every instrument call of a sequencer goes through :class:`FaultHandler`.
+
+A typed instrument error is recorded as a ``fault`` event; the call is retried with doubling
+backoff (a drive alarm is reset first; a lost tracker is re-acquired at once when its policy
+says so); when the retries are spent the policy's ``then`` decides: skip, pause for the
+operator, re-acquire, or abort to a safe state. Every action is an event in the run store.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from drivers.errors import InstrumentError, TrackingLost
+from rtcal.clock import Clock
+from rtcal.procedure.models import FaultPolicy
+from rtcal.store import RunStore
+
+SKIPPED = object()
+
+
+class RunAborted(InstrumentError):
+    """A fault the policy would not ride out: the run stopped in a safe state, readings kept."""
+
+
+class FaultHandler:
+    def __init__(self, policies: dict[str, FaultPolicy], store: RunStore, clock: Clock, operator,
+                 safe_state: Callable[[], None]):
+        self.policies = policies
+        self.store = store
+        self.clock = clock
+        self.operator = operator
+        self.safe_state = safe_state
+        self.faults = 0
+
+    def event(self, kind: str, instrument: str, message: str) -> None:
+        self.store.add_event(self.clock.now_s(), kind, message, instrument)
+
+    def call(self, instrument: str, action: Callable[[], Any], *, recover: Callable[[], None] | None = None,
+             reacquire: Callable[[], None] | None = None, what: str = "") -> Any:
+        """``action()``'s result, or SKIPPED; raises RunAborted when the policy gives up."""
+        policy = self.policies[instrument]
+        rounds = 2 if policy.then in ("pause", "reacquire") else 1
+        last: InstrumentError | None = None
+        for round_ in range(rounds):
+            for attempt in range(policy.retries + 1):
+                try:
+                    return action()
+                except InstrumentError as exc:
+                    last = exc
+                    self.faults += 1
+                    self.event("fault", instrument, f"{what}: {exc}" if what else str(exc))
+                if attempt == policy.retries:
+                    break
+                if isinstance(last, TrackingLost) and reacquire is not None and policy.then == "reacquire":
+                    reacquire()
+                    continue
+                self.clock.sleep(policy.backoff_s * 2**attempt)
+                self.event("retry", instrument, f"retry {attempt + 1} of {policy.retries} after {policy.backoff_s * 2**attempt:g} s")
+                if recover is not None:
+                    try:
+                        recover()
+                    except InstrumentError as exc:
+                        self.event("fault", instrument, f"recovery failed: {exc}")
+            if policy.then == "skip":
+                self.event("skip", instrument, f"{what or 'reading'} skipped after {policy.retries + 1} attempts")
+                return SKIPPED
+            if round_ == 0 and policy.then == "pause":
+                self.event("pause", instrument, "waiting for the operator")
+                self.operator.clear_fault(f"{instrument}: {last}")
+            elif round_ == 0 and policy.then == "reacquire" and reacquire is not None:
+                reacquire()
+            else:
+                break
+        self.abort(instrument, last)
+
+    def abort(self, instrument: str, error: InstrumentError | None) -> None:
+        self.event("abort", instrument, f"aborted: {error}; stopping the machines")
+        try:
+            self.safe_state()
+        except InstrumentError as exc:
+            self.event("fault", instrument, f"while stopping: {exc}")
+        raise RunAborted(instrument, f"run aborted after {error}; every reading taken is kept — `rtcal resume` goes on")
