@@ -20,12 +20,12 @@ from rtcal import __version__
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import load_procedure, load_scenario
-from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
+from rtcal.procedure.models import PROCEDURE_MODELS, Procedure, plan_outside_limits
 from rtcal.report import write_report, write_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.store import RunStore
-from rtcal.yamlfile import FileProblems, Problem, read_text, validate_text
+from rtcal.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
@@ -70,6 +70,14 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
     return proc.model_copy(update={"instruments": instruments})
 
 
+def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenario) -> None:
+    """Refuse a plan the simulated bench cannot do (stage limits, CMM volume) before anything moves."""
+    problem = plan_outside_limits(proc, scenario.stage.soft_limits_deg, scenario.cmm.volume_min_mm, scenario.cmm.volume_max_mm)
+    if problem:
+        field, _, message = problem.partition(": ")
+        raise FileProblems([problem_at(procedure_path, (field,), f"{message} (the simulated bench's limits)")])
+
+
 def _operator(bench: Bench | None, addresses: dict[str, str] | None):
     if bench:
         return BenchOperator(bench)
@@ -101,6 +109,7 @@ def run_procedure(
     bench, scenario_text = None, ""
     if simulated:  # a run over transports has no bench here: the instruments are elsewhere
         scenario, scenario_text = resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)
+        check_plan_on_bench(procedure_path, proc, scenario)
         seed = scenario.seed if seed is None else int(seed)
         bench = Bench(scenario, VirtualClock(), seed)
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)

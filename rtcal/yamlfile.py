@@ -52,9 +52,12 @@ def _field_name(path: Path_) -> str:
     return "".join(parts) or "(document)"
 
 
+PLAIN_TAGS = {f"tag:yaml.org,2002:{t}" for t in ("str", "int", "float", "bool", "null", "seq", "map")}
+
+
 def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file: str) -> Any:
-    out[path] = (node.start_mark.line + 1, node.start_mark.column + 1)
-    if not node.tag.startswith("tag:yaml.org,2002:"):
+    out.setdefault(path, (node.start_mark.line + 1, node.start_mark.column + 1))  # a key keeps its own position
+    if node.tag not in PLAIN_TAGS:
         raise FileProblems([Problem(file, *out[path], _field_name(path), f"YAML tag {node.tag!r} is not allowed: plain data only")])
     if isinstance(node, yaml.MappingNode):
         result: dict[Any, Any] = {}
@@ -69,7 +72,6 @@ def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file:
                                             f"duplicate key (first given on line {out[path + (key,)][0]})")])
             out[path + (key,)] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)
             result[key] = _walk(value_node, path + (key,), out, file)
-            out.setdefault(path + (key,), out[path + (key,)])
         return result
     if isinstance(node, yaml.SequenceNode):
         return [_walk(child, path + (i,), out, file) for i, child in enumerate(node.value)]
@@ -128,7 +130,7 @@ def validate_text(text: str, model: type[M], file: str, context: dict[str, Any] 
     """Parse and validate YAML text as ``model``; raise :class:`FileProblems` with locations."""
     data, locations = load_yaml(text, file)
     if not isinstance(data, dict):
-        raise FileProblems([Problem(file, 1, 1, "(document)", "expected a mapping of keys at the top level")])
+        raise FileProblems([Problem(file, *locations[()], "(document)", "expected a mapping of keys at the top level")])
     try:
         return model.model_validate(data, context=context)
     except ValidationError as exc:
@@ -146,3 +148,13 @@ def read_text(path: str | Path) -> str:
 def validate_file(path: str | Path, model: type[M], context: dict[str, Any] | None = None) -> M:
     """Read and validate a YAML file."""
     return validate_text(read_text(path), model, str(path), context)
+
+
+def problem_at(file: str | Path, field_path: tuple, message: str) -> Problem:
+    """A located problem for a field of a file already known to parse (e.g. a cross-file check)."""
+    try:
+        _, locations = load_yaml(read_text(file), str(file))
+    except FileProblems:
+        locations = {}
+    line, col = locate(tuple(field_path), locations)
+    return Problem(str(file), line, col, _field_name(tuple(field_path)), message)

@@ -20,7 +20,7 @@ def load_procedure(path: str | Path) -> Procedure:
     text = read_text(path)
     data, locations = load_yaml(text, str(path))
     if not isinstance(data, dict):
-        raise FileProblems([Problem(str(path), 1, 1, "(document)", "expected a mapping with a `method` key")])
+        raise FileProblems([Problem(str(path), *locations[()], "(document)", "expected a mapping with a `method` key")])
     method = data.get("method")
     if not isinstance(method, str) or method not in PROCEDURE_MODELS:
         line, col = locate(("method",), locations)

@@ -221,6 +221,10 @@ class LaserTracerMultistation(_Strict):
         span = abs(self.stations.step_deg) * (self.stations.count - 1)
         if span >= 360.0:
             raise ValueError(f"stations: they span {span}° ≥ 360°: stations would repeat")
+        problem = plan_outside_limits(self, self.instruments.stage.soft_limits_deg,
+                                      self.instruments.cmm.volume_min_mm, self.instruments.cmm.volume_max_mm)
+        if problem:
+            raise ValueError(problem)
         return self
 
 
@@ -307,6 +311,13 @@ class EncoderAbbeError(_Strict):
     def step_deg(self) -> float:
         return self.polygon.pitch_deg / self.steps.steps_per_face
 
+    @model_validator(mode="after")
+    def _within_limits(self) -> "EncoderAbbeError":
+        problem = plan_outside_limits(self, self.instruments.stage.soft_limits_deg)
+        if problem:
+            raise ValueError(problem)
+        return self
+
     def pass_angles_deg(self, seating_deg: float) -> np.ndarray:
         """Commanded angles of one positive pass (a full turn, in [0, 360)) for a seating."""
         n = self.polygon.faces * self.steps.steps_per_face
@@ -316,6 +327,31 @@ class EncoderAbbeError(_Strict):
         """Whether a polygon face faces the autocollimator at this commanded angle."""
         k = (angle_deg - seating_deg) / self.step_deg
         return round(k) % self.steps.steps_per_face == 0
+
+
+def plan_outside_limits(proc: "LaserTracerMultistation | EncoderAbbeError", stage_limits_deg, cmm_min_mm=None, cmm_max_mm=None) -> str | None:
+    """``field.path: message`` for the first planned target outside the given limits, else None."""
+    lo, hi = stage_limits_deg
+    if isinstance(proc, LaserTracerMultistation):
+        d = 1 if proc.stations.approach == "positive" else -1
+        angles = [a for a in proc.stations.angles_deg() for a in (a, a - d * proc.stations.overshoot_deg)]
+        where = "stations"
+    else:
+        dirs = [1 if d == "positive" else -1 for d in proc.steps.directions]
+        base = [a for s in proc.polygon.seatings_deg for a in proc.pass_angles_deg(s)]
+        angles = base + [a - d * proc.steps.overshoot_deg for a in base for d in dirs]
+        where = "steps"
+    bad = [a for a in angles if not lo <= a <= hi]
+    if bad:
+        return f"{where}: the stage would go to {bad[0]:g}° (approach included), outside its soft limits [{lo:g}, {hi:g}]°"
+    if cmm_min_mm is not None and isinstance(proc, LaserTracerMultistation):
+        pts = proc.points_array()
+        outside = ~np.all((pts >= np.array(cmm_min_mm)) & (pts <= np.array(cmm_max_mm)), axis=1)
+        if outside.any():
+            k = int(np.argmax(outside))
+            return (f"points: point {k + 1} at {np.round(pts[k], 3).tolist()} mm lies outside the CMM volume "
+                    f"{list(cmm_min_mm)}..{list(cmm_max_mm)} mm")
+    return None
 
 
 Procedure = Union[LaserTracerMultistation, EncoderAbbeError]
