@@ -23,49 +23,41 @@ class UserError(Exception):
     """A mistake the user can fix; printed as one line, exit code 2."""
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def _execute(start, run_dir: str) -> int:
+    """Run or resume; print the outcome, or what went wrong and how to go on."""
     from rtcal.methods.abbe import CertificateUnavailable
-    from rtcal.runner import default_run_dir, run_procedure
-
-    addresses = parse_instruments_option(args.instruments) if args.instruments else None
-    out = args.out or str(default_run_dir(Path(args.procedure).stem))
-    try:
-        outcome = run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
-                                virtual_clock=args.virtual_clock)
-    except FileExistsError as exc:
-        raise UserError(str(exc)) from None
-    except CertificateUnavailable as exc:
-        raise UserError(f"{args.procedure}: {exc}") from None
-    except InstrumentError as exc:
-        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
-        print(f"rtcal: every reading taken so far is in {out}/run.sqlite; `rtcal resume {out}` goes on", file=sys.stderr)
-        return EXIT_FAILED
-    _print_outcome(outcome)
-    return EXIT_OK
-
-
-def _print_outcome(outcome) -> None:
     from rtcal.runner import METHODS
 
+    try:
+        outcome = start()
+    except (FileExistsError, CertificateUnavailable) as exc:
+        raise UserError(str(exc)) from None
+    except InstrumentError as exc:
+        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        print(f"rtcal: every reading taken so far is in {run_dir}/run.sqlite; `rtcal resume {run_dir}` goes on", file=sys.stderr)
+        return EXIT_FAILED
     print(f"run complete: {outcome.results['raw_readings']} readings stored")
     for line in METHODS[outcome.results["method"]].summary(outcome.results):
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith("run.sqlite-")))
     print(f"results in {outcome.run_dir}/ ({files})")
+    return EXIT_OK
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from rtcal.runner import default_run_dir, run_procedure
+
+    addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    out = args.out or str(default_run_dir(Path(args.procedure).stem))
+    return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
+                                          virtual_clock=args.virtual_clock), out)
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
     from rtcal.runner import resume_run
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
-    try:
-        outcome = resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock)
-    except InstrumentError as exc:
-        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
-        print(f"rtcal: every reading taken so far is in {args.run_dir}/run.sqlite; `rtcal resume` again to go on", file=sys.stderr)
-        return EXIT_FAILED
-    _print_outcome(outcome)
-    return EXIT_OK
+    return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock), args.run_dir)
 
 
 def parse_instruments_option(text: str) -> dict[str, str]:

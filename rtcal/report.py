@@ -29,11 +29,30 @@ def write_report(run_dir: Path, results: dict[str, Any], body: list[str]) -> Pat
         lines += [f"- instruments: {results.get('instruments')}, seed {results['seed']}"]
     lines.append("")
     lines += body
-    if results.get("events"):
-        lines += ["## Events", ""] + [f"- t = {ev['t_s']:.1f} s, {ev['kind']}: {ev['message']}" for ev in results["events"]] + [""]
+    lines += events_section(results.get("events", []))
     path = run_dir / "report.md"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
+
+
+NOTABLE_EVENTS = ("fault", "retry", "reacquire", "skip", "pause", "abort", "resume")
+
+
+def events_section(events: list[dict], limit: int = 60) -> list[str]:
+    """Counts of every kind of event, then the faults and the actions taken, in order."""
+    if not events:
+        return []
+    counts: dict[str, int] = {}
+    for ev in events:
+        counts[ev["kind"]] = counts.get(ev["kind"], 0) + 1
+    lines = ["## Events", "", ", ".join(f"{k}: {n}" for k, n in counts.items()), ""]
+    notable = [ev for ev in events if ev["kind"] in NOTABLE_EVENTS]
+    for ev in notable[:limit]:
+        who = f" ({ev['instrument']})" if ev.get("instrument") else ""
+        lines.append(f"- t = {ev['t_s']:.1f} s, {ev['kind']}{who}: {ev['message']}")
+    if len(notable) > limit:
+        lines.append(f"- … {len(notable) - limit} more in results.json and run.sqlite")
+    return lines + [""]
 
 
 def finite_or_none(values) -> list[float | None]:
