@@ -131,10 +131,17 @@ def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None)
     guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
     paper = solve_paper(data.points_mm, data.lengths_mm, nominal, guess, axis, lm_parameters(proc), data.segments)
     shared = solve_shared_dead_path(data.points_mm, data.lengths_mm, data.segments, nominal, guess, axis)
+    paper_block = paper_estimate_dict(paper)
+    segments = len(set(data.segments[np.isfinite(data.lengths_mm)].tolist()))
+    if segments > 1:
+        paper_block["notes"].append(
+            f"The tracer was referenced {segments} times (re-acquisitions or resumed starts): the per-station model "
+            "then carries one dead path per station and segment, which weakens it further; shared_dead_path does not "
+            "suffer from this.")
     out: dict[str, Any] = {
         "nominal_angles_deg": [float(a) for a in angles],
         "raw_readings": data.raw_readings,
-        "estimates": {"paper": paper_estimate_dict(paper), "shared_dead_path": shared_dead_path_dict(shared)},
+        "estimates": {"paper": paper_block, "shared_dead_path": shared_dead_path_dict(shared)},
     }
     if bench is not None:
         out["truth"] = station_truth(bench, angles, 1 if proc.stations.approach == "positive" else -1)
