@@ -55,6 +55,11 @@ def _field_name(path: Path_) -> str:
 PLAIN_TAGS = {f"tag:yaml.org,2002:{t}" for t in ("str", "int", "float", "bool", "null", "seq", "map")}
 
 
+def _scalar(node: yaml.ScalarNode) -> Any:
+    """A scalar node's value by PyYAML's safe constructor (its tag is already resolved)."""
+    return yaml.SafeLoader("").construct_object(node, deep=True)
+
+
 def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file: str) -> Any:
     out.setdefault(path, (node.start_mark.line + 1, node.start_mark.column + 1))  # a key keeps its own position
     if node.tag not in PLAIN_TAGS:
@@ -62,7 +67,7 @@ def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file:
     if isinstance(node, yaml.MappingNode):
         result: dict[Any, Any] = {}
         for key_node, value_node in node.value:
-            key = yaml.safe_load(yaml.serialize(key_node)) if isinstance(key_node, yaml.ScalarNode) else None
+            key = _scalar(key_node) if isinstance(key_node, yaml.ScalarNode) and key_node.tag in PLAIN_TAGS else None
             if not isinstance(key, (str, int, float, bool)) or key is None:
                 raise FileProblems([Problem(file, key_node.start_mark.line + 1, key_node.start_mark.column + 1,
                                             _field_name(path), "keys must be plain scalars")])
@@ -75,7 +80,7 @@ def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file:
         return result
     if isinstance(node, yaml.SequenceNode):
         return [_walk(child, path + (i,), out, file) for i, child in enumerate(node.value)]
-    return yaml.safe_load(yaml.serialize(node))
+    return _scalar(node)
 
 
 def load_yaml(text: str, file: str) -> tuple[Any, dict[Path_, tuple[int, int]]]:

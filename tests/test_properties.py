@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from drivers import az_registers as az
@@ -37,6 +37,8 @@ FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCh
 
 @FAST
 @given(st.text(max_size=400))
+@example("-")
+@example("method: laser_tracer_multistation\nstations: {count: 1e400}")
 def test_loader_on_arbitrary_text(tmp_path, text):
     path = tmp_path / "p.yaml"
     path.write_text(text, encoding="utf-8")
@@ -81,6 +83,8 @@ def test_loader_on_mutated_procedures(tmp_path, data):
 
 @FAST
 @given(st.text(max_size=120))
+@example("-")  # found on CI: a sequence holding one empty scalar
+@example("? [a]\n: 1")  # a key that is not a scalar
 def test_scenario_loader_on_arbitrary_text(text):
     try:
         validate_text(text, Scenario, "s.yaml")
