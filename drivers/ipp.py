@@ -21,7 +21,6 @@ UNSUPPORTED_COMMAND = "0501"
 BAD_ARGUMENT = "0502"
 BAD_ARGUMENT_COUNT = "0509"
 OUT_OF_VOLUME = "1008"
-NOT_HOMED = "1009"
 
 
 def axes(text: str) -> dict[str, float | None]:

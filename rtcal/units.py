@@ -25,8 +25,3 @@ def rad_to_arcsec(value_rad):
 def um_to_mm(value_um):
     """Micrometres → millimetres."""
     return value_um * MM_PER_UM
-
-
-def mm_to_um(value_mm):
-    """Millimetres → micrometres."""
-    return value_mm / MM_PER_UM

@@ -17,7 +17,7 @@ from drivers import az_registers as az
 from simulators.faults import ALARM_CODES
 from simulators.instruments import SimStage
 
-ILLEGAL_FUNCTION, ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE = 1, 2, 3, 4
+ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE = 2, 3, 4  # Modbus exception codes
 
 
 class AzDriveModel:
@@ -149,5 +149,3 @@ class AzDriveModel:
 def steps_per_degree(steps_per_revolution: int, gear_ratio: float) -> float:
     """Motor steps per degree of table rotation."""
     return steps_per_revolution * gear_ratio / 360.0
-
-

@@ -67,7 +67,6 @@ class Bench:
         self.clock = clock if clock is not None else VirtualClock()
         self.seed = scenario.seed if seed is None else seed
         self.generation = generation  # 0 for a run's first start, +1 for each resume: fresh draws
-        self._seeds = np.random.SeedSequence(self.seed)
         self._rngs: dict[str, np.random.Generator] = {}
         st = scenario.stage
         self._eps_z = [h.to_rad() for h in st.positioning_error]
