@@ -26,12 +26,15 @@ class UserError(Exception):
 def _execute(start, run_dir: str) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on."""
     from rtcal.methods.abbe import CertificateUnavailable
-    from rtcal.runner import METHODS
+    from rtcal.runner import METHODS, AnalysisFailed
 
     try:
         outcome = start()
     except (FileExistsError, CertificateUnavailable) as exc:
         raise UserError(str(exc)) from None
+    except AnalysisFailed as exc:
+        print(f"rtcal: {exc}", file=sys.stderr)
+        return EXIT_FAILED
     except InstrumentError as exc:
         print(f"rtcal: instrument error: {exc}", file=sys.stderr)
         print(f"rtcal: every reading taken so far is in {run_dir}/run.sqlite; `rtcal resume {run_dir}` goes on", file=sys.stderr)

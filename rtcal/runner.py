@@ -13,6 +13,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import numpy as np
 from pydantic import ValidationError
 from tqdm import tqdm
 
@@ -30,6 +31,10 @@ from simulators.bench import Bench
 from simulators.scenario import Scenario
 
 METHODS: dict[str, ModuleType] = {"laser_tracer_multistation": multistation, "encoder_abbe_error": abbe}
+
+
+class AnalysisFailed(Exception):
+    """Measuring finished but the solvers could not use the data (e.g. too many readings skipped)."""
 
 
 @dataclass(frozen=True)
@@ -192,6 +197,13 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         inst.close()
     store.set_meta({"status": "measured", "finished_utc": _now()})
     meta = store.meta()
+    try:
+        analysis = method.analyse(proc, store, bench)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        store.close()
+        raise AnalysisFailed(f"the readings are complete but the solvers could not use them: {exc}; "
+                             f"every reading is in {run_dir / RunStore.FILENAME}") from exc
+    events = store.events()
     results: dict[str, Any] = {
         "rtcal_version": __version__,
         "method": proc.method,
@@ -201,10 +213,10 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
             f: getattr(proc.instruments, f).address for f in type(proc.instruments).model_fields},
         "starts": generation + 1,
         "duration_s": round(clock.now_s(), 1),
-        **method.analyse(proc, store, bench),
+        **analysis,
         "skipped_readings": len(store.skipped_plan_indices()),
-        "faults": sum(1 for e in store.events() if e["kind"] == "fault"),
-        "events": store.events(),
+        "faults": sum(1 for e in events if e["kind"] == "fault"),
+        "events": events,
     }
     store.set_meta({"status": "solved"})
     store.close()

@@ -156,3 +156,20 @@ def test_paper000_with_two_percent_beam_breaks_completes_within_no_fault_noise(t
     assert np.sqrt(np.mean(shared**2)) < 1.5 * np.sqrt(np.mean(no_fault_unc**2))
     paper = faulty["estimates"]["paper"]
     assert np.all(np.abs(np.array(paper["deviation_arcsec"]) - truth) < 3.5 * np.array(paper["uncertainty_arcsec"]))
+
+
+def test_a_run_whose_data_the_solvers_cannot_use_says_so(tmp_path, capsys):
+    """Every tracer reading fails and is skipped: measuring ends, the solvers have nothing; a clear
+    message and exit 1, the store intact."""
+    import yaml
+
+    from rtcal.cli import main
+
+    proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
+                                        "laser_tracer: {retries: 0, backoff_s: 0.1, then: skip}"})
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(yaml.safe_dump({"faults": [{"instrument": "laser_tracer", "kind": "no_reply", "probability": 1.0}]}))
+    assert main(["run", str(proc), "--scenario", str(scenario), "--out", str(tmp_path / "run")]) == 1
+    err = capsys.readouterr().err
+    assert "solvers could not use them" in err and "Traceback" not in err
+    assert len(RunStore.open(tmp_path / "run").skipped_plan_indices()) == 64
