@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
-import numpy as np
 
 from drivers.interfaces import Cmm, LaserTracer, RotaryStage
 from rtcal.clock import Clock
