@@ -14,6 +14,7 @@ axis, δ = (δx, δy, δz) and εx, εy the error motions (see :mod:`simulators.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -112,16 +113,20 @@ class Bench:
         self.faults = FaultInjector(scenario.faults, self.rng)
 
     # -- randomness: one stream per named consumer, so interleaving never changes a draw
+    @staticmethod
+    def stream_key(name: str) -> int:
+        """A stable 64-bit key from the whole name (distinct names, distinct streams)."""
+        return int.from_bytes(hashlib.blake2b(name.encode(), digest_size=8).digest(), "little")
+
     def rng(self, name: str) -> np.random.Generator:
         if name not in self._rngs:
-            key = int.from_bytes(name.encode(), "little") % (2**32)
+            key = self.stream_key(name)
             self._rngs[name] = np.random.default_rng([self.seed, key] + ([self.generation] if self.generation else []))
         return self._rngs[name]
 
     def persistent_rng(self, name: str) -> np.random.Generator:
         """Draws of physical facts that a software restart does not change (how a polygon sits)."""
-        key = int.from_bytes(name.encode()[-8:], "little") % (2**32)
-        return np.random.default_rng([self.seed, key])
+        return np.random.default_rng([self.seed, self.stream_key(name)])
 
     # -- stage
     def positioning_error_rad(self, commanded_rad, direction: int = +1):

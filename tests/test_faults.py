@@ -134,10 +134,10 @@ def test_same_faults_in_process(tmp_path, fault):
 
 
 def test_paper000_with_two_percent_beam_breaks_completes_within_no_fault_noise(tmp_path):
-    """Beam breaks in 2 % of tracer readings (17 in this run): every planned reading is taken by
+    """Beam breaks in 2 % of tracer readings (12 in this run): every planned reading is taken by
     re-acquiring. The shared-dead-path estimate stays within the no-fault run's noise: each
     deviation within 3.5σ of the no-fault uncertainty, RMS error below 1.5× the no-fault RMS
-    uncertainty (measured: 1.23″ against 1.12″). The per-station model pays for the extra dead
+    uncertainty (measured: 0.91″ against 1.08″). The per-station model pays for the extra dead
     paths (one per segment and station): its error stays within its own, larger, 3.5σ."""
     import json
 
