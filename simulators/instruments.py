@@ -55,6 +55,12 @@ class _Injecting:
     def _fault(self) -> FaultSpec | None:
         return self.bench.faults.draw(self.name) if self.inject else None
 
+    def _request(self) -> None:
+        """One request of an instrument whose only faults are on the wire: raise as a driver would."""
+        fault = self._fault()
+        if fault is not None:
+            raise communication_fault(self.name, fault.kind)
+
 
 class SimStage(_Injecting, RotaryStage):
     name = "stage"
@@ -118,9 +124,7 @@ class SimCmm(_Injecting, Cmm):
 
     def move_to(self, xyz_mm: np.ndarray) -> None:
         self.check_target(xyz_mm)
-        fault = self._fault()
-        if fault is not None:
-            raise communication_fault(self.name, fault.kind)
+        self._request()
         distance = float(np.linalg.norm(np.asarray(xyz_mm) - self.bench.probe_target_mm))
         self.bench.clock.sleep(distance / self.bench.scenario.cmm.speed_mm_per_s)
         self.bench.move_probe(xyz_mm)
@@ -179,9 +183,7 @@ class SimEncoder(_Injecting, Encoder):
         self._rng = bench.rng("encoder")
 
     def read_angle_deg(self) -> float:
-        fault = self._fault()
-        if fault is not None:
-            raise communication_fault(self.name, fault.kind)
+        self._request()
         enc = self.bench.scenario.encoder
         value = rad_to_arcsec(self.bench.encoder_true_rad()) + enc.noise_arcsec * self._rng.standard_normal()
         return _quantise(value, enc.resolution_arcsec) / 3600.0
@@ -198,9 +200,7 @@ class SimAutocollimator(_Injecting, Autocollimator):
         self._rng = bench.rng("autocollimator")
 
     def read_arcsec(self) -> tuple[float, float]:
-        fault = self._fault()
-        if fault is not None:
-            raise communication_fault(self.name, fault.kind)
+        self._request()
         ac = self.bench.scenario.autocollimator
         x_rad, _ = self.bench.autocollimator_true()
         x = rad_to_arcsec(x_rad) + ac.noise_arcsec * self._rng.standard_normal()
@@ -220,9 +220,7 @@ class SimDialIndicator(_Injecting, DialIndicator):
         self._rng = bench.rng(self.name)
 
     def read_um(self) -> float:
-        fault = self._fault()
-        if fault is not None:
-            raise communication_fault(self.name, fault.kind)
+        self._request()
         di = self.bench.scenario.dial_indicators
         y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + di.noise_um * self._rng.standard_normal()
         return _quantise(y_um, di.resolution_um)

@@ -30,7 +30,6 @@ class FaultHandler:
         self.clock = clock
         self.operator = operator
         self.safe_state = safe_state
-        self.faults = 0
 
     def event(self, kind: str, instrument: str, message: str) -> None:
         self.store.add_event(self.clock.now_s(), kind, message, instrument)
@@ -47,7 +46,6 @@ class FaultHandler:
                     return action()
                 except InstrumentError as exc:
                     last = exc
-                    self.faults += 1
                     self.event("fault", instrument, f"{what}: {exc}" if what else str(exc))
                 if attempt == policy.retries:
                     break
