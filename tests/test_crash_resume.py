@@ -35,7 +35,10 @@ def _stored(db: Path) -> int:
 
 
 def _run_and_kill(args: list[str], db: Path, kill_after: int) -> bool:
-    """Start rtcal; SIGKILL it once ``kill_after`` planned readings are stored. False if it finished first."""
+    """Start rtcal; SIGKILL it once ``kill_after`` planned readings are stored — and at least one of
+    them by this process, so that every kill lands in a run that really started. False if it
+    finished first."""
+    kill_after = max(kill_after, _stored(db) + 1)
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while proc.poll() is None and time.monotonic() < deadline:
@@ -48,10 +51,11 @@ def _run_and_kill(args: list[str], db: Path, kill_after: int) -> bool:
     return False
 
 
-def _check_store(db: Path, planned: int, per_plan: int) -> None:
+def _check_store(db: Path, planned: int, instrument: str, per_plan: int = 1) -> None:
+    """Every planned reading present, each with exactly ``per_plan`` readings of ``instrument``."""
     with sqlite3.connect(db) as c:
         rows = c.execute("SELECT plan_index, COUNT(*) FROM readings WHERE instrument = ? GROUP BY plan_index",
-                         ("laser_tracer" if per_plan == 1 and "tracer" in str(db) else "encoder",)).fetchall()
+                         (instrument,)).fetchall()
     indices = sorted(i for i, _ in rows)
     assert indices == list(range(planned)), "a gap in the planned readings"
     assert all(n == per_plan for _, n in rows), "a planned reading stored twice"
@@ -70,7 +74,7 @@ def test_multistation_survives_sigkill_at_random_points(tmp_path, seed):
         args = ["resume", str(run_dir)]
     assert killed >= 2, "the run finished before it could be killed"
     assert main(["resume", str(run_dir)]) == 0
-    _check_store(db, 704, 1)
+    _check_store(db, 704, "laser_tracer")
     resumed = json.loads((run_dir / "results.json").read_text())
     assert resumed["raw_readings"] == 704 and resumed["starts"] == len(kills) + 1  # one start per invocation
 
@@ -92,7 +96,7 @@ def test_abbe_survives_sigkill(tmp_path):
     killed = _run_and_kill(args, db, 37)
     assert killed
     assert main(["resume", str(run_dir)]) == 0
-    _check_store(db, 96, 1)
+    _check_store(db, 96, "encoder")
     r = json.loads((run_dir / "results.json").read_text())
     a, t = r["estimates"]["abbe"], r["truth"]
     eps = np.array([np.nan if v is None else v for v in a["positioning_error_arcsec"]])
