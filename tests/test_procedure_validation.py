@@ -30,7 +30,7 @@ BAD_PROCEDURES = [
     ("bad_lm_beta", GOOD.replace("beta: 0.55", "beta: 1.5"), "beta: 1.5", "solver.lm.beta", "less than 1"),
     ("too_few_points", GOOD.replace("layers: 4", "layers: 1").replace("columns: 4", "columns: 3"), "points:", "points", "n ≥ 16"),
     ("coplanar_points", GOOD.replace("volume_size_mm: [450, 600, 450]", "volume_size_mm: [450, 600, 0]"), "points:", "points", "coplanar"),
-    ("bad_vector", GOOD.replace("volume_min_mm: [700, -300, 100]", "volume_min_mm: [700, -300]"), "volume_min_mm", "points.volume_min_mm", "too few items"),
+    ("bad_vector", GOOD.replace("volume_min_mm: [700, -300, 100]", "volume_min_mm: [700, -300]"), "volume_min_mm: [700", "points.volume_min_mm", "too few items"),
     ("full_turn", GOOD.replace("step_deg: 30", "step_deg: 40"), "stations:", "stations", "≥ 360°"),
     ("not_a_mapping", "- just\n- a list\n", None, "(document)", "mapping"),
 ]
