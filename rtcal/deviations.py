@@ -1,0 +1,179 @@
+"""The positioning-deviation table: the one result type every method hands downstream.
+
+One row per (target, direction, run): the deviation x = actual − target (ISO 230-2's x_ij; for
+a rotary axis in arcsec, positive = the table turned further than commanded) and its standard
+uncertainty u (k = 1), with the rows' covariance where the method knows it. Evaluation
+(ISO 230-2, VDI 3441), compensation writers, run comparison and reports read only this table.
+
+Deviations are referred to one zero: the first target of the first direction measured (ISO
+230-1's ECC relative to the first target), so that a reversal between directions stays
+visible. Runs are numbered from 1, directions are +1 (↑, positive approach) and −1 (↓).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+CSV_HEADER = ("target_deg", "direction", "run", "deviation_arcsec")
+CSV_OPTIONAL = ("uncertainty_arcsec",)
+
+
+class DeviationTableError(ValueError):
+    """A deviation table (CSV or results.json) that cannot be read; the message says where."""
+
+
+@dataclass(frozen=True)
+class PositioningDeviations:
+    """Rows of (target_deg, direction, run, deviation_arcsec, uncertainty_arcsec).
+
+    ``covariance_arcsec2`` (rows × rows) is given where the estimator propagated one; its
+    diagonal is ``uncertainty_arcsec``². ``estimator`` names the estimate the rows come from.
+    """
+
+    target_deg: np.ndarray
+    direction: np.ndarray
+    run: np.ndarray
+    deviation_arcsec: np.ndarray
+    uncertainty_arcsec: np.ndarray
+    covariance_arcsec2: np.ndarray | None = None
+    estimator: str = ""
+    notes: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        n = len(np.asarray(self.target_deg))
+        for name in ("direction", "run", "deviation_arcsec", "uncertainty_arcsec"):
+            if len(np.asarray(getattr(self, name))) != n:
+                raise ValueError(f"{name} has {len(np.asarray(getattr(self, name)))} rows, target_deg {n}")
+        if self.covariance_arcsec2 is not None and np.shape(self.covariance_arcsec2) != (n, n):
+            raise ValueError(f"covariance is {np.shape(self.covariance_arcsec2)}, expected {(n, n)}")
+
+    def __len__(self) -> int:
+        return len(self.target_deg)
+
+    @property
+    def expanded_uncertainty_arcsec(self) -> np.ndarray:
+        """U = k·u with k = 2 (about 95 % for a normal distribution)."""
+        return 2.0 * np.asarray(self.uncertainty_arcsec, float)
+
+    def select(self, mask: np.ndarray) -> "PositioningDeviations":
+        mask = np.asarray(mask, bool)
+        cov = None if self.covariance_arcsec2 is None else self.covariance_arcsec2[np.ix_(mask, mask)]
+        return PositioningDeviations(self.target_deg[mask], self.direction[mask], self.run[mask],
+                                     self.deviation_arcsec[mask], self.uncertainty_arcsec[mask], cov,
+                                     self.estimator, self.notes)
+
+    # -- results.json ---------------------------------------------------------------------
+    def to_dict(self, digits: int = 4) -> dict[str, Any]:
+        """Columns for results.json (the covariance is not repeated here: the estimate has it)."""
+        def col(a, d=None):
+            a = np.asarray(a, float)
+            return [None if not np.isfinite(v) else (round(float(v), d) if d is not None else float(v)) for v in a]
+
+        return {
+            "estimator": self.estimator,
+            "target_deg": col(self.target_deg, 9),
+            "direction": [int(d) for d in self.direction],
+            "run": [int(r) for r in self.run],
+            "deviation_arcsec": col(self.deviation_arcsec, digits),
+            "uncertainty_arcsec": col(self.uncertainty_arcsec, digits),
+            "notes": list(self.notes),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "results.json") -> "PositioningDeviations":
+        try:
+            unc = data.get("uncertainty_arcsec") or [None] * len(data["target_deg"])
+            table = cls(
+                np.asarray(data["target_deg"], float),
+                np.asarray(data["direction"], int),
+                np.asarray(data["run"], int),
+                np.asarray([np.nan if v is None else v for v in data["deviation_arcsec"]], float),
+                np.asarray([np.nan if v is None else v for v in unc], float),
+                estimator=str(data.get("estimator", "")),
+                notes=tuple(data.get("notes", ())),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DeviationTableError(f"{where}: positioning_deviations is not a deviation table ({exc})") from None
+        table.check(where)
+        return table
+
+    # -- CSV ----------------------------------------------------------------------------
+    def to_csv(self) -> str:
+        """``target_deg,direction,run,deviation_arcsec,uncertainty_arcsec``, one row per approach."""
+        out = io.StringIO()
+        w = csv.writer(out, lineterminator="\n")
+        w.writerow(CSV_HEADER + CSV_OPTIONAL)
+        for t, d, r, x, u in zip(self.target_deg, self.direction, self.run, self.deviation_arcsec, self.uncertainty_arcsec):
+            w.writerow([f"{float(t):.9g}", int(d), int(r), "" if not np.isfinite(x) else f"{float(x):.4f}",
+                        "" if not np.isfinite(u) else f"{float(u):.4f}"])
+        return out.getvalue()
+
+    def write_csv(self, path: Path) -> Path:
+        path.write_text(self.to_csv(), encoding="utf-8")
+        return path
+
+    @classmethod
+    def read_csv(cls, path: str | Path, max_rows: int = 1_000_000) -> "PositioningDeviations":
+        """Read a deviation CSV; every problem names the file and line."""
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise DeviationTableError(f"{path}: cannot read: {exc}") from None
+        return cls.parse_csv(text, str(path), max_rows)
+
+    @classmethod
+    def parse_csv(cls, text: str, where: str = "<csv>", max_rows: int = 1_000_000) -> "PositioningDeviations":
+        reader = csv.reader(io.StringIO(text))
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise DeviationTableError(f"{where}:1: empty file; expected the header {','.join(CSV_HEADER)}") from None
+        missing = [h for h in CSV_HEADER if h not in header]
+        if missing:
+            raise DeviationTableError(f"{where}:1: header must name {','.join(CSV_HEADER)} (missing {', '.join(missing)})")
+        idx = {h: header.index(h) for h in CSV_HEADER + CSV_OPTIONAL if h in header}
+        rows: list[tuple[float, int, int, float, float]] = []
+        for line, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(rows) >= max_rows:
+                raise DeviationTableError(f"{where}:{line}: more than {max_rows} rows")
+            try:
+                t = float(row[idx["target_deg"]])
+                d = int(row[idx["direction"]])
+                r = int(row[idx["run"]])
+                x = float(row[idx["deviation_arcsec"]])
+                u_text = row[idx["uncertainty_arcsec"]].strip() if "uncertainty_arcsec" in idx and idx["uncertainty_arcsec"] < len(row) else ""
+                u = float(u_text) if u_text else float("nan")
+            except (IndexError, ValueError):
+                raise DeviationTableError(f"{where}:{line}: expected numbers in {','.join(CSV_HEADER)} "
+                                          f"(direction +1/-1, run an integer); got {','.join(row)[:80]!r}") from None
+            if d not in (1, -1):
+                raise DeviationTableError(f"{where}:{line}: direction must be 1 (positive approach) or -1 (negative), got {d}")
+            if not (np.isfinite(t) and np.isfinite(x)) or (np.isfinite(u) and u < 0) or u == float("inf"):
+                raise DeviationTableError(f"{where}:{line}: target, deviation and uncertainty must be finite (u ≥ 0)")
+            if r < 1:
+                raise DeviationTableError(f"{where}:{line}: runs are numbered from 1, got {r}")
+            rows.append((t, d, r, x, u))
+        if not rows:
+            raise DeviationTableError(f"{where}: no rows after the header")
+        a = np.array(rows, dtype=float)
+        table = cls(a[:, 0], a[:, 1].astype(int), a[:, 2].astype(int), a[:, 3], a[:, 4], estimator="", notes=())
+        table.check(where)
+        return table
+
+    def check(self, where: str) -> None:
+        """One row per (target, direction, run)."""
+        keys = list(zip(np.round(self.target_deg, 9), self.direction, self.run))
+        if len(set(keys)) != len(keys):
+            seen: set = set()
+            dup = next(k for k in keys if k in seen or seen.add(k))
+            raise DeviationTableError(f"{where}: target {dup[0]:g}°, direction {int(dup[1]):+d}, run {int(dup[2])} "
+                                      "appears more than once")
