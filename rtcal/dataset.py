@@ -2,23 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from rtcal.solvers.abbe import AbbeVisits
+from rtcal.solvers.station_data import MultistationData
 from rtcal.store import RunStore
-
-
-@dataclass(frozen=True)
-class MultistationData:
-    """Arrays for the seed-000 solvers, from the raw readings."""
-
-    points_mm: np.ndarray  # n×3, CMM-reported, averaged over visits
-    lengths_mm: np.ndarray  # n×m, tracer samples averaged; NaN where the reading was skipped
-    segments: np.ndarray  # n×m tracking segment of each length (−1 where skipped)
-    nominal_angles_deg: np.ndarray  # m
-    raw_readings: int  # planned readings present (point, station pairs with a length)
 
 
 def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int) -> MultistationData:
@@ -34,16 +22,21 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
     len_sum = np.zeros((n_points, m))
     len_count = np.zeros((n_points, m))
     segments = np.full((n_points, m), -1)
+    visits = np.full((n_points, m), -1)
+    visit, last = -1, None
     for r in store.readings(instrument="laser_tracer", quantity="length_mm"):
         len_sum[r.point, r.station] += r.value
         len_count[r.point, r.station] += 1
         segments[r.point, r.station] = r.segment
+        if (r.station, r.segment) != last:  # the table moved (or a new start re-approached it)
+            visit, last = visit + 1, (r.station, r.segment)
+        visits[r.point, r.station] = visit
     if np.any(pos_count == 0):
         raise ValueError(f"the CMM position of {int(np.sum(pos_count[:, 0] == 0))} points was never read")
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
-    return MultistationData(pos_sum / pos_count, lengths, segments,
-                            np.asarray(nominal_angles_deg, float), int(np.sum(len_count > 0)))
+    return MultistationData(pos_sum / pos_count, lengths, segments, np.asarray(nominal_angles_deg, float),
+                            int(np.sum(len_count > 0)), visits, pos_count[:, 0])
 
 
 def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:
@@ -68,4 +61,5 @@ def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:
         autocollimator_arcsec=column("autocollimator.x_arcsec"),
         indicator1_um=column("dial_indicator_1.y_um"),
         indicator2_um=column("dial_indicator_2.y_um"),
+        run=np.array([k[1] for k in keys]),
     )
