@@ -16,7 +16,7 @@ from drivers.errors import InstrumentError
 from rtcal import __version__
 from rtcal.yamlfile import FileProblems
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
 
 
 class UserError(Exception):
@@ -26,7 +26,7 @@ class UserError(Exception):
 def _execute(start, run_dir: str) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on."""
     from rtcal.methods.abbe import CertificateUnavailable
-    from rtcal.runner import METHODS, AnalysisFailed
+    from rtcal.runner import IDEAL_BENCH, METHODS, AnalysisFailed
 
     try:
         outcome = start()
@@ -39,11 +39,19 @@ def _execute(start, run_dir: str) -> int:
         print(f"rtcal: instrument error: {exc}", file=sys.stderr)
         print(f"rtcal: every reading taken so far is in {run_dir}/run.sqlite; `rtcal resume {run_dir}` goes on", file=sys.stderr)
         return EXIT_FAILED
-    print(f"run complete: {outcome.results['raw_readings']} readings stored")
-    for line in METHODS[outcome.results["method"]].summary(outcome.results):
+    results = outcome.results
+    print(f"run complete: {results['raw_readings']} readings stored")
+    if results.get("bench") == IDEAL_BENCH:
+        print(f"note: {IDEAL_BENCH}")
+    for line in METHODS[results["method"]].summary(results):
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith("run.sqlite-")))
     print(f"results in {outcome.run_dir}/ ({files})")
+    rec = results.get("recommended")
+    if rec and results["solver_status"][rec]["status"] != "converged":
+        print(f"rtcal: the recommended estimator {rec} did not converge ({results['solver_status'][rec]['message']}); "
+              "readings and results are kept", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return EXIT_OK
 
 
@@ -80,6 +88,64 @@ def parse_instruments_option(text: str) -> dict[str, str]:
     return data
 
 
+def _cmd_uncertainty(args: argparse.Namespace) -> int:
+    """Monte Carlo of the procedure on the simulated bench: reported 1σ against the errors made."""
+    from tqdm import tqdm
+
+    from rtcal import montecarlo
+    from rtcal.runner import check_plan_on_bench, default_run_dir, resolve_scenario
+    from rtcal.procedure.loader import load_procedure
+
+    if not 2 <= args.trials <= 100_000:
+        raise UserError("--trials must lie in 2..100000")
+    path = Path(args.procedure)
+    proc = load_procedure(path)
+    if not proc.instruments.all_sim():
+        raise UserError(f"{path}: the Monte Carlo runs on the simulated bench: every instrument must be `backend: sim`")
+    scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
+    check_plan_on_bench(path, proc, scenario)
+    out = Path(args.out) if args.out else default_run_dir("uncertainty")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot create: {exc}") from None
+    seed = scenario.seed if args.seed is None else args.seed
+    specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics)
+    trials = []
+    bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
+    try:
+        for result in montecarlo.run_trials(specs, args.workers, args.scheduler):
+            trials.append(result)
+            bar.update()
+    except OSError as exc:
+        raise UserError(f"--scheduler {args.scheduler}: cannot reach the Dask scheduler: {exc}") from None
+    finally:
+        bar.close()
+    ok = [t for t in trials if "failed" not in t]
+    if not ok:
+        print(f"rtcal: every trial failed; the first: {trials[0]['failed']}", file=sys.stderr)
+        return EXIT_FAILED
+    summary = montecarlo.summarize(trials, ok[0]["labels"])
+    summary.update(procedure=str(path), bench=args.scenario or (str(path.parent / proc.bench) if proc.bench else "ideal"),
+                   seed=seed, systematics="drawn from the stated uncertainties" if not args.fixed_systematics
+                   else "fixed as in the scenario")
+    (out / "uncertainty.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} simulated runs",
+                            out / "uncertainty.png")
+    print(f"{len(ok)} trials ({summary['failed_trials']} failed), systematics {summary['systematics']}")
+    for name, e in summary["estimators"].items():
+        rec = " (recommended)" if name == summary["recommended"] else ""
+        o = e["overall"]
+        print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″, "
+              f"ratio per target {o['ratio_min']}–{o['ratio_max']}")
+        print("  target      " + " ".join(f"{t:>8}" for t in summary["targets"][1:]))
+        print("  RMS error   " + " ".join(f"{v:8.3f}" for v in e["rms_error_arcsec"][1:]))
+        print("  reported 1σ " + " ".join(f"{v:8.3f}" for v in e["rms_reported_sigma_arcsec"][1:]))
+        print("  ratio       " + " ".join(f"{v:8.2f}" for v in e["ratio"][1:]))
+    print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
+    return EXIT_OK
+
+
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -106,7 +172,10 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
+    """Everything `run` checks before the first motion: the file, and the plan against the bench
+    it would run on (the procedure's `bench`, or --scenario) — limits, CMM volume, polygon."""
     from rtcal.procedure.loader import is_procedure_text, load_procedure, load_scenario
+    from rtcal.runner import check_plan_on_bench, resolve_scenario
     from rtcal.yamlfile import read_text
 
     problems = []
@@ -115,7 +184,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         try:
             if is_procedure_text(read_text(path)):
                 proc = load_procedure(path)
-                if proc.bench is not None:
+                if proc.instruments.all_sim() or args.scenario:
+                    scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
+                    check_plan_on_bench(path, proc, scenario)
+                elif proc.bench is not None:
                     load_scenario(path.parent / proc.bench)
             else:
                 load_scenario(path)
@@ -202,6 +274,20 @@ def build_parser() -> argparse.ArgumentParser:
     resume.add_argument("--virtual-clock", action="store_true", help="as for `run`")
     resume.set_defaults(func=_cmd_resume)
 
+    unc = sub.add_parser("uncertainty", help="Monte Carlo: run a procedure N times on the simulated bench and set the "
+                                            "reported 1σ beside the errors against truth, per estimator and target")
+    unc.add_argument("procedure", help="procedure YAML file (every instrument `backend: sim`)")
+    unc.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
+    unc.add_argument("--trials", type=int, default=30, help="number of simulated runs (default 30)")
+    unc.add_argument("--seed", type=int, help="seed of the trials (default: the scenario's)")
+    unc.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1: in this process)")
+    unc.add_argument("--scheduler", help="address of a running Dask scheduler (e.g. tcp://127.0.0.1:8786) to run the trials on")
+    unc.add_argument("--fixed-systematics", action="store_true",
+                     help="keep the scenario's CMM errors and error motions in every trial instead of drawing them from "
+                          "the procedure's stated uncertainties (shows this one bench's bias)")
+    unc.add_argument("--out", help="directory for uncertainty.json and uncertainty.png (default: runs/<time>-uncertainty)")
+    unc.set_defaults(func=_cmd_uncertainty)
+
     sim = sub.add_parser("sim", help="simulated instruments")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True)
     serve = sim_sub.add_parser("serve", help="serve every instrument over its real protocol around one simulated bench; "
@@ -214,8 +300,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
     serve.set_defaults(func=_cmd_sim_serve)
 
-    val = sub.add_parser("validate", help="check procedure or scenario files; problems as file:line:column")
-    val.add_argument("files", nargs="+")
+    val = sub.add_parser("validate", help="check procedure or scenario files as `run` would before moving (limits, CMM "
+                                          "volume, polygon, closure); problems as file:line:column, exit 2")
+    val.add_argument("files", nargs="+", help="procedure or scenario YAML files")
+    val.add_argument("--scenario", help="check procedures against this bench scenario instead of their `bench`")
     val.set_defaults(func=_cmd_validate)
 
     schema = sub.add_parser("schema", help="print the JSON Schema of procedure files")

@@ -19,9 +19,10 @@ from tqdm import tqdm
 
 from rtcal import __version__
 from rtcal.clock import RealClock, VirtualClock
+from rtcal.deviations import PositioningDeviations
 from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import load_procedure, load_scenario
-from rtcal.procedure.models import PROCEDURE_MODELS, Procedure, plan_outside_limits
+from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
 from rtcal.report import write_report, write_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
@@ -57,6 +58,17 @@ def resolve_scenario(procedure_path: Path, proc: Procedure, scenario_path: Path 
     return load_scenario(scenario_path), read_text(scenario_path)
 
 
+def scenario_label(procedure_path: Path, proc: Procedure, scenario_path: str | Path | None) -> str:
+    """Where the simulated bench came from, for the results: a file, or the ideal bench."""
+    if scenario_path is not None:
+        return str(scenario_path)
+    return str(procedure_path.parent / proc.bench) if proc.bench is not None else ""
+
+
+IDEAL_BENCH = ("ideal bench: the procedure names no `bench:` scenario and none was given with --scenario, so every "
+               "simulated instrument is perfect and the results show no error")
+
+
 def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat()
 
@@ -76,11 +88,16 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
 
 
 def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenario) -> None:
-    """Refuse a plan the simulated bench cannot do (stage limits, CMM volume) before anything moves."""
+    """Refuse, before anything moves, a plan the simulated bench cannot do: stage limits, CMM
+    volume, a polygon of another face count. `rtcal validate` runs the same check."""
     problem = plan_outside_limits(proc, scenario.stage.soft_limits_deg, scenario.cmm.volume_min_mm, scenario.cmm.volume_max_mm)
     if problem:
         field, _, message = problem.partition(": ")
         raise FileProblems([problem_at(procedure_path, (field,), f"{message} (the simulated bench's limits)")])
+    if isinstance(proc, EncoderAbbeError) and proc.polygon.faces != scenario.polygon.faces:
+        raise FileProblems([problem_at(procedure_path, ("polygon", "faces"),
+                                       f"the procedure's polygon has {proc.polygon.faces} faces, the bench's "
+                                       f"{scenario.polygon.faces}")])
 
 
 def _operator(bench: Bench | None, addresses: dict[str, str] | None):
@@ -97,8 +114,10 @@ def run_procedure(
     show_progress: bool | None = None,
     addresses: dict[str, str] | None = None,
     virtual_clock: bool = False,
+    outputs: bool = True,
 ) -> RunOutcome:
-    """Run a procedure and write the run directory.
+    """Run a procedure and write the run directory (``outputs=False``: the store only, no
+    results.json, figures or report — for Monte Carlo trials).
 
     All instruments ``sim``: an in-process bench (from the scenario) with a virtual clock, and
     the results carry its truth. Otherwise real transports at the procedure's addresses (or
@@ -123,10 +142,11 @@ def run_procedure(
     store = RunStore.create(run_dir, {**prepared,
         "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": read_text(procedure_path),
         "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text,
+        "scenario_path": scenario_label(procedure_path, proc, scenario_path) if simulated else "",
         "seed": str(seed) if simulated else "", "software_version": __version__,
         "started_utc": _now(), "status": "running", "generation": "0",
     })
-    return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0)
+    return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs)
 
 
 def resume_run(
@@ -169,7 +189,7 @@ def resume_run(
 
 
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
-                       virtual_clock: bool, show_progress: bool | None, generation: int) -> RunOutcome:
+                       virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs."""
     method = METHODS[proc.method]
     simulated = bench is not None
@@ -203,7 +223,13 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         store.close()
         raise AnalysisFailed(f"the readings are complete but the solvers could not use them: {exc}; "
                              f"every reading is in {run_dir / RunStore.FILENAME}") from exc
+    if analysis.get("recommended") is None:
+        store.close()
+        failures = "; ".join(f"{n}: {st['message']}" for n, st in analysis.get("solver_status", {}).items())
+        raise AnalysisFailed(f"the readings are complete but the solvers could not use them: no estimator ran ({failures}); "
+                             f"every reading is in {run_dir / RunStore.FILENAME}")
     events = store.events()
+    virtual = isinstance(clock, VirtualClock)
     results: dict[str, Any] = {
         "rtcal_version": __version__,
         "method": proc.method,
@@ -211,8 +237,12 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         "seed": int(meta["seed"]) if simulated else None,
         "instruments": "simulated in process" if simulated else {
             f: getattr(proc.instruments, f).address for f in type(proc.instruments).model_fields},
+        "bench": (meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
+        "started_utc": meta.get("started_utc"),
+        "finished_utc": meta.get("finished_utc"),
         "starts": generation + 1,
-        "duration_s": round(clock.now_s(), 1),
+        "measurement_duration_s": round(clock.now_s(), 1),
+        "clock": "virtual" if virtual else "real",
         **analysis,
         "skipped_readings": len(store.skipped_plan_indices()),
         "faults": sum(1 for e in events if e["kind"] == "fault"),
@@ -220,7 +250,11 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     }
     store.set_meta({"status": "solved"})
     store.close()
+    if not outputs:
+        return RunOutcome(run_dir, results)
     write_results(run_dir, results)
+    if "positioning_deviations" in results:  # the table every method hands downstream, for spreadsheets too
+        PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(run_dir / "positioning_deviations.csv")
     method.write_files(run_dir, results)
     write_report(run_dir, results, method.report_body(results))
     return RunOutcome(run_dir, results)

@@ -7,6 +7,7 @@ the procedure file), which ``rtcal run --scenario`` replaces.
 
 from __future__ import annotations
 
+import math
 from typing import Literal, Union
 
 import numpy as np
@@ -183,9 +184,44 @@ class LMSettings(_Strict):
 
 
 class MultistationSolver(_Strict):
+    estimators: list[Literal["paper", "shared_dead_path"]] = Field(
+        ["paper", "shared_dead_path"], min_length=1,
+        description="which estimators to run: `paper` (as printed) and/or `shared_dead_path`; the recommended one is "
+                    "chosen among them")
     lm: LMSettings = LMSettings()
     first_station_guess_mm: Vec3 = (-64.9938, -6.6256, 122.5133)  # the paper's X0, Y0, Z0
     axis_point_mm: Vec3 = (0.0, 0.0, 0.0)  # nominal axis (vertical) for the other stations' guesses
+
+
+class ErrorMotionBounds(_Strict):
+    """Bounds of the table's error motions (ISO 230-7), for the uncertainty budget (Type B).
+
+    One tracer mount cannot tell a sideways shift of the tracer from a rotation, so the error
+    motions the table may have enter the uncertainty; give the bounds from its specification
+    or an earlier measurement. rtcal models each as an unknown smooth function within ±bound
+    (σ = bound/√3 at every angle, harmonic orders 1..max_order)."""
+
+    radial_um: float = Field(0.0, ge=0.0, le=1000.0, description="bound of the radial error motions EXC, EYC at the tilt centre, µm (e.g. 0.5)")
+    axial_um: float = Field(0.0, ge=0.0, le=1000.0, description="bound of the axial error motion EZC, µm (e.g. 0.3)")
+    tilt_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="bound of the tilt error motions EAC, EBC, arcsec (e.g. 1.0)")
+    max_order: int = Field(6, ge=1, le=360, description="highest harmonic order (per turn) the error motions may have (e.g. 6)")
+    tilt_center_z_mm: float = Field(0.0, ge=-1e4, le=1e4, description="height of the tilt centre in the CMM frame, mm "
+                                    "(0: on the table at the CMM origin, as in seed 000)")
+
+
+class MultistationUncertainty(_Strict):
+    """What the lab knows about its instruments (1σ unless a bound): the uncertainty budget's inputs.
+
+    The sizes of the tracer's and the CMM's random errors are estimated from the readings
+    (Type A); the values here give their shape and a reference. The others are Type B."""
+
+    laser_tracer_noise_um: float = Field(0.2, ge=0.0, le=100.0, description="tracer length noise a of a + b·L, µm (1σ, e.g. 0.2)")
+    laser_tracer_noise_ppm: float = Field(0.3, ge=0.0, le=100.0, description="tracer length noise b of a + b·L, µm per m (e.g. 0.3)")
+    cmm_point_noise_um: float = Field(0.3, ge=0.0, le=1000.0, description="CMM reading noise per coordinate and visit, µm (1σ, e.g. 0.3)")
+    cmm_scale_ppm: float = Field(0.0, ge=0.0, le=1000.0, description="standard uncertainty of each CMM scale, ppm (Type B, e.g. 1.0)")
+    cmm_squareness_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="standard uncertainty of each CMM squareness, arcsec (Type B, e.g. 1.0)")
+    stage_repeatability_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="the stage's positioning repeatability per visit, arcsec (1σ, Type B, e.g. 0.2)")
+    error_motions: ErrorMotionBounds = Field(ErrorMotionBounds(), description="bounds of the error motions (Type B)")
 
 
 class LaserTracerMultistation(_Strict):
@@ -202,6 +238,7 @@ class LaserTracerMultistation(_Strict):
     settle_time_s: float = Field(2.0, ge=0.0)
     on_fault: MultistationOnFault = MultistationOnFault()
     solver: MultistationSolver = MultistationSolver()
+    uncertainty: MultistationUncertainty = Field(MultistationUncertainty(), description="inputs of the uncertainty budget")
 
     def points_array(self) -> np.ndarray:
         return self.points.points_mm() if isinstance(self.points, GridPlan) else self.points.points_mm_array()
@@ -275,6 +312,14 @@ class PolygonSetup(_Strict):
                              "a whole number of faces apart")
         if len(set(self.seatings_deg)) != len(self.seatings_deg):
             raise ValueError("seatings_deg: offsets repeat")
+        if self.certificate_arcsec == "none":
+            offsets = sorted(whole)
+            common = math.gcd(self.faces, *[k - offsets[0] for k in offsets[1:]])
+            if common > 1:
+                raise ValueError(f"seatings_deg: closure cannot separate table and polygon errors: the whole-face offsets "
+                                 f"{offsets} differ by multiples of {common}, which divides the {self.faces} faces, so "
+                                 f"the readings split into {common} unconnected sets; use offsets whose differences "
+                                 f"share no factor with {self.faces} (e.g. include an offset of 1 face)")
         return self
 
 
@@ -292,6 +337,22 @@ class AbbeGeometry(_Strict):
         return self
 
 
+class AbbeUncertainty(_Strict):
+    """The instruments' stated noise and resolution (1σ), for the uncertainty budget.
+
+    With one run they are the budget's Type B inputs; with two or more runs (or closure) the
+    random parts are estimated from the readings instead (Type A). The polygon certificate's
+    uncertainty is ``polygon.certificate_uncertainty_arcsec``."""
+
+    autocollimator_noise_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="autocollimator noise per reading, arcsec (1σ, e.g. 0.2)")
+    autocollimator_resolution_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="autocollimator display digit, arcsec (e.g. 0.1)")
+    stage_repeatability_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="stage positioning repeatability per visit, arcsec (1σ, e.g. 0.3)")
+    encoder_noise_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="encoder noise per reading, arcsec (1σ, e.g. 0.05)")
+    encoder_resolution_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="encoder resolution, arcsec (e.g. 0.05)")
+    indicator_noise_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator noise per reading, µm (1σ, e.g. 0.2)")
+    indicator_resolution_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator digit, µm (e.g. 1.0)")
+
+
 class EncoderAbbeError(_Strict):
     """Seed 001: encoder error from tilt and radial motion, against an autocollimator and polygon."""
 
@@ -306,6 +367,7 @@ class EncoderAbbeError(_Strict):
     settle_time_s: float = Field(1.0, ge=0.0)
     on_fault: AbbeOnFault = AbbeOnFault()
     max_harmonic_order: int = Field(24, ge=1, le=360)
+    uncertainty: AbbeUncertainty = Field(AbbeUncertainty(), description="inputs of the uncertainty budget")
 
     @property
     def step_deg(self) -> float:
