@@ -385,7 +385,7 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         if orders:
             qthr = None
             if rounding:
-                amps = np.max([harmonic_amplitudes(th, e[ok], orders, groups[ok]) for e in rounding], axis=0)
+                amps = np.max(harmonic_amplitudes(th, np.column_stack([e[ok] for e in rounding]), orders, groups[ok]), axis=0)
                 qthr = dict(zip(orders, amps.tolist()))
             harmonics[name] = fit_harmonics(th, values[ok], orders, groups[ok], floor_sigma=floor, aliased_order=nyq,
                                             max_order=setup.max_order, quantisation_threshold=qthr)

@@ -90,11 +90,12 @@ def _design(theta: np.ndarray, orders: list[int], groups: np.ndarray, aliased_or
 
 
 def harmonic_amplitudes(angles_rad: np.ndarray, values: np.ndarray, orders: list[int], groups: np.ndarray) -> np.ndarray:
-    """Fitted amplitude per order only (no statistics): for simulating what an error alone produces."""
+    """Fitted amplitude per order only (no statistics), of one series or of each column of
+    ``values`` (samples × series): for simulating what an error alone produces."""
     A, _ = _design(np.asarray(angles_rad, float), orders, groups, None)
     coef = np.linalg.lstsq(A, np.asarray(values, float), rcond=None)[0]
     k = len(orders)
-    return np.hypot(coef[:k], coef[k : 2 * k])
+    return np.hypot(coef[:k], coef[k : 2 * k]).T
 
 
 def smooth_values(angles_rad: np.ndarray, values: np.ndarray, orders: list[int], groups: np.ndarray) -> np.ndarray:
