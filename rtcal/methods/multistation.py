@@ -16,6 +16,7 @@ from rtcal.results import choose_recommended, deviation_block, run_estimators, s
 from rtcal.sequencer.multistation import MultistationInstrumentSet, planned_readings, run_multistation
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate, StationChain, solve_paper
+from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
 from rtcal.solvers.shared_dead_path import SharedDeadPathEstimate, solve_shared_dead_path
 from rtcal.solvers.station_budget import StationBudget, StationNoiseModel
 from rtcal.store import RunStore
@@ -90,6 +91,25 @@ def shared_dead_path_dict(est: SharedDeadPathEstimate, omitted: list[str]) -> di
         "stations_mm": [_round(c) for c in est.centers_mm],
         "dead_paths_mm": {str(int(s)): round(float(d), 6) for s, d in zip(est.segment_ids, est.dead_paths_mm)},
         "rms_residual_um": round(est.rms_residual_um, 4),
+        "converged": est.converged,
+        "message": est.message,
+    }
+
+
+def network_dict(est: NetworkEstimate, omitted: list[str]) -> dict[str, Any]:
+    """The ``estimates.network`` block: one adjustment of axis, angles, dead paths, CMM and points."""
+    omitted = [o for o in omitted if not o.startswith("CMM scale")]  # solved here, not a Type B input
+    return {
+        **deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=omitted),
+        "estimated_noise": {"tracer_length_noise_um": round(est.sigma_length_um, 5), "cmm_point_noise_um": round(est.sigma_point_um, 5)},
+        "cmm_errors": {name: {"value": round(float(v), 4), "sigma": round(float(s), 4)}
+                       for name, v, s in zip(CMM_NAMES, est.cmm_errors, est.cmm_errors_sigma)},
+        "axis_point_mm": _round(est.axis_point_mm), "axis_direction": _round(est.axis_direction, 9),
+        "radius_mm": round(est.radius_mm, 6),
+        "stations_mm": [_round(p) for p in est.stations_mm],
+        "dead_paths_mm": {str(int(s)): round(float(d), 6) for s, d in zip(est.segment_ids, est.dead_paths_mm)},
+        "rms_length_residual_um": round(est.rms_length_residual_um, 4),
+        "rms_point_residual_um": round(est.rms_point_residual_um, 4),
         "converged": est.converged,
         "message": est.message,
     }
@@ -192,6 +212,7 @@ def measure(proc: LaserTracerMultistation, inst: MultistationInstrumentSet, stor
 ESTIMATOR_LABELS = {
     "paper": "paper (as printed: one dead path per station)",
     "shared_dead_path": "shared dead path (one per tracking segment)",
+    "network": "network (one circle, CMM solved)",
 }
 
 
@@ -205,6 +226,7 @@ def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None)
     solvers = {
         "paper": lambda: paper_estimate_dict(solve_paper(data, guess, axis, lm_parameters(proc), noise), omitted),
         "shared_dead_path": lambda: shared_dead_path_dict(solve_shared_dead_path(data, guess, axis, noise), omitted),
+        "network": lambda: network_dict(solve_network(data, guess, axis, noise), omitted),
     }
     estimates, status = run_estimators({k: f for k, f in solvers.items() if k in proc.solver.estimators})
     segments = len(set(data.segments[np.isfinite(data.lengths_mm)].tolist()))
@@ -344,16 +366,22 @@ def report_body(results: dict[str, Any]) -> list[str]:
     for n in names:
         e = results["estimates"][n]
         st = results["solver_status"][n]
-        lines.append(f"- {n}: {st['status']} ({st['message']}); σΔθ = {e['eq34_sigma_arcsec']:.2f}″ is the paper's "
-                     f"eq. 34 statistic of the deviations, not an uncertainty; algorithm error (eq. 36) "
-                     f"{e['algorithm_error_arcsec']:.2e}″; noise estimated from the readings: tracer "
-                     f"{e['estimated_noise']['tracer_length_noise_um']:.3f} µm, CMM points "
-                     f"{e['estimated_noise']['cmm_point_noise_um']:.3f} µm")
+        noise = (f"noise estimated from the readings: tracer {e['estimated_noise']['tracer_length_noise_um']:.3f} µm, "
+                 f"CMM points {e['estimated_noise']['cmm_point_noise_um']:.3f} µm")
+        if "eq34_sigma_arcsec" in e:
+            lines.append(f"- {n}: {st['status']} ({st['message']}); σΔθ = {e['eq34_sigma_arcsec']:.2f}″ is the paper's "
+                         f"eq. 34 statistic of the deviations, not an uncertainty; algorithm error (eq. 36) "
+                         f"{e['algorithm_error_arcsec']:.2e}″; {noise}")
+        else:
+            cmm = ", ".join(f"{k} {v['value']:+.3f} ± {v['sigma']:.3f}" for k, v in e.get("cmm_errors", {}).items())
+            lines.append(f"- {n}: {st['status']} ({st['message']}); {noise}; the CMM's errors found (1σ): {cmm}")
     for n, st in results.get("solver_status", {}).items():
         if st["status"] == "failed":
             lines.append(f"- {n}: **failed** — {st['message']}")
     lines += ["", "`paper` is the printed method (one dead path per station); `shared_dead_path` solves all stations "
-              "together with one dead path per uninterrupted tracking segment.", ""]
+              "together with one dead path per uninterrupted tracking segment; `network` adjusts everything at once: the "
+              "stations on one circle about one axis (one angle each), the CMM points as observations weighted by their "
+              "noise, and the CMM's scales and squarenesses.", ""]
     if rec:
         lines += [f"## Uncertainty budget of the cumulative deviation ({rec}), contributions u / ″ per station", ""]
         lines += budget_table(results["estimates"][rec], angles)

@@ -184,10 +184,11 @@ class LMSettings(_Strict):
 
 
 class MultistationSolver(_Strict):
-    estimators: list[Literal["paper", "shared_dead_path"]] = Field(
-        ["paper", "shared_dead_path"], min_length=1,
-        description="which estimators to run: `paper` (as printed) and/or `shared_dead_path`; the recommended one is "
-                    "chosen among them")
+    estimators: list[Literal["paper", "shared_dead_path", "network"]] = Field(
+        ["paper", "shared_dead_path", "network"], min_length=1,
+        description="which estimators to run: `paper` (as printed), `shared_dead_path`, `network` (one adjustment: "
+                    "stations on one circle, CMM points and the CMM's scales and squareness solved); the recommended one "
+                    "is chosen among them")
     lm: LMSettings = LMSettings()
     first_station_guess_mm: Vec3 = (-64.9938, -6.6256, 122.5133)  # the paper's X0, Y0, Z0
     axis_point_mm: Vec3 = (0.0, 0.0, 0.0)  # nominal axis (vertical) for the other stations' guesses

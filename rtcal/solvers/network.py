@@ -1,0 +1,422 @@
+"""The network estimator (beyond the paper): one least-squares adjustment of the whole measurement.
+
+Unknowns: the rotation axis (a point c on it, the circle's centre, and its direction a), the
+radius r of the circle the tracer's reference centre describes, one angle φ_j per station — the
+result —, one dead path per tracking segment, the CMM's 3 scale and 3 squareness errors q, and
+every CMM point A_i. Observations, each weighted by its variance:
+
+    lengths   f_ij = |A_i − P_j| − D_s − l_ij,      P_j = c + r·(cos φ_j·u + sin φ_j·v)
+    points    g_i  = M(q)⁻¹·A_i − Ã_i                 (the CMM reports Ã = M⁻¹·A: its scales
+                                                        and squareness, as in the bench)
+
+with (u, v) an orthonormal basis perpendicular to a. The tracer's length is traceable, the CMM's
+scales are not: solving q costs almost nothing in precision and removes their bias. Points as
+weighted observations let the CMM's point noise enter with its own weight (DESIGN.md).
+
+The cumulative deviation is φ_j − φ_0 − (θ_j − θ_0). The stage's per-visit repeatability enters
+the length weights where a visit has one length (point-major order) and the budget otherwise.
+Variances of the tracer's and the CMM's noise are estimated from the residuals (REML fixed
+point, Type A). Error motions, which one mount cannot separate, are a Type B source.
+
+Normal equations are solved with the points eliminated (Schur complement: each point is a
+3×3 block), so a network of thousands of points costs O(points·globals²): the globals (axis,
+radius, angles, dead paths, CMM) are a few dozen.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from rtcal.solvers.station_budget import (
+    StationNoiseModel,
+    cmm_matrix_derivatives,
+    error_motion_covariance,
+)
+from rtcal.solvers.station_data import MultistationData
+from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, Source, VarianceEstimate, propagate
+from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
+
+CMM_NAMES = ("scale_x_ppm", "scale_y_ppm", "scale_z_ppm", "squareness_xy_arcsec", "squareness_xz_arcsec", "squareness_yz_arcsec")
+
+
+@dataclass(frozen=True)
+class NetworkOptions:
+    """What the adjustment solves for; the defaults are the full model."""
+
+    solve_cmm: bool = True  # the CMM's 3 scales and 3 squarenesses as unknowns
+    free_points: bool = True  # CMM points as weighted observations (False: exact, as in the paper)
+    estimate_variances: bool = True  # Type A sizes of tracer and CMM noise from the residuals
+    max_iterations: int = 50
+
+
+@dataclass(frozen=True)
+class NetworkEstimate:
+    angles_rad: np.ndarray  # φ_j
+    axis_point_mm: np.ndarray  # circle centre
+    axis_direction: np.ndarray
+    radius_mm: float
+    dead_paths_mm: np.ndarray
+    segment_ids: np.ndarray
+    cmm_errors: np.ndarray  # q: ppm, ppm, ppm, ″, ″, ″
+    cmm_errors_sigma: np.ndarray
+    points_mm: np.ndarray
+    stations_mm: np.ndarray
+    cumulative_deviation_arcsec: np.ndarray
+    budget: DeviationBudget
+    variances: VarianceEstimate
+    sigma_length_um: float  # tracer noise a (of a + b·L), as estimated
+    sigma_point_um: float  # CMM noise per coordinate, as estimated
+    rms_length_residual_um: float
+    rms_point_residual_um: float
+    iterations: int
+    converged: bool
+    message: str
+
+
+def axis_basis(ax: float, ay: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(a, u, v): the axis direction from its two small components, and the plane's basis."""
+    a = np.array([ax, ay, np.sqrt(max(1.0 - ax * ax - ay * ay, 1e-12))])
+    u = np.array([1.0, 0.0, 0.0]) - a[0] * a
+    u /= np.linalg.norm(u)
+    return a, u, np.cross(a, u)
+
+
+def cmm_matrix(q: np.ndarray) -> np.ndarray:
+    """M(q) as the bench builds it: scales on the diagonal, squarenesses below it."""
+    M = np.eye(3)
+    for value, (_, d) in zip(q, cmm_matrix_derivatives()):
+        M = M + value * d
+    return M
+
+
+class _Layout:
+    """Where each unknown sits in the parameter vector: globals first, then the points."""
+
+    def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool):
+        self.m, self.k, self.n = m, k, n
+        self.c = slice(0, 3)
+        self.a = slice(3, 5)
+        self.r = 5
+        self.phi = slice(6, 6 + m)
+        self.d = slice(6 + m, 6 + m + k)
+        self.q = slice(6 + m + k, 6 + m + k + (6 if solve_cmm else 0))
+        self.g = self.q.stop  # number of global unknowns
+        self.free_points = free_points
+        self.size = self.g + (3 * n if free_points else 0)
+
+
+def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, sj: np.ndarray, seg: np.ndarray, obs: np.ndarray,
+           reported: np.ndarray, fixed_q: np.ndarray):
+    """Residuals (lengths, then points) and the Jacobian: global part dense, point part per row."""
+    c, (ax, ay), r = x[lay.c], x[lay.a], x[lay.r]
+    phi, dead = x[lay.phi], x[lay.d]
+    q = x[lay.q] if lay.q.stop > lay.q.start else fixed_q
+    A = x[lay.g :].reshape(-1, 3) if lay.free_points else reported
+    a, u, v = axis_basis(ax, ay)
+    cs, sn = np.cos(phi), np.sin(phi)
+    radial = np.outer(cs, u) + np.outer(sn, v)  # m×3
+    P = c + r * radial
+    diff = A[pi] - P[sj]
+    L = np.linalg.norm(diff, axis=1)
+    e = diff / L[:, None]
+    f_len = L - dead[seg] - obs
+    N = len(obs)
+    Jg = np.zeros((N, lay.g))
+    Jg[:, lay.c] = -e
+    h = 1e-6  # central differences of the basis: error ~h², far below the solution's precision
+    for col, (dx, dy) in zip((lay.a.start, lay.a.start + 1), ((h, 0.0), (0.0, h))):
+        _, u2, v2 = axis_basis(ax + dx, ay + dy)
+        _, u1, v1 = axis_basis(ax - dx, ay - dy)
+        dradial = (np.outer(cs, u2 - u1) + np.outer(sn, v2 - v1)) / (2 * h)
+        Jg[:, col] = -np.einsum("ij,ij->i", e, r * dradial[sj])
+    Jg[:, lay.r] = -np.einsum("ij,ij->i", e, radial[sj])
+    tangent = r * (np.outer(-sn, u) + np.outer(cs, v))
+    Jg[np.arange(N), lay.phi.start + sj] = -np.einsum("ij,ij->i", e, tangent[sj])
+    Jg[np.arange(N), lay.d.start + seg] = -1.0
+    J_len_points = e  # ∂f/∂A_i, per row
+    if not lay.free_points:
+        return f_len, Jg, None, None, None, P, A
+    M = cmm_matrix(q)
+    Minv = np.linalg.inv(M)
+    g_pts = A @ Minv.T - reported  # n×3
+    Jg_pts = np.zeros((3 * lay.n, lay.g))
+    if lay.q.stop > lay.q.start:
+        for kq, (_, dM) in enumerate(cmm_matrix_derivatives()):
+            Jg_pts[:, lay.q.start + kq] = (-(A @ (Minv @ dM @ Minv).T)).ravel()
+    return f_len, Jg, J_len_points, g_pts.ravel(), Jg_pts, P, A, Minv
+
+
+def _normal_equations(Jg, Jp_rows, point_of_row, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay):
+    """Schur pieces: N_gg, N_gp (g×3n), the 3×3 blocks N_pp, and the gradient parts."""
+    n = lay.n
+    # lengths
+    Ngg = (Jg * w_len[:, None]).T @ Jg
+    bg = Jg.T @ (w_len * f_len)
+    if Jp_rows is None:
+        return Ngg, bg, None, None, None
+    wJp = Jp_rows * w_len[:, None]
+    Npp = np.zeros((n, 3, 3))
+    np.add.at(Npp, point_of_row, wJp[:, :, None] * Jp_rows[:, None, :])
+    Ngp = np.zeros((n, lay.g, 3))
+    np.add.at(Ngp, point_of_row, (Jg * w_len[:, None])[:, :, None] * Jp_rows[:, None, :])
+    bp = np.zeros((n, 3))
+    np.add.at(bp, point_of_row, wJp * f_len[:, None])
+    # point observations: rows 3i..3i+2 depend on A_i through M⁻¹ and on q
+    wp = w_pts.reshape(n, 3)
+    Npp += np.einsum("ka,ik,kb->iab", Minv, wp, Minv)
+    Jgp = Jg_pts.reshape(n, 3, lay.g)
+    Ngg += np.einsum("ika,ik,ikb->ab", Jgp, wp, Jgp)
+    bg += np.einsum("ika,ik->a", Jgp, wp * f_pts.reshape(n, 3))
+    Ngp += np.einsum("ika,ik,kb->iab", Jgp, wp, Minv)
+    bp += np.einsum("ka,ik->ia", Minv, wp * f_pts.reshape(n, 3))
+    return Ngg, bg, Npp, Ngp, bp
+
+
+def _solve_step(Ngg, bg, Npp, Ngp, bp, mu: float):
+    """(N + µ·diag N)·δ = −b with the points eliminated; also S⁻¹ and the blocks' inverses."""
+    dg = np.diag(Ngg).copy()
+    A_gg = Ngg + mu * np.diag(dg)
+    if Npp is None:
+        S_inv = np.linalg.pinv(A_gg)
+        return -S_inv @ bg, None, S_inv, None
+    Npp_mu = Npp + mu * np.einsum("iaa->ia", Npp)[:, :, None] * np.eye(3)
+    Npp_inv = np.linalg.inv(Npp_mu)
+    B = np.einsum("iga,iab->igb", Ngp, Npp_inv)  # N_gp,i · N_pp,i⁻¹
+    S = A_gg - np.einsum("igb,ihb->gh", B, Ngp)
+    rhs = -(bg - np.einsum("igb,ib->g", B, bp))
+    S_inv = np.linalg.pinv(S)
+    dgl = S_inv @ rhs
+    dp = -np.einsum("iab,ib->ia", Npp_inv, bp + np.einsum("iga,g->ia", Ngp, dgl))
+    return dgl, dp.ravel(), S_inv, (Npp_inv, B)
+
+
+def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, axis_point_mm: np.ndarray = np.zeros(3),
+                  noise: StationNoiseModel = StationNoiseModel(), options: NetworkOptions = NetworkOptions()) -> NetworkEstimate:
+    """Adjust the whole network (see the module docstring); lengths in mm, NaN where skipped."""
+    points = np.asarray(data.points_mm, float)
+    lengths = np.asarray(data.lengths_mm, float)
+    nominal = np.deg2rad(np.asarray(data.nominal_angles_deg, float))
+    n, m = lengths.shape
+    valid = np.isfinite(lengths)
+    pi, sj = np.nonzero(valid)
+    obs = lengths[valid]
+    seg_ids, seg = np.unique(np.asarray(data.segments)[valid], return_inverse=True)
+    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points)
+    if len(obs) < lay.g + 1:
+        raise ValueError(f"{len(obs)} lengths for {lay.g} unknowns of the network")
+    # start: the nominal circle through the first station's guess, the reported points
+    guess = np.asarray(first_station_guess_mm, float)
+    axis_pt = np.asarray(axis_point_mm, float)
+    rel = guess[:2] - axis_pt[:2]
+    x = np.zeros(lay.size)
+    x[lay.c] = [axis_pt[0], axis_pt[1], guess[2]]
+    x[lay.r] = float(np.hypot(*rel))
+    x[lay.phi] = np.arctan2(rel[1], rel[0]) + (nominal - nominal[0])
+    if lay.free_points:
+        x[lay.g :] = points.ravel()
+    P0 = x[lay.c] + x[lay.r] * np.column_stack([np.cos(x[lay.phi]), np.sin(x[lay.phi]), np.zeros(m)])
+    start = np.linalg.norm(points[pi] - P0[sj], axis=1) - obs
+    x[lay.d] = [np.mean(start[seg == s]) for s in range(lay.k)]
+
+    # weights: tracer a + b·L and per-reading repeatability; CMM per coordinate ÷ visits
+    visits = data.stage_visits[pi, sj]
+    single_visit = np.bincount(np.unique(visits, return_inverse=True)[1])[np.unique(visits, return_inverse=True)[1]] == 1
+    a_mm, b = max(noise.length_noise_um, 1e-4) * 1e-3, noise.length_noise_ppm * 1e-6
+    point_var0 = (max(noise.point_noise_um, 1e-3) * 1e-3) ** 2 / np.repeat(data.point_visit_counts, 3)
+    theta = np.array([1.0, 1.0])  # variance scales of (tracer, CMM points)
+    rep_rad = arcsec_to_rad(noise.stage_repeatability_arcsec)
+
+    def weights(theta, L, P, A):
+        rep = np.zeros(len(obs))
+        if rep_rad > 0:
+            d = A[pi] - P[sj]
+            e = d / np.linalg.norm(d, axis=1)[:, None]
+            axis, _, _ = axis_basis(*x[lay.a])
+            t = np.cross(axis, P[sj] - x[lay.c])
+            rep = np.where(single_visit, (np.einsum("ij,ij->i", e, t) * rep_rad) ** 2, 0.0)
+        shape = (a_mm + b * L) ** 2
+        return 1.0 / (theta[0] * shape + rep), 1.0 / (theta[1] * point_var0), shape, rep
+
+    q_fixed = np.zeros(6)
+
+    def evaluate(x: np.ndarray):
+        model = _model(x, lay, pi, sj, seg, obs, points, q_fixed)
+        f_len, Jg, Jp, f_pts, Jg_pts, P, A = model[:7]
+        Minv = model[7] if lay.free_points else None
+        L = f_len + x[lay.d][seg] + obs
+        return f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L
+
+    def cost_of(x: np.ndarray, w_len, w_pts) -> float:
+        f_len, _, _, f_pts, *_ = _model(x, lay, pi, sj, seg, obs, points, q_fixed)
+        return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if lay.free_points else 0.0)
+
+    converged, it, message = False, 0, ""
+    previous = None  # (x, θ, iterations, message) of the last converged pass
+    for _outer in range(6 if options.estimate_variances else 1):
+        converged, mu = False, 1e-3
+        for it in range(1, options.max_iterations + 1):
+            f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
+            w_len, w_pts, _, _ = weights(theta, L, P, A)
+            cost = cost_of(x, w_len, w_pts)
+            pieces = _normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay)
+            gn, gp, S_inv, blocks = _solve_step(*pieces, 0.0)
+            # converged: the undamped Gauss–Newton step (to first order the distance to the optimum) is
+            # below 1e-4 of every unknown's own standard deviation, or below 1e-10 of its unit (mm:
+            # 0.1 pm; rad: 2e-5″) where the data are exact
+            small = np.all(np.abs(gn) <= 1e-4 * np.sqrt(np.abs(np.diag(S_inv))) + 1e-10)
+            if gp is not None:
+                sd_p = np.sqrt(np.abs(np.einsum("iaa->ia", blocks[0]))).ravel()  # a lower bound of each point's σ
+                small = small and np.all(np.abs(gp) <= 1e-4 * sd_p + 1e-10)
+            if small:
+                converged, message = True, f"converged in {it} iterations"
+                break
+            while True:
+                dgl, dp, _, _ = _solve_step(*pieces, mu)
+                step = np.concatenate([dgl, dp]) if dp is not None else dgl
+                trial_cost = cost_of(x + step, w_len, w_pts)
+                if trial_cost <= cost or mu > 1e8:
+                    break
+                mu *= 10.0
+            if trial_cost > cost:
+                message = "not converged: no step lowers the cost"
+                break
+            x = x + step
+            mu = max(mu / 10.0, 1e-12)
+        else:
+            message = f"not converged: iteration limit ({options.max_iterations}) reached"
+        if not converged:
+            if previous is not None:  # re-weighting broke a converged solution (exact data): keep that one
+                x, theta, it, message = previous
+                converged = True
+            break
+        if not options.estimate_variances:
+            break
+        previous = (x.copy(), theta.copy(), it, message)
+        new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi)
+        settled = np.max(np.abs(new_theta - theta) / theta) < 1e-3
+        theta = new_theta
+        if settled:
+            break
+    return _finish(x, lay, evaluate, weights, theta, pi, sj, seg_ids, nominal, data, noise, it, converged, message)
+
+
+def _inverse_pieces(x, lay, evaluate, weights, theta, pi):
+    """At x: residuals, weights, Jacobian pieces and the inverse's blocks (S⁻¹, N_pp⁻¹, B)."""
+    f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
+    w_len, w_pts, shape, rep = weights(theta, L, P, A)
+    pieces = _normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay)
+    _, _, S_inv, blocks = _solve_step(*pieces, 0.0)
+    return f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A
+
+
+def _hat_diagonal(Jg, Jp, Jg_pts, Minv, S_inv, blocks, pi, lay) -> tuple[np.ndarray, np.ndarray]:
+    """diag(J·C·Jᵀ) for the length rows and the point rows, C = (JᵀWJ)⁻¹ in its Schur form:
+    for a row j = (j_g, j_p), j·C·jᵀ = zᵀS⁻¹z + j_p·N_pp⁻¹·j_pᵀ with z = j_g − B·j_p."""
+    if blocks is None:
+        return np.einsum("ij,jk,ik->i", Jg, S_inv, Jg), np.zeros(0)
+    Npp_inv, B = blocks
+    Z = Jg - np.einsum("igb,ib->ig", B[pi], Jp)
+    d_len = np.einsum("ig,gh,ih->i", Z, S_inv, Z) + np.einsum("ia,iab,ib->i", Jp, Npp_inv[pi], Jp)
+    n = lay.n
+    Jgp = Jg_pts.reshape(n, 3, lay.g)
+    Zp = Jgp - np.einsum("igb,kb->ikg", B, Minv)  # rows of point i: j_g − B_i·(M⁻¹ row k)
+    d_pts = np.einsum("ikg,gh,ikh->ik", Zp, S_inv, Zp) + np.einsum("ka,iab,kb->ik", Minv, Npp_inv, Minv)
+    return d_len, d_pts.ravel()
+
+
+def _variance_scales(x, lay, evaluate, weights, theta, pi) -> np.ndarray:
+    """One REML fixed-point update of the tracer and CMM variance scales:
+    θ_k ← θ_k·(vᵀW·V_k·Wv)/tr(P·V_k), with tr(P·V_k) = Σ (w − w²·(JCJᵀ)_ii)·(V_k)_ii for diagonal V_k."""
+    f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, *_ = _inverse_pieces(x, lay, evaluate, weights, theta, pi)
+    d_len, d_pts = _hat_diagonal(Jg, Jp, Jg_pts, Minv, S_inv, blocks, pi, lay)
+    new = theta.copy()
+    v_len = theta[0] * shape  # this source's part of each length's variance
+    num = float(np.sum((w_len * f_len) ** 2 * v_len))
+    tr = float(np.sum((w_len - w_len**2 * d_len) * v_len))
+    new[0] = max(theta[0] * num / tr, 1e-12 * theta[0]) if tr > 0 else theta[0]
+    if lay.free_points:
+        v_pts = 1.0 / w_pts
+        num = float(np.sum((w_pts * f_pts) ** 2 * v_pts))
+        tr = float(np.sum((w_pts - w_pts**2 * d_pts) * v_pts))
+        new[1] = max(theta[1] * num / tr, 1e-12 * theta[1]) if tr > 0 else theta[1]
+    return new
+
+
+def _finish(x, lay, evaluate, weights, theta, pi, sj, seg_ids, nominal, data, noise, iterations, converged, message):
+    """The estimate, its covariance and its budget at the solution."""
+    (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
+        x, lay, evaluate, weights, theta, pi)
+    m = lay.m
+    phi = x[lay.phi]
+    cumulative = (phi - phi[0] - (nominal - nominal[0])) * ARCSEC_PER_RAD
+    G = np.zeros((m, lay.g))  # cumulative deviation ← globals
+    G[:, lay.phi] = np.eye(m) * ARCSEC_PER_RAD
+    G[:, lay.phi.start] -= ARCSEC_PER_RAD
+    # the estimator's influence on the globals, H_g = C_g·Jᵀ·W, over lengths then point coordinates
+    if blocks is None:
+        H_len = S_inv @ (Jg * w_len[:, None]).T
+        H_pts = np.zeros((lay.g, 0))
+    else:
+        Npp_inv, B = blocks
+        Zl = Jg - np.einsum("igb,ib->ig", B[pi], Jp)
+        H_len = S_inv @ (Zl * w_len[:, None]).T
+        n = lay.n
+        Zp = Jg_pts.reshape(n, 3, lay.g) - np.einsum("igb,kb->ikg", B, Minv)
+        H_pts = S_inv @ (Zp.reshape(3 * n, lay.g) * w_pts[:, None]).T
+    H = np.hstack([H_len, H_pts])
+    N_len = len(f_len)
+    zeros_pts = np.zeros(H_pts.shape[1])
+    sources = [Source("tracer length noise", "A", np.concatenate([np.sqrt(theta[0] * shape), zeros_pts]),
+                      noise.length_noise_um * np.sqrt(theta[0]), "µm", "a + b·L with b/a as stated; size from the residuals")]
+    if lay.free_points:
+        sources.append(Source("CMM point noise", "A", np.concatenate([np.zeros(N_len), np.sqrt(1.0 / w_pts)]),
+                              max(noise.point_noise_um, 1e-3) * np.sqrt(theta[1]), "µm",
+                              "per point and coordinate, observed with its weight; size from the residuals"))
+    if np.any(rep > 0):
+        sources.append(Source("stage repeatability", "B", np.concatenate([np.sqrt(rep), zeros_pts]),
+                              noise.stage_repeatability_arcsec, "″", "per visit, in the weights (one length per visit)"))
+    visits = data.stage_visits[pi, sj]
+    multi = rep == 0
+    if noise.stage_repeatability_arcsec > 0 and np.any(multi):  # visits of several lengths: a shared rotation
+        uv, vidx = np.unique(visits[multi], return_inverse=True)
+        d = A[pi] - P[sj]
+        e = d / np.linalg.norm(d, axis=1)[:, None]
+        axis, _, _ = axis_basis(*x[lay.a])
+        t = np.cross(axis, P[sj] - x[lay.c])
+        F = np.zeros((N_len + len(zeros_pts), len(uv)))
+        rows = np.flatnonzero(multi)
+        F[rows, vidx] = -np.einsum("ij,ij->i", e[rows], t[rows]) * arcsec_to_rad(noise.stage_repeatability_arcsec)
+        sources.append(Source("stage repeatability (shared by a visit's lengths)", "B", F, noise.stage_repeatability_arcsec,
+                              "″", "per visit, as stated"))
+    variances = VarianceEstimate({}, {}, 0, True)
+    components = propagate(H, sources, variances, G)
+    if max(noise.error_motion_radial_um, noise.error_motion_axial_um, noise.error_motion_tilt_arcsec) > 0:
+        cov = error_motion_covariance(P, nominal, x[lay.c], noise)
+        d = A[pi] - P[sj]
+        e = d / np.linalg.norm(d, axis=1)[:, None]
+        U = sp.csr_matrix((-e.ravel(), (np.repeat(np.arange(N_len), 3), (3 * sj[:, None] + np.arange(3)).ravel())),
+                          shape=(N_len, 3 * m))
+        GH = G @ H_len
+        T = (U.T @ GH.T).T  # cumulative ← station displacements
+        components.append(BudgetComponent(
+            "error motions", "B", max(noise.error_motion_radial_um, noise.error_motion_tilt_arcsec), "µm, ″", T @ cov @ T.T,
+            False, f"bounds {noise.error_motion_radial_um:g} µm radial, {noise.error_motion_axial_um:g} µm axial, "
+                   f"{noise.error_motion_tilt_arcsec:g}″ tilt (σ = bound/√3, orders 1..{noise.error_motion_max_order}); one "
+                   "mount cannot separate them from the rotation"))
+    q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
+    q_sigma = np.sqrt(np.diag(S_inv)[lay.q]) if lay.q.stop > lay.q.start else np.full(6, np.nan)
+    a, _, _ = axis_basis(*x[lay.a])
+    return NetworkEstimate(
+        angles_rad=phi.copy(), axis_point_mm=x[lay.c].copy(), axis_direction=a, radius_mm=float(x[lay.r]),
+        dead_paths_mm=x[lay.d].copy(), segment_ids=seg_ids, cmm_errors=q.copy(), cmm_errors_sigma=q_sigma,
+        points_mm=A.copy(), stations_mm=P.copy(), cumulative_deviation_arcsec=cumulative,
+        budget=DeviationBudget(components), variances=VarianceEstimate({"tracer length noise": float(theta[0]),
+                                                                         "CMM point noise": float(theta[1])}, {}, 0, True),
+        sigma_length_um=noise.length_noise_um * float(np.sqrt(theta[0])),
+        sigma_point_um=max(noise.point_noise_um, 1e-3) * float(np.sqrt(theta[1])),
+        rms_length_residual_um=float(np.sqrt(np.mean(f_len**2))) * 1e3,
+        rms_point_residual_um=float(np.sqrt(np.mean(f_pts**2))) * 1e3 if lay.free_points else 0.0,
+        iterations=iterations, converged=converged, message=message)
