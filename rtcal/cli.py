@@ -146,6 +146,38 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_plan(args: argparse.Namespace) -> int:
+    """Predicted 1σ per target and the duration of a procedure, before anything moves."""
+    from rtcal import planning
+    from rtcal.procedure.loader import load_procedure
+    from rtcal.runner import check_plan_on_bench, resolve_scenario
+
+    path = Path(args.procedure)
+    proc = load_procedure(path)
+    scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
+    check_plan_on_bench(path, proc, scenario)
+    plan = planning.predict(path, proc, scenario)
+    if args.json:
+        print(json.dumps(plan, indent=2))
+        return EXIT_OK
+    hours = plan["measurement_duration_s"] / 3600
+    print(f"{path}: {plan['raw_readings']} readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
+          "motions, settling and readings; predicted 1σ from the stated noise:")
+    for name, e in plan["estimators"].items():
+        rec = " (recommended)" if name == plan["recommended"] else ""
+        print(f"{name}{rec}: RMS {e['rms_predicted_sigma_arcsec']}″")
+        print("  target    " + " ".join(f"{t:>8}" for t in plan["targets"][1:]))
+        print("  1σ / ″    " + " ".join(f"{v:8.3f}" for v in e["predicted_sigma_arcsec"][1:]))
+    if args.optimize:
+        from rtcal.design import optimize_points
+
+        try:
+            print(optimize_points(path, proc, scenario, Path(args.optimize)))
+        except (ValueError, OSError) as exc:
+            raise UserError(f"--optimize: {exc}") from None
+    return EXIT_OK
+
+
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -287,6 +319,15 @@ def build_parser() -> argparse.ArgumentParser:
                           "the procedure's stated uncertainties (shows this one bench's bias)")
     unc.add_argument("--out", help="directory for uncertainty.json and uncertainty.png (default: runs/<time>-uncertainty)")
     unc.set_defaults(func=_cmd_uncertainty)
+
+    plan = sub.add_parser("plan", help="predict each estimator's 1σ per target and the run's duration before measuring")
+    plan.add_argument("procedure", help="procedure YAML file")
+    plan.add_argument("--scenario", help="bench scenario YAML for the geometry (replaces the procedure's `bench`)")
+    plan.add_argument("--json", action="store_true", help="print the prediction as JSON")
+    plan.add_argument("--optimize", metavar="OUT.yaml",
+                      help="choose CMM points (D/A-optimal exchange on a grid in the CMM volume) that lower the network "
+                           "estimator's predicted 1σ, and write the procedure with them to OUT.yaml")
+    plan.set_defaults(func=_cmd_plan)
 
     sim = sub.add_parser("sim", help="simulated instruments")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True)

@@ -115,6 +115,7 @@ def run_procedure(
     addresses: dict[str, str] | None = None,
     virtual_clock: bool = False,
     outputs: bool = True,
+    estimate_noise: bool = True,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
     results.json, figures or report — for Monte Carlo trials).
@@ -146,7 +147,7 @@ def run_procedure(
         "seed": str(seed) if simulated else "", "software_version": __version__,
         "started_utc": _now(), "status": "running", "generation": "0",
     })
-    return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs)
+    return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs, estimate_noise)
 
 
 def resume_run(
@@ -189,7 +190,8 @@ def resume_run(
 
 
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
-                       virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True) -> RunOutcome:
+                       virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
+                       estimate_noise: bool = True) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs."""
     method = METHODS[proc.method]
     simulated = bench is not None
@@ -218,7 +220,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     store.set_meta({"status": "measured", "finished_utc": _now()})
     meta = store.meta()
     try:
-        analysis = method.analyse(proc, store, bench)
+        analysis = method.analyse(proc, store, bench, estimate_noise)
     except (ValueError, np.linalg.LinAlgError) as exc:
         store.close()
         raise AnalysisFailed(f"the readings are complete but the solvers could not use them: {exc}; "

@@ -209,3 +209,17 @@ class Scenario(_Strict):
     dial_indicators: DialIndicatorScenario = DialIndicatorScenario()
     stepper: StepperScenario = StepperScenario()
     faults: list[FaultSpec] = []
+
+    def without_noise(self) -> "Scenario":
+        """The same bench with every random error and fault removed: its systematic errors and
+        geometry only (what `rtcal plan` measures to predict the uncertainty of a plan)."""
+        return self.model_copy(update={
+            "stage": self.stage.model_copy(update={"repeatability_arcsec": 0.0}),
+            "cmm": self.cmm.model_copy(update={"point_noise_um": 0.0}),
+            "laser_tracer": self.laser_tracer.model_copy(update={"length_noise_um": 0.0, "length_noise_ppm": 0.0}),
+            "encoder": self.encoder.model_copy(update={"noise_arcsec": 0.0, "resolution_arcsec": 0.0}),
+            "autocollimator": self.autocollimator.model_copy(update={"noise_arcsec": 0.0, "resolution_arcsec": 0.0}),
+            "polygon": self.polygon.model_copy(update={"certificate_uncertainty_arcsec": 0.0, "seating_error_arcsec": 0.0}),
+            "dial_indicators": self.dial_indicators.model_copy(update={"noise_um": 0.0, "resolution_um": 0.0}),
+            "faults": [],
+        })

@@ -101,11 +101,11 @@ def harmonics_dict(fit: HarmonicFit) -> list[dict[str, Any]]:
              "significant": bool(t.significant), "threshold": round(t.threshold, 4), "aliased": t.aliased} for t in fit.terms]
 
 
-def noise_model(proc: EncoderAbbeError) -> AbbeNoise:
+def noise_model(proc: EncoderAbbeError, estimate: bool = True) -> AbbeNoise:
     u = proc.uncertainty
     return AbbeNoise(u.autocollimator_noise_arcsec, u.autocollimator_resolution_arcsec, u.stage_repeatability_arcsec,
                      u.encoder_noise_arcsec, u.encoder_resolution_arcsec, u.indicator_noise_um, u.indicator_resolution_um,
-                     proc.polygon.certificate_uncertainty_arcsec)
+                     proc.polygon.certificate_uncertainty_arcsec, estimate)
 
 
 def not_included(proc: EncoderAbbeError) -> list[str]:
@@ -156,14 +156,18 @@ def estimate_dict(est: AbbeEstimate, source: str, omitted: list[str]) -> dict[st
 
 
 def closure_dict(est: AbbeEstimate) -> dict[str, Any]:
-    """The closure's own table errors, referred to the first target like every estimate."""
+    """The closure's own table errors, referred to the first target like every estimate (with the
+    per-visit random error the analysis used: the closure residuals', or the stated one)."""
     c = est.closure
+    sigma = est.random_sigma_arcsec
     n_t = len(c.table_error)
     ref = 0  # keys are sorted positive direction first, then by angle
     R = np.eye(n_t) - np.outer(np.ones(n_t), np.eye(n_t)[ref])
-    cov = c.sigma**2 * (R @ c.solution_map[:n_t]) @ (R @ c.solution_map[:n_t]).T
-    budget = DeviationBudget([BudgetComponent("closure residuals (autocollimator, repeatability)", "A", c.sigma, "″", cov, True,
-                                              "per reading, from the closure fit's residuals")])
+    cov = sigma**2 * (R @ c.solution_map[:n_t]) @ (R @ c.solution_map[:n_t]).T
+    estimated = abs(sigma - c.sigma) < 1e-12
+    budget = DeviationBudget([BudgetComponent("closure residuals (autocollimator, repeatability)" if estimated else
+                                              "autocollimator and stage, as stated", "A" if estimated else "B", sigma, "″",
+                                              cov, estimated, "per reading")])
     dirs = np.asarray(est.closure_table_direction)
     return {
         "target_deg": [round(float(a), 6) for a in est.closure_table_angle_deg],
@@ -182,12 +186,12 @@ def closure_dict(est: AbbeEstimate) -> dict[str, Any]:
     }
 
 
-def analyse(proc: EncoderAbbeError, store: RunStore, bench: Bench | None) -> dict[str, Any]:
+def analyse(proc: EncoderAbbeError, store: RunStore, bench: Bench | None, estimate_noise: bool = True) -> dict[str, Any]:
     visits = abbe_visits(store, proc.polygon.seatings_deg)
     recorded = json.loads(store.meta().get("polygon_certificate_arcsec", "null"))
     cert = None if recorded is None else np.asarray(recorded, float)
     setup = AbbeSetup(proc.polygon.faces, proc.geometry.indicator_heights_mm, proc.geometry.grating_offset_mm,
-                      proc.geometry.encoder_radius_mm, cert, proc.max_harmonic_order, noise_model(proc))
+                      proc.geometry.encoder_radius_mm, cert, proc.max_harmonic_order, noise_model(proc, estimate_noise))
     omitted = not_included(proc)
     holder: dict[str, AbbeEstimate] = {}
 

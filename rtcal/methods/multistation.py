@@ -31,8 +31,9 @@ def _round(values, digits: int = 6):
     return np.round(np.asarray(values, dtype=float), digits).tolist()
 
 
-def noise_model(proc: LaserTracerMultistation) -> StationNoiseModel:
-    """The procedure's ``uncertainty`` section as the solvers' noise model."""
+def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> StationNoiseModel:
+    """The procedure's ``uncertainty`` section as the solvers' noise model (``estimate``: Type A
+    sizes from the readings; False: as stated, for a prediction)."""
     u = proc.uncertainty
     em = u.error_motions
     return StationNoiseModel(
@@ -40,7 +41,7 @@ def noise_model(proc: LaserTracerMultistation) -> StationNoiseModel:
         point_noise_um=u.cmm_point_noise_um, stage_repeatability_arcsec=u.stage_repeatability_arcsec,
         cmm_scale_ppm=u.cmm_scale_ppm, cmm_squareness_arcsec=u.cmm_squareness_arcsec,
         error_motion_radial_um=em.radial_um, error_motion_axial_um=em.axial_um, error_motion_tilt_arcsec=em.tilt_arcsec,
-        error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm)
+        error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm, estimate=estimate)
 
 
 def not_included(proc: LaserTracerMultistation) -> list[str]:
@@ -216,13 +217,13 @@ ESTIMATOR_LABELS = {
 }
 
 
-def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None) -> dict[str, Any]:
+def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None, estimate_noise: bool = True) -> dict[str, Any]:
     """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
     recommended one, its positioning-deviation table, and the truth of a simulated run."""
     angles = proc.stations.angles_deg()
     data = multistation_data(store, angles, len(proc.points_array()))
     guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
-    noise, omitted = noise_model(proc), not_included(proc)
+    noise, omitted = noise_model(proc, estimate_noise), not_included(proc)
     solvers = {
         "paper": lambda: paper_estimate_dict(solve_paper(data, guess, axis, lm_parameters(proc), noise), omitted),
         "shared_dead_path": lambda: shared_dead_path_dict(solve_shared_dead_path(data, guess, axis, noise), omitted),

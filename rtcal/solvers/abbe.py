@@ -97,6 +97,7 @@ class AbbeNoise:
     indicator_noise_um: float = 0.0
     indicator_resolution_um: float = 0.0
     certificate_uncertainty_arcsec: float = 0.0
+    estimate: bool = True  # random parts from runs or closure residuals where possible; False: as stated
 
 
 @dataclass(frozen=True)
@@ -153,6 +154,7 @@ class AbbeEstimate:
     harmonics: dict[str, HarmonicFit]
     extrapolation_factor: float
     reference: ReferenceDeviation
+    random_sigma_arcsec: float  # the per-visit random error of the reference as used (estimated or stated)
 
 
 SMOOTH_MOTION_ORDERS = 4  # the shaft motion whose rounding is simulated: orders 1..4 of the indicator readings
@@ -288,11 +290,11 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
     # random per-visit error of ε̂: from the closure residuals, repeated runs, or as stated
     pooled = _pooled_sigma(eps, seating[ac] * n_s + step_idx[ac]) if len(np.unique(run)) > 1 else None
     random_parts: list[tuple[str, str, float, str]]
-    if closure is not None:
+    if closure is not None and noise.estimate:
         random_parts = [("closure residuals (autocollimator, repeatability)", "A", closure.sigma,
                          "per visit, from the closure fit's residuals")]
         source = "closure residuals"
-    elif pooled is not None:
+    elif pooled is not None and noise.estimate:
         random_parts = [("repeatability over runs (autocollimator and stage)", "A", pooled[0],
                          f"per visit, pooled over {len(np.unique(run))} runs ({pooled[1]} degrees of freedom)")]
         source = f"{len(np.unique(run))} runs"
@@ -301,7 +303,8 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
                         ("autocollimator resolution", "B", noise.autocollimator_resolution_arcsec / np.sqrt(12),
                          f"{noise.autocollimator_resolution_arcsec:g}″ digit, uniform (q/√12)"),
                         ("stage repeatability", "B", noise.stage_repeatability_arcsec, "per visit, as stated")]
-        source = "stated instrument noise (one run)"
+        source = "stated instrument noise" + (" (one run)" if pooled is None else "")
+    random_variance = sum(sigma**2 for _, _, sigma, _ in random_parts)
     T_y = T_eps @ to_eps
     components = [BudgetComponent(name, typ, sigma, "″", _cov(T_y[face_steps], sigma**2), typ == "A", note)
                   for name, typ, sigma, note in random_parts if sigma > 0]
@@ -330,13 +333,13 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
     meas_visit = enc_vs_cmd[ac] - eps
     T_meas = M @ centre
     meas_steps = T_meas @ meas_visit
-    pooled_m = _pooled_sigma(meas_visit, seating[ac] * n_s + step_idx[ac]) if len(np.unique(run)) > 1 else None
+    pooled_m = _pooled_sigma(meas_visit, seating[ac] * n_s + step_idx[ac]) if len(np.unique(run)) > 1 and noise.estimate else None
     var_m = pooled_m[0] ** 2 if pooled_m else enc_parts
     meas_cov = _cov(T_meas, var_m)
     if closure is None:
         meas_cov = meas_cov + _cov(T_meas @ B, noise.certificate_uncertainty_arcsec**2)
     else:
-        meas_cov = _cov(T_meas @ to_eps, closure.sigma**2) + _cov(T_meas, noise.encoder_noise_arcsec**2
+        meas_cov = _cov(T_meas @ to_eps, random_variance) + _cov(T_meas, noise.encoder_noise_arcsec**2
                                                                    + noise.encoder_resolution_arcsec**2 / 12)
     meas_steps[np.setdiff1d(np.arange(n_s), face_steps)] = np.nan
 
@@ -347,7 +350,7 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
     M_all = _mean_operator(step_idx, n_s)
     T_pred = M_all @ centre_all
     pred_steps = T_pred @ predicted
-    pooled_p = _pooled_sigma(predicted, seating * n_s + step_idx) if len(np.unique(run)) > 1 else None
+    pooled_p = _pooled_sigma(predicted, seating * n_s + step_idx) if len(np.unique(run)) > 1 and noise.estimate else None
     pred_cov = _cov(T_pred, pooled_p[0] ** 2 if pooled_p else pred_visit_var)
     residual = meas_steps - pred_steps
     res_var = np.diag(meas_cov) + np.diag(pred_cov)
@@ -432,5 +435,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         face_error_arcsec=face_error, closure=closure, closure_table_angle_deg=closure_angles,
         closure_table_direction=closure_dirs, reversal_arcsec=reversal, reversal_reference_arcsec=reversal_ref,
         repeatability_arcsec=None if pooled is None else pooled[0], harmonics=harmonics,
-        extrapolation_factor=a_fac, reference=reference,
+        extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
     )

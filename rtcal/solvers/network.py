@@ -255,7 +255,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
 
     converged, it, message = False, 0, ""
     previous = None  # (x, θ, iterations, message) of the last converged pass
-    for _outer in range(6 if options.estimate_variances else 1):
+    estimate = options.estimate_variances and noise.estimate
+    for _outer in range(6 if estimate else 1):
         converged, mu = False, 1e-3
         for it in range(1, options.max_iterations + 1):
             f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
@@ -292,7 +293,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
                 x, theta, it, message = previous
                 converged = True
             break
-        if not options.estimate_variances:
+        if not estimate:
             break
         previous = (x.copy(), theta.copy(), it, message)
         new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi)

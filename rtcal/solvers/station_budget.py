@@ -48,6 +48,7 @@ class StationNoiseModel:
     error_motion_tilt_arcsec: float = 0.0  # bound of EAC, EBC
     error_motion_max_order: int = 6
     tilt_center_z_mm: float = 0.0  # height of the tilt centre in the CMM frame
+    estimate: bool = True  # Type A sizes from the residuals; False: as stated (a prediction before measuring)
 
 
 @dataclass(frozen=True)
@@ -201,7 +202,7 @@ def station_budget(
     """
     J = np.asarray(jacobian, float)
     sources = observation_sources(obs, stations_mm, axis_center_mm, axis_direction, noise)
-    variances = reml_scales(J, residuals, sources)
+    variances = reml_scales(J, residuals, sources) if noise.estimate else VarianceEstimate({}, {}, 0, True)
     influence = np.linalg.pinv(J)[np.asarray(station_columns).ravel()]  # ∂(stations)/∂f, up to sign
     G = chain_jacobian(stations_mm, cumulative_of_stations)
     components = propagate(influence, sources, variances, G)
