@@ -74,6 +74,11 @@ class NetworkEstimate:
     iterations: int
     converged: bool
     message: str
+    mounts_mm: np.ndarray | None = None  # (mounts, 3) tracer centres in the table frame
+    error_motion_um: np.ndarray | None = None  # (m, 3) δ_j: EXC, EYC, EZC at the mounts' plane
+    error_motion_sigma_um: np.ndarray | None = None
+    tilt_arcsec: np.ndarray | None = None  # (m, 2) ε_j: EAC, EBC
+    tilt_sigma_arcsec: np.ndarray | None = None
 
 
 def axis_basis(ax: float, ay: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -93,64 +98,127 @@ def cmm_matrix(q: np.ndarray) -> np.ndarray:
 
 
 class _Layout:
-    """Where each unknown sits in the parameter vector: globals first, then the points."""
+    """Where each unknown sits in the parameter vector: globals first, then the points.
 
-    def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool):
-        self.m, self.k, self.n = m, k, n
+    With more than one tracer mount the globals also hold the other mounts' positions in the
+    table frame (x, y, z each) and each station's error motions: a translation δ_j (3) and a
+    tilt ε_j (2, about the axis frame's x and y)."""
+
+    def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool, mounts: int = 1):
+        self.m, self.k, self.n, self.mounts = m, k, n, mounts
         self.c = slice(0, 3)
         self.a = slice(3, 5)
         self.r = 5
         self.phi = slice(6, 6 + m)
         self.d = slice(6 + m, 6 + m + k)
-        self.q = slice(6 + m + k, 6 + m + k + (6 if solve_cmm else 0))
-        self.g = self.q.stop  # number of global unknowns
+        self.q = slice(self.d.stop, self.d.stop + (6 if solve_cmm else 0))
+        extra = 3 * (mounts - 1)
+        self.mount = slice(self.q.stop, self.q.stop + extra)
+        self.delta = slice(self.mount.stop, self.mount.stop + (3 * m if mounts > 1 else 0))
+        self.eps = slice(self.delta.stop, self.delta.stop + (2 * m if mounts > 1 else 0))
+        self.g = self.eps.stop  # number of global unknowns
         self.free_points = free_points
         self.size = self.g + (3 * n if free_points else 0)
 
+    @property
+    def error_motions(self) -> bool:
+        return self.mounts > 1
 
-def _residuals(x: np.ndarray, lay: _Layout, pi: np.ndarray, sj: np.ndarray, seg: np.ndarray, obs: np.ndarray,
+
+def _mount_points(x: np.ndarray, lay: _Layout) -> np.ndarray:
+    """(mounts, 3): the tracer's centre in the table frame for each mount; the first at (r, 0, 0)."""
+    p = np.zeros((lay.mounts, 3))
+    p[0, 0] = x[lay.r]
+    if lay.mounts > 1:
+        p[1:] = x[lay.mount].reshape(-1, 3)
+    return p
+
+
+def _stations(x: np.ndarray, lay: _Layout):
+    """Tracer centres P (mounts·m × 3) and the pieces their derivatives need."""
+    c, (ax, ay) = x[lay.c], x[lay.a]
+    a, u, v = axis_basis(ax, ay)
+    Rb = np.column_stack([u, v, a])
+    phi = x[lay.phi]
+    cs, sn = np.cos(phi), np.sin(phi)
+    p = _mount_points(x, lay)
+    # s_kj = Rz(φ_j)·p_k in the axis frame, rows ordered mount-major
+    s = np.stack([np.column_stack([cs * pk[0] - sn * pk[1], sn * pk[0] + cs * pk[1], np.full(lay.m, pk[2])]) for pk in p])
+    s = s.reshape(-1, 3)
+    t = s.copy()
+    if lay.error_motions:
+        delta = np.tile(x[lay.delta].reshape(lay.m, 3), (lay.mounts, 1))
+        eps = np.tile(np.column_stack([x[lay.eps].reshape(lay.m, 2), np.zeros(lay.m)]), (lay.mounts, 1))
+        t = s + delta + np.cross(eps, s)
+    else:
+        eps = np.zeros_like(s)
+    return c + t @ Rb.T, Rb, s, t, eps, p, cs, sn
+
+
+def _residuals(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.ndarray, obs: np.ndarray,
                reported: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """Only the residuals (lengths; points or None): what the step control needs."""
-    c, (ax, ay), r = x[lay.c], x[lay.a], x[lay.r]
-    a, u, v = axis_basis(ax, ay)
-    P = c + r * (np.outer(np.cos(x[lay.phi]), u) + np.outer(np.sin(x[lay.phi]), v))
+    P = _stations(x, lay)[0]
     A = x[lay.g :].reshape(-1, 3) if lay.free_points else reported
-    f_len = np.linalg.norm(A[pi] - P[sj], axis=1) - x[lay.d][seg] - obs
+    f_len = np.linalg.norm(A[pi] - P[st], axis=1) - x[lay.d][seg] - obs
     if not lay.free_points:
         return f_len, None
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     return f_len, (A @ np.linalg.inv(cmm_matrix(q)).T - reported).ravel()
 
 
-def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, sj: np.ndarray, seg: np.ndarray, obs: np.ndarray,
+def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.ndarray, obs: np.ndarray,
            reported: np.ndarray, fixed_q: np.ndarray):
-    """Residuals (lengths, then points) and the Jacobian: global part dense, point part per row."""
-    c, (ax, ay), r = x[lay.c], x[lay.a], x[lay.r]
-    phi, dead = x[lay.phi], x[lay.d]
+    """Residuals (lengths, then points) and the Jacobian: global part dense, point part per row.
+    ``st`` is each length's (mount, station) as mount·m + station."""
+    m = lay.m
+    sj, mk = st % m, st // m
+    (ax, ay) = x[lay.a]
+    dead = x[lay.d]
     q = x[lay.q] if lay.q.stop > lay.q.start else fixed_q
     A = x[lay.g :].reshape(-1, 3) if lay.free_points else reported
-    a, u, v = axis_basis(ax, ay)
-    cs, sn = np.cos(phi), np.sin(phi)
-    radial = np.outer(cs, u) + np.outer(sn, v)  # m×3
-    P = c + r * radial
-    diff = A[pi] - P[sj]
+    P, Rb, s, t, eps, p, cs, sn = _stations(x, lay)
+    diff = A[pi] - P[st]
     L = np.linalg.norm(diff, axis=1)
     e = diff / L[:, None]
+    eb = e @ Rb  # the unit vectors in the axis frame: −∂f/∂t
     f_len = L - dead[seg] - obs
     N = len(obs)
+    rows = np.arange(N)
     Jg = np.zeros((N, lay.g))
     Jg[:, lay.c] = -e
     h = 1e-6  # central differences of the basis: error ~h², far below the solution's precision
     for col, (dx, dy) in zip((lay.a.start, lay.a.start + 1), ((h, 0.0), (0.0, h))):
-        _, u2, v2 = axis_basis(ax + dx, ay + dy)
-        _, u1, v1 = axis_basis(ax - dx, ay - dy)
-        dradial = (np.outer(cs, u2 - u1) + np.outer(sn, v2 - v1)) / (2 * h)
-        Jg[:, col] = -np.einsum("ij,ij->i", e, r * dradial[sj])
-    Jg[:, lay.r] = -np.einsum("ij,ij->i", e, radial[sj])
-    tangent = r * (np.outer(-sn, u) + np.outer(cs, v))
-    Jg[np.arange(N), lay.phi.start + sj] = -np.einsum("ij,ij->i", e, tangent[sj])
-    Jg[np.arange(N), lay.d.start + seg] = -1.0
-    J_len_points = e  # ∂f/∂A_i, per row
+        a2, u2, v2 = axis_basis(ax + dx, ay + dy)
+        a1, u1, v1 = axis_basis(ax - dx, ay - dy)
+        dRb = (np.column_stack([u2, v2, a2]) - np.column_stack([u1, v1, a1])) / (2 * h)
+        Jg[:, col] = -np.einsum("ij,ij->i", e, t[st] @ dRb.T)
+
+    def through_tilt(vec: np.ndarray) -> np.ndarray:  # (I + [ε]×)·vec, per row
+        return vec + np.cross(eps[st], vec)
+
+    pk = p[mk]
+    ds_dphi = np.column_stack([-sn[sj] * pk[:, 0] - cs[sj] * pk[:, 1], cs[sj] * pk[:, 0] - sn[sj] * pk[:, 1], np.zeros(N)])
+    Jg[rows, lay.phi.start + sj] = -np.einsum("ij,ij->i", eb, through_tilt(ds_dphi))
+    first = mk == 0
+    radial = np.column_stack([cs[sj], sn[sj], np.zeros(N)])
+    Jg[first, lay.r] = -np.einsum("ij,ij->i", eb[first], through_tilt(radial)[first])
+    if lay.error_motions:
+        others = np.flatnonzero(~first)
+        for comp in range(3):  # ∂s/∂p_k = Rz(φ): columns
+            col = np.zeros((N, 3))
+            if comp < 2:
+                col[:, 0] = cs[sj] if comp == 0 else -sn[sj]
+                col[:, 1] = sn[sj] if comp == 0 else cs[sj]
+            else:
+                col[:, 2] = 1.0
+            Jg[others, lay.mount.start + 3 * (mk[others] - 1) + comp] = -np.einsum("ij,ij->i", eb, through_tilt(col))[others]
+        for comp in range(3):
+            Jg[rows, lay.delta.start + 3 * sj + comp] = -eb[:, comp]
+        sr = s[st]
+        Jg[rows, lay.eps.start + 2 * sj] = -(eb[:, 1] * -sr[:, 2] + eb[:, 2] * sr[:, 1])  # x̂ × s = (0, −s_z, s_y)
+        Jg[rows, lay.eps.start + 2 * sj + 1] = -(eb[:, 0] * sr[:, 2] - eb[:, 2] * sr[:, 0])  # ŷ × s = (s_z, 0, −s_x)
+    Jg[rows, lay.d.start + seg] = -1.0
     if not lay.free_points:
         return f_len, Jg, None, None, None, P, A
     M = cmm_matrix(q)
@@ -160,7 +228,7 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, sj: np.ndarray, seg: np.
     if lay.q.stop > lay.q.start:
         for kq, (_, dM) in enumerate(cmm_matrix_derivatives()):
             Jg_pts[:, lay.q.start + kq] = (-(A @ (Minv @ dM @ Minv).T)).ravel()
-    return f_len, Jg, J_len_points, g_pts.ravel(), Jg_pts, P, A, Minv
+    return f_len, Jg, e, g_pts.ravel(), Jg_pts, P, A, Minv
 
 
 def _point_jacobian(Jp_rows: np.ndarray, point_of_row: np.ndarray, n: int) -> sp.csr_matrix:
@@ -226,19 +294,35 @@ def _solve_step(Ngg, bg, Npp, Ngp, bp, mu: float):
 
 
 def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, axis_point_mm: np.ndarray = np.zeros(3),
-                  noise: StationNoiseModel = StationNoiseModel(), options: NetworkOptions = NetworkOptions()) -> NetworkEstimate:
-    """Adjust the whole network (see the module docstring); lengths in mm, NaN where skipped."""
+                  noise: StationNoiseModel = StationNoiseModel(), options: NetworkOptions = NetworkOptions(),
+                  mount_guesses_mm: list[np.ndarray] | None = None) -> NetworkEstimate:
+    """Adjust the whole network (see the module docstring); lengths in mm, NaN where skipped.
+
+    With readings from other tracer mounts (``data.other_mounts``, ``mount_guesses_mm``: the
+    tracer's centre at the first station on each, CMM frame, nominal) the adjustment also
+    separates each station's error motions from its rotation."""
     points = np.asarray(data.points_mm, float)
-    lengths = np.asarray(data.lengths_mm, float)
     nominal = np.deg2rad(np.asarray(data.nominal_angles_deg, float))
-    n, m = lengths.shape
-    valid = np.isfinite(lengths)
-    pi, sj = np.nonzero(valid)
-    obs = lengths[valid]
-    seg_ids, seg = np.unique(np.asarray(data.segments)[valid], return_inverse=True)
-    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points)
+    n, m = np.asarray(data.lengths_mm).shape
+    mounts = [(np.asarray(data.lengths_mm, float), np.asarray(data.segments), data.stage_visits)]
+    mounts += [(np.asarray(o.lengths_mm, float), np.asarray(o.segments), np.asarray(o.visits)) for o in data.other_mounts]
+    pi_l, st_l, obs_l, seg_l, vis_l = [], [], [], [], []
+    for k, (lengths, segments, visits_k) in enumerate(mounts):
+        valid = np.isfinite(lengths)
+        i, j = np.nonzero(valid)
+        pi_l.append(i)
+        st_l.append(k * m + j)
+        obs_l.append(lengths[valid])
+        seg_l.append(segments[valid])
+        vis_l.append(visits_k[valid] + k * (n * m + 1))
+    pi, st, obs = np.concatenate(pi_l), np.concatenate(st_l), np.concatenate(obs_l)
+    sj, mk = st % m, st // m
+    seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
+    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts))
     if len(obs) < lay.g + 1:
         raise ValueError(f"{len(obs)} lengths for {lay.g} unknowns of the network")
+    if len(mounts) > 1 and (mount_guesses_mm is None or len(mount_guesses_mm) != len(mounts) - 1):
+        raise ValueError("the other tracer mounts need a guess of the tracer's centre at the first station")
     # start: the nominal circle through the first station's guess, the reported points
     guess = np.asarray(first_station_guess_mm, float)
     axis_pt = np.asarray(axis_point_mm, float)
@@ -249,12 +333,18 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     x[lay.phi] = np.arctan2(rel[1], rel[0]) + (nominal - nominal[0])
     if lay.free_points:
         x[lay.g :] = points.ravel()
-    P0 = x[lay.c] + x[lay.r] * np.column_stack([np.cos(x[lay.phi]), np.sin(x[lay.phi]), np.zeros(m)])
-    start = np.linalg.norm(points[pi] - P0[sj], axis=1) - obs
+    for k, g in enumerate(mount_guesses_mm or [], start=1):  # the guess in the table frame (z from c's plane)
+        rel_k = np.asarray(g, float) - x[lay.c]
+        ang = -x[lay.phi][0]
+        x[lay.mount][3 * (k - 1) : 3 * k] = [np.cos(ang) * rel_k[0] - np.sin(ang) * rel_k[1],
+                                             np.sin(ang) * rel_k[0] + np.cos(ang) * rel_k[1], rel_k[2]]
+    P0 = _stations(x, lay)[0]
+    start = np.linalg.norm(points[pi] - P0[st], axis=1) - obs
     x[lay.d] = [np.mean(start[seg == s]) for s in range(lay.k)]
+    prior_idx, prior_sigma = _error_motion_prior(lay, noise)
 
     # weights: tracer a + b·L and per-reading repeatability; CMM per coordinate ÷ visits
-    visits = data.stage_visits[pi, sj]
+    visits = np.concatenate(vis_l)
     single_visit = np.bincount(np.unique(visits, return_inverse=True)[1])[np.unique(visits, return_inverse=True)[1]] == 1
     a_mm, b = max(noise.length_noise_um, 1e-4) * 1e-3, noise.length_noise_ppm * 1e-6
     point_var0 = (max(noise.point_noise_um, 1e-3) * 1e-3) ** 2 / np.repeat(data.point_visit_counts, 3)
@@ -264,10 +354,10 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     def weights(theta, L, P, A):
         rep = np.zeros(len(obs))
         if rep_rad > 0:
-            d = A[pi] - P[sj]
+            d = A[pi] - P[st]
             e = d / np.linalg.norm(d, axis=1)[:, None]
             axis, _, _ = axis_basis(*x[lay.a])
-            t = np.cross(axis, P[sj] - x[lay.c])
+            t = np.cross(axis, P[st] - x[lay.c])
             rep = np.where(single_visit, (np.einsum("ij,ij->i", e, t) * rep_rad) ** 2, 0.0)
         shape = (a_mm + b * L) ** 2
         return 1.0 / (theta[0] * shape + rep), 1.0 / (theta[1] * point_var0), shape, rep
@@ -275,15 +365,16 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     q_fixed = np.zeros(6)
 
     def evaluate(x: np.ndarray):
-        model = _model(x, lay, pi, sj, seg, obs, points, q_fixed)
+        model = _model(x, lay, pi, st, seg, obs, points, q_fixed)
         f_len, Jg, Jp, f_pts, Jg_pts, P, A = model[:7]
         Minv = model[7] if lay.free_points else None
         L = f_len + x[lay.d][seg] + obs
         return f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L
 
     def cost_of(x: np.ndarray, w_len, w_pts) -> float:
-        f_len, f_pts = _residuals(x, lay, pi, sj, seg, obs, points)
-        return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if lay.free_points else 0.0)
+        f_len, f_pts = _residuals(x, lay, pi, st, seg, obs, points)
+        prior = float(np.sum((x[prior_idx] / prior_sigma) ** 2))
+        return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if lay.free_points else 0.0) + prior
 
     converged, it, message = False, 0, ""
     previous = None  # (x, θ, iterations, message) of the last converged pass
@@ -294,7 +385,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
             f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
             w_len, w_pts, _, _ = weights(theta, L, P, A)
             cost = cost_of(x, w_len, w_pts)
-            pieces = _normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay)
+            pieces = _add_prior(_normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay), x,
+                                prior_idx, prior_sigma)
             gn, gp, S_inv, blocks = _solve_step(*pieces, 0.0)
             # converged: the undamped Gauss–Newton step (to first order the distance to the optimum) is
             # below 1e-3 of every unknown's own standard deviation, or below 1e-10 of its unit (mm:
@@ -333,19 +425,45 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         if not estimate:
             break
         previous = (x.copy(), theta.copy(), it, message)
-        new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi)
+        new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi, (prior_idx, prior_sigma))
         settled = np.max(np.abs(new_theta - theta) / theta) < 3e-3  # θ itself is known to a few 0.1 % at best
         theta = new_theta
         if settled:
             break
-    return _finish(x, lay, evaluate, weights, theta, pi, sj, seg_ids, nominal, data, noise, it, converged, message)
+    return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
+                   (prior_idx, prior_sigma))
 
 
-def _inverse_pieces(x, lay, evaluate, weights, theta, pi):
+def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
+    """Weak priors N(0, σ²) on the error motions (the stated bounds, at least 5 µm and 5″): they
+    settle what the mounts cannot see (a station's mean shift is the axis's, the tilt about the line
+    joining two mounts is invisible) and leave what they see to the data."""
+    if not lay.error_motions:
+        return np.zeros(0, int), np.zeros(0)
+    s_d = max(noise.error_motion_radial_um, noise.error_motion_axial_um, 5.0) * 1e-3
+    s_e = arcsec_to_rad(max(noise.error_motion_tilt_arcsec, 5.0))
+    idx = np.concatenate([np.arange(lay.delta.start, lay.delta.stop), np.arange(lay.eps.start, lay.eps.stop)])
+    sigma = np.concatenate([np.full(lay.delta.stop - lay.delta.start, s_d), np.full(lay.eps.stop - lay.eps.start, s_e)])
+    return idx, sigma
+
+
+def _add_prior(pieces, x: np.ndarray, idx: np.ndarray, sigma: np.ndarray):
+    """The priors' rows in the normal equations: + 1/σ² on the diagonal, + x/σ² in the gradient."""
+    if len(idx) == 0:
+        return pieces
+    Ngg, bg, *rest = pieces
+    Ngg = Ngg.copy()
+    bg = bg.copy()
+    Ngg[idx, idx] += 1.0 / sigma**2
+    bg[idx] += x[idx] / sigma**2
+    return (Ngg, bg, *rest)
+
+
+def _inverse_pieces(x, lay, evaluate, weights, theta, pi, prior):
     """At x: residuals, weights, Jacobian pieces and the inverse's blocks (S⁻¹, N_pp⁻¹, B)."""
     f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
     w_len, w_pts, shape, rep = weights(theta, L, P, A)
-    pieces = _normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay)
+    pieces = _add_prior(_normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay), x, *prior)
     _, _, S_inv, blocks = _solve_step(*pieces, 0.0)
     return f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A
 
@@ -375,10 +493,11 @@ def _reduced_point_rows(Jg_pts: np.ndarray, B: np.ndarray, Minv: np.ndarray, n: 
     return (Jg_pts.reshape(n, 3, -1) - np.matmul(Minv, B.transpose(0, 2, 1))).reshape(3 * n, -1)
 
 
-def _variance_scales(x, lay, evaluate, weights, theta, pi) -> np.ndarray:
+def _variance_scales(x, lay, evaluate, weights, theta, pi, prior) -> np.ndarray:
     """One REML fixed-point update of the tracer and CMM variance scales:
     θ_k ← θ_k·(vᵀW·V_k·Wv)/tr(P·V_k), with tr(P·V_k) = Σ (w − w²·(JCJᵀ)_ii)·(V_k)_ii for diagonal V_k."""
-    f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, *_ = _inverse_pieces(x, lay, evaluate, weights, theta, pi)
+    f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, *_ = _inverse_pieces(
+        x, lay, evaluate, weights, theta, pi, prior)
     d_len, d_pts = _hat_diagonal(Jg, Jp, Jg_pts, Minv, S_inv, blocks, pi, lay)
     new = theta.copy()
     v_len = theta[0] * shape  # this source's part of each length's variance
@@ -393,10 +512,10 @@ def _variance_scales(x, lay, evaluate, weights, theta, pi) -> np.ndarray:
     return new
 
 
-def _finish(x, lay, evaluate, weights, theta, pi, sj, seg_ids, nominal, data, noise, iterations, converged, message):
+def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
-        x, lay, evaluate, weights, theta, pi)
+        x, lay, evaluate, weights, theta, pi, prior)
     m = lay.m
     phi = x[lay.phi]
     cumulative = (phi - phi[0] - (nominal - nominal[0])) * ARCSEC_PER_RAD
@@ -424,14 +543,13 @@ def _finish(x, lay, evaluate, weights, theta, pi, sj, seg_ids, nominal, data, no
     if np.any(rep > 0):
         sources.append(Source("stage repeatability", "B", np.concatenate([np.sqrt(rep), zeros_pts]),
                               noise.stage_repeatability_arcsec, "″", "per visit, in the weights (one length per visit)"))
-    visits = data.stage_visits[pi, sj]
     multi = rep == 0
     if noise.stage_repeatability_arcsec > 0 and np.any(multi):  # visits of several lengths: a shared rotation
         uv, vidx = np.unique(visits[multi], return_inverse=True)
-        d = A[pi] - P[sj]
+        d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
         axis, _, _ = axis_basis(*x[lay.a])
-        t = np.cross(axis, P[sj] - x[lay.c])
+        t = np.cross(axis, P[st] - x[lay.c])
         F = np.zeros((N_len + len(zeros_pts), len(uv)))
         rows = np.flatnonzero(multi)
         F[rows, vidx] = -np.einsum("ij,ij->i", e[rows], t[rows]) * arcsec_to_rad(noise.stage_repeatability_arcsec)
@@ -439,11 +557,11 @@ def _finish(x, lay, evaluate, weights, theta, pi, sj, seg_ids, nominal, data, no
                               "″", "per visit, as stated"))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
-    if max(noise.error_motion_radial_um, noise.error_motion_axial_um, noise.error_motion_tilt_arcsec) > 0:
+    if not lay.error_motions and max(noise.error_motion_radial_um, noise.error_motion_axial_um, noise.error_motion_tilt_arcsec) > 0:
         cov = error_motion_covariance(P, nominal, x[lay.c], noise)
-        d = A[pi] - P[sj]
+        d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
-        U = sp.csr_matrix((-e.ravel(), (np.repeat(np.arange(N_len), 3), (3 * sj[:, None] + np.arange(3)).ravel())),
+        U = sp.csr_matrix((-e.ravel(), (np.repeat(np.arange(N_len), 3), (3 * st[:, None] + np.arange(3)).ravel())),
                           shape=(N_len, 3 * m))
         GH = G @ H_len
         T = (U.T @ GH.T).T  # cumulative ← station displacements
@@ -455,14 +573,20 @@ def _finish(x, lay, evaluate, weights, theta, pi, sj, seg_ids, nominal, data, no
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     q_sigma = np.sqrt(np.diag(S_inv)[lay.q]) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])
+    motions = {}
+    if lay.error_motions:
+        sd = np.sqrt(np.abs(np.diag(S_inv)))
+        motions = dict(mounts_mm=_mount_points(x, lay), error_motion_um=x[lay.delta].reshape(-1, 3) * 1e3,
+                       error_motion_sigma_um=sd[lay.delta].reshape(-1, 3) * 1e3,
+                       tilt_arcsec=x[lay.eps].reshape(-1, 2) * ARCSEC_PER_RAD, tilt_sigma_arcsec=sd[lay.eps].reshape(-1, 2) * ARCSEC_PER_RAD)
     return NetworkEstimate(
         angles_rad=phi.copy(), axis_point_mm=x[lay.c].copy(), axis_direction=a, radius_mm=float(x[lay.r]),
         dead_paths_mm=x[lay.d].copy(), segment_ids=seg_ids, cmm_errors=q.copy(), cmm_errors_sigma=q_sigma,
-        points_mm=A.copy(), stations_mm=P.copy(), cumulative_deviation_arcsec=cumulative,
+        points_mm=A.copy(), stations_mm=P[: lay.m].copy(), cumulative_deviation_arcsec=cumulative,
         budget=DeviationBudget(components), variances=VarianceEstimate({"tracer length noise": float(theta[0]),
                                                                          "CMM point noise": float(theta[1])}, {}, 0, True),
         sigma_length_um=noise.length_noise_um * float(np.sqrt(theta[0])),
         sigma_point_um=max(noise.point_noise_um, 1e-3) * float(np.sqrt(theta[1])),
         rms_length_residual_um=float(np.sqrt(np.mean(f_len**2))) * 1e3,
         rms_point_residual_um=float(np.sqrt(np.mean(f_pts**2))) * 1e3 if lay.free_points else 0.0,
-        iterations=iterations, converged=converged, message=message)
+        iterations=iterations, converged=converged, message=message, **motions)

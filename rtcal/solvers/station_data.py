@@ -8,6 +8,15 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class MountReadings:
+    """The lengths taken with the tracer on another mount of the table (the same points and stations)."""
+
+    lengths_mm: np.ndarray  # n×m, NaN where skipped
+    segments: np.ndarray  # n×m
+    visits: np.ndarray  # n×m stage visits, numbered after the first mount's
+
+
+@dataclass(frozen=True)
 class MultistationData:
     """Arrays for the seed-000 solvers, from the raw readings (mm).
 
@@ -23,6 +32,7 @@ class MultistationData:
     raw_readings: int = 0  # planned readings present (point, station pairs with a length)
     visits: np.ndarray | None = None  # n×m stage visit of each length (−1 where skipped)
     point_visits: np.ndarray | None = None  # n
+    other_mounts: tuple[MountReadings, ...] = ()  # the network estimator uses them; the others use the first mount
 
     @classmethod
     def from_arrays(cls, points_mm, lengths_mm, nominal_angles_deg, segments=None) -> "MultistationData":
