@@ -102,7 +102,7 @@ def test_a_second_mount_separates_error_motions_from_the_rotation():
     reported uncertainty (3 datasets: every target within 4σ)."""
     noise = StationNoiseModel(length_noise_um=0.2, length_noise_ppm=0.0, point_noise_um=0.1)
     data, P, truth = _two_mount_data(0.0, np.random.default_rng(0))
-    one = solve_network(MultistationData_first(data), P[0, 0] + [0.3, -0.2, 0.1], noise=noise)
+    one = solve_network(_first_mount_only(data), P[0, 0] + [0.3, -0.2, 0.1], noise=noise)
     assert np.sqrt(np.mean((one.cumulative_deviation_arcsec - truth) ** 2)) > 2.0
     two = solve_network(data, P[0, 0] + [0.3, -0.2, 0.1], noise=noise, mount_guesses_mm=[P[1, 0]])
     assert two.converged and np.max(np.abs(two.cumulative_deviation_arcsec - truth)) < 0.001
@@ -113,7 +113,7 @@ def test_a_second_mount_separates_error_motions_from_the_rotation():
         assert np.all(np.abs(z) < 4), z
 
 
-def MultistationData_first(data):  # noqa: N802 — the same readings without the second mount
+def _first_mount_only(data):  # noqa: N802 — the same readings without the second mount
     from dataclasses import replace
 
     return replace(data, other_mounts=())
