@@ -113,7 +113,8 @@ def test_a_second_mount_separates_error_motions_from_the_rotation():
         assert np.all(np.abs(z) < 4), z
 
 
-def _first_mount_only(data):  # noqa: N802 — the same readings without the second mount
+def _first_mount_only(data):
+    """The same readings without the second mount."""
     from dataclasses import replace
 
     return replace(data, other_mounts=())
