@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from rtcal.solvers.abbe import AbbeVisits
-from rtcal.solvers.station_data import MultistationData
+from rtcal.solvers.station_data import MountReadings, MultistationData
 from rtcal.store import RunStore
 
 
-def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int) -> MultistationData:
+def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:
+    """Lengths per point and station (samples averaged), per tracer mount (the readings' seating),
+    with their tracking segments and stage visits; CMM positions averaged over every visit."""
     m = len(nominal_angles_deg)
     pos_sum = np.zeros((n_points, 3))
     pos_count = np.zeros((n_points, 3))
@@ -19,24 +21,26 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         axis = "xyz".index(r.quantity[len("position_")])
         pos_sum[r.point, axis] += r.value
         pos_count[r.point, axis] += 1
-    len_sum = np.zeros((n_points, m))
-    len_count = np.zeros((n_points, m))
-    segments = np.full((n_points, m), -1)
-    visits = np.full((n_points, m), -1)
+    len_sum = np.zeros((mounts, n_points, m))
+    len_count = np.zeros((mounts, n_points, m))
+    segments = np.full((mounts, n_points, m), -1)
+    visits = np.full((mounts, n_points, m), -1)
     visit, last = -1, None
     for r in store.readings(instrument="laser_tracer", quantity="length_mm"):
-        len_sum[r.point, r.station] += r.value
-        len_count[r.point, r.station] += 1
-        segments[r.point, r.station] = r.segment
-        if (r.station, r.segment) != last:  # the table moved (or a new start re-approached it)
-            visit, last = visit + 1, (r.station, r.segment)
-        visits[r.point, r.station] = visit
+        k = r.seating or 0
+        len_sum[k, r.point, r.station] += r.value
+        len_count[k, r.point, r.station] += 1
+        segments[k, r.point, r.station] = r.segment
+        if (k, r.station, r.segment) != last:  # the table moved (or a new start re-approached it)
+            visit, last = visit + 1, (k, r.station, r.segment)
+        visits[k, r.point, r.station] = visit
     if np.any(pos_count == 0):
         raise ValueError(f"the CMM position of {int(np.sum(pos_count[:, 0] == 0))} points was never read")
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
-    return MultistationData(pos_sum / pos_count, lengths, segments, np.asarray(nominal_angles_deg, float),
-                            int(np.sum(len_count > 0)), visits, pos_count[:, 0])
+    others = tuple(MountReadings(lengths[k], segments[k], visits[k]) for k in range(1, mounts))
+    return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
+                            int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others)
 
 
 def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:

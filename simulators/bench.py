@@ -88,9 +88,8 @@ class Bench:
                 [arcsec_to_rad(cmm.squareness_xz_arcsec), arcsec_to_rad(cmm.squareness_yz_arcsec), 1.0 + sz],
             ]
         )
-        mount = scenario.laser_tracer.mount
-        az = math.radians(mount.azimuth_deg)
-        self.tracer_in_table_mm = np.array([mount.radius_mm * math.cos(az), mount.radius_mm * math.sin(az), mount.height_mm])
+        self.tracer_mount = 0
+        self.tracer_in_table_mm = self._mount_point(0)
         enc = scenario.encoder
         self._graduation = [h.to_rad() for h in enc.graduation_error]
         poly = scenario.polygon
@@ -178,6 +177,20 @@ class Bench:
     def tracer_length_mm(self) -> float:
         """True distance from the tracer's reference centre to the reflector."""
         return float(np.linalg.norm(self.reflector_mm() - self.tracer_center_mm()))
+
+    def _mount_point(self, index: int) -> np.ndarray:
+        lt = self.scenario.laser_tracer
+        mount = lt.mount if index == 0 else lt.second_mount
+        az = math.radians(mount.azimuth_deg)
+        return np.array([mount.radius_mm * math.cos(az), mount.radius_mm * math.sin(az), mount.height_mm])
+
+    def mount_tracer(self, index: int) -> None:
+        """The operator moves the tracer to mount ``index`` (0: ``mount``, 1: ``second_mount``); its
+        beam must be referenced again."""
+        if index != self.tracer_mount:
+            self.tracer_mount = index
+            self.tracer_in_table_mm = self._mount_point(index)
+            self.beam_broken = True
 
     # -- shaft, encoder, polygon (seed 001)
     def shaft_y_mm(self, below_tilt_center_mm: float) -> float:

@@ -94,9 +94,11 @@ class TracerMount(_Strict):
 
 
 class LaserTracerScenario(_Strict):
-    """Interferometric length noise a + b·L (1σ) and the mount."""
+    """Interferometric length noise a + b·L (1σ), the mount, and where the tracer goes when the
+    operator moves it to its second mount (a procedure's ``second_mount``)."""
 
     mount: TracerMount = TracerMount()
+    second_mount: TracerMount = TracerMount(radius_mm=130.0, azimuth_deg=80.0, height_mm=122.5)
     length_noise_um: float = Field(0.0, ge=0.0)
     length_noise_ppm: float = Field(0.0, ge=0.0)  # µm per m of length
 

@@ -1,7 +1,7 @@
 """The uncertainty campaign (`pytest -m campaign`, about 15 min on 2 cores): on the shipped benches
 and on benches made for this check (tests/data/mc: CMM point noise, CMM scale and squareness,
-error motions within stated bounds, negative station-major runs with a poor stage, seed 001 with
-repeated runs, closure), 200 simulated runs each. Per target, the reported 1σ of the recommended
+error motions within stated bounds, negative station-major runs with a poor stage, two tracer
+mounts, seed 001 with repeated runs, closure), 200 simulated runs each. Per target, the reported 1σ of the recommended
 estimator must lie within 0.8–1.25× its RMS error against truth: with 200 trials the RMS is known
 to ±5 % (1σ), so a correct budget passes every target with room, and a budget 20 % off fails."""
 
@@ -26,6 +26,7 @@ CASES = [
     ("cmm_geometry", MC / "cmm_geometry.yaml", None),
     ("error_motions", MC / "error_motions.yaml", None),
     ("station_major", MC / "station_major.yaml", None),
+    ("second_mount", MC / "second_mount.yaml", None),
     ("abbe_runs", MC / "abbe_runs.yaml", PROCEDURES / "scenarios" / "abbe_bench.yaml"),
 ]
 

@@ -98,12 +98,29 @@ def shared_dead_path_dict(est: SharedDeadPathEstimate, omitted: list[str]) -> di
 
 
 def network_dict(est: NetworkEstimate, omitted: list[str]) -> dict[str, Any]:
-    """The ``estimates.network`` block: one adjustment of axis, angles, dead paths, CMM and points."""
+    """The ``estimates.network`` block: one adjustment of axis, angles, dead paths, CMM and points
+    (and, with a second mount, the error motions it separated)."""
     omitted = [o for o in omitted if not o.startswith("CMM scale")]  # solved here, not a Type B input
+    em = est.error_motions
+    if em is not None:
+        omitted = [o for o in omitted if not o.startswith("error motions")]  # measured here
+    motions = {}
+    if em is not None:
+        motions["error_motions"] = {
+            "note": "per station at the mounts' plane, synchronous: the mean and the once-per-turn part removed (they "
+                    "belong to the axis average line, its direction and the mounts' positions); the tilt is the one about "
+                    "the horizontal axis perpendicular to the line joining the mounts (`tilt_axis_deg`): the tilt about "
+                    "that line cannot be seen, nor the axial motion EZC apart from it",
+            "EXC_um": _round(em.radial_um[:, 0], 4), "EYC_um": _round(em.radial_um[:, 1], 4),
+            "EXC_sigma_um": _round(em.radial_sigma_um[:, 0], 4), "EYC_sigma_um": _round(em.radial_sigma_um[:, 1], 4),
+            "tilt_arcsec": _round(em.tilt_arcsec, 4), "tilt_sigma_arcsec": _round(em.tilt_sigma_arcsec, 4),
+            "tilt_axis_deg": _round(em.tilt_axis_deg, 3),
+            "mounts_mm": [_round(p) for p in est.mounts_mm],
+        }
     return {
         **deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=omitted),
         "estimated_noise": {"tracer_length_noise_um": round(est.sigma_length_um, 5), "cmm_point_noise_um": round(est.sigma_point_um, 5)},
-        "cmm_errors": {name: {"value": round(float(v), 4), "sigma": round(float(s), 4)}
+        "cmm_errors": {name: {"value": round(float(v), 4), "sigma": round(float(s), 4) if np.isfinite(s) else None}
                        for name, v, s in zip(CMM_NAMES, est.cmm_errors, est.cmm_errors_sigma)},
         "axis_point_mm": _round(est.axis_point_mm), "axis_direction": _round(est.axis_direction, 9),
         "radius_mm": round(est.radius_mm, 6),
@@ -111,6 +128,7 @@ def network_dict(est: NetworkEstimate, omitted: list[str]) -> dict[str, Any]:
         "dead_paths_mm": {str(int(s)): round(float(d), 6) for s, d in zip(est.segment_ids, est.dead_paths_mm)},
         "rms_length_residual_um": round(est.rms_length_residual_um, 4),
         "rms_point_residual_um": round(est.rms_point_residual_um, 4),
+        **motions,
         "converged": est.converged,
         "message": est.message,
     }
@@ -221,13 +239,15 @@ def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None,
     """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
     recommended one, its positioning-deviation table, and the truth of a simulated run."""
     angles = proc.stations.angles_deg()
-    data = multistation_data(store, angles, len(proc.points_array()))
+    data = multistation_data(store, angles, len(proc.points_array()), proc.mounts)
     guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
     noise, omitted = noise_model(proc, estimate_noise), not_included(proc)
     solvers = {
         "paper": lambda: paper_estimate_dict(solve_paper(data, guess, axis, lm_parameters(proc), noise), omitted),
         "shared_dead_path": lambda: shared_dead_path_dict(solve_shared_dead_path(data, guess, axis, noise), omitted),
-        "network": lambda: network_dict(solve_network(data, guess, axis, noise), omitted),
+        "network": lambda: network_dict(solve_network(
+            data, guess, axis, noise, mount_guesses_mm=[np.array(proc.second_mount.first_station_guess_mm)] if proc.second_mount else None),
+            omitted),
     }
     estimates, status = run_estimators({k: f for k, f in solvers.items() if k in proc.solver.estimators})
     segments = len(set(data.segments[np.isfinite(data.lengths_mm)].tolist()))
@@ -383,6 +403,23 @@ def report_body(results: dict[str, Any]) -> list[str]:
               "together with one dead path per uninterrupted tracking segment; `network` adjusts everything at once: the "
               "stations on one circle about one axis (one angle each), the CMM points as observations weighted by their "
               "noise, and the CMM's scales and squarenesses.", ""]
+    net = results["estimates"].get("network")
+    if net:
+        lines += ["## The CMM, checked by the network adjustment", "",
+                  "Scale and squareness errors of the CMM found from the traceable tracer lengths (1σ):", "",
+                  "| parameter | value | 1σ |", "|---|---|---|"]
+        lines += [f"| {k} | {v['value']:+.3f} | {v['sigma']:.3f} |" for k, v in net["cmm_errors"].items()] + [""]
+        em = net.get("error_motions")
+        if em:
+            lines += ["## Error motions, separated by the second tracer mount", "", em["note"][0].upper() + em["note"][1:] + ".", "",
+                      "| station | angle / ° | EXC / µm (1σ) | EYC / µm (1σ) | tilt / ″ (1σ) | tilt axis / ° |",
+                      "|---|---|---|---|---|---|"]
+            for j, a in enumerate(angles):
+                lines.append(f"| P{j + 1} | {a:g} | {em['EXC_um'][j]:+.3f} ({em['EXC_sigma_um'][j]:.3f}) | "
+                             f"{em['EYC_um'][j]:+.3f} ({em['EYC_sigma_um'][j]:.3f}) | "
+                             f"{em['tilt_arcsec'][j]:+.2f} ({em['tilt_sigma_arcsec'][j]:.2f}) | "
+                             f"{em['tilt_axis_deg'][j]:.0f} |")
+            lines.append("")
     if rec:
         lines += [f"## Uncertainty budget of the cumulative deviation ({rec}), contributions u / ″ per station", ""]
         lines += budget_table(results["estimates"][rec], angles)

@@ -225,6 +225,16 @@ class MultistationUncertainty(_Strict):
     error_motions: ErrorMotionBounds = Field(ErrorMotionBounds(), description="bounds of the error motions (Type B)")
 
 
+class SecondMount(_Strict):
+    """Measure the whole plan again with the tracer moved to a second place on the table: the
+    network estimator then separates the table's error motions from its rotation (one mount
+    cannot). Put it at the same height as the first (the tilt about the line joining the mounts
+    is invisible, and with mounts at different heights it would leak into the angles)."""
+
+    first_station_guess_mm: Vec3 = Field(description="the tracer's centre at the first station once moved, CMM frame, "
+                                                      "mm (nominal, for the solver's start; e.g. [-22.6, 128.0, 122.5])")
+
+
 class LaserTracerMultistation(_Strict):
     """Seed 000: tracer on the table, CMM moves the reflector, table indexes through stations."""
 
@@ -240,6 +250,12 @@ class LaserTracerMultistation(_Strict):
     on_fault: MultistationOnFault = MultistationOnFault()
     solver: MultistationSolver = MultistationSolver()
     uncertainty: MultistationUncertainty = Field(MultistationUncertainty(), description="inputs of the uncertainty budget")
+    second_mount: SecondMount | None = Field(None, description="a second tracer mount: the plan is measured again after an "
+                                                               "operator step moves the tracer there")
+
+    @property
+    def mounts(self) -> int:
+        return 1 if self.second_mount is None else 2
 
     def points_array(self) -> np.ndarray:
         return self.points.points_mm() if isinstance(self.points, GridPlan) else self.points.points_mm_array()

@@ -30,12 +30,15 @@ class MultistationInstrumentSet:
             i.close()
 
 
-def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int]]:
-    """(point, station) pairs in measuring order; each pair is one planned tracer reading."""
+def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int, int]]:
+    """(mount, point, station) in measuring order; each is one planned tracer reading. With a
+    second mount the whole plan is measured again after the tracer is moved."""
     n, m = len(proc.points_array()), proc.stations.count
     if proc.order == "point_major":
-        return [(i, j) for i in range(n) for j in range(m)]
-    return [(i, j) for j in range(m) for i in range(n)]
+        one = [(i, j) for i in range(n) for j in range(m)]
+    else:
+        one = [(i, j) for j in range(m) for i in range(n)]
+    return [(k, i, j) for k in range(proc.mounts) for i, j in one]
 
 
 def run_multistation(
@@ -74,6 +77,7 @@ def run_multistation(
     at_point: int | None = None
     at_station: int | None = None
     segment: int | None = None
+    mount: int | None = None
     stored = 0
 
     def reference(i: int, j: int, why: str) -> None:
@@ -82,10 +86,19 @@ def run_multistation(
         segment, next_segment = next_segment, next_segment + 1
         store.add_event(clock.now_s(), why, f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
 
-    for k, (i, j) in progress(iter(list(enumerate(plan)))):
+    for k, (mk, i, j) in progress(iter(list(enumerate(plan)))):
         if k in done:
             continue
-        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]),
+        if mk != mount:  # the operator moves the tracer (or confirms where it is on a resumed run)
+            resumed = mount is None and k > 0
+            where = ("its first mount" if mk == 0 else
+                     f"the second mount: centre near {list(proc.second_mount.first_station_guess_mm)} mm at station 1")
+            if proc.mounts > 1 and (mk > 0 or resumed):
+                store.add_event(clock.now_s(), "operator", f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}",
+                                "laser_tracer")
+                operator.move_tracer(mk, where, resumed)
+            mount, segment = mk, None  # a moved tracer is referenced again: a new tracking segment
+        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]), seating=mk,
                      commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
 
         def skip(instrument: str) -> None:

@@ -75,10 +75,36 @@ class NetworkEstimate:
     converged: bool
     message: str
     mounts_mm: np.ndarray | None = None  # (mounts, 3) tracer centres in the table frame
-    error_motion_um: np.ndarray | None = None  # (m, 3) δ_j: EXC, EYC, EZC at the mounts' plane
-    error_motion_sigma_um: np.ndarray | None = None
-    tilt_arcsec: np.ndarray | None = None  # (m, 2) ε_j: EAC, EBC
-    tilt_sigma_arcsec: np.ndarray | None = None
+    error_motions: "ErrorMotions | None" = None  # with a second mount
+
+
+@dataclass(frozen=True)
+class ErrorMotions:
+    """What two mounts see of the error motions, per station, each with its 1σ. Mean and
+    once-per-turn parts are removed: they belong to the axis average line, its direction and the
+    mounts' positions (ISO 230-7's synchronous error motions). The axial motion EZC is not here:
+    two mounts at one height cannot tell it from the tilt about the line joining them."""
+
+    radial_um: np.ndarray  # (m, 2): EXC, EYC at the mounts' plane
+    radial_sigma_um: np.ndarray
+    tilt_arcsec: np.ndarray  # (m,): about the horizontal axis perpendicular to the line joining the mounts
+    tilt_sigma_arcsec: np.ndarray
+    tilt_axis_deg: np.ndarray  # (m,): direction of that axis in the CMM frame
+
+
+def _without_fundamental(angles_rad: np.ndarray, rotating: bool) -> np.ndarray:
+    """The projection that removes a mean and a once-per-turn part from per-station values: for a
+    2-D radial motion (x block then y block) the part a rotating offset makes (``rotating``), for a
+    scalar the fixed-frame cos/sin."""
+    c, s = np.cos(angles_rad), np.sin(angles_rad)
+    n = len(angles_rad)
+    if rotating:
+        A = np.zeros((2 * n, 4))
+        A[:n, 0], A[n:, 1] = 1.0, 1.0
+        A[:n, 2], A[:n, 3], A[n:, 2], A[n:, 3] = c, -s, s, c
+    else:
+        A = np.column_stack([np.ones(n), c, s])
+    return np.eye(len(A)) - A @ np.linalg.pinv(A)
 
 
 def axis_basis(ax: float, ay: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -316,7 +342,6 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         seg_l.append(segments[valid])
         vis_l.append(visits_k[valid] + k * (n * m + 1))
     pi, st, obs = np.concatenate(pi_l), np.concatenate(st_l), np.concatenate(obs_l)
-    sj, mk = st % m, st // m
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
     lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts))
     if len(obs) < lay.g + 1:
@@ -571,14 +596,29 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
                    f"{noise.error_motion_tilt_arcsec:g}″ tilt (σ = bound/√3, orders 1..{noise.error_motion_max_order}); one "
                    "mount cannot separate them from the rotation"))
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
-    q_sigma = np.sqrt(np.diag(S_inv)[lay.q]) if lay.q.stop > lay.q.start else np.full(6, np.nan)
+    q_sigma = np.sqrt(np.clip(np.diag(S_inv)[lay.q], 0.0, None)) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])
     motions = {}
     if lay.error_motions:
-        sd = np.sqrt(np.abs(np.diag(S_inv)))
-        motions = dict(mounts_mm=_mount_points(x, lay), error_motion_um=x[lay.delta].reshape(-1, 3) * 1e3,
-                       error_motion_sigma_um=sd[lay.delta].reshape(-1, 3) * 1e3,
-                       tilt_arcsec=x[lay.eps].reshape(-1, 2) * ARCSEC_PER_RAD, tilt_sigma_arcsec=sd[lay.eps].reshape(-1, 2) * ARCSEC_PER_RAD)
+        m = lay.m
+        di, ei = np.arange(lay.delta.start, lay.delta.stop), np.arange(lay.eps.start, lay.eps.stop)
+        xy = np.concatenate([di[0::3], di[1::3]])  # δx of every station, then δy
+        R2 = _without_fundamental(phi, rotating=True)
+        radial = R2 @ x[xy] * 1e3
+        radial_sd = np.sqrt(np.abs(np.diag(R2 @ S_inv[np.ix_(xy, xy)] @ R2.T))) * 1e3
+        R1 = _without_fundamental(phi, rotating=False)
+        pm = _mount_points(x, lay)
+        beta = np.arctan2(*(pm[1, 1::-1] - pm[0, 1::-1]))  # direction of the mount line, table frame
+        perp = phi + beta + np.pi / 2
+        Ptilt = np.zeros((m, 2 * m))
+        Ptilt[np.arange(m), 2 * np.arange(m)] = np.cos(perp)
+        Ptilt[np.arange(m), 2 * np.arange(m) + 1] = np.sin(perp)
+        T = R1 @ Ptilt * ARCSEC_PER_RAD
+        tilt = T @ x[ei]
+        tilt_sd = np.sqrt(np.abs(np.diag(T @ S_inv[np.ix_(ei, ei)] @ T.T)))
+        motions = dict(mounts_mm=pm, error_motions=ErrorMotions(
+            np.column_stack([radial[:m], radial[m:]]), np.column_stack([radial_sd[:m], radial_sd[m:]]),
+            tilt, tilt_sd, np.degrees(perp) % 360.0))
     return NetworkEstimate(
         angles_rad=phi.copy(), axis_point_mm=x[lay.c].copy(), axis_direction=a, radius_mm=float(x[lay.r]),
         dead_paths_mm=x[lay.d].copy(), segment_ids=seg_ids, cmm_errors=q.copy(), cmm_errors_sigma=q_sigma,
@@ -590,3 +630,4 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         rms_length_residual_um=float(np.sqrt(np.mean(f_len**2))) * 1e3,
         rms_point_residual_um=float(np.sqrt(np.mean(f_pts**2))) * 1e3 if lay.free_points else 0.0,
         iterations=iterations, converged=converged, message=message, **motions)
+

@@ -227,7 +227,8 @@ class SimulatorHub:
         return buffer
 
     async def _operator_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench; ``CERT?``
+        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>``
+        moves the laser tracer to its first or second mount; ``CERT?``
         hands over the polygon's calibration certificate (face errors, arcsec); ``CLEAR``
         releases an emergency stop."""
         try:
@@ -239,6 +240,9 @@ class SimulatorHub:
                         writer.write(b"OK\n")
                     except ValueError:
                         writer.write(b"ERR ARG\n")
+                elif len(words) == 2 and words[0] == "MOUNT" and words[1] in ("0", "1"):
+                    self.bench.mount_tracer(int(words[1]))
+                    writer.write(b"OK\n")
                 elif words == ["CLEAR"]:
                     self.bench.emergency_stop = False
                     writer.write(b"OK\n")
