@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rtcal.air import ciddor_n
 from rtcal.solvers.abbe import AbbeVisits
 from rtcal.solvers.station_data import MountReadings, MultistationData
 from rtcal.store import RunStore
@@ -21,6 +22,10 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         axis = "xyz".index(r.quantity[len("position_")])
         pos_sum[r.point, axis] += r.value
         pos_count[r.point, axis] += 1
+    env: dict[tuple[int, int, int], dict[str, list[float]]] = {}
+    for r in store.readings(instrument="environment"):
+        if r.quantity != "skipped":
+            env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(r.quantity, []).append(r.value)
     len_sum = np.zeros((mounts, n_points, m))
     len_count = np.zeros((mounts, n_points, m))
     segments = np.full((mounts, n_points, m), -1)
@@ -38,9 +43,19 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         raise ValueError(f"the CMM position of {int(np.sum(pos_count[:, 0] == 0))} points was never read")
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
-    others = tuple(MountReadings(lengths[k], segments[k], visits[k]) for k in range(1, mounts))
+    index = summary = None
+    if env:
+        index = np.full((mounts, n_points, m), np.nan)
+        for (k, i, j), q in env.items():
+            if all(name in q for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct")):
+                index[k, i, j] = ciddor_n(np.mean(q["air_temperature_c"]), np.mean(q["air_pressure_pa"]), np.mean(q["humidity_pct"]))
+        summary = {name: {"min": round(float(np.min(v)), 4), "max": round(float(np.max(v)), 4), "mean": round(float(np.mean(v)), 4)}
+                   for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")
+                   if (v := [x for q in env.values() for x in q.get(name, [])])}
+    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k]) for k in range(1, mounts))
     return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
-                            int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others)
+                            int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others,
+                            None if index is None else index[0], summary)
 
 
 def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:

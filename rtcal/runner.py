@@ -77,7 +77,7 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
     """The procedure with its instruments moved to the given addresses, validated again."""
     section = proc.instruments.model_dump()
     for name in section:
-        if name in addresses:
+        if name in addresses and section[name] is not None:  # an instrument the procedure does not use stays out
             section[name].update(address=addresses[name], backend=None)
     try:
         instruments = type(proc.instruments).model_validate(section)
@@ -238,7 +238,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         "procedure": {"name": proc.name, "path": meta.get("procedure_path", "")},
         "seed": int(meta["seed"]) if simulated else None,
         "instruments": "simulated in process" if simulated else {
-            f: getattr(proc.instruments, f).address for f in type(proc.instruments).model_fields},
+            f: getattr(proc.instruments, f).address for f in proc.instruments.present()},
         "bench": (meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
         "started_utc": meta.get("started_utc"),
         "finished_utc": meta.get("finished_utc"),

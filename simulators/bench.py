@@ -22,6 +22,7 @@ from typing import Iterator
 
 import numpy as np
 
+from rtcal.air import ciddor_n
 from rtcal.clock import Clock, VirtualClock
 from rtcal.harmonics import evaluate
 from rtcal.units import arcsec_to_rad, um_to_mm
@@ -191,6 +192,20 @@ class Bench:
             self.tracer_mount = index
             self.tracer_in_table_mm = self._mount_point(index)
             self.beam_broken = True
+
+    # -- air and material
+    def environment(self) -> tuple[float, float, float, float]:
+        """(air °C, air Pa, % RH, material °C) at the clock's present time."""
+        e = self.scenario.environment
+        h = self.clock.now_s() / 3600.0
+        return (e.air_temperature_c + e.air_temperature_drift_k_per_h * h, e.air_pressure_pa + e.air_pressure_drift_pa_per_h * h,
+                min(max(e.humidity_pct + e.humidity_drift_pct_per_h * h, 0.0), 100.0),
+                e.material_temperature_c + e.material_temperature_drift_k_per_h * h)
+
+    def air_index(self) -> float:
+        """The refractive index of the air the tracer's beam runs through, now (Ciddor, He-Ne)."""
+        t, p, rh, _ = self.environment()
+        return ciddor_n(t, p, rh)
 
     # -- shaft, encoder, polygon (seed 001)
     def shaft_y_mm(self, below_tilt_center_mm: float) -> float:

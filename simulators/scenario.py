@@ -162,7 +162,26 @@ class DialIndicatorScenario(_Strict):
     noise_um: float = Field(0.0, ge=0.0)
 
 
-InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2"]
+class EnvironmentScenario(_Strict):
+    """The air around the bench and the table's temperature, drifting linearly with the run's time
+    (the clock starts at 0), and the environment sensor's noise. Unnamed: standard air (20 °C,
+    1013.25 hPa, 50 % RH), steady — the simulated tracer then reads as if in vacuum-corrected air."""
+
+    air_temperature_c: float = Field(20.0, ge=-10.0, le=50.0, description="air temperature at the start, °C (e.g. 20.3)")
+    air_temperature_drift_k_per_h: float = Field(0.0, ge=-20.0, le=20.0, description="its drift, K per hour (e.g. 0.5)")
+    air_pressure_pa: float = Field(101325.0, ge=60000.0, le=120000.0, description="air pressure at the start, Pa (e.g. 100800)")
+    air_pressure_drift_pa_per_h: float = Field(0.0, ge=-5000.0, le=5000.0, description="its drift, Pa per hour (e.g. 300)")
+    humidity_pct: float = Field(50.0, ge=0.0, le=100.0, description="relative humidity at the start, % (e.g. 45)")
+    humidity_drift_pct_per_h: float = Field(0.0, ge=-100.0, le=100.0, description="its drift, % per hour")
+    material_temperature_c: float = Field(20.0, ge=-10.0, le=60.0, description="the table's temperature at the start, °C")
+    material_temperature_drift_k_per_h: float = Field(0.0, ge=-20.0, le=20.0, description="its drift, K per hour")
+    temperature_noise_k: float = Field(0.0, ge=0.0, le=10.0, description="the sensor's temperature noise, K (1σ, e.g. 0.01)")
+    pressure_noise_pa: float = Field(0.0, ge=0.0, le=1000.0, description="the sensor's pressure noise, Pa (1σ, e.g. 2)")
+    humidity_noise_pct: float = Field(0.0, ge=0.0, le=50.0, description="the sensor's humidity noise, % (1σ, e.g. 0.5)")
+
+
+InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2",
+                         "environment"]
 FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_exception", "crc_error", "alarm", "emergency_stop"]
 STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop"}
 
@@ -210,6 +229,7 @@ class Scenario(_Strict):
     polygon: PolygonScenario = PolygonScenario()
     dial_indicators: DialIndicatorScenario = DialIndicatorScenario()
     stepper: StepperScenario = StepperScenario()
+    environment: EnvironmentScenario = EnvironmentScenario()
     faults: list[FaultSpec] = []
 
     def without_noise(self) -> "Scenario":
@@ -223,5 +243,7 @@ class Scenario(_Strict):
             "autocollimator": self.autocollimator.model_copy(update={"noise_arcsec": 0.0, "resolution_arcsec": 0.0}),
             "polygon": self.polygon.model_copy(update={"certificate_uncertainty_arcsec": 0.0, "seating_error_arcsec": 0.0}),
             "dial_indicators": self.dial_indicators.model_copy(update={"noise_um": 0.0, "resolution_um": 0.0}),
+            "environment": self.environment.model_copy(update={"temperature_noise_k": 0.0, "pressure_noise_pa": 0.0,
+                                                               "humidity_noise_pct": 0.0}),
             "faults": [],
         })

@@ -100,7 +100,8 @@ def test_refuses_hardware_procedures_and_bad_counts(tmp_path, capsys):
     hw.write_text(PROCEDURE.read_text().replace("bench: scenarios/", f"bench: {PROCEDURE.parent}/scenarios/")
                   .replace("stage: {backend: sim}", "stage: {address: \"modbus-tcp://127.0.0.1:1502\"}")
                   .replace("cmm: {backend: sim}", "cmm: {address: \"ipp://127.0.0.1:1294\"}")
-                  .replace("laser_tracer: {backend: sim}", "laser_tracer: {address: /dev/null}"))
+                  .replace("laser_tracer: {backend: sim}", "laser_tracer: {address: /dev/null}")
+                  .replace("environment: {backend: sim}", "environment: {address: /dev/null}"))
     assert main(["uncertainty", str(hw), "--trials", "3", "--out", str(tmp_path / "x")]) == 2
     assert main(["uncertainty", str(PROCEDURE), "--trials", "1", "--out", str(tmp_path / "x")]) == 2
     assert "simulated bench" in capsys.readouterr().err

@@ -20,10 +20,16 @@ from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
 from rtcal.solvers.shared_dead_path import SharedDeadPathEstimate, solve_shared_dead_path
 from rtcal.solvers.station_budget import StationBudget, StationNoiseModel
 from rtcal.store import RunStore
+from dataclasses import replace
+
+from rtcal.air import index_sensitivity, standard_air_n
+from rtcal.solvers.air_correction import correct_lengths
+from rtcal.solvers.selfcal import initial_guesses
+from rtcal.solvers.station_data import MultistationData
 from simulators.bench import Bench
 from simulators.scenario import AngularHarmonic, LinearHarmonic, Scenario
 from drivers import factory
-from simulators.instruments import SimCmm, SimLaserTracer, SimStage
+from simulators.instruments import SimCmm, SimEnvironmentSensor, SimLaserTracer, SimStage
 from simulators.truth import station_truth
 
 
@@ -41,7 +47,34 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         point_noise_um=u.cmm_point_noise_um, stage_repeatability_arcsec=u.stage_repeatability_arcsec,
         cmm_scale_ppm=u.cmm_scale_ppm, cmm_squareness_arcsec=u.cmm_squareness_arcsec,
         error_motion_radial_um=em.radial_um, error_motion_axial_um=em.axial_um, error_motion_tilt_arcsec=em.tilt_arcsec,
-        error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm, estimate=estimate)
+        error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm, estimate=estimate,
+        air_index_sigma=air_index_sigma(proc))
+
+
+def air_index_sigma(proc: LaserTracerMultistation) -> float:
+    """1σ of the air's index the lengths are corrected with, from the sensor's stated uncertainty (0: no sensor)."""
+    if proc.instruments.environment is None:
+        return 0.0
+    e = proc.uncertainty.environment
+    dT, dp, dh = index_sensitivity()
+    return float(np.sqrt((dT * e.air_temperature_k) ** 2 + (dp * e.air_pressure_pa) ** 2 + (dh * e.humidity_pct) ** 2))
+
+
+def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
+    """The lengths as geometric lengths, each corrected with the air's index at its reading."""
+    if data.air_index is None:
+        return data
+    nominal = np.deg2rad(data.nominal_angles_deg)
+    axis = np.array(proc.solver.axis_point_mm)
+
+    def fix(lengths, index, segments, guess):
+        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
+        return correct_lengths(lengths, index, segments, data.points_mm, stations, standard_air_n())
+
+    others = tuple(replace(o, lengths_mm=fix(o.lengths_mm, o.air_index, o.segments, proc.second_mount.first_station_guess_mm))
+                   for o in data.other_mounts)
+    return replace(data, lengths_mm=fix(data.lengths_mm, data.air_index, data.segments, proc.solver.first_station_guess_mm),
+                   other_mounts=others)
 
 
 def not_included(proc: LaserTracerMultistation) -> list[str]:
@@ -207,7 +240,8 @@ def plan_length(proc: LaserTracerMultistation) -> int:
 
 
 def sim_instruments(proc: LaserTracerMultistation, bench: Bench) -> MultistationInstrumentSet:
-    return MultistationInstrumentSet(stage=SimStage(bench), cmm=SimCmm(bench), laser_tracer=SimLaserTracer(bench))
+    env = SimEnvironmentSensor(bench) if proc.instruments.environment is not None else None
+    return MultistationInstrumentSet(stage=SimStage(bench), cmm=SimCmm(bench), laser_tracer=SimLaserTracer(bench), environment=env)
 
 
 def transport_instruments(proc: LaserTracerMultistation) -> MultistationInstrumentSet:
@@ -215,7 +249,8 @@ def transport_instruments(proc: LaserTracerMultistation) -> MultistationInstrume
     stage = factory.open_stage(i.stage.address, i.stage.soft_limits_deg, i.stage.timeout_s)
     cmm = factory.open_cmm(i.cmm.address, i.cmm.volume_min_mm, i.cmm.volume_max_mm, i.cmm.timeout_s)
     tracer = factory.open_laser_tracer(i.laser_tracer.address, i.laser_tracer.timeout_s)
-    return MultistationInstrumentSet(stage=stage, cmm=cmm, laser_tracer=tracer)
+    env = factory.open_environment(i.environment.address, i.environment.timeout_s) if i.environment is not None else None
+    return MultistationInstrumentSet(stage=stage, cmm=cmm, laser_tracer=tracer, environment=env)
 
 
 def prepare(proc: LaserTracerMultistation, operator) -> dict[str, str]:
@@ -239,7 +274,7 @@ def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None,
     """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
     recommended one, its positioning-deviation table, and the truth of a simulated run."""
     angles = proc.stations.angles_deg()
-    data = multistation_data(store, angles, len(proc.points_array()), proc.mounts)
+    data = corrected_for_air(multistation_data(store, angles, len(proc.points_array()), proc.mounts), proc)
     guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
     noise, omitted = noise_model(proc, estimate_noise), not_included(proc)
     solvers = {
@@ -261,6 +296,7 @@ def analyse(proc: LaserTracerMultistation, store: RunStore, bench: Bench | None,
     out: dict[str, Any] = {
         "nominal_angles_deg": [float(a) for a in angles],
         "raw_readings": data.raw_readings,
+        "environment": data.environment,
         "recommended": recommended,
         "solver_status": status,
         "estimates": estimates,

@@ -61,12 +61,16 @@ class CmmChoice(InstrumentChoice):
 
 
 class _Instruments(_Strict):
+    def present(self) -> list[str]:
+        """The instruments the procedure uses (an optional one left out is None)."""
+        return [f for f in type(self).model_fields if getattr(self, f) is not None]
+
     def all_sim(self) -> bool:
-        return all(getattr(self, f).is_sim for f in type(self).model_fields)
+        return all(getattr(self, f).is_sim for f in self.present())
 
     @model_validator(mode="after")
     def _one_bench(self) -> "_Instruments":
-        kinds = {getattr(self, f).is_sim for f in type(self).model_fields}
+        kinds = {getattr(self, f).is_sim for f in self.present()}
         if len(kinds) > 1:
             raise ValueError("mixing `backend: sim` with addresses would put instruments on two different benches; "
                              "use addresses for all (e.g. from `rtcal sim serve`) or sim for all")
@@ -75,7 +79,7 @@ class _Instruments(_Strict):
     def with_addresses(self, addresses: dict[str, str]):
         """A copy with the named instruments moved to the given addresses (others keep theirs)."""
         update = {f: getattr(self, f).model_copy(update={"address": addresses[f], "backend": None})
-                  for f in type(self).model_fields if f in addresses}
+                  for f in self.present() if f in addresses}
         return self.model_copy(update=update)
 
 
@@ -83,6 +87,9 @@ class MultistationInstruments(_Instruments):
     stage: StageChoice = StageChoice()
     cmm: CmmChoice = CmmChoice()
     laser_tracer: InstrumentChoice = InstrumentChoice()
+    environment: InstrumentChoice | None = Field(
+        None, description="an air and material sensor, read with every length: rtcal corrects each length for the "
+                          "refractive index of the air of the moment (e.g. {backend: sim})")
 
 
 class FaultPolicy(_Strict):
@@ -103,10 +110,11 @@ class MultistationOnFault(_Strict):
     stage: FaultPolicy = FaultPolicy()
     cmm: FaultPolicy = FaultPolicy()
     laser_tracer: FaultPolicy = FaultPolicy(then="reacquire")
+    environment: FaultPolicy = FaultPolicy(then="skip")
 
     @model_validator(mode="after")
     def _reacquire_is_for_the_tracer(self) -> "MultistationOnFault":
-        for name in ("stage", "cmm"):
+        for name in ("stage", "cmm", "environment"):
             if getattr(self, name).then == "reacquire":
                 raise ValueError(f"{name}.then: only the laser_tracer can be re-acquired")
         return self
@@ -210,6 +218,15 @@ class ErrorMotionBounds(_Strict):
                                     "(0: on the table at the CMM origin, as in seed 000)")
 
 
+class EnvironmentUncertainty(_Strict):
+    """Standard uncertainties of the environment sensor (Type B: its calibration, the air the beam
+    runs through against where the sensor sits)."""
+
+    air_temperature_k: float = Field(0.1, ge=0.0, le=10.0, description="air temperature, K (e.g. 0.1)")
+    air_pressure_pa: float = Field(20.0, ge=0.0, le=1000.0, description="air pressure, Pa (e.g. 20)")
+    humidity_pct: float = Field(5.0, ge=0.0, le=50.0, description="relative humidity, % (e.g. 5)")
+
+
 class MultistationUncertainty(_Strict):
     """What the lab knows about its instruments (1σ unless a bound): the uncertainty budget's inputs.
 
@@ -223,6 +240,8 @@ class MultistationUncertainty(_Strict):
     cmm_squareness_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="standard uncertainty of each CMM squareness, arcsec (Type B, e.g. 1.0)")
     stage_repeatability_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="the stage's positioning repeatability per visit, arcsec (1σ, Type B, e.g. 0.2)")
     error_motions: ErrorMotionBounds = Field(ErrorMotionBounds(), description="bounds of the error motions (Type B)")
+    environment: EnvironmentUncertainty = Field(EnvironmentUncertainty(), description="the environment sensor's "
+                                                "uncertainty (used when the procedure has one)")
 
 
 class SecondMount(_Strict):

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Callable, Iterator
 
 
-from drivers.interfaces import Cmm, LaserTracer, RotaryStage
+from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
@@ -24,10 +24,16 @@ class MultistationInstrumentSet:
     stage: RotaryStage
     cmm: Cmm
     laser_tracer: LaserTracer
+    environment: EnvironmentSensor | None = None
 
     def close(self) -> None:
-        for i in (self.stage, self.cmm, self.laser_tracer):
-            i.close()
+        for i in (self.stage, self.cmm, self.laser_tracer, self.environment):
+            if i is not None:
+                i.close()
+
+
+ENVIRONMENT_QUANTITIES = (("air_temperature_c", "degC"), ("air_pressure_pa", "Pa"), ("humidity_pct", "%"),
+                          ("material_temperature_c", "degC"))
 
 
 def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int, int]]:
@@ -70,7 +76,8 @@ def run_multistation(
         inst.stage.stop()
         inst.cmm.stop()
 
-    policies = {"stage": proc.on_fault.stage, "cmm": proc.on_fault.cmm, "laser_tracer": proc.on_fault.laser_tracer}
+    policies = {"stage": proc.on_fault.stage, "cmm": proc.on_fault.cmm, "laser_tracer": proc.on_fault.laser_tracer,
+                "environment": proc.on_fault.environment}
     faults = FaultHandler(policies, store, clock, operator, safe_state)
     done = store.done_plan_indices()
     next_segment = store.max_segment() + 1
@@ -129,6 +136,11 @@ def run_multistation(
                 continue
             t = clock.now_s()
             readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
+        if inst.environment is not None:  # the air the lengths are counted in, with every reading
+            env = faults.call("environment", inst.environment.read, what=f"environment at point {i + 1}, station {j + 1}")
+            if env is not SKIPPED:
+                t = clock.now_s()
+                readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state) for q, unit in ENVIRONMENT_QUANTITIES]
         if segment is None:
             faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference")
         samples: list[Reading] = []

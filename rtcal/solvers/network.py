@@ -580,6 +580,10 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         F[rows, vidx] = -np.einsum("ij,ij->i", e[rows], t[rows]) * arcsec_to_rad(noise.stage_repeatability_arcsec)
         sources.append(Source("stage repeatability (shared by a visit's lengths)", "B", F, noise.stage_repeatability_arcsec,
                               "″", "per visit, as stated"))
+    if noise.air_index_sigma > 0:  # one error of the index for the whole run scales every counted distance
+        L_abs = np.linalg.norm(A[pi] - P[st], axis=1)
+        sources.append(Source("air refractive index", "B", np.concatenate([L_abs, zeros_pts])[:, None] * noise.air_index_sigma,
+                              noise.air_index_sigma * 1e6, "ppm", "from the environment sensor's stated uncertainty"))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
     if not lay.error_motions and max(noise.error_motion_radial_um, noise.error_motion_axial_um, noise.error_motion_tilt_arcsec) > 0:

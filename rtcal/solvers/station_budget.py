@@ -49,6 +49,7 @@ class StationNoiseModel:
     error_motion_max_order: int = 6
     tilt_center_z_mm: float = 0.0  # height of the tilt centre in the CMM frame
     estimate: bool = True  # Type A sizes from the residuals; False: as stated (a prediction before measuring)
+    air_index_sigma: float = 0.0  # of the air's refractive index the lengths were corrected with (0: not corrected)
 
 
 @dataclass(frozen=True)
@@ -150,6 +151,9 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         Fv[np.arange(N), vidx] = -np.einsum("ij,ij->i", u, tangent) * arcsec_to_rad(noise.stage_repeatability_arcsec)
         sources.append(Source("stage repeatability", "B", Fv, noise.stage_repeatability_arcsec, "″",
                               "per visit, as stated"))
+    if noise.air_index_sigma > 0:  # one error of the index for the whole run scales every counted distance
+        sources.append(Source("air refractive index", "B", (L * noise.air_index_sigma)[:, None], noise.air_index_sigma * 1e6,
+                              "ppm", "from the environment sensor's stated uncertainty, common to every length"))
     geometry = []
     for name, dM in cmm_matrix_derivatives():
         sigma = noise.cmm_scale_ppm if name.startswith("scale") else noise.cmm_squareness_arcsec

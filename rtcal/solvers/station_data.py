@@ -14,6 +14,7 @@ class MountReadings:
     lengths_mm: np.ndarray  # n×m, NaN where skipped
     segments: np.ndarray  # n×m
     visits: np.ndarray  # n×m stage visits, numbered after the first mount's
+    air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,8 @@ class MultistationData:
     visits: np.ndarray | None = None  # n×m stage visit of each length (−1 where skipped)
     point_visits: np.ndarray | None = None  # n
     other_mounts: tuple[MountReadings, ...] = ()  # the network estimator uses them; the others use the first mount
+    air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
+    environment: dict | None = None  # summary of the recorded air and material conditions, for the report
 
     @classmethod
     def from_arrays(cls, points_mm, lengths_mm, nominal_angles_deg, segments=None) -> "MultistationData":

@@ -19,11 +19,27 @@ from typing import Literal
 from rtcal.clock import VirtualClock
 from simulators.az_drive import AzDriveModel, steps_per_degree
 from simulators.bench import Bench
-from simulators.instruments import SimAutocollimator, SimCmm, SimDialIndicator, SimEncoder, SimLaserTracer, SimStage
+from simulators.instruments import (
+    SimAutocollimator,
+    SimCmm,
+    SimDialIndicator,
+    SimEncoder,
+    SimEnvironmentSensor,
+    SimLaserTracer,
+    SimStage,
+)
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
 from simulators.servers.ipp_server import serve_ipp
-from simulators.servers.serial_protocols import ElcomatHandler, FaultyLine, LineHandler, QsbHandler, SylvacHandler, TracerHandler
+from simulators.servers.serial_protocols import (
+    ElcomatHandler,
+    EnvironmentHandler,
+    FaultyLine,
+    LineHandler,
+    QsbHandler,
+    SylvacHandler,
+    TracerHandler,
+)
 
 DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # 0.001° per step when the scenario names no stepper
 
@@ -67,6 +83,7 @@ class SimulatorHub:
             "autocollimator": ElcomatHandler(SimAutocollimator(b, inject=False)),
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False)),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False)),
+            "environment": EnvironmentHandler(SimEnvironmentSensor(b, inject=False)),
         }
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
         self._fds: list[int] = []
