@@ -22,6 +22,7 @@ CASES = [
     ("shipped_seed000", PROCEDURES / "laser_tracer_multistation.yaml", None),
     ("shipped_seed001", PROCEDURES / "encoder_abbe_error.yaml", None),
     ("closure", PROCEDURES / "polygon_closure.yaml", None),
+    ("length_noise", MC / "length_noise.yaml", None),
     ("point_noise", MC / "point_noise.yaml", None),
     ("cmm_geometry", MC / "cmm_geometry.yaml", None),
     ("error_motions", MC / "error_motions.yaml", None),
