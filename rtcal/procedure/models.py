@@ -310,12 +310,36 @@ class AbbeInstruments(_Instruments):
 
 
 class AbbeSteps(_Strict):
-    """A full turn per pass: ``faces × steps_per_face`` steps from the seating's offset."""
+    """The targets and how they are approached.
 
-    steps_per_face: int = Field(1, ge=1, le=100)  # finer than the polygon: autocollimator read at faces only
-    directions: list[Literal["positive", "negative"]] = Field(["positive"], min_length=1, max_length=2)
-    runs: int = Field(1, ge=1, le=100)
-    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0)
+    By default a full turn per pass: ``faces × steps_per_face`` steps from the seating's offset.
+    ``targets_deg`` names the targets instead (an ISO 230-2 test: irregularly spaced, each where a
+    polygon face is in front). ``cycle``: ``linear`` (ISO 230-2's standard test cycle: each run
+    goes through every target in one direction, then back through every target in the other, each
+    target approached past an overrun so that every approach is from its own side) or ``pilgrim``
+    (the step cycle of its annex: each target approached ``runs`` times from each side before the
+    next)."""
+
+    steps_per_face: int = Field(1, ge=1, le=100, description="steps per polygon face (finer than the polygon: the "
+                                                             "autocollimator reads at faces only), e.g. 2")
+    targets_deg: list[float] | None = Field(None, min_length=2, max_length=360,
+                                            description="explicit targets, deg in [0, 360), each a polygon face position "
+                                                        "(e.g. [0, 15, 45, 90, 120, 180, 225, 270, 300, 330])")
+    directions: list[Literal["positive", "negative"]] = Field(["positive"], min_length=1, max_length=2,
+                                                              description="approach directions, e.g. [positive, negative]")
+    runs: int = Field(1, ge=1, le=100, description="runs (approaches per target and direction), e.g. 5 for ISO 230-2")
+    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0, description="overrun past each target to approach it from its "
+                                                                   "own side, deg (e.g. 1)")
+    cycle: Literal["linear", "pilgrim"] = Field("linear", description="linear (ISO 230-2 standard cycle) or pilgrim (step cycle)")
+
+    @model_validator(mode="after")
+    def _targets(self) -> "AbbeSteps":
+        if self.targets_deg is not None:
+            if any(not (0.0 <= t < 360.0) for t in self.targets_deg):
+                raise ValueError("targets_deg: targets lie in [0, 360) degrees")
+            if len(set(round(t, 9) for t in self.targets_deg)) != len(self.targets_deg):
+                raise ValueError("targets_deg: targets repeat")
+        return self
 
 
 class PolygonSetup(_Strict):
@@ -414,17 +438,25 @@ class EncoderAbbeError(_Strict):
         problem = plan_outside_limits(self, self.instruments.stage.soft_limits_deg)
         if problem:
             raise ValueError(problem)
+        if self.steps.targets_deg is not None:
+            off = [t for t in self.steps.targets_deg if not self.face_in_front(t, 0.0)]
+            if off:
+                raise ValueError(f"steps.targets_deg: {off[0]:g}° is not a polygon face position (multiples of "
+                                 f"{self.polygon.pitch_deg:g}°): the autocollimator could not read there")
         return self
 
     def pass_angles_deg(self, seating_deg: float) -> np.ndarray:
-        """Commanded angles of one positive pass (a full turn, in [0, 360)) for a seating."""
+        """Commanded angles of one positive pass (in [0, 360)) for a seating: the named targets
+        (shifted with the seating), or a full turn in steps."""
+        if self.steps.targets_deg is not None:
+            return np.sort(np.round(np.mod(seating_deg + np.array(self.steps.targets_deg), 360.0), 9) % 360.0)
         n = self.polygon.faces * self.steps.steps_per_face
         return np.sort(np.round(np.mod(seating_deg + self.step_deg * np.arange(n), 360.0), 9) % 360.0)
 
     def face_in_front(self, angle_deg: float, seating_deg: float) -> bool:
         """Whether a polygon face faces the autocollimator at this commanded angle."""
-        k = (angle_deg - seating_deg) / self.step_deg
-        return round(k) % self.steps.steps_per_face == 0
+        k = (angle_deg - seating_deg) / self.polygon.pitch_deg
+        return abs(k - round(k)) < 1e-6
 
 
 def plan_outside_limits(proc: "LaserTracerMultistation | EncoderAbbeError", stage_limits_deg, cmm_min_mm=None, cmm_max_mm=None) -> str | None:

@@ -138,6 +138,12 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
         terms.append(HarmonicTerm(n, amp, float(np.arctan2(b, a)), float(np.sqrt(max(amp_var, 0.0))),
                                   float(np.sqrt(max(ph_var, 0.0))), amp > threshold, threshold))
     warnings = []
+    if aliased_order is None and max_order is not None and orders and max_order > orders[-1]:
+        d = distinct_angles(theta)
+        gaps = np.diff(np.concatenate([d, [d[0] + 2 * np.pi]]))
+        if not np.allclose(gaps, gaps[0], atol=1e-7):
+            warnings.append(f"the {len(d)} angles are unevenly spaced: orders above {orders[-1]} are not resolved and "
+                            "an error of such an order shows in the fitted ones")
     if aliased_order is not None:
         b = float(coef[2 * k])
         sd = float(np.sqrt(cov[2 * k, 2 * k]))
