@@ -178,6 +178,35 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def read_deviation_table(path_text: str):
+    """A run directory's positioning_deviations (results.json) or a deviation CSV; mistakes are UserErrors."""
+    from rtcal.deviations import DeviationTableError, PositioningDeviations
+
+    path = Path(path_text)
+    try:
+        if path.is_dir():
+            results = path / "results.json"
+            try:
+                data = json.loads(results.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise UserError(f"{path}: not a run directory with a readable results.json ({exc})") from None
+            if not isinstance(data, dict) or "positioning_deviations" not in data:
+                raise UserError(f"{results}: no positioning_deviations (a run of an older rtcal, or not solved)")
+            return PositioningDeviations.from_dict(data["positioning_deviations"], str(results)), data
+        return PositioningDeviations.read_csv(path), None
+    except DeviationTableError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    """ISO 230-2 or VDI 3441 parameters of a positioning test, as JSON."""
+    from rtcal.evaluation import evaluate
+
+    table, _ = read_deviation_table(args.source)
+    print(json.dumps(evaluate(table, args.standard), indent=2))
+    return EXIT_OK
+
+
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -319,6 +348,13 @@ def build_parser() -> argparse.ArgumentParser:
                           "the procedure's stated uncertainties (shows this one bench's bias)")
     unc.add_argument("--out", help="directory for uncertainty.json and uncertainty.png (default: runs/<time>-uncertainty)")
     unc.set_defaults(func=_cmd_uncertainty)
+
+    ev = sub.add_parser("evaluate", help="ISO 230-2 or VDI/DGQ 3441 parameters of a positioning test, as JSON")
+    ev.add_argument("source", help="a run directory (its results.json) or a CSV with the header "
+                                   "target_deg,direction,run,deviation_arcsec[,uncertainty_arcsec] (direction 1 or -1, runs from 1)")
+    ev.add_argument("--standard", choices=["iso230-2", "iso230-2:1988", "vdi3441"], default="iso230-2",
+                    help="ISO 230-2 (1997/2006/2014), its 1988 edition (±3s), or VDI/DGQ 3441 (default iso230-2)")
+    ev.set_defaults(func=_cmd_evaluate)
 
     plan = sub.add_parser("plan", help="predict each estimator's 1σ per target and the run's duration before measuring")
     plan.add_argument("procedure", help="procedure YAML file")
