@@ -207,6 +207,27 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_compensate(args: argparse.Namespace) -> int:
+    """A controller's compensation table from a run's (or a CSV's) positioning deviations."""
+    from rtcal.compensation import WRITERS, CompensationError, table_from_deviations
+
+    table, _ = read_deviation_table(args.source)
+    try:
+        comp = table_from_deviations(table, args.step_deg, args.max_gap_deg)
+        text = WRITERS[args.format](comp)
+    except CompensationError as exc:
+        raise UserError(f"{args.source}: {exc}") from None
+    out = Path(args.out)
+    try:
+        out.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write: {exc}") from None
+    worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
+    print(f"{args.format} table written to {out}: {len(comp.positions_deg)} points every {comp.step_deg:g}° over one turn, "
+          f"trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
+    return EXIT_OK
+
+
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -355,6 +376,16 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--standard", choices=["iso230-2", "iso230-2:1988", "vdi3441"], default="iso230-2",
                     help="ISO 230-2 (1997/2006/2014), its 1988 edition (±3s), or VDI/DGQ 3441 (default iso230-2)")
     ev.set_defaults(func=_cmd_evaluate)
+
+    comp = sub.add_parser("compensate", help="a controller's compensation table from a run's positioning deviations")
+    comp.add_argument("source", help="a run directory or a deviation CSV (as for `rtcal evaluate`)")
+    comp.add_argument("--format", required=True, choices=["linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain"],
+                      help="the controller's format (docs/compensation.md)")
+    comp.add_argument("--out", required=True, help="the table file to write")
+    comp.add_argument("--step-deg", type=float, default=15.0, help="grid step over one turn (default 15°; must divide 360)")
+    comp.add_argument("--max-gap-deg", type=float, default=60.0,
+                      help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
+    comp.set_defaults(func=_cmd_compensate)
 
     plan = sub.add_parser("plan", help="predict each estimator's 1σ per target and the run's duration before measuring")
     plan.add_argument("procedure", help="procedure YAML file")

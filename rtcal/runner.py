@@ -14,12 +14,14 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+import yaml
 from pydantic import ValidationError
 from tqdm import tqdm
 
 from rtcal import __version__
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deviations import PositioningDeviations
+from rtcal.evaluation import evaluate
 from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
@@ -55,7 +57,10 @@ def resolve_scenario(procedure_path: Path, proc: Procedure, scenario_path: Path 
         scenario_path = procedure_path.parent / proc.bench
     if scenario_path is None:
         return Scenario(), ""
-    return load_scenario(scenario_path), read_text(scenario_path)
+    scenario = load_scenario(scenario_path)
+    if scenario.stage.compensation is not None:  # the table travels with the scenario stored in the run
+        return scenario, yaml.safe_dump(scenario.model_dump(mode="json", exclude_defaults=True), sort_keys=False, allow_unicode=True)
+    return scenario, read_text(scenario_path)
 
 
 def scenario_label(procedure_path: Path, proc: Procedure, scenario_path: str | Path | None) -> str:
@@ -189,6 +194,14 @@ def resume_run(
     return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation)
 
 
+def evaluation_of(analysis: dict[str, Any]) -> dict[str, Any] | None:
+    """ISO 230-2 and VDI 3441 parameters of the run's positioning deviations (what a certificate lists)."""
+    if "positioning_deviations" not in analysis:
+        return None
+    table = PositioningDeviations.from_dict(analysis["positioning_deviations"])
+    return {"iso230_2": evaluate(table, "iso230-2"), "vdi3441": evaluate(table, "vdi3441")}
+
+
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True) -> RunOutcome:
@@ -246,6 +259,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         "measurement_duration_s": round(clock.now_s(), 1),
         "clock": "virtual" if virtual else "real",
         **analysis,
+        "evaluation": evaluation_of(analysis),
         "skipped_readings": len(store.skipped_plan_indices()),
         "faults": sum(1 for e in events if e["kind"] == "fault"),
         "events": events,

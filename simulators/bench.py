@@ -24,6 +24,7 @@ import numpy as np
 
 from rtcal.air import ciddor_n
 from rtcal.clock import Clock, VirtualClock
+from rtcal.compensation import PARSERS
 from rtcal.harmonics import evaluate
 from rtcal.units import arcsec_to_rad, um_to_mm
 from simulators.faults import FaultInjector
@@ -102,6 +103,8 @@ class Bench:
         self.polygon_rotation_rad = 0.0
         st_ = scenario.stepper
         self.step_rad = 2 * math.pi / (st_.steps_per_revolution * st_.worm_ratio) if st_.steps_per_revolution else 0.0
+        comp = scenario.stage.compensation
+        self.compensation = PARSERS[comp.format](comp.text, comp.file or "compensation") if comp is not None else None
         # state
         self.commanded_rad = 0.0
         self.actual_rad = 0.0
@@ -140,13 +143,26 @@ class Bench:
         """The angle an open-loop stepper really commands: a whole number of steps."""
         return round(commanded_rad / self.step_rad) * self.step_rad if self.step_rad else float(commanded_rad)
 
+    def motor_command_rad(self, commanded_rad: float, direction: int) -> float:
+        """Where the controller sends the motor for a commanded angle: plus its compensation table's
+        trim for the approach direction (interpolated, as the CNC does), in whole steps."""
+        trim = 0.0 if self.compensation is None else math.radians(self.compensation.trim_deg(math.degrees(commanded_rad), direction))
+        return self.quantise_command(commanded_rad + trim)
+
+    def systematic_actual_rad(self, commanded_rad: float, direction: int) -> float:
+        """The table's angle for a command approached in ``direction``, without repeatability: the
+        motor's position plus εz there (the physics follows the motor, not the user's number)."""
+        motor = commanded_rad + (0.0 if self.compensation is None else
+                                 math.radians(self.compensation.trim_deg(math.degrees(commanded_rad), direction)))
+        return self.quantise_command(motor) + float(self.positioning_error_rad(motor, direction))
+
     def move_stage(self, commanded_rad: float, direction: int) -> float:
         """Put the table at a commanded angle approached in ``direction``; returns the actual angle."""
         noise = arcsec_to_rad(self.scenario.stage.repeatability_arcsec) * self.rng("stage").standard_normal()
-        self.commanded_rad = self.quantise_command(commanded_rad)
         self.last_direction = +1 if direction >= 0 else -1
-        self.actual_rad = self.commanded_rad + float(self.positioning_error_rad(commanded_rad, self.last_direction)) + noise
-        self.truth.stage_moves.append(StageMove(self.commanded_rad, self.actual_rad, self.last_direction))
+        self.commanded_rad = self.motor_command_rad(commanded_rad, self.last_direction)
+        self.actual_rad = self.systematic_actual_rad(commanded_rad, self.last_direction) + noise
+        self.truth.stage_moves.append(StageMove(self.quantise_command(commanded_rad), self.actual_rad, self.last_direction))
         return self.actual_rad
 
     def error_motions(self, commanded_rad: float) -> tuple[np.ndarray, float, float]:

@@ -53,6 +53,23 @@ class LinearHarmonic(_Strict):
         return Harmonic(self.order, um_to_mm(self.amplitude_um), math.radians(self.phase_deg))
 
 
+class CompensationScenario(_Strict):
+    """A compensation table the simulated controller applies (as a CNC would: interpolated between
+    entries, per approach direction where the format has two), read from ``file`` (relative to
+    the scenario) when the scenario is loaded."""
+
+    format: Literal["linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain"] = Field(
+        description="the table's format, as `rtcal compensate --format` writes it")
+    file: str | None = Field(None, max_length=4096, description="the table file, relative to the scenario (e.g. c.comp)")
+    text: str | None = Field(None, max_length=1_000_000, description="the table itself (filled from `file` when loaded)")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "CompensationScenario":
+        if (self.file is None) == (self.text is None):
+            raise ValueError("file: give the table's file")
+        return self
+
+
 class StageScenario(_Strict):
     """The rotary table: its axis in the CMM frame and its error motions."""
 
@@ -70,6 +87,8 @@ class StageScenario(_Strict):
     tilt_center_height_mm: float = 0.0  # along the axis, above axis_point_mm
     soft_limits_deg: tuple[float, float] = (-360.0, 360.0)
     speed_deg_per_s: float = Field(10.0, gt=0.0)
+    compensation: CompensationScenario | None = Field(None, description="a compensation table the simulated controller "
+                                                                        "applies (calibrate → compensate → verify)")
 
 
 class CmmScenario(_Strict):

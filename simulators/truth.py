@@ -17,8 +17,8 @@ def station_truth(bench: Bench, angles_deg: np.ndarray, direction: int) -> dict:
     quantity a calibration estimates; ``realized_deviation_arcsec`` uses the mean actual
     angle of every visit to the station, so it includes the repeatability the run drew.
     """
-    cmd = np.deg2rad(np.asarray(angles_deg, dtype=float))
-    systematic = cmd + np.asarray(bench.positioning_error_rad(cmd, direction), dtype=float)
+    cmd = np.array([bench.quantise_command(c) for c in np.deg2rad(np.asarray(angles_deg, dtype=float))])
+    systematic = np.array([bench.systematic_actual_rad(c, direction) for c in cmd])
     realized = []
     for c, s in zip(cmd, systematic):
         visits = [mv.actual_rad for mv in bench.truth.stage_moves if math.isclose(mv.commanded_rad, c, abs_tol=1e-12)]
@@ -36,10 +36,10 @@ def station_truth(bench: Bench, angles_deg: np.ndarray, direction: int) -> dict:
 def _systematic_arcsec(bench: Bench, angle_deg: float, direction: int) -> tuple[float, float]:
     """(εz, encoder error) at a commanded angle approached in ``direction``, without repeatability."""
     cmd = bench.quantise_command(math.radians(angle_deg))
-    e = float(bench.positioning_error_rad(cmd, int(direction)))
-    with bench.stage_state(cmd, cmd + e):
+    actual = bench.systematic_actual_rad(cmd, int(direction))
+    with bench.stage_state(bench.motor_command_rad(cmd, int(direction)), actual):
         enc = rad_to_arcsec(bench.encoder_error_rad())
-    return rad_to_arcsec(e + cmd - math.radians(angle_deg)), enc
+    return rad_to_arcsec(actual - math.radians(angle_deg)), enc
 
 
 def abbe_truth(bench: Bench, angles_deg: np.ndarray, directions: np.ndarray,
