@@ -228,6 +228,46 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    """Two runs side by side: the change per target against the combined uncertainty, and a plot."""
+    from rtcal.comparison import compare, plot_comparison
+
+    a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
+    result = compare(a, b, (Path(args.run_a).name, Path(args.run_b).name))
+    if result["targets_compared"] == 0:
+        raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
+    out = Path(args.out) if args.out else Path(args.run_b)
+    if not out.is_dir():
+        try:
+            out.mkdir(parents=True)
+        except OSError as exc:
+            raise UserError(f"--out {out}: cannot create: {exc}") from None
+    result["plot"] = str(plot_comparison(result, a, b, out / "compare.png"))
+    print(json.dumps(result, indent=2))
+    return EXIT_OK
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    """Every raw reading and event of a run as CSV, for spreadsheets."""
+    from rtcal.store import RunStore
+
+    run = Path(args.run_dir)
+    try:
+        store = RunStore.open(run)
+    except FileNotFoundError as exc:
+        raise UserError(f"{run}: not a run directory: {exc}") from None
+    out = Path(args.out) if args.out else run
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        readings, events = store.export_csv(out)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write: {exc}") from None
+    finally:
+        store.close()
+    print(f"{readings} readings → {out / 'readings.csv'}, {events} events → {out / 'events.csv'}")
+    return EXIT_OK
+
+
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -386,6 +426,18 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--max-gap-deg", type=float, default=60.0,
                       help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
     comp.set_defaults(func=_cmd_compensate)
+
+    cmp_ = sub.add_parser("compare", help="two runs of one axis side by side: change per target against the combined "
+                                          "uncertainty, ISO 230-2 parameters of both, compare.png")
+    cmp_.add_argument("run_a", help="the earlier run (directory or deviation CSV)")
+    cmp_.add_argument("run_b", help="the later run (directory or deviation CSV)")
+    cmp_.add_argument("--out", help="where compare.png goes (default: RUN_B)")
+    cmp_.set_defaults(func=_cmd_compare)
+
+    exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv)")
+    exp.add_argument("run_dir", help="a run directory (its run.sqlite)")
+    exp.add_argument("--out", help="directory for the CSV files (default: the run directory)")
+    exp.set_defaults(func=_cmd_export)
 
     plan = sub.add_parser("plan", help="predict each estimator's 1σ per target and the run's duration before measuring")
     plan.add_argument("procedure", help="procedure YAML file")
