@@ -15,10 +15,15 @@ from rtcal.deviations import PositioningDeviations
 from rtcal.evaluation import evaluate
 
 
-def mean_curve(table: PositioningDeviations, results: dict | None) -> dict[tuple[float, int], tuple[float, float]]:
+def mean_curve(table: PositioningDeviations, results: dict | None, wrap: bool = True) -> dict[tuple[float, int], tuple[float, float]]:
     """(target, direction) → (mean deviation, its standard uncertainty). From a run, the recommended
     estimate's own cumulative deviation and u (its covariance knows what the runs share); from a
-    CSV, the mean over the runs with u = RMS(u)/√n (independent rows assumed)."""
+    CSV, the mean over the runs with u = RMS(u)/√n (independent rows assumed). ``wrap``: targets
+    taken modulo 360° (to match two runs); the order is the measurement's."""
+
+    def key(t: float) -> float:
+        return round(float(t) % 360.0 if wrap else float(t), 6)
+
     if results and results.get("recommended") in results.get("estimates", {}):
         e = results["estimates"][results["recommended"]]
         if "target_deg" in e:
@@ -26,7 +31,7 @@ def mean_curve(table: PositioningDeviations, results: dict | None) -> dict[tuple
         else:
             targets = results["nominal_angles_deg"]
             dirs = [int(table.direction[0])] * len(targets)
-        return {(round(float(t) % 360.0, 6), int(d)): (float(x), float(u))
+        return {(key(t), int(d)): (float(x), float(u))
                 for t, d, x, u in zip(targets, dirs, e["cumulative_deviation_arcsec"], e["cumulative_uncertainty_arcsec"])
                 if x is not None and u is not None}
     out = {}
@@ -36,7 +41,7 @@ def mean_curve(table: PositioningDeviations, results: dict | None) -> dict[tuple
             if sel.any():
                 u = table.uncertainty_arcsec[sel]
                 u_mean = float(np.sqrt(np.nanmean(u**2) / sel.sum())) if np.any(np.isfinite(u)) else float("nan")
-                out[(round(float(t) % 360.0, 6), d)] = (float(table.deviation_arcsec[sel].mean()), u_mean)
+                out[(key(t), d)] = (float(table.deviation_arcsec[sel].mean()), u_mean)
     return out
 
 

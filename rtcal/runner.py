@@ -19,6 +19,7 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from rtcal import __version__
+from rtcal.certificate import report_model, write_html, write_pdf
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deviations import PositioningDeviations
 from rtcal.evaluation import evaluate
@@ -249,6 +250,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         "rtcal_version": __version__,
         "method": proc.method,
         "procedure": {"name": proc.name, "path": meta.get("procedure_path", "")},
+        "metadata": proc.metadata.model_dump(),
         "seed": int(meta["seed"]) if simulated else None,
         "instruments": "simulated in process" if simulated else {
             f: getattr(proc.instruments, f).address for f in proc.instruments.present()},
@@ -273,4 +275,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(run_dir / "positioning_deviations.csv")
     method.write_files(run_dir, results)
     write_report(run_dir, results, method.report_body(results))
+    model = report_model(results, run_dir, method.certificate_figures(results), method.method_text(results))
+    write_html(model, run_dir / "report.html")
+    write_pdf(model, run_dir / "report.pdf")
     return RunOutcome(run_dir, results)

@@ -465,6 +465,28 @@ def report_body(results: dict[str, Any]) -> list[str]:
     return lines
 
 
+def certificate_figures(results: dict[str, Any]) -> list[tuple[str, str]]:
+    return [("deviation.png", "Cumulative positioning deviation ECC of every estimator (the recommended one with its "
+                              "U band, k = 2) and the per-step deviation Δθ of seed 000's eq. 33 (bars ±1σ).")]
+
+
+def method_text(results: dict[str, Any]) -> list[str]:
+    rec = results.get("recommended")
+    return [
+        "Laser tracer multi-station method: the laser tracer sits on the table; a CMM moves its cat-eye reflector through "
+        "a set of points while the table indexes through the stations, and the tracer measures interferometric lengths. "
+        "The tracer's reference centre at each station is self-calibrated from the lengths; the stations lie on a circle "
+        "about the rotation axis, and the angle between them gives the positioning deviation.",
+        "Estimators: 'paper' as published (one dead path per station, plane, circle, eq. 32–33); 'shared_dead_path' "
+        "(all stations together, one dead path per tracking segment); 'network' (one adjustment of axis, radius, station "
+        "angles, CMM points as weighted observations and the CMM's scales and squarenesses). The report quotes the "
+        f"recommended one ({rec}): converged, with the smallest uncertainty.",
+        "Uncertainty (GUM): the tracer's and the CMM's noise are estimated from the readings (Type A); stage "
+        "repeatability, CMM geometry, error motions and the air's refractive index as the procedure states them "
+        "(Type B); all propagated through the estimator with their correlations.",
+    ]
+
+
 def summary(results: dict[str, Any]) -> list[str]:
     """The console: the recommended cumulative deviation with U, then what did not converge."""
     lines = []

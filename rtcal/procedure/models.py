@@ -20,6 +20,27 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class InstrumentRecord(_Strict):
+    """An instrument as a certificate names it."""
+
+    id: str = Field("", max_length=200, description="make, model and serial number (e.g. Etalon LaserTRACER 12-0034)")
+    calibration_due: str = Field("", max_length=40, description="its calibration due date (e.g. 2027-03-31)")
+
+
+class Metadata(_Strict):
+    """Who and what the calibration is for: the report's and certificate's header."""
+
+    customer: str = Field("", max_length=200, description="the customer (e.g. Acme Machine Tools GmbH)")
+    machine: str = Field("", max_length=200, description="the machine (e.g. 5-axis machining centre DMU 65)")
+    axis: str = Field("", max_length=50, description="the axis calibrated (e.g. C)")
+    serial_number: str = Field("", max_length=100, description="the machine's or table's serial number")
+    location: str = Field("", max_length=200, description="where it was calibrated")
+    operator: str = Field("", max_length=200, description="who calibrated it")
+    certificate_number: str = Field("", max_length=100, description="the certificate's number")
+    instruments: dict[str, InstrumentRecord] = Field({}, description="per instrument of the procedure (stage, cmm, "
+                                                                     "laser_tracer, …): its id and calibration due date")
+
+
 class InstrumentChoice(_Strict):
     """Which backend serves an instrument: ``backend: sim`` (in-process, on the simulated bench)
     or an ``address`` of a real transport (see drivers/addresses.py): a Modbus drive, an I++
@@ -259,6 +280,7 @@ class LaserTracerMultistation(_Strict):
 
     method: Literal["laser_tracer_multistation"]
     name: str = ""
+    metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
     bench: str | None = None
     instruments: MultistationInstruments = MultistationInstruments()
     stations: Stations = Stations()
@@ -418,6 +440,7 @@ class EncoderAbbeError(_Strict):
 
     method: Literal["encoder_abbe_error"]
     name: str = ""
+    metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
     bench: str | None = None
     instruments: AbbeInstruments = AbbeInstruments()
     steps: AbbeSteps = AbbeSteps()
