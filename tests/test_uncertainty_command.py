@@ -21,18 +21,19 @@ def _summary(out: Path) -> dict:
 
 
 def test_shipped_seed000_reported_sigma_matches_its_errors(tmp_path, capsys):
-    """30 simulated runs of the shipped procedure (tracer and CMM noise, repeatability, CMM scale and
+    """40 simulated runs of the shipped procedure (tracer and CMM noise, repeatability, CMM scale and
     squareness and error motions drawn within the stated uncertainties) on the default process pool.
 
-    Per target 30 trials know the RMS error only to ±13 % (1σ), so CI checks the ratio pooled over
-    the 10 targets (±5 %) within 0.85–1.18; the per-target 0.8–1.25 check with 200 trials is
+    The 10 targets' errors are correlated (shared systematics, one chain): their pooled RMS counts
+    as ≈2.7 independent targets, so 40 trials know it to ±1/√(2·40·2.7) ≈ ±7 % (1σ). CI checks
+    the pooled ratio within 0.8–1.25 (≈3σ); the per-target check with 200 trials is
     `pytest -m campaign` (tests/test_uncertainty_campaign.py)."""
-    assert main(["uncertainty", str(PROCEDURE), "--trials", "30", "--out", str(tmp_path / "mc")]) == 0
+    assert main(["uncertainty", str(PROCEDURE), "--trials", "40", "--out", str(tmp_path / "mc")]) == 0
     s = _summary(tmp_path / "mc")
-    assert s["trials"] == 30 and s["failed_trials"] == 0 and s["recommended"] == "shared_dead_path"
+    assert s["trials"] == 40 and s["failed_trials"] == 0 and s["recommended"] == "shared_dead_path"
     for name, e in s["estimators"].items():
         o = e["overall"]
-        assert 0.85 < o["rms_reported_sigma_arcsec"] / o["rms_error_arcsec"] < 1.18, (name, o)
+        assert 0.8 < o["rms_reported_sigma_arcsec"] / o["rms_error_arcsec"] < 1.25, (name, o)
     assert "ratio per target" in capsys.readouterr().out
     _plan_agrees(PROCEDURE, s, capsys)
 
@@ -50,12 +51,14 @@ def _plan_agrees(procedure: Path, s: dict, capsys) -> None:
 
 
 def test_shipped_seed001_reported_sigma_matches_its_errors(tmp_path, capsys):
-    """60 runs of the shipped seed-001 procedure (one run each: the budget is Type B, as stated):
-    pooled over 47 targets the ratio is known to ±3 %; it must lie within 0.9–1.1."""
+    """60 runs of the shipped seed-001 procedure (one run each: the budget is Type B, as stated).
+    The 47 targets' errors are correlated (harmonic error motions) and count as ≈3.8 independent
+    targets, so the pooled RMS is known to ±1/√(2·60·3.8) ≈ ±4.7 % (1σ); the ratio must lie
+    within 0.85–1.15 (≈3σ)."""
     assert main(["uncertainty", str(ABBE), "--trials", "60", "--workers", "2", "--out", str(tmp_path / "mc")]) == 0
     s = _summary(tmp_path / "mc")
     o = s["estimators"]["abbe"]["overall"]
-    assert 0.9 < o["rms_reported_sigma_arcsec"] / o["rms_error_arcsec"] < 1.1, o
+    assert 0.85 < o["rms_reported_sigma_arcsec"] / o["rms_error_arcsec"] < 1.15, o
     _plan_agrees(ABBE, s, capsys)
 
 

@@ -3,33 +3,49 @@
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from drivers import factory
+from rtcal.air import index_sensitivity, standard_air_n
 from rtcal.dataset import multistation_data
 from rtcal.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.report import plt
-from rtcal.results import choose_recommended, deviation_block, run_estimators, status_lines
-from rtcal.sequencer.multistation import MultistationInstrumentSet, planned_readings, run_multistation
-from rtcal.solvers.lm import LMParameters
-from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate, StationChain, solve_paper
-from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
-from rtcal.solvers.shared_dead_path import SharedDeadPathEstimate, solve_shared_dead_path
-from rtcal.solvers.station_budget import StationBudget, StationNoiseModel
-from rtcal.store import RunStore
-from dataclasses import replace
-
-from rtcal.air import index_sensitivity, standard_air_n
+from rtcal.results import (
+    choose_recommended,
+    deviation_block,
+    run_estimators,
+    status_lines,
+)
+from rtcal.sequencer.multistation import (
+    MultistationInstrumentSet,
+    planned_readings,
+    run_multistation,
+)
 from rtcal.solvers.air_correction import correct_lengths
+from rtcal.solvers.lm import LMParameters
+from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
+from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate, StationChain, solve_paper
 from rtcal.solvers.selfcal import initial_guesses
+from rtcal.solvers.shared_dead_path import (
+    SharedDeadPathEstimate,
+    solve_shared_dead_path,
+)
+from rtcal.solvers.station_budget import StationBudget, StationNoiseModel
 from rtcal.solvers.station_data import MultistationData
+from rtcal.store import RunStore
 from simulators.bench import Bench
+from simulators.instruments import (
+    SimCmm,
+    SimEnvironmentSensor,
+    SimLaserTracer,
+    SimStage,
+)
 from simulators.scenario import AngularHarmonic, LinearHarmonic, Scenario
-from drivers import factory
-from simulators.instruments import SimCmm, SimEnvironmentSensor, SimLaserTracer, SimStage
 from simulators.truth import station_truth
 
 
@@ -97,7 +113,7 @@ def chain_dict(ch: StationChain, budget: StationBudget, omitted: list[str]) -> d
         **deviation_block(ch.cumulative_deviation_arcsec, budget.cumulative, not_included=omitted),
         "eq34_sigma_arcsec": round(float(ch.sigma_arcsec), 4),
         "algorithm_error_arcsec": float(ch.algorithm_error_arcsec),
-        "estimated_noise": {"tracer_length_noise_um": round(float(budget.estimated_sigma("tracer length noise")), 5),
+        "estimated_noise": {"tracer_length_noise_um_at_1m": round(float(budget.estimated_sigma("tracer length noise")), 5),
                             "cmm_point_noise_um": round(float(budget.estimated_sigma("CMM point noise")), 5)},
         "plane": {"a": ch.plane.a, "b": ch.plane.b, "c": ch.plane.c, "e": ch.plane.e},
         "projected_stations_mm": [_round(p) for p in ch.projected_mm],
@@ -126,7 +142,8 @@ def shared_dead_path_dict(est: SharedDeadPathEstimate, omitted: list[str]) -> di
         "dead_paths_mm": {str(int(s)): round(float(d), 6) for s, d in zip(est.segment_ids, est.dead_paths_mm)},
         "rms_residual_um": round(est.rms_residual_um, 4),
         "converged": est.converged,
-        "message": est.message,
+        "message": est.message + ("" if est.budget.variances.converged else
+                                  "; the noise sizes (REML) did not converge: the uncertainty is less certain"),
     }
 
 
@@ -152,7 +169,7 @@ def network_dict(est: NetworkEstimate, omitted: list[str]) -> dict[str, Any]:
         }
     return {
         **deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=omitted),
-        "estimated_noise": {"tracer_length_noise_um": round(est.sigma_length_um, 5), "cmm_point_noise_um": round(est.sigma_point_um, 5)},
+        "estimated_noise": {"tracer_length_noise_um_at_1m": round(est.sigma_length_um, 5), "cmm_point_noise_um": round(est.sigma_point_um, 5)},
         "cmm_errors": {name: {"value": round(float(v), 4), "sigma": round(float(s), 4) if np.isfinite(s) else None}
                        for name, v, s in zip(CMM_NAMES, est.cmm_errors, est.cmm_errors_sigma)},
         "axis_point_mm": _round(est.axis_point_mm), "axis_direction": _round(est.axis_direction, 9),
@@ -205,7 +222,7 @@ def _random_series(sigma: float, max_order: int, rng: np.random.Generator, cls):
 
 def draw_systematics(proc: LaserTracerMultistation, scenario: Scenario, rng: np.random.Generator) -> Scenario:
     """A bench whose unknown systematic errors are drawn as the procedure's budget models them:
-    CMM scales and squarenesses N(0, u), error motions as random series with σ = bound/√3
+    CMM scales and squarenesses N(0, u), error motions as random series with σ = bound/√2
     (for `rtcal uncertainty`; DESIGN.md: GUM Supplement 1)."""
     u = proc.uncertainty
     em = u.error_motions
@@ -215,7 +232,7 @@ def draw_systematics(proc: LaserTracerMultistation, scenario: Scenario, rng: np.
         "squareness_xy_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec)),
         "squareness_xz_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec)),
         "squareness_yz_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec))})
-    r, ax, t = em.radial_um / np.sqrt(3), em.axial_um / np.sqrt(3), em.tilt_arcsec / np.sqrt(3)
+    r, ax, t = em.radial_um / np.sqrt(2), em.axial_um / np.sqrt(2), em.tilt_arcsec / np.sqrt(2)
     stage = scenario.stage.model_copy(update={
         "radial_motion_x": _random_series(r, k, rng, LinearHarmonic), "radial_motion_y": _random_series(r, k, rng, LinearHarmonic),
         "axial_motion": _random_series(ax, k, rng, LinearHarmonic),
@@ -423,7 +440,7 @@ def report_body(results: dict[str, Any]) -> list[str]:
     for n in names:
         e = results["estimates"][n]
         st = results["solver_status"][n]
-        noise = (f"noise estimated from the readings: tracer {e['estimated_noise']['tracer_length_noise_um']:.3f} µm, "
+        noise = (f"noise estimated from the readings: tracer {e['estimated_noise']['tracer_length_noise_um_at_1m']:.3f} µm at 1 m, "
                  f"CMM points {e['estimated_noise']['cmm_point_noise_um']:.3f} µm")
         if "eq34_sigma_arcsec" in e:
             lines.append(f"- {n}: {st['status']} ({st['message']}); σΔθ = {e['eq34_sigma_arcsec']:.2f}″ is the paper's "

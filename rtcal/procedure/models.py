@@ -229,7 +229,9 @@ class ErrorMotionBounds(_Strict):
     One tracer mount cannot tell a sideways shift of the tracer from a rotation, so the error
     motions the table may have enter the uncertainty; give the bounds from its specification
     or an earlier measurement. rtcal models each as an unknown smooth function within ±bound
-    (σ = bound/√3 at every angle, harmonic orders 1..max_order)."""
+    (σ = bound/√2 at every angle — a sinusoid that reaches the bound —, harmonic orders
+    1..max_order). U (k = 2) then covers about 95 % of the motions within the bounds, not every
+    one; a second tracer mount (`second_mount`) measures them instead."""
 
     radial_um: float = Field(0.0, ge=0.0, le=1000.0, description="bound of the radial error motions EXC, EYC at the tilt centre, µm (e.g. 0.5)")
     axial_um: float = Field(0.0, ge=0.0, le=1000.0, description="bound of the axial error motion EZC, µm (e.g. 0.3)")

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 from rtcal.solvers.station_budget import (
     StationNoiseModel,
     cmm_matrix_derivatives,
-    error_motion_covariance,
+    error_motion_covariances,
 )
 from rtcal.solvers.station_data import MultistationData
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, Source, VarianceEstimate, propagate
@@ -67,7 +67,7 @@ class NetworkEstimate:
     cumulative_deviation_arcsec: np.ndarray
     budget: DeviationBudget
     variances: VarianceEstimate
-    sigma_length_um: float  # tracer noise a (of a + b·L), as estimated
+    sigma_length_um: float  # tracer noise a + b·L at L = 1 m, as estimated
     sigma_point_um: float  # CMM noise per coordinate, as estimated
     rms_length_residual_um: float
     rms_point_residual_um: float
@@ -560,7 +560,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     N_len = len(f_len)
     zeros_pts = np.zeros(H_pts.shape[1])
     sources = [Source("tracer length noise", "A", np.concatenate([np.sqrt(theta[0] * shape), zeros_pts]),
-                      noise.length_noise_um * np.sqrt(theta[0]), "µm", "a + b·L with b/a as stated; size from the residuals")]
+                      (max(noise.length_noise_um, 1e-4) + noise.length_noise_ppm) * np.sqrt(theta[0]), "µm at 1 m",
+                      "a + b·L with b/a as stated; size from the residuals")]
     if lay.free_points:
         sources.append(Source("CMM point noise", "A", np.concatenate([np.zeros(N_len), np.sqrt(1.0 / w_pts)]),
                               max(noise.point_noise_um, 1e-3) * np.sqrt(theta[1]), "µm",
@@ -586,19 +587,17 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
                               noise.air_index_sigma * 1e6, "ppm", "from the environment sensor's stated uncertainty"))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
-    if not lay.error_motions and max(noise.error_motion_radial_um, noise.error_motion_axial_um, noise.error_motion_tilt_arcsec) > 0:
-        cov = error_motion_covariance(P, nominal, x[lay.c], noise)
+    if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
         U = sp.csr_matrix((-e.ravel(), (np.repeat(np.arange(N_len), 3), (3 * st[:, None] + np.arange(3)).ravel())),
                           shape=(N_len, 3 * m))
-        GH = G @ H_len
-        T = (U.T @ GH.T).T  # cumulative ← station displacements
-        components.append(BudgetComponent(
-            "error motions", "B", max(noise.error_motion_radial_um, noise.error_motion_tilt_arcsec), "µm, ″", T @ cov @ T.T,
-            False, f"bounds {noise.error_motion_radial_um:g} µm radial, {noise.error_motion_axial_um:g} µm axial, "
-                   f"{noise.error_motion_tilt_arcsec:g}″ tilt (σ = bound/√3, orders 1..{noise.error_motion_max_order}); one "
-                   "mount cannot separate them from the rotation"))
+        T = (U.T @ (G @ H_len).T).T  # cumulative ← station displacements
+        for name, bound, unit, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
+            components.append(BudgetComponent(
+                name, "B", bound, unit, T @ cov @ T.T, False,
+                f"within ±{bound:g} {unit} (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one mount cannot "
+                "separate them from the rotation"))
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     q_sigma = np.sqrt(np.clip(np.diag(S_inv)[lay.q], 0.0, None)) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])
@@ -629,7 +628,7 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         points_mm=A.copy(), stations_mm=P[: lay.m].copy(), cumulative_deviation_arcsec=cumulative,
         budget=DeviationBudget(components), variances=VarianceEstimate({"tracer length noise": float(theta[0]),
                                                                          "CMM point noise": float(theta[1])}, {}, 0, True),
-        sigma_length_um=noise.length_noise_um * float(np.sqrt(theta[0])),
+        sigma_length_um=(max(noise.length_noise_um, 1e-4) + noise.length_noise_ppm) * float(np.sqrt(theta[0])),
         sigma_point_um=max(noise.point_noise_um, 1e-3) * float(np.sqrt(theta[1])),
         rms_length_residual_um=float(np.sqrt(np.mean(f_len**2))) * 1e3,
         rms_point_residual_um=float(np.sqrt(np.mean(f_pts**2))) * 1e3 if lay.free_points else 0.0,

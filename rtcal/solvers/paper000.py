@@ -24,7 +24,12 @@ from rtcal.solvers.geometry import (
 )
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.selfcal import StationFit, initial_guesses, solve_station
-from rtcal.solvers.station_budget import StationBudget, StationNoiseModel, StationObservations, station_budget
+from rtcal.solvers.station_budget import (
+    StationBudget,
+    StationNoiseModel,
+    StationObservations,
+    station_budget,
+)
 from rtcal.solvers.station_data import MultistationData
 from rtcal.units import rad_to_arcsec
 
@@ -76,7 +81,10 @@ class PaperEstimate:
     @property
     def message(self) -> str:
         bad = [f"station {j + 1}: {f.message}" for j, f in enumerate(self.stations) if not f.converged]
-        return "; ".join(bad) if bad else "every station converged"
+        text = "; ".join(bad) if bad else "every station converged"
+        if not self.budget.variances.converged:
+            text += "; the noise sizes (REML) did not converge: the uncertainty is less certain"
+        return text
 
 
 def chain_from_stations(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray) -> StationChain:

@@ -18,9 +18,18 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from rtcal.solvers.paper000 import StationChain, chain_from_stations, cumulative_function
+from rtcal.solvers.paper000 import (
+    StationChain,
+    chain_from_stations,
+    cumulative_function,
+)
 from rtcal.solvers.selfcal import initial_guesses
-from rtcal.solvers.station_budget import StationBudget, StationNoiseModel, StationObservations, station_budget
+from rtcal.solvers.station_budget import (
+    StationBudget,
+    StationNoiseModel,
+    StationObservations,
+    station_budget,
+)
 from rtcal.solvers.station_data import MultistationData
 
 

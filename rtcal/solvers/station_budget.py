@@ -15,8 +15,11 @@ results"):
   CMM's (lower-triangular) scale/squareness matrix, common to every length;
 - **error motions** (Type B): radial, axial and tilt error motions displace each station; no
   single-mount model sees them. Each is modelled as an unknown smooth function bounded by the
-  stated value, a random Fourier series of orders 1..K with σ = bound/√3 at every angle, whose
-  stations are correlated as (1/K)·Σ cos(k·Δθ).
+  stated value, a random Fourier series of orders 1..K with σ = bound/√2 at every angle (the
+  σ of a sinusoid that reaches the bound: GUM's U-shaped law for a smooth motion), whose
+  stations are correlated as (1/K)·Σ cos(k·Δθ). U (k = 2) then covers about 95 % of the motions
+  within the bounds, not every one: a single harmonic at the bound in the worst phase can exceed
+  it at some target — a second tracer mount measures them instead.
 
 Each source is propagated through the estimator's own linearisation and the plane/circle/angle
 chain to the cumulative deviation (and its per-step differences).
@@ -29,7 +32,15 @@ from typing import Callable
 
 import numpy as np
 
-from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, Source, VarianceEstimate, propagate, reml_scales
+from rtcal.solvers.uncertainty import (
+    BudgetComponent,
+    DeviationBudget,
+    Source,
+    VarianceEstimate,
+    difference_matrix,
+    propagate,
+    reml_scales,
+)
 from rtcal.units import arcsec_to_rad
 
 
@@ -96,28 +107,33 @@ def harmonic_correlation(angles_rad: np.ndarray, max_order: int) -> np.ndarray:
     return np.mean(np.cos(d[..., None] * k), axis=-1)
 
 
-def error_motion_covariance(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray, axis_center_mm: np.ndarray,
-                            noise: StationNoiseModel) -> np.ndarray:
-    """3m×3m covariance of the station displacements the bounded error motions can cause (mm²)."""
+def error_motion_covariances(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray, axis_center_mm: np.ndarray,
+                             noise: StationNoiseModel) -> list[tuple[str, float, str, np.ndarray]]:
+    """(name, bound, unit, 3m×3m covariance of the station displacements, mm²) for the radial, axial
+    and tilt error motions the procedure bounds (σ = bound/√2 at every angle)."""
     m = len(stations_mm)
     rho = harmonic_correlation(np.asarray(nominal_angles_rad, float), max(noise.error_motion_max_order, 1))
     d = np.asarray(stations_mm, float) - np.array([axis_center_mm[0], axis_center_mm[1], noise.tilt_center_z_mm])
-    s_r = noise.error_motion_radial_um * 1e-3 / np.sqrt(3)
-    s_a = noise.error_motion_axial_um * 1e-3 / np.sqrt(3)
-    s_t = arcsec_to_rad(noise.error_motion_tilt_arcsec) / np.sqrt(3)
-    one = np.ones(m)
-    # sensitivity of each station's displacement to each component: δx, δy, δz, εx, εy
-    g = [(s_r, np.column_stack([one, 0 * one, 0 * one])), (s_r, np.column_stack([0 * one, one, 0 * one])),
-         (s_a, np.column_stack([0 * one, 0 * one, one])),
-         (s_t, np.column_stack([0 * one, -d[:, 2], d[:, 1]])),  # εx × d
-         (s_t, np.column_stack([d[:, 2], 0 * one, -d[:, 0]]))]  # εy × d
-    cov = np.zeros((3 * m, 3 * m))
-    for s, gj in g:
-        if s == 0:
+    one, zero = np.ones(m), np.zeros(m)
+    kinds = [
+        ("error motions, radial (EXC, EYC)", noise.error_motion_radial_um, "µm", noise.error_motion_radial_um * 1e-3,
+         [np.column_stack([one, zero, zero]), np.column_stack([zero, one, zero])]),
+        ("error motion, axial (EZC)", noise.error_motion_axial_um, "µm", noise.error_motion_axial_um * 1e-3,
+         [np.column_stack([zero, zero, one])]),
+        ("error motions, tilt (EAC, EBC)", noise.error_motion_tilt_arcsec, "″", arcsec_to_rad(noise.error_motion_tilt_arcsec),
+         [np.column_stack([zero, -d[:, 2], d[:, 1]]), np.column_stack([d[:, 2], zero, -d[:, 0]])]),  # εx × d, εy × d
+    ]
+    out = []
+    for name, bound, unit, bound_internal, sensitivities in kinds:
+        if bound <= 0:
             continue
-        outer = np.einsum("ia,jb->iajb", gj, gj).reshape(3 * m, 3 * m)
-        cov += s * s * np.kron(rho, np.ones((3, 3))) * outer
-    return cov
+        s = bound_internal / np.sqrt(2)
+        cov = np.zeros((3 * m, 3 * m))
+        for gj in sensitivities:
+            outer = np.einsum("ia,jb->iajb", gj, gj).reshape(3 * m, 3 * m)
+            cov += s * s * np.kron(rho, np.ones((3, 3))) * outer
+        out.append((name, bound, unit, cov))
+    return out
 
 
 def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
@@ -134,7 +150,8 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
     a_mm, b = noise.length_noise_um * 1e-3, noise.length_noise_ppm * 1e-6
     shape = a_mm + b * L
     ref_len = shape if np.max(shape) > 0 else np.full(N, 1e-3)
-    sources = [Source("tracer length noise", "A", ref_len, noise.length_noise_um if np.max(shape) > 0 else 1.0, "µm",
+    at_1m = noise.length_noise_um + noise.length_noise_ppm  # the stated σ of a 1 m length, µm: its reference size
+    sources = [Source("tracer length noise", "A", ref_len, at_1m if np.max(shape) > 0 else 1.0, "µm at 1 m",
                       f"a + b·L with b/a as stated ({noise.length_noise_um:g} µm + {noise.length_noise_ppm:g} ppm); size from the residuals")]
     s_p = noise.point_noise_um * 1e-3 if noise.point_noise_um > 0 else 1e-3
     F = np.zeros((N, 3 * n))
@@ -154,15 +171,12 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
     if noise.air_index_sigma > 0:  # one error of the index for the whole run scales every counted distance
         sources.append(Source("air refractive index", "B", (L * noise.air_index_sigma)[:, None], noise.air_index_sigma * 1e6,
                               "ppm", "from the environment sensor's stated uncertainty, common to every length"))
-    geometry = []
-    for name, dM in cmm_matrix_derivatives():
-        sigma = noise.cmm_scale_ppm if name.startswith("scale") else noise.cmm_squareness_arcsec
+    for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
+                                       ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
+        columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
+                   for name, dM in cmm_matrix_derivatives() if name.startswith(prefix)]
         if sigma > 0:
-            geometry.append(-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma)
-    if geometry:
-        sources.append(Source("CMM scale and squareness", "B", np.column_stack(geometry),
-                              max(noise.cmm_scale_ppm, noise.cmm_squareness_arcsec), "ppm, ″",
-                              f"{noise.cmm_scale_ppm:g} ppm per scale, {noise.cmm_squareness_arcsec:g}″ per squareness, as stated"))
+            sources.append(Source(label, "B", np.column_stack(columns), sigma, unit, "each of three, as stated"))
     return sources
 
 
@@ -177,8 +191,7 @@ class StationBudget:
     @property
     def step_uncertainty_arcsec(self) -> np.ndarray:
         """1σ of the per-step deviations (eq. 33's Δθ), from the same covariance."""
-        n = len(self.cumulative.uncertainty_arcsec)
-        return self.cumulative.transformed(np.eye(n)[1:] - np.eye(n)[:-1]).uncertainty_arcsec
+        return self.cumulative.transformed(difference_matrix(len(self.cumulative.uncertainty_arcsec))).uncertainty_arcsec
 
     def estimated_sigma(self, name: str) -> float | None:
         for s in self.sources:
@@ -210,12 +223,8 @@ def station_budget(
     influence = np.linalg.pinv(J)[np.asarray(station_columns).ravel()]  # ∂(stations)/∂f, up to sign
     G = chain_jacobian(stations_mm, cumulative_of_stations)
     components = propagate(influence, sources, variances, G)
-    if max(noise.error_motion_radial_um, noise.error_motion_axial_um, noise.error_motion_tilt_arcsec) > 0:
-        cov = error_motion_covariance(stations_mm, nominal_angles_rad, axis_center_mm, noise)
-        components.append(BudgetComponent(
-            "error motions", "B", max(noise.error_motion_radial_um, noise.error_motion_tilt_arcsec), "µm, ″",
-            G @ cov @ G.T, False,
-            f"bounds {noise.error_motion_radial_um:g} µm radial, {noise.error_motion_axial_um:g} µm axial, "
-            f"{noise.error_motion_tilt_arcsec:g}″ tilt (σ = bound/√3, orders 1..{noise.error_motion_max_order}); "
-            "one mount cannot separate them from the rotation"))
+    for name, bound, unit, cov in error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise):
+        components.append(BudgetComponent(name, "B", bound, unit, G @ cov @ G.T, False,
+                                          f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
+                                          "mount cannot separate them from the rotation"))
     return StationBudget(DeviationBudget(components), variances, sources)

@@ -61,11 +61,6 @@ class VarianceEstimate:
         """The source's 1σ as estimated (its stated σ for Type B)."""
         return source.sigma * float(np.sqrt(self.scale.get(source.name, 1.0)))
 
-    def dof(self, name: str) -> float:
-        """Effective degrees of freedom of an estimated variance: ν = 2θ²/u(θ)² (a χ² variance has var = 2θ²/ν)."""
-        s, u = self.scale.get(name, 1.0), self.scale_sigma.get(name, 0.0)
-        return float("inf") if u <= 0 else float(2.0 * s * s / (u * u))
-
 
 def _as_diagonal(effect: np.ndarray) -> np.ndarray | None:
     """The diagonal of F·Fᵀ when it is diagonal (each input touches one residual), else None."""
