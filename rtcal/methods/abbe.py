@@ -11,18 +11,34 @@ import numpy as np
 
 from drivers import factory
 from rtcal.dataset import abbe_visits
-from rtcal.procedure.models import EncoderAbbeError
 from rtcal.deviations import PositioningDeviations
+from rtcal.procedure.models import EncoderAbbeError
 from rtcal.report import finite_or_none, plt
-from rtcal.results import choose_recommended, deviation_block, run_estimators, status_lines
+from rtcal.results import (
+    choose_recommended,
+    deviation_block,
+    run_estimators,
+    status_lines,
+)
 from rtcal.sequencer.abbe import AbbeInstrumentSet, planned_visits, run_abbe
-from rtcal.solvers.abbe import AbbeEstimate, AbbeNoise, AbbeSetup, analyse_abbe, steps_within_directions
+from rtcal.solvers.abbe import (
+    AbbeEstimate,
+    AbbeNoise,
+    AbbeSetup,
+    analyse_abbe,
+    steps_within_directions,
+)
 from rtcal.solvers.harmonic_analysis import HarmonicFit
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
 from rtcal.store import RunStore
 from simulators.bench import Bench
+from simulators.instruments import (
+    SimAutocollimator,
+    SimDialIndicator,
+    SimEncoder,
+    SimStage,
+)
 from simulators.scenario import Scenario
-from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimStage
 from simulators.truth import abbe_truth
 
 NOTES = (
@@ -164,7 +180,7 @@ def closure_dict(est: AbbeEstimate) -> dict[str, Any]:
     ref = 0  # keys are sorted positive direction first, then by angle
     R = np.eye(n_t) - np.outer(np.ones(n_t), np.eye(n_t)[ref])
     cov = sigma**2 * (R @ c.solution_map[:n_t]) @ (R @ c.solution_map[:n_t]).T
-    estimated = abs(sigma - c.sigma) < 1e-12
+    estimated = est.random_sigma_type == "A"
     budget = DeviationBudget([BudgetComponent("closure residuals (autocollimator, repeatability)" if estimated else
                                               "autocollimator and stage, as stated", "A" if estimated else "B", sigma, "″",
                                               cov, estimated, "per reading")])
@@ -440,7 +456,7 @@ def summary(results: dict[str, Any]) -> list[str]:
     a = results["estimates"]["abbe"]
     rec = results.get("recommended") or "abbe"
     e = results["estimates"][rec]
-    pred = [abs(v) for v in a["predicted_encoder_error_arcsec"] if v is not None]
+    pred = [abs(v) for v in a["predicted_encoder_error_arcsec"] if v is not None] or [float("nan")]
     lines = [f"positioning deviation ECC ({rec}, recommended): {min(e['cumulative_deviation_arcsec']):+.2f}″ … "
              f"{max(e['cumulative_deviation_arcsec']):+.2f}″ over {len(e['target_deg'])} targets, U (k = 2) up to "
              f"{max(e['cumulative_expanded_uncertainty_arcsec']):.2f}″"

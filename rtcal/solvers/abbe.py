@@ -26,7 +26,10 @@ and of the face errors used, so its covariance is T·Σ·Tᵀ exactly, with Σ f
 errors (Type A from repeated runs or the closure residuals; else the stated instrument noise,
 resolution/√12 and stage repeatability, Type B) and from the certificate's uncertainty (common
 to every visit of a face). Repeatability of the stage cancels in the measured encoder error
-(encoder and autocollimator see the same actual angle) and is not counted there.
+(encoder and autocollimator see the same actual angle) except through face errors a closure
+estimated from the readings; a reading's digit rounds the same way run after run, so repeated
+runs cannot see it and it stays a Type B beside their scatter. A skipped reading leaves its
+visit out, not its series.
 """
 
 from __future__ import annotations
@@ -155,6 +158,7 @@ class AbbeEstimate:
     extrapolation_factor: float
     reference: ReferenceDeviation
     random_sigma_arcsec: float  # the per-visit random error of the reference as used (estimated or stated)
+    random_sigma_type: str = "B"  # "A": estimated from closure residuals or runs; "B": as stated
 
 
 SMOOTH_MOTION_ORDERS = 4  # the shaft motion whose rounding is simulated: orders 1..4 of the indicator readings
@@ -195,6 +199,15 @@ def steps_within_directions(directions: np.ndarray) -> np.ndarray:
             r[a], r[b] = -1.0, 1.0
             rows.append(r)
     return np.array(rows).reshape(-1, len(d))
+
+
+def _per_key(keys: np.ndarray) -> np.ndarray:
+    """(n × keys): 1 where a visit belongs to a key — for an error all runs of that key share (a
+    digit's rounding of the same value)."""
+    _, idx = np.unique(keys, return_inverse=True)
+    E = np.zeros((len(keys), int(idx.max()) + 1 if len(keys) else 0))
+    E[np.arange(len(keys)), idx] = 1.0
+    return E
 
 
 def _pooled_sigma(values: np.ndarray, groups: np.ndarray) -> tuple[float, int] | None:
@@ -308,6 +321,11 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
     T_y = T_eps @ to_eps
     components = [BudgetComponent(name, typ, sigma, "″", _cov(T_y[face_steps], sigma**2), typ == "A", note)
                   for name, typ, sigma, note in random_parts if sigma > 0]
+    if closure is None and pooled is not None and noise.estimate and noise.autocollimator_resolution_arcsec > 0:
+        E_ac = _per_key(seating[ac] * n_s + step_idx[ac])  # a digit rounds the same value the same way every run
+        components.append(BudgetComponent("autocollimator resolution", "B", noise.autocollimator_resolution_arcsec / np.sqrt(12),
+                                          "″", _cov((T_y @ E_ac)[face_steps], noise.autocollimator_resolution_arcsec**2 / 12),
+                                          False, "digit q, uniform (q/√12), the same at a target in every run"))
     if closure is None and noise.certificate_uncertainty_arcsec > 0:
         T_f = -(T_eps @ B)[face_steps]
         components.append(BudgetComponent("polygon certificate", "B", noise.certificate_uncertainty_arcsec, "″",
@@ -327,31 +345,43 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         s_angle[[k[0] for k in row_keys]], s_dir[[k[0] for k in row_keys]], np.array([k[1] + 1 for k in row_keys]),
         T_rows @ eps, np.sqrt(row_var), source)
 
-    # --- measured and predicted encoder error: one constant per seating (over the face visits)
-    enc_parts = (noise.encoder_noise_arcsec**2 + noise.encoder_resolution_arcsec**2 / 12 + noise.autocollimator_noise_arcsec**2
-                 + noise.autocollimator_resolution_arcsec**2 / 12)
+    # --- measured and predicted encoder error: one constant per seating (over the face visits).
+    # A skipped reading (NaN) leaves its visit out of the operators, not the whole series.
+    ac_res2 = noise.autocollimator_resolution_arcsec**2 / 12
+    enc_res2 = noise.encoder_resolution_arcsec**2 / 12
+    key_m = (seating[ac] * n_s + step_idx[ac])
     meas_visit = enc_vs_cmd[ac] - eps
-    T_meas = M @ centre
-    meas_steps = T_meas @ meas_visit
-    pooled_m = _pooled_sigma(meas_visit, seating[ac] * n_s + step_idx[ac]) if len(np.unique(run)) > 1 and noise.estimate else None
-    var_m = pooled_m[0] ** 2 if pooled_m else enc_parts
-    meas_cov = _cov(T_meas, var_m)
+    fm = np.isfinite(meas_visit)
+    T_meas = _mean_operator(step_idx[ac][fm], n_s) @ _centring_operator(seating[ac][fm], np.ones(int(fm.sum()), bool))
+    meas_steps = T_meas @ meas_visit[fm]
+    meas_steps[T_meas.any(axis=1) == 0] = np.nan
+    pooled_m = _pooled_sigma(meas_visit[fm], (seating[ac] * n_s + step_idx[ac])[fm]) if len(np.unique(run)) > 1 and noise.estimate else None
     if closure is None:
-        meas_cov = meas_cov + _cov(T_meas @ B, noise.certificate_uncertainty_arcsec**2)
+        # the stage's repeatability cancels (encoder and autocollimator see the same angle); a digit's rounding
+        # repeats run after run, so repeated runs cannot see it: it stays Type B beside their scatter
+        noise_m = pooled_m[0] ** 2 if pooled_m else noise.encoder_noise_arcsec**2 + noise.autocollimator_noise_arcsec**2
+        meas_cov = (_cov(T_meas, noise_m) + _cov(T_meas @ _per_key(key_m[fm]), ac_res2 + enc_res2)
+                    + _cov(T_meas @ B[fm], noise.certificate_uncertainty_arcsec**2))
     else:
-        meas_cov = _cov(T_meas @ to_eps, random_variance) + _cov(T_meas, noise.encoder_noise_arcsec**2
-                                                                   + noise.encoder_resolution_arcsec**2 / 12)
+        # measured = encoder error − (I − B·K_f)·n + B·K_f·s: the autocollimator noise n through the whole map, the
+        # repeatability s only through the face errors the closure estimated from every visit
+        rep2 = noise.stage_repeatability_arcsec**2
+        ac2 = max(random_variance - rep2, 0.0) if noise.estimate else noise.autocollimator_noise_arcsec**2 + ac_res2
+        BK = np.eye(len(ac)) - to_eps
+        meas_cov = (_cov(T_meas @ to_eps[fm], ac2) + _cov(T_meas @ BK[fm], rep2)
+                    + _cov(T_meas, noise.encoder_noise_arcsec**2 + enc_res2))
     meas_steps[np.setdiff1d(np.arange(n_s), face_steps)] = np.nan
 
-    ind_var = noise.indicator_noise_um**2 + noise.indicator_resolution_um**2 / 12  # µm², per indicator reading
     per_um = 1e-3 / setup.encoder_radius_mm * ARCSEC_PER_RAD
-    pred_visit_var = ((1 - a_fac) ** 2 + a_fac**2) * ind_var * per_um**2
-    centre_all = _centring_operator(seating, has_ac)  # the same reference set as the measured error
-    M_all = _mean_operator(step_idx, n_s)
-    T_pred = M_all @ centre_all
-    pred_steps = T_pred @ predicted
-    pooled_p = _pooled_sigma(predicted, seating * n_s + step_idx) if len(np.unique(run)) > 1 and noise.estimate else None
-    pred_cov = _cov(T_pred, pooled_p[0] ** 2 if pooled_p else pred_visit_var)
+    through = ((1 - a_fac) ** 2 + a_fac**2) * per_um**2  # an indicator's µm² into the prediction's ″²
+    fp = np.isfinite(predicted)
+    T_pred = _mean_operator(step_idx[fp], n_s) @ _centring_operator(seating[fp], has_ac[fp])  # reference: the face visits
+    pred_steps = T_pred @ predicted[fp]
+    pred_steps[T_pred.any(axis=1) == 0] = np.nan
+    pooled_p = _pooled_sigma(predicted[fp], (seating * n_s + step_idx)[fp]) if len(np.unique(run)) > 1 and noise.estimate else None
+    noise_p = pooled_p[0] ** 2 if pooled_p else through * noise.indicator_noise_um**2
+    pred_cov = (_cov(T_pred, noise_p)
+                + _cov(T_pred @ _per_key((seating * n_s + step_idx)[fp]), through * noise.indicator_resolution_um**2 / 12))
     residual = meas_steps - pred_steps
     res_var = np.diag(meas_cov) + np.diag(pred_cov)
 
@@ -407,7 +437,7 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
             tilt_e = (e2 - e1) / (l2 - l1)  # µm per mm = mrad
             rounding["tilt"].append(per_step(tilt_e * 1e-3 * ARCSEC_PER_RAD))
             rounding["radial"].append(per_step(e1 - tilt_e * l1))
-            rounding["predicted"].append(T_pred @ (((1 - a_fac) * e1 + a_fac * e2) * per_um))
+            rounding["predicted"].append(T_pred @ (((1 - a_fac) * e1 + a_fac * e2) * per_um)[fp])
 
     ac_floor = noise.autocollimator_resolution_arcsec / np.sqrt(12)
     enc_floor = noise.encoder_resolution_arcsec / np.sqrt(12)
@@ -436,4 +466,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         closure_table_direction=closure_dirs, reversal_arcsec=reversal, reversal_reference_arcsec=reversal_ref,
         repeatability_arcsec=None if pooled is None else pooled[0], harmonics=harmonics,
         extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
+        random_sigma_type="A" if random_parts[0][1] == "A" else "B",
     )

@@ -10,12 +10,13 @@ it is fitted as that one column and reported ``aliased`` — its visible amplitu
 lower bound, its phase unknown; orders above U/2 alias onto lower ones, which a warning says.
 Orders are also limited so that the fit keeps at least half its samples as degrees of freedom.
 
-Significance: under "no such harmonic" the fitted amplitude of an order follows a Rayleigh law
-of scale σ_c (the coefficients' 1σ), so P(A > t) = exp(−t²/2σ_c²). An order is significant when
-that probability is below α/K for K orders tested (Bonferroni: at most α chance of any false
-flag per series), with σ_c computed from the larger of the residual σ and a stated floor per
-sample (the readings' resolution/√12, and numerical noise) — a noise-free fit has residuals at
-rounding level and would otherwise call 10⁻¹⁴″ significant. Coarsely quantised readings of a
+Significance: under "no such harmonic" an order's two coefficients are normal with the same 1σ
+σ_c, so A²/(2σ_c²) is χ²₂/2; with σ_c from the residuals (ν degrees of freedom) the statistic is
+F(2, ν), and an order is significant when its chance is below α/K for K orders tested
+(Bonferroni: at most α chance of any false flag per series). Where a stated floor per sample
+(the readings' resolution/√12, or numerical noise — a noise-free fit has residuals at rounding
+level and would otherwise call 10⁻¹⁴″ significant) exceeds the residual σ, σ_c is taken as known
+and the threshold is Rayleigh's, P(A > t) = exp(−t²/2σ_c²). Coarsely quantised readings of a
 smooth motion (a 1 µm dial indicator on a shaft that moves a few µm) are not white noise: the
 rounding error repeats with the motion and puts spurious harmonics at particular orders. A
 caller that knows the quantisation passes per-order ``quantisation_threshold``s (what rounding
@@ -27,7 +28,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import f as f_dist
 from scipy.stats import norm
+from scipy.stats import t as t_dist
 
 FAMILY_ALPHA = 0.01  # chance of any false "significant" in one series
 NUMERICAL_FLOOR = 1e-9  # relative to the series' largest value
@@ -120,10 +123,12 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
     sigma = float(np.sqrt(resid @ resid / dof))
     floor = max(floor_sigma, NUMERICAL_FLOOR * float(np.max(np.abs(y))) if y.size else 0.0)
     sigma_eff = max(sigma, floor)
+    estimated = sigma >= floor  # σ from the residuals (F and t), or a known floor (Rayleigh and normal)
     cov = sigma_eff**2 * np.linalg.pinv(A.T @ A)
     k = len(orders)
     tested = k + (aliased_order is not None)
-    z = np.sqrt(2.0 * np.log(max(tested, 1) / alpha))  # Rayleigh: P(A > z·σ_c) = α/K
+    p_each = alpha / max(tested, 1)
+    z = float(np.sqrt(2.0 * f_dist.isf(p_each, 2, dof))) if estimated else float(np.sqrt(2.0 * np.log(1.0 / p_each)))
     terms = []
     for i, n in enumerate(orders):
         a, b = coef[i], coef[k + i]  # A sin(nθ+φ) = A cosφ·sin nθ + A sinφ·cos nθ
@@ -148,7 +153,7 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
         b = float(coef[2 * k])
         sd = float(np.sqrt(cov[2 * k, 2 * k]))
         # one visible coefficient: |b| > t has probability 2·(1 − Φ(t/σ)); the same family level
-        threshold = float(norm.isf(alpha / max(tested, 1) / 2.0)) * sd
+        threshold = float(t_dist.isf(p_each / 2.0, dof) if estimated else norm.isf(p_each / 2.0)) * sd
         terms.append(HarmonicTerm(aliased_order, abs(b), float(np.sign(b) * np.pi / 2) if b else 0.0, sd, np.pi,
                                   abs(b) > threshold, threshold, aliased=True))
         if abs(b) > threshold:
