@@ -178,6 +178,9 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+MAX_RESULTS_BYTES = 200_000_000  # results.json and deviation CSVs are read whole: bounded
+
+
 def read_deviation_table(path_text: str):
     """A run directory's positioning_deviations (results.json) or a deviation CSV; mistakes are UserErrors."""
     from rtcal.deviations import DeviationTableError, PositioningDeviations
@@ -187,12 +190,16 @@ def read_deviation_table(path_text: str):
         if path.is_dir():
             results = path / "results.json"
             try:
+                if results.stat().st_size > MAX_RESULTS_BYTES:
+                    raise UserError(f"{results}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a results file rtcal wrote")
                 data = json.loads(results.read_text(encoding="utf-8"))
             except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
                 raise UserError(f"{path}: not a run directory with a readable results.json ({exc})") from None
             if not isinstance(data, dict) or "positioning_deviations" not in data:
                 raise UserError(f"{results}: no positioning_deviations (a run of an older rtcal, or not solved)")
             return PositioningDeviations.from_dict(data["positioning_deviations"], str(results)), data
+        if path.is_file() and path.stat().st_size > MAX_RESULTS_BYTES:
+            raise UserError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a deviation table")
         return PositioningDeviations.read_csv(path), None
     except DeviationTableError as exc:
         raise UserError(str(exc)) from None
@@ -203,7 +210,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from rtcal.evaluation import evaluate
 
     table, _ = read_deviation_table(args.source)
-    print(json.dumps(evaluate(table, args.standard), indent=2))
+    try:
+        result = evaluate(table, args.standard)
+    except ValueError as exc:
+        raise UserError(f"{args.source}: {exc}") from None
+    print(json.dumps(result, indent=2))
     return EXIT_OK
 
 
