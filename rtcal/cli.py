@@ -220,12 +220,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 def _cmd_compensate(args: argparse.Namespace) -> int:
     """A controller's compensation table from a run's (or a CSV's) positioning deviations."""
-    from rtcal.compensation import WRITERS, CompensationError, table_from_deviations
+    from rtcal.compensation import CompensationError, table_from_deviations, write_table
 
     table, _ = read_deviation_table(args.source)
+    given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
+             "first_point": args.first_point}
     try:
         comp = table_from_deviations(table, args.step_deg, args.max_gap_deg)
-        text = WRITERS[args.format](comp)
+        text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
     out = Path(args.out)
@@ -436,6 +438,12 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--step-deg", type=float, default=15.0, help="grid step over one turn (default 15°; must divide 360)")
     comp.add_argument("--max-gap-deg", type=float, default=60.0,
                       help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
+    comp.add_argument("--axis", help="axis name in the file: siemens-lec/-cec (default C1), heidenhain (default C)")
+    comp.add_argument("--range-deg", type=float, nargs=2, metavar=("LO", "HI"),
+                      help="linuxcnc: the joint's travel to cover (default 0 360; LinuxCNC does not wrap a table)")
+    comp.add_argument("--detection-unit-deg", type=float,
+                      help="fanuc: the axis's detection unit (default 0.0001, IS-C; 0.001 for IS-B)")
+    comp.add_argument("--first-point", type=int, help="fanuc: number of the reference position's point, 3620 (default 0)")
     comp.set_defaults(func=_cmd_compensate)
 
     cmp_ = sub.add_parser("compare", help="two runs of one axis side by side: change per target against the combined "
