@@ -7,7 +7,10 @@ axis datum (e = 0 at 0° in the positive direction: the reference point stays wh
 controller then commands θ + trim(θ) with trim = −e, so that the table reaches θ. How each
 format expresses that (actual positions, trims, values that "move the axis negative",
 increments) and its rules are in docs/compensation.md; every parser returns the trims, so a
-written table can be read back and applied (rtcal's simulated controller does exactly that).
+written table can be read back and applied (rtcal's simulated controller does exactly that:
+modulo one turn for the rotary formats, with the end trims held beyond its range for LinuxCNC,
+which does not wrap). A parser refuses, with its line, what the controller would read otherwise
+than rtcal meant (LinuxCNC silently stops at the first line that is not three numbers).
 
 Formats: ``linuxcnc`` (type 0: nominal, forward actual, reverse actual), ``siemens-lec`` (one
 table: the mean of both directions; the reversal is left to backlash compensation),
