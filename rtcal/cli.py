@@ -241,12 +241,18 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def run_label(path_text: str) -> str:
+    """A run as a reader tells it apart: its last two path components (runs/iso, runs/iso-after)."""
+    parts = Path(path_text).resolve().parts
+    return "/".join(parts[-2:]) if len(parts) > 1 else path_text
+
+
 def _cmd_compare(args: argparse.Namespace) -> int:
     """Two runs side by side: the change per target against the combined uncertainty, and a plot."""
     from rtcal.comparison import compare, plot_comparison
 
     a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
-    result = compare(a, b, (Path(args.run_a).name, Path(args.run_b).name))
+    result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
     out = Path(args.out) if args.out else Path(args.run_b)
