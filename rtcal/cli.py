@@ -236,8 +236,8 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc}") from None
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
-    print(f"{args.format} table written to {out}: {len(comp.positions_deg)} points every {comp.step_deg:g}° over one turn, "
-          f"trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
+    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): from {len(comp.positions_deg)} points every "
+          f"{comp.step_deg:g}° over one turn, trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
     return EXIT_OK
 
 

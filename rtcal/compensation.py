@@ -461,6 +461,7 @@ def _regular(positions: np.ndarray, up: np.ndarray, down: np.ndarray, where: str
 
 OPTIONS = {"linuxcnc": ("range_deg",), "siemens-lec": ("axis",), "siemens-cec": ("axis",), "fanuc": ("unit_deg", "first_point"),
            "heidenhain": ("axis",)}  # what each writer takes besides the table (the CLI's format options)
+FLAGS = {"range_deg": "--range-deg", "axis": "--axis", "unit_deg": "--detection-unit-deg", "first_point": "--first-point"}
 AXIS_NAMES = {"siemens-lec": r"[A-Z][A-Z0-9_]{0,15}", "siemens-cec": r"[A-Z][A-Z0-9_]{0,15}", "heidenhain": r"[A-Z]"}
 
 
@@ -470,7 +471,8 @@ def write_table(fmt: str, table: CompensationTable, **options) -> str:
         raise CompensationError(f"unknown format {fmt!r}; one of {', '.join(FORMATS)}")
     extra = sorted(set(options) - set(OPTIONS[fmt]))
     if extra:
-        raise CompensationError(f"{fmt} takes no {', '.join(extra)} (its options: {', '.join(OPTIONS[fmt])})")
+        raise CompensationError(f"{fmt} takes no {', '.join(FLAGS[o] for o in extra)} "
+                                f"(its options: {', '.join(FLAGS[o] for o in OPTIONS[fmt])})")
     if "axis" in options and not re.fullmatch(AXIS_NAMES[fmt], options["axis"]):
         raise CompensationError(f"--axis {options['axis']!r} is not a {fmt} axis name (e.g. {'C' if fmt == 'heidenhain' else 'C1'})")
     return WRITERS[fmt](table, **options)

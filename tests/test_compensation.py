@@ -155,7 +155,7 @@ def test_linuxcnc_holds_its_end_trims_outside_its_range():
             assert travel.trim_deg(a, d) == pytest.approx(comp.trim_deg(a, d), abs=1e-8)
     with pytest.raises(CompensationError, match="at most 256"):
         write_table("linuxcnc", comp, range_deg=(-1935.0, 1935.0))  # 259 lines
-    with pytest.raises(CompensationError, match="takes no range_deg"):
+    with pytest.raises(CompensationError, match="takes no --range-deg"):
         write_table("fanuc", comp, range_deg=(0.0, 360.0))
 
 
@@ -258,3 +258,31 @@ def test_a_bad_table_in_a_scenario_is_located(tmp_path, capsys):
     assert main(["validate", str(bench)]) == 2
     err = capsys.readouterr().err
     assert f"{bench}:2:" in err and "bad.comp:2: expected three finite numbers" in err
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--format", "linuxcnc", "--step-deg", "7"], "--step-deg 7: the grid must divide one turn"),
+    (["--format", "linuxcnc", "--axis", "C"], "linuxcnc takes no --axis"),
+    (["--format", "fanuc", "--first-point", "1000"], "do not fit 0 … 1023"),
+    (["--format", "siemens-lec", "--axis", "c1"], "not a siemens-lec axis name"),
+])
+def test_compensate_refuses_bad_options_in_one_line(tmp_path, capsys, options, message):
+    csv = tmp_path / "d.csv"
+    _smooth_table().write_csv(csv)
+    assert main(["compensate", str(csv), *options, "--out", str(tmp_path / "t")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "t").exists()
+
+
+def test_compensate_options_reach_the_file(tmp_path):
+    csv = tmp_path / "d.csv"
+    _smooth_table().write_csv(csv)
+    assert main(["compensate", str(csv), "--format", "linuxcnc", "--range-deg", "-180", "180", "--out", str(tmp_path / "c")]) == 0
+    assert (tmp_path / "c").read_text().splitlines()[0].startswith("-180.000000 ")
+    assert main(["compensate", str(csv), "--format", "heidenhain", "--axis", "B", "--out", str(tmp_path / "h")]) == 0
+    assert (tmp_path / "h").read_text().startswith("BEGIN AXIS-B.COM ")
+    assert main(["compensate", str(csv), "--format", "fanuc", "--detection-unit-deg", "0.001", "--first-point", "100",
+                 "--out", str(tmp_path / "f")]) == 0
+    text = (tmp_path / "f").read_text()
+    assert "3620 = 100 " in text and "3625 = 360000 " in text
