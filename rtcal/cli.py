@@ -178,6 +178,9 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+MAX_RESULTS_BYTES = 200_000_000  # results.json and deviation CSVs are read whole: bounded
+
+
 def read_deviation_table(path_text: str):
     """A run directory's positioning_deviations (results.json) or a deviation CSV; mistakes are UserErrors."""
     from rtcal.deviations import DeviationTableError, PositioningDeviations
@@ -187,12 +190,16 @@ def read_deviation_table(path_text: str):
         if path.is_dir():
             results = path / "results.json"
             try:
+                if results.stat().st_size > MAX_RESULTS_BYTES:
+                    raise UserError(f"{results}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a results file rtcal wrote")
                 data = json.loads(results.read_text(encoding="utf-8"))
             except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
                 raise UserError(f"{path}: not a run directory with a readable results.json ({exc})") from None
             if not isinstance(data, dict) or "positioning_deviations" not in data:
                 raise UserError(f"{results}: no positioning_deviations (a run of an older rtcal, or not solved)")
             return PositioningDeviations.from_dict(data["positioning_deviations"], str(results)), data
+        if path.is_file() and path.stat().st_size > MAX_RESULTS_BYTES:
+            raise UserError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a deviation table")
         return PositioningDeviations.read_csv(path), None
     except DeviationTableError as exc:
         raise UserError(str(exc)) from None
@@ -203,18 +210,24 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from rtcal.evaluation import evaluate
 
     table, _ = read_deviation_table(args.source)
-    print(json.dumps(evaluate(table, args.standard), indent=2))
+    try:
+        result = evaluate(table, args.standard)
+    except ValueError as exc:
+        raise UserError(f"{args.source}: {exc}") from None
+    print(json.dumps(result, indent=2))
     return EXIT_OK
 
 
 def _cmd_compensate(args: argparse.Namespace) -> int:
     """A controller's compensation table from a run's (or a CSV's) positioning deviations."""
-    from rtcal.compensation import WRITERS, CompensationError, table_from_deviations
+    from rtcal.compensation import CompensationError, table_from_deviations, write_table
 
     table, _ = read_deviation_table(args.source)
+    given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
+             "first_point": args.first_point}
     try:
         comp = table_from_deviations(table, args.step_deg, args.max_gap_deg)
-        text = WRITERS[args.format](comp)
+        text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
     out = Path(args.out)
@@ -223,9 +236,15 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc}") from None
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
-    print(f"{args.format} table written to {out}: {len(comp.positions_deg)} points every {comp.step_deg:g}° over one turn, "
-          f"trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
+    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): from {len(comp.positions_deg)} points every "
+          f"{comp.step_deg:g}° over one turn, trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
     return EXIT_OK
+
+
+def run_label(path_text: str) -> str:
+    """A run as a reader tells it apart: its last two path components (runs/iso, runs/iso-after)."""
+    parts = Path(path_text).resolve().parts
+    return "/".join(parts[-2:]) if len(parts) > 1 else path_text
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
@@ -233,7 +252,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from rtcal.comparison import compare, plot_comparison
 
     a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
-    result = compare(a, b, (Path(args.run_a).name, Path(args.run_b).name))
+    result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
     out = Path(args.out) if args.out else Path(args.run_b)
@@ -425,6 +444,12 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--step-deg", type=float, default=15.0, help="grid step over one turn (default 15°; must divide 360)")
     comp.add_argument("--max-gap-deg", type=float, default=60.0,
                       help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
+    comp.add_argument("--axis", help="axis name in the file: siemens-lec/-cec (default C1), heidenhain (default C)")
+    comp.add_argument("--range-deg", type=float, nargs=2, metavar=("LO", "HI"),
+                      help="linuxcnc: the joint's travel to cover (default 0 360; LinuxCNC does not wrap a table)")
+    comp.add_argument("--detection-unit-deg", type=float,
+                      help="fanuc: the axis's detection unit (default 0.0001, IS-C; 0.001 for IS-B)")
+    comp.add_argument("--first-point", type=int, help="fanuc: number of the reference position's point, 3620 (default 0)")
     comp.set_defaults(func=_cmd_compensate)
 
     cmp_ = sub.add_parser("compare", help="two runs of one axis side by side: change per target against the combined "

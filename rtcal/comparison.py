@@ -72,9 +72,13 @@ def compare(a: tuple[PositioningDeviations, dict | None], b: tuple[PositioningDe
 
 def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, dict | None], b: tuple[PositioningDeviations, dict | None],
                     path: Path) -> Path:
+    """Both runs' mean deviation per target and direction on one axis, each with its U (k = 2)
+    band; ↑ solid, ↓ dashed; the title names both runs and how many values changed beyond U_c."""
+    from matplotlib.patches import Patch
+
     from rtcal.report import plt
 
-    fig, ax = plt.subplots(figsize=(9, 5))
+    fig, ax = plt.subplots(figsize=(9.5, 5.2))
     for k, ((table, results), name) in enumerate(zip((a, b), (result["a"], result["b"]))):
         curve = mean_curve(table, results)
         for d, style in ((1, "-"), (-1, "--")):
@@ -85,16 +89,19 @@ def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, dict
             y = np.array([curve[t][0] for t in keys])
             u = np.array([curve[t][1] for t in keys])
             color = f"C{k}"
-            ax.fill_between(x, y - 2 * u, y + 2 * u, color=color, alpha=0.15, lw=0)
-            ax.plot(x, y, style, marker="o", ms=4, color=color,
-                    label=f"{name} {'↑' if d > 0 else '↓'} (band: ±U, k = 2)")
+            if np.all(np.isfinite(u)):
+                ax.fill_between(x, y - 2 * u, y + 2 * u, color=color, alpha=0.25, lw=0)
+            ax.plot(x, y, style, marker="o", ms=4, color=color, label=f"{'A' if k == 0 else 'B'}: {name}, {'↑ positive' if d > 0 else '↓ negative'} approach")
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("target (commanded angle) / °")
-    ax.set_ylabel("positioning deviation / ″ (actual − commanded)")
-    ax.set_title(f"{result['a']}  vs  {result['b']}: {result['targets_changed']} of {result['targets_compared']} "
-                 "target values changed beyond U", fontsize=10)
+    ax.set_ylabel("mean positioning deviation (actual − commanded) / ″")
+    ax.set_title(f"A: {result['a']}   vs   B: {result['b']}\n{result['targets_changed']} of {result['targets_compared']} target "
+                 "values changed by more than U_c = 2·√(u_A² + u_B²)", fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    handles, labels = ax.get_legend_handles_labels()
+    handles.append(Patch(color="0.5", alpha=0.3, lw=0))
+    labels.append("shaded: U (k = 2) of each mean")
+    ax.legend(handles, labels, fontsize=8, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

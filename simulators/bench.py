@@ -106,7 +106,8 @@ class Bench:
         comp = scenario.stage.compensation
         self.compensation = PARSERS[comp.format](comp.text, comp.file or "compensation") if comp is not None else None
         # state
-        self.commanded_rad = 0.0
+        self.commanded_rad = 0.0  # where the motor was sent (the user's command plus any compensation)
+        self.target_rad = 0.0  # the user's command, in whole steps: what the controller shows, moves start from
         self.actual_rad = 0.0
         self.last_direction = +1
         self.probe_target_mm = np.zeros(3)
@@ -161,6 +162,7 @@ class Bench:
         noise = arcsec_to_rad(self.scenario.stage.repeatability_arcsec) * self.rng("stage").standard_normal()
         self.last_direction = +1 if direction >= 0 else -1
         self.commanded_rad = self.motor_command_rad(commanded_rad, self.last_direction)
+        self.target_rad = self.quantise_command(commanded_rad)
         self.actual_rad = self.systematic_actual_rad(commanded_rad, self.last_direction) + noise
         self.truth.stage_moves.append(StageMove(self.quantise_command(commanded_rad), self.actual_rad, self.last_direction))
         return self.actual_rad

@@ -99,13 +99,13 @@ class SimStage(_Injecting, RotaryStage):
 
     def _move(self, angle_deg: float) -> None:
         target = math.radians(angle_deg)
-        delta = target - self.bench.commanded_rad
+        delta = target - self.bench.target_rad  # from the last command, as the controller sees it (not the compensated motor)
         direction = self.bench.last_direction if delta == 0 else (1 if delta > 0 else -1)
         self.bench.clock.sleep(abs(math.degrees(delta)) / self.bench.scenario.stage.speed_deg_per_s)
         self.bench.move_stage(target, direction)
 
     def position_deg(self) -> float:
-        return math.degrees(self.bench.commanded_rad)
+        return math.degrees(self.bench.target_rad)
 
     def stop(self) -> None:
         pass
