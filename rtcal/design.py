@@ -136,8 +136,15 @@ def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenari
     new_points = new_points[order]
     data_yaml, _ = load_yaml(read_text(procedure_path), str(procedure_path))
     data_yaml["points"] = {"kind": "list", "points_mm": [[round(float(v), 3) for v in p] for p in new_points]}
-    if data_yaml.get("bench"):  # the same bench, seen from where the new file is written
-        data_yaml["bench"] = os.path.relpath((procedure_path.parent / data_yaml["bench"]).resolve(), out_path.resolve().parent)
+    if data_yaml.get("bench"):  # the same bench, inside the new file's folder (a procedure reads no bench outside it)
+        bench_file = (procedure_path.parent / data_yaml["bench"]).resolve()
+        folder = out_path.resolve().parent
+        if os.path.commonpath([folder, bench_file]) == str(folder):
+            data_yaml["bench"] = os.path.relpath(bench_file, folder)
+        else:
+            copy = out_path.with_name(f"{out_path.stem}.bench.yaml")
+            copy.write_text(read_text(bench_file), encoding="utf-8")
+            data_yaml["bench"] = copy.name
     data_yaml["name"] = f"{data_yaml.get('name') or procedure_path.stem} — points optimised by rtcal plan"
     out_path.write_text("# Written by `rtcal plan --optimize`: CMM points chosen to lower the network estimator's "
                         "predicted 1σ.\n" + yaml.safe_dump(data_yaml, sort_keys=False, allow_unicode=True, default_flow_style=None), encoding="utf-8")

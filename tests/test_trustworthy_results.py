@@ -4,6 +4,7 @@ nothing, recommended estimate, seed 001's budget and harmonics, validate = run's
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,8 @@ def _procedure(tmp_path: Path, base: Path, replace: dict[str, str], name: str = 
     for old, new in replace.items():
         assert old in text, old
         text = text.replace(old, new)
-    text = text.replace("bench: scenarios/", f"bench: {base.parent}/scenarios/")
+    if not (tmp_path / "scenarios").exists():  # a procedure reads its bench from its own folder
+        shutil.copytree(base.parent / "scenarios", tmp_path / "scenarios")
     out = tmp_path / name
     out.write_text(text)
     return out
