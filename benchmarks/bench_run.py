@@ -22,7 +22,8 @@ sys.path.insert(0, str(REPO))
 
 from rtcal.runner import run_procedure  # noqa: E402
 from rtcal.solvers.paper000 import solve_paper  # noqa: E402
-from tests.synthetic import FIRST_GUESS_MM, PAPER_ANGLES_RAD, dataset  # noqa: E402
+from rtcal.solvers.shared_dead_path import solve_shared_dead_path  # noqa: E402
+from tests.synthetic import FIRST_GUESS_MM, data, dataset  # noqa: E402
 
 
 def timed(fn, repeat: int) -> list[float]:
@@ -47,9 +48,11 @@ def main() -> None:
     rng = np.random.default_rng(0)
     points, lengths, _ = dataset(np.zeros(11), 0.2, rng)
     assert lengths.size == 704
-    solve_times = timed(lambda: solve_paper(points, lengths, PAPER_ANGLES_RAD, FIRST_GUESS_MM), args.repeat)
+    solve_times = timed(lambda: solve_paper(data(points, lengths), FIRST_GUESS_MM), args.repeat)
+    shared_times = timed(lambda: solve_shared_dead_path(data(points, lengths), FIRST_GUESS_MM), args.repeat)
     for name, ts in (("full simulated run (paper-000 procedure, 704 readings)", run_times),
-                     ("paper solver chain on 704 lengths (with uncertainty)", solve_times),
+                     ("paper solver chain on 704 lengths (with REML and the budget)", solve_times),
+                     ("shared-dead-path solver on 704 lengths (with REML and the budget)", shared_times),
                      ("full simulated run (seed-001 procedure, 96 visits, 5 figures)", abbe_times)):
         print(f"{name}: best {min(ts):.3f} s, median {statistics.median(ts):.3f} s over {len(ts)}")
 

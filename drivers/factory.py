@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from drivers.addresses import Address, AddressError, parse_address
-from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, LaserTracer, RotaryStage
+from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, LaserTracer, RotaryStage
 
 
 def _expect(kind: str, address: str, schemes: tuple[str, ...]) -> Address:
@@ -47,3 +47,9 @@ def open_dial_indicator(address: str, name: str, timeout_s: float) -> DialIndica
     from drivers.serial_instruments import SylvacIndicator
 
     return SylvacIndicator(_expect("dial indicator", address, ("serial",)), name, timeout_s)
+
+
+def open_environment(address: str, timeout_s: float) -> EnvironmentSensor:
+    from drivers.serial_instruments import LineEnvironmentSensor
+
+    return LineEnvironmentSensor(_expect("environment sensor", address, ("serial",)), timeout_s)

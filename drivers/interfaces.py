@@ -111,3 +111,20 @@ class Autocollimator(Instrument):
 class DialIndicator(Instrument):
     @abstractmethod
     def read_um(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class EnvironmentReading:
+    """Air and material conditions at one moment: °C, Pa, % RH, °C."""
+
+    air_temperature_c: float
+    air_pressure_pa: float
+    humidity_pct: float
+    material_temperature_c: float
+
+
+class EnvironmentSensor(Instrument):
+    """A weather station for the interferometer's air and a material probe on the table."""
+
+    @abstractmethod
+    def read(self) -> EnvironmentReading: ...

@@ -6,6 +6,7 @@ Protocols (docs/protocols/serial.md):
 - encoder counter, US Digital QSB style: ``R0E\\r`` → ``0E<8 hex digits>\\r\\n`` (32-bit count)
 - laser tracer, rtcal line protocol: ``REF\\r\\n`` → ``OK REF <segment>``; ``LEN?\\r\\n`` →
   ``LEN <nm> <segment>`` or ``ERR LOST``
+- environment sensor, rtcal line protocol: ``MEAS?\\r\\n`` → ``T=<°C> P=<Pa> RH=<%> TM=<°C>``
 """
 
 from __future__ import annotations
@@ -14,7 +15,15 @@ import re
 
 from drivers.addresses import Address
 from drivers.errors import InstrumentFault, TrackingLost
-from drivers.interfaces import Autocollimator, DialIndicator, Encoder, LaserTracer, LengthReading
+from drivers.interfaces import (
+    Autocollimator,
+    DialIndicator,
+    Encoder,
+    EnvironmentReading,
+    EnvironmentSensor,
+    LaserTracer,
+    LengthReading,
+)
 from drivers.serial_line import SerialLine
 
 NUMBER = r"[+-]?\d+(?:\.\d+)?"
@@ -106,6 +115,29 @@ class LineLaserTracer(LaserTracer):
         if m.group(3):
             raise InstrumentFault(self.name, f"tracer error {m.group(3)}")
         return LengthReading(float(m.group(1)) * 1e-6, int(m.group(2)))
+
+    def close(self) -> None:
+        self.line.close()
+
+
+class LineEnvironmentSensor(EnvironmentSensor):
+    """Air temperature, pressure, humidity and the table's temperature, checked physically plausible."""
+
+    name = "environment"
+    REPLY = re.compile(rf"T=({NUMBER}) P=({NUMBER}) RH=({NUMBER}) TM=({NUMBER})")
+    RANGES = ((-40.0, 80.0, "air temperature °C"), (50000.0, 150000.0, "pressure Pa"), (0.0, 100.0, "humidity %"),
+              (-40.0, 150.0, "material temperature °C"))
+
+    def __init__(self, address: Address, timeout_s: float = 1.0):
+        self.line = SerialLine(self.name, address.path, int(address.option("baud", 9600)), timeout_s, terminator=b"\r\n")
+
+    def read(self) -> EnvironmentReading:
+        m = _match(self.name, self.REPLY, self.line.query(b"MEAS?\r\n"))
+        values = [float(v) for v in m.groups()]
+        for v, (lo, hi, what) in zip(values, self.RANGES):
+            if not lo <= v <= hi:
+                raise InstrumentFault(self.name, f"{what} {v:g} outside [{lo:g}, {hi:g}]")
+        return EnvironmentReading(*values)
 
     def close(self) -> None:
         self.line.close()

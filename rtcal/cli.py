@@ -16,7 +16,7 @@ from drivers.errors import InstrumentError
 from rtcal import __version__
 from rtcal.yamlfile import FileProblems
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130
 MAX_SEED = 2**63 - 1
 
@@ -41,7 +41,7 @@ def _execute(start, run_dir: str) -> int:
 
     from rtcal.methods.abbe import CertificateUnavailable
     from rtcal.rundir import RunDirError
-    from rtcal.runner import METHODS, AnalysisFailed
+    from rtcal.runner import IDEAL_BENCH, METHODS, AnalysisFailed
 
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
@@ -58,11 +58,19 @@ def _execute(start, run_dir: str) -> int:
     except KeyboardInterrupt:
         print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    print(f"run complete: {outcome.results['raw_readings']} readings stored")
-    for line in METHODS[outcome.results["method"]].summary(outcome.results):
+    results = outcome.results
+    print(f"run complete: {results['raw_readings']} readings stored")
+    if results.get("bench") == IDEAL_BENCH:
+        print(f"note: {IDEAL_BENCH}")
+    for line in METHODS[results["method"]].summary(results):
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")
+    rec = results.get("recommended")
+    if rec and results["solver_status"][rec]["status"] != "converged":
+        print(f"rtcal: the recommended estimator {rec} did not converge ({results['solver_status'][rec]['message']}); "
+              "readings and results are kept", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return EXIT_OK
 
 
@@ -101,6 +109,205 @@ def parse_instruments_option(text: str) -> dict[str, str]:
     return data
 
 
+def _cmd_uncertainty(args: argparse.Namespace) -> int:
+    """Monte Carlo of the procedure on the simulated bench: reported 1σ against the errors made."""
+    from tqdm import tqdm
+
+    from rtcal import montecarlo
+    from rtcal.runner import check_plan_on_bench, default_run_dir, resolve_scenario
+    from rtcal.procedure.loader import load_procedure
+
+    if not 2 <= args.trials <= 100_000:
+        raise UserError("--trials must lie in 2..100000")
+    path = Path(args.procedure)
+    proc = load_procedure(path)
+    if not proc.instruments.all_sim():
+        raise UserError(f"{path}: the Monte Carlo runs on the simulated bench: every instrument must be `backend: sim`")
+    scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
+    check_plan_on_bench(path, proc, scenario)
+    out = Path(args.out) if args.out else default_run_dir("uncertainty")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot create: {exc}") from None
+    seed = scenario.seed if args.seed is None else args.seed
+    specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics)
+    trials = []
+    bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
+    try:
+        for result in montecarlo.run_trials(specs, args.workers, args.scheduler):
+            trials.append(result)
+            bar.update()
+    except OSError as exc:
+        raise UserError(f"--scheduler {args.scheduler}: cannot reach the Dask scheduler: {exc}") from None
+    finally:
+        bar.close()
+    ok = [t for t in trials if "failed" not in t]
+    if not ok:
+        print(f"rtcal: every trial failed; the first: {trials[0]['failed']}", file=sys.stderr)
+        return EXIT_FAILED
+    summary = montecarlo.summarize(trials, ok[0]["labels"])
+    summary.update(procedure=str(path), bench=args.scenario or (str(path.parent / proc.bench) if proc.bench else "ideal"),
+                   seed=seed, systematics="drawn from the stated uncertainties" if not args.fixed_systematics
+                   else "fixed as in the scenario")
+    (out / "uncertainty.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} simulated runs",
+                            out / "uncertainty.png")
+    print(f"{len(ok)} trials ({summary['failed_trials']} failed), systematics {summary['systematics']}")
+    for name, e in summary["estimators"].items():
+        rec = " (recommended)" if name == summary["recommended"] else ""
+        o = e["overall"]
+        print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″, "
+              f"ratio per target {o['ratio_min']}–{o['ratio_max']}")
+        print("  target      " + " ".join(f"{t:>8}" for t in summary["targets"][1:]))
+        print("  RMS error   " + " ".join(f"{v:8.3f}" for v in e["rms_error_arcsec"][1:]))
+        print("  reported 1σ " + " ".join(f"{v:8.3f}" for v in e["rms_reported_sigma_arcsec"][1:]))
+        print("  ratio       " + " ".join(f"{v:8.2f}" for v in e["ratio"][1:]))
+    print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
+    return EXIT_OK
+
+
+def _cmd_plan(args: argparse.Namespace) -> int:
+    """Predicted 1σ per target and the duration of a procedure, before anything moves."""
+    from rtcal import planning
+    from rtcal.procedure.loader import load_procedure
+    from rtcal.runner import check_plan_on_bench, resolve_scenario
+
+    path = Path(args.procedure)
+    proc = load_procedure(path)
+    scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
+    check_plan_on_bench(path, proc, scenario)
+    plan = planning.predict(path, proc, scenario)
+    if args.json:
+        print(json.dumps(plan, indent=2))
+        return EXIT_OK
+    hours = plan["measurement_duration_s"] / 3600
+    print(f"{path}: {plan['raw_readings']} readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
+          "motions, settling and readings; predicted 1σ from the stated noise:")
+    for name, e in plan["estimators"].items():
+        rec = " (recommended)" if name == plan["recommended"] else ""
+        print(f"{name}{rec}: RMS {e['rms_predicted_sigma_arcsec']}″")
+        print("  target    " + " ".join(f"{t:>8}" for t in plan["targets"][1:]))
+        print("  1σ / ″    " + " ".join(f"{v:8.3f}" for v in e["predicted_sigma_arcsec"][1:]))
+    if args.optimize:
+        from rtcal.design import optimize_points
+
+        try:
+            print(optimize_points(path, proc, scenario, Path(args.optimize)))
+        except (ValueError, OSError) as exc:
+            raise UserError(f"--optimize: {exc}") from None
+    return EXIT_OK
+
+
+MAX_RESULTS_BYTES = 200_000_000  # results.json and deviation CSVs are read whole: bounded
+
+
+def read_deviation_table(path_text: str):
+    """A run directory's positioning_deviations (results.json) or a deviation CSV; mistakes are UserErrors."""
+    from rtcal.deviations import DeviationTableError, PositioningDeviations
+
+    path = Path(path_text)
+    try:
+        if path.is_dir():
+            results = path / "results.json"
+            try:
+                if results.stat().st_size > MAX_RESULTS_BYTES:
+                    raise UserError(f"{results}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a results file rtcal wrote")
+                data = json.loads(results.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise UserError(f"{path}: not a run directory with a readable results.json ({exc})") from None
+            if not isinstance(data, dict) or "positioning_deviations" not in data:
+                raise UserError(f"{results}: no positioning_deviations (a run of an older rtcal, or not solved)")
+            return PositioningDeviations.from_dict(data["positioning_deviations"], str(results)), data
+        if path.is_file() and path.stat().st_size > MAX_RESULTS_BYTES:
+            raise UserError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a deviation table")
+        return PositioningDeviations.read_csv(path), None
+    except DeviationTableError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    """ISO 230-2 or VDI 3441 parameters of a positioning test, as JSON."""
+    from rtcal.evaluation import evaluate
+
+    table, _ = read_deviation_table(args.source)
+    try:
+        result = evaluate(table, args.standard)
+    except ValueError as exc:
+        raise UserError(f"{args.source}: {exc}") from None
+    print(json.dumps(result, indent=2))
+    return EXIT_OK
+
+
+def _cmd_compensate(args: argparse.Namespace) -> int:
+    """A controller's compensation table from a run's (or a CSV's) positioning deviations."""
+    from rtcal.compensation import CompensationError, table_from_deviations, write_table
+
+    table, _ = read_deviation_table(args.source)
+    given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
+             "first_point": args.first_point}
+    try:
+        comp = table_from_deviations(table, args.step_deg, args.max_gap_deg)
+        text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
+    except CompensationError as exc:
+        raise UserError(f"{args.source}: {exc}") from None
+    out = Path(args.out)
+    try:
+        out.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write: {exc}") from None
+    worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
+    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): from {len(comp.positions_deg)} points every "
+          f"{comp.step_deg:g}° over one turn, trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
+    return EXIT_OK
+
+
+def run_label(path_text: str) -> str:
+    """A run as a reader tells it apart: its last two path components (runs/iso, runs/iso-after)."""
+    parts = Path(path_text).resolve().parts
+    return "/".join(parts[-2:]) if len(parts) > 1 else path_text
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    """Two runs side by side: the change per target against the combined uncertainty, and a plot."""
+    from rtcal.comparison import compare, plot_comparison
+
+    a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
+    result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
+    if result["targets_compared"] == 0:
+        raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
+    out = Path(args.out) if args.out else Path(args.run_b)
+    if not out.is_dir():
+        try:
+            out.mkdir(parents=True)
+        except OSError as exc:
+            raise UserError(f"--out {out}: cannot create: {exc}") from None
+    result["plot"] = str(plot_comparison(result, a, b, out / "compare.png"))
+    print(json.dumps(result, indent=2))
+    return EXIT_OK
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    """Every raw reading and event of a run as CSV, for spreadsheets."""
+    from rtcal.store import RunStore
+
+    run = Path(args.run_dir)
+    try:
+        store = RunStore.open(run)
+    except FileNotFoundError as exc:
+        raise UserError(f"{run}: not a run directory: {exc}") from None
+    out = Path(args.out) if args.out else run
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        readings, events = store.export_csv(out)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write: {exc}") from None
+    finally:
+        store.close()
+    print(f"{readings} readings → {out / 'readings.csv'}, {events} events → {out / 'events.csv'}")
+    return EXIT_OK
+
+
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -127,7 +334,10 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
+    """Everything `run` checks before the first motion: the file, and the plan against the bench
+    it would run on (the procedure's `bench`, or --scenario) — limits, CMM volume, polygon."""
     from rtcal.procedure.loader import bench_path, is_procedure_text, load_procedure, load_scenario
+    from rtcal.runner import check_plan_on_bench, resolve_scenario
     from rtcal.yamlfile import read_text
 
     problems = []
@@ -137,7 +347,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             text = read_text(path)
             if is_procedure_text(text):
                 proc = load_procedure(path, args.large, text)
-                if proc.bench is not None:
+                if proc.instruments.all_sim() or args.scenario:
+                    scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
+                    check_plan_on_bench(path, proc, scenario)
+                elif proc.bench is not None:
                     load_scenario(bench_path(path, proc))
             else:
                 load_scenario(path)
@@ -252,6 +465,64 @@ def build_parser() -> argparse.ArgumentParser:
     resume.add_argument("--virtual-clock", action="store_true", help="as for `run`")
     resume.set_defaults(func=_cmd_resume)
 
+    unc = sub.add_parser("uncertainty", help="Monte Carlo: run a procedure N times on the simulated bench and set the "
+                                            "reported 1σ beside the errors against truth, per estimator and target")
+    unc.add_argument("procedure", help="procedure YAML file (every instrument `backend: sim`)")
+    unc.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
+    unc.add_argument("--trials", type=int, default=30, help="number of simulated runs (default 30)")
+    unc.add_argument("--seed", type=int, help="seed of the trials (default: the scenario's)")
+    unc.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1: in this process)")
+    unc.add_argument("--scheduler", help="address of a running Dask scheduler (e.g. tcp://127.0.0.1:8786) to run the trials on")
+    unc.add_argument("--fixed-systematics", action="store_true",
+                     help="keep the scenario's CMM errors and error motions in every trial instead of drawing them from "
+                          "the procedure's stated uncertainties (shows this one bench's bias)")
+    unc.add_argument("--out", help="directory for uncertainty.json and uncertainty.png (default: runs/<time>-uncertainty)")
+    unc.set_defaults(func=_cmd_uncertainty)
+
+    ev = sub.add_parser("evaluate", help="ISO 230-2 or VDI/DGQ 3441 parameters of a positioning test, as JSON")
+    ev.add_argument("source", help="a run directory (its results.json) or a CSV with the header "
+                                   "target_deg,direction,run,deviation_arcsec[,uncertainty_arcsec] (direction 1 or -1, runs from 1)")
+    ev.add_argument("--standard", choices=["iso230-2", "iso230-2:1988", "vdi3441"], default="iso230-2",
+                    help="ISO 230-2 (1997/2006/2014), its 1988 edition (±3s), or VDI/DGQ 3441 (default iso230-2)")
+    ev.set_defaults(func=_cmd_evaluate)
+
+    comp = sub.add_parser("compensate", help="a controller's compensation table from a run's positioning deviations")
+    comp.add_argument("source", help="a run directory or a deviation CSV (as for `rtcal evaluate`)")
+    comp.add_argument("--format", required=True, choices=["linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain"],
+                      help="the controller's format (docs/compensation.md)")
+    comp.add_argument("--out", required=True, help="the table file to write")
+    comp.add_argument("--step-deg", type=float, default=15.0, help="grid step over one turn (default 15°; must divide 360)")
+    comp.add_argument("--max-gap-deg", type=float, default=60.0,
+                      help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
+    comp.add_argument("--axis", help="axis name in the file: siemens-lec/-cec (default C1), heidenhain (default C)")
+    comp.add_argument("--range-deg", type=float, nargs=2, metavar=("LO", "HI"),
+                      help="linuxcnc: the joint's travel to cover (default 0 360; LinuxCNC does not wrap a table)")
+    comp.add_argument("--detection-unit-deg", type=float,
+                      help="fanuc: the axis's detection unit (default 0.0001, IS-C; 0.001 for IS-B)")
+    comp.add_argument("--first-point", type=int, help="fanuc: number of the reference position's point, 3620 (default 0)")
+    comp.set_defaults(func=_cmd_compensate)
+
+    cmp_ = sub.add_parser("compare", help="two runs of one axis side by side: change per target against the combined "
+                                          "uncertainty, ISO 230-2 parameters of both, compare.png")
+    cmp_.add_argument("run_a", help="the earlier run (directory or deviation CSV)")
+    cmp_.add_argument("run_b", help="the later run (directory or deviation CSV)")
+    cmp_.add_argument("--out", help="where compare.png goes (default: RUN_B)")
+    cmp_.set_defaults(func=_cmd_compare)
+
+    exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv)")
+    exp.add_argument("run_dir", help="a run directory (its run.sqlite)")
+    exp.add_argument("--out", help="directory for the CSV files (default: the run directory)")
+    exp.set_defaults(func=_cmd_export)
+
+    plan = sub.add_parser("plan", help="predict each estimator's 1σ per target and the run's duration before measuring")
+    plan.add_argument("procedure", help="procedure YAML file")
+    plan.add_argument("--scenario", help="bench scenario YAML for the geometry (replaces the procedure's `bench`)")
+    plan.add_argument("--json", action="store_true", help="print the prediction as JSON")
+    plan.add_argument("--optimize", metavar="OUT.yaml",
+                      help="choose CMM points (D/A-optimal exchange on a grid in the CMM volume) that lower the network "
+                           "estimator's predicted 1σ, and write the procedure with them to OUT.yaml")
+    plan.set_defaults(func=_cmd_plan)
+
     sim = sub.add_parser("sim", help="simulated instruments")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True)
     serve = sim_sub.add_parser("serve", help="serve every instrument over its real protocol around one simulated bench; "
@@ -264,8 +535,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
     serve.set_defaults(func=_cmd_sim_serve)
 
-    val = sub.add_parser("validate", help="check procedure or scenario files; problems as file:line:column")
-    val.add_argument("files", nargs="+")
+    val = sub.add_parser("validate", help="check procedure or scenario files as `run` would before moving (limits, CMM "
+                                          "volume, polygon, closure); problems as file:line:column, exit 2")
+    val.add_argument("files", nargs="+", help="procedure or scenario YAML files")
+    val.add_argument("--scenario", help="check procedures against this bench scenario instead of their `bench`")
     val.add_argument("--large", action="store_true", help="as for `run`: accept plans beyond the default size limits")
     val.set_defaults(func=_cmd_validate)
 

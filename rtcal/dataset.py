@@ -2,26 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from rtcal.air import ciddor_n
 from rtcal.solvers.abbe import AbbeVisits
+from rtcal.solvers.station_data import MountReadings, MultistationData
 from rtcal.store import RunStore
 
 
-@dataclass(frozen=True)
-class MultistationData:
-    """Arrays for the seed-000 solvers, from the raw readings."""
-
-    points_mm: np.ndarray  # n×3, CMM-reported, averaged over visits
-    lengths_mm: np.ndarray  # n×m, tracer samples averaged; NaN where the reading was skipped
-    segments: np.ndarray  # n×m tracking segment of each length (−1 where skipped)
-    nominal_angles_deg: np.ndarray  # m
-    raw_readings: int  # planned readings present (point, station pairs with a length)
-
-
-def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int) -> MultistationData:
+def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:
+    """Lengths per point and station (samples averaged), per tracer mount (the readings' seating),
+    with their tracking segments and stage visits; CMM positions averaged over every visit."""
     m = len(nominal_angles_deg)
     pos_sum = np.zeros((n_points, 3))
     pos_count = np.zeros((n_points, 3))
@@ -31,19 +22,40 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         axis = "xyz".index(r.quantity[len("position_")])
         pos_sum[r.point, axis] += r.value
         pos_count[r.point, axis] += 1
-    len_sum = np.zeros((n_points, m))
-    len_count = np.zeros((n_points, m))
-    segments = np.full((n_points, m), -1)
+    env: dict[tuple[int, int, int], dict[str, list[float]]] = {}
+    for r in store.readings(instrument="environment"):
+        if r.quantity != "skipped":
+            env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(r.quantity, []).append(r.value)
+    len_sum = np.zeros((mounts, n_points, m))
+    len_count = np.zeros((mounts, n_points, m))
+    segments = np.full((mounts, n_points, m), -1)
+    visits = np.full((mounts, n_points, m), -1)
+    visit, last = -1, None
     for r in store.readings(instrument="laser_tracer", quantity="length_mm"):
-        len_sum[r.point, r.station] += r.value
-        len_count[r.point, r.station] += 1
-        segments[r.point, r.station] = r.segment
+        k = r.seating or 0
+        len_sum[k, r.point, r.station] += r.value
+        len_count[k, r.point, r.station] += 1
+        segments[k, r.point, r.station] = r.segment
+        if (k, r.station, r.segment) != last:  # the table moved (or a new start re-approached it)
+            visit, last = visit + 1, (k, r.station, r.segment)
+        visits[k, r.point, r.station] = visit
     if np.any(pos_count == 0):
         raise ValueError(f"the CMM position of {int(np.sum(pos_count[:, 0] == 0))} points was never read")
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
-    return MultistationData(pos_sum / pos_count, lengths, segments,
-                            np.asarray(nominal_angles_deg, float), int(np.sum(len_count > 0)))
+    index = summary = None
+    if env:
+        index = np.full((mounts, n_points, m), np.nan)
+        for (k, i, j), q in env.items():
+            if all(name in q for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct")):
+                index[k, i, j] = ciddor_n(np.mean(q["air_temperature_c"]), np.mean(q["air_pressure_pa"]), np.mean(q["humidity_pct"]))
+        summary = {name: {"min": round(float(np.min(v)), 4), "max": round(float(np.max(v)), 4), "mean": round(float(np.mean(v)), 4)}
+                   for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")
+                   if (v := [x for q in env.values() for x in q.get(name, [])])}
+    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k]) for k in range(1, mounts))
+    return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
+                            int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others,
+                            None if index is None else index[0], summary)
 
 
 def _one_attempt_per_visit(readings: list) -> list:
@@ -82,4 +94,5 @@ def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:
         autocollimator_arcsec=column("autocollimator.x_arcsec"),
         indicator1_um=column("dial_indicator_1.y_um"),
         indicator2_um=column("dial_indicator_2.y_um"),
+        run=np.array([k[1] for k in keys]),
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
 from pathlib import Path
 from typing import Any
@@ -21,12 +22,25 @@ def write_results(run_dir: Path, results: dict[str, Any]) -> Path:
 def write_report(run_dir: Path, results: dict[str, Any], body: list[str]) -> Path:
     """The Markdown report: a header every run shares, the method's body, the run's events."""
     lines = [f"# rtcal run — {results['procedure'].get('name') or results['method']}", ""]
+    for name, st in results.get("solver_status", {}).items():
+        if st["status"] != "converged":
+            lines.append(f"> **Estimator `{name}` {st['status']}**: {st['message']}")
+            lines.append(">")
+    if results.get("bench") and results["bench"].startswith("ideal bench"):
+        lines += [f"> **Note:** {results['bench']}.", ""]
     lines += [f"- method: `{results['method']}`", f"- software: rtcal {results['rtcal_version']}",
+              f"- started: {results.get('started_utc') or '?'} (UTC); measured until {results.get('finished_utc') or '?'}; "
+              f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}",
+              f"- measurement duration: {results.get('measurement_duration_s')} s"
+              + (" of simulated time (virtual clock: settle times and motions were not waited for)"
+                 if results.get("clock") == "virtual" else ""),
               f"- raw readings: {results['raw_readings']}"]
     if isinstance(results.get("instruments"), dict):
         lines += ["- instruments:"] + [f"  - {k}: `{v}`" for k, v in results["instruments"].items()]
     else:
-        lines += [f"- instruments: {results.get('instruments')}, seed {results['seed']}"]
+        lines += [f"- instruments: {results.get('instruments')}, bench `{results.get('bench')}`, seed {results['seed']}"]
+    if results.get("recommended"):
+        lines.append(f"- recommended estimate: `{results['recommended']}` (converged, smallest uncertainty)")
     lines.append("")
     lines += body
     lines += events_section(results.get("events", []))

@@ -15,14 +15,18 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+import yaml
 from pydantic import ValidationError
 from tqdm import tqdm
 
 from rtcal import __version__
+from rtcal.certificate import report_model, write_html, write_pdf
 from rtcal.clock import RealClock, VirtualClock
+from rtcal.deviations import PositioningDeviations
+from rtcal.evaluation import evaluate
 from rtcal.methods import abbe, multistation
-from rtcal.procedure.loader import bench_path, load_procedure
-from rtcal.procedure.models import PROCEDURE_MODELS, Procedure, plan_outside_limits
+from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
+from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
 from rtcal.report import write_report, write_results
 from rtcal.rundir import claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.sequencer.faults import RunAborted
@@ -57,8 +61,21 @@ def resolve_scenario(procedure_path: Path, proc: Procedure, scenario_path: Path 
         scenario_path = bench_path(procedure_path, proc)
     if scenario_path is None:
         return Scenario(), ""
-    text = read_text(scenario_path)
-    return validate_text(text, Scenario, str(scenario_path)), text
+    scenario = load_scenario(scenario_path)
+    if scenario.stage.compensation is not None:  # the table travels with the scenario stored in the run
+        return scenario, yaml.safe_dump(scenario.model_dump(mode="json", exclude_defaults=True), sort_keys=False, allow_unicode=True)
+    return scenario, read_text(scenario_path)
+
+
+def scenario_label(procedure_path: Path, proc: Procedure, scenario_path: str | Path | None) -> str:
+    """Where the simulated bench came from, for the results: a file, or the ideal bench."""
+    if scenario_path is not None:
+        return str(scenario_path)
+    return str(procedure_path.parent / proc.bench) if proc.bench is not None else ""
+
+
+IDEAL_BENCH = ("ideal bench: the procedure names no `bench:` scenario and none was given with --scenario, so every "
+               "simulated instrument is perfect and the results show no error")
 
 
 def _now() -> str:
@@ -69,7 +86,7 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
     """The procedure with its instruments moved to the given addresses, validated again."""
     section = proc.instruments.model_dump()
     for name in section:
-        if name in addresses:
+        if name in addresses and section[name] is not None:  # an instrument the procedure does not use stays out
             section[name].update(address=addresses[name], backend=None)
     try:
         instruments = type(proc.instruments).model_validate(section)
@@ -80,11 +97,16 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
 
 
 def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenario) -> None:
-    """Refuse a plan the simulated bench cannot do (stage limits, CMM volume) before anything moves."""
+    """Refuse, before anything moves, a plan the simulated bench cannot do: stage limits, CMM
+    volume, a polygon of another face count. `rtcal validate` runs the same check."""
     problem = plan_outside_limits(proc, scenario.stage.soft_limits_deg, scenario.cmm.volume_min_mm, scenario.cmm.volume_max_mm)
     if problem:
         field, _, message = problem.partition(": ")
         raise FileProblems([problem_at(procedure_path, (field,), f"{message} (the simulated bench's limits)")])
+    if isinstance(proc, EncoderAbbeError) and proc.polygon.faces != scenario.polygon.faces:
+        raise FileProblems([problem_at(procedure_path, ("polygon", "faces"),
+                                       f"the procedure's polygon has {proc.polygon.faces} faces, the bench's "
+                                       f"{scenario.polygon.faces}")])
 
 
 def _operator(bench: Bench | None, addresses: dict[str, str] | None):
@@ -111,8 +133,11 @@ def run_procedure(
     addresses: dict[str, str] | None = None,
     virtual_clock: bool = False,
     large: bool = False,
+    outputs: bool = True,
+    estimate_noise: bool = True,
 ) -> RunOutcome:
-    """Run a procedure and write the run directory.
+    """Run a procedure and write the run directory (``outputs=False``: the store only, no
+    results.json, figures or report — for Monte Carlo trials).
 
     All instruments ``sim``: an in-process bench (from the scenario) with a virtual clock, and
     the results carry its truth. Otherwise real transports at the procedure's addresses (or
@@ -141,12 +166,14 @@ def run_procedure(
         store = RunStore.create(run_dir, {**prepared,
             "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": procedure_yaml,
             "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text,
+            "scenario_path": scenario_label(procedure_path, proc, scenario_path) if simulated else "",
             "seed": str(seed) if simulated else "", "software_version": __version__,
             "started_utc": _now(), "status": "running", "generation": "0", "large": "1" if large else "",
             "operator_address": (addresses or {}).get("operator", ""),
         })
         _keep_fault_counters(store, bench)
-        return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0)
+        return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
+                                  estimate_noise)
     finally:
         lock.release()
 
@@ -210,8 +237,17 @@ def resume_run(
         lock.release()
 
 
+def evaluation_of(analysis: dict[str, Any]) -> dict[str, Any] | None:
+    """ISO 230-2 and VDI 3441 parameters of the run's positioning deviations (what a certificate lists)."""
+    if "positioning_deviations" not in analysis:
+        return None
+    table = PositioningDeviations.from_dict(analysis["positioning_deviations"])
+    return {"iso230_2": evaluate(table, "iso230-2"), "vdi3441": evaluate(table, "vdi3441")}
+
+
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
-                       virtual_clock: bool, show_progress: bool | None, generation: int) -> RunOutcome:
+                       virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
+                       estimate_noise: bool = True) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs."""
     method = METHODS[proc.method]
     simulated = bench is not None
@@ -240,30 +276,49 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     store.set_meta({"status": "measured", "finished_utc": _now()})
     meta = store.meta()
     try:
-        analysis = method.analyse(proc, store, bench)
+        analysis = method.analyse(proc, store, bench, estimate_noise)
     except (ValueError, np.linalg.LinAlgError) as exc:
         store.close()
         raise AnalysisFailed(f"the readings are complete but the solvers could not use them: {exc}; "
                              f"every reading is in {run_dir / RunStore.FILENAME}") from exc
+    if analysis.get("recommended") is None:
+        store.close()
+        failures = "; ".join(f"{n}: {st['message']}" for n, st in analysis.get("solver_status", {}).items())
+        raise AnalysisFailed(f"the readings are complete but the solvers could not use them: no estimator ran ({failures}); "
+                             f"every reading is in {run_dir / RunStore.FILENAME}")
     events = store.events()
+    virtual = isinstance(clock, VirtualClock)
     results: dict[str, Any] = {
         "rtcal_version": __version__,
         "method": proc.method,
         "procedure": {"name": proc.name, "path": meta.get("procedure_path", "")},
+        "metadata": proc.metadata.model_dump(),
         "seed": int(meta["seed"]) if simulated else None,
         "instruments": "simulated in process" if simulated else {
-            f: getattr(proc.instruments, f).address for f in type(proc.instruments).model_fields},
+            f: getattr(proc.instruments, f).address for f in proc.instruments.present()},
+        "bench": (meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
+        "started_utc": meta.get("started_utc"),
+        "finished_utc": meta.get("finished_utc"),
         "starts": generation + 1,
-        "duration_s": round(clock.now_s(), 1),
+        "measurement_duration_s": round(clock.now_s(), 1),
+        "clock": "virtual" if virtual else "real",
         **analysis,
+        "evaluation": evaluation_of(analysis),
         "skipped_readings": len(store.skipped_plan_indices()),
         "faults": sum(1 for e in events if e["kind"] == "fault"),
         "events": events,
     }
     store.set_meta({"status": "solved"})
     store.close()
+    if not outputs:
+        return RunOutcome(run_dir, results)
     with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
         write_results(out, results)
+        if "positioning_deviations" in results:  # the table every method hands downstream, for spreadsheets too
+            PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(out / "positioning_deviations.csv")
         method.write_files(out, results)
         write_report(out, results, method.report_body(results))
+        model = report_model(results, out, method.certificate_figures(results), method.method_text(results))
+        write_html(model, out / "report.html")
+        write_pdf(model, out / "report.pdf")
     return RunOutcome(run_dir, results)

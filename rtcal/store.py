@@ -241,6 +241,23 @@ class RunStore:
         cur = self._db.execute("SELECT t_s, kind, instrument, message FROM events ORDER BY id")
         return [dict(zip(("t_s", "kind", "instrument", "message"), row)) for row in cur]
 
+    def export_csv(self, directory: Path) -> tuple[int, int]:
+        """readings.csv (every column) and events.csv, streamed row by row; returns the row counts."""
+        import csv
+
+        counts = []
+        for name, columns, table in (("readings.csv", ("id",) + READING_COLUMNS, "readings"),
+                                     ("events.csv", ("id", "t_s", "kind", "instrument", "message"), "events")):
+            n = 0
+            with (directory / name).open("w", newline="", encoding="utf-8") as fh:
+                w = csv.writer(fh)
+                w.writerow(columns)
+                for row in self._db.execute(f"SELECT {', '.join(columns)} FROM {table} ORDER BY id"):
+                    w.writerow("" if v is None else v for v in row)
+                    n += 1
+            counts.append(n)
+        return counts[0], counts[1]
+
     def close(self) -> None:
         self._db.close()
 

@@ -22,7 +22,9 @@ from typing import Iterator
 
 import numpy as np
 
+from rtcal.air import ciddor_n
 from rtcal.clock import Clock, VirtualClock
+from rtcal.compensation import PARSERS
 from rtcal.harmonics import evaluate
 from rtcal.units import arcsec_to_rad, um_to_mm
 from simulators.faults import FaultInjector
@@ -88,9 +90,8 @@ class Bench:
                 [arcsec_to_rad(cmm.squareness_xz_arcsec), arcsec_to_rad(cmm.squareness_yz_arcsec), 1.0 + sz],
             ]
         )
-        mount = scenario.laser_tracer.mount
-        az = math.radians(mount.azimuth_deg)
-        self.tracer_in_table_mm = np.array([mount.radius_mm * math.cos(az), mount.radius_mm * math.sin(az), mount.height_mm])
+        self.tracer_mount = 0
+        self.tracer_in_table_mm = self._mount_point(0)
         enc = scenario.encoder
         self._graduation = [h.to_rad() for h in enc.graduation_error]
         poly = scenario.polygon
@@ -102,8 +103,11 @@ class Bench:
         self.polygon_rotation_rad = 0.0
         st_ = scenario.stepper
         self.step_rad = 2 * math.pi / (st_.steps_per_revolution * st_.worm_ratio) if st_.steps_per_revolution else 0.0
+        comp = scenario.stage.compensation
+        self.compensation = PARSERS[comp.format](comp.text, comp.file or "compensation") if comp is not None else None
         # state
-        self.commanded_rad = 0.0
+        self.commanded_rad = 0.0  # where the motor was sent (the user's command plus any compensation)
+        self.target_rad = 0.0  # the user's command, in whole steps: what the controller shows, moves start from
         self.actual_rad = 0.0
         self.last_direction = +1
         self.probe_target_mm = np.zeros(3)
@@ -140,13 +144,27 @@ class Bench:
         """The angle an open-loop stepper really commands: a whole number of steps."""
         return round(commanded_rad / self.step_rad) * self.step_rad if self.step_rad else float(commanded_rad)
 
+    def motor_command_rad(self, commanded_rad: float, direction: int) -> float:
+        """Where the controller sends the motor for a commanded angle: plus its compensation table's
+        trim for the approach direction (interpolated, as the CNC does), in whole steps."""
+        trim = 0.0 if self.compensation is None else math.radians(self.compensation.trim_deg(math.degrees(commanded_rad), direction))
+        return self.quantise_command(commanded_rad + trim)
+
+    def systematic_actual_rad(self, commanded_rad: float, direction: int) -> float:
+        """The table's angle for a command approached in ``direction``, without repeatability: the
+        motor's position plus εz there (the physics follows the motor, not the user's number)."""
+        motor = commanded_rad + (0.0 if self.compensation is None else
+                                 math.radians(self.compensation.trim_deg(math.degrees(commanded_rad), direction)))
+        return self.quantise_command(motor) + float(self.positioning_error_rad(motor, direction))
+
     def move_stage(self, commanded_rad: float, direction: int) -> float:
         """Put the table at a commanded angle approached in ``direction``; returns the actual angle."""
         noise = arcsec_to_rad(self.scenario.stage.repeatability_arcsec) * self.rng("stage").standard_normal()
-        self.commanded_rad = self.quantise_command(commanded_rad)
         self.last_direction = +1 if direction >= 0 else -1
-        self.actual_rad = self.commanded_rad + float(self.positioning_error_rad(commanded_rad, self.last_direction)) + noise
-        self.truth.stage_moves.append(StageMove(self.commanded_rad, self.actual_rad, self.last_direction))
+        self.commanded_rad = self.motor_command_rad(commanded_rad, self.last_direction)
+        self.target_rad = self.quantise_command(commanded_rad)
+        self.actual_rad = self.systematic_actual_rad(commanded_rad, self.last_direction) + noise
+        self.truth.stage_moves.append(StageMove(self.quantise_command(commanded_rad), self.actual_rad, self.last_direction))
         return self.actual_rad
 
     def error_motions(self, commanded_rad: float) -> tuple[np.ndarray, float, float]:
@@ -178,6 +196,34 @@ class Bench:
     def tracer_length_mm(self) -> float:
         """True distance from the tracer's reference centre to the reflector."""
         return float(np.linalg.norm(self.reflector_mm() - self.tracer_center_mm()))
+
+    def _mount_point(self, index: int) -> np.ndarray:
+        lt = self.scenario.laser_tracer
+        mount = lt.mount if index == 0 else lt.second_mount
+        az = math.radians(mount.azimuth_deg)
+        return np.array([mount.radius_mm * math.cos(az), mount.radius_mm * math.sin(az), mount.height_mm])
+
+    def mount_tracer(self, index: int) -> None:
+        """The operator moves the tracer to mount ``index`` (0: ``mount``, 1: ``second_mount``); its
+        beam must be referenced again."""
+        if index != self.tracer_mount:
+            self.tracer_mount = index
+            self.tracer_in_table_mm = self._mount_point(index)
+            self.beam_broken = True
+
+    # -- air and material
+    def environment(self) -> tuple[float, float, float, float]:
+        """(air °C, air Pa, % RH, material °C) at the clock's present time."""
+        e = self.scenario.environment
+        h = self.clock.now_s() / 3600.0
+        return (e.air_temperature_c + e.air_temperature_drift_k_per_h * h, e.air_pressure_pa + e.air_pressure_drift_pa_per_h * h,
+                min(max(e.humidity_pct + e.humidity_drift_pct_per_h * h, 0.0), 100.0),
+                e.material_temperature_c + e.material_temperature_drift_k_per_h * h)
+
+    def air_index(self) -> float:
+        """The refractive index of the air the tracer's beam runs through, now (Ciddor, He-Ne)."""
+        t, p, rh, _ = self.environment()
+        return ciddor_n(t, p, rh)
 
     # -- shaft, encoder, polygon (seed 001)
     def shaft_y_mm(self, below_tilt_center_mm: float) -> float:

@@ -19,11 +19,14 @@ from drivers.interfaces import (
     Cmm,
     DialIndicator,
     Encoder,
+    EnvironmentReading,
+    EnvironmentSensor,
     LaserTracer,
     LengthReading,
     RotaryStage,
 )
 from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, TrackingLost
+from rtcal.air import standard_air_n
 from rtcal.units import rad_to_arcsec, um_to_mm
 from simulators.bench import Bench
 from simulators.faults import ALARM_CODES
@@ -96,13 +99,13 @@ class SimStage(_Injecting, RotaryStage):
 
     def _move(self, angle_deg: float) -> None:
         target = math.radians(angle_deg)
-        delta = target - self.bench.commanded_rad
+        delta = target - self.bench.target_rad  # from the last command, as the controller sees it (not the compensated motor)
         direction = self.bench.last_direction if delta == 0 else (1 if delta > 0 else -1)
         self.bench.clock.sleep(abs(math.degrees(delta)) / self.bench.scenario.stage.speed_deg_per_s)
         self.bench.move_stage(target, direction)
 
     def position_deg(self) -> float:
-        return math.degrees(self.bench.commanded_rad)
+        return math.degrees(self.bench.target_rad)
 
     def stop(self) -> None:
         pass
@@ -139,7 +142,9 @@ class SimCmm(_Injecting, Cmm):
 
 
 class SimLaserTracer(_Injecting, LaserTracer):
-    """Relative length = true length − length at the last reference, plus noise a + b·L."""
+    """Counts optical path in the air of the moment: relative length = (n·L − n_ref·L_ref)/n_std,
+    with n the bench's air index (n_std: standard air, which the tracer assumes), plus noise
+    a + b·L. In standard, steady air this is L − L_ref."""
 
     name = "laser_tracer"
 
@@ -147,12 +152,16 @@ class SimLaserTracer(_Injecting, LaserTracer):
         self.bench = bench
         self.inject = inject
         self._rng = bench.rng("laser_tracer")
-        self._reference_mm: float | None = None
+        self._reference_mm: float | None = None  # optical path at the reference, in standard-air mm
         self._segment = -1
+        self._n_std = standard_air_n()
+
+    def _optical_mm(self) -> float:
+        return self.bench.tracer_length_mm() * self.bench.air_index() / self._n_std
 
     def reference(self) -> int:
         self.bench.beam_broken = False  # re-acquired: the beam reaches the reflector again
-        self._reference_mm = self.bench.tracer_length_mm()
+        self._reference_mm = self._optical_mm()
         self._segment += 1
         return self._segment
 
@@ -169,7 +178,7 @@ class SimLaserTracer(_Injecting, LaserTracer):
         length = self.bench.tracer_length_mm()
         lt = self.bench.scenario.laser_tracer
         sigma_mm = um_to_mm(lt.length_noise_um + lt.length_noise_ppm * length * 1e-3)
-        return LengthReading(length - self._reference_mm + sigma_mm * self._rng.standard_normal(), self._segment)
+        return LengthReading(self._optical_mm() - self._reference_mm + sigma_mm * self._rng.standard_normal(), self._segment)
 
 
 class SimEncoder(_Injecting, Encoder):
@@ -224,3 +233,22 @@ class SimDialIndicator(_Injecting, DialIndicator):
         di = self.bench.scenario.dial_indicators
         y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + di.noise_um * self._rng.standard_normal()
         return _quantise(y_um, di.resolution_um)
+
+
+class SimEnvironmentSensor(_Injecting, EnvironmentSensor):
+    """The bench's air and material conditions now, with the sensor's noise."""
+
+    name = "environment"
+
+    def __init__(self, bench: Bench, inject: bool = True):
+        self.bench = bench
+        self.inject = inject
+        self._rng = bench.rng("environment")
+
+    def read(self) -> EnvironmentReading:
+        self._request()
+        e = self.bench.scenario.environment
+        t, p, rh, tm = self.bench.environment()
+        z = self._rng.standard_normal(4)
+        return EnvironmentReading(t + e.temperature_noise_k * z[0], p + e.pressure_noise_pa * z[1],
+                                  rh + e.humidity_noise_pct * z[2], tm + e.temperature_noise_k * z[3])

@@ -64,6 +64,23 @@ class LinearHarmonic(_Strict):
         return Harmonic(self.order, um_to_mm(self.amplitude_um), math.radians(self.phase_deg))
 
 
+class CompensationScenario(_Strict):
+    """A compensation table the simulated controller applies (as a CNC would: interpolated between
+    entries, per approach direction where the format has two), read from ``file`` (relative to
+    the scenario) when the scenario is loaded."""
+
+    format: Literal["linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain"] = Field(
+        description="the table's format, as `rtcal compensate --format` writes it")
+    file: str | None = Field(None, max_length=4096, description="the table file, relative to the scenario (e.g. c.comp)")
+    text: str | None = Field(None, max_length=1_000_000, description="the table itself (filled from `file` when loaded)")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "CompensationScenario":
+        if (self.file is None) == (self.text is None):
+            raise ValueError("file: give the table's file")
+        return self
+
+
 class StageScenario(_Strict):
     """The rotary table: its axis in the CMM frame and its error motions."""
 
@@ -81,6 +98,8 @@ class StageScenario(_Strict):
     tilt_center_height_mm: Size_mm = Field(0.0, description="tilt centre along the axis above axis_point_mm, mm")
     soft_limits_deg: tuple[Limit_deg, Limit_deg] = Field((-360.0, 360.0), description="[lowest, highest] angle the drive accepts, deg")
     speed_deg_per_s: float = Field(10.0, gt=0.0, le=1e4, description="table speed, deg/s (motions take virtual time)")
+    compensation: CompensationScenario | None = Field(None, description="a compensation table the simulated controller "
+                                                                        "applies (calibrate → compensate → verify)")
 
     @model_validator(mode="after")
     def _ordered_limits(self) -> "StageScenario":
@@ -119,9 +138,12 @@ class TracerMount(_Strict):
 
 
 class LaserTracerScenario(_Strict):
-    """Interferometric length noise a + b·L (1σ) and the mount."""
+    """Interferometric length noise a + b·L (1σ), the mount, and where the tracer goes when the
+    operator moves it to its second mount (a procedure's ``second_mount``)."""
 
     mount: TracerMount = Field(TracerMount(), description="where the tracer sits on the table")
+    second_mount: TracerMount = Field(TracerMount(radius_mm=130.0, azimuth_deg=80.0, height_mm=122.5),
+                                      description="where the operator moves it for a procedure's second_mount")
     length_noise_um: float = _noise(0.0, "µm", "1σ of every length, constant part a", 1e4)
     length_noise_ppm: float = _noise(0.0, "µm per m", "1σ of every length, part b proportional to the length", 1e4)
 
@@ -185,7 +207,26 @@ class DialIndicatorScenario(_Strict):
     noise_um: float = _noise(0.0, "µm", "1σ of each reading", 1e4)
 
 
-InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2"]
+class EnvironmentScenario(_Strict):
+    """The air around the bench and the table's temperature, drifting linearly with the run's time
+    (the clock starts at 0), and the environment sensor's noise. Unnamed: standard air (20 °C,
+    1013.25 hPa, 50 % RH), steady — the simulated tracer then reads as if in vacuum-corrected air."""
+
+    air_temperature_c: float = Field(20.0, ge=-10.0, le=50.0, description="air temperature at the start, °C (e.g. 20.3)")
+    air_temperature_drift_k_per_h: float = Field(0.0, ge=-20.0, le=20.0, description="its drift, K per hour (e.g. 0.5)")
+    air_pressure_pa: float = Field(101325.0, ge=60000.0, le=120000.0, description="air pressure at the start, Pa (e.g. 100800)")
+    air_pressure_drift_pa_per_h: float = Field(0.0, ge=-5000.0, le=5000.0, description="its drift, Pa per hour (e.g. 300)")
+    humidity_pct: float = Field(50.0, ge=0.0, le=100.0, description="relative humidity at the start, % (e.g. 45)")
+    humidity_drift_pct_per_h: float = Field(0.0, ge=-100.0, le=100.0, description="its drift, % per hour")
+    material_temperature_c: float = Field(20.0, ge=-10.0, le=60.0, description="the table's temperature at the start, °C")
+    material_temperature_drift_k_per_h: float = Field(0.0, ge=-20.0, le=20.0, description="its drift, K per hour")
+    temperature_noise_k: float = Field(0.0, ge=0.0, le=10.0, description="the sensor's temperature noise, K (1σ, e.g. 0.01)")
+    pressure_noise_pa: float = Field(0.0, ge=0.0, le=1000.0, description="the sensor's pressure noise, Pa (1σ, e.g. 2)")
+    humidity_noise_pct: float = Field(0.0, ge=0.0, le=50.0, description="the sensor's humidity noise, % (1σ, e.g. 0.5)")
+
+
+InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2",
+                         "environment"]
 FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_exception", "crc_error", "alarm", "emergency_stop"]
 STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop"}
 
@@ -234,4 +275,21 @@ class Scenario(_Strict):
     polygon: PolygonScenario = Field(PolygonScenario(), description="the optical polygon (seed 001)")
     dial_indicators: DialIndicatorScenario = Field(DialIndicatorScenario(), description="the two dial indicators (seed 001)")
     stepper: StepperScenario = Field(StepperScenario(), description="an open-loop stepper drive, if any")
+    environment: EnvironmentScenario = Field(EnvironmentScenario(), description="the air around the beam and its sensor")
     faults: list[FaultSpec] = Field([], max_length=1000, description="faults to inject (docs/faults.md)")
+
+    def without_noise(self) -> "Scenario":
+        """The same bench with every random error and fault removed: its systematic errors and
+        geometry only (what `rtcal plan` measures to predict the uncertainty of a plan)."""
+        return self.model_copy(update={
+            "stage": self.stage.model_copy(update={"repeatability_arcsec": 0.0}),
+            "cmm": self.cmm.model_copy(update={"point_noise_um": 0.0}),
+            "laser_tracer": self.laser_tracer.model_copy(update={"length_noise_um": 0.0, "length_noise_ppm": 0.0}),
+            "encoder": self.encoder.model_copy(update={"noise_arcsec": 0.0, "resolution_arcsec": 0.0}),
+            "autocollimator": self.autocollimator.model_copy(update={"noise_arcsec": 0.0, "resolution_arcsec": 0.0}),
+            "polygon": self.polygon.model_copy(update={"certificate_uncertainty_arcsec": 0.0, "seating_error_arcsec": 0.0}),
+            "dial_indicators": self.dial_indicators.model_copy(update={"noise_um": 0.0, "resolution_um": 0.0}),
+            "environment": self.environment.model_copy(update={"temperature_noise_k": 0.0, "pressure_noise_pa": 0.0,
+                                                               "humidity_noise_pct": 0.0}),
+            "faults": [],
+        })

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from rtcal.procedure.models import GridPlan
+from rtcal.solvers.station_data import MultistationData
 from rtcal.units import arcsec_to_rad
 
 PAPER_ANGLES_RAD = np.deg2rad(-145.0 + 30.0 * np.arange(11))
@@ -18,6 +19,11 @@ FIRST_GUESS_MM = np.array([-64.9938, -6.6256, 122.5133])
 def stations_mm(actual_angles_rad: np.ndarray) -> np.ndarray:
     phi = np.asarray(actual_angles_rad) + np.deg2rad(TRACER_AZIMUTH_DEG)
     return np.column_stack([TRACER_RADIUS_MM * np.cos(phi), TRACER_RADIUS_MM * np.sin(phi), np.full(len(phi), TRACER_HEIGHT_MM)])
+
+
+def data(points_mm: np.ndarray, lengths_mm: np.ndarray, segments: np.ndarray | None = None) -> MultistationData:
+    """The solvers' input for the paper's stations from synthetic arrays."""
+    return MultistationData.from_arrays(points_mm, lengths_mm, np.rad2deg(PAPER_ANGLES_RAD), segments)
 
 
 def dataset(positioning_error_arcsec: np.ndarray, length_noise_um: float = 0.0, rng: np.random.Generator | None = None):

@@ -35,7 +35,7 @@ def test_results_contract(noise_free_run):
     assert r["nominal_angles_deg"] == [-145.0 + 30.0 * k for k in range(11)]
     paper = r["estimates"]["paper"]
     assert len(paper["deviation_arcsec"]) == 10
-    assert isinstance(paper["sigma_arcsec"], float) and isinstance(paper["algorithm_error_arcsec"], float)
+    assert isinstance(paper["eq34_sigma_arcsec"], float) and isinstance(paper["algorithm_error_arcsec"], float)
     assert len(r["truth"]["deviation_arcsec"]) == 10
     assert r["raw_readings"] == 704
 

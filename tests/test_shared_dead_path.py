@@ -6,13 +6,13 @@ import numpy as np
 
 from rtcal.solvers.paper000 import solve_paper
 from rtcal.solvers.shared_dead_path import solve_shared_dead_path
-from tests.synthetic import FIRST_GUESS_MM, PAPER_ANGLES_RAD, dataset
+from tests.synthetic import FIRST_GUESS_MM, data, dataset
 from tests.test_solvers_truth import EPS_Z_ARCSEC
 
 
 def test_noise_free_exact():
     points, lengths, truth = dataset(EPS_Z_ARCSEC)
-    est = solve_shared_dead_path(points, lengths, np.zeros(lengths.shape, int), PAPER_ANGLES_RAD, FIRST_GUESS_MM)
+    est = solve_shared_dead_path(data(points, lengths), FIRST_GUESS_MM)
     assert est.converged
     assert np.max(np.abs(est.chain.deviation_arcsec - truth)) < 0.01
 
@@ -24,7 +24,7 @@ def test_two_segments_each_get_their_own_dead_path():
     segments[30:, :] = 1
     lengths = lengths.copy()
     lengths[30:, :] -= 123.456  # the new reference sits at another length
-    est = solve_shared_dead_path(points, lengths, segments, PAPER_ANGLES_RAD, FIRST_GUESS_MM)
+    est = solve_shared_dead_path(data(points, lengths, segments), FIRST_GUESS_MM)
     assert np.max(np.abs(est.chain.deviation_arcsec - truth)) < 0.01
     assert abs((est.dead_paths_mm[1] - est.dead_paths_mm[0]) - 123.456) < 1e-6
 
@@ -40,10 +40,10 @@ def test_monte_carlo_error_matches_uncertainty_and_beats_per_station():
     err_shared, err_paper, predicted = [], [], []
     for _ in range(40):
         points, lengths, truth = dataset(EPS_Z_ARCSEC, 0.2, rng)
-        est = solve_shared_dead_path(points, lengths, np.zeros(lengths.shape, int), PAPER_ANGLES_RAD, FIRST_GUESS_MM)
+        est = solve_shared_dead_path(data(points, lengths), FIRST_GUESS_MM)
         err_shared.append(est.chain.deviation_arcsec - truth)
-        predicted.append(est.uncertainty_arcsec)
-        err_paper.append(solve_paper(points, lengths, PAPER_ANGLES_RAD, FIRST_GUESS_MM).chain.deviation_arcsec - truth)
+        predicted.append(est.budget.step_uncertainty_arcsec)
+        err_paper.append(solve_paper(data(points, lengths), FIRST_GUESS_MM).chain.deviation_arcsec - truth)
     rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
     assert 0.75 < rms(err_shared) / rms(predicted) < 1.33, (rms(err_shared), rms(predicted))
     assert rms(err_paper) > 4 * rms(err_shared)

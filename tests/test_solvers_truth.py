@@ -8,14 +8,14 @@ import pytest
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.paper000 import solve_paper
 from rtcal.solvers.selfcal import initial_guesses, solve_station, solve_station_scipy
-from tests.synthetic import FIRST_GUESS_MM, PAPER_ANGLES_RAD, dataset
+from tests.synthetic import FIRST_GUESS_MM, PAPER_ANGLES_RAD, data, dataset
 
 EPS_Z_ARCSEC = 4.0 * np.sin(PAPER_ANGLES_RAD + 0.5) + 2.0 * np.sin(3 * PAPER_ANGLES_RAD - 0.8)
 
 
 def test_noise_free_paper_estimator_returns_injected_deviations():
     points, lengths, truth = dataset(EPS_Z_ARCSEC)
-    est = solve_paper(points, lengths, PAPER_ANGLES_RAD, FIRST_GUESS_MM)
+    est = solve_paper(data(points, lengths), FIRST_GUESS_MM)
     assert all(f.converged for f in est.stations)
     assert np.max(np.abs(est.chain.deviation_arcsec - truth)) < 0.01
 
@@ -58,9 +58,9 @@ def test_monte_carlo_error_matches_reported_uncertainty():
     errors, predicted = [], []
     for _ in range(40):
         points, lengths, truth = dataset(EPS_Z_ARCSEC, 0.2, rng)
-        est = solve_paper(points, lengths, PAPER_ANGLES_RAD, FIRST_GUESS_MM)
+        est = solve_paper(data(points, lengths), FIRST_GUESS_MM)
         errors.append(est.chain.deviation_arcsec - truth)
-        predicted.append(est.uncertainty_arcsec)
+        predicted.append(est.budget.step_uncertainty_arcsec)
     rms_error = float(np.sqrt(np.mean(np.square(errors))))
     rms_predicted = float(np.sqrt(np.mean(np.square(predicted))))
     assert 1.0 < rms_error < 8.0

@@ -86,7 +86,7 @@ def test_unreachable_instrument_is_a_clean_error(tmp_path, capsys):
     from rtcal.cli import main
 
     addresses = json.dumps({"stage": "modbus-tcp://127.0.0.1:9?unit=1", "cmm": "ipp://127.0.0.1:9",
-                            "laser_tracer": "/dev/nonexistent-tty"})
+                            "laser_tracer": "/dev/nonexistent-tty", "environment": "/dev/nonexistent-tty2"})
     code = main(["run", str(PROC / "laser_tracer_multistation.yaml"), "--instruments", addresses, "--out", str(tmp_path / "x")])
     assert code == 1
     err = capsys.readouterr().err
@@ -100,3 +100,22 @@ def test_mixed_sim_and_address_is_refused(tmp_path, capsys):
                  "--out", str(tmp_path / "x")])
     assert code == 2
     assert "two different benches" in capsys.readouterr().err
+
+
+def test_two_mounts_and_the_environment_sensor_over_the_wires(tmp_path):
+    """A second tracer mount (the simulated operator moves the tracer) and the environment sensor
+    (a serial line) in drifting air on a noise-free bench with error motions: the network estimate
+    over the wires equals the in-process one (both exact: the air corrected, the error motions
+    separated)."""
+    scenario = tmp_path / "bench.yaml"
+    scenario.write_text(
+        "seed: 4\nstage:\n  positioning_error: [{order: 1, amplitude_arcsec: 4.0, phase_deg: 30}]\n"
+        "  radial_motion_x: [{order: 2, amplitude_um: 0.5}]\n  tilt_motion_x: [{order: 3, amplitude_arcsec: 1.0}]\n"
+        "environment: {air_temperature_drift_k_per_h: 1.0, air_pressure_drift_pa_per_h: -400}\n")
+    procedure = tmp_path / "two_mounts.yaml"
+    procedure.write_text((PROC / "laser_tracer_multistation.yaml").read_text()
+                         .replace("bench: scenarios/paper000_bench.yaml", f"bench: {scenario}")
+                         + "\nsecond_mount: {first_station_guess_mm: [54.9, -117.8, 122.5]}\n")
+    remote = _compare(procedure, scenario, tmp_path, {"network": ["cumulative_deviation_arcsec"]})
+    assert "environment" in remote["instruments"] and remote["environment"]["air_temperature_c"]["max"] > 20.0
+    assert any("moved on mount 2" in e["message"] for e in remote["events"])

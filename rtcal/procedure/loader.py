@@ -11,6 +11,7 @@ from typing import Annotated, Union
 from pydantic import Field, TypeAdapter
 
 from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
+from rtcal.compensation import PARSERS, CompensationError
 from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_file, validate_text
 from simulators.scenario import Scenario
 
@@ -34,8 +35,27 @@ def load_procedure(path: str | Path, large: bool = False, text: str | None = Non
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Validate a bench scenario file."""
-    return validate_file(path, Scenario)
+    """Validate a bench scenario file; a compensation table it names is read (relative to it) and checked."""
+    scenario = validate_file(path, Scenario)
+    comp = scenario.stage.compensation
+    if comp is None:
+        return scenario
+    where = ("stage", "compensation", "file" if comp.file else "text")
+    text = comp.text
+    if comp.file is not None:
+        table_path = Path(path).parent / comp.file
+        try:
+            if table_path.stat().st_size > 1_000_000:
+                raise FileProblems([problem_at(path, where, f"{table_path} is larger than 1 MB: not a compensation table")])
+            text = table_path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise FileProblems([problem_at(path, where, f"cannot read {table_path}: {exc}")]) from None
+    try:
+        PARSERS[comp.format](text, comp.file or "text")
+    except CompensationError as exc:
+        raise FileProblems([problem_at(path, where, str(exc))]) from None
+    return scenario.model_copy(update={"stage": scenario.stage.model_copy(update={
+        "compensation": comp.model_copy(update={"text": text, "file": None})})})
 
 
 def bench_path(procedure_path: str | Path, proc: Procedure) -> Path | None:

@@ -11,6 +11,7 @@ Each field carries a ``description`` that editors show from ``rtcal schema``.
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Annotated, Literal, Union
 
@@ -35,6 +36,27 @@ MAX_SOLVER_CELLS_LARGE = 200_000_000
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class InstrumentRecord(_Strict):
+    """An instrument as a certificate names it."""
+
+    id: str = Field("", max_length=200, description="make, model and serial number (e.g. Etalon LaserTRACER 12-0034)")
+    calibration_due: str = Field("", max_length=40, description="its calibration due date (e.g. 2027-03-31)")
+
+
+class Metadata(_Strict):
+    """Who and what the calibration is for: the report's and certificate's header."""
+
+    customer: str = Field("", max_length=200, description="the customer (e.g. Acme Machine Tools GmbH)")
+    machine: str = Field("", max_length=200, description="the machine (e.g. 5-axis machining centre DMU 65)")
+    axis: str = Field("", max_length=50, description="the axis calibrated (e.g. C)")
+    serial_number: str = Field("", max_length=100, description="the machine's or table's serial number")
+    location: str = Field("", max_length=200, description="where it was calibrated")
+    operator: str = Field("", max_length=200, description="who calibrated it")
+    certificate_number: str = Field("", max_length=100, description="the certificate's number")
+    instruments: dict[str, InstrumentRecord] = Field({}, description="per instrument of the procedure (stage, cmm, "
+                                                                     "laser_tracer, …): its id and calibration due date")
 
 
 class InstrumentChoice(_Strict):
@@ -92,12 +114,16 @@ class CmmChoice(InstrumentChoice):
 
 
 class _Instruments(_Strict):
+    def present(self) -> list[str]:
+        """The instruments the procedure uses (an optional one left out is None)."""
+        return [f for f in type(self).model_fields if getattr(self, f) is not None]
+
     def all_sim(self) -> bool:
-        return all(getattr(self, f).is_sim for f in type(self).model_fields)
+        return all(getattr(self, f).is_sim for f in self.present())
 
     @model_validator(mode="after")
     def _one_bench(self) -> "_Instruments":
-        kinds = {getattr(self, f).is_sim for f in type(self).model_fields}
+        kinds = {getattr(self, f).is_sim for f in self.present()}
         if len(kinds) > 1:
             raise ValueError("mixing `backend: sim` with addresses would put instruments on two different benches; "
                              "use addresses for all (e.g. from `rtcal sim serve`) or sim for all")
@@ -106,7 +132,7 @@ class _Instruments(_Strict):
     def with_addresses(self, addresses: dict[str, str]):
         """A copy with the named instruments moved to the given addresses (others keep theirs)."""
         update = {f: getattr(self, f).model_copy(update={"address": addresses[f], "backend": None})
-                  for f in type(self).model_fields if f in addresses}
+                  for f in self.present() if f in addresses}
         return self.model_copy(update=update)
 
 
@@ -114,6 +140,9 @@ class MultistationInstruments(_Instruments):
     stage: StageChoice = Field(StageChoice(), description="the rotary table's drive")
     cmm: CmmChoice = Field(CmmChoice(), description="the CMM that carries the tracer's reflector")
     laser_tracer: InstrumentChoice = Field(InstrumentChoice(), description="the laser tracer on the table")
+    environment: InstrumentChoice | None = Field(
+        None, description="an air and material sensor, read with every length: rtcal corrects each length for the "
+                          "refractive index of the air of the moment (e.g. {backend: sim})")
 
 
 class FaultPolicy(_Strict):
@@ -139,10 +168,11 @@ class MultistationOnFault(_Strict):
     stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
     cmm: FaultPolicy = Field(FaultPolicy(), description="when the CMM fails")
     laser_tracer: FaultPolicy = Field(FaultPolicy(then="reacquire"), description="when the tracer fails (default: re-acquire)")
+    environment: FaultPolicy = Field(FaultPolicy(then="skip"), description="when the environment sensor fails (default: skip)")
 
     @model_validator(mode="after")
     def _reacquire_is_for_the_tracer(self) -> "MultistationOnFault":
-        for name in ("stage", "cmm"):
+        for name in ("stage", "cmm", "environment"):
             if getattr(self, name).then == "reacquire":
                 raise ValueError(f"{name}.then: only the laser_tracer can be re-acquired")
         return self
@@ -225,10 +255,69 @@ class LMSettings(_Strict):
 
 
 class MultistationSolver(_Strict):
+    estimators: list[Literal["paper", "shared_dead_path", "network"]] = Field(
+        ["paper", "shared_dead_path", "network"], min_length=1,
+        description="which estimators to run: `paper` (as printed), `shared_dead_path`, `network` (one adjustment: "
+                    "stations on one circle, CMM points and the CMM's scales and squareness solved); the recommended one "
+                    "is chosen among them")
     lm: LMSettings = Field(LMSettings(), description="the paper's LM parameters (section 4.2.1)")
     first_station_guess_mm: Vec3 = Field((-64.9938, -6.6256, 122.5133),
                                          description="starting guess of station 1's centre, mm (the paper's X0, Y0, Z0)")
     axis_point_mm: Vec3 = Field((0.0, 0.0, 0.0), description="a point on the nominal (vertical) axis, mm, for the other stations' guesses")
+
+
+class ErrorMotionBounds(_Strict):
+    """Bounds of the table's error motions (ISO 230-7), for the uncertainty budget (Type B).
+
+    One tracer mount cannot tell a sideways shift of the tracer from a rotation, so the error
+    motions the table may have enter the uncertainty; give the bounds from its specification
+    or an earlier measurement. rtcal models each as an unknown smooth function within ±bound
+    (σ = bound/√2 at every angle — a sinusoid that reaches the bound —, harmonic orders
+    1..max_order). U (k = 2) then covers about 95 % of the motions within the bounds, not every
+    one; a second tracer mount (`second_mount`) measures them instead."""
+
+    radial_um: float = Field(0.0, ge=0.0, le=1000.0, description="bound of the radial error motions EXC, EYC at the tilt centre, µm (e.g. 0.5)")
+    axial_um: float = Field(0.0, ge=0.0, le=1000.0, description="bound of the axial error motion EZC, µm (e.g. 0.3)")
+    tilt_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="bound of the tilt error motions EAC, EBC, arcsec (e.g. 1.0)")
+    max_order: int = Field(6, ge=1, le=360, description="highest harmonic order (per turn) the error motions may have (e.g. 6)")
+    tilt_center_z_mm: float = Field(0.0, ge=-1e4, le=1e4, description="height of the tilt centre in the CMM frame, mm "
+                                    "(0: on the table at the CMM origin, as in seed 000)")
+
+
+class EnvironmentUncertainty(_Strict):
+    """Standard uncertainties of the environment sensor (Type B: its calibration, the air the beam
+    runs through against where the sensor sits)."""
+
+    air_temperature_k: float = Field(0.1, ge=0.0, le=10.0, description="air temperature, K (e.g. 0.1)")
+    air_pressure_pa: float = Field(20.0, ge=0.0, le=1000.0, description="air pressure, Pa (e.g. 20)")
+    humidity_pct: float = Field(5.0, ge=0.0, le=50.0, description="relative humidity, % (e.g. 5)")
+
+
+class MultistationUncertainty(_Strict):
+    """What the lab knows about its instruments (1σ unless a bound): the uncertainty budget's inputs.
+
+    The sizes of the tracer's and the CMM's random errors are estimated from the readings
+    (Type A); the values here give their shape and a reference. The others are Type B."""
+
+    laser_tracer_noise_um: float = Field(0.2, ge=0.0, le=100.0, description="tracer length noise a of a + b·L, µm (1σ, e.g. 0.2)")
+    laser_tracer_noise_ppm: float = Field(0.3, ge=0.0, le=100.0, description="tracer length noise b of a + b·L, µm per m (e.g. 0.3)")
+    cmm_point_noise_um: float = Field(0.3, ge=0.0, le=1000.0, description="CMM reading noise per coordinate and visit, µm (1σ, e.g. 0.3)")
+    cmm_scale_ppm: float = Field(0.0, ge=0.0, le=1000.0, description="standard uncertainty of each CMM scale, ppm (Type B, e.g. 1.0)")
+    cmm_squareness_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="standard uncertainty of each CMM squareness, arcsec (Type B, e.g. 1.0)")
+    stage_repeatability_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="the stage's positioning repeatability per visit, arcsec (1σ, Type B, e.g. 0.2)")
+    error_motions: ErrorMotionBounds = Field(ErrorMotionBounds(), description="bounds of the error motions (Type B)")
+    environment: EnvironmentUncertainty = Field(EnvironmentUncertainty(), description="the environment sensor's "
+                                                "uncertainty (used when the procedure has one)")
+
+
+class SecondMount(_Strict):
+    """Measure the whole plan again with the tracer moved to a second place on the table: the
+    network estimator then separates the table's error motions from its rotation (one mount
+    cannot). Put it at the same height as the first (the tilt about the line joining the mounts
+    is invisible, and with mounts at different heights it would leak into the angles)."""
+
+    first_station_guess_mm: Vec3 = Field(description="the tracer's centre at the first station once moved, CMM frame, "
+                                                      "mm (nominal, for the solver's start; e.g. [-22.6, 128.0, 122.5])")
 
 
 class LaserTracerMultistation(_Strict):
@@ -236,6 +325,7 @@ class LaserTracerMultistation(_Strict):
 
     method: Literal["laser_tracer_multistation"] = Field(description="seed 000's laser-tracer multi-station method")
     name: str = Field("", max_length=200, description="a title for the report and plots")
+    metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
     bench: str | None = Field(None, max_length=4096, description="scenario of the simulated bench, a path relative to this "
                               "file and inside its folder (e.g. `scenarios/paper000_bench.yaml`)")
     instruments: MultistationInstruments = Field(MultistationInstruments(), description="backend of each instrument")
@@ -247,8 +337,15 @@ class LaserTracerMultistation(_Strict):
     settle_time_s: float = Field(2.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
     on_fault: MultistationOnFault = Field(MultistationOnFault(), description="what to do when an instrument fails (docs/faults.md)")
     solver: MultistationSolver = Field(MultistationSolver(), description="solver settings")
+    uncertainty: MultistationUncertainty = Field(MultistationUncertainty(), description="inputs of the uncertainty budget")
+    second_mount: SecondMount | None = Field(None, description="a second tracer mount: the plan is measured again after an "
+                                                               "operator step moves the tracer there")
 
     _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
+
+    @property
+    def mounts(self) -> int:
+        return 1 if self.second_mount is None else 2
 
     def points_array(self) -> np.ndarray:
         return self.points.points_mm() if isinstance(self.points, GridPlan) else self.points.points_mm_array()
@@ -292,13 +389,36 @@ class AbbeInstruments(_Instruments):
 
 
 class AbbeSteps(_Strict):
-    """A full turn per pass: ``faces × steps_per_face`` steps from the seating's offset."""
+    """The targets and how they are approached.
 
-    steps_per_face: int = Field(1, ge=1, le=100, description="steps per polygon face pitch (the autocollimator reads at faces only)")
+    By default a full turn per pass: ``faces × steps_per_face`` steps from the seating's offset.
+    ``targets_deg`` names the targets instead (an ISO 230-2 test: irregularly spaced, each where a
+    polygon face is in front). ``cycle``: ``linear`` (ISO 230-2's standard test cycle: each run
+    goes through every target in one direction, then back through every target in the other, each
+    target approached past an overrun so that every approach is from its own side) or ``pilgrim``
+    (the step cycle of its annex: each target approached ``runs`` times from each side before the
+    next)."""
+
+    steps_per_face: int = Field(1, ge=1, le=100, description="steps per polygon face (finer than the polygon: the "
+                                                             "autocollimator reads at faces only), e.g. 2")
+    targets_deg: list[float] | None = Field(None, min_length=2, max_length=360,
+                                            description="explicit targets, deg in [0, 360), each a polygon face position "
+                                                        "(e.g. [0, 15, 45, 90, 120, 180, 225, 270, 300, 330])")
     directions: list[Literal["positive", "negative"]] = Field(["positive"], min_length=1, max_length=2,
-                                                               description="passes per run: `[positive]` or `[positive, negative]`")
-    runs: int = Field(1, ge=1, le=100, description="repetitions of every pass")
-    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0, description="pass the target by this much to approach it the set way, deg")
+                                                              description="approach directions, e.g. [positive, negative]")
+    runs: int = Field(1, ge=1, le=100, description="runs (approaches per target and direction), e.g. 5 for ISO 230-2")
+    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0, description="overrun past each target to approach it from its "
+                                                                   "own side, deg (e.g. 1)")
+    cycle: Literal["linear", "pilgrim"] = Field("linear", description="linear (ISO 230-2 standard cycle) or pilgrim (step cycle)")
+
+    @model_validator(mode="after")
+    def _targets(self) -> "AbbeSteps":
+        if self.targets_deg is not None:
+            if any(not (0.0 <= t < 360.0) for t in self.targets_deg):
+                raise ValueError("targets_deg: targets lie in [0, 360) degrees")
+            if len(set(round(t, 9) for t in self.targets_deg)) != len(self.targets_deg):
+                raise ValueError("targets_deg: targets repeat")
+        return self
 
 
 class PolygonSetup(_Strict):
@@ -334,6 +454,14 @@ class PolygonSetup(_Strict):
                              "a whole number of faces apart")
         if len(set(self.seatings_deg)) != len(self.seatings_deg):
             raise ValueError("seatings_deg: offsets repeat")
+        if self.certificate_arcsec == "none":
+            offsets = sorted(whole)
+            common = math.gcd(self.faces, *[k - offsets[0] for k in offsets[1:]])
+            if common > 1:
+                raise ValueError(f"seatings_deg: closure cannot separate table and polygon errors: the whole-face offsets "
+                                 f"{offsets} differ by multiples of {common}, which divides the {self.faces} faces, so "
+                                 f"the readings split into {common} unconnected sets; use offsets whose differences "
+                                 f"share no factor with {self.faces} (e.g. include an offset of 1 face)")
         return self
 
 
@@ -352,11 +480,28 @@ class AbbeGeometry(_Strict):
         return self
 
 
+class AbbeUncertainty(_Strict):
+    """The instruments' stated noise and resolution (1σ), for the uncertainty budget.
+
+    With one run they are the budget's Type B inputs; with two or more runs (or closure) the
+    random parts are estimated from the readings instead (Type A). The polygon certificate's
+    uncertainty is ``polygon.certificate_uncertainty_arcsec``."""
+
+    autocollimator_noise_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="autocollimator noise per reading, arcsec (1σ, e.g. 0.2)")
+    autocollimator_resolution_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="autocollimator display digit, arcsec (e.g. 0.1)")
+    stage_repeatability_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="stage positioning repeatability per visit, arcsec (1σ, e.g. 0.3)")
+    encoder_noise_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="encoder noise per reading, arcsec (1σ, e.g. 0.05)")
+    encoder_resolution_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="encoder resolution, arcsec (e.g. 0.05)")
+    indicator_noise_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator noise per reading, µm (1σ, e.g. 0.2)")
+    indicator_resolution_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator digit, µm (e.g. 1.0)")
+
+
 class EncoderAbbeError(_Strict):
     """Seed 001: encoder error from tilt and radial motion, against an autocollimator and polygon."""
 
     method: Literal["encoder_abbe_error"] = Field(description="seed 001's encoder Abbe-error method")
     name: str = Field("", max_length=200, description="a title for the report and plots")
+    metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
     bench: str | None = Field(None, max_length=4096, description="scenario of the simulated bench, a path relative to this "
                               "file and inside its folder (e.g. `scenarios/abbe_bench.yaml`)")
     instruments: AbbeInstruments = Field(AbbeInstruments(), description="backend of each instrument")
@@ -367,6 +512,7 @@ class EncoderAbbeError(_Strict):
     settle_time_s: float = Field(1.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
     on_fault: AbbeOnFault = Field(AbbeOnFault(), description="what to do when an instrument fails (docs/faults.md)")
     max_harmonic_order: int = Field(24, ge=1, le=360, description="highest harmonic order fitted per revolution")
+    uncertainty: AbbeUncertainty = Field(AbbeUncertainty(), description="inputs of the uncertainty budget")
 
     _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
 
@@ -387,17 +533,25 @@ class EncoderAbbeError(_Strict):
         problem = plan_outside_limits(self, self.instruments.stage.soft_limits_deg)
         if problem:
             raise ValueError(problem)
+        if self.steps.targets_deg is not None:
+            off = [t for t in self.steps.targets_deg if not self.face_in_front(t, 0.0)]
+            if off:
+                raise ValueError(f"steps.targets_deg: {off[0]:g}° is not a polygon face position (multiples of "
+                                 f"{self.polygon.pitch_deg:g}°): the autocollimator could not read there")
         return self
 
     def pass_angles_deg(self, seating_deg: float) -> np.ndarray:
-        """Commanded angles of one positive pass (a full turn, in [0, 360)) for a seating."""
+        """Commanded angles of one positive pass (in [0, 360)) for a seating: the named targets
+        (shifted with the seating), or a full turn in steps."""
+        if self.steps.targets_deg is not None:
+            return np.sort(np.round(np.mod(seating_deg + np.array(self.steps.targets_deg), 360.0), 9) % 360.0)
         n = self.polygon.faces * self.steps.steps_per_face
         return np.sort(np.round(np.mod(seating_deg + self.step_deg * np.arange(n), 360.0), 9) % 360.0)
 
     def face_in_front(self, angle_deg: float, seating_deg: float) -> bool:
         """Whether a polygon face faces the autocollimator at this commanded angle."""
-        k = (angle_deg - seating_deg) / self.step_deg
-        return round(k) % self.steps.steps_per_face == 0
+        k = (angle_deg - seating_deg) / self.polygon.pitch_deg
+        return abs(k - round(k)) < 1e-6
 
 
 NAME_CHARACTERS = re.compile(r"[^\x00-\x1f\x7f$]*")

@@ -43,14 +43,23 @@ class Visit:
 
 
 def planned_visits(proc: EncoderAbbeError) -> list[Visit]:
+    """Every visit in measuring order: per seating, the linear cycle (each run ↑ through all targets,
+    then ↓) or the pilgrim cycle (each target visited every run from each side before the next)."""
     visits = []
+    dirs = [1 if d == "positive" else -1 for d in proc.steps.directions]
     for j, seating in enumerate(proc.polygon.seatings_deg):
         angles = proc.pass_angles_deg(seating)
+
+        def visit(r: int, direction: int, i: int) -> Visit:
+            return Visit(j, r, direction, i, float(angles[i]), proc.face_in_front(float(angles[i]), seating))
+
+        if proc.steps.cycle == "pilgrim":
+            visits += [visit(r, d, i) for i in range(len(angles)) for r in range(proc.steps.runs) for d in dirs]
+            continue
         for r in range(proc.steps.runs):
-            for d in proc.steps.directions:
-                direction = 1 if d == "positive" else -1
-                order = range(len(angles)) if direction > 0 else range(len(angles) - 1, -1, -1)
-                visits += [Visit(j, r, direction, i, float(angles[i]), proc.face_in_front(float(angles[i]), seating)) for i in order]
+            for d in dirs:
+                order = range(len(angles)) if d > 0 else range(len(angles) - 1, -1, -1)
+                visits += [visit(r, d, i) for i in order]
     return visits
 
 

@@ -12,7 +12,7 @@ from typing import Callable, Iterator
 
 
 from drivers.errors import TrackingLost
-from drivers.interfaces import Cmm, LaserTracer, RotaryStage
+from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
@@ -26,18 +26,27 @@ class MultistationInstrumentSet:
     stage: RotaryStage
     cmm: Cmm
     laser_tracer: LaserTracer
+    environment: EnvironmentSensor | None = None
 
     def close(self) -> None:
-        for i in (self.stage, self.cmm, self.laser_tracer):
-            i.close()
+        for i in (self.stage, self.cmm, self.laser_tracer, self.environment):
+            if i is not None:
+                i.close()
 
 
-def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int]]:
-    """(point, station) pairs in measuring order; each pair is one planned tracer reading."""
+ENVIRONMENT_QUANTITIES = (("air_temperature_c", "degC"), ("air_pressure_pa", "Pa"), ("humidity_pct", "%"),
+                          ("material_temperature_c", "degC"))
+
+
+def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int, int]]:
+    """(mount, point, station) in measuring order; each is one planned tracer reading. With a
+    second mount the whole plan is measured again after the tracer is moved."""
     n, m = len(proc.points_array()), proc.stations.count
     if proc.order == "point_major":
-        return [(i, j) for i in range(n) for j in range(m)]
-    return [(i, j) for j in range(m) for i in range(n)]
+        one = [(i, j) for i in range(n) for j in range(m)]
+    else:
+        one = [(i, j) for j in range(m) for i in range(n)]
+    return [(k, i, j) for k in range(proc.mounts) for i, j in one]
 
 
 def run_multistation(
@@ -71,13 +80,15 @@ def run_multistation(
         inst.stage.stop()
         inst.cmm.stop()
 
-    policies = {"stage": proc.on_fault.stage, "cmm": proc.on_fault.cmm, "laser_tracer": proc.on_fault.laser_tracer}
+    policies = {"stage": proc.on_fault.stage, "cmm": proc.on_fault.cmm, "laser_tracer": proc.on_fault.laser_tracer,
+                "environment": proc.on_fault.environment}
     faults = FaultHandler(policies, store, clock, operator, safe_state)
     done = store.done_plan_indices()
     next_segment = store.max_segment() + 1
     at_point: int | None = None
     at_station: int | None = None
     segment: int | None = None
+    mount: int | None = None
 
     def reference(i: int, j: int, why: str) -> None:
         nonlocal segment, next_segment
@@ -85,10 +96,25 @@ def run_multistation(
         segment, next_segment = next_segment, next_segment + 1
         store.add_event(clock.now_s(), why, f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
 
-    def take(k: int, i: int, j: int) -> bool:
-        """One attempt at planned reading k (point i, station j); True if it was stored whole."""
+    def to_mount(k: int, mk: int) -> None:
+        """The operator moves the tracer (or confirms where it is on a resumed run)."""
+        nonlocal mount, segment
+        if mk == mount:
+            return
+        resumed = mount is None and k > 0
+        where = ("its first mount" if mk == 0 else
+                 f"the second mount: centre near {list(proc.second_mount.first_station_guess_mm)} mm at station 1")
+        if proc.mounts > 1 and (mk > 0 or resumed):
+            store.add_event(clock.now_s(), "operator", f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}",
+                            "laser_tracer")
+            operator.move_tracer(mk, where, resumed)
+        mount, segment = mk, None  # a moved tracer is referenced again: a new tracking segment
+
+    def take(k: int, mk: int, i: int, j: int) -> bool:
+        """One attempt at planned reading k (mount mk, point i, station j); True if it was stored whole."""
         nonlocal at_point, at_station, segment
-        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]), attempt=store.new_attempt(),
+        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]), seating=mk,
+                     attempt=store.new_attempt(),
                      commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
 
         def skip(instrument: str, readings: list[Reading] | None = None) -> bool:
@@ -118,6 +144,11 @@ def run_multistation(
                 return skip("cmm")
             t = clock.now_s()
             readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
+        if inst.environment is not None:  # the air the lengths are counted in, with every reading
+            env = faults.call("environment", inst.environment.read, what=f"environment at point {i + 1}, station {j + 1}")
+            if env is not SKIPPED:
+                t = clock.now_s()
+                readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state) for q, unit in ENVIRONMENT_QUANTITIES]
         if segment is None and faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference") is SKIPPED:
             return skip("laser_tracer", readings)  # no valid count without a reference
         samples: list[Reading] = []
@@ -144,11 +175,21 @@ def run_multistation(
 
     stored = 0
     skipped: list[int] = []
-    for k, (i, j) in progress(iter([(k, pair) for k, pair in enumerate(plan) if k not in done])):
-        if take(k, i, j):
+
+    def retake_skipped() -> None:
+        """Once more, now that the fault may have passed (and the tracer is referenced again)."""
+        nonlocal stored
+        for k in skipped:
+            stored += take(k, *plan[k])
+        skipped.clear()
+
+    for k, (mk, i, j) in progress(iter([(k, entry) for k, entry in enumerate(plan) if k not in done])):
+        if mk != mount and skipped:  # before the tracer leaves the mount they were planned on
+            retake_skipped()
+        to_mount(k, mk)
+        if take(k, mk, i, j):
             stored += 1
         else:
             skipped.append(k)
-    for k in skipped:  # once more, now that the fault may have passed (and the tracer is referenced again)
-        stored += take(k, *plan[k])
+    retake_skipped()
     return stored

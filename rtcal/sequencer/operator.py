@@ -1,4 +1,4 @@
-"""Operator steps: what a person must do mid-run (re-seat the polygon). On hardware the
+"""Operator steps: what a person must do mid-run (re-seat the polygon, move the tracer). On hardware the
 sequencer pauses with a prompt; on the simulated bench the bench does it itself."""
 
 from __future__ import annotations
@@ -9,6 +9,9 @@ from typing import Callable, Protocol
 
 class Operator(Protocol):
     def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None: ...
+
+    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
+        """Move the laser tracer to mount ``mount`` (0: the first) on the table."""
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
         """A simulated polygon's certificate (the operator hands it over); None on hardware."""
@@ -37,6 +40,16 @@ class ConsoleOperator:
             raise RuntimeError("the procedure needs an operator (polygon re-seating) but there is no terminal")
         self._ask(message + " ")
 
+    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
+        if resumed:
+            message = f"\nOperator: the run resumes with the laser tracer on mount {mount + 1}. Do not move it. Press Enter."
+        else:
+            message = (f"\nOperator: move the laser tracer to mount {mount + 1} ({where}), at the same height as before; "
+                       "fix it, then press Enter (rtcal re-references the beam).")
+        if not sys.stdin.isatty() and self._ask is input:
+            raise RuntimeError("the procedure needs an operator (moving the tracer) but there is no terminal")
+        self._ask(message + " ")
+
     def polygon_certificate_arcsec(self) -> list[float] | None:
         return None
 
@@ -54,6 +67,9 @@ class BenchOperator:
 
     def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
         self.bench.reseat_polygon(offset_deg)  # deterministic per seating: a resume finds it as it was
+
+    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
+        self.bench.mount_tracer(mount)
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
         return [float(v) for v in self.bench.face_certificate_arcsec]
@@ -83,6 +99,11 @@ class RemoteSimOperator:
         reply = self._ask(f"RESEAT {offset_deg!r}")
         if reply != "OK":
             raise RuntimeError(f"simulated operator refused to re-seat the polygon: {reply!r}")
+
+    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
+        reply = self._ask(f"MOUNT {int(mount)}")
+        if reply != "OK":
+            raise RuntimeError(f"simulated operator refused to move the tracer: {reply!r}")
 
     def clear_fault(self, message: str) -> None:
         if self._ask("CLEAR") != "OK":

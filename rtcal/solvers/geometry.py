@@ -69,6 +69,17 @@ def adjacent_angles_rad(stations_mm: np.ndarray, center_mm: np.ndarray) -> np.nd
     return np.arccos(np.clip(cos_t, -1.0, 1.0))
 
 
+def step_directions(stations_mm: np.ndarray, center_mm: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """+1 where the step from one station to the next turns counterclockwise about ``normal``, else −1.
+
+    Eq. 32's law of cosines gives the size of a step, never its sense; the sense is the sign of
+    (r_j × r_j+1)·n with r the stations seen from the centre and n the plane's normal (+Z side).
+    """
+    r = np.asarray(stations_mm, dtype=float) - center_mm
+    turn = np.cross(r[:-1], r[1:]) @ np.asarray(normal, dtype=float)
+    return np.where(turn >= 0.0, 1.0, -1.0)
+
+
 def sigma_eq34(deviations: np.ndarray, stations: int) -> float:
     """Eq. 34 as printed: ½·sqrt(Σ Δθ² / (m(m − 1))) with m the number of stations."""
     dev = np.asarray(deviations, dtype=float)

@@ -2,16 +2,38 @@
 
 Least squares rather than an FFT, so that samples need not be evenly spaced, several passes
 may each carry their own unknown offset (a re-seated polygon, another direction), and every
-amplitude gets a 1σ from the fit's residuals. Orders that the sampling cannot resolve
-(n ≥ U/2 for U distinct angles, the Nyquist limit), or that would leave fewer than half the
-samples as degrees of freedom, are not fitted.
+amplitude gets a 1σ from the fit's residuals.
+
+Which orders a sampling resolves: with U distinct angles, orders n < U/2 fully (Nyquist). For
+U even, order U/2 shows only its cosine part at the sample points (sin(U/2·θ) vanishes there):
+it is fitted as that one column and reported ``aliased`` — its visible amplitude |A·sin φ| is a
+lower bound, its phase unknown; orders above U/2 alias onto lower ones, which a warning says.
+Orders are also limited so that the fit keeps at least half its samples as degrees of freedom.
+
+Significance: under "no such harmonic" an order's two coefficients are normal with the same 1σ
+σ_c, so A²/(2σ_c²) is χ²₂/2; with σ_c from the residuals (ν degrees of freedom) the statistic is
+F(2, ν), and an order is significant when its chance is below α/K for K orders tested
+(Bonferroni: at most α chance of any false flag per series). Where a stated floor per sample
+(the readings' resolution/√12, or numerical noise — a noise-free fit has residuals at rounding
+level and would otherwise call 10⁻¹⁴″ significant) exceeds the residual σ, σ_c is taken as known
+and the threshold is Rayleigh's, P(A > t) = exp(−t²/2σ_c²). Coarsely quantised readings of a
+smooth motion (a 1 µm dial indicator on a shaft that moves a few µm) are not white noise: the
+rounding error repeats with the motion and puts spurious harmonics at particular orders. A
+caller that knows the quantisation passes per-order ``quantisation_threshold``s (what rounding
+alone produces, simulated), and an order must exceed those too.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import f as f_dist
+from scipy.stats import norm
+from scipy.stats import t as t_dist
+
+FAMILY_ALPHA = 0.01  # chance of any false "significant" in one series
+NUMERICAL_FLOOR = 1e-9  # relative to the series' largest value
 
 
 @dataclass(frozen=True)
@@ -21,11 +43,9 @@ class HarmonicTerm:
     phase_rad: float
     amplitude_sigma: float
     phase_sigma_rad: float
-
-    @property
-    def significant(self) -> bool:
-        """Amplitude above three of its standard deviations."""
-        return self.amplitude > 3.0 * self.amplitude_sigma
+    significant: bool = False
+    threshold: float = 0.0  # amplitude above which this order counts as significant
+    aliased: bool = False  # the Nyquist order: only |A·sin φ| is visible, phase unknown
 
 
 @dataclass(frozen=True)
@@ -34,6 +54,12 @@ class HarmonicFit:
     offsets: np.ndarray  # one per group
     residual_rms: float
     sigma: float  # residual standard deviation, with the fit's degrees of freedom
+    warnings: list[str] = field(default_factory=list)
+
+
+def distinct_angles(angles_rad: np.ndarray) -> np.ndarray:
+    angles = np.asarray(angles_rad, float)
+    return np.unique(np.round(np.mod(angles, 2 * np.pi), 9) % np.round(2 * np.pi, 9))
 
 
 def resolvable_orders(angles_rad: np.ndarray, max_order: int, n_offsets: int = 1) -> list[int]:
@@ -41,28 +67,68 @@ def resolvable_orders(angles_rad: np.ndarray, max_order: int, n_offsets: int = 1
     the fit keeps at least half its samples as degrees of freedom (2K + offsets ≤ N/2), so
     that the residual gives an honest σ."""
     angles = np.asarray(angles_rad, float)
-    distinct = np.unique(np.round(np.mod(angles, 2 * np.pi), 9) % np.round(2 * np.pi, 9))
-    nyquist = (len(distinct) - 1) // 2
+    nyquist = (len(distinct_angles(angles)) - 1) // 2
     by_dof = (len(angles) // 2 - n_offsets) // 2
     return list(range(1, max(0, min(max_order, nyquist, by_dof)) + 1))
 
 
-def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int], groups: np.ndarray | None = None) -> HarmonicFit:
-    """Fit A_n, φ_n for the given orders and one offset per group (all one group by default)."""
-    theta = np.asarray(angles_rad, dtype=float)
-    y = np.asarray(values, dtype=float)
-    groups = np.zeros(len(y), dtype=int) if groups is None else np.unique(np.asarray(groups), return_inverse=True)[1]
+def nyquist_order(angles_rad: np.ndarray) -> int | None:
+    """U/2 when the U distinct angles are evenly spaced and U is even (its cosine part is seen)."""
+    d = distinct_angles(angles_rad)
+    if len(d) < 4 or len(d) % 2:
+        return None
+    gaps = np.diff(np.concatenate([d, [d[0] + 2 * np.pi]]))
+    return len(d) // 2 if np.allclose(gaps, gaps[0], atol=1e-7) else None
+
+
+def _design(theta: np.ndarray, orders: list[int], groups: np.ndarray, aliased_order: int | None) -> tuple[np.ndarray, int]:
+    groups = np.unique(np.asarray(groups), return_inverse=True)[1]
     n_groups = int(groups.max()) + 1 if len(groups) else 1
     cols = [np.sin(n * theta) for n in orders] + [np.cos(n * theta) for n in orders]
-    offsets = np.zeros((len(y), n_groups))
-    offsets[np.arange(len(y)), groups] = 1.0
-    A = np.column_stack(cols + [offsets]) if cols else offsets
+    if aliased_order is not None:
+        cols.append(np.cos(aliased_order * theta))
+    offsets = np.zeros((len(theta), n_groups))
+    offsets[np.arange(len(theta)), groups] = 1.0
+    return (np.column_stack(cols + [offsets]) if cols else offsets), n_groups
+
+
+def harmonic_amplitudes(angles_rad: np.ndarray, values: np.ndarray, orders: list[int], groups: np.ndarray) -> np.ndarray:
+    """Fitted amplitude per order only (no statistics), of one series or of each column of
+    ``values`` (samples × series): for simulating what an error alone produces."""
+    A, _ = _design(np.asarray(angles_rad, float), orders, groups, None)
+    coef = np.linalg.lstsq(A, np.asarray(values, float), rcond=None)[0]
+    k = len(orders)
+    return np.hypot(coef[:k], coef[k : 2 * k]).T
+
+
+def smooth_values(angles_rad: np.ndarray, values: np.ndarray, orders: list[int], groups: np.ndarray) -> np.ndarray:
+    """The harmonic model of a series evaluated at its own samples."""
+    A, _ = _design(np.asarray(angles_rad, float), orders, groups, None)
+    return A @ np.linalg.lstsq(A, np.asarray(values, float), rcond=None)[0]
+
+
+def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int], groups: np.ndarray | None = None,
+                  floor_sigma: float = 0.0, aliased_order: int | None = None, max_order: int | None = None,
+                  alpha: float = FAMILY_ALPHA, quantisation_threshold: dict[int, float] | None = None) -> HarmonicFit:
+    """Fit A_n, φ_n for the given orders (and the cosine part of ``aliased_order``) plus one offset
+    per group (all one group by default). ``floor_sigma`` is the smallest per-sample σ the
+    readings can have (resolution/√12); ``max_order`` the highest order asked for (for the warning)."""
+    theta = np.asarray(angles_rad, dtype=float)
+    y = np.asarray(values, dtype=float)
+    A, n_groups = _design(theta, orders, np.zeros(len(y), int) if groups is None else groups, aliased_order)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    quantisation_threshold = quantisation_threshold or {}
     resid = y - A @ coef
     dof = max(len(y) - A.shape[1], 1)
     sigma = float(np.sqrt(resid @ resid / dof))
-    cov = sigma**2 * np.linalg.pinv(A.T @ A)
+    floor = max(floor_sigma, NUMERICAL_FLOOR * float(np.max(np.abs(y))) if y.size else 0.0)
+    sigma_eff = max(sigma, floor)
+    estimated = sigma >= floor  # σ from the residuals (F and t), or a known floor (Rayleigh and normal)
+    cov = sigma_eff**2 * np.linalg.pinv(A.T @ A)
     k = len(orders)
+    tested = k + (aliased_order is not None)
+    p_each = alpha / max(tested, 1)
+    z = float(np.sqrt(2.0 * f_dist.isf(p_each, 2, dof))) if estimated else float(np.sqrt(2.0 * np.log(1.0 / p_each)))
     terms = []
     for i, n in enumerate(orders):
         a, b = coef[i], coef[k + i]  # A sin(nθ+φ) = A cosφ·sin nθ + A sinφ·cos nθ
@@ -73,5 +139,28 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
             ph_var = (b * b * va + a * a * vb - 2 * a * b * cab) / amp**4
         else:
             amp_var, ph_var = (va + vb) / 2, np.pi**2
-        terms.append(HarmonicTerm(n, amp, float(np.arctan2(b, a)), float(np.sqrt(max(amp_var, 0.0))), float(np.sqrt(max(ph_var, 0.0)))))
-    return HarmonicFit(terms, coef[2 * k :], float(np.sqrt(np.mean(resid**2))), sigma)
+        threshold = max(z * float(np.sqrt((va + vb) / 2)), quantisation_threshold.get(n, 0.0))
+        terms.append(HarmonicTerm(n, amp, float(np.arctan2(b, a)), float(np.sqrt(max(amp_var, 0.0))),
+                                  float(np.sqrt(max(ph_var, 0.0))), amp > threshold, threshold))
+    warnings = []
+    if aliased_order is None and max_order is not None and orders and max_order > orders[-1]:
+        d = distinct_angles(theta)
+        gaps = np.diff(np.concatenate([d, [d[0] + 2 * np.pi]]))
+        if not np.allclose(gaps, gaps[0], atol=1e-7):
+            warnings.append(f"the {len(d)} angles are unevenly spaced: orders above {orders[-1]} are not resolved and "
+                            "an error of such an order shows in the fitted ones")
+    if aliased_order is not None:
+        b = float(coef[2 * k])
+        sd = float(np.sqrt(cov[2 * k, 2 * k]))
+        # one visible coefficient: |b| > t has probability 2·(1 − Φ(t/σ)); the same family level
+        threshold = float(t_dist.isf(p_each / 2.0, dof) if estimated else norm.isf(p_each / 2.0)) * sd
+        terms.append(HarmonicTerm(aliased_order, abs(b), float(np.sign(b) * np.pi / 2) if b else 0.0, sd, np.pi,
+                                  abs(b) > threshold, threshold, aliased=True))
+        if abs(b) > threshold:
+            warnings.append(f"order {aliased_order} is at the Nyquist limit of {2 * aliased_order} evenly spaced angles and "
+                            f"present: only its cosine part is seen ({abs(b):.3g} = |A·sin φ|, a lower bound of its "
+                            "amplitude; phase unknown)")
+            if max_order is not None and max_order > aliased_order:
+                warnings.append(f"orders above {aliased_order} cannot be resolved by this sampling: any such error "
+                                "aliases onto lower orders")
+    return HarmonicFit(terms, coef[A.shape[1] - n_groups:], float(np.sqrt(np.mean(resid**2))), sigma, warnings)

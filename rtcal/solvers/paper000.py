@@ -20,9 +20,17 @@ from rtcal.solvers.geometry import (
     plane_tilt_rad,
     project_to_plane,
     sigma_eq34,
+    step_directions,
 )
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.selfcal import StationFit, initial_guesses, solve_station
+from rtcal.solvers.station_budget import (
+    StationBudget,
+    StationNoiseModel,
+    StationObservations,
+    station_budget,
+)
+from rtcal.solvers.station_data import MultistationData
 from rtcal.units import rad_to_arcsec
 
 PAPER_NOTES: tuple[str, ...] = (
@@ -33,7 +41,9 @@ PAPER_NOTES: tuple[str, ...] = (
     "Eq. 36 is computed as printed at the nominal step angle; with the paper's fitted plane it gives "
     "about 3e-5 arcsec where the paper reports 0.4 arcsec.",
     "Eq. 33 is a per-step deviation (actual minus nominal angle between adjacent stations), not the "
-    "cumulative positioning error; rtcal reports both.",
+    "cumulative positioning deviation; rtcal reports both. Eq. 32 gives a step's size only: rtcal signs each "
+    "step by its sense about the plane's normal, so that a negative approach (steps clockwise) has the "
+    "right sign.",
 )
 
 
@@ -45,19 +55,36 @@ class StationChain:
     projected_mm: np.ndarray
     plane_lambda_mm: np.ndarray
     center_mm: np.ndarray
-    step_angles_rad: np.ndarray
-    deviation_arcsec: np.ndarray
-    sigma_arcsec: float
+    step_angles_rad: np.ndarray  # signed: counterclockwise about the plane's normal positive
+    deviation_arcsec: np.ndarray  # per step: actual − nominal step (eq. 33 with signed steps)
+    sigma_arcsec: float  # eq. 34: the paper's statistic of the deviations, not an uncertainty
     algorithm_error_arcsec: float
+
+    @property
+    def cumulative_deviation_arcsec(self) -> np.ndarray:
+        """Actual − commanded angle relative to the first station (ISO 230-1 ECC): 0, Δθ1, Δθ1+Δθ2, …"""
+        return np.concatenate([[0.0], np.cumsum(self.deviation_arcsec)])
 
 
 @dataclass(frozen=True)
 class PaperEstimate:
-    """The paper estimator's result; ``uncertainty_arcsec`` is rtcal's addition (1σ, linearised)."""
+    """The paper estimator's result, with rtcal's uncertainty budget of the cumulative deviation."""
 
     stations: list[StationFit]
     chain: StationChain
-    uncertainty_arcsec: np.ndarray
+    budget: StationBudget
+
+    @property
+    def converged(self) -> bool:
+        return all(f.converged for f in self.stations)
+
+    @property
+    def message(self) -> str:
+        bad = [f"station {j + 1}: {f.message}" for j, f in enumerate(self.stations) if not f.converged]
+        text = "; ".join(bad) if bad else "every station converged"
+        if not self.budget.variances.converged:
+            text += "; the noise sizes (REML) did not converge: the uncertainty is less certain"
+        return text
 
 
 def chain_from_stations(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray) -> StationChain:
@@ -69,44 +96,19 @@ def chain_from_stations(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray)
     plane = fit_plane(stations_mm)
     projected, lam = project_to_plane(stations_mm, plane)
     center = fit_circle_center(projected, plane)
-    steps = adjacent_angles_rad(projected, center)
-    nominal_steps = np.abs(np.diff(nominal))
+    steps = adjacent_angles_rad(projected, center) * step_directions(projected, center, plane.normal)
+    nominal_steps = np.diff(nominal)
     deviation = rad_to_arcsec(steps - nominal_steps)
     sigma = sigma_eq34(deviation, len(stations_mm))
     alpha = plane_tilt_rad(plane)
-    step = float(np.median(nominal_steps))
+    step = float(np.median(np.abs(nominal_steps)))
     alg = abs(rad_to_arcsec(algorithm_error_rad(step, alpha)))
     return StationChain(plane, projected, lam, center, steps, deviation, sigma, alg)
 
 
-def block_covariance(station_cov_mm2: list[np.ndarray]) -> np.ndarray:
-    """3m×3m covariance of independent stations from their (X, Y, Z, …) covariances."""
-    m = len(station_cov_mm2)
-    cov = np.zeros((3 * m, 3 * m))
-    for j, c in enumerate(station_cov_mm2):
-        cov[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] = c[:3, :3]
-    return cov
-
-
-def deviation_uncertainty(stations_mm: np.ndarray, cov_mm2: np.ndarray, nominal_angles_rad: np.ndarray) -> np.ndarray:
-    """1σ of each deviation (arcsec): the 3m×3m station covariance propagated through the chain.
-
-    The chain's Jacobian is taken by central differences (0.1 µm steps, far inside its linear
-    range).
-    """
-    base = np.asarray(stations_mm, dtype=float)
-    m = base.shape[0]
-    h = 1e-4
-    jac = np.zeros((m - 1, 3 * m))
-    for k in range(3 * m):
-        plus, minus = base.copy(), base.copy()
-        plus.flat[k] += h
-        minus.flat[k] -= h
-        jac[:, k] = (
-            chain_from_stations(plus, nominal_angles_rad).deviation_arcsec
-            - chain_from_stations(minus, nominal_angles_rad).deviation_arcsec
-        ) / (2 * h)
-    return np.sqrt(np.clip(np.diag(jac @ cov_mm2 @ jac.T), 0.0, None))
+def cumulative_function(nominal_angles_rad: np.ndarray):
+    """stations (m×3) → cumulative deviation (arcsec), the chain the budget differentiates."""
+    return lambda st: chain_from_stations(st, nominal_angles_rad).cumulative_deviation_arcsec
 
 
 def _station_problem(points_mm: np.ndarray, lengths: np.ndarray, segments: np.ndarray, guess: np.ndarray):
@@ -122,32 +124,45 @@ def _station_problem(points_mm: np.ndarray, lengths: np.ndarray, segments: np.nd
 
 
 def solve_paper(
-    points_mm: np.ndarray,
-    lengths_mm: np.ndarray,
-    nominal_angles_rad: np.ndarray,
+    data: MultistationData,
     first_station_guess_mm: np.ndarray,
     axis_point_mm: np.ndarray = np.zeros(3),
     params: LMParameters = LMParameters(),
-    segments: np.ndarray | None = None,
+    noise: StationNoiseModel = StationNoiseModel(),
 ) -> PaperEstimate:
     """Run the printed method on n points × m stations of lengths (mm, n×m; NaN: not measured).
 
-    ``segments`` (n×m) names each length's tracking segment; a station whose lengths span
-    several segments gets one dead path per segment (the printed model has one)."""
-    points_mm = np.asarray(points_mm, dtype=float)
-    lengths_mm = np.asarray(lengths_mm, dtype=float)
+    A station whose lengths span several tracking segments gets one dead path per segment (the
+    printed model has one). The budget propagates the stated sources through every station's
+    own fit (stations share the CMM points, so their errors correlate)."""
+    points_mm, lengths_mm = data.points_mm, data.lengths_mm
     n, m = lengths_mm.shape
     if points_mm.shape != (n, 3):
         raise ValueError(f"points are {points_mm.shape}, lengths are {lengths_mm.shape}: need n×3 and n×m")
-    segments = np.zeros((n, m), int) if segments is None else np.asarray(segments)
+    nominal_angles_rad = np.deg2rad(data.nominal_angles_deg)
     guesses = initial_guesses(
         first_station_guess_mm, nominal_angles_rad, np.asarray(axis_point_mm, float), points_mm, lengths_mm
     )
-    fits = []
+    fits, rows = [], []
     for j in range(m):
-        pts, ls, seg, x0 = _station_problem(points_mm, lengths_mm[:, j], segments[:, j], guesses[j])
+        pts, ls, seg, x0 = _station_problem(points_mm, lengths_mm[:, j], data.segments[:, j], guesses[j])
         fits.append(solve_station(pts, ls, x0, params, seg if seg.max() > 0 else None))
+        rows.append(np.flatnonzero(np.isfinite(lengths_mm[:, j])))
     centers = np.array([f.center_mm for f in fits])
     chain = chain_from_stations(centers, nominal_angles_rad)
-    unc = deviation_uncertainty(centers, block_covariance([f.covariance_mm2 for f in fits]), nominal_angles_rad)
-    return PaperEstimate(fits, chain, unc)
+    # all stations' fits as one block-diagonal problem, residuals station by station
+    widths = [f.jacobian.shape[1] for f in fits]
+    offsets = np.concatenate([[0], np.cumsum(widths)])
+    J = np.zeros((sum(len(r) for r in rows), offsets[-1]))
+    r0 = 0
+    for j, f in enumerate(fits):
+        J[r0 : r0 + len(rows[j]), offsets[j] : offsets[j + 1]] = f.jacobian
+        r0 += len(rows[j])
+    obs_point = np.concatenate(rows)
+    obs_station = np.concatenate([np.full(len(r), j) for j, r in enumerate(rows)])
+    obs = StationObservations(obs_point, obs_station, data.stage_visits[obs_point, obs_station], points_mm,
+                              data.point_visit_counts)
+    budget = station_budget(J, np.concatenate([f.residuals for f in fits]),
+                            offsets[:-1, None] + np.arange(3), obs, centers, nominal_angles_rad, chain.center_mm,
+                            chain.plane.normal, cumulative_function(nominal_angles_rad), noise)
+    return PaperEstimate(fits, chain, budget)

@@ -28,7 +28,8 @@ class StationFit:
     center_mm: np.ndarray
     dead_path_mm: float  # of the first segment
     rms_residual_um: float
-    covariance_mm2: np.ndarray  # of (X, Y, Z, d…) from σ̂²(JᵀJ)⁻¹
+    jacobian: np.ndarray  # of the residuals at the solution, columns (X, Y, Z, d…)
+    residuals: np.ndarray  # eq. 5 at the solution, mm
     iterations: int
     converged: bool
     message: str
@@ -50,21 +51,14 @@ def station_jacobian(x: np.ndarray, points_mm: np.ndarray, lengths_mm: np.ndarra
     return np.column_stack([diff / dist[:, None], d_cols])
 
 
-def _covariance(result_residuals: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
-    """σ̂²(JᵀJ)⁻¹ with σ̂² = ‖f‖²/(n − p): the linearised covariance of the unknowns."""
-    n, p = jacobian.shape
-    dof = max(n - p, 1)
-    s2 = float(result_residuals @ result_residuals) / dof
-    return s2 * np.linalg.pinv(jacobian.T @ jacobian)
-
-
 def _fit(result: LMResult) -> StationFit:
     rms = float(np.sqrt(np.mean(result.residuals**2))) * 1e3
     return StationFit(
         center_mm=result.x[:3].copy(),
         dead_path_mm=float(result.x[3]),
         rms_residual_um=rms,
-        covariance_mm2=_covariance(result.residuals, result.jacobian),
+        jacobian=np.asarray(result.jacobian, float),
+        residuals=np.asarray(result.residuals, float),
         iterations=result.iterations,
         converged=result.converged,
         message=result.message,

@@ -18,8 +18,19 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from rtcal.solvers.paper000 import StationChain, chain_from_stations, deviation_uncertainty
+from rtcal.solvers.paper000 import (
+    StationChain,
+    chain_from_stations,
+    cumulative_function,
+)
 from rtcal.solvers.selfcal import initial_guesses
+from rtcal.solvers.station_budget import (
+    StationBudget,
+    StationNoiseModel,
+    StationObservations,
+    station_budget,
+)
+from rtcal.solvers.station_data import MultistationData
 
 
 @dataclass(frozen=True)
@@ -28,29 +39,29 @@ class SharedDeadPathEstimate:
     dead_paths_mm: np.ndarray  # one per segment, in segment order
     segment_ids: np.ndarray  # the segment numbers the dead paths belong to
     rms_residual_um: float
-    covariance_mm2: np.ndarray  # 3m×3m of the station centres
     chain: StationChain
-    uncertainty_arcsec: np.ndarray
+    budget: StationBudget
     converged: bool
     message: str
 
 
 def solve_shared_dead_path(
-    points_mm: np.ndarray,
-    lengths_mm: np.ndarray,
-    segments: np.ndarray,
-    nominal_angles_rad: np.ndarray,
+    data: MultistationData,
     first_station_guess_mm: np.ndarray,
     axis_point_mm: np.ndarray = np.zeros(3),
+    noise: StationNoiseModel = StationNoiseModel(),
 ) -> SharedDeadPathEstimate:
-    """Stations and segment dead paths from n×m lengths whose segment numbers are ``segments``."""
-    points = np.asarray(points_mm, dtype=float)
-    lengths = np.asarray(lengths_mm, dtype=float)
+    """Stations and segment dead paths from n×m lengths whose segment numbers are ``data.segments``."""
+    points = np.asarray(data.points_mm, dtype=float)
+    lengths = np.asarray(data.lengths_mm, dtype=float)
+    nominal_angles_rad = np.deg2rad(data.nominal_angles_deg)
     n, m = lengths.shape
     valid = np.isfinite(lengths)  # NaN: a reading that was skipped
     pi, sj = np.nonzero(valid)  # point and station of each observation
     obs = lengths[valid]
-    seg_ids, seg_index = np.unique(np.asarray(segments)[valid], return_inverse=True)
+    if len(obs) < 3 * m + 1:
+        raise ValueError(f"{len(obs)} lengths for {3 * m} station coordinates and the dead paths")
+    seg_ids, seg_index = np.unique(np.asarray(data.segments)[valid], return_inverse=True)
     k = len(seg_ids)
     guess = initial_guesses(first_station_guess_mm, nominal_angles_rad, np.asarray(axis_point_mm, float), points, lengths)
     start = np.linalg.norm(points[pi] - guess[sj, :3], axis=1) - obs
@@ -74,13 +85,12 @@ def solve_shared_dead_path(
 
     sol = least_squares(residuals, x0, jac=jacobian, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     centers = sol.x[: 3 * m].reshape(m, 3)
-    J = sol.jac
-    dof = max(len(obs) - J.shape[1], 1)
-    cov = float(sol.fun @ sol.fun) / dof * np.linalg.pinv(J.T @ J)
-    cov_centers = cov[: 3 * m, : 3 * m]
     chain = chain_from_stations(centers, nominal_angles_rad)
-    unc = deviation_uncertainty(centers, cov_centers, nominal_angles_rad)
+    observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts)
+    budget = station_budget(sol.jac, sol.fun, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
+                            chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise)
+    converged = bool(sol.success) and sol.status > 0
     return SharedDeadPathEstimate(
         centers, sol.x[3 * m :].copy(), seg_ids, float(np.sqrt(np.mean(sol.fun**2))) * 1e3,
-        cov_centers, chain, unc, bool(sol.success), str(sol.message),
+        chain, budget, converged, str(sol.message),
     )

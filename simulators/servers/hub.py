@@ -19,11 +19,27 @@ from typing import Literal
 from rtcal.clock import VirtualClock
 from simulators.az_drive import AzDriveModel, steps_per_degree
 from simulators.bench import Bench
-from simulators.instruments import SimAutocollimator, SimCmm, SimDialIndicator, SimEncoder, SimLaserTracer, SimStage
+from simulators.instruments import (
+    SimAutocollimator,
+    SimCmm,
+    SimDialIndicator,
+    SimEncoder,
+    SimEnvironmentSensor,
+    SimLaserTracer,
+    SimStage,
+)
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
 from simulators.servers.ipp_server import serve_ipp
-from simulators.servers.serial_protocols import ElcomatHandler, FaultyLine, LineHandler, QsbHandler, SylvacHandler, TracerHandler
+from simulators.servers.serial_protocols import (
+    ElcomatHandler,
+    EnvironmentHandler,
+    FaultyLine,
+    LineHandler,
+    QsbHandler,
+    SylvacHandler,
+    TracerHandler,
+)
 
 DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # 0.001° per step when the scenario names no stepper
 
@@ -67,6 +83,7 @@ class SimulatorHub:
             "autocollimator": ElcomatHandler(SimAutocollimator(b, inject=False)),
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False)),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False)),
+            "environment": EnvironmentHandler(SimEnvironmentSensor(b, inject=False)),
         }
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
         self._fds: list[int] = []
@@ -227,7 +244,8 @@ class SimulatorHub:
         return buffer
 
     async def _operator_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench; ``CERT?``
+        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>``
+        moves the laser tracer to its first or second mount; ``CERT?``
         hands over the polygon's calibration certificate (face errors, arcsec); ``CLEAR``
         releases an emergency stop."""
         try:
@@ -239,6 +257,9 @@ class SimulatorHub:
                         writer.write(b"OK\n")
                     except ValueError:
                         writer.write(b"ERR ARG\n")
+                elif len(words) == 2 and words[0] == "MOUNT" and words[1] in ("0", "1"):
+                    self.bench.mount_tracer(int(words[1]))
+                    writer.write(b"OK\n")
                 elif words == ["CLEAR"]:
                     self.bench.emergency_stop = False
                     writer.write(b"OK\n")

@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Protocol
 
 from drivers.errors import InstrumentFault, TrackingLost
-from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimLaserTracer
+from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimEnvironmentSensor, SimLaserTracer
 
 
 class LineHandler(Protocol):
@@ -123,3 +123,23 @@ class TracerHandler:
                 return b"ERR LOST\r\n"
             return f"LEN {r.length_mm * 1e6:.3f} {r.segment}\r\n".encode()
         return b"ERR CMD\r\n"
+
+
+class EnvironmentHandler:
+    """rtcal's environment line protocol: ``MEAS?`` → ``T=<°C> P=<Pa> RH=<%> TM=<°C>``."""
+
+    reply_terminator = b"\r\n"
+    terminator = b"\n"
+
+    def __init__(self, instrument: SimEnvironmentSensor):
+        self.instrument = instrument
+
+    def counted(self, request: bytes) -> bool:
+        return True
+
+    def handle(self, request: bytes) -> bytes:
+        if request.strip() != b"MEAS?":
+            return b"ERR CMD\r\n"
+        r = self.instrument.read()
+        return (f"T={r.air_temperature_c:.4f} P={r.air_pressure_pa:.2f} RH={r.humidity_pct:.2f} "
+                f"TM={r.material_temperature_c:.4f}\r\n").encode()

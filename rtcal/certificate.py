@@ -1,0 +1,197 @@
+"""The certificate-grade report: report.html (self-contained, figures embedded) and report.pdf.
+
+Both lead with what a reader signs off: who and what (metadata), the result per target and
+direction with its expanded uncertainty U (k = 2), the ISO 230-2 and VDI 3441 parameters and the
+figures; then the uncertainty budget, the method, the conditions and the run's events. One model
+(:func:`report_model`, a pure function of results.json) feeds both renderers.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+from pathlib import Path
+from typing import Any
+
+from rtcal.comparison import mean_curve
+from rtcal.deviations import PositioningDeviations
+
+ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, positive approach"),
+            ("E_down", "E↓", "unidirectional systematic positional deviation, negative approach"),
+            ("E", "E", "bidirectional systematic positional deviation"),
+            ("M", "M", "range of the mean bidirectional positional deviation"),
+            ("B", "B", "reversal value (max |B_i|)"), ("B_mean", "B mean", "mean reversal value"),
+            ("R_up", "R↑", "unidirectional repeatability, positive"), ("R_down", "R↓", "unidirectional repeatability, negative"),
+            ("R", "R", "bidirectional repeatability"), ("A_up", "A↑", "unidirectional accuracy, positive"),
+            ("A_down", "A↓", "unidirectional accuracy, negative"), ("A", "A", "bidirectional accuracy"))
+VDI_KEYS = (("Pa", "Pa", "position deviation"), ("P", "P", "position uncertainty"), ("Ps_max", "Ps max", "positional scatter, max"),
+            ("Ps_mean", "Ps mean", "positional scatter, mean"), ("U_max", "U max", "reversal span, max"),
+            ("U_mean", "U mean", "reversal span, mean"))
+METADATA_KEYS = (("certificate_number", "Certificate"), ("customer", "Customer"), ("machine", "Machine"), ("axis", "Axis"),
+                 ("serial_number", "Serial number"), ("location", "Location"), ("operator", "Operator"))
+
+
+def _fmt(v: Any, digits: int = 2) -> str:
+    return "–" if v is None else f"{v:.{digits}f}"
+
+
+def report_model(results: dict[str, Any], run_dir: Path, figures: list[tuple[str, str]], method_text: list[str]) -> dict[str, Any]:
+    """Everything the report shows, as strings and rows, from results.json."""
+    meta = results.get("metadata") or {}
+    header = [(label, meta.get(key)) for key, label in METADATA_KEYS if meta.get(key)]
+    header += [("Procedure", results["procedure"].get("name") or results["procedure"].get("path", "")),
+               ("Calibration method", results["method"]), ("Measured", f"{results.get('started_utc') or '?'} – {results.get('finished_utc') or '?'} (UTC)"),
+               ("Report", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")),
+               ("Software", f"rtcal {results['rtcal_version']}")]
+    if isinstance(results.get("instruments"), dict):
+        instruments = [(name, address) for name, address in results["instruments"].items()]
+    else:
+        instruments = [("all", f"simulated in process; bench {results.get('bench')}; seed {results.get('seed')}")]
+    records = meta.get("instruments") or {}
+    instruments = [(name, where, (records.get(name) or {}).get("id", ""), (records.get(name) or {}).get("calibration_due", ""))
+                   for name, where in instruments]
+    warnings = [f"Estimator {n} {st['status']}: {st['message']}" for n, st in results.get("solver_status", {}).items()
+                if st["status"] != "converged"]
+    if str(results.get("bench", "")).startswith("ideal bench"):
+        warnings.append(results["bench"])
+    rows = []
+    if "positioning_deviations" in results:
+        table = PositioningDeviations.from_dict(results["positioning_deviations"])
+        curve = mean_curve(table, results, wrap=False)
+        counts: dict[tuple[float, int], int] = {}
+        for t, d in zip(table.target_deg, table.direction):
+            counts[(round(float(t), 6), int(d))] = counts.get((round(float(t), 6), int(d)), 0) + 1
+        for key in curve:  # in the measurement's order
+            x, u = curve[key]
+            rows.append((f"{key[0]:g}", "↑" if key[1] > 0 else "↓", f"{x:+.2f}", _fmt(u), _fmt(2 * u), str(counts.get(key, ""))))
+    evaluation = results.get("evaluation") or {}
+    iso = evaluation.get("iso230_2") or {}
+    vdi = evaluation.get("vdi3441") or {}
+    rec = results.get("recommended")
+    budget_rows = []
+    if rec:
+        b = results["estimates"][rec]["uncertainty_budget"]
+        for c in b["components"]:
+            contrib = [v for v in c["contribution_arcsec"] if v is not None]
+            stated = c["note"] if "," in c["unit"] else f"{c['input_sigma']:.3g} {c['unit']}"  # several inputs: say them
+            budget_rows.append((c["source"], c["type"], stated + (" (from the data)" if c["estimated_from_data"] else ""),
+                                _fmt(max(contrib) if contrib else None, 3)))
+        comb = [v for v in b["combined_arcsec"] if v is not None]
+        budget_rows.append(("combined standard uncertainty u", "", "", _fmt(max(comb) if comb else None, 3)))
+        budget_rows.append(("expanded uncertainty U (k = 2)", "", "", _fmt(2 * max(comb) if comb else None, 3)))
+        not_included = b["not_included"]
+    else:
+        not_included = []
+    environment = []
+    for name, v in (results.get("environment") or {}).items():
+        environment.append((name.replace("_", " "), f"{v['min']:g} … {v['max']:g} (mean {v['mean']:g})"))
+    events = {}
+    for ev in results.get("events", []):
+        events[ev["kind"]] = events.get(ev["kind"], 0) + 1
+    return {
+        "title": results["procedure"].get("name") or "rtcal calibration",
+        "header": header, "instruments": instruments, "warnings": warnings,
+        "rows": rows, "recommended": rec,
+        "iso": [(sym, desc, _fmt(iso.get(key))) for key, sym, desc in ISO_KEYS] if iso else [],
+        "vdi": [(sym, desc, _fmt(vdi.get(key))) for key, sym, desc in VDI_KEYS] if vdi else [],
+        "evaluation_notes": (iso.get("notes") or []) + [n for n in (vdi.get("notes") or []) if n not in (iso.get("notes") or [])],
+        "figures": [(run_dir / f, caption) for f, caption in figures if (run_dir / f).exists()],
+        "budget": budget_rows, "not_included": not_included,
+        "method": method_text, "environment": environment,
+        "events": ", ".join(f"{k}: {n}" for k, n in events.items()),
+        "raw_readings": results.get("raw_readings"), "skipped": results.get("skipped_readings", 0),
+    }
+
+
+def write_html(model: dict[str, Any], path: Path) -> Path:
+    from jinja2 import Environment, FileSystemLoader, select_autoescape
+
+    env = Environment(loader=FileSystemLoader(Path(__file__).parent / "templates"), autoescape=select_autoescape(["j2"]))
+    figures = [(base64.b64encode(p.read_bytes()).decode("ascii"), caption) for p, caption in model["figures"]]
+    path.write_text(env.get_template("report.html.j2").render(m=model, figures=figures), encoding="utf-8")
+    return path
+
+
+def write_pdf(model: dict[str, Any], path: Path) -> Path:
+    """A4 pages with reportlab: the same content as the HTML, in the same order."""
+    from reportlab.lib import colors
+    from reportlab.lib.pagesizes import A4
+    from reportlab.lib.styles import ParagraphStyle, getSampleStyleSheet
+    from reportlab.lib.units import mm
+    from reportlab.pdfbase import pdfmetrics
+    from reportlab.pdfbase.ttfonts import TTFont
+    from reportlab.platypus import Image, KeepTogether, Paragraph, SimpleDocTemplate, Spacer, Table, TableStyle
+
+    font, bold = _fonts(pdfmetrics, TTFont)
+    styles = getSampleStyleSheet()
+    body = ParagraphStyle("body", parent=styles["BodyText"], fontName=font, fontSize=8.5, leading=11)
+    small = ParagraphStyle("small", parent=body, fontSize=7.5, leading=9.5)
+    h1 = ParagraphStyle("h1", parent=styles["Heading1"], fontName=bold, fontSize=15, spaceAfter=4)
+    h2 = ParagraphStyle("h2", parent=styles["Heading2"], fontName=bold, fontSize=11, spaceBefore=8, spaceAfter=4)
+    width = A4[0] - 30 * mm
+
+    def esc(text: str) -> str:
+        return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+    def table(rows, header, col_widths=None, font_size=8):
+        head = [[Paragraph(f"<b>{esc(h)}</b>", small) for h in header]] if header else []
+        data = head + [[Paragraph(esc(c), small) for c in r] for r in rows]
+        t = Table(data, colWidths=col_widths, repeatRows=1 if header else 0)
+        t.setStyle(TableStyle([("GRID", (0, 0), (-1, -1), 0.3, colors.grey),
+                               ("BACKGROUND", (0, 0), (-1 if header else 0, 0 if header else -1), colors.HexColor("#e8eef5")),
+                               ("VALIGN", (0, 0), (-1, -1), "TOP"), ("FONTSIZE", (0, 0), (-1, -1), font_size),
+                               ("TOPPADDING", (0, 0), (-1, -1), 1.5), ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5)]))
+        return t
+
+    story = [Paragraph(esc(model["title"]), h1), Paragraph("Calibration of the angular positioning deviation of a rotary axis", body),
+             Spacer(1, 4 * mm), table(model["header"], None, [45 * mm, width - 45 * mm])]
+    for w in model["warnings"]:
+        story += [Spacer(1, 2 * mm), Paragraph(f"<b>Note:</b> {esc(w)}", body)]
+    story += [Paragraph("Result: positioning deviation per target and direction", h2),
+              Paragraph(f"Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction; "
+                        f"u standard uncertainty, U = 2u expanded uncertainty (k = 2, about 95 %). Estimate: {esc(model['recommended'])}.",
+                        small), Spacer(1, 2 * mm),
+              table(model["rows"], ["target / °", "direction", "deviation / ″", "u / ″", "U (k = 2) / ″", "runs"])]
+    if model["iso"]:
+        params = [(a[0], a[1], a[2]) for a in model["iso"]] + [(b[0], f"VDI 3441: {b[1]}", b[2]) for b in model["vdi"]]
+        story += [KeepTogether([Paragraph("ISO 230-2 and VDI/DGQ 3441 parameters (arcsec)", h2),
+                                table(params, ["symbol", "meaning", "value / ″"], [22 * mm, width - 50 * mm, 28 * mm])])]
+        story += [Paragraph(esc(n), small) for n in model["evaluation_notes"]]
+    for p, caption in model["figures"]:
+        from reportlab.lib.utils import ImageReader
+
+        iw, ih = ImageReader(str(p)).getSize()
+        story += [KeepTogether([Spacer(1, 3 * mm), Image(str(p), width=width, height=width * ih / iw), Paragraph(esc(caption), small)])]
+    if model["budget"]:
+        story += [KeepTogether([Paragraph("Uncertainty budget (largest contribution over the targets)", h2),
+                                table(model["budget"], ["source", "type", "input σ", "u / ″"], [70 * mm, 12 * mm, 55 * mm, 28 * mm])])]
+        story += [Paragraph(f"Not included: {esc(n)}", small) for n in model["not_included"]]
+    story += [Paragraph("Method", h2)] + [Paragraph(esc(t), body) for t in model["method"]]
+    story += [Paragraph("Instruments", h2), table(model["instruments"], ["instrument", "connection", "id", "calibration due"])]
+    if model["environment"]:
+        story += [Paragraph("Conditions", h2), table(model["environment"], ["quantity", "range"])]
+    story += [Paragraph("Run", h2), Paragraph(f"{model['raw_readings']} readings, {model['skipped']} skipped; events: {esc(model['events'])}", body)]
+
+    def footer(canvas, doc):
+        canvas.saveState()
+        canvas.setFont(font, 7)
+        canvas.drawString(15 * mm, 10 * mm, f"{model['title']} — page {doc.page}")
+        canvas.restoreState()
+
+    SimpleDocTemplate(str(path), pagesize=A4, leftMargin=15 * mm, rightMargin=15 * mm, topMargin=15 * mm, bottomMargin=15 * mm,
+                      title=model["title"], author="rtcal").build(story, onFirstPage=footer, onLaterPages=footer)
+    return path
+
+
+def _fonts(pdfmetrics, TTFont) -> tuple[str, str]:
+    """DejaVu Sans from matplotlib (it has ″, ↑, σ, ±, –); Helvetica if it cannot be found."""
+    try:
+        import matplotlib
+
+        base = Path(matplotlib.get_data_path()) / "fonts" / "ttf"
+        pdfmetrics.registerFont(TTFont("DejaVuSans", str(base / "DejaVuSans.ttf")))
+        pdfmetrics.registerFont(TTFont("DejaVuSans-Bold", str(base / "DejaVuSans-Bold.ttf")))
+        pdfmetrics.registerFontFamily("DejaVuSans", normal="DejaVuSans", bold="DejaVuSans-Bold")
+        return "DejaVuSans", "DejaVuSans-Bold"
+    except Exception:  # noqa: BLE001 — any font problem: fall back to a built-in font
+        return "Helvetica", "Helvetica-Bold"

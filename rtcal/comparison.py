@@ -1,0 +1,108 @@
+"""`rtcal compare`: two runs of the same axis side by side — before and after compensation, or
+months apart (drift). Per target and direction the change of the mean deviation and whether it
+exceeds the combined expanded uncertainty U_c = 2·√(u_A² + u_B²) of the two means (two runs are
+independent measurements); the ISO 230-2 parameters of both; one plot with both curves and
+their U (k = 2) bands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rtcal.deviations import PositioningDeviations
+from rtcal.evaluation import evaluate
+
+
+def mean_curve(table: PositioningDeviations, results: dict | None, wrap: bool = True) -> dict[tuple[float, int], tuple[float, float]]:
+    """(target, direction) → (mean deviation, its standard uncertainty). From a run, the recommended
+    estimate's own cumulative deviation and u (its covariance knows what the runs share); from a
+    CSV, the mean over the runs with u = RMS(u)/√n (independent rows assumed). ``wrap``: targets
+    taken modulo 360° (to match two runs); the order is the measurement's."""
+
+    def key(t: float) -> float:
+        return round(float(t) % 360.0 if wrap else float(t), 6)
+
+    if results and results.get("recommended") in results.get("estimates", {}):
+        e = results["estimates"][results["recommended"]]
+        if "target_deg" in e:
+            targets, dirs = e["target_deg"], e["target_direction"]
+        else:
+            targets = results["nominal_angles_deg"]
+            dirs = [int(table.direction[0])] * len(targets)
+        return {(key(t), int(d)): (float(x), float(u))
+                for t, d, x, u in zip(targets, dirs, e["cumulative_deviation_arcsec"], e["cumulative_uncertainty_arcsec"])
+                if x is not None and u is not None}
+    out = {}
+    for t in np.unique(np.round(table.target_deg, 6)):
+        for d in (1, -1):
+            sel = np.isclose(table.target_deg, t) & (table.direction == d) & np.isfinite(table.deviation_arcsec)
+            if sel.any():
+                u = table.uncertainty_arcsec[sel]
+                u_mean = float(np.sqrt(np.nanmean(u**2) / sel.sum())) if np.any(np.isfinite(u)) else float("nan")
+                out[(key(t), d)] = (float(table.deviation_arcsec[sel].mean()), u_mean)
+    return out
+
+
+def compare(a: tuple[PositioningDeviations, dict | None], b: tuple[PositioningDeviations, dict | None],
+            names: tuple[str, str]) -> dict[str, Any]:
+    ca, cb = mean_curve(*a), mean_curve(*b)
+    common = sorted(set(ca) & set(cb), key=lambda k: (-k[1], k[0]))
+    rows = []
+    for key in common:
+        (xa, ua), (xb, ub) = ca[key], cb[key]
+        Uc = 2.0 * float(np.hypot(ua, ub))
+        change = xb - xa
+        rows.append({"target_deg": key[0], "direction": key[1], "a_arcsec": round(xa, 4), "b_arcsec": round(xb, 4),
+                     "change_arcsec": round(change, 4), "combined_U_arcsec": round(Uc, 4) if np.isfinite(Uc) else None,
+                     "exceeds_U": bool(abs(change) > Uc) if np.isfinite(Uc) else None})
+    ea, eb = evaluate(a[0], "iso230-2"), evaluate(b[0], "iso230-2")
+    keys = ("E_up", "E_down", "E", "M", "B", "B_mean", "R", "A")
+    return {
+        "a": names[0], "b": names[1],
+        "targets_compared": len(rows),
+        "targets_changed": sum(1 for r in rows if r["exceeds_U"]),
+        "only_in_a": len(set(ca) - set(cb)), "only_in_b": len(set(cb) - set(ca)),
+        "iso230_2": {k: {"a": ea[k], "b": eb[k]} for k in keys},
+        "per_target": rows,
+        "note": "change = b − a of the mean deviation; it exceeds U when |change| > 2·√(u_a² + u_b²)",
+    }
+
+
+def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, dict | None], b: tuple[PositioningDeviations, dict | None],
+                    path: Path) -> Path:
+    """Both runs' mean deviation per target and direction on one axis, each with its U (k = 2)
+    band; ↑ solid, ↓ dashed; the title names both runs and how many values changed beyond U_c."""
+    from matplotlib.patches import Patch
+
+    from rtcal.report import plt
+
+    fig, ax = plt.subplots(figsize=(9.5, 5.2))
+    for k, ((table, results), name) in enumerate(zip((a, b), (result["a"], result["b"]))):
+        curve = mean_curve(table, results)
+        for d, style in ((1, "-"), (-1, "--")):
+            keys = sorted(t for t in curve if t[1] == d)
+            if not keys:
+                continue
+            x = np.array([t[0] for t in keys])
+            y = np.array([curve[t][0] for t in keys])
+            u = np.array([curve[t][1] for t in keys])
+            color = f"C{k}"
+            if np.all(np.isfinite(u)):
+                ax.fill_between(x, y - 2 * u, y + 2 * u, color=color, alpha=0.25, lw=0)
+            ax.plot(x, y, style, marker="o", ms=4, color=color, label=f"{'A' if k == 0 else 'B'}: {name}, {'↑ positive' if d > 0 else '↓ negative'} approach")
+    ax.axhline(0, color="0.6", lw=0.8)
+    ax.set_xlabel("target (commanded angle) / °")
+    ax.set_ylabel("mean positioning deviation (actual − commanded) / ″")
+    ax.set_title(f"A: {result['a']}   vs   B: {result['b']}\n{result['targets_changed']} of {result['targets_compared']} target "
+                 "values changed by more than U_c = 2·√(u_A² + u_B²)", fontsize=10)
+    ax.grid(alpha=0.3)
+    handles, labels = ax.get_legend_handles_labels()
+    handles.append(Patch(color="0.5", alpha=0.3, lw=0))
+    labels.append("shaded: U (k = 2) of each mean")
+    ax.legend(handles, labels, fontsize=8, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,484 @@
+"""Compensation tables for a rotary axis: one writer and one parser per controller format.
+
+From a positioning-deviation table: per direction the mean deviation e = actual − commanded over
+the runs at each target, resampled onto a regular grid over one turn by periodic linear
+interpolation (a controller interpolates linearly between its entries too), and referred to the
+axis datum (e = 0 at 0° in the positive direction: the reference point stays where it is). The
+controller then commands θ + trim(θ) with trim = −e, so that the table reaches θ. How each
+format expresses that (actual positions, trims, values that "move the axis negative",
+increments) and its rules are in docs/compensation.md; every parser returns the trims, so a
+written table can be read back and applied (rtcal's simulated controller does exactly that:
+modulo one turn for the rotary formats, with the end trims held beyond its range for LinuxCNC,
+which does not wrap). A parser refuses, with its line, what the controller would read otherwise
+than rtcal meant (LinuxCNC silently stops at the first line that is not three numbers).
+
+Formats: ``linuxcnc`` (type 0: nominal, forward actual, reverse actual), ``siemens-lec`` (one
+table: the mean of both directions; the reversal is left to backlash compensation),
+``siemens-cec`` (one table per direction), ``fanuc`` (pitch error compensation parameters,
+incremental, bidirectional), ``heidenhain`` (a .COM table, one direction: the mean).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from rtcal.deviations import PositioningDeviations
+
+FORMATS = ("linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain")
+ARCSEC_PER_DEG = 3600.0
+MAX_POINTS = {"linuxcnc": 256, "heidenhain": 256, "siemens-lec": 1000, "siemens-cec": 1000, "fanuc": 1024}
+
+
+class CompensationError(ValueError):
+    """A table that cannot be made or read; the message says why (and where, for a file)."""
+
+
+@dataclass(frozen=True)
+class CompensationTable:
+    """Trims (deg) at ascending positions: from ``table_from_deviations`` a regular grid over one
+    turn, 0 … 360 inclusive (the last equals the first).
+
+    ``modulo``: the controller applies the table to the command modulo one turn (SINUMERIK modulo
+    tables, FANUC rotary axes, HEIDENHAIN 0 … 360 tables). False for LinuxCNC, which does not wrap:
+    beyond its first and last lines the end trims hold (its sentinel entries have zero slope), so
+    its table must span the joint's travel.
+    """
+
+    positions_deg: np.ndarray
+    trim_up_deg: np.ndarray
+    trim_down_deg: np.ndarray  # equal to trim_up_deg for a one-direction format
+    modulo: bool = True
+
+    @property
+    def step_deg(self) -> float:
+        return float(self.positions_deg[1] - self.positions_deg[0])
+
+    def trim_deg(self, commanded_deg: float, direction: int) -> float:
+        """What the controller adds to a command approached in ``direction``: linear between entries."""
+        values = self.trim_up_deg if direction >= 0 else self.trim_down_deg
+        at = np.mod(commanded_deg, 360.0) if self.modulo else commanded_deg
+        return float(np.interp(at, self.positions_deg, values))  # np.interp holds the end values outside
+
+
+def table_from_deviations(table: PositioningDeviations, step_deg: float = 15.0, max_gap_deg: float = 60.0) -> CompensationTable:
+    """Trims on a regular grid from the measured deviations (mean over runs per target and direction)."""
+    if not (0.0 < step_deg <= 90.0) or abs(360.0 / step_deg - round(360.0 / step_deg)) > 1e-9:
+        raise CompensationError(f"--step-deg {step_deg:g}: the grid must divide one turn (e.g. 5, 10, 15, 30)")
+    grid = np.linspace(0.0, 360.0, int(round(360.0 / step_deg)) + 1)
+    errors = {}
+    for d in (1, -1):
+        sel = (table.direction == d) & np.isfinite(table.deviation_arcsec)
+        if not sel.any():
+            continue
+        angles = np.mod(np.round(table.target_deg[sel], 9), 360.0)
+        targets = np.unique(angles)
+        means = np.array([table.deviation_arcsec[sel][angles == t].mean() for t in targets])
+        gaps = np.diff(np.concatenate([targets, [targets[0] + 360.0]]))
+        if len(targets) < 3 or gaps.max() > max_gap_deg + 1e-9:
+            worst = int(np.argmax(gaps))
+            raise CompensationError(
+                f"the {'positive' if d > 0 else 'negative'} direction's targets leave a gap of {gaps.max():g}° after "
+                f"{targets[worst]:g}° (at most {max_gap_deg:g}° is interpolated over): measure more targets")
+        errors[d] = np.interp(grid, targets, means, period=360.0)
+    if 1 not in errors:
+        raise CompensationError("no deviations in the positive direction: nothing to refer the datum to")
+    datum = errors[1][0]
+    up = -(errors[1] - datum) / ARCSEC_PER_DEG
+    down = -(errors[-1] - datum) / ARCSEC_PER_DEG if -1 in errors else up.copy()
+    return CompensationTable(grid, up, down)
+
+
+def _check_points(fmt: str, table: CompensationTable) -> None:
+    if len(table.positions_deg) > MAX_POINTS[fmt]:
+        raise CompensationError(f"{fmt}: {len(table.positions_deg)} points; the format takes at most {MAX_POINTS[fmt]} "
+                                "(choose a larger --step-deg)")
+
+
+# -- LinuxCNC ------------------------------------------------------------------------------
+def write_linuxcnc(table: CompensationTable, range_deg: tuple[float, float] = (0.0, 360.0)) -> str:
+    """COMP_FILE_TYPE = 0: ``nominal forward_actual reverse_actual`` per line, degrees, ascending;
+    no header or comment (LinuxCNC stops reading at the first line that is not three numbers).
+    ``range_deg``: the joint's travel to cover (default one turn); LinuxCNC does not wrap a table,
+    so a joint that travels −145 … 155° needs lines there, repeated from the turn's grid."""
+    lo, hi = (float(v) for v in range_deg)
+    n = round((hi - lo) / table.step_deg) if hi > lo else 0
+    if n < 2 or abs(n * table.step_deg - (hi - lo)) > 1e-9:
+        raise CompensationError(f"--range-deg {lo:g} {hi:g}: an ascending range of whole {table.step_deg:g}° steps")
+    if n + 1 > MAX_POINTS["linuxcnc"]:
+        raise CompensationError(f"linuxcnc: {n + 1} lines over {lo:g} … {hi:g}°; LinuxCNC reads at most "
+                                f"{MAX_POINTS['linuxcnc']} (choose a larger --step-deg or a narrower --range-deg)")
+    nominal = lo + table.step_deg * np.arange(n + 1)
+    up = np.array([table.trim_deg(a, +1) for a in nominal])
+    down = np.array([table.trim_deg(a, -1) for a in nominal])
+    return "".join(f"{p:.6f} {p - u:.8f} {p - d:.8f}\n" for p, u, d in zip(nominal, up, down))
+
+
+def parse_linuxcnc(text: str, where: str = "<linuxcnc>") -> CompensationTable:
+    """As LinuxCNC reads it (usrmotintf.cc): three numbers a line, trims = nominal − actual; but
+    what LinuxCNC would silently drop (everything after a line that is not three numbers, a
+    blank one included) is an error here, with its line."""
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()  # trailing blank lines end the table where it ends anyway
+    rows = []
+    for line_no, line in enumerate(lines, start=1):
+        parts = line.split()
+        try:
+            values = [float(v) for v in parts]
+            if len(values) != 3 or not all(np.isfinite(values)):
+                raise ValueError
+        except ValueError:
+            rest = len(lines) - line_no
+            raise CompensationError(f"{where}:{line_no}: expected three finite numbers (nominal, forward actual, reverse "
+                                    f"actual); LinuxCNC stops reading here{f' and would ignore the {rest} line(s) after it' if rest else ''}") from None
+        rows.append(values)
+    if len(rows) < 2 or len(rows) > MAX_POINTS["linuxcnc"]:
+        raise CompensationError(f"{where}: {len(rows)} lines (2 … {MAX_POINTS['linuxcnc']})")
+    a = np.array(rows)
+    bad = np.nonzero(np.diff(a[:, 0]) <= 0)[0]
+    if len(bad):
+        raise CompensationError(f"{where}:{bad[0] + 2}: nominal positions must increase strictly (LinuxCNC refuses the line)")
+    up, down = a[:, 0] - a[:, 1], a[:, 0] - a[:, 2]
+    _sane(up, down, where)
+    return CompensationTable(a[:, 0], up, down, modulo=False)
+
+
+# -- Siemens ---------------------------------------------------------------------------
+def write_siemens_lec(table: CompensationTable, axis: str = "C1") -> str:
+    """LEC, one table (the mean of both directions): a positive value moves the axis negative, so
+    the value is the deviation, −trim, in degrees; modulo: the value at MAX repeats MIN's."""
+    _check_points("siemens-lec", table)
+    mean = (table.trim_up_deg + table.trim_down_deg) / 2
+    lines = ["%_N_AX_EEC_INI", "CHANDATA(1)"]
+    lines += [f"$AA_ENC_COMP[0,{i},{axis}]={-v + 0.0:.8f}" for i, v in enumerate(mean)]
+    lines += [f"$AA_ENC_COMP_STEP[0,{axis}]={table.step_deg:.6f}", f"$AA_ENC_COMP_MIN[0,{axis}]=0.0",
+              f"$AA_ENC_COMP_MAX[0,{axis}]=360.0", f"$AA_ENC_COMP_IS_MODULO[0,{axis}]=1", "M17"]
+    return "\n".join(lines) + "\n"
+
+
+def write_siemens_cec(table: CompensationTable, axis: str = "C1") -> str:
+    """CEC, one table per direction (table 0 positive, table 1 negative approach): the value is
+    added to the axis's setpoint, so it is the trim, in degrees."""
+    _check_points("siemens-cec", table)
+    lines = ["%_N_NC_CEC_INI", "CHANDATA(1)"]
+    for t, (values, sense) in enumerate(((table.trim_up_deg, 1), (table.trim_down_deg, -1))):
+        lines += [f"$AN_CEC[{t},{i}]={v + 0.0:.8f}" for i, v in enumerate(values)]  # + 0.0: no "-0.0"
+        lines += [f"$AN_CEC_INPUT_AXIS[{t}]={axis}", f"$AN_CEC_OUTPUT_AXIS[{t}]={axis}", f"$AN_CEC_STEP[{t}]={table.step_deg:.6f}",
+                  f"$AN_CEC_MIN[{t}]=0.0", f"$AN_CEC_MAX[{t}]=360.0", f"$AN_CEC_DIRECTION[{t}]={sense}",
+                  f"$AN_CEC_IS_MODULO[{t}]=1"]
+    lines.append("M17")
+    return "\n".join(lines) + "\n"
+
+
+SIEMENS_HEADER = {"AA_ENC_COMP": "%_N_AX_EEC_INI", "AN_CEC": "%_N_NC_CEC_INI"}
+SIEMENS_LINE = re.compile(r"\$(AA_ENC_COMP|AN_CEC)(_[A-Z_]+)?\[([^\]]*)\]=(\S+)")
+
+
+def _siemens_values(text: str, where: str, name: str) -> tuple[dict[int, dict[int, float]], dict[int, dict[str, str]], dict]:
+    """Points and settings per table of a ``%_N_…_INI`` file: the header, CHANDATA, ``;`` comments,
+    ``$<name>…`` assignments and M17 at the end; anything else is an error on its line."""
+    lines = text.splitlines()
+    if not lines or lines[0].strip() != SIEMENS_HEADER[name]:
+        raise CompensationError(f"{where}:1: the first line must be {SIEMENS_HEADER[name]}")
+    points: dict[int, dict[int, float]] = {}
+    settings: dict[int, dict[str, str]] = {}
+    line_of: dict = {}
+    ended = False
+    for line_no, raw in enumerate(lines[1:], start=2):
+        line = raw.split(";", 1)[0].strip()
+        if not line or line.startswith("CHANDATA("):
+            continue
+        if ended:
+            raise CompensationError(f"{where}:{line_no}: nothing may follow M17")
+        if line == "M17":
+            ended = True
+            continue
+        m = SIEMENS_LINE.fullmatch(line)
+        if not m or m.group(1) != name:
+            raise CompensationError(f"{where}:{line_no}: not a ${name} assignment: {line[:60]!r}")
+        suffix, index, value = m.group(2) or "", [i.strip() for i in m.group(3).split(",")], m.group(4)
+        try:
+            table_no = int(index[0])
+            if not suffix:
+                point = int(index[1])
+                if point in points.setdefault(table_no, {}):
+                    raise CompensationError(f"{where}:{line_no}: point {point} of table {table_no} is given twice")
+                points[table_no][point] = float(value)
+                line_of[(table_no, point)] = line_no
+            else:
+                settings.setdefault(table_no, {})[suffix] = value
+                line_of[(table_no, suffix)] = line_no
+        except (IndexError, ValueError):
+            raise CompensationError(f"{where}:{line_no}: expected ${name}[table,point…]=number") from None
+    if not ended:
+        raise CompensationError(f"{where}: M17 is missing at the end (the file would not load)")
+    return points, settings, line_of
+
+
+def _siemens_table(values: dict[int, float], settings: dict[str, str], where: str) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        step, lo, hi = float(settings["_STEP"]), float(settings["_MIN"]), float(settings["_MAX"])
+    except (KeyError, ValueError):
+        raise CompensationError(f"{where}: STEP, MIN and MAX must be given as numbers") from None
+    if settings.get("_IS_MODULO", "0").strip() not in ("1", "1.0"):
+        raise CompensationError(f"{where}: a rotary axis's table over one turn is a modulo table (IS_MODULO = 1)")
+    if sorted(values) != list(range(len(values))):
+        raise CompensationError(f"{where}: the points must be numbered 0, 1, 2, … without gaps")
+    positions = lo + step * np.arange(len(values))
+    if abs(positions[-1] - hi) > 1e-6:
+        raise CompensationError(f"{where}: {len(values)} points of {step:g}° from {lo:g} do not end at MAX {hi:g}")
+    return positions, np.array([values[i] for i in range(len(values))])
+
+
+def parse_siemens_lec(text: str, where: str = "<siemens-lec>") -> CompensationTable:
+    points, settings, _ = _siemens_values(text, where, "AA_ENC_COMP")
+    if list(points) != [0]:
+        raise CompensationError(f"{where}: expected one table, encoder 0 ($AA_ENC_COMP[0,…])")
+    positions, values = _siemens_table(points[0], settings.get(0, {}), where)
+    return _regular(positions, -values, -values, where, MAX_POINTS["siemens-lec"])
+
+
+def parse_siemens_cec(text: str, where: str = "<siemens-cec>") -> CompensationTable:
+    points, settings, _ = _siemens_values(text, where, "AN_CEC")
+    tables = {}
+    for t, values in points.items():
+        s = settings.get(t, {})
+        if s.get("_INPUT_AXIS") is None or s.get("_INPUT_AXIS") != s.get("_OUTPUT_AXIS"):
+            raise CompensationError(f"{where}: table {t}: rtcal reads a rotary axis compensated on itself "
+                                    "($AN_CEC_INPUT_AXIS = $AN_CEC_OUTPUT_AXIS)")
+        try:
+            direction = int(float(s.get("_DIRECTION", "0")))
+        except ValueError:
+            raise CompensationError(f"{where}: table {t}: $AN_CEC_DIRECTION must be 1, -1 or 0") from None
+        if direction not in (1, -1, 0) or direction in tables or (direction == 0 and tables):
+            raise CompensationError(f"{where}: table {t}: one table per direction (DIRECTION 1 and -1), or one for both (0)")
+        tables[direction] = _siemens_table(values, s, f"{where}: table {t}")
+    if 0 in tables:
+        positions, both = tables[0]
+        return _regular(positions, both, both, where, MAX_POINTS["siemens-cec"])
+    if 1 not in tables or -1 not in tables:
+        raise CompensationError(f"{where}: a table for each direction ($AN_CEC_DIRECTION = 1 and -1) is needed")
+    (positions, up), (positions_down, down) = tables[1], tables[-1]
+    if len(positions) != len(positions_down) or not np.allclose(positions, positions_down):
+        raise CompensationError(f"{where}: both directions' tables need the same MIN, MAX and STEP")
+    return _regular(positions, up, down, where, MAX_POINTS["siemens-cec"])
+
+
+# -- FANUC -----------------------------------------------------------------------------
+FANUC_MAX_INCREMENT = 127  # a point's value, in detection units × magnification (−128 … 127)
+FANUC_MAX_POINT = 1023  # highest compensation point number (0i series)
+
+
+def write_fanuc(table: CompensationTable, unit_deg: float = 0.0001, first_point: int = 0) -> str:
+    """Pitch error compensation, bidirectional (parameter 3605#0 = 1), as a parameter listing.
+
+    Values are incremental, in detection units (``unit_deg``) × magnification (3623, the smallest
+    that keeps every value within ±127): point k holds the change of the trim over the interval
+    ending at it; over one turn they sum to zero, and the reference point (0°) holds the same
+    value as the last (360°, the same position). The positive-travel table is 3621 = 3620 …
+    3622; the negative-travel table follows it, 3626 being its farthest point on the − side (its
+    first, at 0°), and 3627 its absolute value at the reference position."""
+    _check_points("fanuc", table)
+    if not unit_deg > 0 or abs(table.step_deg / unit_deg - round(table.step_deg / unit_deg)) > 1e-6:
+        raise CompensationError(f"--detection-unit-deg {unit_deg:g}: must be positive and divide the {table.step_deg:g}° step")
+    n = len(table.positions_deg) - 1
+    up_points = list(range(first_point, first_point + n + 1))
+    down_points = list(range(first_point + n + 1, first_point + 2 * n + 2))
+    if first_point < 0 or down_points[-1] > FANUC_MAX_POINT:
+        raise CompensationError(f"compensation points {first_point} … {down_points[-1]} do not fit 0 … {FANUC_MAX_POINT}: "
+                                "choose --first-point")
+
+    for magnification in range(1, 101):
+        unit = unit_deg * magnification
+        cum_up = np.round(table.trim_up_deg / unit).astype(int)  # quantise the running trim, then difference: Σ = 0
+        cum_down = np.round(table.trim_down_deg / unit).astype(int)
+        inc_up, inc_down = np.diff(cum_up), np.diff(cum_down)
+        if max(np.abs(inc_up).max(), np.abs(inc_down).max()) <= FANUC_MAX_INCREMENT:
+            break
+    else:
+        raise CompensationError(f"fanuc: increments exceed ±{FANUC_MAX_INCREMENT} even at magnification 100")
+
+    def values(inc: np.ndarray) -> list[int]:
+        return [int(inc[-1])] + [int(v) for v in inc]  # the first point (0°) is the last (360°)
+
+    lines = [f"(FANUC pitch error compensation for the rotary axis; detection unit {unit_deg:g} deg; written by rtcal)",
+             "3605 #0 = 1  (bidirectional pitch error compensation)",
+             f"3620 = {first_point}  (compensation point of the reference position)",
+             f"3621 = {up_points[0]}  (farthest point on the - side, positive travel)",
+             f"3622 = {up_points[-1]}  (farthest point on the + side, positive travel)",
+             f"3623 = {magnification}  (magnification)", f"3624 = {round(table.step_deg / unit_deg)}  (interval, detection units)",
+             f"3625 = {round(360.0 / unit_deg)}  (travel per revolution, detection units)",
+             f"3626 = {down_points[0]}  (farthest point on the - side, negative travel)",
+             f"3627 = {int(cum_down[0] - cum_up[0])}  (absolute value at the reference position, negative travel)"]
+    lines += [f"{p} = {v:+d}" for p, v in zip(up_points, values(inc_up))]
+    lines += [f"{p} = {v:+d}" for p, v in zip(down_points, values(inc_down))]
+    return "\n".join(lines) + "\n"
+
+
+FANUC_LINE = re.compile(r"(\d+)( #0)? = ([+-]?\d+)(?:\s+\(.*\))?")
+
+
+def parse_fanuc(text: str, where: str = "<fanuc>") -> CompensationTable:
+    """The listing back to trims, as the control applies it: the running sum of the increments
+    from the reference position, times the detection unit (360° / 3625) and the magnification;
+    the negative-travel table starts from 3627."""
+    values: dict[int, int] = {}
+    line_of: dict[int, int] = {}
+    for line_no, line in enumerate(text.splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("("):
+            continue
+        m = FANUC_LINE.fullmatch(line)
+        if not m or (m.group(2) and m.group(1) != "3605"):
+            raise CompensationError(f"{where}:{line_no}: expected `number = integer` (or `3605 #0 = 1`): {line[:60]!r}")
+        key = int(m.group(1))
+        if key in values:
+            raise CompensationError(f"{where}:{line_no}: {key} is given twice")
+        values[key], line_of[key] = int(m.group(3)), line_no
+    try:
+        ref, first, last, magnification, interval, per_rev = (values[k] for k in (3620, 3621, 3622, 3623, 3624, 3625))
+    except KeyError as exc:
+        raise CompensationError(f"{where}: parameter {exc.args[0]} is missing") from None
+    if first != ref:
+        raise CompensationError(f"{where}:{line_of[3621]}: a rotary axis's farthest − point (3621) is its reference point (3620)")
+    n = last - first
+    if n < 2 or interval <= 0 or magnification <= 0 or n * interval != per_rev:
+        raise CompensationError(f"{where}:{line_of[3622]}: 3622 − 3621 = {n} intervals of {interval} units must make one turn "
+                                f"of {per_rev} (3625), with magnification 3623 > 0")
+    unit = 360.0 / per_rev * magnification
+    bidirectional = values.get(3605) == 1
+
+    def trims(start: int, offset: int, what: str) -> np.ndarray:
+        points = range(start, start + n + 1)
+        missing = [p for p in points if p not in values]
+        if missing:
+            raise CompensationError(f"{where}: {what}: compensation point {missing[0]} is missing")
+        inc = np.array([values[p] for p in points])
+        if np.abs(inc).max() > FANUC_MAX_INCREMENT + 1:
+            raise CompensationError(f"{where}:{line_of[points[int(np.argmax(np.abs(inc)))]]}: {what}: a value beyond "
+                                    f"-128 … {FANUC_MAX_INCREMENT}")
+        if inc[1:].sum() != 0 or inc[0] != inc[-1]:
+            raise CompensationError(f"{where}:{line_of[points[-1]]}: {what}: a rotary table's increments must sum to zero "
+                                    "over the turn, and its first and last points (the same position) hold one value")
+        return (offset + np.concatenate([[0], np.cumsum(inc[1:])])) * unit
+
+    positions = np.arange(n + 1) * interval * 360.0 / per_rev
+    up = trims(first, 0, "positive travel")
+    used = set(range(first, last + 1))
+    if bidirectional:
+        if 3626 not in values:
+            raise CompensationError(f"{where}: bidirectional (3605 #0 = 1) needs 3626, the negative-travel table's first point")
+        start = values[3626]
+        if used & set(range(start, start + n + 1)):
+            raise CompensationError(f"{where}:{line_of[3626]}: the negative-travel table ({start} …) overlaps the positive one")
+        down = trims(start, values.get(3627, 0), "negative travel")
+        used |= set(range(start, start + n + 1))
+    else:
+        down = up
+    stray = sorted(k for k in values if k not in used and not 3605 <= k <= 3627)
+    if stray:
+        raise CompensationError(f"{where}:{line_of[stray[0]]}: point {stray[0]} belongs to no table")
+    return _regular(positions, up, down, where, MAX_POINTS["fanuc"])
+
+
+# -- HEIDENHAIN ------------------------------------------------------------------------
+def write_heidenhain(table: CompensationTable, axis: str = "C") -> str:
+    """A .COM table for nonlinear axis error compensation: entries 0 … 360°, the compensation value
+    of the axis added to its position (the trim), one direction (the mean of both)."""
+    _check_points("heidenhain", table)
+    mean = (table.trim_up_deg + table.trim_down_deg) / 2
+    lines = [f"BEGIN AXIS-{axis}.COM DATUM:+0.0000 DISTANCE:{table.step_deg:+.4f}", f"NR AXISPOS {axis}"]
+    lines += [f"{i} {p:+.4f} {v + 0.0:+.8f}" for i, (p, v) in enumerate(zip(table.positions_deg, mean))]
+    lines.append("[END]")
+    return "\n".join(lines) + "\n"
+
+
+HEIDENHAIN_HEADER = re.compile(r"BEGIN AXIS-([A-Z])\.COM DATUM:([+-]?\d+(?:\.\d*)?) DISTANCE:([+-]?\d+(?:\.\d*)?)")
+
+
+def parse_heidenhain(text: str, where: str = "<heidenhain>") -> CompensationTable:
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    header = HEIDENHAIN_HEADER.fullmatch(lines[0].strip()) if lines else None
+    if not header:
+        raise CompensationError(f"{where}:1: expected the header `BEGIN AXIS-C.COM DATUM:+0.0000 DISTANCE:+15.0000`")
+    axis, datum, distance = header.group(1), float(header.group(2)), float(header.group(3))
+    if len(lines) < 2 or lines[1].split() != ["NR", "AXISPOS", axis]:
+        raise CompensationError(f"{where}:2: expected the column line `NR AXISPOS {axis}`")
+    if lines[-1].strip() != "[END]":
+        raise CompensationError(f"{where}:{len(lines)}: the table ends with [END]")
+    rows = []
+    for line_no, line in enumerate(lines[2:-1], start=3):
+        parts = line.split()
+        try:
+            if len(parts) != 3:
+                raise ValueError
+            row = (int(parts[0]), float(parts[1]), float(parts[2]))
+        except ValueError:
+            raise CompensationError(f"{where}:{line_no}: expected `NR AXISPOS value`") from None
+        if row[0] != len(rows):
+            raise CompensationError(f"{where}:{line_no}: NR {row[0]}: entries are numbered 0, 1, 2, …")
+        if abs(row[1] - (datum + distance * row[0])) > 1e-4:
+            raise CompensationError(f"{where}:{line_no}: AXISPOS {row[1]:g} is not DATUM + NR × DISTANCE")
+        rows.append(row)
+    if not rows:
+        _empty(where)
+    a = np.array(rows, float)
+    return _regular(a[:, 1], a[:, 2], a[:, 2], where, MAX_POINTS["heidenhain"])
+
+
+# -- common ----------------------------------------------------------------------------
+def _empty(where: str) -> CompensationTable:
+    raise CompensationError(f"{where}: no entries")
+
+
+def _sane(up: np.ndarray, down: np.ndarray, where: str) -> None:
+    for name, values in (("positive", up), ("negative", down)):
+        if not np.all(np.isfinite(values)) or np.max(np.abs(values)) > 1.0:
+            raise CompensationError(f"{where}: {name}-direction values must be finite and below 1 degree")
+
+
+def _regular(positions: np.ndarray, up: np.ndarray, down: np.ndarray, where: str, max_points: int) -> CompensationTable:
+    """Check what every format needs for a rotary axis: 0 … 360, evenly spaced, closing on itself."""
+    positions = np.asarray(positions, float)
+    if len(positions) < 3 or len(positions) > max_points:
+        raise CompensationError(f"{where}: {len(positions)} entries (3 … {max_points})")
+    steps = np.diff(positions)
+    if np.any(steps <= 0):
+        raise CompensationError(f"{where}: positions must be strictly ascending")
+    if abs(positions[0]) > 1e-6 or abs(positions[-1] - 360.0) > 1e-6 or np.ptp(steps) > 1e-6:
+        raise CompensationError(f"{where}: a rotary table's entries run evenly from 0 to 360 degrees")
+    _sane(up, down, where)
+    for name, values in (("positive", up), ("negative", down)):
+        if abs(values[0] - values[-1]) > 1e-9:
+            raise CompensationError(f"{where}: the {name}-direction value at 360° must equal the one at 0° (one turn closes)")
+    return CompensationTable(positions, np.asarray(up, float), np.asarray(down, float))
+
+
+OPTIONS = {"linuxcnc": ("range_deg",), "siemens-lec": ("axis",), "siemens-cec": ("axis",), "fanuc": ("unit_deg", "first_point"),
+           "heidenhain": ("axis",)}  # what each writer takes besides the table (the CLI's format options)
+FLAGS = {"range_deg": "--range-deg", "axis": "--axis", "unit_deg": "--detection-unit-deg", "first_point": "--first-point"}
+AXIS_NAMES = {"siemens-lec": r"[A-Z][A-Z0-9_]{0,15}", "siemens-cec": r"[A-Z][A-Z0-9_]{0,15}", "heidenhain": r"[A-Z]"}
+
+
+def write_table(fmt: str, table: CompensationTable, **options) -> str:
+    """The ``fmt`` file's text; an option the format does not take (or a bad axis name) is an error."""
+    if fmt not in WRITERS:
+        raise CompensationError(f"unknown format {fmt!r}; one of {', '.join(FORMATS)}")
+    extra = sorted(set(options) - set(OPTIONS[fmt]))
+    if extra:
+        raise CompensationError(f"{fmt} takes no {', '.join(FLAGS[o] for o in extra)} "
+                                f"(its options: {', '.join(FLAGS[o] for o in OPTIONS[fmt])})")
+    if "axis" in options and not re.fullmatch(AXIS_NAMES[fmt], options["axis"]):
+        raise CompensationError(f"--axis {options['axis']!r} is not a {fmt} axis name (e.g. {'C' if fmt == 'heidenhain' else 'C1'})")
+    return WRITERS[fmt](table, **options)
+
+
+WRITERS = {"linuxcnc": write_linuxcnc, "siemens-lec": write_siemens_lec, "siemens-cec": write_siemens_cec,
+           "fanuc": write_fanuc, "heidenhain": write_heidenhain}
+PARSERS = {"linuxcnc": parse_linuxcnc, "siemens-lec": parse_siemens_lec, "siemens-cec": parse_siemens_cec,
+           "fanuc": parse_fanuc, "heidenhain": parse_heidenhain}

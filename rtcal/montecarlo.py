@@ -1,0 +1,184 @@
+"""`rtcal uncertainty`: does the reported uncertainty match the errors? (GUM Supplement 1)
+
+The simulated bench is the virtual experiment: the procedure is run N times, each trial with
+fresh random draws (every instrument's noise, the stage's repeatability, a polygon
+certificate's error) and, unless ``vary_systematics`` is off, with the quantities the budget
+treats as unknown systematic errors drawn from the distributions the procedure states (the
+CMM's scales and squareness, the table's error motions within their bounds). Each trial's
+every estimate is compared with the bench's truth; per target the RMS error over the trials
+is set beside the RMS of the 1σ the estimates reported.
+
+A trial is a whole run — sequencer, SQLite store, dataset, solvers — in its own directory,
+so what is checked is what a user runs. Trials run on a process pool by default, or on an
+existing Dask cluster (``scheduler`` address), with a progress bar.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import yaml
+
+from rtcal.procedure.models import Procedure
+
+
+@dataclass(frozen=True)
+class TrialSpec:
+    """One trial: the procedure file, the trial's bench (YAML text) and its seed."""
+
+    index: int
+    procedure_path: str
+    scenario_yaml: str
+    seed: int
+    workdir: str
+
+
+def plan_trials(procedure_path: Path, proc: Procedure, scenario, trials: int, seed: int, workdir: Path,
+                vary_systematics: bool = True) -> list[TrialSpec]:
+    """N trial specifications; the systematic draws come from one generator seeded by ``seed``."""
+    from rtcal.runner import METHODS
+
+    method = METHODS[proc.method]
+    rng = np.random.default_rng([seed, 0x5EED])
+    specs = []
+    for k in range(trials):
+        bench = method.draw_systematics(proc, scenario, rng) if vary_systematics else scenario
+        data = bench.model_dump(mode="json")
+        data["seed"] = int(seed) * 100003 + k
+        specs.append(TrialSpec(k, str(procedure_path), yaml.safe_dump(data, sort_keys=False), data["seed"], str(workdir)))
+    return specs
+
+
+def run_trial(spec: TrialSpec, single_thread: bool = True) -> dict[str, Any]:
+    """Run one trial; return per estimator the error against truth and the reported 1σ per target."""
+    from threadpoolctl import threadpool_limits
+
+    from rtcal.runner import AnalysisFailed, run_procedure
+
+    trial_dir = Path(tempfile.mkdtemp(prefix=f"trial{spec.index:05d}-", dir=spec.workdir))
+    try:
+        scenario_path = trial_dir / "bench.yaml"
+        scenario_path.write_text(spec.scenario_yaml, encoding="utf-8")
+        with threadpool_limits(1 if single_thread else None):
+            try:
+                outcome = run_procedure(spec.procedure_path, scenario_path, spec.seed, trial_dir / "run",
+                                        show_progress=False, outputs=False)
+            except AnalysisFailed as exc:
+                return {"index": spec.index, "failed": str(exc)}
+        from rtcal.runner import METHODS
+
+        r = outcome.results
+        truth = np.asarray(r["truth"]["cumulative_deviation_arcsec"], float)
+        out: dict[str, Any] = {"index": spec.index, "recommended": r["recommended"], "estimates": {},
+                               "labels": METHODS[r["method"]].target_labels(r)}
+        for name, est in r["estimates"].items():
+            cum = np.array([np.nan if v is None else v for v in est["cumulative_deviation_arcsec"]], float)
+            u = np.array([np.nan if v is None else v for v in est["cumulative_uncertainty_arcsec"]], float)
+            if len(cum) != len(truth):  # an estimate on other targets than the truth's (none today)
+                continue
+            out["estimates"][name] = {"error": (cum - truth).tolist(), "u": u.tolist(),
+                                      "status": r["solver_status"][name]["status"]}
+        return out
+    finally:
+        shutil.rmtree(trial_dir, ignore_errors=True)
+
+
+def run_trials(specs: list[TrialSpec], workers: int | None = None, scheduler: str | None = None,
+               progress=None) -> Iterator[dict[str, Any]]:
+    """Trials as they complete: on a local process pool, in this process (workers = 1), or on Dask."""
+    if scheduler:
+        from distributed import Client, as_completed as dask_completed
+
+        with Client(scheduler, timeout="10s") as client:
+            futures = client.map(run_trial, specs, pure=False)
+            for fut in dask_completed(futures):
+                yield fut.result()
+        return
+    workers = workers or os.cpu_count() or 1
+    if workers == 1:
+        for spec in specs:
+            yield run_trial(spec, single_thread=False)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for fut in as_completed([pool.submit(run_trial, s) for s in specs]):
+            yield fut.result()
+
+
+def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[str, Any]:
+    """Per estimator and target: RMS error, RMS reported 1σ, their ratio, and the mean error (bias)."""
+    ok = [t for t in trials if "failed" not in t]
+    names = sorted({n for t in ok for n in t["estimates"]})
+    out: dict[str, Any] = {"trials": len(trials), "failed_trials": len(trials) - len(ok), "targets": target_labels,
+                           "estimators": {}}
+    recs = [t["recommended"] for t in ok]
+    out["recommended"] = max(set(recs), key=recs.count) if recs else None
+    for name in names:
+        rows = [t["estimates"][name] for t in ok if name in t["estimates"]]
+        err = np.array([r["error"] for r in rows], float)
+        u = np.array([r["u"] for r in rows], float)
+        rms_err = np.sqrt(np.nanmean(err**2, axis=0))
+        rms_u = np.sqrt(np.nanmean(u**2, axis=0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = rms_u / rms_err
+        inner = slice(1, None)  # the first target is the reference: 0 ± 0 by definition
+        out["estimators"][name] = {
+            "trials": len(rows),
+            "not_converged": sum(r["status"] != "converged" for r in rows),
+            "rms_error_arcsec": _r(rms_err), "rms_reported_sigma_arcsec": _r(rms_u), "ratio": _r(ratio, 3),
+            "mean_error_arcsec": _r(np.nanmean(err, axis=0)),
+            "overall": {"rms_error_arcsec": round(float(np.sqrt(np.nanmean(err[:, inner] ** 2))), 4),
+                        "rms_reported_sigma_arcsec": round(float(np.sqrt(np.nanmean(u[:, inner] ** 2))), 4),
+                        "ratio_min": round(float(np.nanmin(ratio[inner])), 3) if np.any(np.isfinite(ratio[inner])) else None,
+                        "ratio_max": round(float(np.nanmax(ratio[inner])), 3) if np.any(np.isfinite(ratio[inner])) else None},
+        }
+    return out
+
+
+def _r(a: np.ndarray, digits: int = 4) -> list:
+    return [None if not np.isfinite(v) else round(float(v), digits) for v in np.asarray(a, float)]
+
+
+def plot_summary(summary: dict[str, Any], title: str, path: Path) -> Path:
+    """Per estimator: RMS error against the RMS reported 1σ per target, and their ratio."""
+    from rtcal.report import plt
+
+    names = list(summary["estimators"])
+    fig, axes = plt.subplots(len(names), 2, figsize=(10, 3.2 * len(names)), squeeze=False,
+                             gridspec_kw={"width_ratios": [3, 2]})
+    x = np.arange(len(summary["targets"]))
+    labels = summary["targets"]
+    for row, name in zip(axes, names):
+        e = summary["estimators"][name]
+        err = np.array([np.nan if v is None else v for v in e["rms_error_arcsec"]])
+        u = np.array([np.nan if v is None else v for v in e["rms_reported_sigma_arcsec"]])
+        ratio = np.array([np.nan if v is None else v for v in e["ratio"]])
+        row[0].bar(x - 0.2, err, 0.4, label="RMS error against truth")
+        row[0].bar(x + 0.2, u, 0.4, label="RMS of the reported 1σ")
+        row[0].set_ylabel("arcsec")
+        row[0].set_title(f"{name}{' (recommended)' if name == summary['recommended'] else ''}: "
+                         f"{e['trials']} trials", fontsize=10)
+        row[0].legend(fontsize=8)
+        row[1].axhspan(0.8, 1.25, color="C2", alpha=0.15, label="0.8–1.25")
+        # the ratio's own 1σ from a finite number of trials: about ratio/√(2N)
+        row[1].errorbar(x[1:], ratio[1:], yerr=ratio[1:] / np.sqrt(2 * e["trials"]), fmt="o-", color="C3", capsize=3,
+                        label=f"reported 1σ / RMS error (bars: ±1σ of {e['trials']} trials)")
+        row[1].axhline(1.0, color="0.5", lw=0.8)
+        row[1].set_ylim(0, max(2.0, float(np.nanmax(ratio[1:])) * 1.1 if np.any(np.isfinite(ratio[1:])) else 2.0))
+        row[1].legend(fontsize=8)
+        for ax in row:
+            ax.set_xticks(x, labels, fontsize=7, rotation=90 if len(x) > 16 else 0)
+            ax.grid(alpha=0.3)
+    axes[-1][0].set_xlabel("target: commanded angle / °, ↑ positive or ↓ negative approach")
+    axes[-1][1].set_xlabel("target")
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

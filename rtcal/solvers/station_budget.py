@@ -1,0 +1,230 @@
+"""The uncertainty budget of a seed-000 estimate: what each source does to lengths, stations, angles.
+
+Sources (the procedure's ``uncertainty`` section states them; DESIGN.md, issue "trustworthy
+results"):
+
+- **tracer length noise** (Type A): one independent error per length, shaped a + b·L as the
+  tracer's specification says, its size estimated from the residuals;
+- **CMM point noise** (Type A): one 3-D error per reported point (÷ √visits when a point's
+  position was read at several visits), common to every station's length to that point — it
+  largely cancels in the angles, which is why treating it as length noise overstated the
+  uncertainty 4–15×; its size estimated from the residuals;
+- **stage repeatability** (Type B, per visit): each stage visit turns the tracer about the axis
+  by a random angle, shared by the lengths taken during that visit;
+- **CMM scale and squareness** (Type B): the reported points are off by (M − I)·A, with M the
+  CMM's (lower-triangular) scale/squareness matrix, common to every length;
+- **error motions** (Type B): radial, axial and tilt error motions displace each station; no
+  single-mount model sees them. Each is modelled as an unknown smooth function bounded by the
+  stated value, a random Fourier series of orders 1..K with σ = bound/√2 at every angle (the
+  σ of a sinusoid that reaches the bound: GUM's U-shaped law for a smooth motion), whose
+  stations are correlated as (1/K)·Σ cos(k·Δθ). U (k = 2) then covers about 95 % of the motions
+  within the bounds, not every one: a single harmonic at the bound in the worst phase can exceed
+  it at some target — a second tracer mount measures them instead.
+
+Each source is propagated through the estimator's own linearisation and the plane/circle/angle
+chain to the cumulative deviation (and its per-step differences).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from rtcal.solvers.uncertainty import (
+    BudgetComponent,
+    DeviationBudget,
+    Source,
+    VarianceEstimate,
+    difference_matrix,
+    propagate,
+    reml_scales,
+)
+from rtcal.units import arcsec_to_rad
+
+
+@dataclass(frozen=True)
+class StationNoiseModel:
+    """What the lab states about a seed-000 measurement (1σ unless called a bound)."""
+
+    length_noise_um: float = 0.2  # tracer a of a + b·L: the shape; the size is estimated (Type A)
+    length_noise_ppm: float = 0.3  # tracer b, µm per m
+    point_noise_um: float = 0.3  # CMM reading, per coordinate and visit: reference scale (Type A)
+    stage_repeatability_arcsec: float = 0.0  # per visit (Type B)
+    cmm_scale_ppm: float = 0.0  # per axis (Type B)
+    cmm_squareness_arcsec: float = 0.0  # per axis pair (Type B)
+    error_motion_radial_um: float = 0.0  # bound of EXC, EYC at the tilt centre
+    error_motion_axial_um: float = 0.0  # bound of EZC
+    error_motion_tilt_arcsec: float = 0.0  # bound of EAC, EBC
+    error_motion_max_order: int = 6
+    tilt_center_z_mm: float = 0.0  # height of the tilt centre in the CMM frame
+    estimate: bool = True  # Type A sizes from the residuals; False: as stated (a prediction before measuring)
+    air_index_sigma: float = 0.0  # of the air's refractive index the lengths were corrected with (0: not corrected)
+
+
+@dataclass(frozen=True)
+class StationObservations:
+    """Which point, station and stage visit each residual of an estimator belongs to."""
+
+    point: np.ndarray  # (N,) index into points
+    station: np.ndarray  # (N,)
+    visit: np.ndarray  # (N,) stage visit (shared by the lengths taken without the table moving)
+    points_mm: np.ndarray  # (n, 3) as the solver used them
+    point_visits: np.ndarray  # (n,) how many CMM readings were averaged into each point
+
+
+def chain_jacobian(stations_mm: np.ndarray, chain: Callable[[np.ndarray], np.ndarray], h_mm: float = 1e-4) -> np.ndarray:
+    """∂(output)/∂(station coordinates) by central differences (0.1 µm: far inside the linear range)."""
+    base = np.asarray(stations_mm, float)
+    cols = []
+    for k in range(base.size):
+        plus, minus = base.copy(), base.copy()
+        plus.flat[k] += h_mm
+        minus.flat[k] -= h_mm
+        cols.append((chain(plus) - chain(minus)) / (2 * h_mm))
+    return np.column_stack(cols)
+
+
+def cmm_matrix_derivatives() -> list[tuple[str, np.ndarray]]:
+    """∂M/∂q for the CMM's 3 scales (per ppm) and 3 squarenesses (per arcsec), M as in the bench."""
+    out = []
+    for k, axis in enumerate("xyz"):
+        d = np.zeros((3, 3))
+        d[k, k] = 1e-6
+        out.append((f"scale_{axis}", d))
+    for (r, c), name in (((1, 0), "xy"), ((2, 0), "xz"), ((2, 1), "yz")):
+        d = np.zeros((3, 3))
+        d[r, c] = arcsec_to_rad(1.0)
+        out.append((f"squareness_{name}", d))
+    return out
+
+
+def harmonic_correlation(angles_rad: np.ndarray, max_order: int) -> np.ndarray:
+    """Correlation of a random Fourier series of orders 1..K with equal variance per order."""
+    d = np.subtract.outer(angles_rad, angles_rad)
+    k = np.arange(1, max_order + 1)
+    return np.mean(np.cos(d[..., None] * k), axis=-1)
+
+
+def error_motion_covariances(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray, axis_center_mm: np.ndarray,
+                             noise: StationNoiseModel) -> list[tuple[str, float, str, np.ndarray]]:
+    """(name, bound, unit, 3m×3m covariance of the station displacements, mm²) for the radial, axial
+    and tilt error motions the procedure bounds (σ = bound/√2 at every angle)."""
+    m = len(stations_mm)
+    rho = harmonic_correlation(np.asarray(nominal_angles_rad, float), max(noise.error_motion_max_order, 1))
+    d = np.asarray(stations_mm, float) - np.array([axis_center_mm[0], axis_center_mm[1], noise.tilt_center_z_mm])
+    one, zero = np.ones(m), np.zeros(m)
+    kinds = [
+        ("error motions, radial (EXC, EYC)", noise.error_motion_radial_um, "µm", noise.error_motion_radial_um * 1e-3,
+         [np.column_stack([one, zero, zero]), np.column_stack([zero, one, zero])]),
+        ("error motion, axial (EZC)", noise.error_motion_axial_um, "µm", noise.error_motion_axial_um * 1e-3,
+         [np.column_stack([zero, zero, one])]),
+        ("error motions, tilt (EAC, EBC)", noise.error_motion_tilt_arcsec, "″", arcsec_to_rad(noise.error_motion_tilt_arcsec),
+         [np.column_stack([zero, -d[:, 2], d[:, 1]]), np.column_stack([d[:, 2], zero, -d[:, 0]])]),  # εx × d, εy × d
+    ]
+    out = []
+    for name, bound, unit, bound_internal, sensitivities in kinds:
+        if bound <= 0:
+            continue
+        s = bound_internal / np.sqrt(2)
+        cov = np.zeros((3 * m, 3 * m))
+        for gj in sensitivities:
+            outer = np.einsum("ia,jb->iajb", gj, gj).reshape(3 * m, 3 * m)
+            cov += s * s * np.kron(rho, np.ones((3, 3))) * outer
+        out.append((name, bound, unit, cov))
+    return out
+
+
+def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
+                        axis_direction: np.ndarray, noise: StationNoiseModel) -> list[Source]:
+    """The sources that act on the lengths' residuals, each as its effect per 1σ of its inputs."""
+    pts = np.asarray(obs.points_mm, float)
+    P = np.asarray(stations_mm, float)[obs.station]
+    A = pts[obs.point]
+    diff = A - P
+    L = np.linalg.norm(diff, axis=1)
+    u = diff / L[:, None]  # ∂f/∂A; ∂f/∂P = −u
+    N, n = len(L), len(pts)
+    # tracer: a + b·L, the shape only (a floor keeps it invertible when stated as zero)
+    a_mm, b = noise.length_noise_um * 1e-3, noise.length_noise_ppm * 1e-6
+    shape = a_mm + b * L
+    ref_len = shape if np.max(shape) > 0 else np.full(N, 1e-3)
+    at_1m = noise.length_noise_um + noise.length_noise_ppm  # the stated σ of a 1 m length, µm: its reference size
+    sources = [Source("tracer length noise", "A", ref_len, at_1m if np.max(shape) > 0 else 1.0, "µm at 1 m",
+                      f"a + b·L with b/a as stated ({noise.length_noise_um:g} µm + {noise.length_noise_ppm:g} ppm); size from the residuals")]
+    s_p = noise.point_noise_um * 1e-3 if noise.point_noise_um > 0 else 1e-3
+    F = np.zeros((N, 3 * n))
+    w = s_p / np.sqrt(np.maximum(np.asarray(obs.point_visits, float), 1.0))[obs.point]
+    for c in range(3):
+        F[np.arange(N), 3 * obs.point + c] = u[:, c] * w
+    sources.append(Source("CMM point noise", "A", F, noise.point_noise_um if noise.point_noise_um > 0 else 1.0, "µm",
+                          "per point and coordinate, common to all stations; size from the residuals"))
+    if noise.stage_repeatability_arcsec > 0:
+        visits, vidx = np.unique(obs.visit, return_inverse=True)
+        axis = np.asarray(axis_direction, float) / np.linalg.norm(axis_direction)
+        tangent = np.cross(axis, P - np.asarray(axis_center_mm, float))  # δP per rad about the axis
+        Fv = np.zeros((N, len(visits)))
+        Fv[np.arange(N), vidx] = -np.einsum("ij,ij->i", u, tangent) * arcsec_to_rad(noise.stage_repeatability_arcsec)
+        sources.append(Source("stage repeatability", "B", Fv, noise.stage_repeatability_arcsec, "″",
+                              "per visit, as stated"))
+    if noise.air_index_sigma > 0:  # one error of the index for the whole run scales every counted distance
+        sources.append(Source("air refractive index", "B", (L * noise.air_index_sigma)[:, None], noise.air_index_sigma * 1e6,
+                              "ppm", "from the environment sensor's stated uncertainty, common to every length"))
+    for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
+                                       ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
+        columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
+                   for name, dM in cmm_matrix_derivatives() if name.startswith(prefix)]
+        if sigma > 0:
+            sources.append(Source(label, "B", np.column_stack(columns), sigma, unit, "each of three, as stated"))
+    return sources
+
+
+@dataclass(frozen=True)
+class StationBudget:
+    """The cumulative deviation's budget (m targets), and the estimated Type A sizes."""
+
+    cumulative: DeviationBudget
+    variances: VarianceEstimate
+    sources: list[Source]
+
+    @property
+    def step_uncertainty_arcsec(self) -> np.ndarray:
+        """1σ of the per-step deviations (eq. 33's Δθ), from the same covariance."""
+        return self.cumulative.transformed(difference_matrix(len(self.cumulative.uncertainty_arcsec))).uncertainty_arcsec
+
+    def estimated_sigma(self, name: str) -> float | None:
+        for s in self.sources:
+            if s.name == name:
+                return self.variances.sigma(s)
+        return None
+
+
+def station_budget(
+    jacobian: np.ndarray,
+    residuals: np.ndarray,
+    station_columns: np.ndarray,
+    obs: StationObservations,
+    stations_mm: np.ndarray,
+    nominal_angles_rad: np.ndarray,
+    axis_center_mm: np.ndarray,
+    axis_direction: np.ndarray,
+    cumulative_of_stations: Callable[[np.ndarray], np.ndarray],
+    noise: StationNoiseModel,
+) -> StationBudget:
+    """The budget of the cumulative deviation of an estimate with Jacobian J (N×p) and residuals f.
+
+    ``station_columns`` (m×3) says which unknowns are the stations' X, Y, Z; the cumulative
+    deviation follows from the stations by ``cumulative_of_stations``.
+    """
+    J = np.asarray(jacobian, float)
+    sources = observation_sources(obs, stations_mm, axis_center_mm, axis_direction, noise)
+    variances = reml_scales(J, residuals, sources) if noise.estimate else VarianceEstimate({}, {}, 0, True)
+    influence = np.linalg.pinv(J)[np.asarray(station_columns).ravel()]  # ∂(stations)/∂f, up to sign
+    G = chain_jacobian(stations_mm, cumulative_of_stations)
+    components = propagate(influence, sources, variances, G)
+    for name, bound, unit, cov in error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise):
+        components.append(BudgetComponent(name, "B", bound, unit, G @ cov @ G.T, False,
+                                          f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
+                                          "mount cannot separate them from the rotation"))
+    return StationBudget(DeviationBudget(components), variances, sources)

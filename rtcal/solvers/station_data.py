@@ -1,0 +1,56 @@
+"""The seed-000 solvers' input: lengths per point and station, with how they were taken."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class MountReadings:
+    """The lengths taken with the tracer on another mount of the table (the same points and stations)."""
+
+    lengths_mm: np.ndarray  # n×m, NaN where skipped
+    segments: np.ndarray  # n×m
+    visits: np.ndarray  # n×m stage visits, numbered after the first mount's
+    air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
+
+
+@dataclass(frozen=True)
+class MultistationData:
+    """Arrays for the seed-000 solvers, from the raw readings (mm).
+
+    ``visits`` numbers the stage visits: lengths taken while the table stood still share one
+    (station-major order: a station's lengths; point-major: each length its own). ``point_visits``
+    counts the CMM readings averaged into each point.
+    """
+
+    points_mm: np.ndarray  # n×3, CMM-reported, averaged over visits
+    lengths_mm: np.ndarray  # n×m, tracer samples averaged; NaN where the reading was skipped
+    segments: np.ndarray  # n×m tracking segment of each length (−1 where skipped)
+    nominal_angles_deg: np.ndarray  # m
+    raw_readings: int = 0  # planned readings present (point, station pairs with a length)
+    visits: np.ndarray | None = None  # n×m stage visit of each length (−1 where skipped)
+    point_visits: np.ndarray | None = None  # n
+    other_mounts: tuple[MountReadings, ...] = ()  # the network estimator uses them; the others use the first mount
+    air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
+    environment: dict | None = None  # summary of the recorded air and material conditions, for the report
+
+    @classmethod
+    def from_arrays(cls, points_mm, lengths_mm, nominal_angles_deg, segments=None) -> "MultistationData":
+        """One continuous count, each length its own stage visit, each point read once (synthetic data)."""
+        lengths = np.asarray(lengths_mm, float)
+        n, m = lengths.shape
+        seg = np.zeros((n, m), int) if segments is None else np.asarray(segments, int)
+        return cls(np.asarray(points_mm, float), lengths, seg, np.asarray(nominal_angles_deg, float),
+                   int(np.isfinite(lengths).sum()))
+
+    @property
+    def stage_visits(self) -> np.ndarray:
+        n, m = self.lengths_mm.shape
+        return np.arange(n * m).reshape(n, m) if self.visits is None else np.asarray(self.visits)
+
+    @property
+    def point_visit_counts(self) -> np.ndarray:
+        return np.ones(len(self.points_mm)) if self.point_visits is None else np.asarray(self.point_visits, float)

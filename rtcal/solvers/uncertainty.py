@@ -1,0 +1,221 @@
+"""Linearised (GUM) uncertainty of a least-squares estimate whose inputs have several sources of error.
+
+An estimator x̂ = argmin ½‖f(x; y)‖² responds to small changes δy of its inputs (lengths, CMM
+points, …) as δx̂ = −H·δf with H = (JᵀJ)⁺Jᵀ (the estimator's own, unweighted, normal
+equations; the same formula holds for any estimator linear to first order) and δf the change
+of the residuals the inputs cause. A *source* is described by that change per standard
+deviation of each of its q independent inputs, the N×q matrix F (or a length-N vector for a
+source acting on each residual alone), so that it contributes
+
+    cov(x̂)_source = θ · (H F)(H F)ᵀ
+
+with θ = 1 for a Type B source (its σ stated: a certificate, a specification, a bound) and θ
+estimated from the same residuals for a Type A source, by restricted maximum likelihood
+(REML, Fisher scoring) on the model V = Σ θ_k F_k F_kᵀ: a source common to many residuals (a
+CMM point seen from every station) and one per residual (tracer noise) leave different
+patterns in the residuals, so the data tell their sizes apart. The stated σ of a Type A source
+only sets its reference scale.
+
+Everything here is arrays in, arrays out: the models that build F live with their methods.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+SourceType = Literal["A", "B"]
+
+
+@dataclass(frozen=True)
+class Source:
+    """One source of input uncertainty, by its effect on the residuals per 1σ of its inputs.
+
+    ``effect``: (N,) for one independent input per residual, or (N, q) for q inputs that each
+    move several residuals (a CMM point, a stage visit, a CMM scale). ``sigma`` is the 1σ the
+    effect is scaled to, in ``unit``; for Type A it is the reference the estimated scale
+    multiplies.
+    """
+
+    name: str
+    type: SourceType
+    effect: np.ndarray
+    sigma: float
+    unit: str
+    note: str = ""
+
+
+
+@dataclass(frozen=True)
+class VarianceEstimate:
+    """REML scales of the Type A sources (1 = as stated) with their standard errors."""
+
+    scale: dict[str, float]
+    scale_sigma: dict[str, float]
+    iterations: int
+    converged: bool
+
+    def sigma(self, source: Source) -> float:
+        """The source's 1σ as estimated (its stated σ for Type B)."""
+        return source.sigma * float(np.sqrt(self.scale.get(source.name, 1.0)))
+
+
+def _as_diagonal(effect: np.ndarray) -> np.ndarray | None:
+    """The diagonal of F·Fᵀ when it is diagonal (each input touches one residual), else None."""
+    e = np.asarray(effect, float)
+    if e.ndim == 1:
+        return e**2
+    if np.all(np.count_nonzero(e, axis=0) <= 1):
+        return np.sum(e**2, axis=1)
+    return None
+
+
+def reml_scales(jacobian: np.ndarray, residuals: np.ndarray, sources: list[Source],
+                max_iterations: int = 60, tolerance: float = 1e-4, floor: float = 1e-14) -> VarianceEstimate:
+    """Estimate the variance scales θ of the Type A sources by REML (Fisher scoring).
+
+    The Type B sources enter V with θ = 1. Scales are kept ≥ ``floor`` (a noise-free bench
+    estimates them ≈ 0 and V must stay invertible). One source must act on every residual
+    (V positive definite). V = D + U·Uᵀ is kept as a diagonal part and a low-rank part, so that
+    with P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁻¹JᵀV⁻¹ = D⁻¹ − Y·H·Yᵀ (Woodbury; Y = D⁻¹[U J]) every trace costs
+    O(N·(q + p)²) instead of O(N³).
+    """
+    J = np.asarray(jacobian, float)
+    r = np.asarray(residuals, float)
+    N, p = J.shape
+    a_sources = [s for s in sources if s.type == "A"]
+    if not a_sources:
+        return VarianceEstimate({}, {}, 0, True)
+    diag = [_as_diagonal(s.effect) for s in sources]
+    low = [None if d is not None else np.asarray(s.effect, float) for s, d in zip(sources, diag)]
+    is_a = [s.type == "A" for s in sources]
+    a_index = [k for k, a in enumerate(is_a) if a]
+    # a first guess that already fits the residuals' size: scale every Type A source together
+    total_trace = sum(float(np.sum(d)) if d is not None else float(np.sum(f**2)) for d, f, a in zip(diag, low, is_a) if a)
+    theta = np.full(len(a_index), max(float(r @ r) / max(total_trace * (1.0 - p / max(N, 1)), 1e-300), floor))
+    info = np.eye(len(theta))
+    converged = False
+    it = 0
+    for it in range(1, max_iterations + 1):
+        scale = dict(zip(a_index, theta))
+        d = np.full(N, 1e-300)
+        cols = []
+        for k, (dk, fk) in enumerate(zip(diag, low)):
+            t = scale.get(k, 1.0)
+            if dk is not None:
+                d = d + t * dk
+            else:
+                cols.append(np.sqrt(t) * fk)
+        U = np.column_stack(cols) if cols else np.zeros((N, 0))
+        dinv = 1.0 / d
+        DU, DJ = U * dinv[:, None], J * dinv[:, None]
+        S = np.eye(U.shape[1]) + U.T @ DU
+        S_inv = np.linalg.inv(S) if U.shape[1] else np.zeros((0, 0))
+        a_mat = np.vstack([-S_inv @ (U.T @ DJ), np.eye(p)])  # V⁻¹J = Y·a
+        Y = np.hstack([DU, DJ])
+        VJ = Y @ a_mat
+        M = np.linalg.pinv(J.T @ VJ)
+        H = a_mat @ M @ a_mat.T
+        H[: U.shape[1], : U.shape[1]] += S_inv
+        YH = Y @ H
+        Pr = dinv * r - YH @ (Y.T @ r)
+        yhy_diag = np.sum(YH * Y, axis=1)
+        diagP = dinv - yhy_diag
+        terms = []  # per Type A source: ('d', e²) or ('f', F, P·F)
+        for k in a_index:
+            if diag[k] is not None:
+                terms.append(("d", diag[k], None))
+            else:
+                F = low[k]
+                terms.append(("f", F, dinv[:, None] * F - YH @ (Y.T @ F)))
+        score = np.empty(len(theta))
+        for i, (kind, X, PX) in enumerate(terms):
+            if kind == "d":
+                score[i] = 0.5 * (float(np.sum(Pr**2 * X)) - float(np.sum(diagP * X)))
+            else:
+                FtPr = X.T @ Pr
+                score[i] = 0.5 * (float(FtPr @ FtPr) - float(np.sum(X * PX)))
+        for i, (ki, Xi, PXi) in enumerate(terms):
+            for j in range(i, len(terms)):
+                kj, Xj, PXj = terms[j]
+                if ki == "d" and kj == "d":
+                    Qi, Qj = Y.T @ (Xi[:, None] * Y), Y.T @ (Xj[:, None] * Y)
+                    val = (float(np.sum(Xi * Xj * dinv**2)) - 2.0 * float(np.sum(Xi * Xj * dinv * yhy_diag))
+                           + float(np.sum((H @ Qi) * (H @ Qj).T)))
+                elif ki == "d":
+                    val = float(np.sum(Xi[:, None] * PXj**2))
+                elif kj == "d":
+                    val = float(np.sum(Xj[:, None] * PXi**2))
+                else:
+                    val = float(np.sum((Xi.T @ PXj) ** 2))
+                info[i, j] = info[j, i] = 0.5 * val
+        step = np.linalg.lstsq(info, score, rcond=None)[0]
+        new = np.maximum(theta + step, floor * np.max(np.abs(theta)) + 1e-300)
+        change = np.max(np.abs(new - theta) / np.maximum(np.abs(theta), 1e-300))
+        theta = new
+        if change < tolerance:
+            converged = True
+            break
+    cov = np.linalg.pinv(info)
+    return VarianceEstimate({s.name: float(t) for s, t in zip(a_sources, theta)},
+                            {s.name: float(np.sqrt(max(cov[k, k], 0.0))) for k, s in enumerate(a_sources)},
+                            it, converged)
+
+
+@dataclass(frozen=True)
+class BudgetComponent:
+    """One source's contribution to the covariance of a deviation vector (arcsec²)."""
+
+    name: str
+    type: SourceType
+    sigma: float  # the input's 1σ as used (estimated for Type A)
+    unit: str
+    covariance_arcsec2: np.ndarray
+    estimated: bool = False
+    note: str = ""
+
+    @property
+    def uncertainty_arcsec(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance_arcsec2), 0.0, None))
+
+
+@dataclass(frozen=True)
+class DeviationBudget:
+    """The uncertainty budget of a deviation vector: one component per source, and their sum."""
+
+    components: list[BudgetComponent] = field(default_factory=list)
+
+    @property
+    def covariance_arcsec2(self) -> np.ndarray:
+        return sum((c.covariance_arcsec2 for c in self.components[1:]), self.components[0].covariance_arcsec2.copy())
+
+    @property
+    def uncertainty_arcsec(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance_arcsec2), 0.0, None))
+
+    def transformed(self, matrix: np.ndarray) -> "DeviationBudget":
+        """The budget of A·x (e.g. per-step differences of a cumulative deviation)."""
+        A = np.asarray(matrix, float)
+        return DeviationBudget([BudgetComponent(c.name, c.type, c.sigma, c.unit, A @ c.covariance_arcsec2 @ A.T,
+                                                c.estimated, c.note) for c in self.components])
+
+
+def propagate(influence: np.ndarray, sources: list[Source], variances: VarianceEstimate,
+              output_jacobian: np.ndarray) -> list[BudgetComponent]:
+    """Each source through the estimator (``influence`` = H restricted to the parameters the
+    output depends on) and the output's Jacobian: G·H·F·θ·(G·H·F)ᵀ per source."""
+    G = np.asarray(output_jacobian, float) @ np.asarray(influence, float)
+    out = []
+    for s in sources:
+        e = np.asarray(s.effect, float)
+        GF = G * e[None, :] if e.ndim == 1 else G @ e
+        theta = variances.scale.get(s.name, 1.0) if s.type == "A" else 1.0
+        out.append(BudgetComponent(s.name, s.type, variances.sigma(s), s.unit, theta * (GF @ GF.T), s.type == "A", s.note))
+    return out
+
+
+def difference_matrix(n: int) -> np.ndarray:
+    """(n−1)×n: per-step differences of an n-vector (x1 − x0, x2 − x1, …)."""
+    return np.eye(n)[1:] - np.eye(n)[:-1]
