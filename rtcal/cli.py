@@ -17,35 +17,54 @@ from rtcal import __version__
 from rtcal.yamlfile import FileProblems
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
+EXIT_INTERRUPTED = 130
+MAX_SEED = 2**63 - 1
 
 
 class UserError(Exception):
     """A mistake the user can fix; printed as one line, exit code 2."""
 
 
+def _interrupt(*_) -> None:
+    raise KeyboardInterrupt
+
+
+def _how_to_go_on(run_dir: str) -> str:
+    if (Path(run_dir) / "run.sqlite").is_file():
+        return f"every reading taken so far is in {run_dir}/run.sqlite; `rtcal resume {run_dir}` goes on"
+    return "nothing was measured"
+
+
 def _execute(start, run_dir: str) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on."""
+    import signal
+
     from rtcal.methods.abbe import CertificateUnavailable
+    from rtcal.rundir import RunDirError
     from rtcal.runner import IDEAL_BENCH, METHODS, AnalysisFailed
 
+    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
         outcome = start()
-    except (FileExistsError, CertificateUnavailable) as exc:
+    except (FileExistsError, CertificateUnavailable, RunDirError) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
         return EXIT_FAILED
     except InstrumentError as exc:
         print(f"rtcal: instrument error: {exc}", file=sys.stderr)
-        print(f"rtcal: every reading taken so far is in {run_dir}/run.sqlite; `rtcal resume {run_dir}` goes on", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_FAILED
+    except KeyboardInterrupt:
+        print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     results = outcome.results
     print(f"run complete: {results['raw_readings']} readings stored")
     if results.get("bench") == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
     for line in METHODS[results["method"]].summary(results):
         print(line)
-    files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith("run.sqlite-")))
+    files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")
     rec = results.get("recommended")
     if rec and results["solver_status"][rec]["status"] != "converged":
@@ -61,7 +80,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
-                                          virtual_clock=args.virtual_clock), out)
+                                          virtual_clock=args.virtual_clock, large=args.large), out)
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
@@ -73,12 +92,14 @@ def _cmd_resume(args: argparse.Namespace) -> int:
 
 def parse_instruments_option(text: str) -> dict[str, str]:
     """``--instruments``: a JSON object of name → address, inline or in a file."""
+    from rtcal.yamlfile import read_text
+
     source = text
     if not text.lstrip().startswith("{"):
         try:
-            source = Path(text).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise UserError(f"--instruments: cannot read {text}: {exc}") from None
+            source = read_text(text)
+        except FileProblems as exc:
+            raise UserError(f"--instruments: {exc.problems[0].file}: {exc.problems[0].message}") from None
     try:
         data = json.loads(source.strip().splitlines()[0] if source.strip() else "")
     except (json.JSONDecodeError, IndexError) as exc:
@@ -315,7 +336,7 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
 def _cmd_validate(args: argparse.Namespace) -> int:
     """Everything `run` checks before the first motion: the file, and the plan against the bench
     it would run on (the procedure's `bench`, or --scenario) — limits, CMM volume, polygon."""
-    from rtcal.procedure.loader import is_procedure_text, load_procedure, load_scenario
+    from rtcal.procedure.loader import bench_path, is_procedure_text, load_procedure, load_scenario
     from rtcal.runner import check_plan_on_bench, resolve_scenario
     from rtcal.yamlfile import read_text
 
@@ -323,13 +344,14 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     for name in args.files:
         path = Path(name)
         try:
-            if is_procedure_text(read_text(path)):
-                proc = load_procedure(path)
+            text = read_text(path)
+            if is_procedure_text(text):
+                proc = load_procedure(path, args.large, text)
                 if proc.instruments.all_sim() or args.scenario:
                     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
                     check_plan_on_bench(path, proc, scenario)
                 elif proc.bench is not None:
-                    load_scenario(path.parent / proc.bench)
+                    load_scenario(bench_path(path, proc))
             else:
                 load_scenario(path)
             print(f"{path}: ok")
@@ -349,8 +371,16 @@ def _cmd_schema(args: argparse.Namespace) -> int:
 
 def read_stations_csv(path: Path) -> np.ndarray:
     """Station centres from a CSV with header X,Y,Z (mm), one station per row, in order."""
+    import io
+
+    from rtcal.yamlfile import read_bytes
+
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
+        data = read_bytes(path, 16 * 1024 * 1024)
+    except FileProblems as exc:
+        raise UserError(str(exc.problems[0])) from None
+    try:
+        with io.StringIO(data.decode("utf-8"), newline="") as fh:
             reader = csv.DictReader(fh)
             fields = [f.strip() for f in (reader.fieldnames or [])]
             if not {"X", "Y", "Z"} <= set(fields):
@@ -359,11 +389,16 @@ def read_stations_csv(path: Path) -> np.ndarray:
             for k, row in enumerate(reader, start=2):
                 row = {key.strip(): v for key, v in row.items() if key}
                 try:
-                    rows.append([float(row["X"]), float(row["Y"]), float(row["Z"])])
+                    xyz = [float(row["X"]), float(row["Y"]), float(row["Z"])]
                 except (TypeError, ValueError):
                     raise UserError(f"{path}:{k}: X, Y and Z must be numbers (mm)") from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read: {exc}") from None
+                if not all(abs(v) <= 1e6 for v in xyz):  # also false for NaN
+                    raise UserError(f"{path}:{k}: X, Y and Z must be finite and within ±1e6 mm")
+                rows.append(xyz)
+    except UnicodeDecodeError:
+        raise UserError(f"{path}: not UTF-8 text") from None
+    except csv.Error as exc:
+        raise UserError(f"{path}:{reader.line_num}: not CSV: {exc}") from None
     if len(rows) < 4:
         raise UserError(f"{path}: {len(rows)} stations; at least 4 are needed (eq. 2)")
     return np.array(rows)
@@ -375,6 +410,8 @@ def _cmd_solve_stations(args: argparse.Namespace) -> int:
     stations = read_stations_csv(Path(args.file))
     if not 0 < args.step_deg < 180:
         raise UserError("--step-deg must lie in (0, 180)")
+    if not abs(args.first_deg) <= 36000:
+        raise UserError("--first-deg must be finite and within ±36000")
     nominal = np.deg2rad(args.first_deg + args.step_deg * np.arange(len(stations)))
     try:
         chain = chain_from_stations(stations, nominal)
@@ -393,6 +430,17 @@ def _cmd_solve_stations(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _seed(text: str) -> int:
+    """``--seed``: a whole number 0 … 2⁶³ − 1 (numpy's generators take no negative seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"{text} is outside 0 … {MAX_SEED}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rtcal", description="Angular positioning calibration of rotary tables.")
     parser.add_argument("--version", action="version", version=f"rtcal {__version__}")
@@ -401,12 +449,14 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run a procedure and write a run directory")
     run.add_argument("procedure", help="procedure YAML file")
     run.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
-    run.add_argument("--seed", type=int, help="seed of the run's random generator (default: the scenario's)")
+    run.add_argument("--seed", type=_seed, help="seed of the run's random generator (default: the scenario's)")
     run.add_argument("--out", help="run directory (default: runs/<time>-<procedure>)")
     run.add_argument("--instruments", help="JSON object (or file) of instrument addresses, e.g. what `rtcal sim serve` "
                                            "prints; replaces the procedure's instrument section")
     run.add_argument("--virtual-clock", action="store_true",
                      help="do not wait settle times in real time (for protocol simulators, never for hardware)")
+    run.add_argument("--large", action="store_true",
+                     help="accept a plan beyond 100 000 readings (up to 2 000 000; takes hours and GBs)")
     run.set_defaults(func=_cmd_run)
 
     resume = sub.add_parser("resume", help="continue an interrupted run: every planned reading not yet stored, once")
@@ -478,7 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
     serve = sim_sub.add_parser("serve", help="serve every instrument over its real protocol around one simulated bench; "
                                              "prints one JSON line of addresses, then serves until interrupted")
     serve.add_argument("--scenario", help="bench scenario YAML (default: an ideal bench)")
-    serve.add_argument("--seed", type=int, help="seed (default: the scenario's)")
+    serve.add_argument("--seed", type=_seed, help="seed (default: the scenario's)")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (default: loopback only)")
     serve.add_argument("--serial", choices=["pty", "tcp"], default="pty",
                        help="serial instruments on pseudo-terminals (default) or TCP sockets (socket:// addresses)")
@@ -489,6 +539,7 @@ def build_parser() -> argparse.ArgumentParser:
                                           "volume, polygon, closure); problems as file:line:column, exit 2")
     val.add_argument("files", nargs="+", help="procedure or scenario YAML files")
     val.add_argument("--scenario", help="check procedures against this bench scenario instead of their `bench`")
+    val.add_argument("--large", action="store_true", help="as for `run`: accept plans beyond the default size limits")
     val.set_defaults(func=_cmd_validate)
 
     schema = sub.add_parser("schema", help="print the JSON Schema of procedure files")
@@ -523,8 +574,8 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
     except KeyboardInterrupt:
-        print("rtcal: interrupted; readings taken so far are in the run store", file=sys.stderr)
-        return 130
+        print("rtcal: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

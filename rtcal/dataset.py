@@ -58,11 +58,25 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
                             None if index is None else index[0], summary)
 
 
+def _one_attempt_per_visit(readings: list) -> list:
+    """The readings of one attempt per planned visit: the last that skipped nothing, else the
+    last one (a visit retaken on resume is not averaged with its first, partial, attempt)."""
+    attempts: dict[int | None, dict[int | None, list]] = {}
+    for r in readings:
+        attempts.setdefault(r.plan_index, {}).setdefault(r.attempt, []).append(r)
+    chosen = []
+    for by_attempt in attempts.values():
+        whole = [a for a, rows in by_attempt.items() if all(x.quantity != "skipped" for x in rows)]
+        key = (lambda a: -1 if a is None else a)
+        chosen += by_attempt[max(whole, key=key)] if whole else by_attempt[max(by_attempt, key=key)]
+    return chosen
+
+
 def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:
     """One row per stage visit (seating, run, direction, step), samples averaged per instrument."""
     sums: dict[tuple, dict[str, list[float]]] = {}
     commanded: dict[tuple, float] = {}
-    for r in store.readings():
+    for r in _one_attempt_per_visit(list(store.readings())):
         key = (r.seating, r.run, r.direction, r.station)
         commanded[key] = r.commanded_angle_deg
         sums.setdefault(key, {}).setdefault(f"{r.instrument}.{r.quantity}", []).append(r.value)

@@ -7,6 +7,7 @@ what every run shares: the run directory, the store's metadata, the bench, the p
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,12 +25,13 @@ from rtcal.clock import RealClock, VirtualClock
 from rtcal.deviations import PositioningDeviations
 from rtcal.evaluation import evaluate
 from rtcal.methods import abbe, multistation
-from rtcal.procedure.loader import load_procedure, load_scenario
+from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
 from rtcal.report import write_report, write_results
+from rtcal.rundir import claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
-from rtcal.store import RunStore
+from rtcal.store import RunStore, StoreUnusable
 from rtcal.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
@@ -53,9 +55,10 @@ def default_run_dir(method: str) -> Path:
 
 
 def resolve_scenario(procedure_path: Path, proc: Procedure, scenario_path: Path | None) -> tuple[Scenario, str]:
-    """The bench: ``--scenario`` if given, else the procedure's ``bench`` (relative to it), else ideal."""
-    if scenario_path is None and proc.bench is not None:
-        scenario_path = procedure_path.parent / proc.bench
+    """The bench: ``--scenario`` if given, else the procedure's ``bench`` (relative to it, inside its
+    folder), else ideal."""
+    if scenario_path is None:
+        scenario_path = bench_path(procedure_path, proc)
     if scenario_path is None:
         return Scenario(), ""
     scenario = load_scenario(scenario_path)
@@ -112,6 +115,15 @@ def _operator(bench: Bench | None, addresses: dict[str, str] | None):
     return RemoteSimOperator(addresses["operator"]) if addresses and "operator" in addresses else ConsoleOperator()
 
 
+def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
+    """A simulated bench's fault schedule counts requests over the whole run: the counters are
+    stored with every reading and event, and a resume goes on from them (a fault scheduled at
+    request 1 happens once, not at every start)."""
+    if bench is not None and bench.faults.faults:
+        bench.faults.requests.update(json.loads(store.meta().get("fault_requests", "{}")))
+        store.keep_meta(lambda: {"fault_requests": json.dumps(dict(bench.faults.requests), sort_keys=True)})
+
+
 def run_procedure(
     procedure_path: str | Path,
     scenario_path: str | Path | None = None,
@@ -120,6 +132,7 @@ def run_procedure(
     show_progress: bool | None = None,
     addresses: dict[str, str] | None = None,
     virtual_clock: bool = False,
+    large: bool = False,
     outputs: bool = True,
     estimate_noise: bool = True,
 ) -> RunOutcome:
@@ -130,9 +143,11 @@ def run_procedure(
     the results carry its truth. Otherwise real transports at the procedure's addresses (or
     ``addresses``, e.g. what `rtcal sim serve` printed), a real clock unless ``virtual_clock``,
     and no truth. Raises FileProblems on bad input and InstrumentError on instrument failure.
+    ``out_dir`` must be new or empty; it is locked (RunBusy) until the run ends.
     """
     procedure_path = Path(procedure_path)
-    proc = load_procedure(procedure_path)
+    procedure_yaml = read_text(procedure_path)
+    proc = load_procedure(procedure_path, large, procedure_yaml)
     if addresses:
         proc = with_addresses(proc, addresses)
     method = METHODS[proc.method]
@@ -146,14 +161,21 @@ def run_procedure(
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
     operator = _operator(bench, addresses)
     prepared = method.prepare(proc, operator)
-    store = RunStore.create(run_dir, {**prepared,
-        "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": read_text(procedure_path),
-        "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text,
-        "scenario_path": scenario_label(procedure_path, proc, scenario_path) if simulated else "",
-        "seed": str(seed) if simulated else "", "software_version": __version__,
-        "started_utc": _now(), "status": "running", "generation": "0",
-    })
-    return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs, estimate_noise)
+    lock = claim_new_run_dir(run_dir)
+    try:
+        store = RunStore.create(run_dir, {**prepared,
+            "method": proc.method, "procedure_path": str(procedure_path), "procedure_yaml": procedure_yaml,
+            "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text,
+            "scenario_path": scenario_label(procedure_path, proc, scenario_path) if simulated else "",
+            "seed": str(seed) if simulated else "", "software_version": __version__,
+            "started_utc": _now(), "status": "running", "generation": "0", "large": "1" if large else "",
+            "operator_address": (addresses or {}).get("operator", ""),
+        })
+        _keep_fault_counters(store, bench)
+        return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
+                                  estimate_noise)
+    finally:
+        lock.release()
 
 
 def resume_run(
@@ -168,31 +190,51 @@ def resume_run(
     that may have changed since. Simulated instruments get a new bench generation (fresh random
     draws); transports reconnect (``addresses`` replaces the stored ones, e.g. a restarted
     `rtcal sim serve`). The first pending reading re-approaches its targets from the
-    procedure's direction and re-references the tracer.
+    procedure's direction and re-references the tracer. Skipped readings are retaken. A
+    finished run is left as it is. The run directory is locked (RunBusy) until the resume ends.
     """
     run_dir = Path(run_dir)
+    if not (run_dir / RunStore.FILENAME).exists():
+        raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: no run store at {run_dir / RunStore.FILENAME}")])
+    lock = claim_run_dir(run_dir)
     try:
-        store = RunStore.open(run_dir)
-    except FileNotFoundError as exc:
-        raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: {exc}")]) from None
-    meta = store.meta()
-    where = f"{run_dir / RunStore.FILENAME}"
-    model = PROCEDURE_MODELS[meta["method"]]
-    proc = validate_text(meta["procedure_yaml"], model, f"{where} (stored procedure)")
-    proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta["instruments"])})
-    if addresses:
-        proc = with_addresses(proc, addresses)
-    simulated = proc.instruments.all_sim()
-    generation = int(meta.get("generation", "0")) + 1
-    bench = None
-    if simulated:
-        scenario = validate_text(meta["scenario_yaml"], Scenario, f"{where} (stored scenario)") if meta["scenario_yaml"] else Scenario()
-        bench = Bench(scenario, VirtualClock(store.last_time_s()), int(meta["seed"]), generation)
-    done = len(store.done_plan_indices())
-    store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
-    store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
-                    f"{METHODS[proc.method].plan_length(proc)} planned readings were already stored")
-    return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation)
+        try:
+            store = RunStore.open(run_dir)
+        except FileNotFoundError as exc:
+            raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: {exc}")]) from None
+        except StoreUnusable as exc:
+            raise FileProblems([Problem(str(run_dir / RunStore.FILENAME), 1, 1, "(run)", f"cannot resume: {exc}")]) from None
+        meta = store.meta()
+        finished = stored_results(run_dir) if meta.get("status") == "solved" else None
+        if finished is not None:  # nothing to take, nothing to count: the run stays as it is
+            store.close()
+            return RunOutcome(run_dir, finished)
+        where = f"{run_dir / RunStore.FILENAME}"
+        model = PROCEDURE_MODELS[meta["method"]]
+        proc = validate_text(meta["procedure_yaml"], model, f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
+        proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta["instruments"])})
+        if addresses:
+            proc = with_addresses(proc, addresses)
+            if "operator" in addresses:
+                store.set_meta({"operator_address": addresses["operator"]})
+        elif meta.get("operator_address"):  # a wired run goes on with the simulated operator it had
+            addresses = {"operator": meta["operator_address"]}
+        simulated = proc.instruments.all_sim()
+        done = len(store.done_plan_indices())
+        planned = METHODS[proc.method].plan_length(proc)
+        generation = int(meta.get("generation", "0")) + (1 if done < planned else 0)
+        bench = None
+        if simulated:
+            scenario = validate_text(meta["scenario_yaml"], Scenario, f"{where} (stored scenario)") if meta["scenario_yaml"] else Scenario()
+            bench = Bench(scenario, VirtualClock(store.last_time_s()), int(meta["seed"]), generation)
+            _keep_fault_counters(store, bench)
+        if done < planned:
+            store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
+            store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
+                            f"{planned} planned readings were already stored")
+        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation)
+    finally:
+        lock.release()
 
 
 def evaluation_of(analysis: dict[str, Any]) -> dict[str, Any] | None:
@@ -217,7 +259,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         store.close()
         raise
     disable = (not sys.stderr.isatty()) if show_progress is None else not show_progress
-    already = len(store.done_plan_indices())
+    already = len(store.done_plan_indices())  # the sequencers pass only pending readings through progress()
 
     def progress(it):
         return tqdm(it, total=method.plan_length(proc), initial=already, desc="readings", unit="rd", disable=disable,
@@ -270,12 +312,13 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     store.close()
     if not outputs:
         return RunOutcome(run_dir, results)
-    write_results(run_dir, results)
-    if "positioning_deviations" in results:  # the table every method hands downstream, for spreadsheets too
-        PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(run_dir / "positioning_deviations.csv")
-    method.write_files(run_dir, results)
-    write_report(run_dir, results, method.report_body(results))
-    model = report_model(results, run_dir, method.certificate_figures(results), method.method_text(results))
-    write_html(model, run_dir / "report.html")
-    write_pdf(model, run_dir / "report.pdf")
+    with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
+        write_results(out, results)
+        if "positioning_deviations" in results:  # the table every method hands downstream, for spreadsheets too
+            PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(out / "positioning_deviations.csv")
+        method.write_files(out, results)
+        write_report(out, results, method.report_body(results))
+        model = report_model(results, out, method.certificate_figures(results), method.method_text(results))
+        write_html(model, out / "report.html")
+        write_pdf(model, out / "report.pdf")
     return RunOutcome(run_dir, results)

@@ -4,11 +4,18 @@ PyYAML's composer gives each node its position; we keep a map from the path of k
 indices to (line, column) and translate pydantic's error locations through it. Duplicate keys
 are an error (PyYAML would silently keep the last). Only plain data is constructed (safe
 loader): a procedure file cannot execute code.
+
+A hostile file costs bounded time and memory: only regular files of at most
+``MAX_FILE_BYTES`` are read, nesting stops at ``MAX_DEPTH`` levels, aliases may add at most
+``ALIAS_BUDGET`` values beyond those written out (no "billion laughs"), and numbers are at most
+``MAX_NUMBER_CHARS`` characters long.
 """
 
 from __future__ import annotations
 
+import os
 import re
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -53,21 +60,77 @@ def _field_name(path: Path_) -> str:
 
 
 PLAIN_TAGS = {f"tag:yaml.org,2002:{t}" for t in ("str", "int", "float", "bool", "null", "seq", "map")}
+NUMBER_TAGS = {"tag:yaml.org,2002:int", "tag:yaml.org,2002:float"}
+MAX_FILE_BYTES = 256 * 1024  # a procedure with 10 000 listed points is about 250 KB; parsing 256 KiB takes ~3 s
+MAX_DEPTH = 32  # procedures nest 4 levels deep
+ALIAS_BUDGET = 10_000  # values that aliases may add beyond those written out
+MAX_NUMBER_CHARS = 100
 
 
-def _scalar(node: yaml.ScalarNode) -> Any:
-    """A scalar node's value by PyYAML's safe constructor (its tag is already resolved)."""
-    return yaml.SafeLoader("").construct_object(node, deep=True)
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing nesting beyond MAX_DEPTH before its recursive composer
+    gets deep (a RecursionError otherwise), and counting the nodes written out."""
+
+    def __init__(self, text: str, file: str):
+        super().__init__(text)
+        self.file = file
+        self.depth = 0
+        self.nodes = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            return super().compose_node(parent, index)
+        self.depth += 1
+        self.nodes += 1
+        try:
+            if self.depth > MAX_DEPTH:
+                mark = self.peek_event().start_mark
+                raise FileProblems([Problem(self.file, mark.line + 1, mark.column + 1, "(document)",
+                                            f"nesting deeper than {MAX_DEPTH} levels")])
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
 
 
-def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file: str) -> Any:
+class _Walk:
+    """State of one walk over a composed document: where each key path is, how many values
+    may still be built (aliases share nodes, so expanding them could multiply without end)."""
+
+    def __init__(self, file: str, written_nodes: int):
+        self.file = file
+        self.locations: dict[Path_, tuple[int, int]] = {}
+        self.budget = written_nodes + ALIAS_BUDGET
+        self.constructor = yaml.SafeLoader("")
+
+    def problem(self, node: yaml.Node, path: Path_, message: str) -> FileProblems:
+        shown = _field_name(path[:8]) + ("…" if len(path) > 8 else "")
+        return FileProblems([Problem(self.file, node.start_mark.line + 1, node.start_mark.column + 1, shown, message)])
+
+    def scalar(self, node: yaml.ScalarNode, path: Path_) -> Any:
+        """A scalar node's value by PyYAML's safe constructor (its tag is already resolved)."""
+        if node.tag in NUMBER_TAGS and len(node.value) > MAX_NUMBER_CHARS:
+            raise self.problem(node, path, f"a number of {len(node.value)} characters; at most {MAX_NUMBER_CHARS} are read")
+        try:
+            return self.constructor.construct_object(node, deep=True)
+        except (ValueError, OverflowError) as exc:
+            raise self.problem(node, path, f"not a usable number: {exc}") from None
+
+
+def _walk(node: yaml.Node, path: Path_, w: _Walk) -> Any:
+    out, file = w.locations, w.file
     out.setdefault(path, (node.start_mark.line + 1, node.start_mark.column + 1))  # a key keeps its own position
+    w.budget -= 1
+    if w.budget < 0:
+        raise w.problem(node, path, f"aliases expand to more than {ALIAS_BUDGET} values beyond those written out; "
+                                    "write the values out instead")
+    if len(path) > MAX_DEPTH:
+        raise w.problem(node, path, f"nesting deeper than {MAX_DEPTH} levels (a recursive alias?)")
     if node.tag not in PLAIN_TAGS:
         raise FileProblems([Problem(file, *out[path], _field_name(path), f"YAML tag {node.tag!r} is not allowed: plain data only")])
     if isinstance(node, yaml.MappingNode):
         result: dict[Any, Any] = {}
         for key_node, value_node in node.value:
-            key = _scalar(key_node) if isinstance(key_node, yaml.ScalarNode) and key_node.tag in PLAIN_TAGS else None
+            key = w.scalar(key_node, path) if isinstance(key_node, yaml.ScalarNode) and key_node.tag in PLAIN_TAGS else None
             if not isinstance(key, (str, int, float, bool)) or key is None:
                 raise FileProblems([Problem(file, key_node.start_mark.line + 1, key_node.start_mark.column + 1,
                                             _field_name(path), "keys must be plain scalars")])
@@ -76,27 +139,46 @@ def _walk(node: yaml.Node, path: Path_, out: dict[Path_, tuple[int, int]], file:
                 raise FileProblems([Problem(file, line, col, _field_name(path + (key,)),
                                             f"duplicate key (first given on line {out[path + (key,)][0]})")])
             out[path + (key,)] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)
-            result[key] = _walk(value_node, path + (key,), out, file)
+            result[key] = _walk(value_node, path + (key,), w)
         return result
     if isinstance(node, yaml.SequenceNode):
-        return [_walk(child, path + (i,), out, file) for i, child in enumerate(node.value)]
-    return _scalar(node)
+        return [_walk(child, path + (i,), w) for i, child in enumerate(node.value)]
+    return w.scalar(node, path)
+
+
+def _char_name(character: int | str | bytes) -> str:
+    return f"U+{character:04X}" if isinstance(character, int) else repr(character)
+
+
+def _line_column(text: str, index: int) -> tuple[int, int]:
+    line = text.count("\n", 0, index) + 1
+    return line, index - (text.rfind("\n", 0, index) + 1) + 1
 
 
 def load_yaml(text: str, file: str) -> tuple[Any, dict[Path_, tuple[int, int]]]:
     """Parse YAML text into plain data and a map of key paths to (line, column)."""
+    if len(text) > MAX_FILE_BYTES:
+        raise FileProblems([Problem(file, 1, 1, "(file)", f"{len(text)} characters; at most {MAX_FILE_BYTES} are read")])
+    loader = None
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        loader = _BoundedLoader(text, file)
+        node = loader.get_single_node()
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
         raise FileProblems([Problem(file, line, col, "(syntax)", str(exc.problem or exc).strip())]) from None
+    except yaml.reader.ReaderError as exc:
+        raise FileProblems([Problem(file, *_line_column(text, exc.position), "(syntax)",
+                                    f"character {_char_name(exc.character)} is not allowed in YAML")]) from None
     except yaml.YAMLError as exc:
         raise FileProblems([Problem(file, 1, 1, "(syntax)", str(exc))]) from None
+    finally:
+        if loader is not None:
+            loader.dispose()
     if node is None:
         return None, {(): (1, 1)}
-    locations: dict[Path_, tuple[int, int]] = {}
-    return _walk(node, (), locations, file), locations
+    walk = _Walk(file, loader.nodes)
+    return _walk(node, (), walk), walk.locations
 
 
 def locate(path: Path_, locations: dict[Path_, tuple[int, int]]) -> tuple[int, int]:
@@ -142,12 +224,48 @@ def validate_text(text: str, model: type[M], file: str, context: dict[str, Any] 
         raise FileProblems(problems_from_validation(exc, locations, file)) from None
 
 
-def read_text(path: str | Path) -> str:
-    """A user's file as text; unreadable files are a located problem too."""
+def read_bytes(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> bytes:
+    """A regular file of at most ``max_bytes``; anything else (a device such as /dev/zero, a
+    pipe, a directory, a larger file) is a located problem, found without reading it."""
+    flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)  # O_NONBLOCK: opening a FIFO must not wait
     try:
-        return Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FileProblems([Problem(str(path), 1, 1, "(file)", f"cannot read: {exc}")]) from None
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise FileProblems([Problem(str(path), 1, 1, "(file)", f"cannot read: {exc.strerror or exc}")]) from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            kind = "a directory" if stat.S_ISDIR(info.st_mode) else "a device, pipe or socket"
+            raise FileProblems([Problem(str(path), 1, 1, "(file)", f"cannot read: {kind}, not a regular file")])
+        if info.st_size > max_bytes:
+            raise FileProblems([Problem(str(path), 1, 1, "(file)",
+                                        f"{info.st_size} bytes; at most {max_bytes} are read (is it the right file?)")])
+        chunks, size = [], 0
+        while size <= max_bytes:
+            try:
+                chunk = os.read(fd, max_bytes + 1 - size)
+            except OSError as exc:
+                raise FileProblems([Problem(str(path), 1, 1, "(file)", f"cannot read: {exc.strerror or exc}")]) from None
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+        if size > max_bytes:
+            raise FileProblems([Problem(str(path), 1, 1, "(file)", f"more than {max_bytes} bytes; at most {max_bytes} are read")])
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def read_text(path: str | Path) -> str:
+    """A user's file as UTF-8 text; unreadable, oversized or non-regular files are located problems."""
+    data = read_bytes(path)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise FileProblems([Problem(str(path), line, column, "(file)", "not UTF-8 text")]) from None
 
 
 def validate_file(path: str | Path, model: type[M], context: dict[str, Any] | None = None) -> M:

@@ -17,26 +17,37 @@ from __future__ import annotations
 
 import math
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from rtcal.harmonics import Harmonic
 from rtcal.units import arcsec_to_rad, um_to_mm
 
-Vec3 = tuple[float, float, float]
+# Bounds a person would accept for a bench (every number is also finite): angles of error up to
+# 1°, lengths of error up to 10 mm, positions within 1 km.
+Coord_mm = Annotated[float, Field(ge=-1e6, le=1e6)]
+Vec3 = tuple[Coord_mm, Coord_mm, Coord_mm]
+ErrorAngle_arcsec = Annotated[float, Field(ge=-3600.0, le=3600.0)]
+Size_mm = Annotated[float, Field(ge=-1e4, le=1e4)]
+Phase_deg = Annotated[float, Field(ge=-360.0, le=360.0)]
+Limit_deg = Annotated[float, Field(ge=-36_000.0, le=36_000.0)]
+
+
+def _noise(default: float, unit: str, what: str, high: float) -> float:
+    return Field(default, ge=0.0, le=high, description=f"{what}, {unit} (0: none)")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class AngularHarmonic(_Strict):
     """amplitude_arcsec · sin(order·θ + phase)."""
 
-    order: int = Field(ge=0, le=1000)
-    amplitude_arcsec: float
-    phase_deg: float = 0.0
+    order: int = Field(ge=0, le=1000, description="cycles per revolution (0: a constant)")
+    amplitude_arcsec: ErrorAngle_arcsec = Field(description="amplitude, arcsec (e.g. 2.5)")
+    phase_deg: Phase_deg = Field(0.0, description="phase, deg")
 
     def to_rad(self) -> Harmonic:
         return Harmonic(self.order, arcsec_to_rad(self.amplitude_arcsec), math.radians(self.phase_deg))
@@ -45,9 +56,9 @@ class AngularHarmonic(_Strict):
 class LinearHarmonic(_Strict):
     """amplitude_um · sin(order·θ + phase)."""
 
-    order: int = Field(ge=0, le=1000)
-    amplitude_um: float
-    phase_deg: float = 0.0
+    order: int = Field(ge=0, le=1000, description="cycles per revolution (0: a constant)")
+    amplitude_um: Annotated[float, Field(ge=-1e4, le=1e4)] = Field(description="amplitude, µm (e.g. 1.5)")
+    phase_deg: Phase_deg = Field(0.0, description="phase, deg")
 
     def to_mm(self) -> Harmonic:
         return Harmonic(self.order, um_to_mm(self.amplitude_um), math.radians(self.phase_deg))
@@ -73,60 +84,75 @@ class CompensationScenario(_Strict):
 class StageScenario(_Strict):
     """The rotary table: its axis in the CMM frame and its error motions."""
 
-    axis_point_mm: Vec3 = (0.0, 0.0, 0.0)
-    axis_tilt_x_arcsec: float = 0.0  # squareness of the axis to the CMM table, about X
-    axis_tilt_y_arcsec: float = 0.0  # ... about Y
-    positioning_error: list[AngularHarmonic] = []  # εz(θ)
-    repeatability_arcsec: float = Field(0.0, ge=0.0)  # 1σ, random per move
-    reversal_arcsec: float = 0.0
-    radial_motion_x: list[LinearHarmonic] = []  # δx(θ) at the tilt centre
-    radial_motion_y: list[LinearHarmonic] = []  # δy(θ) at the tilt centre
-    axial_motion: list[LinearHarmonic] = []  # δz(θ)
-    tilt_motion_x: list[AngularHarmonic] = []  # εx(θ)
-    tilt_motion_y: list[AngularHarmonic] = []  # εy(θ)
-    tilt_center_height_mm: float = 0.0  # along the axis, above axis_point_mm
-    soft_limits_deg: tuple[float, float] = (-360.0, 360.0)
-    speed_deg_per_s: float = Field(10.0, gt=0.0)
+    axis_point_mm: Vec3 = Field((0.0, 0.0, 0.0), description="where the rotation axis meets the CMM table, mm, CMM frame")
+    axis_tilt_x_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness of the axis to the CMM table, about X, arcsec")
+    axis_tilt_y_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness of the axis to the CMM table, about Y, arcsec")
+    positioning_error: list[AngularHarmonic] = Field([], max_length=1000, description="εz(θ): actual − commanded angle, harmonics")
+    repeatability_arcsec: float = _noise(0.0, "arcsec", "1σ of the random positioning error per move", 3600.0)
+    reversal_arcsec: ErrorAngle_arcsec = Field(0.0, description="how much lower a negative approach ends than a positive one, arcsec")
+    radial_motion_x: list[LinearHarmonic] = Field([], max_length=1000, description="δx(θ) at the tilt centre, harmonics")
+    radial_motion_y: list[LinearHarmonic] = Field([], max_length=1000, description="δy(θ) at the tilt centre, harmonics")
+    axial_motion: list[LinearHarmonic] = Field([], max_length=1000, description="δz(θ), harmonics")
+    tilt_motion_x: list[AngularHarmonic] = Field([], max_length=1000, description="εx(θ), harmonics")
+    tilt_motion_y: list[AngularHarmonic] = Field([], max_length=1000, description="εy(θ), harmonics")
+    tilt_center_height_mm: Size_mm = Field(0.0, description="tilt centre along the axis above axis_point_mm, mm")
+    soft_limits_deg: tuple[Limit_deg, Limit_deg] = Field((-360.0, 360.0), description="[lowest, highest] angle the drive accepts, deg")
+    speed_deg_per_s: float = Field(10.0, gt=0.0, le=1e4, description="table speed, deg/s (motions take virtual time)")
     compensation: CompensationScenario | None = Field(None, description="a compensation table the simulated controller "
                                                                         "applies (calibrate → compensate → verify)")
+
+    @model_validator(mode="after")
+    def _ordered_limits(self) -> "StageScenario":
+        if self.soft_limits_deg[0] >= self.soft_limits_deg[1]:
+            raise ValueError("soft_limits_deg: the lower limit must be below the upper one")
+        return self
 
 
 class CmmScenario(_Strict):
     """The CMM: commanded → actual probe position, point noise and measuring volume."""
 
-    scale_error_ppm: Vec3 = (0.0, 0.0, 0.0)
-    squareness_xy_arcsec: float = 0.0
-    squareness_xz_arcsec: float = 0.0
-    squareness_yz_arcsec: float = 0.0
-    point_noise_um: float = Field(0.0, ge=0.0)  # 1σ per coordinate of the reported position
-    volume_min_mm: Vec3 = (-300.0, -600.0, -100.0)
-    volume_max_mm: Vec3 = (1200.0, 600.0, 800.0)
-    speed_mm_per_s: float = Field(100.0, gt=0.0)
+    scale_error_ppm: tuple[Annotated[float, Field(ge=-1e4, le=1e4)], Annotated[float, Field(ge=-1e4, le=1e4)],
+                           Annotated[float, Field(ge=-1e4, le=1e4)]] = Field(
+        (0.0, 0.0, 0.0), description="scale errors of the X, Y, Z scales, ppm")
+    squareness_xy_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between X and Y, arcsec")
+    squareness_xz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between X and Z, arcsec")
+    squareness_yz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between Y and Z, arcsec")
+    point_noise_um: float = _noise(0.0, "µm", "1σ per coordinate of the reported position", 1e4)
+    volume_min_mm: Vec3 = Field((-300.0, -600.0, -100.0), description="lowest X, Y, Z the CMM reaches, mm")
+    volume_max_mm: Vec3 = Field((1200.0, 600.0, 800.0), description="highest X, Y, Z the CMM reaches, mm")
+    speed_mm_per_s: float = Field(100.0, gt=0.0, le=1e5, description="probe speed, mm/s (motions take virtual time)")
+
+    @model_validator(mode="after")
+    def _ordered_volume(self) -> "CmmScenario":
+        if any(lo >= hi for lo, hi in zip(self.volume_min_mm, self.volume_max_mm)):
+            raise ValueError("volume_max_mm: each coordinate must exceed volume_min_mm's")
+        return self
 
 
 class TracerMount(_Strict):
     """Where the tracer's reference centre sits in the table frame."""
 
-    radius_mm: float = Field(65.33, gt=0.0)
-    azimuth_deg: float = -29.2  # at table angle 0; the paper's P1 at −145° lies at about −174°
-    height_mm: float = 122.5  # above the axis point (the CMM origin)
+    radius_mm: float = Field(65.33, gt=0.0, le=1e4, description="distance of the tracer's centre from the axis, mm")
+    azimuth_deg: Phase_deg = Field(-29.2, description="its direction at table angle 0, deg (the paper's P1 at −145° lies at about −174°)")
+    height_mm: Size_mm = Field(122.5, description="its height above the axis point (the CMM origin), mm")
 
 
 class LaserTracerScenario(_Strict):
     """Interferometric length noise a + b·L (1σ), the mount, and where the tracer goes when the
     operator moves it to its second mount (a procedure's ``second_mount``)."""
 
-    mount: TracerMount = TracerMount()
-    second_mount: TracerMount = TracerMount(radius_mm=130.0, azimuth_deg=80.0, height_mm=122.5)
-    length_noise_um: float = Field(0.0, ge=0.0)
-    length_noise_ppm: float = Field(0.0, ge=0.0)  # µm per m of length
+    mount: TracerMount = Field(TracerMount(), description="where the tracer sits on the table")
+    second_mount: TracerMount = Field(TracerMount(radius_mm=130.0, azimuth_deg=80.0, height_mm=122.5),
+                                      description="where the operator moves it for a procedure's second_mount")
+    length_noise_um: float = _noise(0.0, "µm", "1σ of every length, constant part a", 1e4)
+    length_noise_ppm: float = _noise(0.0, "µm per m", "1σ of every length, part b proportional to the length", 1e4)
 
 
 class StepperScenario(_Strict):
     """Open-loop stepper through a worm: commanded angles are whole (micro)steps."""
 
-    steps_per_revolution: int = Field(0, ge=0)  # motor (micro)steps per motor turn; 0 = continuous
-    worm_ratio: float = Field(1.0, gt=0.0)  # motor turns per table turn
+    steps_per_revolution: int = Field(0, ge=0, le=10_000_000, description="motor (micro)steps per motor turn; 0: continuous")
+    worm_ratio: float = Field(1.0, gt=0.0, le=1e5, description="motor turns per table turn (e.g. 90)")
 
 
 class EncoderScenario(_Strict):
@@ -137,21 +163,21 @@ class EncoderScenario(_Strict):
     angle Δt/rE: Δt = δy + Zs·εx + e·sin(θ + ψ) for grating eccentricity e at phase ψ.
     """
 
-    radius_mm: float = Field(32.0, gt=0.0)  # rE
-    grating_offset_mm: float = 0.0  # Zs, grating plane below the tilt centre
-    eccentricity_um: float = Field(0.0, ge=0.0)
-    eccentricity_phase_deg: float = 0.0
-    graduation_error: list[AngularHarmonic] = []  # of the grating angle
-    resolution_arcsec: float = Field(0.0, ge=0.0)
-    noise_arcsec: float = Field(0.0, ge=0.0)
+    radius_mm: float = Field(32.0, gt=0.0, le=1e4, description="rE: radius of the read head, mm")
+    grating_offset_mm: Size_mm = Field(0.0, description="Zs: grating plane below the tilt centre, mm")
+    eccentricity_um: float = Field(0.0, ge=0.0, le=1e4, description="eccentricity of the grating, µm")
+    eccentricity_phase_deg: Phase_deg = Field(0.0, description="its phase, deg")
+    graduation_error: list[AngularHarmonic] = Field([], max_length=1000, description="errors of the grating angle, harmonics")
+    resolution_arcsec: float = _noise(0.0, "arcsec", "one count", 3600.0)
+    noise_arcsec: float = _noise(0.0, "arcsec", "1σ of each reading", 3600.0)
 
 
 class AutocollimatorScenario(_Strict):
     """Reads the polygon face in front of it; ``range_arcsec`` either side of its axis."""
 
-    noise_arcsec: float = Field(0.0, ge=0.0)
-    resolution_arcsec: float = Field(0.0, ge=0.0)
-    range_arcsec: float = Field(150.0, gt=0.0)
+    noise_arcsec: float = _noise(0.0, "arcsec", "1σ of each reading", 3600.0)
+    resolution_arcsec: float = _noise(0.0, "arcsec", "display resolution", 3600.0)
+    range_arcsec: float = Field(150.0, gt=0.0, le=36_000.0, description="measuring range either side of the axis, arcsec")
 
 
 class PolygonScenario(_Strict):
@@ -161,10 +187,10 @@ class PolygonScenario(_Strict):
     Its certificate is the truth plus noise of ``certificate_uncertainty_arcsec``; each
     re-seating lands within ``seating_error_arcsec`` (1σ) of the nominal offset."""
 
-    faces: int = Field(24, ge=3, le=360)
-    face_errors_arcsec: list[float] = []
-    certificate_uncertainty_arcsec: float = Field(0.0, ge=0.0)
-    seating_error_arcsec: float = Field(0.0, ge=0.0)
+    faces: int = Field(24, ge=3, le=360, description="faces of the polygon")
+    face_errors_arcsec: list[ErrorAngle_arcsec] = Field([], max_length=360, description="each face normal's error, arcsec (none: perfect)")
+    certificate_uncertainty_arcsec: float = _noise(0.0, "arcsec", "1σ of the certificate's values", 3600.0)
+    seating_error_arcsec: float = _noise(0.0, "arcsec", "1σ of each re-seating about its nominal offset", 3600.0)
 
     @model_validator(mode="after")
     def _one_error_per_face(self) -> "PolygonScenario":
@@ -176,9 +202,9 @@ class PolygonScenario(_Strict):
 class DialIndicatorScenario(_Strict):
     """Two indicators touching the shaft in Y (the grating's tangential direction at the head)."""
 
-    heights_mm: tuple[float, float] = (50.0, 70.0)  # L1, L2 below the tilt centre
-    resolution_um: float = Field(0.0, ge=0.0)
-    noise_um: float = Field(0.0, ge=0.0)
+    heights_mm: tuple[Size_mm, Size_mm] = Field((50.0, 70.0), description="L1, L2: heights below the tilt centre, mm")
+    resolution_um: float = _noise(0.0, "µm", "display resolution", 1e4)
+    noise_um: float = _noise(0.0, "µm", "1σ of each reading", 1e4)
 
 
 class EnvironmentScenario(_Strict):
@@ -215,11 +241,12 @@ class FaultSpec(_Strict):
     alarm (stage: stall, following_error, limit_switch) and emergency_stop: the drive alarms.
     """
 
-    instrument: InstrumentName
-    kind: FaultKind
-    alarm: Literal["stall", "following_error", "limit_switch"] = "stall"
-    probability: float = Field(0.0, ge=0.0, le=1.0)
-    at_request: list[int] = []
+    instrument: InstrumentName = Field(description="which instrument suffers it")
+    kind: FaultKind = Field(description="what happens (see above)")
+    alarm: Literal["stall", "following_error", "limit_switch"] = Field("stall", description="which drive alarm, for kind `alarm`")
+    probability: float = Field(0.0, ge=0.0, le=1.0, description="chance per request, 0..1 (e.g. 0.02)")
+    at_request: list[Annotated[int, Field(le=1_000_000_000)]] = Field(
+        [], max_length=10_000, description="the instrument's requests that fail, counted from 1 over the whole run (resumes go on counting)")
 
     @model_validator(mode="after")
     def _fits_instrument(self) -> "FaultSpec":
@@ -239,17 +266,17 @@ class FaultSpec(_Strict):
 class Scenario(_Strict):
     """A whole bench. ``seed`` makes every random draw of a run reproducible."""
 
-    seed: int = 0
-    stage: StageScenario = StageScenario()
-    cmm: CmmScenario = CmmScenario()
-    laser_tracer: LaserTracerScenario = LaserTracerScenario()
-    encoder: EncoderScenario = EncoderScenario()
-    autocollimator: AutocollimatorScenario = AutocollimatorScenario()
-    polygon: PolygonScenario = PolygonScenario()
-    dial_indicators: DialIndicatorScenario = DialIndicatorScenario()
-    stepper: StepperScenario = StepperScenario()
-    environment: EnvironmentScenario = EnvironmentScenario()
-    faults: list[FaultSpec] = []
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="seed of the run's random generator (`rtcal run --seed` replaces it)")
+    stage: StageScenario = Field(StageScenario(), description="the rotary table")
+    cmm: CmmScenario = Field(CmmScenario(), description="the CMM")
+    laser_tracer: LaserTracerScenario = Field(LaserTracerScenario(), description="the laser tracer")
+    encoder: EncoderScenario = Field(EncoderScenario(), description="the rotary encoder (seed 001)")
+    autocollimator: AutocollimatorScenario = Field(AutocollimatorScenario(), description="the autocollimator (seed 001)")
+    polygon: PolygonScenario = Field(PolygonScenario(), description="the optical polygon (seed 001)")
+    dial_indicators: DialIndicatorScenario = Field(DialIndicatorScenario(), description="the two dial indicators (seed 001)")
+    stepper: StepperScenario = Field(StepperScenario(), description="an open-loop stepper drive, if any")
+    environment: EnvironmentScenario = Field(EnvironmentScenario(), description="the air around the beam and its sensor")
+    faults: list[FaultSpec] = Field([], max_length=1000, description="faults to inject (docs/faults.md)")
 
     def without_noise(self) -> "Scenario":
         """The same bench with every random error and fault removed: its systematic errors and

@@ -98,10 +98,24 @@ def test_emergency_stop_with_pause_waits_for_the_operator(tmp_path):
     assert _events(r, "pause")
 
 
-def test_skip_policy_marks_the_reading_and_the_solvers_use_the_rest(tmp_path):
+def test_skip_policy_retakes_the_reading_after_the_pass(tmp_path):
+    """Reading 10 fails three times and is skipped; after the pass it is taken again (requests 67–69
+    are the retake's: 64 readings, 3 of them failed): all 64 stored, each once."""
     proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
                                         "laser_tracer: {retries: 2, backoff_s: 0.1, then: skip}"})
     r = _over_wires(tmp_path, proc, [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": [10, 11, 12]}])
+    assert len(_events(r, "skip")) == 1
+    assert r["skipped_readings"] == 0 and r["raw_readings"] == 64
+    store = RunStore.open(tmp_path / "run")
+    lengths = [x.plan_index for x in store.readings(instrument="laser_tracer", quantity="length_mm")]
+    assert sorted(lengths) == list(range(64))
+
+
+def test_skip_policy_marks_the_reading_and_the_solvers_use_the_rest(tmp_path):
+    """The retake of reading 10 fails too (requests 67–69): it stays skipped, the solvers use the rest."""
+    proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
+                                        "laser_tracer: {retries: 2, backoff_s: 0.1, then: skip}"})
+    r = _over_wires(tmp_path, proc, [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": [10, 11, 12, 67, 68, 69]}])
     assert r["skipped_readings"] == 1 and r["raw_readings"] == 63
     assert len(r["estimates"]["shared_dead_path"]["deviation_arcsec"]) == 3
 
@@ -159,14 +173,14 @@ def test_paper000_with_two_percent_beam_breaks_completes_within_no_fault_noise(t
 
 
 def test_a_run_whose_data_the_solvers_cannot_use_says_so(tmp_path, capsys):
-    """Every tracer reading fails and is skipped: measuring ends, the solvers have nothing; a clear
-    message and exit 1, the store intact."""
+    """Every tracer reading fails and is skipped (the policy allows any number in a row): measuring
+    ends, the solvers have nothing; a clear message and exit 1, the store intact."""
     import yaml
 
     from rtcal.cli import main
 
     proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
-                                        "laser_tracer: {retries: 0, backoff_s: 0.1, then: skip}"})
+                                        "laser_tracer: {retries: 0, backoff_s: 0.1, then: skip, max_skips_in_a_row: 1000}"})
     scenario = tmp_path / "s.yaml"
     scenario.write_text(yaml.safe_dump({"faults": [{"instrument": "laser_tracer", "kind": "no_reply", "probability": 1.0}]}))
     assert main(["run", str(proc), "--scenario", str(scenario), "--out", str(tmp_path / "run")]) == 1

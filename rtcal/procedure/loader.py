@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from typing import Annotated, Union
@@ -15,10 +16,12 @@ from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at,
 from simulators.scenario import Scenario
 
 
-def load_procedure(path: str | Path) -> Procedure:
-    """Validate a procedure file; raises :class:`FileProblems` naming file, line and field."""
+def load_procedure(path: str | Path, large: bool = False, text: str | None = None) -> Procedure:
+    """Validate a procedure file (or its ``text``, already read); raises :class:`FileProblems`
+    naming file, line and field. ``large`` accepts plans beyond the default size limits
+    (``rtcal run --large``)."""
     path = Path(path)
-    text = read_text(path)
+    text = read_text(path) if text is None else text
     data, locations = load_yaml(text, str(path))
     if not isinstance(data, dict):
         raise FileProblems([Problem(str(path), *locations[()], "(document)", "expected a mapping with a `method` key")])
@@ -28,7 +31,7 @@ def load_procedure(path: str | Path) -> Procedure:
         known = ", ".join(sorted(PROCEDURE_MODELS))
         msg = "required key is missing" if method is None else f"unknown method {method!r}"
         raise FileProblems([Problem(str(path), line, col, "method", f"{msg}; one of: {known}")])
-    return validate_text(text, PROCEDURE_MODELS[method], str(path))
+    return validate_text(text, PROCEDURE_MODELS[method], str(path), context={"large": large})
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -53,6 +56,26 @@ def load_scenario(path: str | Path) -> Scenario:
         raise FileProblems([problem_at(path, where, str(exc))]) from None
     return scenario.model_copy(update={"stage": scenario.stage.model_copy(update={
         "compensation": comp.model_copy(update={"text": text, "file": None})})})
+
+
+def bench_path(procedure_path: str | Path, proc: Procedure) -> Path | None:
+    """The procedure's ``bench``, relative to the procedure file and inside its folder.
+
+    A procedure names only scenarios that travel with it: a ``bench`` elsewhere (``/etc/…``,
+    ``../../…``, a link leading out, a device) would be read and copied into the run store on
+    the word of a file. A scenario from anywhere else is read when named on the command line.
+    """
+    if proc.bench is None:
+        return None
+    procedure_path = Path(procedure_path)
+    folder = os.path.realpath(procedure_path.parent)
+    candidate = procedure_path.parent / proc.bench
+    real = os.path.realpath(candidate)
+    if os.path.commonpath([folder, real]) != folder:
+        raise FileProblems([problem_at(procedure_path, ("bench",),
+                                       f"{proc.bench!r} lies outside the procedure's folder {folder}; name a scenario "
+                                       "from elsewhere on the command line (`rtcal run --scenario FILE`)")])
+    return candidate
 
 
 def is_procedure_text(text: str) -> bool:

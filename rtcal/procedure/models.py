@@ -3,21 +3,39 @@
 A procedure names its ``method``; its ``instruments`` section chooses a backend per
 instrument; ``bench`` names the scenario that simulated backends observe (a path relative to
 the procedure file), which ``rtcal run --scenario`` replaces.
+
+Every number is finite and has bounds a person would accept (the hostile-input corpus in
+tests/data/bad/ tries the rest); a plan larger than ``MAX_PLANNED_READINGS`` needs ``--large``.
+Each field carries a ``description`` that editors show from ``rtcal schema``.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Literal, Union
+import re
+from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-Vec3 = tuple[float, float, float]
+ANGLE_LIMIT_DEG = 36_000.0  # 100 turns either way: beyond any table's travel
+COORD_LIMIT_MM = 1e6  # 1 km: beyond any CMM
+Coord_mm = Annotated[float, Field(ge=-COORD_LIMIT_MM, le=COORD_LIMIT_MM)]
+Vec3 = tuple[Coord_mm, Coord_mm, Coord_mm]
+Angle_deg = Annotated[float, Field(ge=-ANGLE_LIMIT_DEG, le=ANGLE_LIMIT_DEG)]
+
+# Plan sizes (planned readings × samples per reading). The paper's plan has 704; 120 000 took
+# 67 s and 0.5 GB on the simulated bench. Beyond the first limit `--large` is needed; beyond the
+# second nothing runs. The joint seed-000 solver holds a readings × (3·stations + segments)
+# Jacobian: its cells are limited the same way (8 bytes each, several copies).
+MAX_PLANNED_READINGS = 100_000
+MAX_PLANNED_READINGS_LARGE = 2_000_000
+MAX_SOLVER_CELLS = 20_000_000
+MAX_SOLVER_CELLS_LARGE = 200_000_000
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class InstrumentRecord(_Strict):
@@ -46,9 +64,10 @@ class InstrumentChoice(_Strict):
     or an ``address`` of a real transport (see drivers/addresses.py): a Modbus drive, an I++
     CMM, a serial device path or ``socket://`` URL."""
 
-    backend: Literal["sim"] | None = None
-    address: str | None = None
-    timeout_s: float = Field(2.0, gt=0.0, le=600.0)
+    backend: Literal["sim"] | None = Field(None, description="`sim`: the in-process simulated instrument on the bench")
+    address: str | None = Field(None, max_length=1000, description="where a real instrument is, e.g. "
+                                "`modbus-tcp://192.168.0.20:502?unit=1`, `ipp://cmm:1294`, `/dev/ttyUSB0`, `socket://host:4001`")
+    timeout_s: float = Field(2.0, gt=0.0, le=600.0, description="deadline of one request to the instrument, s (e.g. 2)")
 
     @model_validator(mode="after")
     def _one_backend(self) -> "InstrumentChoice":
@@ -71,14 +90,27 @@ class InstrumentChoice(_Strict):
 class StageChoice(InstrumentChoice):
     """The stage, with soft limits rtcal enforces before any command reaches a transport."""
 
-    soft_limits_deg: tuple[float, float] = (-360.0, 360.0)
+    soft_limits_deg: tuple[Angle_deg, Angle_deg] = Field(
+        (-360.0, 360.0), description="[lowest, highest] angle rtcal may command, deg; checked before anything is sent")
+
+    @model_validator(mode="after")
+    def _ordered_limits(self) -> "StageChoice":
+        if self.soft_limits_deg[0] >= self.soft_limits_deg[1]:
+            raise ValueError("soft_limits_deg: the lower limit must be below the upper one")
+        return self
 
 
 class CmmChoice(InstrumentChoice):
     """The CMM, with an optional measuring volume rtcal enforces before any command is sent."""
 
-    volume_min_mm: Vec3 = (-1e6, -1e6, -1e6)
-    volume_max_mm: Vec3 = (1e6, 1e6, 1e6)
+    volume_min_mm: Vec3 = Field((-1e6, -1e6, -1e6), description="lowest X, Y, Z the CMM may be sent to, mm (CMM frame)")
+    volume_max_mm: Vec3 = Field((1e6, 1e6, 1e6), description="highest X, Y, Z the CMM may be sent to, mm (CMM frame)")
+
+    @model_validator(mode="after")
+    def _ordered_volume(self) -> "CmmChoice":
+        if any(lo >= hi for lo, hi in zip(self.volume_min_mm, self.volume_max_mm)):
+            raise ValueError("volume_max_mm: each coordinate must exceed volume_min_mm's")
+        return self
 
 
 class _Instruments(_Strict):
@@ -105,9 +137,9 @@ class _Instruments(_Strict):
 
 
 class MultistationInstruments(_Instruments):
-    stage: StageChoice = StageChoice()
-    cmm: CmmChoice = CmmChoice()
-    laser_tracer: InstrumentChoice = InstrumentChoice()
+    stage: StageChoice = Field(StageChoice(), description="the rotary table's drive")
+    cmm: CmmChoice = Field(CmmChoice(), description="the CMM that carries the tracer's reflector")
+    laser_tracer: InstrumentChoice = Field(InstrumentChoice(), description="the laser tracer on the table")
     environment: InstrumentChoice | None = Field(
         None, description="an air and material sensor, read with every length: rtcal corrects each length for the "
                           "refractive index of the air of the moment (e.g. {backend: sim})")
@@ -122,16 +154,21 @@ class FaultPolicy(_Strict):
     reacquire (laser tracer): re-reference the tracer and go on in a new tracking segment.
     """
 
-    retries: int = Field(2, ge=0, le=20)
-    backoff_s: float = Field(0.5, ge=0.0, le=600.0)
-    then: Literal["abort", "skip", "pause", "reacquire"] = "abort"
+    retries: int = Field(2, ge=0, le=20, description="attempts after the first before `then` applies (e.g. 2)")
+    backoff_s: float = Field(0.5, ge=0.0, le=600.0, description="wait before the first retry, s; doubles on each retry")
+    then: Literal["abort", "skip", "pause", "reacquire"] = Field(
+        "abort", description="when the retries are spent: abort (safe stop, resumable), skip the reading, "
+                             "pause for the operator, or reacquire (laser tracer)")
+    max_skips_in_a_row: int = Field(
+        5, ge=1, le=100_000, description="with `then: skip`: this many planned readings skipped in a row mean the fault "
+                                         "persists (an emergency stop, a lost beam): stop safely instead; resume retakes them")
 
 
 class MultistationOnFault(_Strict):
-    stage: FaultPolicy = FaultPolicy()
-    cmm: FaultPolicy = FaultPolicy()
-    laser_tracer: FaultPolicy = FaultPolicy(then="reacquire")
-    environment: FaultPolicy = FaultPolicy(then="skip")
+    stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
+    cmm: FaultPolicy = Field(FaultPolicy(), description="when the CMM fails")
+    laser_tracer: FaultPolicy = Field(FaultPolicy(then="reacquire"), description="when the tracer fails (default: re-acquire)")
+    environment: FaultPolicy = Field(FaultPolicy(then="skip"), description="when the environment sensor fails (default: skip)")
 
     @model_validator(mode="after")
     def _reacquire_is_for_the_tracer(self) -> "MultistationOnFault":
@@ -142,11 +179,11 @@ class MultistationOnFault(_Strict):
 
 
 class AbbeOnFault(_Strict):
-    stage: FaultPolicy = FaultPolicy()
-    encoder: FaultPolicy = FaultPolicy()
-    autocollimator: FaultPolicy = FaultPolicy()
-    dial_indicator_1: FaultPolicy = FaultPolicy()
-    dial_indicator_2: FaultPolicy = FaultPolicy()
+    stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
+    encoder: FaultPolicy = Field(FaultPolicy(), description="when the encoder counter fails")
+    autocollimator: FaultPolicy = Field(FaultPolicy(), description="when the autocollimator fails")
+    dial_indicator_1: FaultPolicy = Field(FaultPolicy(), description="when dial indicator 1 fails")
+    dial_indicator_2: FaultPolicy = Field(FaultPolicy(), description="when dial indicator 2 fails")
 
     @model_validator(mode="after")
     def _no_reacquire(self) -> "AbbeOnFault":
@@ -159,11 +196,12 @@ class AbbeOnFault(_Strict):
 class Stations(_Strict):
     """Table stations: first angle, constant step, count (eq. 2 needs m ≥ 4)."""
 
-    first_angle_deg: float = -145.0
-    step_deg: float = Field(30.0, gt=0.0, lt=180.0)
-    count: int = Field(11, ge=4, le=720)
-    approach: Literal["positive", "negative"] = "positive"
-    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0)  # pass the target by this much to approach it the set way
+    first_angle_deg: Angle_deg = Field(-145.0, description="commanded angle of station 1, deg (the paper: -145)")
+    step_deg: float = Field(30.0, gt=0.0, lt=180.0, description="angle between adjacent stations, deg (the paper: 30)")
+    count: int = Field(11, ge=4, le=720, description="number of stations m (eq. 2 needs m ≥ 4; the paper: 11)")
+    approach: Literal["positive", "negative"] = Field(
+        "positive", description="direction every station is approached in, and in which the stations follow each other")
+    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0, description="pass the target by this much to approach it the set way, deg")
 
     def angles_deg(self) -> np.ndarray:
         sign = 1.0 if self.approach == "positive" else -1.0
@@ -173,12 +211,14 @@ class Stations(_Strict):
 class GridPlan(_Strict):
     """The paper's plan: layers of a serpentine grid in a box (4 × 16 points in 450 × 600 × 450 mm)."""
 
-    kind: Literal["grid"] = "grid"
-    volume_min_mm: Vec3 = (700.0, -300.0, 100.0)
-    volume_size_mm: Vec3 = (450.0, 600.0, 450.0)
-    layers: int = Field(4, ge=1, le=100)
-    columns: int = Field(4, ge=1, le=100)  # along X
-    rows: int = Field(4, ge=1, le=100)  # along Y
+    kind: Literal["grid"] = Field("grid", description="`grid`: points on a serpentine grid in a box")
+    volume_min_mm: Vec3 = Field((700.0, -300.0, 100.0), description="lowest corner of the box, mm, CMM frame")
+    volume_size_mm: tuple[Annotated[float, Field(ge=0.0, le=1e5)], Annotated[float, Field(ge=0.0, le=1e5)],
+                          Annotated[float, Field(ge=0.0, le=1e5)]] = Field(
+        (450.0, 600.0, 450.0), description="edge lengths of the box along X, Y, Z, mm (the paper: 450, 600, 450)")
+    layers: int = Field(4, ge=1, le=100, description="planes of points along Z")
+    columns: int = Field(4, ge=1, le=100, description="points per row, along X")
+    rows: int = Field(4, ge=1, le=100, description="rows per layer, along Y")
 
     def points_mm(self) -> np.ndarray:
         lo, size = np.array(self.volume_min_mm), np.array(self.volume_size_mm)
@@ -195,8 +235,9 @@ class GridPlan(_Strict):
 class ListPlan(_Strict):
     """An explicit list of CMM points (mm, CMM frame), measured in the order given."""
 
-    kind: Literal["list"]
-    points_mm: list[Vec3] = Field(min_length=1)
+    kind: Literal["list"] = Field(description="`list`: the points are listed")
+    points_mm: list[Vec3] = Field(min_length=1, max_length=100_000,
+                                  description="[x, y, z] of each point, mm, CMM frame, in measuring order")
 
     def points_mm_array(self) -> np.ndarray:
         return np.array(self.points_mm, dtype=float)
@@ -205,11 +246,12 @@ class ListPlan(_Strict):
 class LMSettings(_Strict):
     """The paper's LM parameters (section 4.2.1)."""
 
-    beta: float = Field(0.55, gt=0.0, lt=1.0)
-    sigma: float = Field(0.4, gt=0.0, lt=1.0)
-    epsilon: float = Field(1e-4, gt=0.0)
-    mu0: float | Literal["residual_norm"] = 0.75
-    max_iterations: int = Field(200, ge=1)
+    beta: float = Field(0.55, gt=0.0, lt=1.0, description="β of the step-length search, in (0, 1) (the paper: 0.55)")
+    sigma: float = Field(0.4, gt=0.0, lt=1.0, description="σ of the sufficient-decrease test, in (0, 1) (the paper: 0.4)")
+    epsilon: float = Field(1e-4, gt=0.0, le=1.0, description="stop when the gradient norm falls below this (the paper: 1e-4)")
+    mu0: Annotated[float, Field(gt=0.0, le=1e6)] | Literal["residual_norm"] = Field(
+        0.75, description="initial damping μ0 (the paper: 0.75), or `residual_norm` to start from ‖f‖")
+    max_iterations: int = Field(200, ge=1, le=10_000, description="iterations per station before giving up (e.g. 200)")
 
 
 class MultistationSolver(_Strict):
@@ -218,9 +260,10 @@ class MultistationSolver(_Strict):
         description="which estimators to run: `paper` (as printed), `shared_dead_path`, `network` (one adjustment: "
                     "stations on one circle, CMM points and the CMM's scales and squareness solved); the recommended one "
                     "is chosen among them")
-    lm: LMSettings = LMSettings()
-    first_station_guess_mm: Vec3 = (-64.9938, -6.6256, 122.5133)  # the paper's X0, Y0, Z0
-    axis_point_mm: Vec3 = (0.0, 0.0, 0.0)  # nominal axis (vertical) for the other stations' guesses
+    lm: LMSettings = Field(LMSettings(), description="the paper's LM parameters (section 4.2.1)")
+    first_station_guess_mm: Vec3 = Field((-64.9938, -6.6256, 122.5133),
+                                         description="starting guess of station 1's centre, mm (the paper's X0, Y0, Z0)")
+    axis_point_mm: Vec3 = Field((0.0, 0.0, 0.0), description="a point on the nominal (vertical) axis, mm, for the other stations' guesses")
 
 
 class ErrorMotionBounds(_Strict):
@@ -280,21 +323,25 @@ class SecondMount(_Strict):
 class LaserTracerMultistation(_Strict):
     """Seed 000: tracer on the table, CMM moves the reflector, table indexes through stations."""
 
-    method: Literal["laser_tracer_multistation"]
-    name: str = ""
+    method: Literal["laser_tracer_multistation"] = Field(description="seed 000's laser-tracer multi-station method")
+    name: str = Field("", max_length=200, description="a title for the report and plots")
     metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
-    bench: str | None = None
-    instruments: MultistationInstruments = MultistationInstruments()
-    stations: Stations = Stations()
-    points: Union[GridPlan, ListPlan] = Field(GridPlan(), discriminator="kind")
-    order: Literal["point_major", "station_major"] = "point_major"
-    samples_per_reading: int = Field(1, ge=1, le=1000)
-    settle_time_s: float = Field(2.0, ge=0.0)
-    on_fault: MultistationOnFault = MultistationOnFault()
-    solver: MultistationSolver = MultistationSolver()
+    bench: str | None = Field(None, max_length=4096, description="scenario of the simulated bench, a path relative to this "
+                              "file and inside its folder (e.g. `scenarios/paper000_bench.yaml`)")
+    instruments: MultistationInstruments = Field(MultistationInstruments(), description="backend of each instrument")
+    stations: Stations = Field(Stations(), description="where the table stops")
+    points: Union[GridPlan, ListPlan] = Field(GridPlan(), discriminator="kind", description="where the CMM takes the reflector")
+    order: Literal["point_major", "station_major"] = Field(
+        "point_major", description="point_major (the paper's): for each point every station; station_major: the other way")
+    samples_per_reading: int = Field(1, ge=1, le=1000, description="tracer samples averaged per planned reading")
+    settle_time_s: float = Field(2.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
+    on_fault: MultistationOnFault = Field(MultistationOnFault(), description="what to do when an instrument fails (docs/faults.md)")
+    solver: MultistationSolver = Field(MultistationSolver(), description="solver settings")
     uncertainty: MultistationUncertainty = Field(MultistationUncertainty(), description="inputs of the uncertainty budget")
     second_mount: SecondMount | None = Field(None, description="a second tracer mount: the plan is measured again after an "
                                                                "operator step moves the tracer there")
+
+    _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
 
     @property
     def mounts(self) -> int:
@@ -303,8 +350,16 @@ class LaserTracerMultistation(_Strict):
     def points_array(self) -> np.ndarray:
         return self.points.points_mm() if isinstance(self.points, GridPlan) else self.points.points_mm_array()
 
+    def point_count(self) -> int:
+        """Points of the plan, without building them."""
+        p = self.points
+        return p.layers * p.columns * p.rows if isinstance(p, GridPlan) else len(p.points_mm)
+
     @model_validator(mode="after")
-    def _solvable(self) -> "LaserTracerMultistation":
+    def _solvable(self, info: ValidationInfo) -> "LaserTracerMultistation":
+        problem = plan_size_problem(self, large=bool((info.context or {}).get("large")))
+        if problem:
+            raise ValueError(problem)
         pts = self.points_array()
         n, m = len(pts), self.stations.count
         if n < 16:
@@ -326,11 +381,11 @@ class LaserTracerMultistation(_Strict):
 
 
 class AbbeInstruments(_Instruments):
-    stage: StageChoice = StageChoice()
-    encoder: InstrumentChoice = InstrumentChoice()
-    autocollimator: InstrumentChoice = InstrumentChoice()
-    dial_indicator_1: InstrumentChoice = InstrumentChoice()  # at L1
-    dial_indicator_2: InstrumentChoice = InstrumentChoice()  # at L2
+    stage: StageChoice = Field(StageChoice(), description="the rotary stage's drive")
+    encoder: InstrumentChoice = Field(InstrumentChoice(), description="the counter of the stage's rotary encoder")
+    autocollimator: InstrumentChoice = Field(InstrumentChoice(), description="the autocollimator facing the polygon")
+    dial_indicator_1: InstrumentChoice = Field(InstrumentChoice(), description="the dial indicator on the shaft at L1")
+    dial_indicator_2: InstrumentChoice = Field(InstrumentChoice(), description="the dial indicator on the shaft at L2")
 
 
 class AbbeSteps(_Strict):
@@ -376,10 +431,13 @@ class PolygonSetup(_Strict):
     the face pitch for closure, fractions of it to sample the table between faces.
     """
 
-    faces: int = Field(24, ge=3, le=360)
-    certificate_arcsec: list[float] | Literal["bench", "none"] = "bench"
-    certificate_uncertainty_arcsec: float = Field(0.0, ge=0.0)
-    seatings_deg: list[float] = Field([0.0], min_length=1, max_length=360)
+    faces: int = Field(24, ge=3, le=360, description="faces of the polygon (seed 001: 24)")
+    certificate_arcsec: list[Annotated[float, Field(ge=-3600.0, le=3600.0)]] | Literal["bench", "none"] = Field(
+        "bench", description="face errors from the certificate, arcsec, one per face; `bench`: the simulated polygon's; "
+                             "`none`: separate by closure")
+    certificate_uncertainty_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="1σ of each certificate value, arcsec")
+    seatings_deg: list[Annotated[float, Field(ge=-360.0, le=360.0)]] = Field(
+        [0.0], min_length=1, max_length=360, description="offsets at which the polygon is seated in turn, deg (e.g. [0, 15, 45])")
 
     @property
     def pitch_deg(self) -> float:
@@ -410,9 +468,10 @@ class PolygonSetup(_Strict):
 class AbbeGeometry(_Strict):
     """Design sizes of the stage the solver uses (from drawings or measurement), mm."""
 
-    encoder_radius_mm: float = Field(32.0, gt=0.0)  # rE
-    grating_offset_mm: float = 60.0  # Zs below the tilt centre
-    indicator_heights_mm: tuple[float, float] = (50.0, 70.0)  # L1, L2 below the tilt centre
+    encoder_radius_mm: float = Field(32.0, gt=0.0, le=1e4, description="rE: radius of the encoder's read head, mm (seed 001: 32)")
+    grating_offset_mm: float = Field(60.0, ge=-1e4, le=1e4, description="Zs: grating plane below the tilt centre, mm (seed 001: 60)")
+    indicator_heights_mm: tuple[Annotated[float, Field(ge=-1e4, le=1e4)], Annotated[float, Field(ge=-1e4, le=1e4)]] = Field(
+        (50.0, 70.0), description="L1, L2: the dial indicators below the tilt centre, mm")
 
     @model_validator(mode="after")
     def _separated(self) -> "AbbeGeometry":
@@ -440,26 +499,37 @@ class AbbeUncertainty(_Strict):
 class EncoderAbbeError(_Strict):
     """Seed 001: encoder error from tilt and radial motion, against an autocollimator and polygon."""
 
-    method: Literal["encoder_abbe_error"]
-    name: str = ""
+    method: Literal["encoder_abbe_error"] = Field(description="seed 001's encoder Abbe-error method")
+    name: str = Field("", max_length=200, description="a title for the report and plots")
     metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
-    bench: str | None = None
-    instruments: AbbeInstruments = AbbeInstruments()
-    steps: AbbeSteps = AbbeSteps()
-    polygon: PolygonSetup = PolygonSetup()
-    geometry: AbbeGeometry = AbbeGeometry()
-    samples_per_reading: int = Field(1, ge=1, le=1000)
-    settle_time_s: float = Field(1.0, ge=0.0)
-    on_fault: AbbeOnFault = AbbeOnFault()
-    max_harmonic_order: int = Field(24, ge=1, le=360)
+    bench: str | None = Field(None, max_length=4096, description="scenario of the simulated bench, a path relative to this "
+                              "file and inside its folder (e.g. `scenarios/abbe_bench.yaml`)")
+    instruments: AbbeInstruments = Field(AbbeInstruments(), description="backend of each instrument")
+    steps: AbbeSteps = Field(AbbeSteps(), description="how the stage steps through a turn")
+    polygon: PolygonSetup = Field(PolygonSetup(), description="the optical polygon and its seatings")
+    geometry: AbbeGeometry = Field(AbbeGeometry(), description="design sizes of the stage, mm")
+    samples_per_reading: int = Field(1, ge=1, le=1000, description="samples of every instrument per step")
+    settle_time_s: float = Field(1.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
+    on_fault: AbbeOnFault = Field(AbbeOnFault(), description="what to do when an instrument fails (docs/faults.md)")
+    max_harmonic_order: int = Field(24, ge=1, le=360, description="highest harmonic order fitted per revolution")
     uncertainty: AbbeUncertainty = Field(AbbeUncertainty(), description="inputs of the uncertainty budget")
+
+    _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
 
     @property
     def step_deg(self) -> float:
         return self.polygon.pitch_deg / self.steps.steps_per_face
 
+    def visit_count(self) -> int:
+        """Planned stage visits, without building them."""
+        per_pass = self.polygon.faces * self.steps.steps_per_face
+        return len(self.polygon.seatings_deg) * self.steps.runs * len(self.steps.directions) * per_pass
+
     @model_validator(mode="after")
-    def _within_limits(self) -> "EncoderAbbeError":
+    def _within_limits(self, info: ValidationInfo) -> "EncoderAbbeError":
+        problem = plan_size_problem(self, large=bool((info.context or {}).get("large")))
+        if problem:
+            raise ValueError(problem)
         problem = plan_outside_limits(self, self.instruments.stage.soft_limits_deg)
         if problem:
             raise ValueError(problem)
@@ -482,6 +552,37 @@ class EncoderAbbeError(_Strict):
         """Whether a polygon face faces the autocollimator at this commanded angle."""
         k = (angle_deg - seating_deg) / self.polygon.pitch_deg
         return abs(k - round(k)) < 1e-6
+
+
+NAME_CHARACTERS = re.compile(r"[^\x00-\x1f\x7f$]*")
+
+
+def _check_name(name: str) -> str:
+    """A name goes into plot titles, where matplotlib reads `$` as mathematics, and into reports."""
+    if not NAME_CHARACTERS.fullmatch(name):
+        raise ValueError("no control characters and no `$` (plot titles would read it as mathematics)")
+    return name
+
+
+def plan_size_problem(proc: "LaserTracerMultistation | EncoderAbbeError", large: bool = False) -> str | None:
+    """``field: message`` when the plan is larger than rtcal runs without ``--large`` (or at all)."""
+    max_readings = MAX_PLANNED_READINGS_LARGE if large else MAX_PLANNED_READINGS
+    max_cells = MAX_SOLVER_CELLS_LARGE if large else MAX_SOLVER_CELLS
+    hint = "" if large else " (`--large` raises the limits if you mean it)"
+    if isinstance(proc, LaserTracerMultistation):
+        m, n = proc.stations.count, proc.point_count()
+        readings = m * n * proc.samples_per_reading
+        where, what = "points", f"{m} stations × {n} points × {proc.samples_per_reading} samples"
+        cells = m * n * (3 * m + 1)
+        if readings <= max_readings and cells > max_cells:
+            return (f"stations: {m} stations × {n} points need a solver matrix of {cells:,} cells "
+                    f"({cells * 8 / 1e9:.1f} GB each copy); at most {max_cells:,}{hint}")
+    else:
+        readings = proc.visit_count() * proc.samples_per_reading
+        where, what = "steps", f"{proc.visit_count()} stage visits × {proc.samples_per_reading} samples"
+    if readings > max_readings:
+        return f"{where}: {what} = {readings:,} planned readings; at most {max_readings:,}{hint}"
+    return None
 
 
 def plan_outside_limits(proc: "LaserTracerMultistation | EncoderAbbeError", stage_limits_deg, cmm_min_mm=None, cmm_max_mm=None) -> str | None:

@@ -16,6 +16,7 @@ from rtcal.procedure.models import EncoderAbbeError
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 from rtcal.sequencer.operator import Operator
+from rtcal.store import SKIPPED as SKIPPED_QUANTITY
 from rtcal.store import Reading, RunStore
 
 
@@ -74,8 +75,10 @@ def run_abbe(
     """Execute the visits not yet in the store; returns how many it stored.
 
     Readings carry the run's ``generation`` (0, +1 per resume) as their segment, for the record.
-    A resumed run asks the operator to confirm the polygon's seating (it stays where it was
-    unless someone moved it).
+    A resumed run asks the operator to confirm the polygon's seating when it goes on where it
+    stopped (it stays where it was unless someone moved it), and to seat it anew for a seating
+    it left earlier (a visit skipped there is retaken). A visit that skipped any reading stays
+    pending: a resume takes it again whole; its first readings are kept.
     """
     plan = planned_visits(proc)
     for v in plan:
@@ -87,23 +90,22 @@ def run_abbe(
     policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
     faults = FaultHandler(policies, store, clock, operator, safe_state)
     done = store.done_plan_indices()
+    last_seating = plan[max(done)].seating if done else None  # where the polygon was left
     seating = None
     stored = 0
-    for k, v in progress(iter(list(enumerate(plan)))):
-        if k in done:
-            continue
+    for k, v in progress(iter([(k, v) for k, v in enumerate(plan) if k not in done])):
         if v.seating != seating:
             offset = proc.polygon.seatings_deg[v.seating]
-            resumed = seating is None and k > 0
+            resumed = seating is None and v.seating == last_seating
             store.add_event(clock.now_s(), "operator", f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {v.seating + 1})")
             operator.reseat_polygon(offset, proc.polygon.pitch_deg, resumed)
             seating = v.seating
         state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg,
-                     plan_index=k, segment=generation)
+                     plan_index=k, segment=generation, attempt=store.new_attempt())
         moved = faults.call("stage", lambda: approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg),
                             recover=inst.stage.reset_alarm, what=f"move to {v.angle_deg:g}°")
         if moved is SKIPPED:
-            store.add_readings([Reading(clock.now_s(), "stage", "skipped", 0.0, "", **state)])
+            store.add_readings([Reading(clock.now_s(), "stage", SKIPPED_QUANTITY, 0.0, "", **state)])
             continue
         clock.sleep(proc.settle_time_s)
         readings: list[Reading] = []
@@ -115,9 +117,9 @@ def run_abbe(
             for instrument, quantity, unit, read in taken:
                 value = faults.call(instrument, read, what=f"reading at {v.angle_deg:g}°")
                 if value is SKIPPED:
-                    readings.append(Reading(clock.now_s(), instrument, "skipped", 0.0, "", sample=s, **state))
+                    readings.append(Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", sample=s, **state))
                 else:
                     readings.append(Reading(clock.now_s(), instrument, quantity, float(value), unit, sample=s, **state))
         store.add_readings(readings)
-        stored += 1
+        stored += all(r.quantity != SKIPPED_QUANTITY for r in readings)
     return stored

@@ -4,6 +4,11 @@ A typed instrument error is recorded as a ``fault`` event; the call is retried w
 backoff (a drive alarm is reset first; a lost tracker is re-acquired at once when its policy
 says so); when the retries are spent the policy's ``then`` decides: skip, pause for the
 operator, re-acquire, or abort to a safe state. Every action is an event in the run store.
+
+A fault that outlasts skipping — ``max_skips_in_a_row`` planned readings of one instrument
+skipped with no success between (an emergency stop, a beam that stays broken) — stops the run
+in a safe state instead of skipping the rest of the plan; `rtcal resume` retakes the skips.
+An operator who cannot be reached (no terminal) is a fault too: the run stops safely.
 """
 
 from __future__ import annotations
@@ -30,6 +35,8 @@ class FaultHandler:
         self.clock = clock
         self.operator = operator
         self.safe_state = safe_state
+        self.last_error: InstrumentError | None = None  # of the last call that failed
+        self.skips_in_a_row: dict[str, int] = {}
 
     def event(self, kind: str, instrument: str, message: str) -> None:
         self.store.add_event(self.clock.now_s(), kind, message, instrument)
@@ -43,10 +50,13 @@ class FaultHandler:
         for round_ in range(rounds):
             for attempt in range(policy.retries + 1):
                 try:
-                    return action()
+                    result = action()
                 except InstrumentError as exc:
-                    last = exc
+                    last = self.last_error = exc
                     self.event("fault", instrument, f"{what}: {exc}" if what else str(exc))
+                else:
+                    self.skips_in_a_row[instrument] = 0
+                    return result
                 if attempt == policy.retries:
                     break
                 if isinstance(last, TrackingLost) and reacquire is not None and policy.then == "reacquire":
@@ -61,20 +71,30 @@ class FaultHandler:
                         self.event("fault", instrument, f"recovery failed: {exc}")
             if policy.then == "skip":
                 self.event("skip", instrument, f"{what or 'reading'} skipped after {policy.retries + 1} attempts")
+                self.skips_in_a_row[instrument] = self.skips_in_a_row.get(instrument, 0) + 1
+                if self.skips_in_a_row[instrument] >= policy.max_skips_in_a_row:
+                    self.abort(instrument, last, f"{self.skips_in_a_row[instrument]} planned readings skipped in a row: "
+                                                 "the fault persists")
                 return SKIPPED
             if round_ == 0 and policy.then == "pause":
                 self.event("pause", instrument, "waiting for the operator")
-                self.operator.clear_fault(f"{instrument}: {last}")
+                try:
+                    self.operator.clear_fault(f"{instrument}: {last}")
+                except InstrumentError as exc:
+                    self.event("fault", exc.instrument, str(exc))
+                    self.abort(instrument, last, f"no operator could clear it ({exc})")
             elif round_ == 0 and policy.then == "reacquire" and reacquire is not None:
                 reacquire()
             else:
                 break
         self.abort(instrument, last)
 
-    def abort(self, instrument: str, error: InstrumentError | None) -> None:
-        self.event("abort", instrument, f"aborted: {error}; stopping the machines")
+    def abort(self, instrument: str, error: InstrumentError | None, why: str = "") -> None:
+        because = f" ({why})" if why else ""
+        self.event("abort", instrument, f"aborted: {error}{because}; stopping the machines")
         try:
             self.safe_state()
         except InstrumentError as exc:
             self.event("fault", instrument, f"while stopping: {exc}")
-        raise RunAborted(instrument, f"run aborted after {error}; every reading taken is kept — `rtcal resume` goes on")
+        raise RunAborted(instrument, f"run aborted after {error}{because}; every reading taken is kept — "
+                                     "`rtcal resume` goes on and retakes what was skipped")

@@ -11,11 +11,13 @@ from dataclasses import dataclass
 from typing import Callable, Iterator
 
 
+from drivers.errors import TrackingLost
 from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
+from rtcal.store import SKIPPED as SKIPPED_QUANTITY
 from rtcal.store import Reading, RunStore
 
 
@@ -60,7 +62,9 @@ def run_multistation(
     A fresh start and a resume are the same: the first pending reading moves both machines
     (approaching from the procedure's direction) and references the tracer, which starts a new
     tracking segment numbered after every segment already stored. Faults go through the
-    procedure's ``on_fault`` policies.
+    procedure's ``on_fault`` policies. A reading skipped because the tracer lost the beam makes
+    the next reading re-reference it first; after the pass, the readings this pass skipped are
+    tried once more (in the tracer's newest segment), and a resume retakes any still missing.
     """
     points = proc.points_array()
     angles = proc.stations.angles_deg()
@@ -85,7 +89,6 @@ def run_multistation(
     at_station: int | None = None
     segment: int | None = None
     mount: int | None = None
-    stored = 0
 
     def reference(i: int, j: int, why: str) -> None:
         nonlocal segment, next_segment
@@ -93,37 +96,43 @@ def run_multistation(
         segment, next_segment = next_segment, next_segment + 1
         store.add_event(clock.now_s(), why, f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
 
-    for k, (mk, i, j) in progress(iter(list(enumerate(plan)))):
-        if k in done:
-            continue
-        if mk != mount:  # the operator moves the tracer (or confirms where it is on a resumed run)
-            resumed = mount is None and k > 0
-            where = ("its first mount" if mk == 0 else
-                     f"the second mount: centre near {list(proc.second_mount.first_station_guess_mm)} mm at station 1")
-            if proc.mounts > 1 and (mk > 0 or resumed):
-                store.add_event(clock.now_s(), "operator", f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}",
-                                "laser_tracer")
-                operator.move_tracer(mk, where, resumed)
-            mount, segment = mk, None  # a moved tracer is referenced again: a new tracking segment
+    def to_mount(k: int, mk: int) -> None:
+        """The operator moves the tracer (or confirms where it is on a resumed run)."""
+        nonlocal mount, segment
+        if mk == mount:
+            return
+        resumed = mount is None and k > 0
+        where = ("its first mount" if mk == 0 else
+                 f"the second mount: centre near {list(proc.second_mount.first_station_guess_mm)} mm at station 1")
+        if proc.mounts > 1 and (mk > 0 or resumed):
+            store.add_event(clock.now_s(), "operator", f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}",
+                            "laser_tracer")
+            operator.move_tracer(mk, where, resumed)
+        mount, segment = mk, None  # a moved tracer is referenced again: a new tracking segment
+
+    def take(k: int, mk: int, i: int, j: int) -> bool:
+        """One attempt at planned reading k (mount mk, point i, station j); True if it was stored whole."""
+        nonlocal at_point, at_station, segment
         state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]), seating=mk,
+                     attempt=store.new_attempt(),
                      commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
 
-        def skip(instrument: str) -> None:
-            store.add_readings([Reading(clock.now_s(), instrument, "skipped", 0.0, "", **state)])
+        def skip(instrument: str, readings: list[Reading] | None = None) -> bool:
+            """Store what this attempt took and the mark of what it skipped; the reading stays pending."""
+            store.add_readings((readings or []) + [Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
+            return False
 
         stage_moved, cmm_moved = at_station != j, at_point != i
         if stage_moved:
             at_station = None
             if faults.call("stage", lambda: approach(inst.stage, float(angles[j]), direction, proc.stations.overshoot_deg),
                            recover=inst.stage.reset_alarm, what=f"move to station {j + 1}") is SKIPPED:
-                skip("stage")
-                continue
+                return skip("stage")
             at_station = j
         if cmm_moved:
             at_point = None
             if faults.call("cmm", lambda: inst.cmm.move_to(points[i]), what=f"move to point {i + 1}") is SKIPPED:
-                skip("cmm")
-                continue
+                return skip("cmm")
             at_point = i
         if stage_moved or cmm_moved:
             clock.sleep(proc.settle_time_s)
@@ -131,9 +140,8 @@ def run_multistation(
         if cmm_moved:
             xyz = faults.call("cmm", inst.cmm.position_mm, what=f"position at point {i + 1}")
             if xyz is SKIPPED:
-                skip("cmm")
                 at_point = None
-                continue
+                return skip("cmm")
             t = clock.now_s()
             readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
         if inst.environment is not None:  # the air the lengths are counted in, with every reading
@@ -141,8 +149,8 @@ def run_multistation(
             if env is not SKIPPED:
                 t = clock.now_s()
                 readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state) for q, unit in ENVIRONMENT_QUANTITIES]
-        if segment is None:
-            faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference")
+        if segment is None and faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference") is SKIPPED:
+            return skip("laser_tracer", readings)  # no valid count without a reference
         samples: list[Reading] = []
         reacquired = False
 
@@ -155,15 +163,33 @@ def run_multistation(
             r = faults.call("laser_tracer", inst.laser_tracer.read_length, reacquire=reacquire,
                             what=f"length at point {i + 1}, station {j + 1}")
             if r is SKIPPED:
-                break
+                if isinstance(faults.last_error, TrackingLost):
+                    segment = None  # the count is lost: the next reading references the tracer first
+                return skip("laser_tracer", readings)
             if reacquired:  # a reading never mixes two tracking segments
                 samples, reacquired = [], False
             samples.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=len(samples),
                                    segment=segment, **state))
-        if len(samples) < proc.samples_per_reading:
-            store.add_readings(readings)
-            skip("laser_tracer")
-            continue
         store.add_readings(readings + samples)
-        stored += 1
+        return True
+
+    stored = 0
+    skipped: list[int] = []
+
+    def retake_skipped() -> None:
+        """Once more, now that the fault may have passed (and the tracer is referenced again)."""
+        nonlocal stored
+        for k in skipped:
+            stored += take(k, *plan[k])
+        skipped.clear()
+
+    for k, (mk, i, j) in progress(iter([(k, entry) for k, entry in enumerate(plan) if k not in done])):
+        if mk != mount and skipped:  # before the tracer leaves the mount they were planned on
+            retake_skipped()
+        to_mount(k, mk)
+        if take(k, mk, i, j):
+            stored += 1
+        else:
+            skipped.append(k)
+    retake_skipped()
     return stored

@@ -1,0 +1,187 @@
+"""A run directory: owned by one process at a time, created only where nothing else lives, and
+written without following links planted in it.
+
+- :class:`RunLock` is an OS file lock (``flock``) on ``RUN_DIR/.rtcal.lock`` held for the whole
+  run or resume; the file names its holder, so a second process can say who has the run.
+- :func:`claim_new_run_dir` accepts a ``--out`` that is new, empty, or holds only what a run
+  killed before its store existed left behind; anything else is refused.
+- :func:`staged_outputs` writes a run's output files into a fresh private folder and renames
+  them into place: a rename replaces a planted symbolic link itself, never its target.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import fcntl
+import json
+import os
+import shutil
+import socket
+import sys
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from rtcal.store import RunStore, StoreUnusable
+
+LOCK_NAME = ".rtcal.lock"
+
+
+class RunDirError(Exception):
+    """A run directory the user must change (exit 2)."""
+
+
+class RunBusy(RunDirError):
+    """Another process holds the run directory."""
+
+
+class RunLock:
+    """Exclusive ownership of a run directory by this process until :meth:`release`.
+
+    ``flock`` locks belong to the open file, so the kernel drops the lock when the process
+    dies in any way (kill -9 included): a stale lock file never blocks a resume.
+    """
+
+    def __init__(self, run_dir: Path):
+        self.run_dir = Path(run_dir)
+        self.path = self.run_dir / LOCK_NAME
+        self._fd: int | None = None
+
+    def acquire(self) -> "RunLock":
+        flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+        try:
+            fd = os.open(self.path, flags, 0o644)
+        except OSError as exc:
+            raise RunDirError(f"{self.run_dir}: cannot lock the run directory ({exc.strerror or exc})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 1000, 0).decode("utf-8", errors="replace").strip() or "another process"
+            os.close(fd)
+            raise RunBusy(f"{self.run_dir} is in use by {holder}; wait for it to end (or stop it), then try again") from None
+        except OSError as exc:
+            os.close(fd)
+            raise RunDirError(f"{self.run_dir}: cannot lock the run directory ({exc.strerror or exc})") from None
+        command = " ".join(["rtcal", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith(("rtcal", "cli.py")) else "rtcal"
+        stamp = _dt.datetime.now().isoformat(timespec="seconds")
+        holder = f"process {os.getpid()} on {socket.gethostname()} (`{command}`, since {stamp})"
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, holder.encode("utf-8", errors="replace")[:900], 0)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        """Give the directory up (the lock file stays: removing it would race a waiting process)."""
+        if self._fd is not None:
+            try:
+                os.ftruncate(self._fd, 0)
+            except OSError:
+                pass
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> "RunLock":
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def _leftover(name: str) -> bool:
+    """Files a run killed before its store existed leaves behind (ours, safe to replace)."""
+    return name == LOCK_NAME or name.startswith(RunStore.PARTIAL_PREFIX)
+
+
+def claim_new_run_dir(run_dir: Path) -> RunLock:
+    """Create (or take over an empty) ``--out`` directory and lock it for a new run.
+
+    Refused: a path under a file, a name the file system cannot hold, a directory that already
+    holds a run (resume it instead) or other files (they would mix with the results).
+    """
+    run_dir = Path(run_dir)
+    if os.path.lexists(run_dir) and not run_dir.is_dir():
+        raise RunDirError(f"--out {run_dir}: exists and is not a directory")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunDirError(f"--out {run_dir}: cannot create the directory ({exc.strerror or exc})") from None
+    lock = RunLock(run_dir).acquire()
+    try:
+        store = run_dir / RunStore.FILENAME
+        if os.path.lexists(store):
+            try:
+                RunStore.open(run_dir).close()
+            except StoreUnusable:
+                if _has_readings(store):
+                    raise RunDirError(f"--out {run_dir}: its {RunStore.FILENAME} holds readings but no procedure; "
+                                      "move it away or choose another --out") from None
+                for suffix in ("", "-wal", "-shm", "-journal"):  # a store killed while being created: no reading in it
+                    _unlink(Path(f"{store}{suffix}"))
+            else:
+                raise RunDirError(f"--out {run_dir}: already holds a run; `rtcal resume {run_dir}` goes on, "
+                                  "or choose another --out")
+        others = sorted(n for n in os.listdir(run_dir) if not _leftover(n))
+        if others:
+            shown = ", ".join(others[:5]) + (", …" if len(others) > 5 else "")
+            raise RunDirError(f"--out {run_dir}: not empty and not a run ({shown}); choose a new or empty directory")
+        for name in os.listdir(run_dir):
+            if name.startswith(RunStore.PARTIAL_PREFIX):
+                _unlink(run_dir / name)
+    except BaseException:
+        lock.release()
+        raise
+    return lock
+
+
+def claim_run_dir(run_dir: Path) -> RunLock:
+    """Lock an existing run directory for a resume."""
+    return RunLock(Path(run_dir)).acquire()
+
+
+def _has_readings(store: Path) -> bool:
+    import sqlite3
+
+    try:
+        with sqlite3.connect(f"file:{store}?mode=ro", uri=True, timeout=1.0) as db:
+            return bool(db.execute("SELECT COUNT(*) FROM readings").fetchone()[0])
+    except sqlite3.DatabaseError:
+        return False
+
+
+def _unlink(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+@contextmanager
+def staged_outputs(run_dir: Path) -> Iterator[Path]:
+    """A private folder to write the outputs into; on success each file is renamed into ``run_dir``.
+
+    ``mkdtemp`` creates a new folder (mode 700) that nobody can have planted links in; a
+    rename replaces whatever entry has the name — a planted link included — without following it.
+    """
+    staging = Path(tempfile.mkdtemp(prefix=".outputs-", dir=run_dir))
+    try:
+        yield staging
+        for entry in sorted(staging.iterdir()):
+            target = run_dir / entry.name
+            if target.is_dir() and not target.is_symlink():
+                raise RunDirError(f"{target} is a directory; move it away and `rtcal resume {run_dir}` writes the results")
+            os.replace(entry, target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def stored_results(run_dir: Path) -> dict | None:
+    """results.json of a finished run, if it is a whole regular file; else None."""
+    path = Path(run_dir) / "results.json"
+    if path.is_symlink() or not path.is_file():
+        return None
+    try:
+        results = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return results if isinstance(results, dict) and "method" in results else None
