@@ -460,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=_cmd_run)
 
     resume = sub.add_parser("resume", help="continue an interrupted run: every planned reading not yet stored, once")
-    resume.add_argument("run_dir")
+    resume.add_argument("run_dir", help="the directory of an interrupted run (what `run --out` wrote)")
     resume.add_argument("--instruments", help="new instrument addresses (JSON object or file), e.g. of a restarted simulator")
     resume.add_argument("--virtual-clock", action="store_true", help="as for `run`")
     resume.set_defaults(func=_cmd_resume)
@@ -549,7 +549,7 @@ def build_parser() -> argparse.ArgumentParser:
     solve = sub.add_parser("solve", help="run a solver on data files")
     solve_sub = solve.add_subparsers(dest="solver", required=True)
     st = solve_sub.add_parser("stations", help="plane, circle and deviations from station centres (CSV X,Y,Z)")
-    st.add_argument("file")
+    st.add_argument("file", help="CSV of station centres with columns X, Y, Z in mm, one row per station in order")
     st.add_argument("--step-deg", type=float, required=True, help="nominal angle between adjacent stations")
     st.add_argument("--first-deg", type=float, default=0.0, help="nominal angle of the first station")
     st.set_defaults(func=_cmd_solve_stations)

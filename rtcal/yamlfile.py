@@ -13,12 +13,13 @@ A hostile file costs bounded time and memory: only regular files of at most
 
 from __future__ import annotations
 
+import difflib
 import os
 import re
 import stat
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, get_args
 
 import yaml
 from pydantic import BaseModel, ValidationError
@@ -189,7 +190,33 @@ def locate(path: Path_, locations: dict[Path_, tuple[int, int]]) -> tuple[int, i
     return (1, 1)
 
 
-def problems_from_validation(exc: ValidationError, locations: dict[Path_, tuple[int, int]], file: str) -> list[Problem]:
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for arg in get_args(annotation) for m in _models_in(arg)]
+
+
+def _keys_at(model: type[BaseModel] | None, path: Path_) -> list[str]:
+    """The keys the model accepts at ``path`` (every alternative of a union), for suggestions."""
+    current = [model] if model is not None else []
+    for key in path:
+        if isinstance(key, int):
+            continue
+        if any(key in c.model_fields for c in current):  # else a union's tag in pydantic's location: not a key
+            current = [m for c in current if key in c.model_fields for m in _models_in(c.model_fields[key].annotation)]
+    return sorted({name for m in current for name in m.model_fields})
+
+
+def _unknown_key(model: type[BaseModel] | None, path: Path_) -> str:
+    name = path[-1] if path and isinstance(path[-1], str) else ""
+    close = difflib.get_close_matches(name, _keys_at(model, path[:-1]), n=1, cutoff=0.6)
+    if close:
+        return f"unknown key; did you mean `{close[0]}`?"
+    return "unknown key (check the spelling; `rtcal schema` lists the keys)"
+
+
+def problems_from_validation(exc: ValidationError, locations: dict[Path_, tuple[int, int]], file: str,
+                             model: type[BaseModel] | None = None) -> list[Problem]:
     """Translate pydantic errors into located problems.
 
     Union tags in pydantic's locations (e.g. ``grid`` of a discriminated union) are not keys
@@ -205,7 +232,7 @@ def problems_from_validation(exc: ValidationError, locations: dict[Path_, tuple[
         if named:
             path, message = path + tuple(named.group(1).split(".")), named.group(2)
         elif err["type"] == "extra_forbidden":
-            message = "unknown key (check the spelling; `rtcal schema` lists the keys)"
+            message = _unknown_key(model, tuple(p for p in err["loc"] if isinstance(p, (int, str))))
         elif err["type"] == "missing":
             message = "too few items" if path and isinstance(path[-1], int) else "required key is missing"
         line, col = locate(path, locations)
@@ -221,7 +248,7 @@ def validate_text(text: str, model: type[M], file: str, context: dict[str, Any] 
     try:
         return model.model_validate(data, context=context)
     except ValidationError as exc:
-        raise FileProblems(problems_from_validation(exc, locations, file)) from None
+        raise FileProblems(problems_from_validation(exc, locations, file, model)) from None
 
 
 def read_bytes(path: str | Path, max_bytes: int = MAX_FILE_BYTES) -> bytes:

@@ -12,7 +12,7 @@ from pydantic import Field, TypeAdapter
 
 from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
 from rtcal.compensation import PARSERS, CompensationError
-from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_file, validate_text
+from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 from simulators.scenario import Scenario
 
 
@@ -30,13 +30,23 @@ def load_procedure(path: str | Path, large: bool = False, text: str | None = Non
         line, col = locate(("method",), locations)
         known = ", ".join(sorted(PROCEDURE_MODELS))
         msg = "required key is missing" if method is None else f"unknown method {method!r}"
+        if method is None and data and set(data) <= set(Scenario.model_fields):
+            raise FileProblems([Problem(str(path), line, col, "(document)", "this is a bench scenario, not a procedure: "
+                                        "give it with `--scenario` (e.g. `rtcal run PROCEDURE.yaml --scenario "
+                                        f"{path}`)")])
         raise FileProblems([Problem(str(path), line, col, "method", f"{msg}; one of: {known}")])
     return validate_text(text, PROCEDURE_MODELS[method], str(path), context={"large": large})
 
 
 def load_scenario(path: str | Path) -> Scenario:
     """Validate a bench scenario file; a compensation table it names is read (relative to it) and checked."""
-    scenario = validate_file(path, Scenario)
+    text = read_text(path)
+    data, locations = load_yaml(text, str(path))
+    if isinstance(data, dict) and "method" in data:
+        raise FileProblems([Problem(str(path), *locate(("method",), locations), "(document)",
+                                    "this is a procedure, not a bench scenario: give it as the procedure "
+                                    "(`rtcal run FILE`), and a bench with --scenario")])
+    scenario = validate_text(text, Scenario, str(path))
     comp = scenario.stage.compensation
     if comp is None:
         return scenario
