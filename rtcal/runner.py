@@ -61,10 +61,11 @@ def resolve_scenario(procedure_path: Path, proc: Procedure, scenario_path: Path 
         scenario_path = bench_path(procedure_path, proc)
     if scenario_path is None:
         return Scenario(), ""
-    scenario = load_scenario(scenario_path)
+    text = read_text(scenario_path)
+    scenario = load_scenario(scenario_path, text)
     if scenario.stage.compensation is not None:  # the table travels with the scenario stored in the run
         return scenario, yaml.safe_dump(scenario.model_dump(mode="json", exclude_defaults=True), sort_keys=False, allow_unicode=True)
-    return scenario, read_text(scenario_path)
+    return scenario, text
 
 
 def scenario_label(procedure_path: Path, proc: Procedure, scenario_path: str | Path | None) -> str:

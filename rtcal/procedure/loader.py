@@ -38,9 +38,10 @@ def load_procedure(path: str | Path, large: bool = False, text: str | None = Non
     return validate_text(text, PROCEDURE_MODELS[method], str(path), context={"large": large})
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Validate a bench scenario file; a compensation table it names is read (relative to it) and checked."""
-    text = read_text(path)
+def load_scenario(path: str | Path, text: str | None = None) -> Scenario:
+    """Validate a bench scenario file (or its ``text``, already read); a compensation table it
+    names is read (relative to it) and checked."""
+    text = read_text(path) if text is None else text
     data, locations = load_yaml(text, str(path))
     if isinstance(data, dict) and "method" in data:
         raise FileProblems([Problem(str(path), *locate(("method",), locations), "(document)",

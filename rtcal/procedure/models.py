@@ -320,14 +320,21 @@ class SecondMount(_Strict):
                                                       "mm (nominal, for the solver's start; e.g. [-22.6, 128.0, 122.5])")
 
 
-class LaserTracerMultistation(_Strict):
-    """Seed 000: tracer on the table, CMM moves the reflector, table indexes through stations."""
+class _Procedure(_Strict):
+    """What every procedure has besides its method: a title, the report's header, its bench."""
 
-    method: Literal["laser_tracer_multistation"] = Field(description="seed 000's laser-tracer multi-station method")
     name: str = Field("", max_length=200, description="a title for the report and plots")
     metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
     bench: str | None = Field(None, max_length=4096, description="scenario of the simulated bench, a path relative to this "
-                              "file and inside its folder (e.g. `scenarios/paper000_bench.yaml`)")
+                              "file and inside its folder (e.g. `scenarios/abbe_bench.yaml`)")
+
+    _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
+
+
+class LaserTracerMultistation(_Procedure):
+    """Seed 000: tracer on the table, CMM moves the reflector, table indexes through stations."""
+
+    method: Literal["laser_tracer_multistation"] = Field(description="seed 000's laser-tracer multi-station method")
     instruments: MultistationInstruments = Field(MultistationInstruments(), description="backend of each instrument")
     stations: Stations = Field(Stations(), description="where the table stops")
     points: Union[GridPlan, ListPlan] = Field(GridPlan(), discriminator="kind", description="where the CMM takes the reflector")
@@ -340,8 +347,6 @@ class LaserTracerMultistation(_Strict):
     uncertainty: MultistationUncertainty = Field(MultistationUncertainty(), description="inputs of the uncertainty budget")
     second_mount: SecondMount | None = Field(None, description="a second tracer mount: the plan is measured again after an "
                                                                "operator step moves the tracer there")
-
-    _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
 
     @property
     def mounts(self) -> int:
@@ -496,14 +501,10 @@ class AbbeUncertainty(_Strict):
     indicator_resolution_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator digit, µm (e.g. 1.0)")
 
 
-class EncoderAbbeError(_Strict):
+class EncoderAbbeError(_Procedure):
     """Seed 001: encoder error from tilt and radial motion, against an autocollimator and polygon."""
 
     method: Literal["encoder_abbe_error"] = Field(description="seed 001's encoder Abbe-error method")
-    name: str = Field("", max_length=200, description="a title for the report and plots")
-    metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
-    bench: str | None = Field(None, max_length=4096, description="scenario of the simulated bench, a path relative to this "
-                              "file and inside its folder (e.g. `scenarios/abbe_bench.yaml`)")
     instruments: AbbeInstruments = Field(AbbeInstruments(), description="backend of each instrument")
     steps: AbbeSteps = Field(AbbeSteps(), description="how the stage steps through a turn")
     polygon: PolygonSetup = Field(PolygonSetup(), description="the optical polygon and its seatings")
@@ -513,8 +514,6 @@ class EncoderAbbeError(_Strict):
     on_fault: AbbeOnFault = Field(AbbeOnFault(), description="what to do when an instrument fails (docs/faults.md)")
     max_harmonic_order: int = Field(24, ge=1, le=360, description="highest harmonic order fitted per revolution")
     uncertainty: AbbeUncertainty = Field(AbbeUncertainty(), description="inputs of the uncertainty budget")
-
-    _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
 
     @property
     def step_deg(self) -> float:

@@ -466,5 +466,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         closure_table_direction=closure_dirs, reversal_arcsec=reversal, reversal_reference_arcsec=reversal_ref,
         repeatability_arcsec=None if pooled is None else pooled[0], harmonics=harmonics,
         extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
-        random_sigma_type="A" if random_parts[0][1] == "A" else "B",
+        random_sigma_type=random_parts[0][1],
     )
