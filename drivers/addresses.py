@@ -9,12 +9,25 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from urllib.parse import parse_qsl, urlsplit
 
 
 class AddressError(ValueError):
     """An address string that cannot be understood."""
+
+
+# every option an address may carry: (lowest, highest, whole number) — a person's bounds, checked
+# when the address is parsed so a procedure fails validation, not the drive set-up mid-run
+OPTIONS: dict[str, tuple[float, float, bool]] = {
+    "unit": (1, 247, True),  # Modbus unicast ids
+    "steps_per_rev": (1, 10_000_000, True),
+    "gear": (1e-3, 100_000, False),
+    "speed_deg_per_s": (1e-6, 3600, False),
+    "baud": (50, 10_000_000, True),
+    "counts_per_rev": (1, 2**40, True),
+}
 
 
 @dataclass(frozen=True)
@@ -26,10 +39,31 @@ class Address:
     options: dict[str, str] = field(default_factory=dict)
 
     def option(self, name: str, default: float) -> float:
-        try:
-            return float(self.options.get(name, default))
-        except ValueError:
-            raise AddressError(f"option {name}={self.options[name]!r} is not a number") from None
+        if name not in self.options:
+            return float(default)
+        return check_option(name, self.options[name])
+
+
+def check_option(name: str, text: str) -> float:
+    """The option's value, or AddressError naming it and its bounds."""
+    lo, hi, whole = OPTIONS[name]
+    kind = "a whole number" if whole else "a number"
+    try:
+        value = float(text) if len(text) <= 30 else math.nan
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and lo <= value <= hi and (not whole or value == int(value))):
+        raise AddressError(f"option {name}={text[:40]!r}: must be {kind} from {lo:g} to {hi:g}")
+    return value
+
+
+def _options(query: str) -> dict[str, str]:
+    options = dict(parse_qsl(query))
+    for name, text in options.items():
+        if name not in OPTIONS:
+            raise AddressError(f"unknown option {name!r} (known: {', '.join(OPTIONS)})")
+        check_option(name, text)
+    return options
 
 
 def parse_address(text: str) -> Address:
@@ -38,9 +72,9 @@ def parse_address(text: str) -> Address:
         raise AddressError("empty address")
     if text.startswith(("/", "socket://", "rfc2217://", "loop://")):
         url, _, query = text.partition("?")
-        return Address("serial", path=url, options=dict(parse_qsl(query)))
+        return Address("serial", path=url, options=_options(query))
     parts = urlsplit(text)
-    options = dict(parse_qsl(parts.query))
+    options = _options(parts.query)
     if parts.scheme in ("modbus-tcp", "ipp", "sim-operator"):
         default_port = {"modbus-tcp": 502, "ipp": 1294, "sim-operator": 0}[parts.scheme]
         try:

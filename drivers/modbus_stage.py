@@ -7,6 +7,7 @@ polls the output status until IN-POS, raising on alarms and timeouts.
 
 from __future__ import annotations
 
+import logging
 import time
 
 from pymodbus import FramerType
@@ -17,6 +18,10 @@ from drivers import az_registers as az
 from drivers.addresses import Address
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.interfaces import RotaryStage
+
+# pymodbus logs what it trips over; with no handler Python would print it on the console over the
+# progress bar. The typed error carries the news; an application that configures logging still sees these.
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
 
 EXCEPTION_TEXT = {1: "illegal function", 2: "illegal data address", 3: "illegal data value", 4: "server device failure",
                   6: "server device busy"}
@@ -38,15 +43,23 @@ class ModbusStage(RotaryStage):
             self.client = ModbusSerialClient(address.path, framer=FramerType.RTU, baudrate=int(address.option("baud", 115200)),
                                              timeout=timeout_s, retries=0)
             where = address.path
-        if not self.client.connect():
+        try:
+            connected = self.client.connect()
+        except Exception as exc:  # noqa: BLE001 — a device path that is no serial port (termios.error), …
+            raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}: {exc!r}") from None
+        if not connected:
             raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}")
 
-    # -- register access with typed errors
+    # -- register access with typed errors: nothing but an InstrumentError leaves this driver
     def _call(self, what: str, fn, *args, **kwargs):
         try:
             response = fn(*args, device_id=self.unit, **kwargs)
         except ModbusException as exc:
             raise InstrumentTimeout(self.name, f"{what}: no valid reply ({exc})") from None
+        except OSError as exc:  # the drive, its gateway or the serial adapter went away mid-request
+            raise InstrumentFault(self.name, f"{what}: connection to the drive failed ({exc!r})") from None
+        except Exception as exc:  # noqa: BLE001 — pymodbus or pyserial tripping over what came back (termios.error, …)
+            raise InstrumentFault(self.name, f"{what}: the Modbus client failed ({exc!r})") from None
         if response.isError():
             code = getattr(response, "exception_code", 0)
             raise InstrumentFault(self.name, f"{what}: Modbus exception {code} ({EXCEPTION_TEXT.get(code, 'unknown')})")
@@ -54,6 +67,8 @@ class ModbusStage(RotaryStage):
 
     def _read32(self, register: int, count: int = 1) -> list[int]:
         regs = self._call(f"read 0x{register:04X}", self.client.read_holding_registers, register, count=2 * count).registers
+        if len(regs) != 2 * count:
+            raise InstrumentFault(self.name, f"read 0x{register:04X}: {len(regs)} registers in the reply, {2 * count} asked")
         return [az.join32(regs[2 * k], regs[2 * k + 1]) for k in range(count)]
 
     def _write32(self, register: int, values: list[int]) -> None:
@@ -101,4 +116,7 @@ class ModbusStage(RotaryStage):
         return self._read32(az.FEEDBACK_POSITION)[0] / self.steps_per_deg
 
     def close(self) -> None:
-        self.client.close()
+        try:
+            self.client.close()
+        except Exception:  # noqa: BLE001, S110 — closing a line that already died: nothing left to release
+            pass

@@ -32,8 +32,14 @@ NUMBER = r"[+-]?\d+(?:\.\d+)?"
 def _match(name: str, pattern: re.Pattern, reply: str) -> re.Match:
     m = pattern.fullmatch(reply)
     if m is None:
-        raise InstrumentFault(name, f"unexpected reply {reply!r}")
+        raise InstrumentFault(name, f"unexpected reply {reply[:80]!r}")
     return m
+
+
+def _within(name: str, what: str, value: float, low: float, high: float) -> float:
+    if not low <= value <= high:  # also false for NaN
+        raise InstrumentFault(name, f"{what} {value:.6g} outside what it can measure [{low:g}, {high:g}]")
+    return value
 
 
 class ElcomatAutocollimator(Autocollimator):
@@ -41,6 +47,7 @@ class ElcomatAutocollimator(Autocollimator):
     REQUEST = b"M\r"
     REPLY = re.compile(rf"(\d) ({NUMBER}) ({NUMBER})")
     STATUS = {1: "no reflection in range", 2: "weak light", 3: "two reflections"}
+    RANGE_ARCSEC = 3600.0  # an ELCOMAT's field is ±1000″; beyond a degree is no autocollimator reading
 
     def __init__(self, address: Address, timeout_s: float = 1.0):
         self.line = SerialLine(self.name, address.path, int(address.option("baud", 9600)), timeout_s)
@@ -50,7 +57,9 @@ class ElcomatAutocollimator(Autocollimator):
         status = int(m.group(1))
         if status:
             raise InstrumentFault(self.name, f"status {status}: {self.STATUS.get(status, 'unknown')}")
-        return float(m.group(2)), float(m.group(3))
+        r = self.RANGE_ARCSEC
+        return (_within(self.name, "X angle ″", float(m.group(2)), -r, r),
+                _within(self.name, "Y angle ″", float(m.group(3)), -r, r))
 
     def close(self) -> None:
         self.line.close()
@@ -60,6 +69,7 @@ class SylvacIndicator(DialIndicator):
     REQUEST = b"?\r"
     REPLY = re.compile(rf"({NUMBER})|ERR(\d+)")
     ERRORS = {1: "out of range", 2: "sensor not ready", 3: "command unknown"}
+    RANGE_MM = 100.0  # the longest Sylvac stroke
 
     def __init__(self, address: Address, name: str = "dial_indicator", timeout_s: float = 1.0):
         self.name = name
@@ -69,7 +79,7 @@ class SylvacIndicator(DialIndicator):
         m = _match(self.name, self.REPLY, self.line.query(self.REQUEST))
         if m.group(2):
             raise InstrumentFault(self.name, f"ERR{m.group(2)}: {self.ERRORS.get(int(m.group(2)), 'unknown')}")
-        return float(m.group(1)) * 1000.0
+        return _within(self.name, "displacement mm", float(m.group(1)), -self.RANGE_MM, self.RANGE_MM) * 1000.0
 
     def close(self) -> None:
         self.line.close()
@@ -99,8 +109,9 @@ class QsbEncoder(Encoder):
 
 class LineLaserTracer(LaserTracer):
     name = "laser_tracer"
-    REF_REPLY = re.compile(r"OK REF (\d+)")
-    LEN_REPLY = re.compile(rf"LEN ({NUMBER}) (\d+)|ERR (\w+)")
+    REF_REPLY = re.compile(r"OK REF (\d{1,9})")
+    LEN_REPLY = re.compile(rf"LEN ({NUMBER}) (\d{{1,9}})|ERR (\w+)")
+    RANGE_MM = 100_000.0  # a tracer follows a reflector within some 20 m; a length change beyond 100 m is garbage
 
     def __init__(self, address: Address, timeout_s: float = 1.0):
         self.line = SerialLine(self.name, address.path, int(address.option("baud", 115200)), timeout_s, terminator=b"\r\n")
@@ -114,7 +125,8 @@ class LineLaserTracer(LaserTracer):
             raise TrackingLost(self.name, "tracer error LOST: tracking lost")
         if m.group(3):
             raise InstrumentFault(self.name, f"tracer error {m.group(3)}")
-        return LengthReading(float(m.group(1)) * 1e-6, int(m.group(2)))
+        length_mm = _within(self.name, "length mm", float(m.group(1)) * 1e-6, -self.RANGE_MM, self.RANGE_MM)
+        return LengthReading(length_mm, int(m.group(2)))
 
     def close(self) -> None:
         self.line.close()

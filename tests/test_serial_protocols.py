@@ -59,6 +59,11 @@ BAD = [
     (ENCODER, b"R0E\r", None, InstrumentTimeout, "no reply"),
     (TRACER, b"REF\r\n", b"OK REFX\r\n", InstrumentFault, "unexpected reply"),
     (TRACER, b"REF\r\n", None, InstrumentTimeout, "no reply"),
+    (TRACER, b"REF\r\n", b"OK REF " + b"9" * 40 + b"\r\n", InstrumentFault, "unexpected reply"),
+    # values a line can carry but no instrument can measure: garbage, never a reading
+    (AUTOCOLLIMATOR, b"M\r", b"0 +9999.0000 +0.0000\r", InstrumentFault, "outside what it can measure"),
+    (AUTOCOLLIMATOR, b"M\r", b"0 +0.0000 -" + b"9" * 200 + b"\r", InstrumentFault, "outside what it can measure"),
+    (INDICATOR, b"?\r", b"+250.000000\r", InstrumentFault, "outside what it can measure"),
 ]
 
 
@@ -88,6 +93,9 @@ def test_tracer_length(reply, expected):
     (b"LEN 12 x\r\n", InstrumentFault, "unexpected reply"),
     (b"LEN 12", InstrumentTimeout, "truncated"),
     (None, InstrumentTimeout, "no reply"),
+    (b"LEN 9" + b"9" * 200 + b" 1\r\n", InstrumentFault, "outside what it can measure"),  # 1e194 mm
+    (b"LEN 100000000000001 1\r\n", InstrumentFault, "outside what it can measure"),  # 100 m + 1 nm
+    (b"LEN 12 " + b"9" * 12 + b"\r\n", InstrumentFault, "unexpected reply"),  # a segment number beyond 10⁹
 ])
 def test_tracer_length_errors(reply, error, text):
     with pytest.raises(error, match=text):

@@ -60,7 +60,7 @@ class FaultHandler:
                 if attempt == policy.retries:
                     break
                 if isinstance(last, TrackingLost) and reacquire is not None and policy.then == "reacquire":
-                    reacquire()
+                    self._reacquire(instrument, reacquire, last)
                     continue
                 self.clock.sleep(policy.backoff_s * 2**attempt)
                 self.event("retry", instrument, f"retry {attempt + 1} of {policy.retries} after {policy.backoff_s * 2**attempt:g} s")
@@ -84,10 +84,18 @@ class FaultHandler:
                     self.event("fault", exc.instrument, str(exc))
                     self.abort(instrument, last, f"no operator could clear it ({exc})")
             elif round_ == 0 and policy.then == "reacquire" and reacquire is not None:
-                reacquire()
+                self._reacquire(instrument, reacquire, last)
             else:
                 break
         self.abort(instrument, last)
+
+    def _reacquire(self, instrument: str, reacquire: Callable[[], None], last: InstrumentError | None) -> None:
+        """Re-reference; an instrument that cannot even do that (its line died) stops the run safely."""
+        try:
+            reacquire()
+        except InstrumentError as exc:
+            self.event("fault", exc.instrument, f"re-acquiring failed: {exc}")
+            self.abort(instrument, exc, "it could not be re-acquired")
 
     def abort(self, instrument: str, error: InstrumentError | None, why: str = "") -> None:
         because = f" ({why})" if why else ""

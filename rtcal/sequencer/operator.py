@@ -3,8 +3,18 @@ sequencer pauses with a prompt; on the simulated bench the bench does it itself.
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Callable, Protocol
+
+from drivers.errors import InstrumentError
+
+
+class OperatorUnavailable(InstrumentError):
+    """The run needs a person (or the simulated operator) and none answers: the run stops safely."""
+
+    def __init__(self, message: str):
+        super().__init__("operator", message)
 
 
 class Operator(Protocol):
@@ -37,7 +47,8 @@ class ConsoleOperator:
                        f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
                        "align it to the autocollimator within its range, then press Enter.")
         if not sys.stdin.isatty() and self._ask is input:
-            raise RuntimeError("the procedure needs an operator (polygon re-seating) but there is no terminal")
+            raise OperatorUnavailable("the procedure needs an operator to re-seat the polygon but there is no terminal; "
+                                      "run it from a terminal")
         self._ask(message + " ")
 
     def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
@@ -47,7 +58,8 @@ class ConsoleOperator:
             message = (f"\nOperator: move the laser tracer to mount {mount + 1} ({where}), at the same height as before; "
                        "fix it, then press Enter (rtcal re-references the beam).")
         if not sys.stdin.isatty() and self._ask is input:
-            raise RuntimeError("the procedure needs an operator (moving the tracer) but there is no terminal")
+            raise OperatorUnavailable("the procedure needs an operator to move the laser tracer but there is no terminal; "
+                                      "run it from a terminal")
         self._ask(message + " ")
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
@@ -55,7 +67,7 @@ class ConsoleOperator:
 
     def clear_fault(self, message: str) -> None:
         if not sys.stdin.isatty() and self._ask is input:
-            raise RuntimeError(f"the run paused for the operator ({message}) but there is no terminal")
+            raise OperatorUnavailable(f"the run paused for the operator ({message}) but there is no terminal")
         self._ask(f"\nOperator: {message}. Clear the fault, then press Enter to try again. ")
 
 
@@ -91,26 +103,36 @@ class RemoteSimOperator:
     def _ask(self, line: str) -> str:
         import socket
 
-        with socket.create_connection(self.where, timeout=self.timeout_s) as s:
-            s.sendall(line.encode() + b"\n")
-            return s.makefile("rb").readline().decode(errors="replace").strip()
+        try:
+            with socket.create_connection(self.where, timeout=self.timeout_s) as s:
+                s.sendall(line.encode() + b"\n")
+                return s.makefile("rb").readline(64 * 1024).decode(errors="replace").strip()
+        except OSError as exc:
+            raise OperatorUnavailable(f"the simulated operator at {self.where[0]}:{self.where[1]} does not answer "
+                                      f"({exc}); is `rtcal sim serve` still running?") from None
 
     def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
         reply = self._ask(f"RESEAT {offset_deg!r}")
         if reply != "OK":
-            raise RuntimeError(f"simulated operator refused to re-seat the polygon: {reply!r}")
+            raise OperatorUnavailable(f"the simulated operator refused to re-seat the polygon: {reply[:80]!r}")
 
     def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
         reply = self._ask(f"MOUNT {int(mount)}")
         if reply != "OK":
-            raise RuntimeError(f"simulated operator refused to move the tracer: {reply!r}")
+            raise OperatorUnavailable(f"the simulated operator refused to move the tracer: {reply[:80]!r}")
 
     def clear_fault(self, message: str) -> None:
         if self._ask("CLEAR") != "OK":
-            raise RuntimeError("simulated operator could not clear the fault")
+            raise OperatorUnavailable("the simulated operator could not clear the fault")
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
         words = self._ask("CERT?").split()
-        if not words or words[0] != "CERT":
-            raise RuntimeError(f"simulated operator has no certificate: {words!r}")
-        return [float(w) for w in words[1:]]
+        try:
+            if not words or words[0] != "CERT":
+                raise ValueError
+            values = [float(w) for w in words[1:]]
+        except ValueError:
+            raise OperatorUnavailable(f"the simulated operator has no certificate: {' '.join(words)[:80]!r}") from None
+        if not all(math.isfinite(v) and abs(v) <= 3600 for v in values):
+            raise OperatorUnavailable("the simulated operator's certificate holds values that are no face errors")
+        return values

@@ -4,11 +4,18 @@ Every instrument speaks its real protocol on a real endpoint: the stage drive as
 server (TCP, or RTU on a pseudo-terminal), the CMM as an I++ DME server, the serial ASCII
 instruments on pseudo-terminals (or TCP sockets, for pyserial's ``socket://``). One thread runs
 every server, so the bench is only ever touched by one thread at a time.
+
+That thread never blocks on a client: a pseudo-terminal is written without blocking, through a
+bounded queue, and a client that does not read its replies loses them (its queue is dropped)
+while every other line and server goes on answering. A request line longer than a protocol
+allows is refused and the connection closed.
 """
 
 from __future__ import annotations
 
 import asyncio
+import errno
+import math
 import os
 import socket
 import threading
@@ -42,6 +49,57 @@ from simulators.servers.serial_protocols import (
 )
 
 DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # 0.001° per step when the scenario names no stepper
+PTY_QUEUE_BYTES = 64 * 1024  # replies waiting for a client that does not read; beyond this they are dropped
+MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
+MAX_OPERATOR_LINE = 1024
+
+
+class PtyWriter:
+    """Writes to a pseudo-terminal's master without ever blocking the event loop.
+
+    What the terminal does not take at once waits in a queue, written as the client reads; a
+    queue that outgrows ``limit`` belongs to a client that stopped reading, and is dropped.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, fd: int, limit: int = PTY_QUEUE_BYTES):
+        self.loop, self.fd, self.limit = loop, fd, limit
+        self.queue = bytearray()
+        self.dropped_bytes = 0
+        os.set_blocking(fd, False)
+
+    def write(self, data: bytes) -> None:
+        if not self.queue:
+            data = data[self._write_now(data):]
+            if not data:
+                return
+            self.loop.add_writer(self.fd, self._flush)
+        self.queue += data
+        if len(self.queue) > self.limit:
+            self.dropped_bytes += len(self.queue)
+            self.queue.clear()
+            self._stop_waiting()
+
+    def _write_now(self, data: bytes) -> int:
+        try:
+            return os.write(self.fd, data)
+        except BlockingIOError:
+            return 0
+        except OSError as exc:  # the terminal is gone (EIO): nobody to answer
+            if exc.errno not in (errno.EIO, errno.EBADF):
+                raise
+            self.dropped_bytes += len(data)
+            return len(data)
+
+    def _flush(self) -> None:
+        del self.queue[: self._write_now(bytes(self.queue))]
+        if not self.queue:
+            self._stop_waiting()
+
+    def _stop_waiting(self) -> None:
+        try:
+            self.loop.remove_writer(self.fd)
+        except (ValueError, OSError):
+            pass
 
 
 def free_port(host: str) -> int:
@@ -87,6 +145,7 @@ class SimulatorHub:
         }
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
         self._fds: list[int] = []
+        self._pty_writers: list[PtyWriter] = []
         self._loop = asyncio.new_event_loop()
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
@@ -138,6 +197,7 @@ class SimulatorHub:
         for fd in self._fds:
             try:
                 self._loop.remove_reader(fd)
+                self._loop.remove_writer(fd)
             except (ValueError, OSError):
                 pass
         for server in self._servers:
@@ -167,7 +227,7 @@ class SimulatorHub:
         for name, handler in self.handlers.items():
             self.addresses[name] = await self._serve_line(handler)
         self.addresses["encoder"] += f"?counts_per_rev={self.counts_per_rev}"
-        op = await asyncio.start_server(self._operator_client, h, 0)
+        op = await asyncio.start_server(self._operator_client, h, 0, limit=MAX_OPERATOR_LINE)
         self._servers.append(op)
         self.addresses["operator"] = f"sim-operator://{h}:{op.sockets[0].getsockname()[1]}"
 
@@ -187,11 +247,15 @@ class SimulatorHub:
         m2, s2, p2 = raw_pty()
         self._fds += [m1, s1, m2, s2]
 
+        writers = {m1: PtyWriter(self._loop, m1), m2: PtyWriter(self._loop, m2)}
+        self._pty_writers += writers.values()
+
         def forward(src: int, dst: int) -> None:
             try:
-                os.write(dst, os.read(src, 4096))
-            except OSError:
-                pass
+                data = os.read(src, 4096)
+            except (BlockingIOError, OSError):
+                return
+            writers[dst].write(data)
 
         self._loop.add_reader(m1, forward, m1, m2)
         self._loop.add_reader(m2, forward, m2, m1)
@@ -219,13 +283,15 @@ class SimulatorHub:
         master, slave, path = raw_pty()
         self._fds += [master, slave]  # holding the slave open keeps the master readable between clients
         state = {"buffer": b""}
+        writer = PtyWriter(self._loop, master)
+        self._pty_writers.append(writer)
 
         def readable() -> None:
             try:
                 data = os.read(master, 4096)
-            except OSError:
+            except (BlockingIOError, OSError):
                 return
-            state["buffer"] = self._answer(handler, state["buffer"] + data, lambda out: os.write(master, out))
+            state["buffer"] = self._answer(handler, state["buffer"] + data, writer.write)
 
         self._loop.add_reader(master, readable)
         return path
@@ -239,7 +305,7 @@ class SimulatorHub:
                 reply = handler.handle(line)
                 if reply:  # an injected no_reply answers nothing
                     send(reply)
-        if len(buffer) > 1024:
+        if len(buffer) > MAX_REQUEST_BYTES:
             buffer = b""  # a line this long is garbage; drop it
         return buffer
 
@@ -253,9 +319,13 @@ class SimulatorHub:
                 words = line.decode(errors="replace").split()
                 if len(words) == 2 and words[0] == "RESEAT":
                     try:
-                        self.bench.reseat_polygon(float(words[1]))
-                        writer.write(b"OK\n")
+                        offset_deg = float(words[1])
                     except ValueError:
+                        offset_deg = math.nan
+                    if math.isfinite(offset_deg) and abs(offset_deg) <= 360.0:
+                        self.bench.reseat_polygon(offset_deg)
+                        writer.write(b"OK\n")
+                    else:
                         writer.write(b"ERR ARG\n")
                 elif len(words) == 2 and words[0] == "MOUNT" and words[1] in ("0", "1"):
                     self.bench.mount_tracer(int(words[1]))
@@ -269,6 +339,8 @@ class SimulatorHub:
                 else:
                     writer.write(b"ERR CMD\n")
                 await writer.drain()
+        except ValueError:  # a line beyond the limit: refused, and this client let go
+            writer.write(b"ERR LINE\n")
         except (ConnectionError, asyncio.CancelledError):
             pass
         finally:

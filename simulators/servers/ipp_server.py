@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import math
 
 import numpy as np
 
 from drivers import ipp
 from drivers.errors import OutOfLimits
 from simulators.instruments import SimCmm
+
+MAX_LINE_BYTES = 64 * 1024
 
 
 class IppSession:
@@ -59,7 +62,7 @@ class IppSession:
             values = ipp.axes(args)
             if set(values) != {"X", "Y", "Z"}:
                 return ack + ipp.error_line(tag, 2, ipp.BAD_ARGUMENT_COUNT, name, "Needs X(), Y() and Z()")
-            if any(v is None for v in values.values()):
+            if any(v is None or not math.isfinite(v) for v in values.values()):
                 return ack + ipp.error_line(tag, 2, ipp.BAD_ARGUMENT, name, "Bad argument")
             target = np.array([values["X"], values["Y"], values["Z"]])
             try:
@@ -86,11 +89,13 @@ async def serve_ipp(cmm: SimCmm, host: str, port: int, faults=None) -> asyncio.b
         session = IppSession(cmm, faults)
         try:
             while line := await reader.readline():
-                writer.write(session.handle(line.decode("ascii", errors="replace")).encode("ascii"))
+                writer.write(session.handle(line.decode("ascii", errors="replace")).encode("ascii", errors="replace"))
                 await writer.drain()
+        except ValueError:  # a line beyond MAX_LINE_BYTES: answered with a protocol error, the client let go
+            writer.write(ipp.error_line("00000", 3, ipp.PROTOCOL_ERROR, "", "Line too long").encode("ascii"))
         except (ConnectionError, asyncio.IncompleteReadError, asyncio.CancelledError):
             pass
         finally:
             writer.close()
 
-    return await asyncio.start_server(client, host, port)
+    return await asyncio.start_server(client, host, port, limit=MAX_LINE_BYTES)

@@ -7,6 +7,8 @@ TCP and RTU clients see the same drive.
 
 from __future__ import annotations
 
+import logging
+
 from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
@@ -14,6 +16,8 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers import az_registers as az
 from simulators.az_drive import AzDriveModel
+
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())  # the console is the run's, not the library's
 
 READ_CODES = (3, 4)
 
@@ -35,15 +39,41 @@ def drive_device(model: AzDriveModel, unit: int = 1) -> SimDevice:
     return SimDevice(id=unit, simdata=[SimData(0, count=az.FEEDBACK_POSITION + 2, values=0, datatype=DataType.REGISTERS)], action=action)
 
 
-def frame_faults(model: AzDriveModel, rtu: bool):
-    """pymodbus ``trace_packet`` hook: lose or corrupt the reply frame the drive model asks for.
+def crc16(frame: bytes) -> bytes:
+    """The Modbus RTU CRC of ``frame``, low byte first."""
+    crc = 0xFFFF
+    for byte in frame:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc.to_bytes(2, "little")
 
-    A corrupted RTU frame fails its CRC; Modbus TCP carries no CRC, so there the frame loses
-    its last byte (a broken frame the client cannot complete) instead.
+
+def frame_hook(model: AzDriveModel, rtu: bool, unit: int = 1):
+    """pymodbus ``trace_packet`` hook: what a real drive does on the wire that pymodbus does not.
+
+    - A request to another unit id, or broadcast (0), gets no reply, as on a bus.
+    - An exception reply carries the request's function code | 0x80 (pymodbus sends a bare 0x80
+      for a function code it does not know).
+    - Lose or corrupt the reply frame the drive model asks for. A corrupted RTU frame fails its
+      CRC; Modbus TCP carries no CRC, so there the frame loses its last byte (a broken frame the
+      client cannot complete) instead.
     """
+    at = 1 if rtu else 7  # where the function code sits: after the unit id (RTU), after the MBAP header (TCP)
+    last_code = {"fc": None, "unit": unit}
 
     def trace(sending: bool, data: bytes) -> bytes:
-        if not sending or model.reply_fault is None:
+        if not sending:
+            if len(data) >= at + 3 and (rtu or data[2:4] == b"\0\0"):  # a whole request, not a piece of one
+                last_code["fc"], last_code["unit"] = data[at], data[at - 1]
+            return data
+        if last_code["unit"] != unit:
+            return b""
+        if len(data) > at and data[at] == 0x80 and last_code["fc"] is not None and last_code["fc"] < 0x80:
+            data = data[:at] + bytes([last_code["fc"] | 0x80]) + data[at + 1:]
+            if rtu:
+                data = data[:-2] + crc16(data[:-2])
+        if model.reply_fault is None:
             return data
         fault, model.reply_fault = model.reply_fault, None
         if fault == "no_reply":
@@ -54,9 +84,10 @@ def frame_faults(model: AzDriveModel, rtu: bool):
 
 
 def tcp_server(model: AzDriveModel, host: str, port: int, unit: int = 1) -> ModbusTcpServer:
-    return ModbusTcpServer(drive_device(model, unit), address=(host, port), trace_packet=frame_faults(model, rtu=False))
+    return ModbusTcpServer(drive_device(model, unit), address=(host, port), trace_packet=frame_hook(model, rtu=False, unit=unit),
+                           ignore_missing_devices=True)  # another unit id: no reply, as on a bus
 
 
 def rtu_server(model: AzDriveModel, device_path: str, unit: int = 1, baudrate: int = 115200) -> ModbusSerialServer:
     return ModbusSerialServer(drive_device(model, unit), framer=FramerType.RTU, port=device_path, baudrate=baudrate,
-                              trace_packet=frame_faults(model, rtu=True))
+                              trace_packet=frame_hook(model, rtu=True, unit=unit), ignore_missing_devices=True)
