@@ -104,6 +104,8 @@ def parse_instruments_option(text: str) -> dict[str, str]:
         data = json.loads(source.strip().splitlines()[0] if source.strip() else "")
     except (json.JSONDecodeError, IndexError) as exc:
         raise UserError(f"--instruments: not a JSON object of instrument addresses ({exc})") from None
+    except RecursionError:
+        raise UserError("--instruments: not a JSON object of instrument addresses (nested too deeply)") from None
     if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
         raise UserError("--instruments: expected a JSON object mapping instrument names to address strings")
     return data

@@ -130,6 +130,14 @@ class PositioningDeviations:
 
     @classmethod
     def parse_csv(cls, text: str, where: str = "<csv>", max_rows: int = 1_000_000) -> "PositioningDeviations":
+        """The table in a CSV text; anything else is a DeviationTableError naming where."""
+        try:
+            return cls._parse_csv(text, where, max_rows)
+        except csv.Error as exc:  # a NUL byte, a newline inside an unquoted field, …
+            raise DeviationTableError(f"{where}: not CSV: {exc}") from None
+
+    @classmethod
+    def _parse_csv(cls, text: str, where: str, max_rows: int) -> "PositioningDeviations":
         reader = csv.reader(io.StringIO(text))
         try:
             header = [h.strip() for h in next(reader)]
@@ -159,8 +167,8 @@ class PositioningDeviations:
                 raise DeviationTableError(f"{where}:{line}: direction must be 1 (positive approach) or -1 (negative), got {d}")
             if not (np.isfinite(t) and np.isfinite(x)) or (np.isfinite(u) and u < 0) or u == float("inf"):
                 raise DeviationTableError(f"{where}:{line}: target, deviation and uncertainty must be finite (u ≥ 0)")
-            if r < 1:
-                raise DeviationTableError(f"{where}:{line}: runs are numbered from 1, got {r}")
+            if not 1 <= r <= 1_000_000:
+                raise DeviationTableError(f"{where}:{line}: runs are numbered from 1 (to at most 1000000), got {str(r)[:20]}")
             rows.append((t, d, r, x, u))
         if not rows:
             raise DeviationTableError(f"{where}: no rows after the header")

@@ -156,6 +156,7 @@ class FakeSocket:
 
     def sendall(self, data): ...
     def close(self): ...
+    def settimeout(self, seconds): ...
 
     def recv(self, n):
         out, self.data = self.data[:n], self.data[n:]
@@ -168,7 +169,7 @@ class FakeSocket:
                 max_size=6))
 def test_ipp_client_on_arbitrary_replies(lines):
     cmm = IppCmm.__new__(IppCmm)
-    cmm._tag, cmm._buffer = 0, b""
+    cmm._tag, cmm._buffer, cmm.timeout_s = 0, b"", 1.0
     cmm.volume_min_mm, cmm.volume_max_mm = (-math.inf,) * 3, (math.inf,) * 3
     cmm.sock = FakeSocket(b"".join(line + b"\r\n" for line in lines))
     try:
@@ -255,3 +256,97 @@ def test_no_cmm_command_outside_the_volume_reaches_the_wire(xyz):
     with pytest.raises(OutOfLimits):
         cmm.move_to(np.array(xyz))
     assert sent == []
+
+
+# -- the compensation readers, the deviation table and the command-line option parsers ---------
+
+def _written_tables() -> dict[str, str]:
+    from rtcal.compensation import WRITERS, CompensationTable
+
+    grid = np.linspace(0.0, 360.0, 25)
+    trims = 1e-3 * np.sin(np.radians(grid))
+    table = CompensationTable(grid, trims, -trims)
+    return {fmt: write(table) for fmt, write in WRITERS.items()}
+
+
+WRITTEN = _written_tables()
+
+
+@FAST
+@given(st.sampled_from(sorted(WRITTEN)), st.data())
+def test_compensation_readers_on_mutated_tables(fmt, data):
+    """A controller's table with characters deleted, replaced or inserted: read, or refused with a
+    CompensationError naming where — never another exception."""
+    from rtcal.compensation import PARSERS, CompensationError
+
+    text = WRITTEN[fmt]
+    for _ in range(data.draw(st.integers(1, 4))):
+        at = data.draw(st.integers(0, len(text)))
+        new = data.draw(st.sampled_from(["", "-", "9", "e999", "nan", ".", ",", "\n", "=", "]", " ", "\x00", "é"]))
+        text = text[:at] + new + text[at + data.draw(st.integers(0, 3)):]
+    try:
+        table = PARSERS[fmt](text, "t")
+    except CompensationError as exc:
+        assert str(exc)
+    else:
+        for values in (table.positions_deg, table.trim_up_deg, table.trim_down_deg):
+            assert np.all(np.isfinite(values))
+
+
+@FAST
+@given(st.sampled_from(sorted(WRITTEN)), st.text(max_size=300))
+def test_compensation_readers_on_arbitrary_text(fmt, text):
+    from rtcal.compensation import PARSERS, CompensationError
+
+    try:
+        PARSERS[fmt](text, "t")
+    except CompensationError:
+        pass
+
+
+DEVIATIONS = "target_deg,direction,run,deviation_arcsec,uncertainty_arcsec\n0,+,1,0.0,0.1\n90,+,1,1.5,0.1\n180,-,1,-2.0,0.1\n"
+
+
+@FAST
+@given(st.one_of(st.text(max_size=300), st.builds(lambda cut, add: DEVIATIONS[:cut] + add, st.integers(0, len(DEVIATIONS)),
+                                                   st.text(max_size=40))))
+@example("target_deg,direction,run,deviation_arcsec,uncertainty_arcsec\n1e999,+,1,nan,0\n")
+def test_deviation_table_reader(text):
+    from rtcal.deviations import DeviationTableError, PositioningDeviations
+
+    try:
+        PositioningDeviations.parse_csv(text, "t")
+    except DeviationTableError as exc:
+        assert str(exc)
+
+
+@FAST
+@given(st.text(max_size=200).map(lambda t: "{" + t))
+@example("{" + '"a": ' + "[" * 100_000)
+@example('{"stage": 1}')
+def test_instruments_option(text):
+    """`--instruments`: a dict of strings, or a UserError (exit 2) — deep nesting included."""
+    from rtcal.cli import UserError, parse_instruments_option
+
+    try:
+        parsed = parse_instruments_option(text)
+    except UserError as exc:
+        assert str(exc).startswith("--instruments")
+    else:
+        assert all(isinstance(k, str) and isinstance(v, str) for k, v in parsed.items())
+
+
+@FAST
+@given(st.text(max_size=300))
+@example("X,Y,Z\n" + "1,2,3\n" * 3 + "1e999,0,0\n")
+def test_stations_csv_reader(tmp_path, text):
+    from rtcal.cli import UserError, read_stations_csv
+
+    path = tmp_path / "stations.csv"
+    path.write_bytes(text.encode("utf-8", "replace"))
+    try:
+        rows = read_stations_csv(path)
+    except UserError:
+        pass
+    else:
+        assert rows.shape[1] == 3 and np.all(np.isfinite(rows))

@@ -422,6 +422,7 @@ def test_simulator_killed_mid_run_stops_safely_and_resumes(tmp_path, procedure, 
     assert run.returncode == 1, err
     assert "instrument error" in err and "run aborted" in err and f"rtcal resume {out}" in err, err  # the safe stop
     assert "Traceback" not in err, err
+    assert all(line.startswith("rtcal:") for line in err.splitlines() if line.strip()), err  # no library's log lines
     sim, addresses = _sim_serve(*options)
     try:
         (tmp_path / "b.json").write_text(addresses)
@@ -433,3 +434,19 @@ def test_simulator_killed_mid_run_stops_safely_and_resumes(tmp_path, procedure, 
     assert resumed.returncode == 0, resumed.stderr
     proc = load_procedure(REPO / procedure)
     assert _done_once(db) == [1] * METHODS[proc.method].plan_length(proc), "a planned reading lost or stored twice"
+
+
+def test_no_terminal_for_the_operator_is_a_safe_stop_not_a_traceback(tmp_path, hub):
+    """A wired polygon closure needs an operator; with neither a terminal nor the simulated
+    operator (was: RuntimeError traceback) the run stops with exit 1, says why and how to go on,
+    and pymodbus prints nothing of its own."""
+    import json
+
+    addresses = {k: v for k, v in hub.addresses.items() if k != "operator"}
+    run = subprocess.run([sys.executable, "-m", "rtcal.cli", "run", str(REPO / "procedures" / "polygon_closure.yaml"),
+                          "--instruments", json.dumps(addresses), "--virtual-clock", "--out", str(tmp_path / "run")],
+                         stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1, run.stderr
+    assert "operator: the procedure needs an operator to re-seat the polygon but there is no terminal" in run.stderr
+    assert f"rtcal resume {tmp_path / 'run'}" in run.stderr
+    assert all(line.startswith("rtcal:") for line in run.stderr.splitlines() if line.strip()), run.stderr
