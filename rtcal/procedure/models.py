@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import re
+import unicodedata
 from typing import Annotated, Literal, Union
 
 import numpy as np
@@ -44,6 +45,8 @@ class InstrumentRecord(_Strict):
     id: str = Field("", max_length=200, description="make, model and serial number (e.g. Etalon LaserTRACER 12-0034)")
     calibration_due: str = Field("", max_length=40, description="its calibration due date (e.g. 2027-03-31)")
 
+    _plain = field_validator("id", "calibration_due")(lambda cls, text: _check_text(text))
+
 
 class Metadata(_Strict):
     """Who and what the calibration is for: the report's and certificate's header."""
@@ -57,6 +60,9 @@ class Metadata(_Strict):
     certificate_number: str = Field("", max_length=100, description="the certificate's number")
     instruments: dict[str, InstrumentRecord] = Field({}, description="per instrument of the procedure (stage, cmm, "
                                                                      "laser_tracer, …): its id and calibration due date")
+
+    _plain = field_validator("customer", "machine", "axis", "serial_number", "location", "operator",
+                             "certificate_number")(lambda cls, text: _check_text(text))
 
 
 class InstrumentChoice(_Strict):
@@ -553,14 +559,20 @@ class EncoderAbbeError(_Procedure):
         return abs(k - round(k)) < 1e-6
 
 
-NAME_CHARACTERS = re.compile(r"[^\x00-\x1f\x7f$]*")
+def _check_text(text: str) -> str:
+    """Text for a report or certificate: no control or format characters — a right-to-left override
+    (U+202E) or a zero-width character would make a certificate read other than it says."""
+    bad = next((c for c in text if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co")), None)
+    if bad is not None:
+        raise ValueError(f"no control or invisible formatting characters (found U+{ord(bad):04X})")
+    return text
 
 
 def _check_name(name: str) -> str:
     """A name goes into plot titles, where matplotlib reads `$` as mathematics, and into reports."""
-    if not NAME_CHARACTERS.fullmatch(name):
-        raise ValueError("no control characters and no `$` (plot titles would read it as mathematics)")
-    return name
+    if "$" in name:
+        raise ValueError("no `$` (plot titles would read it as mathematics)")
+    return _check_text(name)
 
 
 def plan_size_problem(proc: "LaserTracerMultistation | EncoderAbbeError", large: bool = False) -> str | None:
