@@ -191,8 +191,8 @@ def resume_run(
     that may have changed since. Simulated instruments get a new bench generation (fresh random
     draws); transports reconnect (``addresses`` replaces the stored ones, e.g. a restarted
     `rtcal sim serve`). The first pending reading re-approaches its targets from the
-    procedure's direction and re-references the tracer. Skipped readings are retaken. A
-    finished run is left as it is. The run directory is locked (RunBusy) until the resume ends.
+    procedure's direction and re-references the tracer. Skipped readings are retaken, also
+    those of a run that was solved without them. A complete run is left as it is. The run directory is locked (RunBusy) until the resume ends.
     """
     run_dir = Path(run_dir)
     if not (run_dir / RunStore.FILENAME).exists():
@@ -206,14 +206,16 @@ def resume_run(
         except StoreUnusable as exc:
             raise FileProblems([Problem(str(run_dir / RunStore.FILENAME), 1, 1, "(run)", f"cannot resume: {exc}")]) from None
         meta = store.meta()
-        finished = stored_results(run_dir) if meta.get("status") == "solved" else None
-        if finished is not None:  # nothing to take, nothing to count: the run stays as it is
-            store.close()
-            return RunOutcome(run_dir, finished)
         where = f"{run_dir / RunStore.FILENAME}"
         model = PROCEDURE_MODELS[meta["method"]]
         proc = validate_text(meta["procedure_yaml"], model, f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
         proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta["instruments"])})
+        complete = len(store.done_plan_indices()) >= METHODS[proc.method].plan_length(proc)
+        finished = stored_results(run_dir) if meta.get("status") == "solved" and complete else None
+        if finished is not None:  # nothing to take, nothing to count: the run stays as it is
+            store.close()
+            return RunOutcome(run_dir, finished)
+        # a run solved with readings its skip policy left out goes on too: it retakes them and solves again
         if addresses:
             proc = with_addresses(proc, addresses)
             if "operator" in addresses:

@@ -397,8 +397,8 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
     e_cmd = per_step(enc_vs_cmd)
     reversal = reversal_ref = None
     if set(np.unique(s_dir)) == {-1, 1}:
-        up = {a: e for a, e, d in zip(s_angle, e_cmd, s_dir) if d > 0}
-        common = [(up[a] - e) for a, e, d in zip(s_angle, e_cmd, s_dir) if d < 0 and a in up]
+        up = {a: e for a, e, d in zip(s_angle, e_cmd, s_dir) if d > 0 and np.isfinite(e)}  # skipped steps have none
+        common = [(up[a] - e) for a, e, d in zip(s_angle, e_cmd, s_dir) if d < 0 and a in up and np.isfinite(e)]
         reversal = float(np.mean(common)) if common else None
         up_r = {a: e for a, e, d in zip(s_angle, eps_steps, s_dir) if d > 0 and np.isfinite(e)}
         common_r = [(up_r[a] - e) for a, e, d in zip(s_angle, eps_steps, s_dir) if d < 0 and a in up_r and np.isfinite(e)]
