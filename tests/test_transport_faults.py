@@ -348,15 +348,29 @@ def test_a_pty_client_that_never_reads_freezes_nothing(hub):
     os.set_blocking(flood, False)
     try:
         sent = 0
-        for _ in range(50):
+        for _ in range(50):  # bursts: 2000 requests at once, more than any instrument queues
             try:
-                sent += os.write(flood, b"R0E\r" * 2000)  # 2000 requests, 24 kB of replies nobody reads
+                sent += os.write(flood, b"R0E\r" * 2000)
             except BlockingIOError:
                 pass
             stage.position_deg()
             cmm.position_mm()
             autocollimator.read_arcsec()
-        assert sent > 100_000, sent  # far more replies than a terminal buffers
+        assert sent > 100_000, sent
+        for k in range(1500):  # a steady stream, every request answered: 290 kB of replies nobody reads
+            try:
+                os.write(flood, b"R0E\r" * 16)
+            except BlockingIOError:
+                pass
+            time.sleep(0.0005)
+            if k % 100 == 0:
+                stage.position_deg()
+                cmm.position_mm()
+                autocollimator.read_arcsec()
+        deadline = time.monotonic() + 5
+        while hub.dropped_reply_bytes() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert hub.dropped_reply_bytes() > 0  # the replies beyond the terminal and its queue were let go
     finally:
         os.close(flood)
     stage.position_deg()

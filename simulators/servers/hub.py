@@ -51,6 +51,7 @@ from simulators.servers.serial_protocols import (
 DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # 0.001° per step when the scenario names no stepper
 PTY_QUEUE_BYTES = 64 * 1024  # replies waiting for a client that does not read; beyond this they are dropped
 MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
+MAX_PENDING_REQUESTS = 16  # requests answered from one read of a line; the rest of a flood is dropped
 MAX_OPERATOR_LINE = 1024
 
 
@@ -172,6 +173,10 @@ class SimulatorHub:
             except OSError:
                 pass
         self._fds.clear()
+
+    def dropped_reply_bytes(self) -> int:
+        """Reply bytes dropped because a pseudo-terminal's client did not read them."""
+        return sum(w.dropped_bytes for w in self._pty_writers)
 
     def __enter__(self) -> "SimulatorHub":
         self.start()
@@ -298,10 +303,19 @@ class SimulatorHub:
 
     @staticmethod
     def _answer(handler: LineHandler, buffer: bytes, send) -> bytes:
-        """Answer every complete request in the buffer; return what is left."""
+        """Answer the complete requests in the buffer; return what is left.
+
+        An instrument answers one request at a time: more than MAX_PENDING_REQUESTS arriving at
+        once is a flood, and the rest is dropped, as an instrument's input buffer overflows —
+        so a flooding client costs the one thread a bounded moment per read, never the others'
+        timeouts."""
+        answered = 0
         while handler.terminator in buffer:
             line, buffer = buffer.split(handler.terminator, 1)
+            if answered == MAX_PENDING_REQUESTS:
+                return b""
             if line.strip():
+                answered += 1
                 reply = handler.handle(line)
                 if reply:  # an injected no_reply answers nothing
                     send(reply)
