@@ -6,7 +6,8 @@ Every run and every resume must end with results (or the solvers' clear "cannot 
 with a safe stop (RunAborted) — never another exception. After each, the store holds only
 planned readings and none done twice. A run that stopped or skipped is resumed (fresh fault
 draws: a new bench generation, or a new simulator) until every planned reading is done: each
-exactly once, whatever was skipped retaken.
+exactly once, whatever was skipped retaken. (At 30 % emergency stops with `abort` a start takes
+about one reading, so up to four starts per planned reading are allowed.)
 
 CI runs one case per fault kind and per policy, over each wiring (about a minute); the whole
 grid is under `pytest -m campaign` (README: Tests).
@@ -15,6 +16,8 @@ grid is under `pytest -m campaign` (README: Tests).
 from __future__ import annotations
 
 import itertools
+import json
+import os
 import sqlite3
 from pathlib import Path
 
@@ -29,7 +32,7 @@ from simulators.servers.hub import SimulatorHub
 
 REPO = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 0.2  # over the wires: a silent instrument costs this much real time per attempt
-MAX_RESUMES = 12
+STARTS_PER_READING = 4  # a run that stops at 30 % e-stops takes about one reading per start; a bound, not a budget
 
 KINDS = {  # what each instrument can suffer (simulators/scenario.py FaultKind and its checks)
     "stage": ["no_reply", "modbus_exception", "crc_error", "alarm", "emergency_stop"],
@@ -113,6 +116,7 @@ def _ended_cleanly(call) -> str:
 def run_case(tmp_path: Path, method: str, instrument: str, kind: str, policy: str, rate: float, transport: str) -> list[str]:
     procedure = _procedure(tmp_path, method, instrument, policy)
     planned = METHODS[load_procedure(procedure).method].plan_length(load_procedure(procedure))
+    max_starts = STARTS_PER_READING * planned
     fault = FaultSpec(instrument=instrument, kind=kind, probability=rate)
     out, db = tmp_path / "run", tmp_path / "run" / "run.sqlite"
     outcomes: list[str] = []
@@ -127,11 +131,11 @@ def run_case(tmp_path: Path, method: str, instrument: str, kind: str, policy: st
         scenario = tmp_path / "scenario.yaml"
         scenario.write_text(yaml.safe_dump({"seed": 7, "faults": [fault.model_dump()]}))
         outcomes.append(_ended_cleanly(lambda: run_procedure(procedure, scenario, out_dir=out, show_progress=False)))
-        while len(check_store()) < planned and len(outcomes) <= MAX_RESUMES:
+        while len(check_store()) < planned and len(outcomes) < max_starts:
             outcomes.append(_ended_cleanly(lambda: resume_run(out, show_progress=False)))
     else:
         serial, modbus = ("pty", "tcp") if transport == "ptys+modbus_tcp" else ("tcp", "rtu")
-        for start in range(MAX_RESUMES + 1):
+        for start in range(max_starts):
             with SimulatorHub(Scenario(faults=[fault]), seed=11 + start, serial=serial, modbus=modbus) as hub:
                 if start == 0:
                     outcomes.append(_ended_cleanly(lambda: run_procedure(procedure, out_dir=out, show_progress=False,
@@ -142,7 +146,10 @@ def run_case(tmp_path: Path, method: str, instrument: str, kind: str, policy: st
             if len(check_store()) == planned:
                 break
     counts = check_store()
-    assert sorted(counts) == list(range(planned)), f"not every planned reading taken after {outcomes}"
+    assert sorted(counts) == list(range(planned)), f"not every planned reading taken after {len(outcomes)} starts"
+    if os.environ.get("RTCAL_CAMPAIGN_LOG"):  # one JSON line per case, for the campaign's figures
+        with open(os.environ["RTCAL_CAMPAIGN_LOG"], "a", encoding="utf-8") as log:
+            log.write(json.dumps({"case": [method, instrument, kind, policy, rate, transport], "outcomes": outcomes}) + "\n")
     return outcomes
 
 
