@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from rtcal.runner import run_procedure
+from rtcal.runner import resume_run, run_procedure
 from rtcal.sequencer.faults import RunAborted
 from rtcal.store import RunStore
 from simulators.scenario import FaultSpec, Scenario
@@ -187,3 +187,142 @@ def test_a_run_whose_data_the_solvers_cannot_use_says_so(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "solvers could not use them" in err and "Traceback" not in err
     assert len(RunStore.open(tmp_path / "run").skipped_plan_indices()) == 64
+
+
+def test_pause_resets_the_drive_once_the_operator_has_released_the_emergency_stop(tmp_path):
+    """No retry is left after the pause: the drive's latched e-stop alarm is reset (ALM-RST) as soon
+    as the operator has released it, so the one attempt after the pause moves (it failed on the
+    latched alarm and the run stopped)."""
+    proc = _procedure(tmp_path, SMALL, {"stage: {retries: 2, backoff_s: 0.1, then: abort}": "stage: {retries: 0, backoff_s: 0.1, then: pause}"})
+    r = _over_wires(tmp_path, proc, [{"instrument": "stage", "kind": "emergency_stop", "at_request": [5]}])
+    assert r["raw_readings"] == 64 and r["skipped_readings"] == 0
+    assert len(_events(r, "pause")) == 1
+
+
+def test_pause_after_a_beam_break_references_the_tracer_again(tmp_path):
+    """The operator frees the beam; the tracer's count is lost, so it is referenced again before the
+    attempt after the pause (it was not, and every beam break under `pause` stopped the run)."""
+    import yaml
+
+    proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
+                                        "laser_tracer: {retries: 1, backoff_s: 0.1, then: pause}"})
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(yaml.safe_dump({"faults": [{"instrument": "laser_tracer", "kind": "beam_break", "at_request": [10]}]}))
+    r = run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False).results
+    assert r["raw_readings"] == 64 and len(_events(r, "pause")) == 1
+    assert len(_events(r, "reacquire")) == 1
+    assert RunStore.open(tmp_path / "run").max_segment() == 1  # the first reference and the one after the pause
+
+
+def test_pause_without_an_operator_stops_safely(tmp_path):
+    """A pause with nobody to ask (a run over transports without a terminal or a simulated operator)
+    is a safe stop with its reason, not a traceback."""
+    proc = _procedure(tmp_path, SMALL, {"stage: {retries: 2, backoff_s: 0.1, then: abort}": "stage: {retries: 0, backoff_s: 0.1, then: pause}"})
+    scenario = Scenario(faults=[FaultSpec(instrument="stage", kind="emergency_stop", at_request=[5])])
+    with SimulatorHub(scenario, seed=3) as hub:
+        addresses = {k: v for k, v in hub.addresses.items() if k != "operator"}
+        with pytest.raises(RunAborted, match="no operator could clear it"):
+            run_procedure(proc, out_dir=tmp_path / "run", show_progress=False, addresses=addresses, virtual_clock=True,
+                          outputs=False)
+    store = RunStore.open(tmp_path / "run")
+    assert store.meta()["status"] == "aborted"
+    assert [e["kind"] for e in store.events()][-2:] == ["fault", "abort"]
+
+
+def test_a_safe_stop_keeps_what_the_interrupted_reading_took(tmp_path):
+    """The tracer fails three times on the first reading and the run stops: the CMM position that
+    reading took is stored (it was dropped), with the mark of the tracer's failure; the resume takes
+    the reading again and every planned reading is done once."""
+    import yaml
+
+    proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
+                                        "laser_tracer: {retries: 2, backoff_s: 0.1, then: abort}"})
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(yaml.safe_dump({"faults": [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": [1, 2, 3]}]}))
+    with pytest.raises(RunAborted):
+        run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False)
+    store = RunStore.open(tmp_path / "run")
+    rows = [(r.plan_index, r.instrument, r.quantity) for r in store.readings()]
+    assert rows == [(0, "cmm", "position_x_mm"), (0, "cmm", "position_y_mm"), (0, "cmm", "position_z_mm"),
+                    (0, "laser_tracer", "skipped")]
+    assert store.done_plan_indices() == set() and store.skipped_plan_indices() == {0}
+    store.close()
+    r = resume_run(tmp_path / "run", show_progress=False).results
+    assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
+
+
+def test_a_safe_stop_keeps_what_the_interrupted_visit_took(tmp_path):
+    """Seed 001: dial indicator 2 fails on the first visit and the run stops; the encoder, the
+    autocollimator and indicator 1 read at that visit are stored, marked as not whole."""
+    import yaml
+
+    proc = _procedure(tmp_path, ABBE, {"bench: scenarios/abbe_bench.yaml\n": "",
+                                       "autocollimator: {retries: 2, backoff_s: 0.5, then: skip}":
+                                       "dial_indicator_2: {retries: 2, backoff_s: 0.5, then: abort}"})
+    scenario = tmp_path / "s.yaml"
+    bench = yaml.safe_load((REPO / "procedures" / "scenarios" / "abbe_bench.yaml").read_text())
+    scenario.write_text(yaml.safe_dump({**bench, "faults": [{"instrument": "dial_indicator_2", "kind": "no_reply",
+                                                             "at_request": [1, 2, 3]}]}))
+    with pytest.raises(RunAborted):
+        run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False)
+    store = RunStore.open(tmp_path / "run")
+    rows = [(r.plan_index, r.instrument, r.quantity) for r in store.readings()]
+    assert rows == [(0, "encoder", "angle_deg"), (0, "autocollimator", "x_arcsec"), (0, "dial_indicator_1", "y_um"),
+                    (0, "dial_indicator_2", "skipped")]
+    store.close()
+    r = resume_run(tmp_path / "run", show_progress=False).results
+    assert (r["raw_readings"], r["skipped_readings"]) == (96, 0)
+
+
+def test_resume_retakes_what_a_solved_run_skipped(tmp_path, capsys):
+    """A skip run ends with results and one reading skipped (its retake after the pass failed too);
+    `rtcal resume` takes it (it returned the first results unchanged) and solves again with it."""
+    import json
+
+    import yaml
+
+    from rtcal.cli import main
+
+    proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
+                                        "laser_tracer: {retries: 2, backoff_s: 0.1, then: skip}"})
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(yaml.safe_dump({"faults": [{"instrument": "laser_tracer", "kind": "no_reply",
+                                                    "at_request": [10, 11, 12, 67, 68, 69]}]}))
+    run_dir = tmp_path / "run"
+    assert main(["run", str(proc), "--scenario", str(scenario), "--out", str(run_dir)]) == 0
+    first = json.loads((run_dir / "results.json").read_text())
+    assert (first["raw_readings"], first["skipped_readings"], first["starts"]) == (63, 1, 1)
+    assert main(["resume", str(run_dir)]) == 0
+    assert "run complete: 64 readings stored" in capsys.readouterr().out
+    again = json.loads((run_dir / "results.json").read_text())
+    assert (again["raw_readings"], again["skipped_readings"], again["starts"]) == (64, 0, 2)
+    assert main(["resume", str(run_dir)]) == 0  # now finished: left as it is
+    assert json.loads((run_dir / "results.json").read_text()) == again
+
+
+def test_seed001_counts_whole_visits_as_readings(tmp_path):
+    """A skipped visit is a skipped reading, not also a raw one: 95 + 1 of 96 (it said 96 + 1)."""
+    import yaml
+
+    proc = _procedure(tmp_path, ABBE, {"bench: scenarios/abbe_bench.yaml\n": ""})
+    scenario = tmp_path / "s.yaml"
+    bench = yaml.safe_load((REPO / "procedures" / "scenarios" / "abbe_bench.yaml").read_text())
+    scenario.write_text(yaml.safe_dump({**bench, "faults": [{"instrument": "autocollimator", "kind": "no_reply",
+                                                             "at_request": [3, 4, 5]}]}))
+    r = run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False).results
+    assert (r["raw_readings"], r["skipped_readings"]) == (95, 1)
+
+
+def test_an_operator_who_cannot_be_reached_is_a_typed_error():
+    """No terminal, or a simulated operator gone: OperatorUnavailable (an InstrumentError the fault
+    policies stop safely on and the command line reports), not a RuntimeError's traceback."""
+    from rtcal.sequencer.operator import ConsoleOperator, OperatorUnavailable, RemoteSimOperator
+    from simulators.servers.hub import free_port
+
+    gone = RemoteSimOperator(f"sim-operator://127.0.0.1:{free_port('127.0.0.1')}", timeout_s=0.5)
+    for step in (lambda: gone.clear_fault("stage: e-stop"), lambda: gone.reseat_polygon(15.0, 15.0),
+                 lambda: gone.move_tracer(1, "mount 2"), gone.polygon_certificate_arcsec):
+        with pytest.raises(OperatorUnavailable, match="does not answer"):
+            step()
+    with pytest.raises(OperatorUnavailable, match="no terminal"):  # pytest's stdin is no terminal
+        ConsoleOperator().clear_fault("stage: e-stop")

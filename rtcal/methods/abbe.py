@@ -222,7 +222,7 @@ def analyse(proc: EncoderAbbeError, store: RunStore, bench: Bench | None, estima
     recommended = choose_recommended(estimates, status)
     out: dict[str, Any] = {
         "nominal_angles_deg": estimates["abbe"]["angle_deg"] if "abbe" in estimates else [],
-        "raw_readings": len(visits.commanded_deg),
+        "raw_readings": len(store.done_plan_indices()),  # visits taken whole (as multistation counts); skipped ones apart
         "recommended": recommended,
         "solver_status": status,
         "estimates": estimates,

@@ -13,7 +13,7 @@ from typing import Callable, Iterator
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import EncoderAbbeError
-from rtcal.sequencer.faults import SKIPPED, FaultHandler
+from rtcal.sequencer.faults import SKIPPED, FaultHandler, RunAborted
 from rtcal.sequencer.motion import approach
 from rtcal.sequencer.operator import Operator
 from rtcal.store import SKIPPED as SKIPPED_QUANTITY
@@ -78,7 +78,8 @@ def run_abbe(
     A resumed run asks the operator to confirm the polygon's seating when it goes on where it
     stopped (it stays where it was unless someone moved it), and to seat it anew for a seating
     it left earlier (a visit skipped there is retaken). A visit that skipped any reading stays
-    pending: a resume takes it again whole; its first readings are kept.
+    pending: a resume takes it again whole; its first readings are kept (those of a visit a safe
+    stop interrupted too).
     """
     plan = planned_visits(proc)
     for v in plan:
@@ -102,24 +103,28 @@ def run_abbe(
             seating = v.seating
         state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg,
                      plan_index=k, segment=generation, attempt=store.new_attempt())
-        moved = faults.call("stage", lambda: approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg),
-                            recover=inst.stage.reset_alarm, what=f"move to {v.angle_deg:g}°")
-        if moved is SKIPPED:
-            store.add_readings([Reading(clock.now_s(), "stage", SKIPPED_QUANTITY, 0.0, "", **state)])
-            continue
-        clock.sleep(proc.settle_time_s)
         readings: list[Reading] = []
-        for s in range(proc.samples_per_reading):
-            taken = [("encoder", "angle_deg", "deg", inst.encoder.read_angle_deg)]
-            if v.face_in_front:
-                taken.append(("autocollimator", "x_arcsec", "arcsec", lambda: inst.autocollimator.read_arcsec()[0]))
-            taken += [(f"dial_indicator_{n + 1}", "y_um", "um", ind.read_um) for n, ind in enumerate(inst.indicators)]
-            for instrument, quantity, unit, read in taken:
-                value = faults.call(instrument, read, what=f"reading at {v.angle_deg:g}°")
-                if value is SKIPPED:
-                    readings.append(Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", sample=s, **state))
-                else:
-                    readings.append(Reading(clock.now_s(), instrument, quantity, float(value), unit, sample=s, **state))
+        try:
+            moved = faults.call("stage", lambda: approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg),
+                                recover=inst.stage.reset_alarm, what=f"move to {v.angle_deg:g}°")
+            if moved is SKIPPED:
+                store.add_readings([Reading(clock.now_s(), "stage", SKIPPED_QUANTITY, 0.0, "", **state)])
+                continue
+            clock.sleep(proc.settle_time_s)
+            for s in range(proc.samples_per_reading):
+                taken = [("encoder", "angle_deg", "deg", inst.encoder.read_angle_deg)]
+                if v.face_in_front:
+                    taken.append(("autocollimator", "x_arcsec", "arcsec", lambda: inst.autocollimator.read_arcsec()[0]))
+                taken += [(f"dial_indicator_{n + 1}", "y_um", "um", ind.read_um) for n, ind in enumerate(inst.indicators)]
+                for instrument, quantity, unit, read in taken:
+                    value = faults.call(instrument, read, what=f"reading at {v.angle_deg:g}°")
+                    if value is SKIPPED:
+                        readings.append(Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", sample=s, **state))
+                    else:
+                        readings.append(Reading(clock.now_s(), instrument, quantity, float(value), unit, sample=s, **state))
+        except RunAborted as exc:  # a safe stop keeps what the visit took, marked as skipped: a resume takes it again
+            store.add_readings(readings + [Reading(clock.now_s(), exc.instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
+            raise
         store.add_readings(readings)
         stored += all(r.quantity != SKIPPED_QUANTITY for r in readings)
     return stored

@@ -64,11 +64,7 @@ class FaultHandler:
                     continue
                 self.clock.sleep(policy.backoff_s * 2**attempt)
                 self.event("retry", instrument, f"retry {attempt + 1} of {policy.retries} after {policy.backoff_s * 2**attempt:g} s")
-                if recover is not None:
-                    try:
-                        recover()
-                    except InstrumentError as exc:
-                        self.event("fault", instrument, f"recovery failed: {exc}")
+                self._recover(instrument, recover)
             if policy.then == "skip":
                 self.event("skip", instrument, f"{what or 'reading'} skipped after {policy.retries + 1} attempts")
                 self.skips_in_a_row[instrument] = self.skips_in_a_row.get(instrument, 0) + 1
@@ -80,14 +76,28 @@ class FaultHandler:
                 self.event("pause", instrument, "waiting for the operator")
                 try:
                     self.operator.clear_fault(f"{instrument}: {last}")
-                except InstrumentError as exc:
+                except InstrumentError as exc:  # OperatorUnavailable: no terminal, a simulated operator gone
                     self.event("fault", exc.instrument, str(exc))
                     self.abort(instrument, last, f"no operator could clear it ({exc})")
+                # the cause is gone: reset what the machine latched (a drive alarm) and re-reference a lost tracer
+                self._recover(instrument, recover)
+                if isinstance(last, TrackingLost) and reacquire is not None:
+                    self._reacquire(instrument, reacquire, last)
             elif round_ == 0 and policy.then == "reacquire" and reacquire is not None:
                 self._reacquire(instrument, reacquire, last)
             else:
                 break
         self.abort(instrument, last)
+
+    def _recover(self, instrument: str, recover: Callable[[], None] | None) -> None:
+        """Reset what the machine latched (a drive alarm); a failure is a fault event, and the next
+        attempt says whether the instrument is back."""
+        if recover is None:
+            return
+        try:
+            recover()
+        except InstrumentError as exc:
+            self.event("fault", instrument, f"recovery failed: {exc}")
 
     def _reacquire(self, instrument: str, reacquire: Callable[[], None], last: InstrumentError | None) -> None:
         """Re-reference; an instrument that cannot even do that (its line died) stops the run safely."""

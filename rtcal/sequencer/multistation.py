@@ -15,7 +15,7 @@ from drivers.errors import TrackingLost
 from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.sequencer.faults import SKIPPED, FaultHandler
+from rtcal.sequencer.faults import SKIPPED, FaultHandler, RunAborted
 from rtcal.sequencer.motion import approach
 from rtcal.store import SKIPPED as SKIPPED_QUANTITY
 from rtcal.store import Reading, RunStore
@@ -111,17 +111,26 @@ def run_multistation(
         mount, segment = mk, None  # a moved tracer is referenced again: a new tracking segment
 
     def take(k: int, mk: int, i: int, j: int) -> bool:
-        """One attempt at planned reading k (mount mk, point i, station j); True if it was stored whole."""
-        nonlocal at_point, at_station, segment
+        """One attempt at planned reading k (mount mk, point i, station j); True if it was stored whole.
+        A safe stop during the attempt keeps what it took, marked as skipped by the instrument that stopped it."""
         state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]), seating=mk,
                      attempt=store.new_attempt(),
                      commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
+        readings: list[Reading] = []
 
-        def skip(instrument: str, readings: list[Reading] | None = None) -> bool:
+        def skip(instrument: str) -> bool:
             """Store what this attempt took and the mark of what it skipped; the reading stays pending."""
-            store.add_readings((readings or []) + [Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
+            store.add_readings(readings + [Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
             return False
 
+        try:
+            return one_attempt(k, mk, i, j, state, readings, skip)
+        except RunAborted as exc:
+            skip(exc.instrument)
+            raise
+
+    def one_attempt(k: int, mk: int, i: int, j: int, state: dict, readings: list[Reading], skip: Callable[[str], bool]) -> bool:
+        nonlocal at_point, at_station, segment
         stage_moved, cmm_moved = at_station != j, at_point != i
         if stage_moved:
             at_station = None
@@ -136,7 +145,6 @@ def run_multistation(
             at_point = i
         if stage_moved or cmm_moved:
             clock.sleep(proc.settle_time_s)
-        readings: list[Reading] = []
         if cmm_moved:
             xyz = faults.call("cmm", inst.cmm.position_mm, what=f"position at point {i + 1}")
             if xyz is SKIPPED:
@@ -150,7 +158,7 @@ def run_multistation(
                 t = clock.now_s()
                 readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state) for q, unit in ENVIRONMENT_QUANTITIES]
         if segment is None and faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference") is SKIPPED:
-            return skip("laser_tracer", readings)  # no valid count without a reference
+            return skip("laser_tracer")  # no valid count without a reference
         samples: list[Reading] = []
         reacquired = False
 
@@ -165,12 +173,13 @@ def run_multistation(
             if r is SKIPPED:
                 if isinstance(faults.last_error, TrackingLost):
                     segment = None  # the count is lost: the next reading references the tracer first
-                return skip("laser_tracer", readings)
+                return skip("laser_tracer")
             if reacquired:  # a reading never mixes two tracking segments
                 samples, reacquired = [], False
             samples.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=len(samples),
                                    segment=segment, **state))
-        store.add_readings(readings + samples)
+        readings += samples
+        store.add_readings(readings)
         return True
 
     stored = 0
