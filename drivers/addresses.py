@@ -57,12 +57,25 @@ def check_option(name: str, text: str) -> float:
     return value
 
 
+MAX_STEP_DEG = 1.0  # a drive whose one step turns the table further is no positioning axis (a mistyped ratio)
+
+
+def check_step(steps_per_rev: float, gear: float, names: tuple[str, str]) -> None:
+    """One motor step of at most MAX_STEP_DEG of the table (AddressError/ValueError's text naming the ratio)."""
+    step_deg = 360.0 / (steps_per_rev * gear)
+    if step_deg > MAX_STEP_DEG:
+        raise AddressError(f"{names[1]}: one motor step would turn the table {step_deg:g}° (360° / ({names[0]} × "
+                           f"{names[1]})); at most {MAX_STEP_DEG:g}°")
+
+
 def _options(query: str) -> dict[str, str]:
     options = dict(parse_qsl(query))
     for name, text in options.items():
         if name not in OPTIONS:
             raise AddressError(f"unknown option {name!r} (known: {', '.join(OPTIONS)})")
         check_option(name, text)
+    if "steps_per_rev" in options or "gear" in options:  # the Modbus stage's defaults: 10000 steps, gear 36
+        check_step(float(options.get("steps_per_rev", 10000)), float(options.get("gear", 36)), ("steps_per_rev", "gear"))
     return options
 
 
@@ -78,9 +91,11 @@ def parse_address(text: str) -> Address:
     if parts.scheme in ("modbus-tcp", "ipp", "sim-operator"):
         default_port = {"modbus-tcp": 502, "ipp": 1294, "sim-operator": 0}[parts.scheme]
         try:
-            port = parts.port or default_port
+            port = default_port if parts.port is None else parts.port
         except ValueError:
-            raise AddressError(f"{text!r}: bad port") from None
+            raise AddressError(f"{text!r}: bad port (1 to 65535)") from None
+        if parts.port == 0:
+            raise AddressError(f"{text!r}: port 0 is no port (1 to 65535)")
         if not parts.hostname or not port:
             raise AddressError(f"{text!r}: needs HOST:PORT")
         return Address(parts.scheme, host=parts.hostname, port=port, options=options)

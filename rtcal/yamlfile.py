@@ -66,11 +66,18 @@ MAX_FILE_BYTES = 256 * 1024  # a procedure with 10 000 listed points is about 25
 MAX_DEPTH = 32  # procedures nest 4 levels deep
 ALIAS_BUDGET = 10_000  # values that aliases may add beyond those written out
 MAX_NUMBER_CHARS = 100
+TIMESTAMP_TAG = "tag:yaml.org,2002:timestamp"
+BOOL_TAG = "tag:yaml.org,2002:bool"
+OCTAL = re.compile(r"[-+]?0[0-7_]+")  # YAML 1.1 reads 010 as 8
 
 
 class _BoundedLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing nesting beyond MAX_DEPTH before its recursive composer
-    gets deep (a RecursionError otherwise), and counting the nodes written out."""
+    gets deep (a RecursionError otherwise), and counting the nodes written out. An unquoted date
+    (``calibration_due: 2027-03-31``) is text, not a timestamp."""
+
+    yaml_implicit_resolvers = {first: [(tag, regexp) for tag, regexp in resolvers if tag != TIMESTAMP_TAG]
+                               for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
 
     def __init__(self, text: str, file: str):
         super().__init__(text)
@@ -108,9 +115,22 @@ class _Walk:
         return FileProblems([Problem(self.file, node.start_mark.line + 1, node.start_mark.column + 1, shown, message)])
 
     def scalar(self, node: yaml.ScalarNode, path: Path_) -> Any:
-        """A scalar node's value by PyYAML's safe constructor (its tag is already resolved)."""
-        if node.tag in NUMBER_TAGS and len(node.value) > MAX_NUMBER_CHARS:
-            raise self.problem(node, path, f"a number of {len(node.value)} characters; at most {MAX_NUMBER_CHARS} are read")
+        """A scalar node's value by PyYAML's safe constructor (its tag is already resolved).
+
+        YAML 1.1's surprises are read as YAML 1.2 reads them or refused: ``yes``/``no``/``on``/``off``
+        are text (a number field refuses them; a true/false field takes them), ``1:30`` (base 60:
+        90) and ``010`` (octal: 8) are refused with what they would have meant."""
+        if node.tag == BOOL_TAG and node.value.lower() not in ("true", "false"):
+            return node.value
+        if node.tag in NUMBER_TAGS:
+            if len(node.value) > MAX_NUMBER_CHARS:
+                raise self.problem(node, path, f"a number of {len(node.value)} characters; at most {MAX_NUMBER_CHARS} are read")
+            if ":" in node.value:
+                raise self.problem(node, path, f"`{node.value}` reads as a base-60 number in YAML 1.1 (1:30 is 90); "
+                                               "write a decimal number (e.g. 1.5), or quote it if it is text")
+            if node.tag == "tag:yaml.org,2002:int" and OCTAL.fullmatch(node.value):
+                raise self.problem(node, path, f"`{node.value}` has a leading zero, which YAML 1.1 reads as octal "
+                                               f"({self.constructor.construct_object(node)}); write it without the leading zero")
         try:
             return self.constructor.construct_object(node, deep=True)
         except (ValueError, OverflowError) as exc:
@@ -233,6 +253,8 @@ def problems_from_validation(exc: ValidationError, locations: dict[Path_, tuple[
             path, message = path + tuple(named.group(1).split(".")), named.group(2)
         elif err["type"] == "extra_forbidden":
             message = _unknown_key(model, tuple(p for p in err["loc"] if isinstance(p, (int, str))))
+        elif err["type"] in ("int_parsing", "float_parsing", "bool_parsing") and isinstance(err.get("input"), str):
+            message += f" (read `{err['input'][:40]}`)"
         elif err["type"] == "missing":
             message = "too few items" if path and isinstance(path[-1], int) else "required key is missing"
         line, col = locate(path, locations)

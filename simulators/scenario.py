@@ -152,7 +152,18 @@ class StepperScenario(_Strict):
     """Open-loop stepper through a worm: commanded angles are whole (micro)steps."""
 
     steps_per_revolution: int = Field(0, ge=0, le=10_000_000, description="motor (micro)steps per motor turn; 0: continuous")
-    worm_ratio: float = Field(1.0, gt=0.0, le=1e5, description="motor turns per table turn (e.g. 90)")
+    worm_ratio: float = Field(1.0, ge=0.001, le=1e5, description="motor turns per table turn (e.g. 90)")
+
+    @model_validator(mode="after")
+    def _fine_enough(self) -> "StepperScenario":
+        if self.steps_per_revolution:
+            from drivers.addresses import AddressError, check_step
+
+            try:
+                check_step(self.steps_per_revolution, self.worm_ratio, ("steps_per_revolution", "worm_ratio"))
+            except AddressError as exc:
+                raise ValueError(str(exc)) from None
+        return self
 
 
 class EncoderScenario(_Strict):

@@ -78,6 +78,18 @@ def test_shipped_files_validate(capsys):
     assert main(["validate", *files]) == 0
 
 
+def test_an_unquoted_date_is_text(tmp_path, capsys):
+    """`calibration_due: 2027-03-31` as a person writes it (YAML 1.1 made it a timestamp, which was
+    refused); a date that does not exist is refused where it is written."""
+    path = tmp_path / "p.yaml"
+    path.write_text("method: laser_tracer_multistation\nmetadata:\n  instruments:\n"
+                    "    cmm: {id: CMM-1, calibration_due: 2027-03-31}\n")
+    assert main(["validate", str(path)]) == 0
+    path.write_text(path.read_text().replace("2027-03-31", "2027-02-30"))
+    assert main(["validate", str(path)]) == 2
+    assert f"{path}:4:" in capsys.readouterr().err
+
+
 def test_yaml_cannot_execute_code(tmp_path, capsys):
     path = tmp_path / "evil.yaml"
     path.write_text("method: !!python/object/apply:os.system ['echo pwned']\n")

@@ -270,6 +270,9 @@ def test_unreachable_simulated_operator_is_typed():
     ("modbus-tcp://127.0.0.1:502?speed=3", "unknown option 'speed'"),
     ("/dev/ttyUSB0?baud=-1", "baud='-1'"),
     ("socket://127.0.0.1:5?counts_per_rev=" + "9" * 5000, "counts_per_rev="),
+    ("modbus-tcp://127.0.0.1:502?steps_per_rev=4&gear=1", "one motor step would turn the table 90°"),
+    ("modbus-tcp://127.0.0.1:0", "port 0 is no port"),  # it was read as the default port 502
+    ("ipp://127.0.0.1:0", "port 0 is no port"),
 ])
 def test_address_options_are_checked_when_parsed(address, text):
     with pytest.raises(AddressError, match=text.replace("?", r"\?")):

@@ -86,6 +86,12 @@ def bench_path(procedure_path: str | Path, proc: Procedure) -> Path | None:
         raise FileProblems([problem_at(procedure_path, ("bench",),
                                        f"{proc.bench!r} lies outside the procedure's folder {folder}; name a scenario "
                                        "from elsewhere on the command line (`rtcal run --scenario FILE`)")])
+    if not os.path.exists(real):
+        raise FileProblems([problem_at(procedure_path, ("bench",), f"cannot read {proc.bench!r}: no such file "
+                                       f"(relative to the procedure's folder {folder})")])
+    if not os.path.isfile(real):
+        raise FileProblems([problem_at(procedure_path, ("bench",), f"cannot read {proc.bench!r}: not a regular file "
+                                       "(a directory or device); name a scenario file")])
     return candidate
 
 

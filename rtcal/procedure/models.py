@@ -11,6 +11,8 @@ Each field carries a ``description`` that editors show from ``rtcal schema``.
 
 from __future__ import annotations
 
+import datetime
+import difflib
 import math
 import re
 import unicodedata
@@ -47,6 +49,20 @@ class InstrumentRecord(_Strict):
 
     _plain = field_validator("id", "calibration_due")(lambda cls, text: _check_text(text))
 
+    @field_validator("calibration_due")
+    @classmethod
+    def _a_date(cls, text: str) -> str:
+        """A certificate states the due date as a date (unquoted in YAML it is read as text)."""
+        if not text:
+            return text
+        try:
+            if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
+                raise ValueError
+            datetime.date.fromisoformat(text)
+        except ValueError:
+            raise ValueError(f"{text[:40]!r} is not a date: write it as YYYY-MM-DD (e.g. 2027-03-31)") from None
+        return text
+
 
 class Metadata(_Strict):
     """Who and what the calibration is for: the report's and certificate's header."""
@@ -73,7 +89,8 @@ class InstrumentChoice(_Strict):
     backend: Literal["sim"] | None = Field(None, description="`sim`: the in-process simulated instrument on the bench")
     address: str | None = Field(None, max_length=1000, description="where a real instrument is, e.g. "
                                 "`modbus-tcp://192.168.0.20:502?unit=1`, `ipp://cmm:1294`, `/dev/ttyUSB0`, `socket://host:4001`")
-    timeout_s: float = Field(2.0, gt=0.0, le=600.0, description="deadline of one request to the instrument, s (e.g. 2)")
+    timeout_s: float = Field(2.0, ge=0.01, le=600.0, description="deadline of one request to the instrument, s (e.g. 2; "
+                                                               "at least 0.01)")
 
     @model_validator(mode="after")
     def _one_backend(self) -> "InstrumentChoice":
@@ -87,6 +104,19 @@ class InstrumentChoice(_Strict):
             except AddressError as exc:
                 raise ValueError(f"address: {exc}") from None
         return self
+
+    def check_scheme(self, name: str) -> None:
+        """The address is of the kind this instrument speaks (a CMM at a Modbus address would fail
+        only when the run opens it)."""
+        if self.address is None:
+            return
+        from drivers.addresses import parse_address
+        from drivers.factory import SCHEMES
+
+        scheme = parse_address(self.address).scheme  # parsed already: cannot fail
+        if scheme not in SCHEMES[name]:
+            raise ValueError(f"{name}.address: a {scheme} address; the {name.replace('_', ' ')} speaks "
+                             f"{' or '.join(SCHEMES[name])} (see drivers/addresses.py)")
 
     @property
     def is_sim(self) -> bool:
@@ -129,6 +159,8 @@ class _Instruments(_Strict):
 
     @model_validator(mode="after")
     def _one_bench(self) -> "_Instruments":
+        for name in self.present():
+            getattr(self, name).check_scheme(name)
         kinds = {getattr(self, f).is_sim for f in self.present()}
         if len(kinds) > 1:
             raise ValueError("mixing `backend: sim` with addresses would put instruments on two different benches; "
@@ -203,7 +235,8 @@ class Stations(_Strict):
     """Table stations: first angle, constant step, count (eq. 2 needs m ≥ 4)."""
 
     first_angle_deg: Angle_deg = Field(-145.0, description="commanded angle of station 1, deg (the paper: -145)")
-    step_deg: float = Field(30.0, gt=0.0, lt=180.0, description="angle between adjacent stations, deg (the paper: 30)")
+    step_deg: float = Field(30.0, ge=0.001, lt=180.0, description="angle between adjacent stations, deg (the paper: 30; "
+                                                                   "at least 0.001)")
     count: int = Field(11, ge=4, le=720, description="number of stations m (eq. 2 needs m ≥ 4; the paper: 11)")
     approach: Literal["positive", "negative"] = Field(
         "positive", description="direction every station is approached in, and in which the stations follow each other")
@@ -262,7 +295,7 @@ class LMSettings(_Strict):
 
 class MultistationSolver(_Strict):
     estimators: list[Literal["paper", "shared_dead_path", "network"]] = Field(
-        ["paper", "shared_dead_path", "network"], min_length=1,
+        ["paper", "shared_dead_path", "network"], min_length=1, max_length=3,
         description="which estimators to run: `paper` (as printed), `shared_dead_path`, `network` (one adjustment: "
                     "stations on one circle, CMM points and the CMM's scales and squareness solved); the recommended one "
                     "is chosen among them")
@@ -270,6 +303,12 @@ class MultistationSolver(_Strict):
     first_station_guess_mm: Vec3 = Field((-64.9938, -6.6256, 122.5133),
                                          description="starting guess of station 1's centre, mm (the paper's X0, Y0, Z0)")
     axis_point_mm: Vec3 = Field((0.0, 0.0, 0.0), description="a point on the nominal (vertical) axis, mm, for the other stations' guesses")
+
+    @model_validator(mode="after")
+    def _each_once(self) -> "MultistationSolver":
+        if len(set(self.estimators)) != len(self.estimators):
+            raise ValueError("estimators: an estimator is named twice")
+        return self
 
 
 class ErrorMotionBounds(_Strict):
@@ -335,6 +374,19 @@ class _Procedure(_Strict):
                               "file and inside its folder (e.g. `scenarios/abbe_bench.yaml`)")
 
     _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
+
+    @model_validator(mode="after")
+    def _records_of_instruments(self) -> "_Procedure":
+        """A certificate lists the instruments the procedure uses: a misspelt key would print an
+        instrument that took no part."""
+        known = list(type(getattr(self, "instruments")).model_fields)
+        for key in self.metadata.instruments:
+            if key not in known:
+                close = difflib.get_close_matches(key, known, n=1)
+                hint = f"did you mean `{close[0]}`?" if close else f"one of: {', '.join(known)}"
+                where = f"metadata.instruments.{key}" if re.fullmatch(r"[A-Za-z_]\w*", key) else "metadata.instruments"
+                raise ValueError(f"{where}: not an instrument of this procedure; {hint}")
+        return self
 
 
 class LaserTracerMultistation(_Procedure):
@@ -429,6 +481,8 @@ class AbbeSteps(_Strict):
                 raise ValueError("targets_deg: targets lie in [0, 360) degrees")
             if len(set(round(t, 9) for t in self.targets_deg)) != len(self.targets_deg):
                 raise ValueError("targets_deg: targets repeat")
+        if len(set(self.directions)) != len(self.directions):
+            raise ValueError("directions: a direction repeats (for more approaches raise `runs`)")
         return self
 
 
@@ -463,8 +517,8 @@ class PolygonSetup(_Strict):
         if self.certificate_arcsec == "none" and len(whole) < 2:
             raise ValueError("seatings_deg: closure (certificate_arcsec: none) needs at least two seatings "
                              "a whole number of faces apart")
-        if len(set(self.seatings_deg)) != len(self.seatings_deg):
-            raise ValueError("seatings_deg: offsets repeat")
+        if len({round(s % 360.0, 9) % 360.0 for s in self.seatings_deg}) != len(self.seatings_deg):
+            raise ValueError("seatings_deg: offsets repeat (offsets a whole turn apart are the same seating)")
         if self.certificate_arcsec == "none":
             offsets = sorted(whole)
             common = math.gcd(self.faces, *[k - offsets[0] for k in offsets[1:]])
