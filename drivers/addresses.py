@@ -57,11 +57,12 @@ def check_option(name: str, text: str) -> float:
     return value
 
 
+DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # a Modbus stage's address without them: 0.001° per step
 MAX_STEP_DEG = 1.0  # a drive whose one step turns the table further is no positioning axis (a mistyped ratio)
 
 
 def check_step(steps_per_rev: float, gear: float, names: tuple[str, str]) -> None:
-    """One motor step of at most MAX_STEP_DEG of the table (AddressError/ValueError's text naming the ratio)."""
+    """One motor step of at most MAX_STEP_DEG of the table; AddressError (a ValueError) naming the ratio."""
     step_deg = 360.0 / (steps_per_rev * gear)
     if step_deg > MAX_STEP_DEG:
         raise AddressError(f"{names[1]}: one motor step would turn the table {step_deg:g}° (360° / ({names[0]} × "
@@ -74,8 +75,9 @@ def _options(query: str) -> dict[str, str]:
         if name not in OPTIONS:
             raise AddressError(f"unknown option {name!r} (known: {', '.join(OPTIONS)})")
         check_option(name, text)
-    if "steps_per_rev" in options or "gear" in options:  # the Modbus stage's defaults: 10000 steps, gear 36
-        check_step(float(options.get("steps_per_rev", 10000)), float(options.get("gear", 36)), ("steps_per_rev", "gear"))
+    if "steps_per_rev" in options or "gear" in options:
+        check_step(float(options.get("steps_per_rev", DEFAULT_STEPS_PER_REV)), float(options.get("gear", DEFAULT_GEAR)),
+                   ("steps_per_rev", "gear"))
     return options
 
 

@@ -15,7 +15,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from drivers import az_registers as az
-from drivers.addresses import Address
+from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV, Address
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.interfaces import RotaryStage
 
@@ -32,7 +32,7 @@ class ModbusStage(RotaryStage):
 
     def __init__(self, address: Address, limits_deg: tuple[float, float] = (-360.0, 360.0), timeout_s: float = 2.0):
         self.unit = int(address.option("unit", 1))
-        self.steps_per_deg = address.option("steps_per_rev", 10000) * address.option("gear", 36) / 360.0
+        self.steps_per_deg = address.option("steps_per_rev", DEFAULT_STEPS_PER_REV) * address.option("gear", DEFAULT_GEAR) / 360.0
         self.speed_hz = max(1, round(address.option("speed_deg_per_s", 10.0) * self.steps_per_deg))
         self.limits_deg = limits_deg
         self.timeout_s = timeout_s

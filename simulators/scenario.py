@@ -157,12 +157,9 @@ class StepperScenario(_Strict):
     @model_validator(mode="after")
     def _fine_enough(self) -> "StepperScenario":
         if self.steps_per_revolution:
-            from drivers.addresses import AddressError, check_step
+            from drivers.addresses import check_step
 
-            try:
-                check_step(self.steps_per_revolution, self.worm_ratio, ("steps_per_revolution", "worm_ratio"))
-            except AddressError as exc:
-                raise ValueError(str(exc)) from None
+            check_step(self.steps_per_revolution, self.worm_ratio, ("steps_per_revolution", "worm_ratio"))
         return self
 
 

@@ -229,25 +229,34 @@ def test_pause_without_an_operator_stops_safely(tmp_path):
     assert [e["kind"] for e in store.events()][-2:] == ["fault", "abort"]
 
 
+def _stopped_then_resumed(tmp_path: Path, proc: Path, scenario: dict, instrument: str):
+    """Run with ``instrument`` failing its first three requests under `abort`: the readings stored
+    at the stop (plan index, instrument, quantity), whether plan index 0 is skipped and nothing
+    done, and the results once resumed."""
+    import yaml
+
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump({**scenario, "faults": [{"instrument": instrument, "kind": "no_reply",
+                                                            "at_request": [1, 2, 3]}]}))
+    with pytest.raises(RunAborted):
+        run_procedure(proc, path, out_dir=tmp_path / "run", show_progress=False, outputs=False)
+    store = RunStore.open(tmp_path / "run")
+    rows = [(r.plan_index, r.instrument, r.quantity) for r in store.readings()]
+    pending = store.done_plan_indices() == set() and store.skipped_plan_indices() == {0}
+    store.close()
+    return rows, pending, resume_run(tmp_path / "run", show_progress=False).results
+
+
 def test_a_safe_stop_keeps_what_the_interrupted_reading_took(tmp_path):
     """The tracer fails three times on the first reading and the run stops: the CMM position that
     reading took is stored (it was dropped), with the mark of the tracer's failure; the resume takes
     the reading again and every planned reading is done once."""
-    import yaml
-
     proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
                                         "laser_tracer: {retries: 2, backoff_s: 0.1, then: abort}"})
-    scenario = tmp_path / "s.yaml"
-    scenario.write_text(yaml.safe_dump({"faults": [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": [1, 2, 3]}]}))
-    with pytest.raises(RunAborted):
-        run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False)
-    store = RunStore.open(tmp_path / "run")
-    rows = [(r.plan_index, r.instrument, r.quantity) for r in store.readings()]
+    rows, pending, r = _stopped_then_resumed(tmp_path, proc, {}, "laser_tracer")
     assert rows == [(0, "cmm", "position_x_mm"), (0, "cmm", "position_y_mm"), (0, "cmm", "position_z_mm"),
                     (0, "laser_tracer", "skipped")]
-    assert store.done_plan_indices() == set() and store.skipped_plan_indices() == {0}
-    store.close()
-    r = resume_run(tmp_path / "run", show_progress=False).results
+    assert pending
     assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
 
 
@@ -259,18 +268,10 @@ def test_a_safe_stop_keeps_what_the_interrupted_visit_took(tmp_path):
     proc = _procedure(tmp_path, ABBE, {"bench: scenarios/abbe_bench.yaml\n": "",
                                        "autocollimator: {retries: 2, backoff_s: 0.5, then: skip}":
                                        "dial_indicator_2: {retries: 2, backoff_s: 0.5, then: abort}"})
-    scenario = tmp_path / "s.yaml"
     bench = yaml.safe_load((REPO / "procedures" / "scenarios" / "abbe_bench.yaml").read_text())
-    scenario.write_text(yaml.safe_dump({**bench, "faults": [{"instrument": "dial_indicator_2", "kind": "no_reply",
-                                                             "at_request": [1, 2, 3]}]}))
-    with pytest.raises(RunAborted):
-        run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False)
-    store = RunStore.open(tmp_path / "run")
-    rows = [(r.plan_index, r.instrument, r.quantity) for r in store.readings()]
+    rows, _, r = _stopped_then_resumed(tmp_path, proc, bench, "dial_indicator_2")
     assert rows == [(0, "encoder", "angle_deg"), (0, "autocollimator", "x_arcsec"), (0, "dial_indicator_1", "y_um"),
                     (0, "dial_indicator_2", "skipped")]
-    store.close()
-    r = resume_run(tmp_path / "run", show_progress=False).results
     assert (r["raw_readings"], r["skipped_readings"]) == (96, 0)
 
 

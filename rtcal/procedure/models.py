@@ -158,9 +158,13 @@ class _Instruments(_Strict):
         return all(getattr(self, f).is_sim for f in self.present())
 
     @model_validator(mode="after")
-    def _one_bench(self) -> "_Instruments":
+    def _addresses_of_their_kind(self) -> "_Instruments":
         for name in self.present():
             getattr(self, name).check_scheme(name)
+        return self
+
+    @model_validator(mode="after")
+    def _one_bench(self) -> "_Instruments":
         kinds = {getattr(self, f).is_sim for f in self.present()}
         if len(kinds) > 1:
             raise ValueError("mixing `backend: sim` with addresses would put instruments on two different benches; "

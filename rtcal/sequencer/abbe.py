@@ -13,7 +13,7 @@ from typing import Callable, Iterator
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import EncoderAbbeError
-from rtcal.sequencer.faults import SKIPPED, FaultHandler, RunAborted
+from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 from rtcal.sequencer.operator import Operator
 from rtcal.store import SKIPPED as SKIPPED_QUANTITY
@@ -104,27 +104,24 @@ def run_abbe(
         state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg,
                      plan_index=k, segment=generation, attempt=store.new_attempt())
         readings: list[Reading] = []
-        try:
+        with faults.keeping(readings, state):  # a safe stop keeps what the visit took: a resume takes it again
             moved = faults.call("stage", lambda: approach(inst.stage, v.angle_deg, v.direction, proc.steps.overshoot_deg),
                                 recover=inst.stage.reset_alarm, what=f"move to {v.angle_deg:g}°")
             if moved is SKIPPED:
                 store.add_readings([Reading(clock.now_s(), "stage", SKIPPED_QUANTITY, 0.0, "", **state)])
                 continue
             clock.sleep(proc.settle_time_s)
+            taken = [("encoder", "angle_deg", "deg", inst.encoder.read_angle_deg)]
+            if v.face_in_front:
+                taken.append(("autocollimator", "x_arcsec", "arcsec", lambda: inst.autocollimator.read_arcsec()[0]))
+            taken += [(f"dial_indicator_{n + 1}", "y_um", "um", ind.read_um) for n, ind in enumerate(inst.indicators)]
             for s in range(proc.samples_per_reading):
-                taken = [("encoder", "angle_deg", "deg", inst.encoder.read_angle_deg)]
-                if v.face_in_front:
-                    taken.append(("autocollimator", "x_arcsec", "arcsec", lambda: inst.autocollimator.read_arcsec()[0]))
-                taken += [(f"dial_indicator_{n + 1}", "y_um", "um", ind.read_um) for n, ind in enumerate(inst.indicators)]
                 for instrument, quantity, unit, read in taken:
                     value = faults.call(instrument, read, what=f"reading at {v.angle_deg:g}°")
                     if value is SKIPPED:
                         readings.append(Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", sample=s, **state))
                     else:
                         readings.append(Reading(clock.now_s(), instrument, quantity, float(value), unit, sample=s, **state))
-        except RunAborted as exc:  # a safe stop keeps what the visit took, marked as skipped: a resume takes it again
-            store.add_readings(readings + [Reading(clock.now_s(), exc.instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
-            raise
         store.add_readings(readings)
         stored += all(r.quantity != SKIPPED_QUANTITY for r in readings)
     return stored

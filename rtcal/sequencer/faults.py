@@ -13,12 +13,14 @@ An operator who cannot be reached (no terminal) is a fault too: the run stops sa
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator
 
 from drivers.errors import InstrumentError, TrackingLost
 from rtcal.clock import Clock
 from rtcal.procedure.models import FaultPolicy
-from rtcal.store import RunStore
+from rtcal.store import SKIPPED as SKIPPED_QUANTITY
+from rtcal.store import Reading, RunStore
 
 SKIPPED = object()
 
@@ -88,6 +90,17 @@ class FaultHandler:
             else:
                 break
         self.abort(instrument, last)
+
+    @contextmanager
+    def keeping(self, readings: list[Reading], state: dict[str, Any]) -> Iterator[None]:
+        """Around one attempt at a planned reading: a safe stop inside stores what the attempt took
+        (``readings``, filled as it goes) with the mark of the instrument that stopped it, so no
+        reading is lost and a resume takes the planned reading again."""
+        try:
+            yield
+        except RunAborted as exc:
+            self.store.add_readings(readings + [Reading(self.clock.now_s(), exc.instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
+            raise
 
     def _recover(self, instrument: str, recover: Callable[[], None] | None) -> None:
         """Reset what the machine latched (a drive alarm); a failure is a fault event, and the next

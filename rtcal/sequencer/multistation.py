@@ -15,7 +15,7 @@ from drivers.errors import TrackingLost
 from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.sequencer.faults import SKIPPED, FaultHandler, RunAborted
+from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 from rtcal.store import SKIPPED as SKIPPED_QUANTITY
 from rtcal.store import Reading, RunStore
@@ -123,13 +123,10 @@ def run_multistation(
             store.add_readings(readings + [Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
             return False
 
-        try:
-            return one_attempt(k, mk, i, j, state, readings, skip)
-        except RunAborted as exc:
-            skip(exc.instrument)
-            raise
+        with faults.keeping(readings, state):
+            return one_attempt(i, j, state, readings, skip)
 
-    def one_attempt(k: int, mk: int, i: int, j: int, state: dict, readings: list[Reading], skip: Callable[[str], bool]) -> bool:
+    def one_attempt(i: int, j: int, state: dict, readings: list[Reading], skip: Callable[[str], bool]) -> bool:
         nonlocal at_point, at_station, segment
         stage_moved, cmm_moved = at_station != j, at_point != i
         if stage_moved:

@@ -23,6 +23,7 @@ import tty
 from dataclasses import dataclass, field
 from typing import Literal
 
+from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV  # a scenario without a stepper serves the driver's default
 from rtcal.clock import VirtualClock
 from simulators.az_drive import AzDriveModel, steps_per_degree
 from simulators.bench import Bench
@@ -48,7 +49,6 @@ from simulators.servers.serial_protocols import (
     TracerHandler,
 )
 
-DEFAULT_STEPS_PER_REV, DEFAULT_GEAR = 10000, 36  # 0.001° per step when the scenario names no stepper
 PTY_QUEUE_BYTES = 64 * 1024  # replies waiting for a client that does not read; beyond this they are dropped
 MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
 MAX_PENDING_REQUESTS = 16  # requests answered from one read of a line; the rest of a flood is dropped
