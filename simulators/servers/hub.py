@@ -5,9 +5,9 @@ server (TCP, or RTU on a pseudo-terminal), the CMM as an I++ DME server, the ser
 instruments on pseudo-terminals (or TCP sockets, for pyserial's ``socket://``). One thread runs
 every server, so the bench is only ever touched by one thread at a time.
 
-That thread never blocks on a client: a pseudo-terminal is written without blocking, through a
-bounded queue, and a client that does not read its replies loses them (its queue is dropped)
-while every other line and server goes on answering. A request line longer than a protocol
+That thread never blocks on a client: a pseudo-terminal is written without blocking, and a
+client that does not read its replies loses what the terminal cannot hold, while every other
+line and server goes on answering. A request line longer than a protocol
 allows is refused and the connection closed.
 """
 
@@ -49,58 +49,35 @@ from simulators.servers.serial_protocols import (
     TracerHandler,
 )
 
-PTY_QUEUE_BYTES = 64 * 1024  # replies waiting for a client that does not read; beyond this they are dropped
 MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
 MAX_PENDING_REQUESTS = 16  # requests answered from one read of a line; the rest of a flood is dropped
 MAX_OPERATOR_LINE = 1024
 
 
 class PtyWriter:
-    """Writes to a pseudo-terminal's master without ever blocking the event loop.
+    """Writes to a pseudo-terminal's master as a serial device transmits: at once, never waiting.
 
-    What the terminal does not take at once waits in a queue, written as the client reads; a
-    queue that outgrows ``limit`` belongs to a client that stopped reading, and is dropped.
+    What the terminal cannot take is lost, as the bytes a device sends to a host that does not
+    read them are lost in an overrun. No reply waits in a queue of ours: a client that stopped
+    reading leaves at most what the terminal holds, which the next client's open discards
+    (pyserial flushes input at open), so a flooder's replies never reach the client after it.
     """
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, fd: int, limit: int = PTY_QUEUE_BYTES):
-        self.loop, self.fd, self.limit = loop, fd, limit
-        self.queue = bytearray()
+    def __init__(self, fd: int):
+        self.fd = fd
         self.dropped_bytes = 0
         os.set_blocking(fd, False)
 
     def write(self, data: bytes) -> None:
-        if not self.queue:
-            data = data[self._write_now(data):]
-            if not data:
-                return
-            self.loop.add_writer(self.fd, self._flush)
-        self.queue += data
-        if len(self.queue) > self.limit:
-            self.dropped_bytes += len(self.queue)
-            self.queue.clear()
-            self._stop_waiting()
-
-    def _write_now(self, data: bytes) -> int:
         try:
-            return os.write(self.fd, data)
+            written = os.write(self.fd, data)
         except BlockingIOError:
-            return 0
+            written = 0
         except OSError as exc:  # the terminal is gone (EIO): nobody to answer
             if exc.errno not in (errno.EIO, errno.EBADF):
                 raise
-            self.dropped_bytes += len(data)
-            return len(data)
-
-    def _flush(self) -> None:
-        del self.queue[: self._write_now(bytes(self.queue))]
-        if not self.queue:
-            self._stop_waiting()
-
-    def _stop_waiting(self) -> None:
-        try:
-            self.loop.remove_writer(self.fd)
-        except (ValueError, OSError):
-            pass
+            written = 0
+        self.dropped_bytes += len(data) - written
 
 
 def free_port(host: str) -> int:
@@ -147,6 +124,7 @@ class SimulatorHub:
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
         self._fds: list[int] = []
         self._pty_writers: list[PtyWriter] = []
+        self._line_masters: dict[str, int] = {}  # serial line name → its pseudo-terminal's master
         self._loop = asyncio.new_event_loop()
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
@@ -177,6 +155,35 @@ class SimulatorHub:
     def dropped_reply_bytes(self) -> int:
         """Reply bytes dropped because a pseudo-terminal's client did not read them."""
         return sum(w.dropped_bytes for w in self._pty_writers)
+
+    def wait_line_idle(self, name: str, timeout_s: float = 5.0, quiet_s: float = 0.1) -> bool:
+        """Wait until the serial line ``name`` has answered every request written to it.
+
+        Idle means: nothing waits to be read at the master, seen from the server thread itself
+        (so no request is between being read and answered), and that stayed so for ``quiet_s``
+        (a terminal hands written bytes to its master through the kernel's work queue, which
+        takes microseconds). A client opened after this reads no reply meant for another."""
+        import fcntl
+        import struct
+        import termios
+        import time
+
+        master = self._line_masters[name]
+
+        async def waiting_bytes() -> int:
+            return struct.unpack("i", fcntl.ioctl(master, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+        deadline = time.monotonic() + timeout_s
+        quiet_since = None
+        while time.monotonic() < deadline:
+            if asyncio.run_coroutine_threadsafe(waiting_bytes(), self._loop).result(timeout_s):
+                quiet_since = None
+            elif quiet_since is None:
+                quiet_since = time.monotonic()
+            elif time.monotonic() - quiet_since >= quiet_s:
+                return True
+            time.sleep(0.01)
+        return False
 
     def __enter__(self) -> "SimulatorHub":
         self.start()
@@ -230,7 +237,7 @@ class SimulatorHub:
         self._servers.append(cmm_server)
         self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
         for name, handler in self.handlers.items():
-            self.addresses[name] = await self._serve_line(handler)
+            self.addresses[name] = await self._serve_line(name, handler)
         self.addresses["encoder"] += f"?counts_per_rev={self.counts_per_rev}"
         op = await asyncio.start_server(self._operator_client, h, 0, limit=MAX_OPERATOR_LINE)
         self._servers.append(op)
@@ -252,7 +259,7 @@ class SimulatorHub:
         m2, s2, p2 = raw_pty()
         self._fds += [m1, s1, m2, s2]
 
-        writers = {m1: PtyWriter(self._loop, m1), m2: PtyWriter(self._loop, m2)}
+        writers = {m1: PtyWriter(m1), m2: PtyWriter(m2)}
         self._pty_writers += writers.values()
 
         def forward(src: int, dst: int) -> None:
@@ -269,7 +276,7 @@ class SimulatorHub:
         await asyncio.sleep(0.2)
         return p2
 
-    async def _serve_line(self, handler: LineHandler) -> str:
+    async def _serve_line(self, name: str, handler: LineHandler) -> str:
         if self.serial == "tcp":
             async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
                 buffer = b""
@@ -287,8 +294,9 @@ class SimulatorHub:
             return f"socket://{self.host}:{server.sockets[0].getsockname()[1]}"
         master, slave, path = raw_pty()
         self._fds += [master, slave]  # holding the slave open keeps the master readable between clients
+        self._line_masters[name] = master
         state = {"buffer": b""}
-        writer = PtyWriter(self._loop, master)
+        writer = PtyWriter(master)
         self._pty_writers.append(writer)
 
         def readable() -> None:
