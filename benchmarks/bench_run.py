@@ -20,7 +20,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rtcal.runner import run_procedure  # noqa: E402
+from rtcal.run.runner import run_procedure  # noqa: E402
 from rtcal.solvers.paper000 import solve_paper  # noqa: E402
 from rtcal.solvers.shared_dead_path import solve_shared_dead_path  # noqa: E402
 from tests.synthetic import FIRST_GUESS_MM, data, dataset  # noqa: E402

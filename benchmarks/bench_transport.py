@@ -21,7 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from rtcal.runner import run_procedure  # noqa: E402
+from rtcal.run.runner import run_procedure  # noqa: E402
 
 
 def main() -> None:

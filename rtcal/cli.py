@@ -14,7 +14,7 @@ import numpy as np
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentError
 from rtcal import __version__
-from rtcal.yamlfile import FileProblems
+from rtcal.procedure.yamlfile import FileProblems
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130
@@ -40,8 +40,8 @@ def _execute(start, run_dir: str) -> int:
     import signal
 
     from rtcal.methods.abbe import CertificateUnavailable
-    from rtcal.rundir import RunDirError
-    from rtcal.runner import IDEAL_BENCH, METHODS, AnalysisFailed
+    from rtcal.run.rundir import RunDirError
+    from rtcal.run.runner import IDEAL_BENCH, METHODS, AnalysisFailed
 
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
@@ -75,7 +75,7 @@ def _execute(start, run_dir: str) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from rtcal.runner import default_run_dir, run_procedure
+    from rtcal.run.runner import default_run_dir, run_procedure
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
@@ -84,7 +84,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
-    from rtcal.runner import resume_run
+    from rtcal.run.runner import resume_run
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock), args.run_dir)
@@ -92,7 +92,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
 
 def parse_instruments_option(text: str) -> dict[str, str]:
     """``--instruments``: a JSON object of name → address, inline or in a file."""
-    from rtcal.yamlfile import read_text
+    from rtcal.procedure.yamlfile import read_text
 
     source = text
     if not text.lstrip().startswith("{"):
@@ -115,8 +115,8 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     """Monte Carlo of the procedure on the simulated bench: reported 1σ against the errors made."""
     from tqdm import tqdm
 
-    from rtcal import montecarlo
-    from rtcal.runner import check_plan_on_bench, default_run_dir, resolve_scenario
+    from rtcal.planning import montecarlo
+    from rtcal.run.runner import check_plan_on_bench, default_run_dir, resolve_scenario
     from rtcal.procedure.loader import load_procedure
 
     if not 2 <= args.trials <= 100_000:
@@ -171,15 +171,15 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
 
 def _cmd_plan(args: argparse.Namespace) -> int:
     """Predicted 1σ per target and the duration of a procedure, before anything moves."""
-    from rtcal import planning
+    from rtcal.planning.predict import predict
     from rtcal.procedure.loader import load_procedure
-    from rtcal.runner import check_plan_on_bench, resolve_scenario
+    from rtcal.run.runner import check_plan_on_bench, resolve_scenario
 
     path = Path(args.procedure)
     proc = load_procedure(path)
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
-    plan = planning.predict(path, proc, scenario)
+    plan = predict(path, proc, scenario)
     if args.json:
         print(json.dumps(plan, indent=2))
         return EXIT_OK
@@ -192,7 +192,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         print("  target    " + " ".join(f"{t:>8}" for t in plan["targets"][1:]))
         print("  1σ / ″    " + " ".join(f"{v:8.3f}" for v in e["predicted_sigma_arcsec"][1:]))
     if args.optimize:
-        from rtcal.design import optimize_points
+        from rtcal.planning.design import optimize_points
 
         try:
             print(optimize_points(path, proc, scenario, Path(args.optimize)))
@@ -206,7 +206,7 @@ MAX_RESULTS_BYTES = 200_000_000  # results.json and deviation CSVs are read whol
 
 def read_deviation_table(path_text: str):
     """A run directory's positioning_deviations (results.json) or a deviation CSV; mistakes are UserErrors."""
-    from rtcal.deviations import DeviationTableError, PositioningDeviations
+    from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
 
     path = Path(path_text)
     try:
@@ -230,7 +230,7 @@ def read_deviation_table(path_text: str):
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     """ISO 230-2 or VDI 3441 parameters of a positioning test, as JSON."""
-    from rtcal.evaluation import evaluate
+    from rtcal.deliverables.evaluation import evaluate
 
     table, _ = read_deviation_table(args.source)
     try:
@@ -243,7 +243,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 def _cmd_compensate(args: argparse.Namespace) -> int:
     """A controller's compensation table from a run's (or a CSV's) positioning deviations."""
-    from rtcal.compensation import CompensationError, table_from_deviations, write_table
+    from rtcal.deliverables.compensation import CompensationError, table_from_deviations, write_table
 
     table, _ = read_deviation_table(args.source)
     given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
@@ -272,7 +272,7 @@ def run_label(path_text: str) -> str:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     """Two runs side by side: the change per target against the combined uncertainty, and a plot."""
-    from rtcal.comparison import compare, plot_comparison
+    from rtcal.deliverables.comparison import compare, plot_comparison
 
     a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
     result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
@@ -291,7 +291,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     """Every raw reading and event of a run as CSV, for spreadsheets."""
-    from rtcal.store import RunStore
+    from rtcal.run.store import RunStore
 
     run = Path(args.run_dir)
     try:
@@ -339,8 +339,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     """Everything `run` checks before the first motion: the file, and the plan against the bench
     it would run on (the procedure's `bench`, or --scenario) — limits, CMM volume, polygon."""
     from rtcal.procedure.loader import bench_path, is_procedure_text, load_procedure, load_scenario
-    from rtcal.runner import check_plan_on_bench, resolve_scenario
-    from rtcal.yamlfile import read_text
+    from rtcal.run.runner import check_plan_on_bench, resolve_scenario
+    from rtcal.procedure.yamlfile import read_text
 
     problems = []
     for name in args.files:
@@ -375,7 +375,7 @@ def read_stations_csv(path: Path) -> np.ndarray:
     """Station centres from a CSV with header X,Y,Z (mm), one station per row, in order."""
     import io
 
-    from rtcal.yamlfile import read_bytes
+    from rtcal.procedure.yamlfile import read_bytes
 
     try:
         data = read_bytes(path, 16 * 1024 * 1024)

@@ -22,10 +22,10 @@ from typing import Iterator
 
 import numpy as np
 
-from rtcal.air import ciddor_n
+from rtcal.solvers.air import ciddor_n
 from rtcal.clock import Clock, VirtualClock
-from rtcal.compensation import PARSERS
-from rtcal.harmonics import evaluate
+from rtcal.deliverables.compensation import PARSERS
+from rtcal.solvers.harmonics import evaluate
 from rtcal.units import arcsec_to_rad, um_to_mm
 from simulators.faults import FaultInjector
 from simulators.scenario import Scenario

@@ -26,7 +26,7 @@ from drivers.interfaces import (
     RotaryStage,
 )
 from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, TrackingLost
-from rtcal.air import standard_air_n
+from rtcal.solvers.air import standard_air_n
 from rtcal.units import rad_to_arcsec, um_to_mm
 from simulators.bench import Bench
 from simulators.faults import ALARM_CODES

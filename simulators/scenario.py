@@ -21,7 +21,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from rtcal.harmonics import Harmonic
+from rtcal.solvers.harmonics import Harmonic
 from rtcal.units import arcsec_to_rad, um_to_mm
 
 # Bounds a person would accept for a bench (every number is also finite): angles of error up to

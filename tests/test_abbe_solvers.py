@@ -7,7 +7,7 @@ import pytest
 
 from rtcal.solvers.abbe import extrapolation_factor, grating_shift_mm, predicted_encoder_error_arcsec, separate_tilt_radial
 from rtcal.solvers.closure import solve_closure
-from rtcal.solvers.harmonic_analysis import fit_harmonics, resolvable_orders
+from rtcal.solvers.harmonics import fit_harmonics, resolvable_orders
 
 
 def test_tilt_radial_separation_and_extrapolation():

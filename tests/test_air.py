@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from rtcal.air import ciddor_n, edlen_n, index_sensitivity, saturation_vapour_pressure_pa
+from rtcal.solvers.air import ciddor_n, edlen_n, index_sensitivity, saturation_vapour_pressure_pa
 
 # (t / °C, RH / %, p / kPa, λ / nm, n by Ciddor, n by modified Edlén), as NIST prints them (9 decimals)
 NIST = [

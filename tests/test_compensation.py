@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from rtcal.cli import main
-from rtcal.compensation import PARSERS, WRITERS, CompensationError, table_from_deviations, write_table
-from rtcal.deviations import PositioningDeviations
+from rtcal.deliverables.compensation import PARSERS, WRITERS, CompensationError, table_from_deviations, write_table
+from rtcal.deliverables.deviations import PositioningDeviations
 
 REPO = Path(__file__).resolve().parents[1]
 ISO = REPO / "procedures" / "iso230_2_polygon.yaml"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rtcal.deviations import DeviationTableError, PositioningDeviations
+from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
 
 
 def _table() -> PositioningDeviations:

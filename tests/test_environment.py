@@ -13,7 +13,7 @@ import yaml
 from drivers.addresses import parse_address
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.serial_instruments import LineEnvironmentSensor
-from rtcal.air import ciddor_n, standard_air_n
+from rtcal.solvers.air import ciddor_n, standard_air_n
 from rtcal.cli import main
 from simulators.bench import Bench
 from simulators.instruments import SimEnvironmentSensor, SimLaserTracer

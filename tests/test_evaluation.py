@@ -17,8 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rtcal.cli import main
-from rtcal.deviations import PositioningDeviations
-from rtcal.evaluation import evaluate
+from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.deliverables.evaluation import evaluate
 
 EXACT = 5e-5  # results are rounded to 0.0001″
 

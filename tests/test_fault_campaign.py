@@ -25,7 +25,7 @@ import pytest
 import yaml
 
 from rtcal.procedure.loader import load_procedure
-from rtcal.runner import METHODS, AnalysisFailed, resume_run, run_procedure
+from rtcal.run.runner import METHODS, AnalysisFailed, resume_run, run_procedure
 from rtcal.sequencer.faults import RunAborted
 from simulators.scenario import FaultSpec, Scenario
 from simulators.servers.hub import SimulatorHub

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from rtcal.runner import resume_run, run_procedure
+from rtcal.run.runner import resume_run, run_procedure
 from rtcal.sequencer.faults import RunAborted
-from rtcal.store import RunStore
+from rtcal.run.store import RunStore
 from simulators.scenario import FaultSpec, Scenario
 from simulators.servers.hub import SimulatorHub
 

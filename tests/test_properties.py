@@ -20,7 +20,7 @@ from drivers.modbus_stage import ModbusStage
 from drivers.serial_instruments import ElcomatAutocollimator, LineLaserTracer, QsbEncoder, SylvacIndicator
 from drivers.serial_line import SerialLine
 from rtcal.procedure.loader import load_procedure
-from rtcal.yamlfile import FileProblems, validate_text
+from rtcal.procedure.yamlfile import FileProblems, validate_text
 from simulators.az_drive import AzDriveModel
 from simulators.bench import Bench
 from simulators.instruments import SimAutocollimator, SimCmm, SimDialIndicator, SimEncoder, SimLaserTracer, SimStage
@@ -261,7 +261,7 @@ def test_no_cmm_command_outside_the_volume_reaches_the_wire(xyz):
 # -- the compensation readers, the deviation table and the command-line option parsers ---------
 
 def _written_tables() -> dict[str, str]:
-    from rtcal.compensation import WRITERS, CompensationTable
+    from rtcal.deliverables.compensation import WRITERS, CompensationTable
 
     grid = np.linspace(0.0, 360.0, 25)
     trims = 1e-3 * np.sin(np.radians(grid))
@@ -277,7 +277,7 @@ WRITTEN = _written_tables()
 def test_compensation_readers_on_mutated_tables(fmt, data):
     """A controller's table with characters deleted, replaced or inserted: read, or refused with a
     CompensationError naming where — never another exception."""
-    from rtcal.compensation import PARSERS, CompensationError
+    from rtcal.deliverables.compensation import PARSERS, CompensationError
 
     text = WRITTEN[fmt]
     for _ in range(data.draw(st.integers(1, 4))):
@@ -296,7 +296,7 @@ def test_compensation_readers_on_mutated_tables(fmt, data):
 @FAST
 @given(st.sampled_from(sorted(WRITTEN)), st.text(max_size=300))
 def test_compensation_readers_on_arbitrary_text(fmt, text):
-    from rtcal.compensation import PARSERS, CompensationError
+    from rtcal.deliverables.compensation import PARSERS, CompensationError
 
     try:
         PARSERS[fmt](text, "t")
@@ -312,7 +312,7 @@ DEVIATIONS = "target_deg,direction,run,deviation_arcsec,uncertainty_arcsec\n0,+,
                                                    st.text(max_size=40))))
 @example("target_deg,direction,run,deviation_arcsec,uncertainty_arcsec\n1e999,+,1,nan,0\n")
 def test_deviation_table_reader(text):
-    from rtcal.deviations import DeviationTableError, PositioningDeviations
+    from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
 
     try:
         PositioningDeviations.parse_csv(text, "t")

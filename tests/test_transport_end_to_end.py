@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rtcal.runner import run_procedure
+from rtcal.run.runner import run_procedure
 
 REPO = Path(__file__).resolve().parents[1]
 PROC = REPO / "procedures"

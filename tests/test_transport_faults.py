@@ -28,7 +28,7 @@ from drivers.ipp_cmm import IppCmm
 from drivers.modbus_stage import ModbusStage
 from drivers.serial_instruments import ElcomatAutocollimator, LineLaserTracer, QsbEncoder
 from rtcal.procedure.loader import load_procedure
-from rtcal.runner import METHODS
+from rtcal.run.runner import METHODS
 from rtcal.sequencer.operator import OperatorUnavailable, RemoteSimOperator
 from simulators.scenario import Scenario
 from simulators.servers.hub import SimulatorHub

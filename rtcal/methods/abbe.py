@@ -10,11 +10,12 @@ from typing import Any
 import numpy as np
 
 from drivers import factory
-from rtcal.dataset import abbe_visits
-from rtcal.deviations import PositioningDeviations
+from rtcal.run.dataset import abbe_visits
+from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import EncoderAbbeError
-from rtcal.report import finite_or_none, plt
-from rtcal.results import (
+from rtcal.methods.estimates import finite_or_none
+from rtcal.deliverables.figures import plt
+from rtcal.methods.estimates import (
     choose_recommended,
     deviation_block,
     run_estimators,
@@ -28,9 +29,9 @@ from rtcal.solvers.abbe import (
     analyse_abbe,
     steps_within_directions,
 )
-from rtcal.solvers.harmonic_analysis import HarmonicFit
+from rtcal.solvers.harmonics import HarmonicFit
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
-from rtcal.store import RunStore
+from rtcal.run.store import RunStore
 from simulators.bench import Bench
 from simulators.instruments import (
     SimAutocollimator,

@@ -10,12 +10,12 @@ from typing import Any
 import numpy as np
 
 from drivers import factory
-from rtcal.air import index_sensitivity, standard_air_n
-from rtcal.dataset import multistation_data
-from rtcal.deviations import PositioningDeviations
+from rtcal.solvers.air import index_sensitivity, standard_air_n
+from rtcal.run.dataset import multistation_data
+from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.report import plt
-from rtcal.results import (
+from rtcal.deliverables.figures import plt
+from rtcal.methods.estimates import (
     choose_recommended,
     deviation_block,
     run_estimators,
@@ -26,7 +26,7 @@ from rtcal.sequencer.multistation import (
     planned_readings,
     run_multistation,
 )
-from rtcal.solvers.air_correction import correct_lengths
+from rtcal.solvers.air import correct_lengths
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
 from rtcal.solvers.paper000 import PAPER_NOTES, PaperEstimate, StationChain, solve_paper
@@ -37,7 +37,7 @@ from rtcal.solvers.shared_dead_path import (
 )
 from rtcal.solvers.station_budget import StationBudget, StationNoiseModel
 from rtcal.solvers.station_data import MultistationData
-from rtcal.store import RunStore
+from rtcal.run.store import RunStore
 from simulators.bench import Bench
 from simulators.instruments import (
     SimCmm,

@@ -11,8 +11,8 @@ from typing import Annotated, Union
 from pydantic import Field, TypeAdapter
 
 from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
-from rtcal.compensation import PARSERS, CompensationError
-from rtcal.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
+from rtcal.deliverables.compensation import PARSERS, CompensationError
+from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 from simulators.scenario import Scenario
 
 

@@ -16,8 +16,8 @@ from rtcal.procedure.models import EncoderAbbeError
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 from rtcal.sequencer.operator import Operator
-from rtcal.store import SKIPPED as SKIPPED_QUANTITY
-from rtcal.store import Reading, RunStore
+from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
+from rtcal.run.store import Reading, RunStore
 
 
 @dataclass(frozen=True)

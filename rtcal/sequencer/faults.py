@@ -19,8 +19,8 @@ from typing import Any, Callable, Iterator
 from drivers.errors import InstrumentError, TrackingLost
 from rtcal.clock import Clock
 from rtcal.procedure.models import FaultPolicy
-from rtcal.store import SKIPPED as SKIPPED_QUANTITY
-from rtcal.store import Reading, RunStore
+from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
+from rtcal.run.store import Reading, RunStore
 
 SKIPPED = object()
 

@@ -17,8 +17,8 @@ from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
-from rtcal.store import SKIPPED as SKIPPED_QUANTITY
-from rtcal.store import Reading, RunStore
+from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
+from rtcal.run.store import Reading, RunStore
 
 
 @dataclass(frozen=True)

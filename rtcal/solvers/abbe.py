@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rtcal.solvers.closure import ClosureResult, solve_closure
-from rtcal.solvers.harmonic_analysis import (
+from rtcal.solvers.harmonics import (
     HarmonicFit,
     fit_harmonics,
     harmonic_amplitudes,

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from rtcal.air import ciddor_n
+from rtcal.solvers.air import ciddor_n
 from rtcal.solvers.abbe import AbbeVisits
 from rtcal.solvers.station_data import MountReadings, MultistationData
-from rtcal.store import RunStore
+from rtcal.run.store import RunStore
 
 
 def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:

@@ -20,19 +20,19 @@ from pydantic import ValidationError
 from tqdm import tqdm
 
 from rtcal import __version__
-from rtcal.certificate import report_model, write_html, write_pdf
+from rtcal.deliverables.report import report_model, write_html, write_pdf
 from rtcal.clock import RealClock, VirtualClock
-from rtcal.deviations import PositioningDeviations
-from rtcal.evaluation import evaluate
+from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.deliverables.evaluation import evaluate
 from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
-from rtcal.report import write_report, write_results
-from rtcal.rundir import claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
+from rtcal.deliverables.report import write_report, write_results
+from rtcal.run.rundir import claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
-from rtcal.store import RunStore, StoreUnusable
-from rtcal.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
+from rtcal.run.store import RunStore, StoreUnusable
+from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 

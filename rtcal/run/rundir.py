@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from rtcal.store import RunStore, StoreUnusable
+from rtcal.run.store import RunStore, StoreUnusable
 
 LOCK_NAME = ".rtcal.lock"
 

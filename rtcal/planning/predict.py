@@ -22,7 +22,7 @@ from rtcal.procedure.models import Procedure
 
 def predict(procedure_path: Path, proc: Procedure, scenario, workdir: Path | None = None) -> dict[str, Any]:
     """Predicted 1σ per target for every estimator, the recommended one, and the run's duration."""
-    from rtcal.runner import METHODS, run_procedure
+    from rtcal.run.runner import METHODS, run_procedure
 
     tmp = Path(tempfile.mkdtemp(prefix="plan-", dir=workdir))
     try:

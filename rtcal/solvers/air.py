@@ -1,5 +1,7 @@
-"""The refractive index of air, from its published equations (as the NIST Engineering Metrology
-Toolbox documents them: J. A. Stone and J. H. Zimmerman, "Index of refraction of air", Appendix A).
+"""The air a laser interferometer counts in: its refractive index, and lengths corrected with it.
+
+The index, from its published equations (as the NIST Engineering Metrology Toolbox documents
+them: J. A. Stone and J. H. Zimmerman, "Index of refraction of air", Appendix A):
 
 - :func:`ciddor_n`: P. E. Ciddor, Appl. Opt. 35, 1566 (1996), with the saturation vapour
   pressure of IAPWS (over water; over ice below 0 °C) and the enhancement factor of the
@@ -11,11 +13,25 @@ A laser interferometer counts optical path: the length it reports is the geometr
 the index of the air of the moment over the index it assumed. Both equations are tested against
 NIST's published values (tests/test_air.py). Temperatures °C, pressures Pa, humidity % RH,
 vacuum wavelength nm.
+
+Lengths counted in real air, corrected to geometric lengths (:func:`correct_lengths`, a pure
+function of the readings). A tracking interferometer referenced at t₀ and read at t, with the
+air's index n(t) and the standard-air index n_std it assumes, reports
+
+    l = (n(t)·L(t) − n(t₀)·L(t₀)) / n_std,
+
+so the geometric distance is L(t) = r(t)·(l + K) with r = n_std/n(t) and K = n(t₀)·L(t₀)/n_std,
+a constant of the tracking segment close to its dead path D. The solvers' model L = l_c + D then
+holds for l_c = r·l + (r − 1)·K. The second term — the dead-path error of interferometry — is
+about a micrometre per ppm of index at a metre; K is taken from the nominal geometry, good to
+a millimetre, which is a nanometre in l_c.
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 STANDARD_AIR = {"temperature_c": 20.0, "pressure_pa": 101325.0, "humidity_pct": 50.0, "co2_ppm": 450.0}
 HENE_NM = 632.991  # vacuum wavelength of a He-Ne laser
@@ -97,3 +113,22 @@ def index_sensitivity(temperature_c: float = 20.0, pressure_pa: float = 101325.0
         down[k] -= h
         out.append((ciddor_n(*up, wavelength_nm) - ciddor_n(*down, wavelength_nm)) / (2 * h))
     return out[0], out[1], out[2]
+
+def correct_lengths(lengths_mm: np.ndarray, air_index: np.ndarray, segments: np.ndarray, points_mm: np.ndarray,
+                    stations_guess_mm: np.ndarray, standard_index: float) -> np.ndarray:
+    """Geometric lengths (n×m) from counted ones. A length without its own index takes the mean
+    index of its tracking segment."""
+    lengths = np.asarray(lengths_mm, float)
+    index = np.asarray(air_index, float).copy()
+    valid = np.isfinite(lengths)
+    dist = np.linalg.norm(np.asarray(points_mm)[:, None, :] - np.asarray(stations_guess_mm)[None, :, :], axis=2)
+    out = lengths.copy()
+    for s in np.unique(segments[valid]):
+        sel = valid & (segments == s)
+        known = sel & np.isfinite(index)
+        n_seg = index[known].mean() if known.any() else standard_index
+        index[sel & ~np.isfinite(index)] = n_seg
+        K = float(np.median(dist[sel] - lengths[sel]))  # the segment's dead path, from the nominal geometry
+        r = standard_index / index[sel]
+        out[sel] = r * lengths[sel] + (r - 1.0) * K
+    return out

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from rtcal.deviations import PositioningDeviations
-from rtcal.evaluation import evaluate
+from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.deliverables.evaluation import evaluate
 
 
 def mean_curve(table: PositioningDeviations, results: dict | None, wrap: bool = True) -> dict[tuple[float, int], tuple[float, float]]:
@@ -76,7 +76,7 @@ def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, dict
     band; ↑ solid, ↓ dashed; the title names both runs and how many values changed beyond U_c."""
     from matplotlib.patches import Patch
 
-    from rtcal.report import plt
+    from rtcal.deliverables.figures import plt
 
     fig, ax = plt.subplots(figsize=(9.5, 5.2))
     for k, ((table, results), name) in enumerate(zip((a, b), (result["a"], result["b"]))):

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rtcal.deviations import PositioningDeviations
+from rtcal.deliverables.deviations import PositioningDeviations
 
 FORMATS = ("linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain")
 ARCSEC_PER_DEG = 3600.0

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from rtcal.deviations import PositioningDeviations
+from rtcal.deliverables.deviations import PositioningDeviations
 
 STANDARDS = ("iso230-2", "iso230-2:1988", "vdi3441")
 ALIASES = {"iso230-2:2014": "iso230-2", "iso230-2:2006": "iso230-2", "iso230-2:1997": "iso230-2"}

@@ -1,4 +1,9 @@
-"""Harmonic analysis of a periodic error: value(θ) = Σ A·sin(nθ + φ) + offset per group.
+"""Periodic errors: a list of harmonics, value(θ) = Σ amplitude · sin(order·θ + phase), and their analysis.
+
+One evaluation for the whole project (:class:`Harmonic`, :func:`evaluate`): the bench uses it to make
+errors, the tests and the harmonic analysis use it to check them.
+
+Harmonic analysis (:func:`fit_harmonics`): value(θ) = Σ A·sin(nθ + φ) + offset per group.
 
 Least squares rather than an FFT, so that samples need not be evenly spaced, several passes
 may each carry their own unknown offset (a re-seated polygon, another direction), and every
@@ -26,11 +31,31 @@ alone produces, simulated), and an order must exceed those too.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Iterable
 
 import numpy as np
 from scipy.stats import f as f_dist
 from scipy.stats import norm
 from scipy.stats import t as t_dist
+
+
+@dataclass(frozen=True)
+class Harmonic:
+    """One term: amplitude (in the caller's unit) · sin(order·θ + phase_rad)."""
+
+    order: int
+    amplitude: float
+    phase_rad: float
+
+
+def evaluate(harmonics: Iterable[Harmonic], theta_rad):
+    """Σ amplitude·sin(order·θ + phase) at θ (radians; float or array). Empty → 0."""
+    theta = np.asarray(theta_rad, dtype=float)
+    total = np.zeros_like(theta)
+    for h in harmonics:
+        total = total + h.amplitude * np.sin(h.order * theta + h.phase_rad)
+    return total if total.ndim else float(total)
+
 
 FAMILY_ALPHA = 0.01  # chance of any false "significant" in one series
 NUMERICAL_FLOOR = 1e-9  # relative to the series' largest value

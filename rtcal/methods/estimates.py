@@ -97,3 +97,12 @@ def status_lines(results: dict[str, Any]) -> list[str]:
     """One line per estimator that did not converge or could not run (empty when all is well)."""
     return [f"estimator {name} {st['status']}: {st['message']}" for name, st in results.get("solver_status", {}).items()
             if st["status"] != "converged"]
+
+
+def finite_or_none(values) -> list[float | None]:
+    """JSON has no NaN: missing values (no face in front, say) become null."""
+    out = []
+    for v in values:
+        v = float(v)
+        out.append(None if v != v else round(v, 4))
+    return out

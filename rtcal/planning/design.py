@@ -23,7 +23,7 @@ import yaml
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.solvers.network import _Layout, _model, solve_network
 from rtcal.units import ARCSEC_PER_RAD
-from rtcal.yamlfile import load_yaml, read_text
+from rtcal.procedure.yamlfile import load_yaml, read_text
 
 
 def point_information(x_globals: np.ndarray, lay_template: _Layout, points_mm: np.ndarray, w_length: np.ndarray,
@@ -87,10 +87,10 @@ def exchange(current: np.ndarray, candidates: np.ndarray, G: np.ndarray, passes:
 def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenario, out_path: Path,
                     grid: int = 7) -> str:
     """Write ``out_path``: the procedure with an optimised point list; returns a summary line."""
-    from rtcal.dataset import multistation_data
+    from rtcal.run.dataset import multistation_data
     from rtcal.methods.multistation import noise_model
-    from rtcal.runner import run_procedure
-    from rtcal.store import RunStore
+    from rtcal.run.runner import run_procedure
+    from rtcal.run.store import RunStore
 
     if not isinstance(proc, LaserTracerMultistation):
         raise ValueError("--optimize chooses CMM points: it is for laser_tracer_multistation procedures")

@@ -43,7 +43,7 @@ class TrialSpec:
 def plan_trials(procedure_path: Path, proc: Procedure, scenario, trials: int, seed: int, workdir: Path,
                 vary_systematics: bool = True) -> list[TrialSpec]:
     """N trial specifications; the systematic draws come from one generator seeded by ``seed``."""
-    from rtcal.runner import METHODS
+    from rtcal.run.runner import METHODS
 
     method = METHODS[proc.method]
     rng = np.random.default_rng([seed, 0x5EED])
@@ -60,7 +60,7 @@ def run_trial(spec: TrialSpec, single_thread: bool = True) -> dict[str, Any]:
     """Run one trial; return per estimator the error against truth and the reported 1σ per target."""
     from threadpoolctl import threadpool_limits
 
-    from rtcal.runner import AnalysisFailed, run_procedure
+    from rtcal.run.runner import AnalysisFailed, run_procedure
 
     trial_dir = Path(tempfile.mkdtemp(prefix=f"trial{spec.index:05d}-", dir=spec.workdir))
     try:
@@ -72,7 +72,7 @@ def run_trial(spec: TrialSpec, single_thread: bool = True) -> dict[str, Any]:
                                         show_progress=False, outputs=False)
             except AnalysisFailed as exc:
                 return {"index": spec.index, "failed": str(exc)}
-        from rtcal.runner import METHODS
+        from rtcal.run.runner import METHODS
 
         r = outcome.results
         truth = np.asarray(r["truth"]["cumulative_deviation_arcsec"], float)
@@ -147,7 +147,7 @@ def _r(a: np.ndarray, digits: int = 4) -> list:
 
 def plot_summary(summary: dict[str, Any], title: str, path: Path) -> Path:
     """Per estimator: RMS error against the RMS reported 1σ per target, and their ratio."""
-    from rtcal.report import plt
+    from rtcal.deliverables.figures import plt
 
     names = list(summary["estimators"])
     fig, axes = plt.subplots(len(names), 2, figsize=(10, 3.2 * len(names)), squeeze=False,
