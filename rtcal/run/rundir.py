@@ -18,6 +18,7 @@ import os
 import shutil
 import socket
 import sys
+import time
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -54,15 +55,23 @@ class RunLock:
             fd = os.open(self.path, flags, 0o644)
         except OSError as exc:
             raise RunDirError(f"{self.run_dir}: cannot lock the run directory ({exc.strerror or exc})") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 1000, 0).decode("utf-8", errors="replace").strip() or "another process"
-            os.close(fd)
-            raise RunBusy(f"{self.run_dir} is in use by {holder}; wait for it to end (or stop it), then try again") from None
-        except OSError as exc:
-            os.close(fd)
-            raise RunDirError(f"{self.run_dir}: cannot lock the run directory ({exc.strerror or exc})") from None
+        # the holder writes its name just after it locks and blanks it as it lets go: a moment's wait
+        # names it, or finds the directory free
+        deadline = time.monotonic() + 1.0
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                holder = os.pread(fd, 1000, 0).decode("utf-8", errors="replace").strip()
+                if holder or time.monotonic() > deadline:
+                    os.close(fd)
+                    raise RunBusy(f"{self.run_dir} is in use by {holder or 'another process'}; wait for it to end "
+                                  "(or stop it), then try again") from None
+                time.sleep(0.01)
+            except OSError as exc:
+                os.close(fd)
+                raise RunDirError(f"{self.run_dir}: cannot lock the run directory ({exc.strerror or exc})") from None
         command = " ".join(["rtcal", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith(("rtcal", "cli.py")) else "rtcal"
         stamp = _dt.datetime.now().isoformat(timespec="seconds")
         holder = f"process {os.getpid()} on {socket.gethostname()} (`{command}`, since {stamp})"
