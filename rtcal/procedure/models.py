@@ -16,7 +16,7 @@ import difflib
 import math
 import re
 import unicodedata
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
@@ -297,6 +297,17 @@ class LMSettings(_Strict):
     max_iterations: int = Field(200, ge=1, le=10_000, description="iterations per station before giving up (e.g. 200)")
 
 
+PAPER_STATION_1_MM, PAPER_STATION_1_DEG = (-64.9938, -6.6256, 122.5133), -145.0
+
+
+def _turned_guess(first_angle_deg: float, axis_point_mm: tuple[float, float, float]) -> list[float]:
+    """The paper's station 1 turned about the vertical axis through ``axis_point_mm`` to another first angle."""
+    a = math.radians(first_angle_deg - PAPER_STATION_1_DEG)
+    x, y = PAPER_STATION_1_MM[0] - axis_point_mm[0], PAPER_STATION_1_MM[1] - axis_point_mm[1]
+    return [round(math.cos(a) * x - math.sin(a) * y + axis_point_mm[0], 4),
+            round(math.sin(a) * x + math.cos(a) * y + axis_point_mm[1], 4), PAPER_STATION_1_MM[2]]
+
+
 class MultistationSolver(_Strict):
     estimators: list[Literal["paper", "shared_dead_path", "network"]] = Field(
         ["paper", "shared_dead_path", "network"], min_length=1, max_length=3,
@@ -304,8 +315,10 @@ class MultistationSolver(_Strict):
                     "stations on one circle, CMM points and the CMM's scales and squareness solved); the recommended one "
                     "is chosen among them")
     lm: LMSettings = Field(LMSettings(), description="the paper's LM parameters (section 4.2.1)")
-    first_station_guess_mm: Vec3 = Field((-64.9938, -6.6256, 122.5133),
-                                         description="starting guess of station 1's centre, mm (the paper's X0, Y0, Z0)")
+    first_station_guess_mm: Vec3 = Field(PAPER_STATION_1_MM,
+                                         description="starting guess of station 1's centre, mm (default: the paper's X0, Y0, Z0 "
+                                                     "at −145°, turned about the axis to stations.first_angle_deg); the "
+                                                     "lengths are checked against it (verification.tracer_tolerance_mm)")
     axis_point_mm: Vec3 = Field((0.0, 0.0, 0.0), description="a point on the nominal (vertical) axis, mm, for the other stations' guesses")
 
     @model_validator(mode="after")
@@ -359,6 +372,38 @@ class MultistationUncertainty(_Strict):
                                                 "uncertainty (used when the procedure has one)")
 
 
+class _Verification(_Strict):
+    """What every motion and reading is checked against: no reading is trusted alone. A
+    disagreement is a fault of the instrument named, under its `on_fault` policy; a table or probe
+    that moves while nothing was commanded (another client drives it) stops the run at once."""
+
+    stage_tolerance_deg: float | None = Field(
+        None, gt=0.0, le=10.0, description="how far the drive's feedback position may sit from the command after settling, "
+                                           "and move during a reading, deg (default: two steps of the drive, from its "
+                                           "address's steps_per_rev and gear; e.g. 0.002)")
+
+
+class MultistationVerification(_Verification):
+    __doc__ = _Verification.__doc__
+    cmm_tolerance_mm: float = Field(0.05, gt=0.0, le=1000.0, description="how far the CMM's reported position may be from the "
+                                                                        "commanded point, and move during a reading, mm (e.g. 0.05)")
+    tracer_tolerance_mm: float = Field(
+        20.0, gt=0.0, le=100_000.0, description="how far a tracer length may be from what the nominal geometry expects "
+                                                "(solver.first_station_guess_mm turned to each station), mm; the guess's error "
+                                                "must fit inside it (e.g. 20)")
+
+
+class AbbeVerification(_Verification):
+    __doc__ = _Verification.__doc__
+    encoder_tolerance_arcsec: float = Field(
+        600.0, gt=0.0, le=648_000.0, description="how far the encoder's change since the start's first reading may be from the "
+                                                 "commanded change, arcsec (e.g. 600: far more than a table's positioning "
+                                                 "deviation, far less than a step)")
+    autocollimator_tolerance_arcsec: float = Field(
+        600.0, gt=0.0, le=3600.0, description="how far from zero the autocollimator's reading of the face the commanded angle "
+                                              "puts in view may be, arcsec (e.g. 600)")
+
+
 class SecondMount(_Strict):
     """Measure the whole plan again with the tracer moved to a second place on the table: the
     network estimator then separates the table's error motions from its rotation (one mount
@@ -405,10 +450,30 @@ class LaserTracerMultistation(_Procedure):
     samples_per_reading: int = Field(1, ge=1, le=1000, description="tracer samples averaged per planned reading")
     settle_time_s: float = Field(2.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
     on_fault: MultistationOnFault = Field(MultistationOnFault(), description="what to do when an instrument fails (docs/faults.md)")
+    verification: MultistationVerification = Field(MultistationVerification(), description="what every motion and reading is "
+                                                   "checked against (docs/faults.md)")
     solver: MultistationSolver = Field(MultistationSolver(), description="solver settings")
     uncertainty: MultistationUncertainty = Field(MultistationUncertainty(), description="inputs of the uncertainty budget")
     second_mount: SecondMount | None = Field(None, description="a second tracer mount: the plan is measured again after an "
                                                                "operator step moves the tracer there")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _guess_follows_first_station(cls, data: Any) -> Any:
+        """Without a stated guess, station 1 is the paper's turned to this procedure's first angle
+        (a guess at −145° for a plan that starts elsewhere would be far from the tracer)."""
+        if not isinstance(data, dict):
+            return data
+        solver, stations = data.get("solver", {}), data.get("stations", {})
+        if not isinstance(solver, dict) or not isinstance(stations, dict) or "first_station_guess_mm" in solver:
+            return data
+        angle = stations.get("first_angle_deg", PAPER_STATION_1_DEG)
+        axis = solver.get("axis_point_mm", (0.0, 0.0, 0.0))
+        numbers = [angle, *axis] if isinstance(axis, (list, tuple)) and len(axis) == 3 else []
+        if angle == PAPER_STATION_1_DEG or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                                   and abs(v) <= 1e6 for v in numbers):
+            return data  # the default as it stands, or a mistake the fields' own validation will name
+        return {**data, "solver": {**solver, "first_station_guess_mm": _turned_guess(float(angle), tuple(map(float, axis)))}}
 
     @property
     def mounts(self) -> int:
@@ -576,6 +641,8 @@ class EncoderAbbeError(_Procedure):
     samples_per_reading: int = Field(1, ge=1, le=1000, description="samples of every instrument per step")
     settle_time_s: float = Field(1.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
     on_fault: AbbeOnFault = Field(AbbeOnFault(), description="what to do when an instrument fails (docs/faults.md)")
+    verification: AbbeVerification = Field(AbbeVerification(), description="what every motion and reading is checked against "
+                                           "(docs/faults.md)")
     max_harmonic_order: int = Field(24, ge=1, le=360, description="highest harmonic order fitted per revolution")
     uncertainty: AbbeUncertainty = Field(AbbeUncertainty(), description="inputs of the uncertainty budget")
 
