@@ -27,6 +27,7 @@ class RotaryStage(Instrument):
     """A rotary table driven to commanded angles (degrees, counterclockwise positive)."""
 
     limits_deg: tuple[float, float] = (-360.0, 360.0)
+    step_deg: float = 0.0  # the smallest motion the drive makes (0: continuous); bounds how far its feedback may sit from the command
 
     def check_target(self, angle_deg: float) -> None:
         lo, hi = self.limits_deg
@@ -43,6 +44,11 @@ class RotaryStage(Instrument):
     @abstractmethod
     def position_deg(self) -> float:
         """The angle the drive believes it is at (commanded or feedback)."""
+
+    def feedback_deg(self) -> float:
+        """The angle the drive's position feedback reports (its encoder), checked against the command
+        after every move and around every reading; a drive without feedback reports its position."""
+        return self.position_deg()
 
     @abstractmethod
     def stop(self) -> None: ...

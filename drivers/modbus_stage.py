@@ -33,6 +33,7 @@ class ModbusStage(RotaryStage):
     def __init__(self, address: Address, limits_deg: tuple[float, float] = (-360.0, 360.0), timeout_s: float = 2.0):
         self.unit = int(address.option("unit", 1))
         self.steps_per_deg = address.option("steps_per_rev", DEFAULT_STEPS_PER_REV) * address.option("gear", DEFAULT_GEAR) / 360.0
+        self.step_deg = 1.0 / self.steps_per_deg
         self.speed_hz = max(1, round(address.option("speed_deg_per_s", 10.0) * self.steps_per_deg))
         self.limits_deg = limits_deg
         self.timeout_s = timeout_s

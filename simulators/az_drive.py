@@ -8,7 +8,9 @@ advances by their duration).
 Injected faults (scenario ``faults``, one draw per motion trigger): drive alarms (stall 0x30,
 following error 0x10, limit switch 0x66), emergency stop 0x68 (ALM-RST cannot clear it), an
 exception reply, and a lost or corrupted reply, which the server adapter applies to the frame
-(``reply_fault``) after the drive has acted.
+(``reply_fault``) after the drive has acted; a drive that is stuck (accepts, says "in position",
+echoes the command as its feedback, and does not turn) or stops short (its feedback shows
+where). A read of the feedback position draws the faults of another client moving the table.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ class AzDriveModel:
         self.free = False
         self.homed = False
         self.command_steps = round(stage.position_deg() * steps_per_deg)
+        self.feedback_steps = self.command_steps
         self.reply_fault: str | None = None  # "no_reply" or "crc_error" for the next reply frame
 
     # -- what the registers show
@@ -50,10 +53,18 @@ class AzDriveModel:
         if address in self.direct:
             return self.direct[address]
         return {az.INPUT_COMMAND: self.input_command, az.OUTPUT_STATUS: self.status(), az.PRESENT_ALARM: self.alarm,
-                az.COMMAND_POSITION: self.command_steps, az.FEEDBACK_POSITION: self.command_steps}[address]
+                az.COMMAND_POSITION: self.command_steps, az.FEEDBACK_POSITION: self.feedback_steps}[address]
+
+    def _another_client(self) -> None:
+        """A scheduled fault `moved`: another client turns the table by an incremental move now."""
+        fault = self.stage.bench.faults.draw("stage", position_read=True)
+        if fault is not None and fault.kind == "moved":
+            self._move_to_steps(self.command_steps + round(fault.offset_deg * self.steps_per_deg))
 
     def read(self, address: int, count: int) -> list[int] | int:
         """Registers [address, address + count) or an exception code."""
+        if address <= az.FEEDBACK_POSITION < address + count:  # one position read, however many registers
+            self._another_client()
         out = []
         for reg in range(address, address + count):
             base = reg - ((reg - az.OPERATION_DATA_NUMBER) % 2) if reg >= az.OPERATION_DATA_NUMBER else reg
@@ -126,6 +137,15 @@ class AzDriveModel:
             self.alarm = az.ALARM_EMERGENCY_STOP
         if self.alarm:
             return None  # accepted on the wire; the drive shows its alarm
+        if fault is not None and fault.kind == "stuck":  # "in position", the command echoed, the table where it was
+            self.command_steps = self.feedback_steps = int(target)
+            return None
+        if fault is not None and fault.kind == "short":
+            way = 1 if target > self.command_steps else -1
+            short = min(round(fault.shortfall_deg * self.steps_per_deg), abs(target - self.command_steps))
+            code = self._move_to_steps(target - way * short)
+            self.command_steps = int(target)  # the drive was told the target; its feedback says where it stopped
+            return code
         code = self._move_to_steps(target)
         if fault is not None and fault.kind in ("no_reply", "crc_error"):
             self.reply_fault = fault.kind
@@ -141,7 +161,7 @@ class AzDriveModel:
             return None  # accepted on the wire; the drive alarms
         self.free = False
         self.stage.move_to(deg)
-        self.command_steps = int(target)
+        self.command_steps = self.feedback_steps = int(target)
         self.homed = self.homed or homing
         return None
 

@@ -72,7 +72,9 @@ class SimStage(_Injecting, RotaryStage):
         self.bench = bench
         self.inject = inject
         self.limits_deg = tuple(bench.scenario.stage.soft_limits_deg)
+        self.step_deg = math.degrees(bench.step_rad)
         self.alarm: str | None = None
+        self.stuck_at_deg: float | None = None  # a stuck drive's feedback: the command it echoes
 
     def home(self) -> None:
         self.move_to(0.0)
@@ -93,19 +95,36 @@ class SimStage(_Injecting, RotaryStage):
             raise InstrumentFault(self.name, self.alarm)
         if fault is not None and fault.kind == "modbus_exception":
             raise communication_fault(self.name, fault.kind)
+        self.stuck_at_deg = None
+        if fault is not None and fault.kind == "stuck":
+            self.stuck_at_deg = angle_deg  # "in position", and the table has not turned
+            return
+        if fault is not None and fault.kind == "short":
+            here = math.degrees(self.bench.target_rad)
+            way = 1 if angle_deg > here else -1 if angle_deg < here else self.bench.last_direction
+            self._move(angle_deg - way * min(fault.shortfall_deg, abs(angle_deg - here)), way)
+            return
         self._move(angle_deg)
         if fault is not None and fault.kind in ("no_reply", "crc_error"):
             raise communication_fault(self.name, fault.kind)  # the drive moved; its reply was lost
 
-    def _move(self, angle_deg: float) -> None:
+    def _move(self, angle_deg: float, direction: int | None = None) -> None:
         target = math.radians(angle_deg)
         delta = target - self.bench.target_rad  # from the last command, as the controller sees it (not the compensated motor)
-        direction = self.bench.last_direction if delta == 0 else (1 if delta > 0 else -1)
+        if direction is None:
+            direction = self.bench.last_direction if delta == 0 else (1 if delta > 0 else -1)
         self.bench.clock.sleep(abs(math.degrees(delta)) / self.bench.scenario.stage.speed_deg_per_s)
         self.bench.move_stage(target, direction)
 
     def position_deg(self) -> float:
-        return math.degrees(self.bench.target_rad)
+        return self.stuck_at_deg if self.stuck_at_deg is not None else math.degrees(self.bench.target_rad)
+
+    def feedback_deg(self) -> float:
+        """Where the drive's position feedback says the table is (a stuck drive echoes the command)."""
+        fault = self.bench.faults.draw(self.name, position_read=True) if self.inject else None
+        if fault is not None and fault.kind == "moved":  # another client turns the table
+            self._move(math.degrees(self.bench.target_rad) + fault.offset_deg)
+        return self.position_deg()
 
     def stop(self) -> None:
         pass
@@ -135,6 +154,9 @@ class SimCmm(_Injecting, Cmm):
 
     def position_mm(self) -> np.ndarray:
         """The CMM's scales: the target plus this move's point error (fixed while at rest)."""
+        fault = self.bench.faults.draw(self.name, position_read=True) if self.inject else None
+        if fault is not None and fault.kind == "moved":  # another client moves the probe
+            self.bench.move_probe(self.bench.probe_target_mm + np.asarray(fault.offset_mm, float))
         return self.bench.probe_target_mm + self._reading_error_mm
 
     def stop(self) -> None:

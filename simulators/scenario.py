@@ -235,8 +235,10 @@ class EnvironmentScenario(_Strict):
 
 InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2",
                          "environment"]
-FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_exception", "crc_error", "alarm", "emergency_stop"]
-STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop"}
+FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_exception", "crc_error", "alarm", "emergency_stop",
+                    "stuck", "short", "moved"]
+STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop", "stuck", "short"}
+POSITION_READ_KINDS = {"moved"}  # counted on the instrument's position reads, not on its other requests
 
 
 class FaultSpec(_Strict):
@@ -247,11 +249,21 @@ class FaultSpec(_Strict):
     no_reply, garbled, truncated: the reply never comes, is noise, or stops half-way.
     modbus_exception, crc_error (stage): an exception reply, or a reply with a corrupted frame.
     alarm (stage: stall, following_error, limit_switch) and emergency_stop: the drive alarms.
+    stuck (stage): the drive accepts the move, reports "in position" and echoes the command as its
+    feedback, but the table does not turn (only another instrument can tell).
+    short (stage): the table stops ``shortfall_deg`` short of the target, and the drive's
+    feedback position shows where it stopped.
+    moved (stage, cmm): another client moves it — the table by ``offset_deg``, the probe by
+    ``offset_mm`` — at its k-th position read (position reads are counted on their own).
     """
 
     instrument: InstrumentName = Field(description="which instrument suffers it")
     kind: FaultKind = Field(description="what happens (see above)")
     alarm: Literal["stall", "following_error", "limit_switch"] = Field("stall", description="which drive alarm, for kind `alarm`")
+    shortfall_deg: float = Field(0.01, gt=0.0, le=90.0, description="for kind `short`: how far short the table stops, deg")
+    offset_deg: float = Field(0.003, ge=-90.0, le=90.0, description="for kind `moved` on the stage: how far the other client "
+                                                                   "turns the table, deg (e.g. 0.003: three steps)")
+    offset_mm: Vec3 = Field((0.5, 0.0, 0.0), description="for kind `moved` on the CMM: how far the other client moves the probe, mm")
     probability: float = Field(0.0, ge=0.0, le=1.0, description="chance per request, 0..1 (e.g. 0.02)")
     at_request: list[Annotated[int, Field(le=1_000_000_000)]] = Field(
         [], max_length=10_000, description="the instrument's requests that fail, counted from 1 over the whole run (resumes go on counting)")
@@ -262,6 +274,8 @@ class FaultSpec(_Strict):
             raise ValueError("kind: beam_break happens to the laser_tracer only")
         if self.kind in STAGE_ONLY and self.instrument != "stage":
             raise ValueError(f"kind: {self.kind} happens to the stage drive only")
+        if self.kind == "moved" and self.instrument not in ("stage", "cmm"):
+            raise ValueError("kind: only the stage or the CMM can be moved by another client")
         if self.instrument == "stage" and self.kind in ("garbled", "truncated"):
             raise ValueError("kind: a Modbus reply cannot be garbled or truncated undetected; use crc_error")
         if not self.probability and not self.at_request:

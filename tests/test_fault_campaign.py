@@ -35,8 +35,8 @@ TIMEOUT_S = 0.2  # over the wires: a silent instrument costs this much real time
 STARTS_PER_READING = 4  # a run that stops at 30 % e-stops takes about one reading per start; a bound, not a budget
 
 KINDS = {  # what each instrument can suffer (simulators/scenario.py FaultKind and its checks)
-    "stage": ["no_reply", "modbus_exception", "crc_error", "alarm", "emergency_stop"],
-    "cmm": ["no_reply", "garbled", "truncated"],
+    "stage": ["no_reply", "modbus_exception", "crc_error", "alarm", "emergency_stop", "stuck", "short", "moved"],
+    "cmm": ["no_reply", "garbled", "truncated", "moved"],
     "laser_tracer": ["beam_break", "no_reply", "garbled", "truncated"],
     "encoder": ["no_reply", "garbled", "truncated"],
     "autocollimator": ["no_reply", "garbled", "truncated"],
@@ -92,12 +92,12 @@ def _procedure(tmp_path: Path, method: str, instrument: str, policy: str) -> Pat
 
 
 def _done_counts(db: Path) -> dict[int, int]:
-    """Done attempts per planned reading (an attempt that skipped nothing)."""
+    """Done attempts per planned reading (an attempt that skipped nothing and was not rejected)."""
     with sqlite3.connect(db) as c:
         return dict(c.execute(
-            "SELECT plan_index, COUNT(DISTINCT attempt) FROM readings r WHERE plan_index IS NOT NULL AND quantity <> "
-            "'skipped' AND NOT EXISTS (SELECT 1 FROM readings s WHERE s.plan_index = r.plan_index AND s.attempt IS "
-            "r.attempt AND s.quantity = 'skipped') GROUP BY plan_index").fetchall())
+            "SELECT plan_index, COUNT(DISTINCT attempt) FROM readings r WHERE plan_index IS NOT NULL AND quantity NOT IN "
+            "('skipped', 'rejected') AND NOT EXISTS (SELECT 1 FROM readings s WHERE s.plan_index = r.plan_index AND "
+            "s.attempt IS r.attempt AND s.quantity IN ('skipped', 'rejected')) GROUP BY plan_index").fetchall())
 
 
 def _ended_cleanly(call) -> str:

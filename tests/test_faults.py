@@ -254,8 +254,8 @@ def test_a_safe_stop_keeps_what_the_interrupted_reading_took(tmp_path):
     proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
                                         "laser_tracer: {retries: 2, backoff_s: 0.1, then: abort}"})
     rows, pending, r = _stopped_then_resumed(tmp_path, proc, {}, "laser_tracer")
-    assert rows == [(0, "cmm", "position_x_mm"), (0, "cmm", "position_y_mm"), (0, "cmm", "position_z_mm"),
-                    (0, "laser_tracer", "skipped")]
+    assert rows == [(0, "stage", "feedback_deg"), (0, "cmm", "position_x_mm"), (0, "cmm", "position_y_mm"),
+                    (0, "cmm", "position_z_mm"), (0, "laser_tracer", "skipped")]
     assert pending
     assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
 
@@ -270,8 +270,8 @@ def test_a_safe_stop_keeps_what_the_interrupted_visit_took(tmp_path):
                                        "dial_indicator_2: {retries: 2, backoff_s: 0.5, then: abort}"})
     bench = yaml.safe_load((REPO / "procedures" / "scenarios" / "abbe_bench.yaml").read_text())
     rows, _, r = _stopped_then_resumed(tmp_path, proc, bench, "dial_indicator_2")
-    assert rows == [(0, "encoder", "angle_deg"), (0, "autocollimator", "x_arcsec"), (0, "dial_indicator_1", "y_um"),
-                    (0, "dial_indicator_2", "skipped")]
+    assert rows == [(0, "stage", "feedback_deg"), (0, "encoder", "angle_deg"), (0, "autocollimator", "x_arcsec"),
+                    (0, "dial_indicator_1", "y_um"), (0, "dial_indicator_2", "skipped")]
     assert (r["raw_readings"], r["skipped_readings"]) == (96, 0)
 
 

@@ -7,24 +7,28 @@ import numpy as np
 from rtcal.solvers.air import ciddor_n
 from rtcal.solvers.abbe import AbbeVisits
 from rtcal.solvers.station_data import MountReadings, MultistationData
-from rtcal.run.store import RunStore
+from rtcal.run.store import MARKERS, SKIPPED, RunStore
 
 
 def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:
     """Lengths per point and station (samples averaged), per tracer mount (the readings' seating),
-    with their tracking segments and stage visits; CMM positions averaged over every visit."""
+    with their tracking segments and stage visits; CMM positions averaged over every visit. The
+    readings of a rejected attempt (they contradicted the commands) are kept in the store and used
+    nowhere; lengths count only from an attempt that was stored whole."""
     m = len(nominal_angles_deg)
+    rejected = store.rejected_attempts()
+    unfinished = rejected | {(r.plan_index, r.attempt) for r in store.readings(quantity=SKIPPED)}
     pos_sum = np.zeros((n_points, 3))
     pos_count = np.zeros((n_points, 3))
     for r in store.readings(instrument="cmm"):
-        if not r.quantity.startswith("position_"):
+        if not r.quantity.startswith("position_") or (r.plan_index, r.attempt) in rejected:
             continue
         axis = "xyz".index(r.quantity[len("position_")])
         pos_sum[r.point, axis] += r.value
         pos_count[r.point, axis] += 1
     env: dict[tuple[int, int, int], dict[str, list[float]]] = {}
     for r in store.readings(instrument="environment"):
-        if r.quantity != "skipped":
+        if r.quantity not in MARKERS and (r.plan_index, r.attempt) not in rejected:
             env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(r.quantity, []).append(r.value)
     len_sum = np.zeros((mounts, n_points, m))
     len_count = np.zeros((mounts, n_points, m))
@@ -32,6 +36,8 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
     visits = np.full((mounts, n_points, m), -1)
     visit, last = -1, None
     for r in store.readings(instrument="laser_tracer", quantity="length_mm"):
+        if (r.plan_index, r.attempt) in unfinished:
+            continue
         k = r.seating or 0
         len_sum[k, r.point, r.station] += r.value
         len_count[k, r.point, r.station] += 1
@@ -60,13 +66,17 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
 
 def _one_attempt_per_visit(readings: list) -> list:
     """The readings of one attempt per planned visit: the last that skipped nothing, else the
-    last one (a visit retaken on resume is not averaged with its first, partial, attempt)."""
+    last one (a visit retaken on resume is not averaged with its first, partial, attempt). A
+    rejected attempt (its readings contradicted the commands) is never chosen."""
     attempts: dict[int | None, dict[int | None, list]] = {}
     for r in readings:
         attempts.setdefault(r.plan_index, {}).setdefault(r.attempt, []).append(r)
     chosen = []
     for by_attempt in attempts.values():
-        whole = [a for a, rows in by_attempt.items() if all(x.quantity != "skipped" for x in rows)]
+        by_attempt = {a: rows for a, rows in by_attempt.items() if all(x.quantity != "rejected" for x in rows)}
+        if not by_attempt:
+            continue
+        whole = [a for a, rows in by_attempt.items() if all(x.quantity not in MARKERS for x in rows)]
         key = (lambda a: -1 if a is None else a)
         chosen += by_attempt[max(whole, key=key)] if whole else by_attempt[max(by_attempt, key=key)]
     return chosen

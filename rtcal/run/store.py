@@ -59,6 +59,8 @@ READING_COLUMNS = (
     "plan_index", "attempt",
 )
 SKIPPED = "skipped"  # the quantity of a marker row: this attempt skipped the instrument's reading
+REJECTED = "rejected"  # the quantity of a marker row: this attempt's readings contradict the commands; none is used
+MARKERS = (SKIPPED, REJECTED)
 
 
 class StoreUnusable(Exception):
@@ -216,16 +218,22 @@ class RunStore:
             yield Reading(*row)
 
     def done_plan_indices(self) -> set[int]:
-        """Planned readings stored by an attempt that skipped nothing (each attempt is committed whole)."""
+        """Planned readings stored by an attempt that skipped nothing and was not rejected (each
+        attempt is committed whole)."""
         return {row[0] for row in self._db.execute(
-            "SELECT DISTINCT plan_index FROM readings r WHERE plan_index IS NOT NULL AND quantity <> ? AND NOT EXISTS "
-            "(SELECT 1 FROM readings s WHERE s.plan_index = r.plan_index AND s.attempt IS r.attempt AND s.quantity = ?)",
-            (SKIPPED, SKIPPED))}
+            "SELECT DISTINCT plan_index FROM readings r WHERE plan_index IS NOT NULL AND quantity NOT IN (?, ?) AND NOT EXISTS "
+            "(SELECT 1 FROM readings s WHERE s.plan_index = r.plan_index AND s.attempt IS r.attempt AND s.quantity IN (?, ?))",
+            MARKERS + MARKERS)}
 
     def skipped_plan_indices(self) -> set[int]:
-        """Planned readings whose every attempt so far skipped something (resume retakes them)."""
-        skipped = {row[0] for row in self._db.execute("SELECT DISTINCT plan_index FROM readings WHERE quantity = ?", (SKIPPED,))}
+        """Planned readings whose every attempt so far skipped something or was rejected (resume retakes them)."""
+        skipped = {row[0] for row in self._db.execute("SELECT DISTINCT plan_index FROM readings WHERE quantity IN (?, ?)", MARKERS)}
         return skipped - self.done_plan_indices()
+
+    def rejected_attempts(self) -> set[tuple[int | None, int | None]]:
+        """(plan index, attempt) of every attempt whose readings contradicted the commands: kept, never used."""
+        return {(row[0], row[1]) for row in self._db.execute(
+            "SELECT DISTINCT plan_index, attempt FROM readings WHERE quantity = ?", (REJECTED,))}
 
     def last_time_s(self) -> float:
         """Time of the last reading or event (0 for an empty run): where a resumed clock goes on."""

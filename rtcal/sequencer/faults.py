@@ -19,14 +19,18 @@ from typing import Any, Callable, Iterator
 from drivers.errors import InstrumentError, TrackingLost
 from rtcal.clock import Clock
 from rtcal.procedure.models import FaultPolicy
+from rtcal.run.store import REJECTED, Reading, RunStore
 from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
-from rtcal.run.store import Reading, RunStore
+from rtcal.sequencer.checks import Contradiction, UncommandedMotion
 
 SKIPPED = object()
+RETAKE = object()
 
 
 class RunAborted(InstrumentError):
     """A fault the policy would not ride out: the run stopped in a safe state, readings kept."""
+
+    cause: InstrumentError | None = None
 
 
 class FaultHandler:
@@ -56,6 +60,8 @@ class FaultHandler:
                 except InstrumentError as exc:
                     last = self.last_error = exc
                     self.event("fault", instrument, f"{what}: {exc}" if what else str(exc))
+                    if isinstance(exc, UncommandedMotion):  # no retry gives rtcal its machine back
+                        self.abort(exc.instrument, exc, "the machine moved while nothing was commanded")
                 else:
                     self.skips_in_a_row[instrument] = 0
                     return result
@@ -91,6 +97,33 @@ class FaultHandler:
                 break
         self.abort(instrument, last)
 
+    def rejected(self, exc: Contradiction, tries: int, what: str) -> object:
+        """A planned reading whose readings contradict the commands (found once they were taken):
+        RETAKE it (the policy's retries, after its backoff), or SKIPPED (skip, pause and reacquire:
+        retaken after the pass and on resume), or abort; the policy of the instrument named decides."""
+        policy = self.policies[exc.instrument]
+        self.last_error = exc
+        self.event("fault", exc.instrument, f"{what}: {exc}" if what else str(exc))
+        if tries < policy.retries:
+            self.clock.sleep(policy.backoff_s * 2**tries)
+            self.event("retry", exc.instrument, f"retry {tries + 1} of {policy.retries}: the reading taken again")
+            return RETAKE
+        if policy.then == "abort":
+            self.abort(exc.instrument, exc)
+        if policy.then == "pause":
+            self.event("pause", exc.instrument, "waiting for the operator")
+            try:
+                self.operator.clear_fault(f"{exc.instrument}: {exc}")
+            except InstrumentError as unreachable:
+                self.event("fault", unreachable.instrument, str(unreachable))
+                self.abort(exc.instrument, exc, f"no operator could clear it ({unreachable})")
+        self.event("skip", exc.instrument, f"{what or 'reading'} rejected after {policy.retries + 1} attempts; taken again later")
+        self.skips_in_a_row[exc.instrument] = self.skips_in_a_row.get(exc.instrument, 0) + 1
+        if self.skips_in_a_row[exc.instrument] >= policy.max_skips_in_a_row:
+            self.abort(exc.instrument, exc, f"{self.skips_in_a_row[exc.instrument]} planned readings rejected in a row: "
+                                            "the contradiction persists")
+        return SKIPPED
+
     @contextmanager
     def keeping(self, readings: list[Reading], state: dict[str, Any]) -> Iterator[None]:
         """Around one attempt at a planned reading: a safe stop inside stores what the attempt took
@@ -99,7 +132,8 @@ class FaultHandler:
         try:
             yield
         except RunAborted as exc:
-            self.store.add_readings(readings + [Reading(self.clock.now_s(), exc.instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
+            marker = REJECTED if isinstance(exc.cause, Contradiction) else SKIPPED_QUANTITY
+            self.store.add_readings(readings + [Reading(self.clock.now_s(), exc.instrument, marker, 0.0, "", **state)])
             raise
 
     def _recover(self, instrument: str, recover: Callable[[], None] | None) -> None:
@@ -127,5 +161,7 @@ class FaultHandler:
             self.safe_state()
         except InstrumentError as exc:
             self.event("fault", instrument, f"while stopping: {exc}")
-        raise RunAborted(instrument, f"run aborted after {error}{because}; every reading taken is kept — "
-                                     "`rtcal resume` goes on and retakes what was skipped")
+        aborted = RunAborted(instrument, f"run aborted after {error}{because}; every reading taken is kept — "
+                                        "`rtcal resume` goes on and retakes what was skipped")
+        aborted.cause = error
+        raise aborted

@@ -10,15 +10,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
+import numpy as np
 
 from drivers.errors import TrackingLost
 from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
+from rtcal.run.store import REJECTED, Reading, RunStore
+from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
+from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
-from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
-from rtcal.run.store import Reading, RunStore
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,11 @@ def run_multistation(
     procedure's ``on_fault`` policies. A reading skipped because the tracer lost the beam makes
     the next reading re-reference it first; after the pass, the readings this pass skipped are
     tried once more (in the tracer's newest segment), and a resume retakes any still missing.
+
+    Every reading is checked (:mod:`rtcal.sequencer.checks`): the stage's feedback and the CMM's
+    reported position against the commands before the tracer is read and unchanged after it, the
+    lengths against the nominal geometry. A reading the checks contradict is kept, marked
+    rejected, and taken again as the policy of the instrument named says.
     """
     points = proc.points_array()
     angles = proc.stations.angles_deg()
@@ -83,6 +90,12 @@ def run_multistation(
     policies = {"stage": proc.on_fault.stage, "cmm": proc.on_fault.cmm, "laser_tracer": proc.on_fault.laser_tracer,
                 "environment": proc.on_fault.environment}
     faults = FaultHandler(policies, store, clock, operator, safe_state)
+    v = proc.verification
+    checks = MotionChecks(inst.stage, v.stage_tolerance_deg, v.cmm_tolerance_mm)
+    guesses = [np.array(proc.solver.first_station_guess_mm)]
+    if proc.second_mount is not None:
+        guesses.append(np.array(proc.second_mount.first_station_guess_mm))
+    lengths = TracerCheck(guesses, np.array(proc.solver.axis_point_mm), angles, points, v.tracer_tolerance_mm)
     done = store.done_plan_indices()
     next_segment = store.max_segment() + 1
     at_point: int | None = None
@@ -93,6 +106,7 @@ def run_multistation(
     def reference(i: int, j: int, why: str) -> None:
         nonlocal segment, next_segment
         inst.laser_tracer.reference()
+        lengths.referenced(mount or 0, i, j)
         segment, next_segment = next_segment, next_segment + 1
         store.add_event(clock.now_s(), why, f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
 
@@ -111,44 +125,72 @@ def run_multistation(
         mount, segment = mk, None  # a moved tracer is referenced again: a new tracking segment
 
     def take(k: int, mk: int, i: int, j: int) -> bool:
-        """One attempt at planned reading k (mount mk, point i, station j); True if it was stored whole.
-        A safe stop during the attempt keeps what it took, marked as skipped by the instrument that stopped it."""
-        state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]), seating=mk,
-                     attempt=store.new_attempt(),
-                     commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
-        readings: list[Reading] = []
+        """Planned reading k (mount mk, point i, station j); True if it was stored whole. Each attempt
+        has its own number; a safe stop during one keeps what it took, marked as skipped by the
+        instrument that stopped it, and a reading the checks contradict is kept marked rejected."""
+        nonlocal at_point, at_station
+        tries = 0
+        while True:
+            state = dict(point=i, station=j, plan_index=k, commanded_angle_deg=float(angles[j]), seating=mk,
+                         attempt=store.new_attempt(),
+                         commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
+            readings: list[Reading] = []
 
-        def skip(instrument: str) -> bool:
-            """Store what this attempt took and the mark of what it skipped; the reading stays pending."""
-            store.add_readings(readings + [Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
-            return False
+            def skip(instrument: str) -> bool:
+                """Store what this attempt took and the mark of what it skipped; the reading stays pending."""
+                store.add_readings(readings + [Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", **state)])
+                return False
 
-        with faults.keeping(readings, state):
-            return one_attempt(i, j, state, readings, skip)
+            try:
+                with faults.keeping(readings, state):
+                    return one_attempt(i, j, state, readings, skip)
+            except Contradiction as exc:
+                store.add_readings(readings + [Reading(clock.now_s(), exc.instrument, REJECTED, 0.0, "", **state)])
+                at_point = at_station = None  # the next attempt moves both again and reads where they are
+                if faults.rejected(exc, tries, f"reading at point {i + 1}, station {j + 1}") is SKIPPED:
+                    return False
+                tries += 1
 
     def one_attempt(i: int, j: int, state: dict, readings: list[Reading], skip: Callable[[str], bool]) -> bool:
         nonlocal at_point, at_station, segment
+        angle, point = float(angles[j]), points[i]
         stage_moved, cmm_moved = at_station != j, at_point != i
         if stage_moved:
             at_station = None
-            if faults.call("stage", lambda: approach(inst.stage, float(angles[j]), direction, proc.stations.overshoot_deg),
+            if faults.call("stage", lambda: approach(inst.stage, angle, direction, proc.stations.overshoot_deg),
                            recover=inst.stage.reset_alarm, what=f"move to station {j + 1}") is SKIPPED:
                 return skip("stage")
             at_station = j
         if cmm_moved:
             at_point = None
-            if faults.call("cmm", lambda: inst.cmm.move_to(points[i]), what=f"move to point {i + 1}") is SKIPPED:
+            if faults.call("cmm", lambda: inst.cmm.move_to(point), what=f"move to point {i + 1}") is SKIPPED:
                 return skip("cmm")
             at_point = i
         if stage_moved or cmm_moved:
             clock.sleep(proc.settle_time_s)
-        if cmm_moved:
-            xyz = faults.call("cmm", inst.cmm.position_mm, what=f"position at point {i + 1}")
-            if xyz is SKIPPED:
-                at_point = None
-                return skip("cmm")
-            t = clock.now_s()
-            readings += [Reading(t, "cmm", f"position_{axis}_mm", float(v), "mm", **state) for axis, v in zip("xyz", xyz)]
+
+        def stage_again() -> None:  # before checking once more: approach and settle anew
+            inst.stage.reset_alarm()
+            approach(inst.stage, angle, direction, proc.stations.overshoot_deg)
+            clock.sleep(proc.settle_time_s)
+
+        def cmm_again() -> None:
+            inst.cmm.move_to(point)
+            clock.sleep(proc.settle_time_s)
+
+        feedback = faults.call("stage", lambda: checks.stage_at(inst.stage, angle), recover=stage_again,
+                               what=f"position at station {j + 1}")
+        if feedback is SKIPPED:
+            at_station = None
+            return skip("stage")
+        readings.append(Reading(clock.now_s(), "stage", "feedback_deg", float(feedback), "deg", **state))
+        xyz = faults.call("cmm", lambda: checks.cmm_at(inst.cmm, point), recover=cmm_again, what=f"position at point {i + 1}")
+        if xyz is SKIPPED:
+            at_point = None
+            return skip("cmm")
+        t = clock.now_s()
+        kind = "position" if cmm_moved else "check_position"  # the solvers average one position per visit of the point
+        readings += [Reading(t, "cmm", f"{kind}_{axis}_mm", float(value), "mm", **state) for axis, value in zip("xyz", xyz)]
         if inst.environment is not None:  # the air the lengths are counted in, with every reading
             env = faults.call("environment", inst.environment.read, what=f"environment at point {i + 1}, station {j + 1}")
             if env is not SKIPPED:
@@ -176,6 +218,20 @@ def run_multistation(
             samples.append(Reading(clock.now_s(), "laser_tracer", "length_mm", r.length_mm, "mm", sample=len(samples),
                                    segment=segment, **state))
         readings += samples
+        for sample in samples:
+            lengths.check(sample.value, mount or 0, i, j)
+        # the table and the probe stood still while the tracer counted: read both again
+        after = faults.call("stage", lambda: checks.stage_still(inst.stage, feedback), what=f"position at station {j + 1}")
+        if after is SKIPPED:
+            at_station = None
+            return skip("stage")
+        readings.append(Reading(clock.now_s(), "stage", "feedback_deg", float(after), "deg", **state))
+        xyz_after = faults.call("cmm", lambda: checks.cmm_still(inst.cmm, xyz), what=f"position at point {i + 1}")
+        if xyz_after is SKIPPED:
+            at_point = None
+            return skip("cmm")
+        t = clock.now_s()
+        readings += [Reading(t, "cmm", f"check_position_{axis}_mm", float(value), "mm", **state) for axis, value in zip("xyz", xyz_after)]
         store.add_readings(readings)
         return True
 
