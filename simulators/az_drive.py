@@ -6,7 +6,8 @@ pymodbus servers (TCP and RTU). Motions complete at once in virtual time (the be
 advances by their duration).
 
 Injected faults (scenario ``faults``, one draw per motion trigger): drive alarms (stall 0x30,
-following error 0x10, limit switch 0x66), emergency stop 0x68 (ALM-RST cannot clear it), an
+following error 0x10, limit switch 0x66), an emergency stop: HWTO input detection 0x68 (ALM-RST cannot
+clear it while the circuit is open), an
 exception reply, and a lost or corrupted reply, which the server adapter applies to the frame
 (``reply_fault``) after the drive has acted.
 """
@@ -123,7 +124,7 @@ class AzDriveModel:
         elif fault is not None and fault.kind == "modbus_exception":
             return DEVICE_FAILURE
         if self.stage.bench.emergency_stop:
-            self.alarm = az.ALARM_EMERGENCY_STOP
+            self.alarm = az.ALARM_HWTO
         if self.alarm:
             return None  # accepted on the wire; the drive shows its alarm
         code = self._move_to_steps(target)

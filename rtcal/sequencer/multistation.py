@@ -7,6 +7,7 @@ CMM's reported position at each visit, every tracer sample — is stored before 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
@@ -137,13 +138,14 @@ def run_multistation(
             at_station = j
         if cmm_moved:
             at_point = None
-            if faults.call("cmm", lambda: inst.cmm.move_to(points[i]), what=f"move to point {i + 1}") is SKIPPED:
+            if faults.call("cmm", lambda: inst.cmm.move_to(points[i]), recover=inst.cmm.recover,
+                           what=f"move to point {i + 1}") is SKIPPED:
                 return skip("cmm")
             at_point = i
         if stage_moved or cmm_moved:
             clock.sleep(proc.settle_time_s)
         if cmm_moved:
-            xyz = faults.call("cmm", inst.cmm.position_mm, what=f"position at point {i + 1}")
+            xyz = faults.call("cmm", inst.cmm.position_mm, recover=inst.cmm.recover, what=f"position at point {i + 1}")
             if xyz is SKIPPED:
                 at_point = None
                 return skip("cmm")
@@ -153,7 +155,8 @@ def run_multistation(
             env = faults.call("environment", inst.environment.read, what=f"environment at point {i + 1}, station {j + 1}")
             if env is not SKIPPED:
                 t = clock.now_s()
-                readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state) for q, unit in ENVIRONMENT_QUANTITIES]
+                readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state)
+                             for q, unit in ENVIRONMENT_QUANTITIES if math.isfinite(getattr(env, q))]  # NaN: not measured
         if segment is None and faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference") is SKIPPED:
             return skip("laser_tracer")  # no valid count without a reference
         samples: list[Reading] = []
