@@ -33,6 +33,9 @@ MOTIONS = ("GoTo", "PtMeas", "Home")
 class IppCmm(Cmm):
     name = "cmm"
     model, kind, schemes, options, framing = "ipp", "cmm", ("ipp",), {}, None
+    _error_state = False  # the server answers 0514 until ClearAllErrors()
+    version = ""
+    tool: str | None = None
 
     def __init__(self, address: Address, timeout_s: float = 5.0,
                  volume_min_mm=(-np.inf,) * 3, volume_max_mm=(np.inf,) * 3, tool: str | None = None, **_: object):

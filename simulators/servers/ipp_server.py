@@ -42,6 +42,16 @@ class SessionLock:
             self.holder = None
             self.released.set()
 
+    async def wait_for(self, session: object, timeout_s: float) -> None:
+        """Give a holder whose connection is closing a moment to go (its EOF may be read after the
+        newcomer's StartSession)."""
+        if self.holder is not None and self.holder is not session:
+            self.released.clear()
+            try:
+                await asyncio.wait_for(self.released.wait(), timeout_s)
+            except asyncio.TimeoutError:
+                pass
+
 
 class IppSession:
     """One client's connection: turns request lines into reply lines."""
@@ -60,7 +70,7 @@ class IppSession:
             self.error_state = True
         return (f"{tag} &\r\n" if ack else "") + ipp.error_line(tag, code, cause, text) + f"{tag} %\r\n"
 
-    async def handle(self, line: str) -> str:
+    def handle(self, line: str) -> str:
         m = ipp.COMMAND.fullmatch(line.strip())
         if m is None:
             tag = line[:5] if line[:5].isdigit() and line[:5] != "00000" else "00000"
@@ -68,7 +78,7 @@ class IppSession:
             return self._error(tag, code, "", ack=False)
         tag, name, args = m.groups()
         if name == "StartSession":
-            return await self._start(tag)
+            return self._start(tag)
         if not self.started:
             return self._error(tag, ipp.ILLEGAL_COMMAND, name, "No session: send StartSession() first")
         if name == "ClearAllErrors":
@@ -81,13 +91,7 @@ class IppSession:
             return self._error(tag, ipp.USE_CLEAR_ALL_ERRORS, name)
         return self._command(tag, name, args)
 
-    async def _start(self, tag: str) -> str:
-        if self.lock.holder is not None and self.lock.holder is not self:
-            self.lock.released.clear()
-            try:
-                await asyncio.wait_for(self.lock.released.wait(), HOLDER_GRACE_S)
-            except asyncio.TimeoutError:
-                pass
+    def _start(self, tag: str) -> str:
         if self.lock.holder is not None and self.lock.holder is not self:
             return self._error(tag, ipp.ILLEGAL_COMMAND, "StartSession", "Another client holds the session")
         self.lock.holder = self
@@ -180,7 +184,10 @@ async def serve_ipp(cmm: SimCmm, host: str, port: int, faults=None) -> asyncio.b
         session = IppSession(cmm, faults, lock)
         try:
             while line := await reader.readline():
-                reply = await session.handle(line.decode("ascii", errors="replace"))
+                text = line.decode("ascii", errors="replace")
+                if text[6:].startswith("StartSession("):
+                    await lock.wait_for(session, HOLDER_GRACE_S)
+                reply = session.handle(text)
                 writer.write(reply.encode("ascii", errors="replace"))
                 await writer.drain()
         except ValueError:  # a line beyond MAX_LINE_BYTES: answered with a protocol error, the client let go
