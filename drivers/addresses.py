@@ -3,13 +3,18 @@
 - ``modbus-tcp://HOST:PORT?unit=1&steps_per_rev=10000&gear=36`` — a stepper drive over Modbus TCP
 - ``modbus-rtu:///dev/ttyUSB0?unit=1&baud=115200&steps_per_rev=...`` — the same over RS-485
 - ``ipp://HOST:PORT`` — a CMM speaking I++ DME (default port 1294)
-- ``/dev/ttyUSB0`` or ``socket://HOST:PORT`` (``?baud=9600&...``) — a serial ASCII instrument
-- ``sim-operator://HOST:PORT`` — the simulated operator of a protocol-simulator bench
+- ``/dev/ttyUSB0`` or ``socket://HOST:PORT`` (``?model=sylvac&baud=4800&bytesize=7&parity=E&stopbits=2``) — a
+  serial instrument; framing options the address leaves out are the model's defaults
+- ``sim-operator://HOST:PORT?token=…`` — the simulated operator of a protocol-simulator bench
+
+``model=`` names the product whose protocol the driver speaks (drivers/models.py; an installed
+plugin can add one); without it each kind has its one built-in product.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from urllib.parse import parse_qsl, urlsplit
 
@@ -27,6 +32,15 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "speed_deg_per_s": (1e-6, 3600, False),
     "baud": (50, 10_000_000, True),
     "counts_per_rev": (1, 2**40, True),
+    "bytesize": (7, 8, True),  # serial framing: data bits
+    "stopbits": (1, 2, True),
+}
+# options whose value is text: a pattern it must match and what to call it in a message
+TEXT_OPTIONS: dict[str, tuple[str, str]] = {
+    "model": (r"[a-z0-9][a-z0-9._-]{0,63}", "a model name such as sylvac or oriental-az"),
+    "parity": (r"[NEO]", "N, E or O"),
+    "token": (r"[A-Za-z0-9_-]{8,128}", "8 to 128 letters, digits, - or _"),
+    "thermometer": (r"[^\s]{1,500}", "the address of a thermometer (socket://HOST:PORT or a device path)"),
 }
 
 
@@ -41,12 +55,16 @@ class Address:
     def option(self, name: str, default: float) -> float:
         if name not in self.options:
             return float(default)
-        return check_option(name, self.options[name])
+        return check_option(name, self.options[name], OPTIONS.get(name) or _model_option(self.options, name))
+
+    def text(self, name: str, default: str = "") -> str:
+        """A text option (model, parity, token, thermometer), or ``default``."""
+        return self.options.get(name, default)
 
 
-def check_option(name: str, text: str) -> float:
+def check_option(name: str, text: str, bounds: tuple[float, float, bool] | None = None) -> float:
     """The option's value, or AddressError naming it and its bounds."""
-    lo, hi, whole = OPTIONS[name]
+    lo, hi, whole = bounds or OPTIONS[name]
     kind = "a whole number" if whole else "a number"
     try:
         value = float(text) if len(text) <= 30 else math.nan
@@ -69,16 +87,56 @@ def check_step(steps_per_rev: float, gear: float, names: tuple[str, str]) -> Non
                            f"{names[1]})); at most {MAX_STEP_DEG:g}°")
 
 
+def _model_option(options: dict[str, str], name: str) -> tuple[float, float, bool] | None:
+    """The bounds of an option the address's model declares for itself (a plugin's own options)."""
+    if "model" not in options:
+        return None
+    from drivers.models import find_model  # the registry imports this module
+
+    try:
+        return find_model(options["model"]).options.get(name)
+    except AddressError:
+        return None
+
+
 def _options(query: str) -> dict[str, str]:
-    options = dict(parse_qsl(query))
+    try:
+        pairs = parse_qsl(query, strict_parsing=bool(query), max_num_fields=32)
+    except ValueError as exc:
+        raise AddressError(f"options {query[:80]!r}: {exc}") from None
+    options = dict(pairs)
+    if len(options) != len(pairs):
+        raise AddressError(f"options {query[:80]!r}: an option given twice")
+    if "model" in options:
+        from drivers.models import find_model
+
+        check_text("model", options["model"])
+        find_model(options["model"])  # an unknown model is refused here, where the address is read
     for name, text in options.items():
-        if name not in OPTIONS:
-            raise AddressError(f"unknown option {name!r} (known: {', '.join(OPTIONS)})")
-        check_option(name, text)
+        if name in TEXT_OPTIONS:
+            check_text(name, text)
+        elif name in OPTIONS:
+            check_option(name, text)
+        elif (bounds := _model_option(options, name)) is not None:
+            check_option(name, text, bounds)
+        else:
+            raise AddressError(f"unknown option {name!r} (known: {', '.join([*OPTIONS, *TEXT_OPTIONS])})")
+    if "thermometer" in options:
+        inner = parse_address(options["thermometer"])
+        if inner.scheme != "serial":
+            raise AddressError(f"option thermometer={options['thermometer'][:60]!r}: a serial or socket:// address")
     if "steps_per_rev" in options or "gear" in options:
         check_step(float(options.get("steps_per_rev", DEFAULT_STEPS_PER_REV)), float(options.get("gear", DEFAULT_GEAR)),
                    ("steps_per_rev", "gear"))
     return options
+
+
+def check_text(name: str, text: str) -> str:
+    """A text option's value, or AddressError saying what it must be."""
+    pattern, what = TEXT_OPTIONS[name]
+    if not re.fullmatch(pattern, text):
+        raise AddressError(f"option {name}={text[:40]!r}: must be {what}")
+    return text
 
 
 def parse_address(text: str) -> Address:

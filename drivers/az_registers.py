@@ -1,8 +1,9 @@
 """Register map of an Oriental Motor AZ-series drive, "direct data operation" (Modbus).
 
 32-bit values span two registers, upper word first (the vendor's default word order).
-The command and feedback position monitors are taken at 0x0120 and 0x0122 as our issue
-specifies; the vendor manual was not at hand to confirm them (docs/protocols/modbus_stage.md).
+The feedback position is read at 0x00CC, as Oriental Motor's own published sample reads it
+(om_modbus_master sample/python/AZ/sample3.py: address 204, "FeedbackPosition"); the command
+position at 0x00C6 is unconfirmed (docs/protocols/modbus_stage.md gives each source).
 Everything address-shaped lives here, so a correction is one line.
 """
 
@@ -19,8 +20,8 @@ TRIGGER = 0x0066  # write 1: start with all direct data
 INPUT_COMMAND = 0x007C  # driver input command (NET-IN), lower word holds the bits
 OUTPUT_STATUS = 0x007E  # driver output status (NET-OUT), read-only
 PRESENT_ALARM = 0x0080  # read-only
-COMMAND_POSITION = 0x0120  # steps, read-only
-FEEDBACK_POSITION = 0x0122  # steps, read-only
+COMMAND_POSITION = 0x00C6  # steps, read-only (unconfirmed: the monitor block beside the feedback position)
+FEEDBACK_POSITION = 0x00CC  # steps, read-only: the detection position, confirmed by the vendor's sample
 
 WRITABLE_32 = (OPERATION_DATA_NUMBER, OPERATION_TYPE, POSITION, SPEED, ACCELERATION, DECELERATION, CURRENT, TRIGGER, INPUT_COMMAND)
 READONLY_32 = (OUTPUT_STATUS, PRESENT_ALARM, COMMAND_POSITION, FEEDBACK_POSITION)
@@ -30,20 +31,27 @@ IN_START, IN_ZHOME, IN_STOP, IN_FREE, IN_ALM_RST = 1 << 3, 1 << 4, 1 << 5, 1 << 
 # driver output status bits (defaults of NET-OUT0..15)
 OUT_HOME_END, OUT_READY, OUT_ALM_A, OUT_SYS_BSY, OUT_MOVE, OUT_IN_POS = 1 << 4, 1 << 5, 1 << 7, 1 << 8, 1 << 13, 1 << 14
 
-# present-alarm codes used by the simulator (AZ alarm list)
+# present-alarm codes (docs/protocols/modbus_stage.md: which are confirmed by open code, which are not)
 ALARM_NONE = 0x00
 ALARM_EXCESSIVE_POSITION_DEVIATION = 0x10  # following error
-ALARM_OVERLOAD = 0x30  # stall
-ALARM_HARDWARE_OVERTRAVEL = 0x66  # limit switch
-ALARM_SOFTWARE_OVERTRAVEL = 0x67  # target beyond the soft limits
-ALARM_EMERGENCY_STOP = 0x68
+ALARM_OVERLOAD = 0x30  # stall (unconfirmed)
+ALARM_HARDWARE_OVERTRAVEL = 0x66  # limit switch (unconfirmed)
+ALARM_SOFTWARE_OVERTRAVEL = 0x67  # target beyond the drive's soft limits (unconfirmed)
+ALARM_HWTO = 0x68  # HWTO input detection: the safe-torque-off input opened (an emergency-stop circuit)
 
 ALARM_TEXT = {
     ALARM_EXCESSIVE_POSITION_DEVIATION: "excessive position deviation (following error)",
+    0x20: "overcurrent",
+    0x21: "main circuit overheat",
+    0x22: "overvoltage",
+    0x25: "undervoltage",
+    0x26: "motor overheat",
+    0x28: "sensor error",
     ALARM_OVERLOAD: "overload (stall)",
     ALARM_HARDWARE_OVERTRAVEL: "hardware overtravel (limit switch)",
-    ALARM_SOFTWARE_OVERTRAVEL: "software overtravel (target beyond the soft limits)",
-    ALARM_EMERGENCY_STOP: "emergency stop",
+    ALARM_SOFTWARE_OVERTRAVEL: "software overtravel (target beyond the drive's soft limits)",
+    ALARM_HWTO: "HWTO input detection (the safe-torque-off input opened, e.g. by an emergency-stop circuit); "
+                "close the circuit, then reset the alarm",
 }
 
 

@@ -1,63 +1,78 @@
-"""Open a real-transport driver from an address string: the one place schemes meet drivers."""
+"""Open a real-transport driver from an address string: the one place addresses meet drivers.
+
+The address's ``model=`` (or the kind's default model, drivers/models.py) names the driver
+class; the class is built as ``cls(address, timeout_s, **context)`` with what its kind needs
+(stage: soft limits; CMM: volume and tool; dial indicator: its name).
+"""
 
 from __future__ import annotations
 
+from typing import Any
+
 from drivers.addresses import Address, AddressError, parse_address
-from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, LaserTracer, RotaryStage
+from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer, RotaryStage
+from drivers.models import DEFAULT_MODEL, BUILTIN, Model, model_for
+
+# a procedure's instruments and the kind of each
+KIND_OF = {"stage": "stage", "cmm": "cmm", "laser_tracer": "laser_tracer", "encoder": "encoder",
+           "autocollimator": "autocollimator", "dial_indicator_1": "dial_indicator", "dial_indicator_2": "dial_indicator",
+           "environment": "environment"}
+# the kinds of address each instrument of a procedure speaks with its default model
+SCHEMES: dict[str, tuple[str, ...]] = {name: BUILTIN[DEFAULT_MODEL[kind]].schemes for name, kind in KIND_OF.items()}
 
 
-# the kinds of address each instrument of a procedure speaks (checked when a procedure is validated)
-SCHEMES: dict[str, tuple[str, ...]] = {
-    "stage": ("modbus-tcp", "modbus-rtu"), "cmm": ("ipp",), "laser_tracer": ("serial",), "encoder": ("serial",),
-    "autocollimator": ("serial",), "dial_indicator_1": ("serial",), "dial_indicator_2": ("serial",),
-    "environment": ("serial",),
-}
+class SchemeMismatch(AddressError):
+    """An address of another kind than the instrument's model speaks (a CMM at a Modbus address)."""
+
+    def __init__(self, message: str, scheme: str, schemes: tuple[str, ...]):
+        super().__init__(message)
+        self.scheme, self.schemes = scheme, schemes
 
 
-def _expect(kind: str, address: str, schemes: tuple[str, ...]) -> Address:
+def resolve(kind: str, address: str) -> tuple[Address, Model]:
+    """The parsed address and its model; AddressError if the address is of another kind or model."""
     parsed = parse_address(address)
-    if parsed.scheme not in schemes:
-        raise AddressError(f"{kind}: {address!r} is a {parsed.scheme} address; a {kind} needs {' or '.join(schemes)}")
-    return parsed
+    model = model_for(kind, parsed.options)
+    if parsed.scheme not in model.schemes:
+        what = kind.replace("_", " ")
+        raise SchemeMismatch(f"{what}: {address[:200]!r} is a {parsed.scheme} address; a {what} of model {model.name} "
+                             f"needs {' or '.join(model.schemes)}", parsed.scheme, model.schemes)
+    return parsed, model
+
+
+def check_address(name: str, address: str) -> None:
+    """What procedure validation asks: the address suits the instrument ``name`` (AddressError if not)."""
+    resolve(KIND_OF[name], address)
+
+
+def open_instrument(kind: str, address: str, timeout_s: float, **context: Any) -> Instrument:
+    parsed, model = resolve(kind, address)
+    return model.driver_class()(parsed, timeout_s, **context)
 
 
 def open_stage(address: str, limits_deg: tuple[float, float], timeout_s: float) -> RotaryStage:
-    from drivers.modbus_stage import ModbusStage
-
-    return ModbusStage(_expect("stage", address, SCHEMES["stage"]), limits_deg, timeout_s)
+    return open_instrument("stage", address, timeout_s, limits_deg=limits_deg)
 
 
-def open_cmm(address: str, volume_min_mm, volume_max_mm, timeout_s: float) -> Cmm:
-    from drivers.ipp_cmm import IppCmm
-
-    return IppCmm(_expect("cmm", address, SCHEMES["cmm"]), timeout_s, volume_min_mm, volume_max_mm)
+def open_cmm(address: str, volume_min_mm, volume_max_mm, timeout_s: float, tool: str | None = None) -> Cmm:
+    return open_instrument("cmm", address, timeout_s, volume_min_mm=volume_min_mm, volume_max_mm=volume_max_mm, tool=tool)
 
 
 def open_laser_tracer(address: str, timeout_s: float) -> LaserTracer:
-    from drivers.serial_instruments import LineLaserTracer
-
-    return LineLaserTracer(_expect("laser tracer", address, SCHEMES["laser_tracer"]), timeout_s)
+    return open_instrument("laser_tracer", address, timeout_s)
 
 
 def open_encoder(address: str, timeout_s: float) -> Encoder:
-    from drivers.serial_instruments import QsbEncoder
-
-    return QsbEncoder(_expect("encoder", address, SCHEMES["encoder"]), timeout_s)
+    return open_instrument("encoder", address, timeout_s)
 
 
 def open_autocollimator(address: str, timeout_s: float) -> Autocollimator:
-    from drivers.serial_instruments import ElcomatAutocollimator
-
-    return ElcomatAutocollimator(_expect("autocollimator", address, SCHEMES["autocollimator"]), timeout_s)
+    return open_instrument("autocollimator", address, timeout_s)
 
 
 def open_dial_indicator(address: str, name: str, timeout_s: float) -> DialIndicator:
-    from drivers.serial_instruments import SylvacIndicator
-
-    return SylvacIndicator(_expect("dial indicator", address, SCHEMES["dial_indicator_1"]), name, timeout_s)
+    return open_instrument("dial_indicator", address, timeout_s, name=name)
 
 
 def open_environment(address: str, timeout_s: float) -> EnvironmentSensor:
-    from drivers.serial_instruments import LineEnvironmentSensor
-
-    return LineEnvironmentSensor(_expect("environment sensor", address, SCHEMES["environment"]), timeout_s)
+    return open_instrument("environment", address, timeout_s)

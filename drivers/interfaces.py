@@ -18,9 +18,18 @@ class Instrument(ABC):
     """Common life cycle: a name for messages, connect on construction, close when done."""
 
     name: str = "instrument"
+    model: str = ""  # the product whose protocol a real-transport driver speaks (drivers/models.py)
 
     def close(self) -> None:  # noqa: B027 — optional for backends without a session
         """Release the transport; idempotent."""
+
+    def identity(self) -> str:
+        """What the instrument says it is (model, version, serial number), where its protocol can ask; else ""."""
+        return ""
+
+    def recover(self) -> None:  # noqa: B027 — most instruments latch nothing
+        """Clear what the instrument latched after an error (a drive alarm, a CMM's error state)
+        so that the next request can succeed; the fault policies call it before a retry."""
 
 
 class RotaryStage(Instrument):
@@ -55,6 +64,9 @@ class RotaryStage(Instrument):
 
     def reset_alarm(self) -> None:  # noqa: B027 — drives without alarms need nothing
         """Clear a drive alarm so that it can move again (not an emergency stop)."""
+
+    def recover(self) -> None:
+        self.reset_alarm()
 
 
 class Cmm(Instrument):
@@ -121,12 +133,12 @@ class DialIndicator(Instrument):
 
 @dataclass(frozen=True)
 class EnvironmentReading:
-    """Air and material conditions at one moment: °C, Pa, % RH, °C."""
+    """Air and material conditions at one moment: °C, Pa, % RH, °C (NaN: not measured by this sensor)."""
 
     air_temperature_c: float
     air_pressure_pa: float
     humidity_pct: float
-    material_temperature_c: float
+    material_temperature_c: float = float("nan")
 
 
 class EnvironmentSensor(Instrument):

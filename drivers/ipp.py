@@ -1,8 +1,11 @@
-"""The I++ DME protocol, as much of it as a CMM driver needs: framing, parsing, error codes.
+"""The I++ DME protocol, as much of it as a CMM needs: framing, parsing, the error table.
 
 A command line is ``TTTTT Name(args)\\r\\n`` with a five-digit tag; the server answers with
-``TTTTT &`` (acknowledged), ``TTTTT # data`` (zero or more), then ``TTTTT %`` (complete), or
-``TTTTT ! Error(severity, code, "command", "text")``.
+``TTTTT &`` (acknowledged), ``TTTTT # data`` (zero or more), then ``TTTTT %`` (complete); an
+error is ``TTTTT ! Error(F1, F2, "F3", "text")`` — severity, four-digit code, the method (or
+the tagged command) that caused it, a text — and the transaction still ends with ``%``. After
+an error of severity 2 or more the server answers every command with 0514 until
+``ClearAllErrors()``. Sources: docs/protocols/ipp_dme.md.
 """
 
 from __future__ import annotations
@@ -13,14 +16,33 @@ ACK, DATA, DONE, ERROR = "&", "#", "%", "!"
 LINE = re.compile(r"(\d{5}|E\d{4}) ([&#%!])(?: (.*))?")
 COMMAND = re.compile(r"(\d{5}) ([A-Za-z]+)\((.*)\)")
 AXIS = re.compile(r"([XYZ])\(\s*([+-]?\d+(?:\.\d*)?(?:[eE][+-]?\d+)?)?\s*\)")
-ERROR_ARGS = re.compile(r'Error\((\d+),\s*(\d+),\s*"([^"]*)",\s*"([^"]*)"\)')
+IJK = re.compile(r"IJK\(\s*([^,()]+),\s*([^,()]+),\s*([^,()]+)\)")
+ERROR_ARGS = re.compile(r'Error\(\s*(\d+)\s*,\s*(\d+)\s*,\s*"([^"]*)"\s*,\s*"([^"]*)"\s*\)')
+DME_VERSION = re.compile(r'DMEVersion\(\s*"([^"]*)"\s*\)')
+STRING_ARG = re.compile(r'\s*"([^"]{1,200})"\s*')
 
-# codes used here (I++ DME error table)
 PROTOCOL_ERROR = "0008"
 UNSUPPORTED_COMMAND = "0501"
-BAD_ARGUMENT = "0502"
-BAD_ARGUMENT_COUNT = "0509"
+INCORRECT_ARGUMENTS = "0502"
+ILLEGAL_COMMAND = "0507"
+BAD_ARGUMENT = "0509"
+USE_CLEAR_ALL_ERRORS = "0514"
+SURFACE_NOT_FOUND = "1006"
 OUT_OF_VOLUME = "1008"
+TOOL_NOT_FOUND = "1502"
+MACHINE_LIMIT = "2500"
+
+# the standard's pre-defined errors rtcal meets: code → (severity, text)
+ERRORS: dict[str, tuple[int, str]] = {
+    "0001": (2, "Illegal tag"), "0002": (2, "No space at pos. 6"), "0006": (2, "Transaction aborted"),
+    "0007": (3, "Illegal character"), PROTOCOL_ERROR: (3, "Protocol error"), "0500": (3, "Emergency stop"),
+    UNSUPPORTED_COMMAND: (3, "Unsupported command"), INCORRECT_ARGUMENTS: (3, "Incorrect arguments"),
+    "0504": (1, "Argument out of range"), ILLEGAL_COMMAND: (3, "Illegal command"), BAD_ARGUMENT: (3, "Bad argument"),
+    USE_CLEAR_ALL_ERRORS: (2, "Use ClearAllErrors to continue"), "1003": (2, "No touch"),
+    SURFACE_NOT_FOUND: (2, "Surface not found"), OUT_OF_VOLUME: (3, "Target position out of machine volume"),
+    TOOL_NOT_FOUND: (3, "Tool not found"), "1503": (3, "Tool not defined"),
+    MACHINE_LIMIT: (3, "Machine limit encountered [Move Out Of Limits]"),
+}
 
 
 def axes(text: str) -> dict[str, float | None]:
@@ -32,5 +54,7 @@ def format_axes(x: float, y: float, z: float) -> str:
     return f"X({x:.6f}), Y({y:.6f}), Z({z:.6f})"
 
 
-def error_line(tag: str, severity: int, code: str, command: str, text: str) -> str:
-    return f'{tag} ! Error({severity}, {code}, "{command}", "{text}")\r\n'
+def error_line(tag: str, code: str, cause: str, text: str = "") -> str:
+    """The error reply line, with the standard's severity for ``code``."""
+    severity, standard_text = ERRORS.get(code, (3, "Error"))
+    return f'{tag} ! Error({severity}, {code}, "{cause}", "{text or standard_text}")\r\n'

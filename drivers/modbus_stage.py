@@ -18,6 +18,8 @@ from drivers import az_registers as az
 from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV, Address
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.interfaces import RotaryStage
+from drivers.models import BUILTIN
+from drivers.serial_line import framing_of
 
 # pymodbus logs what it trips over; with no handler Python would print it on the console over the
 # progress bar. The typed error carries the news; an application that configures logging still sees these.
@@ -28,9 +30,15 @@ EXCEPTION_TEXT = {1: "illegal function", 2: "illegal data address", 3: "illegal 
 
 
 class ModbusStage(RotaryStage):
-    name = "stage"
+    """Oriental Motor AZ: Modbus TCP, or RTU with 8E1 framing unless the address says otherwise
+    (the drive's own setting; ``baud``, ``parity``, ``stopbits`` options)."""
 
-    def __init__(self, address: Address, limits_deg: tuple[float, float] = (-360.0, 360.0), timeout_s: float = 2.0):
+    name = "stage"
+    model, kind, schemes, options = "oriental-az", "stage", ("modbus-tcp", "modbus-rtu"), {}
+    framing = BUILTIN["oriental-az"].framing
+
+    def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),
+                 **_: object):
         self.unit = int(address.option("unit", 1))
         self.steps_per_deg = address.option("steps_per_rev", DEFAULT_STEPS_PER_REV) * address.option("gear", DEFAULT_GEAR) / 360.0
         self.step_deg = 1.0 / self.steps_per_deg
@@ -41,9 +49,10 @@ class ModbusStage(RotaryStage):
             self.client = ModbusTcpClient(address.host, port=address.port, timeout=timeout_s, retries=0)
             where = f"{address.host}:{address.port}"
         else:
-            self.client = ModbusSerialClient(address.path, framer=FramerType.RTU, baudrate=int(address.option("baud", 115200)),
-                                             timeout=timeout_s, retries=0)
-            where = address.path
+            f = framing_of(address, self.framing)
+            self.client = ModbusSerialClient(address.path, framer=FramerType.RTU, baudrate=f.baud, bytesize=f.bytesize,
+                                             parity=f.parity, stopbits=f.stopbits, timeout=timeout_s, retries=0)
+            where = f"{address.path} at {f}"
         try:
             connected = self.client.connect()
         except Exception as exc:  # noqa: BLE001 — a device path that is no serial port (termios.error), …
@@ -111,10 +120,10 @@ class ModbusStage(RotaryStage):
         self._input_pulse(az.IN_ALM_RST)
 
     def position_deg(self) -> float:
-        return self._read32(az.COMMAND_POSITION)[0] / self.steps_per_deg
-
-    def feedback_deg(self) -> float:
+        """The drive's feedback (detection) position: the one monitor the vendor's sample reads."""
         return self._read32(az.FEEDBACK_POSITION)[0] / self.steps_per_deg
+
+    feedback_deg = position_deg
 
     def close(self) -> None:
         try:

@@ -1,12 +1,13 @@
-"""Serial ASCII instruments, each a small declarative class: request, reply pattern, parse.
+"""Serial instruments, one class per product (docs/protocols/serial.md gives each fact's public source).
 
-Protocols (docs/protocols/serial.md):
-- autocollimator, ELCOMAT style: ``M\\r`` → ``<status> <x> <y>\\r`` (status 0 valid; arcsec)
-- dial indicator, Sylvac style: ``?\\r`` → ``+0.00123\\r`` (mm), or ``ERR<n>\\r``
-- encoder counter, US Digital QSB style: ``R0E\\r`` → ``0E<8 hex digits>\\r\\n`` (32-bit count)
-- laser tracer, rtcal line protocol: ``REF\\r\\n`` → ``OK REF <segment>``; ``LEN?\\r\\n`` →
-  ``LEN <nm> <segment>`` or ``ERR LOST``
-- environment sensor, rtcal line protocol: ``MEAS?\\r\\n`` → ``T=<°C> P=<Pa> RH=<%> TM=<°C>``
+- autocollimator, Möller-Wedel ELCOMAT (``elcomat``): ``a\\r\\n`` → ``4 003 <x> <y>\\r`` (arcsec)
+- dial indicator, Sylvac (``sylvac``): ``?\\r`` → the displacement in mm, one line; 4800 7E2
+- encoder counter, US Digital QSB (``qsb``): ``R0E\\r\\n`` → ``r0E<8 hex>[<8 hex timestamp>][!]\\r\\n``;
+  end of response, mode and counter mode written at open, version read as identity
+- laser tracer, rtcal's adapter protocol (``rtcal-line``): ``REF`` → ``OK REF <segment>``;
+  ``LEN?`` → ``LEN <nm> <segment>`` or ``ERR LOST`` (no public protocol exists: a vendor-SDK bridge speaks it)
+
+The Vaisala environment sensors are in :mod:`drivers.vaisala`.
 """
 
 from __future__ import annotations
@@ -15,141 +16,152 @@ import re
 
 from drivers.addresses import Address
 from drivers.errors import InstrumentFault, TrackingLost
-from drivers.interfaces import (
-    Autocollimator,
-    DialIndicator,
-    Encoder,
-    EnvironmentReading,
-    EnvironmentSensor,
-    LaserTracer,
-    LengthReading,
-)
+from drivers.interfaces import Autocollimator, DialIndicator, Encoder, LaserTracer, LengthReading
+from drivers.models import BUILTIN, Framing
 from drivers.serial_line import SerialLine
 
 NUMBER = r"[+-]?\d+(?:\.\d+)?"
 
 
-def _match(name: str, pattern: re.Pattern, reply: str) -> re.Match:
+def match_reply(name: str, pattern: re.Pattern, reply: str) -> re.Match:
     m = pattern.fullmatch(reply)
     if m is None:
         raise InstrumentFault(name, f"unexpected reply {reply[:80]!r}")
     return m
 
 
-def _within(name: str, what: str, value: float, low: float, high: float) -> float:
+def within(name: str, what: str, value: float, low: float, high: float) -> float:
     if not low <= value <= high:  # also false for NaN
         raise InstrumentFault(name, f"{what} {value:.6g} outside what it can measure [{low:g}, {high:g}]")
     return value
 
 
-class ElcomatAutocollimator(Autocollimator):
-    name = "autocollimator"
-    REQUEST = b"M\r"
-    REPLY = re.compile(rf"(\d) ({NUMBER}) ({NUMBER})")
-    STATUS = {1: "no reflection in range", 2: "weak light", 3: "two reflections"}
-    RANGE_ARCSEC = 3600.0  # an ELCOMAT's field is ±1000″; beyond a degree is no autocollimator reading
+class SerialInstrument:
+    """A product on one serial line: the model's framing, overridable by the address."""
 
-    def __init__(self, address: Address, timeout_s: float = 1.0):
-        self.line = SerialLine(self.name, address.path, int(address.option("baud", 9600)), timeout_s)
+    model: str = ""
+    kind: str = ""
+    schemes = ("serial",)
+    options: dict = {}
+    framing: Framing = Framing()
+    terminator = b"\r"  # of replies
+    line: SerialLine
+
+    def open_line(self, name: str, address: Address, timeout_s: float) -> None:
+        self.line = SerialLine(name, address, self.framing, timeout_s, self.terminator)
+
+    def close(self) -> None:
+        self.line.close()
+
+
+class ElcomatAutocollimator(SerialInstrument, Autocollimator):
+    """An absolute measurement: the reply's first two fields must be ``4 003`` (the only pair a
+    public driver accepts for it); any other pair is no valid reading."""
+
+    name = "autocollimator"
+    model, kind, framing = "elcomat", "autocollimator", BUILTIN["elcomat"].framing
+    REQUEST = b"a\r\n"
+    REPLY = re.compile(rf"(\d+) (\d+) ({NUMBER}) ({NUMBER})")
+    RANGE_ARCSEC = 3600.0  # an ELCOMAT's field is some ±1000″; beyond a degree is no autocollimator reading
+
+    def __init__(self, address: Address, timeout_s: float = 1.0, **_: object):
+        self.open_line(self.name, address, timeout_s)
 
     def read_arcsec(self) -> tuple[float, float]:
-        m = _match(self.name, self.REPLY, self.line.query(self.REQUEST))
-        status = int(m.group(1))
-        if status:
-            raise InstrumentFault(self.name, f"status {status}: {self.STATUS.get(status, 'unknown')}")
+        m = match_reply(self.name, self.REPLY, self.line.query(self.REQUEST).strip())
+        if (m.group(1), m.group(2)) != ("4", "003"):
+            raise InstrumentFault(self.name, f"no valid absolute measurement (codes {m.group(1)} {m.group(2)}; "
+                                             "no reflection in range?)")
         r = self.RANGE_ARCSEC
-        return (_within(self.name, "X angle ″", float(m.group(2)), -r, r),
-                _within(self.name, "Y angle ″", float(m.group(3)), -r, r))
-
-    def close(self) -> None:
-        self.line.close()
+        return (within(self.name, "X angle ″", float(m.group(3)), -r, r),
+                within(self.name, "Y angle ″", float(m.group(4)), -r, r))
 
 
-class SylvacIndicator(DialIndicator):
+class SylvacIndicator(SerialInstrument, DialIndicator):
+    """The reading in the display unit: mm, or inches when the reply says ``in``. The digit layout
+    is not published: any signed decimal, spaces between sign and digits allowed."""
+
+    model, kind, framing = "sylvac", "dial_indicator", BUILTIN["sylvac"].framing
     REQUEST = b"?\r"
-    REPLY = re.compile(rf"({NUMBER})|ERR(\d+)")
-    ERRORS = {1: "out of range", 2: "sensor not ready", 3: "command unknown"}
+    REPLY = re.compile(r"\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)\s*(mm|in|inch)?\s*", re.IGNORECASE)
     RANGE_MM = 100.0  # the longest Sylvac stroke
 
-    def __init__(self, address: Address, name: str = "dial_indicator", timeout_s: float = 1.0):
+    def __init__(self, address: Address, timeout_s: float = 1.0, name: str = "dial_indicator", **_: object):
         self.name = name
-        self.line = SerialLine(name, address.path, int(address.option("baud", 4800)), timeout_s)
+        self.open_line(name, address, timeout_s)
 
     def read_um(self) -> float:
-        m = _match(self.name, self.REPLY, self.line.query(self.REQUEST))
-        if m.group(2):
-            raise InstrumentFault(self.name, f"ERR{m.group(2)}: {self.ERRORS.get(int(m.group(2)), 'unknown')}")
-        return _within(self.name, "displacement mm", float(m.group(1)), -self.RANGE_MM, self.RANGE_MM) * 1000.0
+        reply = self.line.query(self.REQUEST)
+        if not reply.strip():
+            raise InstrumentFault(self.name, "empty reply: the indicator is initialising (or asleep)")
+        m = match_reply(self.name, self.REPLY, reply)
+        value = float(m.group(1) + m.group(2)) * (25.4 if (m.group(3) or "").lower().startswith("in") else 1.0)
+        return within(self.name, "displacement mm", value, -self.RANGE_MM, self.RANGE_MM) * 1000.0
 
-    def close(self) -> None:
-        self.line.close()
 
+class QsbEncoder(SerialInstrument, Encoder):
+    """A quadrature counter: degrees = count × 360 / counts_per_rev (from the address).
 
-class QsbEncoder(Encoder):
-    """A quadrature counter: degrees = count × 360 / counts_per_rev (from the address)."""
+    At open: end of response CR LF without timestamp or spaces (EOR 0x15 ← 3), quadrature mode
+    (MODE 0x00 ← 0), counter ×4 free-running (MDR0 0x03 ← 3), then the version register (0x14)
+    as identity. A reply is the lower-case response letter, the register, 8 hex digits, an
+    optional 8-hex timestamp and an optional ``!``; the count is 32-bit two's complement."""
 
     name = "encoder"
-    REQUEST = b"R0E\r"
-    REPLY = re.compile(r"0E([0-9A-Fa-f]{8})")
+    model, kind, framing = "qsb", "encoder", BUILTIN["qsb"].framing
+    terminator = b"\n"
+    REPLY = re.compile(r"([rwse]) ?([0-9A-F]{2}) ?([0-9A-F]{8})(?: ?([0-9A-F]{8}))? ?(!)?", re.IGNORECASE)
+    SETUP = ((0x15, 0x03), (0x00, 0x00), (0x03, 0x03))
 
-    def __init__(self, address: Address, timeout_s: float = 1.0):
+    def __init__(self, address: Address, timeout_s: float = 1.0, **_: object):
         self.counts_per_rev = address.option("counts_per_rev", 2**30)
-        self.line = SerialLine(self.name, address.path, int(address.option("baud", 230400)), timeout_s, terminator=b"\r\n")
+        self.open_line(self.name, address, timeout_s)
+        try:
+            for register, value in self.SETUP:
+                self._exchange(f"W{register:02X}{value:02X}", "w", register)
+            self._version = self._exchange("R14", "r", 0x14)
+        except BaseException:
+            self.line.close()
+            raise
+
+    def _exchange(self, command: str, letter: str, register: int) -> int:
+        reply = self.line.query(command.encode("ascii") + b"\r\n")
+        m = match_reply(self.name, self.REPLY, reply.strip())
+        if m.group(1).lower() == "e":
+            raise InstrumentFault(self.name, f"{command}: the counter answered with an error {reply[:40]!r}")
+        if m.group(1).lower() != letter or int(m.group(2), 16) != register:
+            raise InstrumentFault(self.name, f"{command}: reply {reply[:40]!r} is not for register {register:02X}")
+        return int(m.group(3), 16)
+
+    def identity(self) -> str:
+        return f"US Digital QSB, VERSION register 0x{self._version:08X}"
 
     def read_angle_deg(self) -> float:
-        m = _match(self.name, self.REPLY, self.line.query(self.REQUEST))
-        count = int(m.group(1), 16)
+        count = self._exchange("R0E", "r", 0x0E)
         if count & 0x80000000:
             count -= 1 << 32
         return count * 360.0 / self.counts_per_rev
 
-    def close(self) -> None:
-        self.line.close()
 
-
-class LineLaserTracer(LaserTracer):
+class LineLaserTracer(SerialInstrument, LaserTracer):
     name = "laser_tracer"
+    model, kind, framing = "rtcal-line", "laser_tracer", BUILTIN["rtcal-line"].framing
     REF_REPLY = re.compile(r"OK REF (\d{1,9})")
     LEN_REPLY = re.compile(rf"LEN ({NUMBER}) (\d{{1,9}})|ERR (\w+)")
     RANGE_MM = 100_000.0  # a tracer follows a reflector within some 20 m; a length change beyond 100 m is garbage
 
-    def __init__(self, address: Address, timeout_s: float = 1.0):
-        self.line = SerialLine(self.name, address.path, int(address.option("baud", 115200)), timeout_s, terminator=b"\r\n")
+    def __init__(self, address: Address, timeout_s: float = 1.0, **_: object):
+        self.terminator = b"\r\n"
+        self.open_line(self.name, address, timeout_s)
 
     def reference(self) -> int:
-        return int(_match(self.name, self.REF_REPLY, self.line.query(b"REF\r\n")).group(1))
+        return int(match_reply(self.name, self.REF_REPLY, self.line.query(b"REF\r\n")).group(1))
 
     def read_length(self) -> LengthReading:
-        m = _match(self.name, self.LEN_REPLY, self.line.query(b"LEN?\r\n"))
+        m = match_reply(self.name, self.LEN_REPLY, self.line.query(b"LEN?\r\n"))
         if m.group(3) == "LOST":
             raise TrackingLost(self.name, "tracer error LOST: tracking lost")
         if m.group(3):
             raise InstrumentFault(self.name, f"tracer error {m.group(3)}")
-        length_mm = _within(self.name, "length mm", float(m.group(1)) * 1e-6, -self.RANGE_MM, self.RANGE_MM)
+        length_mm = within(self.name, "length mm", float(m.group(1)) * 1e-6, -self.RANGE_MM, self.RANGE_MM)
         return LengthReading(length_mm, int(m.group(2)))
-
-    def close(self) -> None:
-        self.line.close()
-
-
-class LineEnvironmentSensor(EnvironmentSensor):
-    """Air temperature, pressure, humidity and the table's temperature, checked physically plausible."""
-
-    name = "environment"
-    REPLY = re.compile(rf"T=({NUMBER}) P=({NUMBER}) RH=({NUMBER}) TM=({NUMBER})")
-    RANGES = ((-40.0, 80.0, "air temperature °C"), (50000.0, 150000.0, "pressure Pa"), (0.0, 100.0, "humidity %"),
-              (-40.0, 150.0, "material temperature °C"))
-
-    def __init__(self, address: Address, timeout_s: float = 1.0):
-        self.line = SerialLine(self.name, address.path, int(address.option("baud", 9600)), timeout_s, terminator=b"\r\n")
-
-    def read(self) -> EnvironmentReading:
-        m = _match(self.name, self.REPLY, self.line.query(b"MEAS?\r\n"))
-        values = [float(v) for v in m.groups()]
-        for v, (lo, hi, what) in zip(values, self.RANGES):
-            if not lo <= v <= hi:
-                raise InstrumentFault(self.name, f"{what} {v:g} outside [{lo:g}, {hi:g}]")
-        return EnvironmentReading(*values)
-
-    def close(self) -> None:
-        self.line.close()

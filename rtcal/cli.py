@@ -321,7 +321,8 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"rtcal: warning: serving on {args.host}, not only on this machine", file=sys.stderr)
-    hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus)
+    hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
+                       environment=args.environment)
     try:
         addresses = hub.start()
     except (RuntimeError, OSError) as exc:
@@ -333,6 +334,49 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
     stop.wait()
     hub.stop()
     return EXIT_OK
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _cmd_probe(args: argparse.Namespace) -> int:
+    """Connect to one instrument, identify it, take one reading (rtcal/commission.py)."""
+    from rtcal.commission import format_probe, probe
+
+    if not 0.01 <= args.timeout_s <= 600:
+        raise UserError("--timeout-s must lie in 0.01..600")
+    try:
+        result = probe(args.kind, args.address, args.timeout_s)
+    except InstrumentError as exc:
+        print(f"rtcal: {args.kind} at {args.address}: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILED
+    print(format_probe(result, args.json))
+    return EXIT_OK
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    """Probe every instrument a procedure needs and check the readings against its ranges."""
+    from rtcal.commission import check, format_table
+    from rtcal.procedure.loader import load_procedure
+    from rtcal.run.runner import with_addresses
+
+    proc = load_procedure(Path(args.procedure))
+    addresses = parse_instruments_option(args.instruments) if args.instruments else {}
+    from drivers.factory import KIND_OF
+
+    unknown = sorted(set(addresses) - set(KIND_OF) - {"operator"})
+    if unknown:
+        raise UserError(f"--instruments: {', '.join(unknown)}: no such instrument (known: {', '.join(KIND_OF)}, operator)")
+    if addresses:
+        proc = with_addresses(proc, addresses)
+    rows = check(proc, addresses, addresses.get("operator", ""))
+    print(format_table(rows))
+    failed = [r for r in rows if r.status == "FAILED"]
+    for r in failed:
+        print(f"rtcal: {r.instrument}: {_one_line(r.detail)}", file=sys.stderr)
+    print(f"{len(rows) - len(failed)} of {len(rows)} ready" + ("" if failed else ": the rig can run this procedure"))
+    return EXIT_FAILED if failed else EXIT_OK
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
@@ -535,7 +579,28 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--serial", choices=["pty", "tcp"], default="pty",
                        help="serial instruments on pseudo-terminals (default) or TCP sockets (socket:// addresses)")
     serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
+    serve.add_argument("--environment", choices=["vaisala-ptu300", "vaisala-ptb330"], default="vaisala-ptu300",
+                       help="the environment sensor's model (with an OMEGA iTHX thermometer on its thermometer=)")
     serve.set_defaults(func=_cmd_sim_serve)
+
+    from drivers.models import KINDS
+
+    pr = sub.add_parser("probe", help="connect to one instrument, identify it where its protocol allows, take one "
+                                      "reading and print it; exit 1 if it does not answer or answers wrongly")
+    pr.add_argument("kind", choices=KINDS, help="the kind of instrument")
+    pr.add_argument("address", help="its address, e.g. socket://10.0.0.5:4001?model=sylvac or ipp://cmm:1294 "
+                                    "(model= picks the product; docs/protocols/)")
+    pr.add_argument("--json", action="store_true",
+                    help='print one JSON object {"kind", "address", "model", "identity", "reading"}')
+    pr.add_argument("--timeout-s", type=float, default=2.0, help="deadline of each request, s (default 2)")
+    pr.set_defaults(func=_cmd_probe)
+
+    ck = sub.add_parser("check", help="probe every instrument a procedure needs and check the readings against its "
+                                      "ranges (stage limits, CMM volume): one table of what is ready")
+    ck.add_argument("procedure", help="procedure YAML file")
+    ck.add_argument("--instruments", help="instrument addresses (JSON object or file, e.g. what `rtcal sim serve` "
+                                          "printed); replaces the procedure's")
+    ck.set_defaults(func=_cmd_check)
 
     val = sub.add_parser("validate", help="check procedure or scenario files as `run` would before moving (limits, CMM "
                                           "volume, polygon, closure); problems as file:line:column, exit 2")

@@ -6,7 +6,8 @@ pymodbus servers (TCP and RTU). Motions complete at once in virtual time (the be
 advances by their duration).
 
 Injected faults (scenario ``faults``, one draw per motion trigger): drive alarms (stall 0x30,
-following error 0x10, limit switch 0x66), emergency stop 0x68 (ALM-RST cannot clear it), an
+following error 0x10, limit switch 0x66), an emergency stop: HWTO input detection 0x68 (ALM-RST cannot
+clear it while the circuit is open), an
 exception reply, and a lost or corrupted reply, which the server adapter applies to the frame
 (``reply_fault``) after the drive has acted; a drive that is stuck (accepts, says "in position",
 echoes the command as its feedback, and does not turn) or stops short (its feedback shows
@@ -134,15 +135,15 @@ class AzDriveModel:
         elif fault is not None and fault.kind == "modbus_exception":
             return DEVICE_FAILURE
         if self.stage.bench.emergency_stop:
-            self.alarm = az.ALARM_EMERGENCY_STOP
+            self.alarm = az.ALARM_HWTO
         if self.alarm:
             return None  # accepted on the wire; the drive shows its alarm
         if fault is not None and fault.kind == "stuck":  # "in position", the command echoed, the table where it was
             self.command_steps = self.feedback_steps = int(target)
             return None
-        if fault is not None and fault.kind == "short":
-            way = 1 if target > self.command_steps else -1
-            short = min(round(fault.shortfall_deg * self.steps_per_deg), abs(target - self.command_steps))
+        if fault is not None and fault.kind == "short":  # short of the target, from where the table is
+            way = 1 if target > self.feedback_steps else -1
+            short = min(round(fault.shortfall_deg * self.steps_per_deg), abs(target - self.feedback_steps))
             code = self._move_to_steps(target - way * short)
             self.command_steps = int(target)  # the drive was told the target; its feedback says where it stopped
             return code

@@ -12,44 +12,61 @@ import yaml
 
 from drivers.addresses import parse_address
 from drivers.errors import InstrumentFault, InstrumentTimeout
-from drivers.serial_instruments import LineEnvironmentSensor
+from drivers.vaisala import VaisalaPtu300
 from rtcal.solvers.air import ciddor_n, standard_air_n
 from rtcal.cli import main
 from simulators.bench import Bench
 from simulators.instruments import SimEnvironmentSensor, SimLaserTracer
 from simulators.scenario import Scenario
-from simulators.servers.serial_protocols import EnvironmentHandler
+from simulators.servers.serial_protocols import EnvironmentNow, IthxHandler, VaisalaHandler
 from tests.fakes import ScriptedDevice
 
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURE = REPO / "procedures" / "laser_tracer_multistation.yaml"
 
 
+FORM = b'FORM "P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n\r'
+OPENING = [(b"?\r", b"PTU300 / 1.12\r\nSerial number  : P4040154\r\n"), (FORM, b"OK\r\n")]
+
+
 def _read(reply: bytes | None):
-    with ScriptedDevice([(b"MEAS?\r\n", reply)]) as dev:
-        sensor = LineEnvironmentSensor(parse_address(dev.path), 0.3)
+    with ScriptedDevice(OPENING + [(b"SEND\r", reply)]) as dev:
+        sensor = VaisalaPtu300(parse_address(dev.path + "?bytesize=8&parity=N&stopbits=1"), 0.3)
         try:
+            assert sensor.identity() == "PTU300 / 1.12, serial number P4040154"
             return sensor.read()
         finally:
             sensor.close()
 
 
-def test_driver_reads_and_checks_what_it_reads():
-    r = _read(b"T=20.1234 P=101234.50 RH=45.10 TM=19.9876\r\n")
-    assert (r.air_temperature_c, r.air_pressure_pa, r.humidity_pct, r.material_temperature_c) == (20.1234, 101234.5, 45.1, 19.9876)
+def test_driver_reads_labelled_fields_with_units_and_checks_them():
+    r = _read(b"P= 1012.3450 hPa  T=  20.1234 'C   RH=  45.100 %RH\r\n")
+    assert (r.air_temperature_c, r.air_pressure_pa, r.humidity_pct) == (20.1234, pytest.approx(101234.5), 45.1)
+    assert np.isnan(r.material_temperature_c)  # no thermometer on this address
+    r = _read(b"P=  14.682 psia   T= 68.0 'F RH= 40.9 %RH TD=  4.3 'C\r\n")  # a unit's own units: converted
+    assert r.air_pressure_pa == pytest.approx(14.682 * 6894.757, rel=1e-9) and r.air_temperature_c == pytest.approx(20.0)
     with pytest.raises(InstrumentFault, match="pressure"):
-        _read(b"T=20.1 P=9999999.0 RH=45.1 TM=20.0\r\n")
-    with pytest.raises(InstrumentFault, match="unexpected reply"):
-        _read(b"T=20.1 P=nan RH=45.1 TM=20.0\r\n")
+        _read(b"P= 99999.0 hPa T= 20.1 'C RH= 45.1 %RH\r\n")
+    with pytest.raises(InstrumentFault, match="no labelled fields"):
+        _read(b"1013.2 20.1 45.1\r\n")
+    with pytest.raises(InstrumentFault, match="pressure unit"):
+        _read(b"P= 1013.2 furlongs T= 20.1 'C RH= 45.1 %RH\r\n")
     with pytest.raises(InstrumentTimeout):
         _read(None)
 
 
 def test_simulator_end_answers_as_documented():
     bench = Bench(Scenario.model_validate({"environment": {"air_temperature_c": 21.5, "humidity_pct": 40}}))
-    h = EnvironmentHandler(SimEnvironmentSensor(bench))
-    assert h.handle(b"MEAS?") == b"T=21.5000 P=101325.00 RH=40.00 TM=20.0000\r\n"
-    assert h.handle(b"X") == b"ERR CMD\r\n"
+    now = EnvironmentNow(SimEnvironmentSensor(bench))
+    h = VaisalaHandler(now)
+    assert h.handle(b"SEND") == b"P=  1013.2 hPa   T=  21.5 'C RH=  40.0 %RH\r\n"  # the unit's own labelled layout
+    assert h.handle(FORM) == b"OK\r\n"
+    assert h.handle(b"SEND") == b"P=1013.2500 hPa  T= 21.5000 'C  RH= 40.000 %RH\r\n"
+    assert h.handle(b"FORM ?") == b'Output format  :"P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 \\r \\n\r\n'
+    assert h.handle(b"FORM 4.4 Q") == b"FORM error\r\n"
+    assert h.handle(b"X") == b"Unknown command\r\n"
+    thermometer = IthxHandler(now)
+    assert (thermometer.handle(b"*SRTC2"), thermometer.handle(b"*SRTC"), thermometer.handle(b"*SRH")) == (b"20.0\r", b"21.5\r", b"40.0\r")
 
 
 def test_the_simulated_tracer_counts_optical_path():

@@ -2,7 +2,9 @@
 
 Each case: the exact request the driver must send, the reply the device gives, and the value
 or typed error the driver must return. Malformed, truncated (no terminator) and silent replies
-must end in InstrumentFault or InstrumentTimeout, never in a hang or another exception.
+must end in InstrumentFault or InstrumentTimeout, never in a hang or another exception. The
+devices are scripted pseudo-terminals (8N1: this machine's kind of pty refuses other framings
+on some kernels); the framings themselves are checked over socket:// in tests/test_probe.py.
 """
 
 from __future__ import annotations
@@ -19,50 +21,65 @@ from simulators.servers.serial_protocols import ElcomatHandler, QsbHandler, Sylv
 from tests.fakes import ScriptedDevice
 
 TIMEOUT = 0.3
+PTY = "?bytesize=8&parity=N&stopbits=1"
+QSB_OPEN = [(b"W1503\r\n", b"w1500000003!\r\n"), (b"W0000\r\n", b"w0000000000!\r\n"), (b"W0303\r\n", b"w0300000003!\r\n"),
+            (b"R14\r\n", b"r1400000100!\r\n")]
 
 
 def _read(make, request: bytes, reply: bytes | None, call: str):
-    with ScriptedDevice([(request, reply)]) as dev:
+    opening = QSB_OPEN if make is ENCODER else []
+    with ScriptedDevice(opening + [(request, reply)]) as dev:
         driver = make(dev.path)
         try:
             return getattr(driver, call)()
         finally:
             driver.close()
-            assert dev.received == [request]
+            assert dev.received == [r for r, _ in opening] + [request]
 
 
-AUTOCOLLIMATOR = lambda path: ElcomatAutocollimator(parse_address(path), TIMEOUT)  # noqa: E731
-INDICATOR = lambda path: SylvacIndicator(parse_address(path), "dial_indicator_1", TIMEOUT)  # noqa: E731
-ENCODER = lambda path: QsbEncoder(parse_address(path + "?counts_per_rev=3600000"), TIMEOUT)  # noqa: E731
-TRACER = lambda path: LineLaserTracer(parse_address(path), TIMEOUT)  # noqa: E731
+AUTOCOLLIMATOR = lambda path: ElcomatAutocollimator(parse_address(path + PTY), TIMEOUT)  # noqa: E731
+INDICATOR = lambda path: SylvacIndicator(parse_address(path + PTY), TIMEOUT, "dial_indicator_1")  # noqa: E731
+ENCODER = lambda path: QsbEncoder(parse_address(path + PTY + "&counts_per_rev=3600000"), TIMEOUT)  # noqa: E731
+TRACER = lambda path: LineLaserTracer(parse_address(path + PTY), TIMEOUT)  # noqa: E731
 
 GOOD = [
-    (AUTOCOLLIMATOR, b"M\r", b"0 +12.3450 -3.2100\r", "read_arcsec", (12.345, -3.21)),
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 003 12.34 -5.67\r", "read_arcsec", (12.34, -5.67)),  # the reference's example
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.3450 -3.2100\r", "read_arcsec", (12.345, -3.21)),
     (INDICATOR, b"?\r", b"+0.001230\r", "read_um", 1.23),
-    (INDICATOR, b"?\r", b"-0.250000\r", "read_um", -250.0),
-    (ENCODER, b"R0E\r", b"0E0000A000\r\n", "read_angle_deg", 40960 * 360 / 3600000),
-    (ENCODER, b"R0E\r", b"0EFFFFFFFF\r\n", "read_angle_deg", -360 / 3600000),
+    (INDICATOR, b"?\r", b"-0.250000\r\n", "read_um", -250.0),  # CR LF as well as CR
+    (INDICATOR, b"?\r", b"- 0.2500 mm\r", "read_um", -250.0),  # a sign apart and a unit: tolerated
+    (INDICATOR, b"?\r", b"+0.0100 in\r", "read_um", 254.0),  # inches, when the display is switched
+    (ENCODER, b"R0E\r\n", b"r0E0001F4A2!\r\n", "read_angle_deg", 128162 * 360 / 3600000),  # the reference's example
+    (ENCODER, b"R0E\r\n", b"r0E0000A000\r\n", "read_angle_deg", 40960 * 360 / 3600000),  # older firmware: no "!"
+    (ENCODER, b"R0E\r\n", b"r0EFFFFFFFF0000ABCD!\r\n", "read_angle_deg", -360 / 3600000),  # with a timestamp
+    (ENCODER, b"R0E\r\n", b"r 0E 0000A000 !\r\n", "read_angle_deg", 40960 * 360 / 3600000),  # spaces between fields
     (TRACER, b"REF\r\n", b"OK REF 3\r\n", "reference", 3),
 ]
 
 BAD = [
-    (AUTOCOLLIMATOR, b"M\r", b"1 0 0\r", InstrumentFault, "no reflection"),
-    (AUTOCOLLIMATOR, b"M\r", b"0 +12.3x -3\r", InstrumentFault, "unexpected reply"),
-    (AUTOCOLLIMATOR, b"M\r", b"0 +12.34", InstrumentTimeout, "truncated"),
-    (AUTOCOLLIMATOR, b"M\r", None, InstrumentTimeout, "no reply"),
-    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "out of range"),
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 000 0.00 0.00\r", InstrumentFault, "no valid absolute measurement"),
+    (AUTOCOLLIMATOR, b"a\r\n", b"2 103 1.00 2.00\r", InstrumentFault, "no valid absolute measurement"),
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.3x -3\r", InstrumentFault, "unexpected reply"),
+    (AUTOCOLLIMATOR, b"a\r\n", b"0 +12.3450 -3.2100\r", InstrumentFault, "unexpected reply"),  # three fields
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.34", InstrumentTimeout, "truncated"),
+    (AUTOCOLLIMATOR, b"a\r\n", None, InstrumentTimeout, "no reply"),
+    (INDICATOR, b"?\r", b"\r", InstrumentFault, "initialising"),
+    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "unexpected reply"),
     (INDICATOR, b"?\r", b"\xff\xfe\r", InstrumentFault, "not ASCII"),
     (INDICATOR, b"?\r", b"+0.00", InstrumentTimeout, "truncated"),
     (INDICATOR, b"?\r", None, InstrumentTimeout, "no reply"),
-    (ENCODER, b"R0E\r", b"0E12G45678\r\n", InstrumentFault, "unexpected reply"),
-    (ENCODER, b"R0E\r", b"0E1234", InstrumentTimeout, "truncated"),
-    (ENCODER, b"R0E\r", None, InstrumentTimeout, "no reply"),
+    (ENCODER, b"R0E\r\n", b"0E0001F4A2\r\n", InstrumentFault, "unexpected reply"),  # no response letter
+    (ENCODER, b"R0E\r\n", b"r0E12G45678!\r\n", InstrumentFault, "unexpected reply"),
+    (ENCODER, b"R0E\r\n", b"r140001F4A2!\r\n", InstrumentFault, "not for register 0E"),
+    (ENCODER, b"R0E\r\n", b"e0E00000000!\r\n", InstrumentFault, "error"),
+    (ENCODER, b"R0E\r\n", b"r0E1234", InstrumentTimeout, "truncated"),
+    (ENCODER, b"R0E\r\n", None, InstrumentTimeout, "no reply"),
     (TRACER, b"REF\r\n", b"OK REFX\r\n", InstrumentFault, "unexpected reply"),
     (TRACER, b"REF\r\n", None, InstrumentTimeout, "no reply"),
     (TRACER, b"REF\r\n", b"OK REF " + b"9" * 40 + b"\r\n", InstrumentFault, "unexpected reply"),
     # values a line can carry but no instrument can measure: garbage, never a reading
-    (AUTOCOLLIMATOR, b"M\r", b"0 +9999.0000 +0.0000\r", InstrumentFault, "outside what it can measure"),
-    (AUTOCOLLIMATOR, b"M\r", b"0 +0.0000 -" + b"9" * 200 + b"\r", InstrumentFault, "outside what it can measure"),
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 003 9999.0000 0.0000\r", InstrumentFault, "outside what it can measure"),
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 003 0.0000 -" + b"9" * 200 + b"\r", InstrumentFault, "outside what it can measure"),
     (INDICATOR, b"?\r", b"+250.000000\r", InstrumentFault, "outside what it can measure"),
 ]
 
@@ -77,6 +94,20 @@ def test_driver_raises_typed_errors(make, request_, reply, error, text):
     call = {AUTOCOLLIMATOR: "read_arcsec", INDICATOR: "read_um", ENCODER: "read_angle_deg", TRACER: "reference"}[make]
     with pytest.raises(error, match=text):
         _read(make, request_, reply, call)
+
+
+def test_qsb_is_configured_at_open_and_identifies_itself():
+    with ScriptedDevice(QSB_OPEN) as dev:
+        encoder = ENCODER(dev.path)
+        assert encoder.identity() == "US Digital QSB, VERSION register 0x00000100"
+        encoder.close()
+        assert dev.received == [r for r, _ in QSB_OPEN]
+
+
+def test_qsb_refusing_its_configuration_is_a_fault():
+    with ScriptedDevice([(b"W1503\r\n", b"e1500000000!\r\n")]) as dev:
+        with pytest.raises(InstrumentFault, match="W1503: the counter answered with an error"):
+            ENCODER(dev.path)
 
 
 @pytest.mark.parametrize("reply,expected", [
@@ -105,13 +136,18 @@ def test_tracer_length_errors(reply, error, text):
 def test_simulator_ends_answer_as_documented():
     """The instrument ends of the protocols, byte for byte, on a noise-free bench."""
     bench = Bench(Scenario())
-    assert ElcomatHandler(SimAutocollimator(bench)).handle(b"M") == b"0 +0.0000 +0.0000\r"
-    assert ElcomatHandler(SimAutocollimator(bench)).handle(b"X") == b"9 0 0\r"
-    assert SylvacHandler(SimDialIndicator(bench, 0)).handle(b"?") == b"+0.000000\r"
-    assert SylvacHandler(SimDialIndicator(bench, 0)).handle(b"Z") == b"ERR3\r"
-    bench.move_stage(0.5, +1)  # rad
-    enc = QsbHandler(SimEncoder(bench), 2**20).handle(b"R0E")
-    assert enc == f"0E{round(0.5 / 6.283185307179586 * 2**20):08X}\r\n".encode()
+    elcomat = ElcomatHandler(SimAutocollimator(bench))
+    assert elcomat.handle(b"a\r") == b"4 003 0.0000 0.0000\r"
+    assert elcomat.handle(b"r\r") == b"2 103 0.0000 0.0000\r"
+    assert elcomat.handle(b"X\r") == b""
+    assert SylvacHandler(SimDialIndicator(bench, 0)).handle(b"?") == b"+0.000000\r\n"
+    bench.move_stage(0.5, +1)  # rad: no polygon face in front of the autocollimator
+    assert elcomat.handle(b"a\r") == b"4 000 0.0000 0.0000\r"
+    qsb = QsbHandler(SimEncoder(bench), 2**20)
+    assert qsb.handle(b"R0E") == f"r0E{round(0.5 / 6.283185307179586 * 2**20):08X}!\r\n".encode()
+    assert qsb.handle(b"W1509") == b"w 15 00000009 !\n"  # EOR: LF only, spaces between fields (from this reply on)
+    assert qsb.handle(b"R14") == b"r 14 00000100 !\n"
+    assert qsb.handle(b"R0E0") == b"e00000000!\r\n"
     tracer = TracerHandler(SimLaserTracer(bench))
     assert tracer.handle(b"REF\r") == b"OK REF 0\r\n"
     assert tracer.handle(b"LEN?\r") == b"LEN 0.000 0\r\n"

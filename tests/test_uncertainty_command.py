@@ -102,7 +102,7 @@ def test_refuses_hardware_procedures_and_bad_counts(tmp_path, capsys):
     hw = tmp_path / "hw.yaml"
     hw.write_text(PROCEDURE.read_text().replace("bench: scenarios/", f"bench: {PROCEDURE.parent}/scenarios/")
                   .replace("stage: {backend: sim}", "stage: {address: \"modbus-tcp://127.0.0.1:1502\"}")
-                  .replace("cmm: {backend: sim}", "cmm: {address: \"ipp://127.0.0.1:1294\"}")
+                  .replace("cmm: {backend: sim, tool: CatEye}", "cmm: {address: \"ipp://127.0.0.1:1294\", tool: CatEye}")
                   .replace("laser_tracer: {backend: sim}", "laser_tracer: {address: /dev/null}")
                   .replace("environment: {backend: sim}", "environment: {address: /dev/null}"))
     assert main(["uncertainty", str(hw), "--trials", "3", "--out", str(tmp_path / "x")]) == 2

@@ -264,7 +264,7 @@ def sim_instruments(proc: LaserTracerMultistation, bench: Bench) -> Multistation
 def transport_instruments(proc: LaserTracerMultistation) -> MultistationInstrumentSet:
     i = proc.instruments
     stage = factory.open_stage(i.stage.address, i.stage.soft_limits_deg, i.stage.timeout_s)
-    cmm = factory.open_cmm(i.cmm.address, i.cmm.volume_min_mm, i.cmm.volume_max_mm, i.cmm.timeout_s)
+    cmm = factory.open_cmm(i.cmm.address, i.cmm.volume_min_mm, i.cmm.volume_max_mm, i.cmm.timeout_s, i.cmm.tool)
     tracer = factory.open_laser_tracer(i.laser_tracer.address, i.laser_tracer.timeout_s)
     env = factory.open_environment(i.environment.address, i.environment.timeout_s) if i.environment is not None else None
     return MultistationInstrumentSet(stage=stage, cmm=cmm, laser_tracer=tracer, environment=env)

@@ -110,13 +110,16 @@ class InstrumentChoice(_Strict):
         only when the run opens it)."""
         if self.address is None:
             return
-        from drivers.addresses import parse_address
-        from drivers.factory import SCHEMES
+        from drivers.addresses import AddressError
+        from drivers.factory import SchemeMismatch, check_address
 
-        scheme = parse_address(self.address).scheme  # parsed already: cannot fail
-        if scheme not in SCHEMES[name]:
-            raise ValueError(f"{name}.address: a {scheme} address; the {name.replace('_', ' ')} speaks "
-                             f"{' or '.join(SCHEMES[name])} (see drivers/addresses.py)")
+        try:
+            check_address(name, self.address)
+        except SchemeMismatch as exc:
+            raise ValueError(f"{name}.address: a {exc.scheme} address; the {name.replace('_', ' ')} speaks "
+                             f"{' or '.join(exc.schemes)} (see drivers/addresses.py)") from None
+        except AddressError as exc:  # a model of another kind of instrument
+            raise ValueError(f"{name}.address: {exc}") from None
 
     @property
     def is_sim(self) -> bool:
@@ -141,6 +144,9 @@ class CmmChoice(InstrumentChoice):
 
     volume_min_mm: Vec3 = Field((-1e6, -1e6, -1e6), description="lowest X, Y, Z the CMM may be sent to, mm (CMM frame)")
     volume_max_mm: Vec3 = Field((1e6, 1e6, 1e6), description="highest X, Y, Z the CMM may be sent to, mm (CMM frame)")
+    tool: str | None = Field(None, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$",
+                             description="the CMM tool that carries the reflector, selected at session start "
+                                         "(I++ ChangeTool), e.g. CatEye; none: the CMM's active tool")
 
     @model_validator(mode="after")
     def _ordered_volume(self) -> "CmmChoice":
@@ -469,9 +475,12 @@ class LaserTracerMultistation(_Procedure):
             return data
         angle = stations.get("first_angle_deg", PAPER_STATION_1_DEG)
         axis = solver.get("axis_point_mm", (0.0, 0.0, 0.0))
-        numbers = [angle, *axis] if isinstance(axis, (list, tuple)) and len(axis) == 3 else []
-        if angle == PAPER_STATION_1_DEG or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                                                   and abs(v) <= 1e6 for v in numbers):
+
+        def number(v: Any) -> bool:
+            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 1e6
+
+        if (angle == PAPER_STATION_1_DEG or not number(angle) or not isinstance(axis, (list, tuple)) or len(axis) != 3
+                or not all(number(v) for v in axis)):
             return data  # the default as it stands, or a mistake the fields' own validation will name
         return {**data, "solver": {**solver, "first_station_guess_mm": _turned_guess(float(angle), tuple(map(float, axis)))}}
 

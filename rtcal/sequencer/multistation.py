@@ -7,6 +7,7 @@ CMM's reported position at each visit, every tracer sample — is stored before 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
@@ -163,7 +164,8 @@ def run_multistation(
             at_station = j
         if cmm_moved:
             at_point = None
-            if faults.call("cmm", lambda: inst.cmm.move_to(point), what=f"move to point {i + 1}") is SKIPPED:
+            if faults.call("cmm", lambda: inst.cmm.move_to(point), recover=inst.cmm.recover,
+                           what=f"move to point {i + 1}") is SKIPPED:
                 return skip("cmm")
             at_point = i
         if stage_moved or cmm_moved:
@@ -175,6 +177,7 @@ def run_multistation(
             clock.sleep(proc.settle_time_s)
 
         def cmm_again() -> None:
+            inst.cmm.recover()  # an I++ server in its error state answers nothing else
             inst.cmm.move_to(point)
             clock.sleep(proc.settle_time_s)
 
@@ -195,7 +198,8 @@ def run_multistation(
             env = faults.call("environment", inst.environment.read, what=f"environment at point {i + 1}, station {j + 1}")
             if env is not SKIPPED:
                 t = clock.now_s()
-                readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state) for q, unit in ENVIRONMENT_QUANTITIES]
+                readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state)
+                             for q, unit in ENVIRONMENT_QUANTITIES if math.isfinite(getattr(env, q))]  # NaN: not measured
         if segment is None and faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference") is SKIPPED:
             return skip("laser_tracer")  # no valid count without a reference
         samples: list[Reading] = []
@@ -226,7 +230,8 @@ def run_multistation(
             at_station = None
             return skip("stage")
         readings.append(Reading(clock.now_s(), "stage", "feedback_deg", float(after), "deg", **state))
-        xyz_after = faults.call("cmm", lambda: checks.cmm_still(inst.cmm, xyz), what=f"position at point {i + 1}")
+        xyz_after = faults.call("cmm", lambda: checks.cmm_still(inst.cmm, xyz), recover=inst.cmm.recover,
+                                what=f"position at point {i + 1}")
         if xyz_after is SKIPPED:
             at_point = None
             return skip("cmm")

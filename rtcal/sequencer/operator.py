@@ -91,13 +91,15 @@ class BenchOperator:
 
 
 class RemoteSimOperator:
-    """The simulated operator of a protocol-simulator hub (``sim-operator://HOST:PORT``)."""
+    """The simulated operator of a protocol-simulator hub (``sim-operator://HOST:PORT?token=…``):
+    each request carries the token the hub printed, so only the run it serves is let in."""
 
     def __init__(self, address: str, timeout_s: float = 5.0):
         from drivers.addresses import parse_address
 
         a = parse_address(address)
         self.where = (a.host, a.port)
+        self.token = a.text("token")
         self.timeout_s = timeout_s
 
     def _ask(self, line: str) -> str:
@@ -105,7 +107,7 @@ class RemoteSimOperator:
 
         try:
             with socket.create_connection(self.where, timeout=self.timeout_s) as s:
-                s.sendall(line.encode() + b"\n")
+                s.sendall(f"AUTH {self.token or '-'} {line}\n".encode())
                 return s.makefile("rb").readline(64 * 1024).decode(errors="replace").strip()
         except OSError as exc:
             raise OperatorUnavailable(f"the simulated operator at {self.where[0]}:{self.where[1]} does not answer "

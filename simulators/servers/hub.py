@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import hmac
 import math
 import os
+import secrets
 import socket
 import threading
 import tty
@@ -41,17 +43,24 @@ from simulators.servers import modbus_stage
 from simulators.servers.ipp_server import serve_ipp
 from simulators.servers.serial_protocols import (
     ElcomatHandler,
-    EnvironmentHandler,
+    EnvironmentNow,
     FaultyLine,
+    IthxHandler,
     LineHandler,
     QsbHandler,
     SylvacHandler,
     TracerHandler,
+    VaisalaHandler,
 )
 
 MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
 MAX_PENDING_REQUESTS = 16  # requests answered from one read of a line; the rest of a flood is dropped
 MAX_OPERATOR_LINE = 1024
+# the product each line emulates, and the framing options a pseudo-terminal line's address carries:
+# this machine's kind of pseudo-terminal accepts 8N1 everywhere, other framings only on some kernels
+LINE_MODELS = {"laser_tracer": "rtcal-line", "encoder": "qsb", "autocollimator": "elcomat", "dial_indicator_1": "sylvac",
+               "dial_indicator_2": "sylvac", "environment": "vaisala-ptu300"}
+PTY_FRAMING = "bytesize=8&parity=N&stopbits=1"
 
 
 class PtyWriter:
@@ -100,6 +109,7 @@ class SimulatorHub:
     host: str = "127.0.0.1"
     serial: Literal["pty", "tcp"] = "pty"
     modbus: Literal["tcp", "rtu"] = "tcp"
+    environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
     addresses: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -119,9 +129,11 @@ class SimulatorHub:
             "autocollimator": ElcomatHandler(SimAutocollimator(b, inject=False)),
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False)),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False)),
-            "environment": EnvironmentHandler(SimEnvironmentSensor(b, inject=False)),
         }
+        self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
+        lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper())
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
+        self.operator_token = secrets.token_urlsafe(18)  # only the run given the operator's address may use it
         self._fds: list[int] = []
         self._pty_writers: list[PtyWriter] = []
         self._line_masters: dict[str, int] = {}  # serial line name → its pseudo-terminal's master
@@ -232,16 +244,20 @@ class SimulatorHub:
             self.addresses["stage"] = f"modbus-tcp://{h}:{port}?{stage_query}"
         else:
             client_path = await self._start_rtu()
-            self.addresses["stage"] = f"modbus-rtu://{client_path}?{stage_query}&baud=115200"
+            self.addresses["stage"] = f"modbus-rtu://{client_path}?{stage_query}&baud=115200&parity=N"  # a pty line: 8N1
         cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults)
         self._servers.append(cmm_server)
         self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
         for name, handler in self.handlers.items():
-            self.addresses[name] = await self._serve_line(name, handler)
-        self.addresses["encoder"] += f"?counts_per_rev={self.counts_per_rev}"
+            model = self.environment if name == "environment" else LINE_MODELS[name]
+            where = await self._serve_line(name, handler)
+            self.addresses[name] = f"{where}?model={model}" + ("" if where.startswith("socket://") else f"&{PTY_FRAMING}")
+        self.addresses["encoder"] += f"&counts_per_rev={self.counts_per_rev}"
+        thermometer = await self._serve_line("thermometer", IthxHandler(self.environment_now), tcp=True)  # an iServer
+        self.addresses["environment"] += f"&thermometer={thermometer}"
         op = await asyncio.start_server(self._operator_client, h, 0, limit=MAX_OPERATOR_LINE)
         self._servers.append(op)
-        self.addresses["operator"] = f"sim-operator://{h}:{op.sockets[0].getsockname()[1]}"
+        self.addresses["operator"] = f"sim-operator://{h}:{op.sockets[0].getsockname()[1]}?token={self.operator_token}"
 
     async def _wait_listening(self, host: str, port: int) -> None:
         for _ in range(200):
@@ -276,8 +292,8 @@ class SimulatorHub:
         await asyncio.sleep(0.2)
         return p2
 
-    async def _serve_line(self, name: str, handler: LineHandler) -> str:
-        if self.serial == "tcp":
+    async def _serve_line(self, name: str, handler: LineHandler, tcp: bool = False) -> str:
+        if self.serial == "tcp" or tcp:
             async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
                 buffer = b""
                 try:
@@ -332,13 +348,20 @@ class SimulatorHub:
         return buffer
 
     async def _operator_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """The simulated operator: ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>``
-        moves the laser tracer to its first or second mount; ``CERT?``
-        hands over the polygon's calibration certificate (face errors, arcsec); ``CLEAR``
-        releases an emergency stop."""
+        """The simulated operator, for the run given its address: every line is ``AUTH <token> <command>``
+        (the token of the address ``rtcal sim serve`` printed); without it, ``ERR AUTH`` and nothing
+        done. ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>`` moves the laser
+        tracer to its first or second mount; ``CERT?`` hands over the polygon's calibration
+        certificate (face errors, arcsec); ``CLEAR`` releases an emergency stop."""
         try:
             while line := await reader.readline():
                 words = line.decode(errors="replace").split()
+                if len(words) < 3 or words[0] != "AUTH" or not hmac.compare_digest(words[1].encode(),
+                                                                                    self.operator_token.encode()):
+                    writer.write(b"ERR AUTH\n")
+                    await writer.drain()
+                    continue
+                words = words[2:]
                 if len(words) == 2 and words[0] == "RESEAT":
                     try:
                         offset_deg = float(words[1])

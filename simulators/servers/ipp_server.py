@@ -1,4 +1,16 @@
-"""An I++ DME server (asyncio TCP) backed by the simulated CMM."""
+"""An I++ DME server (asyncio TCP) backed by the simulated CMM, behaving as the standard says a
+server does (docs/protocols/ipp_dme.md):
+
+- every transaction ends with ``%``, an error reply included; a malformed line gets ``!`` and ``%``;
+- an error of severity 2 or more puts the session in its error state: every later command but
+  ``ClearAllErrors()`` (and ``EndSession()``) is answered with error 0514 until it is sent;
+- one session at a time: a second client's ``StartSession()`` is refused while another holds
+  the session (it waits half a second for a holder that is going away);
+- ``GetDMEVersion()`` identifies the server; ``ChangeTool``/``SetTool`` know the simulated tools;
+- ``PtMeas`` probes the one surface the simulated CMM has — its table top, the plane at the
+  bottom of the measuring volume — along the given normal, and misses it (error 1006) when the
+  surface is farther than the search distance from the nominal point.
+"""
 
 from __future__ import annotations
 
@@ -12,44 +24,101 @@ from drivers.errors import OutOfLimits
 from simulators.instruments import SimCmm
 
 MAX_LINE_BYTES = 64 * 1024
+DME_VERSION = "1.4"
+TOOLS = ("Probe", "CatEye", "RefTool")  # what ChangeTool/SetTool find
+SEARCH_MM = 5.0  # PtMeas looks for the surface this far either side of the nominal point
+HOLDER_GRACE_S = 0.5  # a StartSession waits this long for a holder whose connection is closing
+
+
+class SessionLock:
+    """Who holds the server's one session (shared by every connection of one server)."""
+
+    def __init__(self) -> None:
+        self.holder: object | None = None
+        self.released = asyncio.Event()
+
+    def release(self, session: object) -> None:
+        if self.holder is session:
+            self.holder = None
+            self.released.set()
+
+    async def wait_for(self, session: object, timeout_s: float) -> None:
+        """Give a holder whose connection is closing a moment to go (its EOF may be read after the
+        newcomer's StartSession)."""
+        if self.holder is not None and self.holder is not session:
+            self.released.clear()
+            try:
+                await asyncio.wait_for(self.released.wait(), timeout_s)
+            except asyncio.TimeoutError:
+                pass
 
 
 class IppSession:
-    """One client's session: turns request lines into reply lines."""
+    """One client's connection: turns request lines into reply lines."""
 
-    def __init__(self, cmm: SimCmm, faults=None):
+    def __init__(self, cmm: SimCmm, faults=None, lock: SessionLock | None = None):
         self.cmm = cmm
         self.faults = faults  # the bench's injector: one draw per motion command
+        self.lock = lock or SessionLock()
         self.started = False
+        self.error_state = False
         self.homed = False
         self.tool = "Probe"
+
+    def _error(self, tag: str, code: str, cause: str, text: str = "", ack: bool = True) -> str:
+        if ipp.ERRORS.get(code, (3, ""))[0] >= 2:
+            self.error_state = True
+        return (f"{tag} &\r\n" if ack else "") + ipp.error_line(tag, code, cause, text) + f"{tag} %\r\n"
 
     def handle(self, line: str) -> str:
         m = ipp.COMMAND.fullmatch(line.strip())
         if m is None:
-            tag = line[:5] if line[:5].isdigit() else "00000"
-            return ipp.error_line(tag, 2, ipp.PROTOCOL_ERROR, "", "Protocol error: expected TTTTT Command(...)")
+            tag = line[:5] if line[:5].isdigit() and line[:5] != "00000" else "00000"
+            code = "0001" if tag == "00000" else "0002" if line[5:6] != " " else ipp.PROTOCOL_ERROR
+            return self._error(tag, code, "", ack=False)
         tag, name, args = m.groups()
-        ack = f"{tag} &\r\n"
-        done = f"{tag} %\r\n"
-        if name != "StartSession" and not self.started:
-            return ack + ipp.error_line(tag, 2, ipp.PROTOCOL_ERROR, name, "No session: send StartSession() first")
         if name == "StartSession":
-            self.started = True
-            return ack + done
-        if name == "EndSession":
-            self.started = False
-            return ack + done
+            return self._start(tag)
+        if not self.started:
+            return self._error(tag, ipp.ILLEGAL_COMMAND, name, "No session: send StartSession() first")
         if name == "ClearAllErrors":
-            return ack + done
+            self.error_state = False
+            return f"{tag} &\r\n{tag} %\r\n"
+        if name == "EndSession":
+            self.end()
+            return f"{tag} &\r\n{tag} %\r\n"
+        if self.error_state:
+            return self._error(tag, ipp.USE_CLEAR_ALL_ERRORS, name)
+        return self._command(tag, name, args)
+
+    def _start(self, tag: str) -> str:
+        if self.lock.holder is not None and self.lock.holder is not self:
+            return self._error(tag, ipp.ILLEGAL_COMMAND, "StartSession", "Another client holds the session")
+        self.lock.holder = self
+        self.started, self.error_state = True, False
+        return f"{tag} &\r\n{tag} %\r\n"
+
+    def end(self) -> None:
+        self.started = False
+        self.lock.release(self)
+
+    def _command(self, tag: str, name: str, args: str) -> str:
+        ack, done = f"{tag} &\r\n", f"{tag} %\r\n"
+        if name == "GetDMEVersion":
+            return ack + f'{tag} # DMEVersion("{DME_VERSION}")\r\n' + done
         if name == "Home":
             self.cmm.home()
             self.homed = True
             return ack + done
         if name == "IsHomed":
             return ack + f"{tag} # IsHomed({int(self.homed)})\r\n" + done
-        if name == "SetTool":
-            self.tool = args.strip().strip('"') or self.tool
+        if name in ("ChangeTool", "SetTool"):
+            m = ipp.STRING_ARG.fullmatch(args)
+            if m is None:
+                return self._error(tag, ipp.INCORRECT_ARGUMENTS, name)
+            if m.group(1) not in TOOLS:
+                return self._error(tag, ipp.TOOL_NOT_FOUND, name)
+            self.tool = m.group(1)
             return ack + done
         if name in ("GoTo", "PtMeas"):
             fault = self.faults.draw("cmm") if self.faults else None
@@ -59,43 +128,74 @@ class IppSession:
                 return "\x15#?% garbage\r\n"
             if fault is not None and fault.kind == "truncated":
                 return f"{tag} "
-            values = ipp.axes(args)
-            if set(values) != {"X", "Y", "Z"}:
-                return ack + ipp.error_line(tag, 2, ipp.BAD_ARGUMENT_COUNT, name, "Needs X(), Y() and Z()")
-            if any(v is None or not math.isfinite(v) for v in values.values()):
-                return ack + ipp.error_line(tag, 2, ipp.BAD_ARGUMENT, name, "Bad argument")
-            target = np.array([values["X"], values["Y"], values["Z"]])
-            try:
-                self.cmm.move_to(target)
-            except OutOfLimits:
-                return ack + ipp.error_line(tag, 2, ipp.OUT_OF_VOLUME, name, "Target position out of machine volume")
-            if name == "PtMeas":
-                return ack + f"{tag} # {ipp.format_axes(*self.cmm.position_mm())}\r\n" + done
-            return ack + done
+            return self._motion(tag, name, args)
         if name == "Get":
             wanted = ipp.axes(args)
             if not wanted or set(wanted) - {"X", "Y", "Z"}:
-                return ack + ipp.error_line(tag, 2, ipp.BAD_ARGUMENT, name, "Get supports X(), Y(), Z()")
+                return self._error(tag, ipp.BAD_ARGUMENT, name, "Get supports X(), Y(), Z()")
             pos = dict(zip("XYZ", self.cmm.position_mm()))
             body = ", ".join(f"{a}({pos[a]:.6f})" for a in "XYZ" if a in wanted)
             return ack + f"{tag} # {body}\r\n" + done
-        return ack + ipp.error_line(tag, 2, ipp.UNSUPPORTED_COMMAND, name, "Unsupported command")
+        return self._error(tag, ipp.UNSUPPORTED_COMMAND, name)
+
+    def _motion(self, tag: str, name: str, args: str) -> str:
+        values = ipp.axes(args)
+        if any(v is None or not math.isfinite(v) for v in values.values()):
+            return self._error(tag, ipp.BAD_ARGUMENT, name)
+        if not values or (name == "PtMeas" and set(values) != {"X", "Y", "Z"}):
+            return self._error(tag, ipp.INCORRECT_ARGUMENTS, name, "Needs X(), Y() and Z()")
+        here = dict(zip("XYZ", self.cmm.bench.probe_target_mm))
+        target = np.array([values.get(a, here[a]) for a in "XYZ"], float)
+        if name == "PtMeas":
+            touched = self._probe(target, args)
+            if touched is None:
+                return self._error(tag, ipp.SURFACE_NOT_FOUND, name)
+            target = touched
+        try:
+            self.cmm.move_to(target)
+        except OutOfLimits:
+            return self._error(tag, ipp.OUT_OF_VOLUME, name)
+        if name == "PtMeas":
+            return f"{tag} &\r\n{tag} # {ipp.format_axes(*self.cmm.position_mm())}\r\n{tag} %\r\n"
+        return f"{tag} &\r\n{tag} %\r\n"
+
+    def _probe(self, nominal: np.ndarray, args: str) -> np.ndarray | None:
+        """Where the probe, moving along −IJK through the nominal point, meets the table top; None if
+        it does not within ±SEARCH_MM (no IJK: straight down)."""
+        m = ipp.IJK.search(args)
+        try:
+            normal = np.array([float(v) for v in m.groups()]) if m else np.array([0.0, 0.0, 1.0])
+        except ValueError:
+            return None
+        norm = float(np.linalg.norm(normal))
+        surface_z = self.cmm.volume_min_mm[2]
+        if not (norm > 0 and math.isfinite(norm) and math.isfinite(surface_z)) or normal[2] == 0:
+            return None
+        normal = normal / norm
+        t = (nominal[2] - surface_z) / normal[2]  # nominal − t·normal lies on the surface
+        return nominal - t * normal if abs(t) <= SEARCH_MM else None
 
 
 async def serve_ipp(cmm: SimCmm, host: str, port: int, faults=None) -> asyncio.base_events.Server:
-    """Start an I++ server; one session per connection."""
+    """Start an I++ server: one session at a time, held until EndSession or the connection closes."""
+    lock = SessionLock()
 
     async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        session = IppSession(cmm, faults)
+        session = IppSession(cmm, faults, lock)
         try:
             while line := await reader.readline():
-                writer.write(session.handle(line.decode("ascii", errors="replace")).encode("ascii", errors="replace"))
+                text = line.decode("ascii", errors="replace")
+                if text[6:].startswith("StartSession("):
+                    await lock.wait_for(session, HOLDER_GRACE_S)
+                reply = session.handle(text)
+                writer.write(reply.encode("ascii", errors="replace"))
                 await writer.drain()
         except ValueError:  # a line beyond MAX_LINE_BYTES: answered with a protocol error, the client let go
-            writer.write(ipp.error_line("00000", 3, ipp.PROTOCOL_ERROR, "", "Line too long").encode("ascii"))
+            writer.write(ipp.error_line("00000", ipp.PROTOCOL_ERROR, "", "Line too long").encode("ascii"))
         except (ConnectionError, asyncio.IncompleteReadError, asyncio.CancelledError):
             pass
         finally:
+            session.end()
             writer.close()
 
     return await asyncio.start_server(client, host, port, limit=MAX_LINE_BYTES)

@@ -1,4 +1,5 @@
-"""Instrument ends of the serial ASCII protocols, backed by the simulated instruments.
+"""Instrument ends of the serial protocols, as the named products answer (docs/protocols/), backed
+by the simulated instruments.
 
 Each handler turns one request line into one reply (bytes in, bytes out, terminators included)
 and knows nothing of pseudo-terminals or sockets: :mod:`simulators.servers.hub` carries bytes.
@@ -6,9 +7,11 @@ and knows nothing of pseudo-terminals or sockets: :mod:`simulators.servers.hub` 
 
 from __future__ import annotations
 
+import re
 from typing import Protocol
 
 from drivers.errors import InstrumentFault, TrackingLost
+from drivers.interfaces import EnvironmentReading
 from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimEnvironmentSensor, SimLaserTracer
 
 
@@ -45,61 +48,98 @@ class FaultyLine:
             return b""
         if fault.kind == "garbled":
             return b"\x15#?%!~" + self.handler.reply_terminator
-        return b"0 +1"  # truncated: no terminator follows
+        return b"4 003 +1"  # truncated: no terminator follows
 
 
 class ElcomatHandler:
+    """Möller-Wedel ELCOMAT: ``a`` → ``4 003 <x> <y>\\r`` (absolute), ``r`` → ``2 103 <x> <y>\\r``
+    (relative; the simulated unit's zero is its absolute zero), arcsec. No face in range: the
+    second field 000 (rtcal's reading of 003 as "X and Y valid"; the real code is unconfirmed)."""
+
     reply_terminator = b"\r"
-    terminator = b"\r"
+    terminator = b"\n"
 
     def __init__(self, instrument: SimAutocollimator):
         self.instrument = instrument
 
     def counted(self, request: bytes) -> bool:
-        return True
+        return request.strip() in (b"a", b"r")
 
     def handle(self, request: bytes) -> bytes:
-        if request.strip() != b"M":
-            return b"9 0 0\r"
+        command = request.strip()
+        if command not in (b"a", b"r"):
+            return b""  # what a unit answers to other commands is not published: nothing
+        mode, valid = (b"4", b"003") if command == b"a" else (b"2", b"103")
         try:
             x, y = self.instrument.read_arcsec()
         except InstrumentFault:
-            return b"1 0 0\r"
-        return f"0 {x:+.4f} {y:+.4f}\r".encode()
+            return mode + b" " + valid[:1] + b"00 0.0000 0.0000\r"
+        return mode + b" " + valid + f" {x:.4f} {y:.4f}\r".encode()
 
 
 class SylvacHandler:
-    reply_terminator = b"\r"
+    """Sylvac indicator: ``?`` (or ``PRI?``) → the displacement in mm, signed, CR LF."""
+
+    reply_terminator = b"\r\n"
     terminator = b"\r"
 
     def __init__(self, instrument: SimDialIndicator):
         self.instrument = instrument
 
     def counted(self, request: bytes) -> bool:
-        return True
+        return request.strip() in (b"?", b"PRI?")
 
     def handle(self, request: bytes) -> bytes:
-        if request.strip() != b"?":
-            return b"ERR3\r"
-        return f"{self.instrument.read_um() / 1000.0:+.6f}\r".encode()
+        command = request.strip()
+        if command == b"BAT?":
+            return b"BAT1\r\n"
+        if command not in (b"?", b"PRI?"):
+            return b""  # the reply to other commands is not published: nothing
+        return f"{self.instrument.read_um() / 1000.0:+.6f}\r\n".encode()
 
 
 class QsbHandler:
+    """US Digital QSB: ``R<reg>``, ``W<reg><hex>``; reply ``r|w<reg><8 hex>[timestamp]!`` + the end of
+    response that register 0x15 (EOR) chooses: bit 0 LF, bit 1 CR, bit 2 timestamp, bit 3 spaces."""
+
     reply_terminator = b"\r\n"
-    terminator = b"\r"
+    terminator = b"\r"  # requests end in CR, LF or CR LF: a lone LF left over is an empty line
+    COMMAND = re.compile(rb"([RWS])([0-9A-F]{2})([0-9A-F]{0,8})")
+    COUNT, VERSION, EOR = 0x0E, 0x14, 0x15
 
     def __init__(self, instrument: SimEncoder, counts_per_rev: int):
         self.instrument = instrument
         self.counts_per_rev = counts_per_rev
+        self.registers = {0x00: 0, 0x03: 0, 0x04: 0, 0x08: 0, 0x0B: 0, 0x0C: 0, self.VERSION: 0x00000100, self.EOR: 0x03,
+                          0x16: 0}
 
     def counted(self, request: bytes) -> bool:
-        return True
+        return request.strip().upper() == b"R0E"
+
+    def _reply(self, letter: str, register: int, value: int) -> bytes:
+        eor = self.registers[self.EOR]
+        sep = " " if eor & 0x08 else ""
+        text = f"{letter}{sep}{register:02X}{sep}{value & 0xFFFFFFFF:08X}"
+        if eor & 0x04:
+            text += f"{sep}{round(self.instrument.bench.clock.now_s() * 1000) & 0xFFFFFFFF:08X}"
+        return (text + f"{sep}!" + ("\r" if eor & 0x02 else "") + ("\n" if eor & 0x01 else "")).encode()
 
     def handle(self, request: bytes) -> bytes:
-        if request.strip().upper() != b"R0E":
-            return b"!\r\n"
-        count = round(self.instrument.read_angle_deg() / 360.0 * self.counts_per_rev)
-        return f"0E{count & 0xFFFFFFFF:08X}\r\n".encode()
+        m = self.COMMAND.fullmatch(request.strip().upper())
+        if m is None or (m.group(1) == b"R" and m.group(3)) or (m.group(1) == b"W" and not m.group(3)):
+            return b"e00000000!\r\n"
+        register = int(m.group(2), 16)
+        if m.group(1) == b"W":
+            if register not in self.registers or register in (self.COUNT, self.VERSION):
+                return b"e00000000!\r\n"
+            self.registers[register] = int(m.group(3), 16)
+            return self._reply("w", register, self.registers[register])
+        if register == self.COUNT:
+            count = round(self.instrument.read_angle_deg() / 360.0 * self.counts_per_rev)
+            return self._reply("r" if m.group(1) == b"R" else "s", register, count)
+        if register not in self.registers:
+            return b"e00000000!\r\n"
+        return self._reply("r", register, self.registers[register])
 
 
 class TracerHandler:
@@ -125,21 +165,106 @@ class TracerHandler:
         return b"ERR CMD\r\n"
 
 
-class EnvironmentHandler:
-    """rtcal's environment line protocol: ``MEAS?`` → ``T=<°C> P=<Pa> RH=<%> TM=<°C>``."""
-
-    reply_terminator = b"\r\n"
-    terminator = b"\n"
+class EnvironmentNow:
+    """One moment's conditions, shared by the sensors of one bench: the barometer's SEND takes a
+    reading, the thermometer answers from that same moment (a first question takes one)."""
 
     def __init__(self, instrument: SimEnvironmentSensor):
         self.instrument = instrument
+        self.reading: EnvironmentReading | None = None
+
+    def fresh(self) -> EnvironmentReading:
+        self.reading = self.instrument.read()
+        return self.reading
+
+    def latest(self) -> EnvironmentReading:
+        return self.reading or self.fresh()
+
+
+FORM_TOKEN = re.compile(r'\s*(?:"([^"]*)"|(\d+)\.(\d+)\s+([A-Za-z][A-Za-z0-9]*)|U(\d*)|#([rnt])|(\S+))')
+
+
+class VaisalaHandler:
+    """Vaisala PTU300 or PTB330: ``?`` (identity), ``FORM <format>``, ``FORM ?``, ``SEND``, ``ERRS``.
+    ``SEND`` prints the quantities as the FORM says: ``"text"``, ``x.y Q`` (x digits, y decimals
+    of P in hPa, T in 'C, RH in %RH), ``Un`` the unit of the quantity before, ``#r #n #t``."""
+
+    reply_terminator = b"\r\n"
+    terminator = b"\r"
+    UNITS = {"P": "hPa", "T": "'C", "RH": "%RH"}
+    DEFAULT_FORM = {"PTU300": '"P=" 6.1 P " " U3 "   T=" 4.1 T " " U2 " RH=" 4.1 RH " " U3 #r #n',
+                    "PTB330": '"P=" 6.1 P " " U3 #r #n'}
+
+    def __init__(self, now: EnvironmentNow, model: str = "PTU300"):
+        self.now, self.model = now, model
+        self.quantities = ("P", "T", "RH") if model == "PTU300" else ("P",)
+        self.form = self.DEFAULT_FORM[model]
 
     def counted(self, request: bytes) -> bool:
-        return True
+        return request.strip().upper() == b"SEND"
+
+    def _format(self, form: str, reading: EnvironmentReading | None) -> str | None:
+        """The SEND line for ``form``, or None if the format is not understood (checked with no reading)."""
+        values = {} if reading is None else {"P": reading.air_pressure_pa / 100.0, "T": reading.air_temperature_c,
+                                             "RH": reading.humidity_pct}
+        out, last = [], None
+        for m in FORM_TOKEN.finditer(form):
+            text, digits, decimals, quantity, unit_width, special, other = m.groups()
+            if other is not None or (quantity is not None and quantity.upper() not in self.quantities):
+                return None
+            if text is not None:
+                out.append(text)
+            elif quantity is not None:
+                last = quantity.upper()
+                width = int(digits) + 1 + int(decimals)
+                out.append(f"{values.get(last, 0.0):{width}.{decimals}f}")
+            elif special is not None:
+                out.append({"r": "\r", "n": "\n", "t": "\t"}[special])
+            elif last is not None:
+                out.append(self.UNITS[last].ljust(int(unit_width or 0)))
+        return "".join(out)
 
     def handle(self, request: bytes) -> bytes:
-        if request.strip() != b"MEAS?":
-            return b"ERR CMD\r\n"
-        r = self.instrument.read()
-        return (f"T={r.air_temperature_c:.4f} P={r.air_pressure_pa:.2f} RH={r.humidity_pct:.2f} "
-                f"TM={r.material_temperature_c:.4f}\r\n").encode()
+        text = request.decode("ascii", errors="replace").strip()
+        command = text.split(" ", 1)[0].upper()
+        if command == "?":
+            return (f"{self.model} / 1.12\r\nSerial number  : SIM{self.model[-3:]}01\r\n"
+                    f"Batch number   : SIM-BATCH\r\nOutput units   : metric\r\n").encode()
+        if command == "SEND":
+            return self._format(self.form, self.now.fresh()).encode()
+        if command == "ERRS":
+            return b"No errors\r\n"
+        if command == "FORM":
+            form = text[4:].strip()
+            if form == "?":
+                return f"Output format  :{self.form.replace('#', chr(92))}\r\n".encode()
+            if self._format(form, None) is None:
+                return b"FORM error\r\n"
+            self.form = form
+            return b"OK\r\n"
+        return b"Unknown command\r\n"
+
+
+class IthxHandler:
+    """OMEGA iTHX: ``*SRTC`` / ``*SRTC2`` → probe 1 / 2 °C, ``*SRTF``… °F, ``*SRH`` / ``*SRH2`` → % RH;
+    CR ends requests and replies; one decimal, as the iServer prints them. Probe 1 hangs in the
+    beam's air, probe 2 touches the table."""
+
+    reply_terminator = b"\r"
+    terminator = b"\r"
+    COMMAND = re.compile(r"\*SR(TC|TF|H)(2?)")
+
+    def __init__(self, now: EnvironmentNow):
+        self.now = now
+
+    def counted(self, request: bytes) -> bool:
+        return False  # the barometer's SEND is the environment's one counted request
+
+    def handle(self, request: bytes) -> bytes:
+        m = self.COMMAND.fullmatch(request.decode("ascii", errors="replace").strip())
+        if m is None:
+            return b"Serial Time Out\r"  # what msl-equipment saw an iTHX-W answer to a command it lacks
+        r = self.now.latest()
+        celsius = r.material_temperature_c if m.group(2) else r.air_temperature_c
+        value = {"TC": celsius, "TF": celsius * 9.0 / 5.0 + 32.0, "H": r.humidity_pct}[m.group(1)]
+        return f"{value:.1f}\r".encode()

@@ -1,0 +1,118 @@
+"""The instrument models rtcal speaks: one named product per driver, chosen by an address's ``model=``.
+
+Each kind of instrument has one built-in product, its default. An installed package adds a
+model through the entry-point group ``rtcal.drivers`` (docs/drivers.md): the entry point's
+name is the model name, its object a driver class with the attributes a built-in has
+(``kind``, ``model``, ``schemes``, ``framing``, ``options``) and the constructor
+``(address, timeout_s, **context)``. The names below are a contract other tools rely on.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from typing import Any
+
+from drivers.addresses import AddressError
+
+ENTRY_POINT_GROUP = "rtcal.drivers"
+
+KINDS = ("stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator", "environment")
+
+
+@dataclass(frozen=True)
+class Framing:
+    """A serial line's settings: what the product uses unless the address says otherwise."""
+
+    baud: int = 9600
+    bytesize: int = 8
+    parity: str = "N"
+    stopbits: int = 1
+
+    def __str__(self) -> str:
+        return f"{self.baud} {self.bytesize}{self.parity}{self.stopbits}"
+
+
+@dataclass(frozen=True)
+class Model:
+    """A model as the registry knows it; ``target`` is ``module:Class``, imported when first opened."""
+
+    name: str
+    kind: str
+    target: str
+    schemes: tuple[str, ...] = ("serial",)
+    framing: Framing | None = None
+    options: dict[str, tuple[float, float, bool]] = field(default_factory=dict)  # the model's own address options
+    plugin: str = ""  # the distribution that registered it; "" for a built-in
+
+    def driver_class(self) -> Any:
+        module, _, name = self.target.partition(":")
+        try:
+            return getattr(importlib.import_module(module), name)
+        except (ImportError, AttributeError) as exc:
+            raise AddressError(f"model {self.name!r}: its driver {self.target} cannot be loaded ({exc})") from None
+
+
+def _builtin(name: str, kind: str, target: str, schemes: tuple[str, ...] = ("serial",), framing: Framing | None = None) -> Model:
+    return Model(name, kind, target, schemes, framing)
+
+
+# framing defaults: the public sources of each are in docs/protocols/
+BUILTIN: dict[str, Model] = {m.name: m for m in (
+    _builtin("oriental-az", "stage", "drivers.modbus_stage:ModbusStage", ("modbus-tcp", "modbus-rtu"),
+             Framing(115200, 8, "E", 1)),
+    _builtin("ipp", "cmm", "drivers.ipp_cmm:IppCmm", ("ipp",)),
+    _builtin("rtcal-line", "laser_tracer", "drivers.serial_instruments:LineLaserTracer", framing=Framing(115200, 8, "N", 1)),
+    _builtin("qsb", "encoder", "drivers.serial_instruments:QsbEncoder", framing=Framing(230400, 8, "N", 1)),
+    _builtin("elcomat", "autocollimator", "drivers.serial_instruments:ElcomatAutocollimator", framing=Framing(19200, 8, "N", 1)),
+    _builtin("sylvac", "dial_indicator", "drivers.serial_instruments:SylvacIndicator", framing=Framing(4800, 7, "E", 2)),
+    _builtin("vaisala-ptu300", "environment", "drivers.vaisala:VaisalaPtu300", framing=Framing(4800, 7, "E", 1)),
+    _builtin("vaisala-ptb330", "environment", "drivers.vaisala:VaisalaPtb330", framing=Framing(4800, 7, "E", 1)),
+)}
+DEFAULT_MODEL = {"stage": "oriental-az", "cmm": "ipp", "laser_tracer": "rtcal-line", "encoder": "qsb",
+                 "autocollimator": "elcomat", "dial_indicator": "sylvac", "environment": "vaisala-ptu300"}
+
+_plugins: dict[str, Model] | None = None
+
+
+def _from_entry_point(ep) -> Model:
+    """A plugin's model, from its class's declared attributes (loaded now: they are needed to validate)."""
+    try:
+        cls = ep.load()
+        kind = cls.kind
+    except Exception as exc:  # noqa: BLE001 — a broken plugin is reported when its model is asked for, never a crash
+        return Model(ep.name, "", ep.value, plugin=f"{getattr(ep.dist, 'name', '?')} (failed to load: {exc!r:.200})")
+    return Model(ep.name, kind, ep.value, tuple(getattr(cls, "schemes", ("serial",))), getattr(cls, "framing", None),
+                 dict(getattr(cls, "options", {})), getattr(ep.dist, "name", "plugin"))
+
+
+def plugins() -> dict[str, Model]:
+    """Models installed packages register (read once per process); a built-in name is never replaced."""
+    global _plugins
+    if _plugins is None:
+        _plugins = {ep.name: _from_entry_point(ep) for ep in entry_points(group=ENTRY_POINT_GROUP)
+                    if ep.name not in BUILTIN}
+    return _plugins
+
+
+def all_models() -> dict[str, Model]:
+    return {**BUILTIN, **plugins()}
+
+
+def find_model(name: str) -> Model:
+    """The model of that name, or AddressError listing the known ones."""
+    model = BUILTIN.get(name) or plugins().get(name)
+    if model is None:
+        raise AddressError(f"unknown model {name!r} (known: {', '.join(sorted(all_models()))})")
+    if not model.kind:
+        raise AddressError(f"model {name!r}: plugin {model.plugin}")
+    return model
+
+
+def model_for(kind: str, options: dict[str, str]) -> Model:
+    """The model an address names for an instrument of ``kind`` (its default without ``model=``)."""
+    model = find_model(options.get("model", DEFAULT_MODEL[kind]))
+    if model.kind != kind:
+        raise AddressError(f"model {model.name!r} is a {model.kind.replace('_', ' ')}, not a {kind.replace('_', ' ')}")
+    return model

@@ -1,0 +1,167 @@
+"""Environment sensors: a Vaisala PTU300 (pressure, temperature, humidity) or PTB330 (a
+barometer), with the table's temperature from an OMEGA iTHX thermometer on the address's
+``thermometer=`` (docs/protocols/environment.md gives each fact's public source).
+
+At open the driver asks ``?`` (the first line is ``<model> / <version>``; a ``Serial number``
+line follows) and sets ``FORM`` so that ``SEND`` answers with labelled fields and their units.
+Whatever layout a unit keeps, the reply is read as labelled fields (``P= 1003.8 hPa``), each
+number converted from the unit printed after it; a field without a unit is refused.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+from drivers.addresses import Address, AddressError, parse_address
+from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout
+from drivers.interfaces import EnvironmentReading, EnvironmentSensor
+from drivers.models import BUILTIN, Framing
+from drivers.serial_line import SerialLine
+
+FIELD = re.compile(r"([A-Za-z][A-Za-z0-9]*)\s*=\s*([+-]?\d+(?:\.\d+)?)\s*([^\s=]+(?=\s|$))?")
+PRESSURE_PA = {"pa": 1.0, "hpa": 100.0, "mbar": 100.0, "kpa": 1000.0, "bar": 1e5, "bara": 1e5, "psi": 6894.757,
+               "psia": 6894.757, "inhg": 3386.389, "mmhg": 133.3224, "torr": 133.3224}
+RANGES = {"air_temperature_c": (-40.0, 80.0, "air temperature °C"), "air_pressure_pa": (50000.0, 150000.0, "pressure Pa"),
+          "humidity_pct": (0.0, 100.0, "humidity %"), "material_temperature_c": (-40.0, 150.0, "material temperature °C")}
+
+
+def celsius(value: float, unit: str) -> float:
+    u = unit.lstrip("'°").upper()
+    if u == "C":
+        return value
+    if u == "F":
+        return (value - 32.0) * 5.0 / 9.0
+    if u == "K":
+        return value - 273.15
+    raise ValueError(unit)
+
+
+def labelled_fields(name: str, reply: str) -> dict[str, tuple[float, str]]:
+    """``P=  1003.8 hPa   T= 17.7 'C`` → {"P": (1003.8, "hPa"), "T": (17.7, "'C")}."""
+    fields = {m.group(1).upper(): (float(m.group(2)), m.group(3) or "") for m in FIELD.finditer(reply)}
+    if not fields:
+        raise InstrumentFault(name, f"unexpected reply {reply[:80]!r}: no labelled fields")
+    return fields
+
+
+def check_ranges(name: str, values: dict[str, float]) -> None:
+    for key, value in values.items():
+        lo, hi, what = RANGES[key]
+        if not math.isnan(value) and not lo <= value <= hi:
+            raise InstrumentFault(name, f"{what} {value:g} outside [{lo:g}, {hi:g}]")
+
+
+class IthxThermometer:
+    """OMEGA iTHX (an iServer on TCP): ``*SRTC`` / ``*SRTC2`` → °C of probe 1 / 2, ``*SRH`` → % RH;
+    requests and replies end in CR. Probe 1 hangs in the air by the beam, probe 2 touches the table."""
+
+    def __init__(self, address: Address, timeout_s: float, name: str):
+        self.name = name
+        self.line = SerialLine(name, address, Framing(), timeout_s, b"\r")
+
+    def read(self, command: str) -> float:
+        reply = self.line.query(command.encode("ascii") + b"\r").strip()
+        try:
+            value = float(reply)
+        except ValueError:
+            raise InstrumentFault(self.name, f"thermometer: {command}: unexpected reply {reply[:40]!r}") from None
+        if not math.isfinite(value):
+            raise InstrumentFault(self.name, f"thermometer: {command}: {reply[:40]!r} is no temperature")
+        return value
+
+    def close(self) -> None:
+        self.line.close()
+
+
+class VaisalaPtu300(EnvironmentSensor):
+    name = "environment"
+    model, kind, schemes, options = "vaisala-ptu300", "environment", ("serial",), {}
+    framing: Framing = BUILTIN["vaisala-ptu300"].framing
+    FORM = '"P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n'
+    MEASURES_AIR = True  # a PTB330 is a barometer: air temperature and humidity come from the thermometer
+
+    def __init__(self, address: Address, timeout_s: float = 1.0, **_: object):
+        thermometer = address.text("thermometer")
+        if not self.MEASURES_AIR and not thermometer:
+            raise AddressError(f"model {self.model} measures pressure only: give the air and table thermometer as "
+                               "thermometer=socket://HOST:PORT (an OMEGA iTHX)")
+        self.line = SerialLine(self.name, address, self.framing, timeout_s, b"\n")
+        self.thermometer: IthxThermometer | None = None
+        try:
+            self._identity = self._ask_identity()
+            self.line.write(f"FORM {self.FORM}\r".encode())
+            answer = self.line.read_line(b"FORM")
+            if "error" in answer.lower() or "unknown" in answer.lower():
+                raise InstrumentFault(self.name, f"FORM refused: {answer[:80]!r}")
+            if thermometer:
+                self.thermometer = IthxThermometer(parse_address(thermometer), timeout_s, self.name)
+        except BaseException:
+            self.close()
+            raise
+
+    def _ask_identity(self) -> str:
+        """``?``: the first line is ``<model> / <version>``; read on to the serial number."""
+        self.line.write(b"?\r")
+        first = self.line.read_line(b"?").strip()
+        serial = ""
+        for _ in range(40):
+            try:
+                line = self.line.read_line(b"?")
+            except InstrumentTimeout:
+                break
+            key, _, value = line.partition(":")
+            if key.strip().lower() == "serial number":
+                serial = value.strip()
+                break
+        return f"{first}, serial number {serial}" if serial else first
+
+    def identity(self) -> str:
+        return self._identity
+
+    def _send(self) -> dict[str, tuple[float, str]]:
+        return labelled_fields(self.name, self.line.query(b"SEND\r"))
+
+    def _pressure_pa(self, fields: dict[str, tuple[float, str]]) -> float:
+        if "P" not in fields:
+            raise InstrumentFault(self.name, "SEND gave no P field")
+        value, unit = fields["P"]
+        if unit.lower() not in PRESSURE_PA:
+            raise InstrumentFault(self.name, f"pressure unit {unit!r} unknown")
+        return value * PRESSURE_PA[unit.lower()]
+
+    def _air(self, fields: dict[str, tuple[float, str]]) -> tuple[float, float]:
+        try:
+            (t, t_unit), (rh, rh_unit) = fields["T"], fields["RH"]
+            if rh_unit.upper() not in ("%RH", "%"):
+                raise ValueError(rh_unit)
+            return celsius(t, t_unit), rh
+        except (KeyError, ValueError) as exc:
+            raise InstrumentFault(self.name, f"SEND gave no air temperature and humidity with units ({exc})") from None
+
+    def read(self) -> EnvironmentReading:
+        fields = self._send()
+        pressure_pa = self._pressure_pa(fields)
+        if self.MEASURES_AIR:
+            t, rh = self._air(fields)
+        else:
+            t, rh = self.thermometer.read("*SRTC"), self.thermometer.read("*SRH")
+        material = self.thermometer.read("*SRTC2") if self.thermometer else math.nan
+        values = {"air_temperature_c": t, "air_pressure_pa": pressure_pa, "humidity_pct": rh, "material_temperature_c": material}
+        check_ranges(self.name, values)
+        return EnvironmentReading(**values)
+
+    def close(self) -> None:
+        for part in (self.line, self.thermometer):
+            if part is not None:
+                try:
+                    part.close()
+                except InstrumentError:
+                    pass
+
+
+class VaisalaPtb330(VaisalaPtu300):
+    model = "vaisala-ptb330"
+    framing = BUILTIN["vaisala-ptb330"].framing
+    FORM = '"P=" 4.4 P " " U4 #r #n'
+    MEASURES_AIR = False

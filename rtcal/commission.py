@@ -1,0 +1,190 @@
+"""Commissioning a rig: ``rtcal probe`` (one instrument) and ``rtcal check`` (every instrument a
+procedure needs), before a calibration is left running overnight.
+
+A probe opens the instrument at its address with the model's driver, asks who it is where the
+protocol can (``identity``), takes one reading — after one recovery, as a fault policy's retry
+would (a CMM in its error state is cleared) — and closes it again. Nothing moves.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from drivers import factory
+from drivers.addresses import AddressError
+from drivers.errors import InstrumentError, TrackingLost
+from drivers.interfaces import Instrument
+from drivers.models import KINDS
+
+PROBE_KEYS = ("kind", "address", "model", "identity", "reading")  # the JSON contract of `rtcal probe --json`
+
+
+class CheckInputError(Exception):
+    """A mistake in what ``rtcal check`` was given (exit 2)."""
+
+
+@dataclass
+class ProbeResult:
+    kind: str
+    address: str
+    model: str
+    identity: str = ""
+    reading: dict[str, float] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "address": self.address, "model": self.model, "identity": self.identity,
+                "reading": self.reading}
+
+
+def _retrying(instrument: Instrument, read: Callable[[], Any], attempts: int = 3) -> Any:
+    """``read()``, recovering the instrument between attempts (a CMM's error state, a drive alarm)."""
+    for attempt in range(attempts):
+        try:
+            return read()
+        except InstrumentError:
+            if attempt == attempts - 1:
+                raise
+            try:
+                instrument.recover()
+            except InstrumentError:
+                pass
+    raise AssertionError("unreachable")
+
+
+def _tracer_length(tracer) -> float:
+    try:
+        return tracer.read_length().length_mm
+    except TrackingLost:  # never referenced, or the beam was lost: reference where the reflector is, then read
+        tracer.reference()
+        return tracer.read_length().length_mm
+
+
+def read_once(kind: str, instrument: Instrument) -> dict[str, float]:
+    """One reading, under the keys ``rtcal probe`` documents for the kind."""
+    if kind == "stage":
+        return {"position_deg": float(instrument.position_deg())}
+    if kind == "cmm":
+        x, y, z = (float(v) for v in instrument.position_mm())
+        return {"x_mm": x, "y_mm": y, "z_mm": z}
+    if kind == "laser_tracer":
+        return {"length_mm": float(_tracer_length(instrument))}
+    if kind == "encoder":
+        return {"angle_deg": float(instrument.read_angle_deg())}
+    if kind == "autocollimator":
+        x, y = instrument.read_arcsec()
+        return {"x_arcsec": float(x), "y_arcsec": float(y)}
+    if kind == "dial_indicator":
+        return {"displacement_mm": float(instrument.read_um()) / 1000.0}
+    r = instrument.read()
+    reading = {"air_temperature_c": r.air_temperature_c, "air_pressure_pa": r.air_pressure_pa, "humidity_pct": r.humidity_pct}
+    if math.isfinite(r.material_temperature_c):
+        reading["material_temperature_c"] = r.material_temperature_c
+    return {k: float(v) for k, v in reading.items()}
+
+
+def probe(kind: str, address: str, timeout_s: float = 2.0, **context: Any) -> ProbeResult:
+    """Open, identify, read once, close. AddressError for a malformed address; InstrumentError else."""
+    if kind not in KINDS:
+        raise AddressError(f"unknown kind {kind!r} (known: {', '.join(KINDS)})")
+    _, model = factory.resolve(kind, address)
+    if kind == "dial_indicator":
+        context.setdefault("name", "dial_indicator")
+    instrument = factory.open_instrument(kind, address, timeout_s, **context)
+    try:
+        identity = instrument.identity()
+        reading = _retrying(instrument, lambda: read_once(kind, instrument))
+    finally:
+        try:
+            instrument.close()
+        except InstrumentError:
+            pass
+    return ProbeResult(kind, address, model.name, identity, reading)
+
+
+def format_probe(result: ProbeResult, as_json: bool) -> str:
+    if as_json:
+        return json.dumps(result.as_dict())
+    lines = [f"{result.kind} ({result.model}) at {result.address}", f"  identity: {result.identity or '(the protocol has no identity query)'}"]
+    lines += [f"  {key}: {value:.9g}" for key, value in result.reading.items()]
+    return "\n".join(lines)
+
+
+# -- rtcal check -------------------------------------------------------------------------------------
+
+@dataclass
+class CheckRow:
+    instrument: str
+    model: str
+    status: str  # "ready", "simulated", "FAILED"
+    detail: str  # the reading, or what failed
+    identity: str = ""
+
+
+def _context(name: str, choice) -> dict[str, Any]:
+    if name == "stage":
+        return {"limits_deg": tuple(choice.soft_limits_deg)}
+    if name == "cmm":
+        return {"volume_min_mm": tuple(choice.volume_min_mm), "volume_max_mm": tuple(choice.volume_max_mm), "tool": choice.tool}
+    if name.startswith("dial_indicator"):
+        return {"name": name}
+    return {}
+
+
+def _in_range(name: str, choice, reading: dict[str, float]) -> str:
+    """What is wrong with a reading for this procedure ("" if nothing): stage limits, CMM volume."""
+    if name == "stage":
+        lo, hi = choice.soft_limits_deg
+        if not lo <= reading["position_deg"] <= hi:
+            return f"position {reading['position_deg']:.4f}° outside the procedure's soft limits [{lo:g}, {hi:g}]°"
+    if name == "cmm":
+        xyz = np.array([reading["x_mm"], reading["y_mm"], reading["z_mm"]])
+        if np.any(xyz < choice.volume_min_mm) or np.any(xyz > choice.volume_max_mm):
+            return (f"position {np.round(xyz, 3).tolist()} mm outside the procedure's volume "
+                    f"{list(choice.volume_min_mm)}..{list(choice.volume_max_mm)} mm")
+    return ""
+
+
+def _summary(reading: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.6g}" for k, v in reading.items())
+
+
+def check(proc, addresses: dict[str, str] | None = None, operator_address: str = "") -> list[CheckRow]:
+    """One row per instrument the procedure needs: probed at its address and checked against the
+    procedure's ranges, or marked simulated (in-process, nothing to check)."""
+    instruments = proc.instruments
+    rows: list[CheckRow] = []
+    for name in instruments.present():
+        choice = getattr(instruments, name)
+        kind = factory.KIND_OF[name]
+        if choice.is_sim:
+            rows.append(CheckRow(name, "sim", "simulated", "in-process, on the simulated bench"))
+            continue
+        model = factory.resolve(kind, choice.address)[1].name
+        try:
+            result = probe(kind, choice.address, choice.timeout_s, **_context(name, choice))
+        except InstrumentError as exc:
+            rows.append(CheckRow(name, model, "FAILED", str(exc).removeprefix(f"{exc.instrument}: ")))
+            continue
+        problem = _in_range(name, choice, result.reading)
+        rows.append(CheckRow(name, model, "FAILED" if problem else "ready", problem or _summary(result.reading), result.identity))
+    if operator_address:
+        from rtcal.sequencer.operator import OperatorUnavailable, RemoteSimOperator
+
+        try:
+            RemoteSimOperator(operator_address, timeout_s=2.0).polygon_certificate_arcsec()
+            rows.append(CheckRow("operator", "sim-operator", "ready", "answers, and let us in"))
+        except OperatorUnavailable as exc:
+            rows.append(CheckRow("operator", "sim-operator", "FAILED", str(exc).removeprefix("operator: ")))
+    return rows
+
+
+def format_table(rows: list[CheckRow]) -> str:
+    header = ("instrument", "model", "status", "reading or problem", "identity")
+    cells = [header] + [(r.instrument, r.model, r.status, r.detail, r.identity) for r in rows]
+    widths = [min(max(len(c[i]) for c in cells), 70) for i in range(4)]
+    return "\n".join("  ".join(c[i][:70].ljust(widths[i]) for i in range(4)) + "  " + c[4] for c in cells)

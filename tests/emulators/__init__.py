@@ -1,0 +1,182 @@
+"""Small emulators of the real products, written from the public references
+(../shared/reference/instrument_protocols.md and the sources docs/protocols/ names), sharing no
+code with rtcal's drivers or protocol simulators: what `rtcal probe` reads from them is what a
+real unit's bytes would give it.
+
+Each serves one TCP connection at a time on loopback (the serial products through pyserial's
+``socket://``, as a terminal server would carry them) and records every request it received.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+from typing import Callable
+
+
+class Emulator:
+    """A TCP server thread: requests split at ``terminator``; ``answer(request, state) -> bytes``."""
+
+    def __init__(self, answer: Callable[[bytes, dict], bytes], terminator: bytes = b"\r"):
+        self.answer, self.terminator = answer, terminator
+        self.requests: list[bytes] = []
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def url(self, scheme: str = "socket") -> str:
+        return f"{scheme}://127.0.0.1:{self.port}"
+
+    def _serve(self) -> None:
+        while True:
+            try:
+                conn, _ = self.listener.accept()
+            except OSError:
+                return
+            state: dict = {}
+            with conn:
+                buffer = b""
+                try:
+                    while chunk := conn.recv(4096):
+                        buffer += chunk
+                        buffer = self._feed(conn, buffer, state)
+                except OSError:
+                    pass
+
+    def _feed(self, conn: socket.socket, buffer: bytes, state: dict) -> bytes:
+        while self.terminator in buffer:
+            line, buffer = buffer.split(self.terminator, 1)
+            line = line.strip(b"\r\n")
+            if line:
+                self.requests.append(line)
+                conn.sendall(self.answer(line, state))
+        return buffer
+
+    def close(self) -> None:
+        try:
+            self.listener.shutdown(socket.SHUT_RDWR)  # wakes the thread's accept(); close() alone does not
+        except OSError:
+            pass
+        self.listener.close()
+        self._thread.join(2)
+
+    def __enter__(self) -> "Emulator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# -- Oriental Motor AZ over Modbus TCP: holding registers, 32-bit values upper word first ---------------
+
+class AzDriveEmulator(Emulator):
+    """FC03 and FC16 over Modbus TCP (MBAP header: transaction, protocol 0, length, unit)."""
+
+    def __init__(self, registers32: dict[int, int], unit: int = 1):
+        self.words: dict[int, int] = {}
+        for address, value in registers32.items():
+            v = value & 0xFFFFFFFF
+            self.words[address], self.words[address + 1] = v >> 16, v & 0xFFFF
+        self.unit = unit
+        super().__init__(lambda *_: b"")
+
+    def _feed(self, conn: socket.socket, buffer: bytes, state: dict) -> bytes:
+        while len(buffer) >= 7 and len(buffer) >= 6 + struct.unpack(">H", buffer[4:6])[0]:
+            size = 6 + struct.unpack(">H", buffer[4:6])[0]
+            frame, buffer = buffer[:size], buffer[size:]
+            self.requests.append(frame)
+            tid, unit, pdu = frame[:2], frame[6], frame[7:]
+            if unit != self.unit:
+                continue  # another drive on the bus: silence
+            if pdu[0] == 3:
+                start, count = struct.unpack(">HH", pdu[1:5])
+                if any(a not in self.words for a in range(start, start + count)):
+                    reply = bytes([0x83, 2])
+                else:
+                    reply = bytes([3, 2 * count]) + b"".join(struct.pack(">H", self.words[a]) for a in range(start, start + count))
+            elif pdu[0] == 16:
+                start, count = struct.unpack(">HH", pdu[1:5])
+                for k in range(count):
+                    self.words[start + k] = struct.unpack(">H", pdu[6 + 2 * k: 8 + 2 * k])[0]
+                reply = pdu[:5]
+            else:
+                reply = bytes([pdu[0] | 0x80, 1])
+            conn.sendall(tid + b"\0\0" + struct.pack(">H", len(reply) + 1) + bytes([unit]) + reply)
+        return buffer
+
+
+# -- I++ DME: tagged lines, & # % !, the error state ----------------------------------------------------
+
+def ipp_answer(first_get_fails: bool = True) -> Callable[[bytes, dict], bytes]:
+    """StartSession, GetDMEVersion, ChangeTool, ClearAllErrors, EndSession; the first Get is answered
+    with a severity-2 error, every command after it with 0514 until ClearAllErrors()."""
+
+    def answer(line: bytes, state: dict) -> bytes:
+        text = line.decode()
+        tag, command = text[:5], text[6:]
+        name = command.split("(")[0]
+        ack, done = f"{tag} &\r\n", f"{tag} %\r\n"
+        if name == "ClearAllErrors":
+            state["error"] = False
+            return (ack + done).encode()
+        if state.get("error"):
+            return (ack + f'{tag} ! Error(2,0514,"{name}","Use ClearAllErrors to continue")\r\n' + done).encode()
+        if name == "Get" and first_get_fails and not state.get("failed_once"):
+            state["failed_once"] = state["error"] = True
+            return (ack + f'{tag} ! Error(2, 2001, "Get", "Head error excessive force")\r\n' + done).encode()
+        data = {"GetDMEVersion": 'DMEVersion("1.4")', "Get": "X(1), Y(2), Z(3)"}.get(name)
+        return (ack + (f"{tag} # {data}\r\n" if data else "") + done).encode()
+
+    return answer
+
+
+# -- serial products -----------------------------------------------------------------------------------
+
+def elcomat(line: bytes, state: dict) -> bytes:
+    return {b"a": b"4 003 12.34 -5.67\r", b"r": b"2 103 0.50 0.25\r"}.get(line, b"")
+
+
+def sylvac(line: bytes, state: dict) -> bytes:
+    return {b"?": b"-0.0123\r\n", b"PRI?": b"-0.0123\r\n", b"BAT?": b"BAT1\r\n"}.get(line, b"")
+
+
+def qsb(line: bytes, state: dict) -> bytes:
+    """Lower-case response letter, register, 8 hex digits, "!", CR LF (EOR 3)."""
+    text = line.decode().upper()
+    if text == "R0E":
+        return b"r0E0001F4A2!\r\n"  # the reference's example: count 128162
+    if text == "R14":
+        return b"r1400020304!\r\n"
+    if text.startswith("W") and len(text) >= 4:
+        return f"w{text[1:3]}{int(text[3:], 16):08X}!\r\n".encode()
+    return b"e00000000!\r\n"
+
+
+def vaisala(model: str) -> Callable[[bytes, dict], bytes]:
+    """``?`` → model / version and Key : value lines; FORM is acknowledged; SEND keeps the unit's own
+    labelled layout (the PTU300 line quoted in open code), whatever FORM asked."""
+
+    def answer(line: bytes, state: dict) -> bytes:
+        text = line.decode()
+        if text == "?":
+            return f"{model} / 1.12\r\nSerial number  : P4040154\r\nBatch number   : 4030010\r\n".encode()
+        if text.startswith("FORM"):
+            return b"OK\r\n"
+        if text == "SEND":
+            if model == "PTB330":
+                return b"P=  1003.8 hPa\r\n"
+            return b"P=  1003.8 hPa   T= 17.7 'C RH= 40.9 %RH TD=  4.3 'C\r\n"
+        return b"Unknown command\r\n"
+
+    return answer
+
+
+def ithx(line: bytes, state: dict) -> bytes:
+    """msl-equipment's test exchange: CR-terminated requests and replies, one decimal."""
+    return {b"*SRTC": b"19.3\r", b"*SRTC2": b"25.1\r", b"*SRH": b"42.5\r", b"*SRH2": b"44.4\r"}.get(line, b"Serial Time Out\r")
+
+
+def tracer(line: bytes, state: dict) -> bytes:
+    return {b"REF": b"OK REF 3\r\n", b"LEN?": b"LEN 1234567.125 3\r\n"}.get(line, b"ERR CMD\r\n")
