@@ -180,13 +180,13 @@ class MultistationOutputs:
                   "stations on one circle about one axis (one angle each), the CMM points as observations weighted by their "
                   "noise, and the CMM's scales and squarenesses.", ""]
         net = r.estimates.network
-        if net:
+        if net is not None:
             lines += ["## The CMM, checked by the network adjustment", "",
                       "Scale and squareness errors of the CMM found from the traceable tracer lengths (1σ):", "",
                       "| parameter | value | 1σ |", "|---|---|---|"]
             lines += [f"| {k} | {v.value:+.3f} | {fmt(v.sigma, '.3f')} |" for k, v in net.cmm_errors.items()] + [""]
             em = net.error_motions
-            if em:
+            if em is not None:
                 lines += ["## Error motions, separated by the second tracer mount", "", em.note[0].upper() + em.note[1:] + ".", "",
                           "| station | angle / ° | EXC / µm (1σ) | EYC / µm (1σ) | tilt / ″ (1σ) | tilt axis / ° |",
                           "|---|---|---|---|---|---|"]

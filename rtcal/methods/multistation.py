@@ -176,12 +176,13 @@ def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEsti
     motions = None
     if em is not None:
         omitted = [o for o in omitted if not o.startswith("error motions")]  # measured here
+        mounts = [] if est.mounts_mm is None else [_round(p) for p in est.mounts_mm]
         motions = rm.ErrorMotions(
             note=ERROR_MOTIONS_NOTE,
             EXC_um=_round(em.radial_um[:, 0], 4), EYC_um=_round(em.radial_um[:, 1], 4),
             EXC_sigma_um=_round(em.radial_sigma_um[:, 0], 4), EYC_sigma_um=_round(em.radial_sigma_um[:, 1], 4),
             tilt_arcsec=_round(em.tilt_arcsec, 4), tilt_sigma_arcsec=_round(em.tilt_sigma_arcsec, 4),
-            tilt_axis_deg=_round(em.tilt_axis_deg, 3), mounts_mm=[_round(p) for p in est.mounts_mm or []])
+            tilt_axis_deg=_round(em.tilt_axis_deg, 3), mounts_mm=mounts)
     cmm = {name: rm.CmmError(value=round(float(v), 4), sigma=round(float(s), 4) if np.isfinite(s) else None)
            for name, v, s in zip(CMM_NAMES, est.cmm_errors, est.cmm_errors_sigma)}
     return rm.NetworkEstimate(

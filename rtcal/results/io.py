@@ -142,4 +142,4 @@ def results_schema() -> str:
     schema["title"] = "rtcal results.json"
     schema["description"] = ("The results of one rtcal run (schema_version 1.x): its metadata, every estimate with "
                              "its uncertainty budget, the positioning deviations, their evaluation and the run's log.")
-    return json.dumps(schema, indent=2, ensure_ascii=False)
+    return json.dumps(schema, indent=2)
