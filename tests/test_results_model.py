@@ -77,6 +77,7 @@ def test_the_schema_validates_every_shipped_procedures_results(shipped_runs, cap
         assert errors == [], (name, errors[:3])
         results = read_results(run)  # and the model reads back what it wrote, value for value
         assert json.loads(json.dumps(results.model_dump(mode="json"))) == data
+        assert all(st.status != "failed" for st in results.solver_status.values()), (name, results.solver_status)
 
 
 def test_a_file_from_before_schema_version_reads_as_1_0(shipped_runs, tmp_path):
