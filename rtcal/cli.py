@@ -45,7 +45,7 @@ def _execute(start, run_dir: str) -> int:
     import signal
 
     from rtcal.deliverables.outputs import outputs_for
-    from rtcal.methods.abbe import CertificateUnavailable
+    from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
     from rtcal.run.runner import IDEAL_BENCH, AnalysisFailed
@@ -53,7 +53,7 @@ def _execute(start, run_dir: str) -> int:
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
         outcome = start()
-    except (FileExistsError, CertificateUnavailable, RunDirError, ResultsError) as exc:
+    except (FileExistsError, PreparationError, RunDirError, ResultsError) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
         print(f"rtcal: {exc}", file=sys.stderr)

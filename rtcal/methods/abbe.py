@@ -18,7 +18,7 @@ from rtcal.run.dataset import abbe_visits
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.methods.estimates import choose_recommended, deviation_block, finite_or_none, run_estimators
-from rtcal.methods.protocol import Progress, address_of
+from rtcal.methods.protocol import PreparationError, Progress, address_of
 from rtcal.results import model as rm
 from rtcal.sequencer.abbe import AbbeInstrumentSet, planned_visits, run_abbe
 from rtcal.sequencer.operator import Operator
@@ -51,7 +51,7 @@ NOTES = (
 )
 
 
-class CertificateUnavailable(Exception):
+class CertificateUnavailable(PreparationError):
     """``certificate_arcsec: bench`` on a bench that cannot hand one over (hardware)."""
 
 

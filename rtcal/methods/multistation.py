@@ -51,7 +51,8 @@ from simulators.truth import station_truth
 
 
 def _round(values: Iterable[float] | np.ndarray, digits: int = 6) -> list[float]:
-    return [float(v) for v in np.round(np.asarray(values, dtype=float), digits)]
+    rounded: list[float] = np.round(np.asarray(values, dtype=float), digits).tolist()
+    return rounded
 
 
 def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> StationNoiseModel:

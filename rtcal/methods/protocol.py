@@ -24,6 +24,11 @@ if TYPE_CHECKING:
     from simulators.scenario import Scenario
 
 
+class PreparationError(Exception):
+    """What a method's ``prepare`` cannot fix before the first motion with what it was given: a
+    mistake the user corrects (the CLI says it in one line, exit 2)."""
+
+
 class InstrumentSet(Protocol):
     """The instruments a method measures with, opened together and closed together."""
 
@@ -71,7 +76,8 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
         ...
 
     def prepare(self, proc: ProcedureT, operator: Operator) -> dict[str, str]:
-        """What must be fixed before the first motion, as store metadata (may ask the operator)."""
+        """What must be fixed before the first motion, as store metadata (may ask the operator);
+        :class:`PreparationError` when it cannot be."""
         ...
 
     def measure(self, proc: ProcedureT, inst: InstrumentsT, store: RunStore, clock: Clock, operator: Operator,
