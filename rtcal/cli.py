@@ -8,6 +8,7 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,6 +16,10 @@ from drivers.addresses import AddressError
 from drivers.errors import InstrumentError
 from rtcal import __version__
 from rtcal.procedure.yamlfile import FileProblems
+
+if TYPE_CHECKING:
+    from rtcal.deliverables.deviations import PositioningDeviations
+    from rtcal.results import RunResults
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130
@@ -39,14 +44,16 @@ def _execute(start, run_dir: str) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on."""
     import signal
 
-    from rtcal.methods.abbe import CertificateUnavailable
+    from rtcal.deliverables.outputs import outputs_for
+    from rtcal.methods.protocol import PreparationError
+    from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
-    from rtcal.run.runner import IDEAL_BENCH, METHODS, AnalysisFailed
+    from rtcal.run.runner import IDEAL_BENCH, AnalysisFailed
 
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
         outcome = start()
-    except (FileExistsError, CertificateUnavailable, RunDirError) as exc:
+    except (FileExistsError, PreparationError, RunDirError, ResultsError) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
@@ -59,16 +66,17 @@ def _execute(start, run_dir: str) -> int:
         print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     results = outcome.results
-    print(f"run complete: {results['raw_readings']} readings stored")
-    if results.get("bench") == IDEAL_BENCH:
+    print(f"run complete: {results.raw_readings} readings stored")
+    if results.bench == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
-    for line in METHODS[results["method"]].summary(results):
+    for line in outputs_for(results).summary():
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")
-    rec = results.get("recommended")
-    if rec and results["solver_status"][rec]["status"] != "converged":
-        print(f"rtcal: the recommended estimator {rec} did not converge ({results['solver_status'][rec]['message']}); "
+    rec = results.recommended
+    status = results.solver_status.get(rec) if rec else None
+    if rec and status is not None and status.status != "converged":
+        print(f"rtcal: the recommended estimator {rec} did not converge ({status.message}); "
               "readings and results are kept", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
@@ -201,26 +209,25 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-MAX_RESULTS_BYTES = 200_000_000  # results.json and deviation CSVs are read whole: bounded
-
-
-def read_deviation_table(path_text: str):
-    """A run directory's positioning_deviations (results.json) or a deviation CSV; mistakes are UserErrors."""
+def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResults | None]:
+    """A run directory's positioning deviations (its results.json, validated) or a deviation CSV;
+    mistakes are UserErrors naming the file and, in results.json, the field."""
     from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
+    from rtcal.results import ResultsError, read_results
+    from rtcal.results.io import MAX_RESULTS_BYTES
 
     path = Path(path_text)
     try:
         if path.is_dir():
-            results = path / "results.json"
+            if not (path / "results.json").exists():
+                raise UserError(f"{path}: not a run directory with a results.json (a run that was not solved?)")
             try:
-                if results.stat().st_size > MAX_RESULTS_BYTES:
-                    raise UserError(f"{results}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a results file rtcal wrote")
-                data = json.loads(results.read_text(encoding="utf-8"))
-            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise UserError(f"{path}: not a run directory with a readable results.json ({exc})") from None
-            if not isinstance(data, dict) or "positioning_deviations" not in data:
-                raise UserError(f"{results}: no positioning_deviations (a run of an older rtcal, or not solved)")
-            return PositioningDeviations.from_dict(data["positioning_deviations"], str(results)), data
+                results = read_results(path)
+            except ResultsError as exc:
+                raise UserError(str(exc)) from None
+            if results.positioning_deviations is None:
+                raise UserError(f"{path / 'results.json'}: no positioning_deviations (the run has no recommended estimate)")
+            return PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json")), results
         if path.is_file() and path.stat().st_size > MAX_RESULTS_BYTES:
             raise UserError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a deviation table")
         return PositioningDeviations.read_csv(path), None
@@ -410,8 +417,11 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _cmd_schema(args: argparse.Namespace) -> int:
     from rtcal.procedure.loader import procedure_schema, scenario_schema
+    from rtcal.results import results_schema
 
-    print(scenario_schema() if args.scenario else procedure_schema())
+    if args.scenario and args.results:
+        raise UserError("schema: give --scenario or --results, not both")
+    print(scenario_schema() if args.scenario else results_schema() if args.results else procedure_schema())
     return EXIT_OK
 
 
@@ -611,6 +621,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     schema = sub.add_parser("schema", help="print the JSON Schema of procedure files")
     schema.add_argument("--scenario", action="store_true", help="print the scenario schema instead")
+    schema.add_argument("--results", action="store_true", help="print the schema of a run's results.json instead")
     schema.set_defaults(func=_cmd_schema)
 
     solve = sub.add_parser("solve", help="run a solver on data files")

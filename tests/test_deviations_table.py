@@ -19,8 +19,8 @@ def test_csv_round_trip_keeps_every_value():
     assert np.isnan(back.uncertainty_arcsec[3])
 
 
-def test_dict_round_trip():
-    back = PositioningDeviations.from_dict(_table().to_dict())
+def test_model_round_trip():
+    back = PositioningDeviations.from_model(_table().to_model())
     np.testing.assert_array_equal(back.deviation_arcsec, _table().deviation_arcsec)
     assert back.estimator == "x"
 

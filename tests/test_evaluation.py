@@ -380,11 +380,36 @@ def test_cli_on_csv_and_run_directory(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["E"] == pytest.approx(11)
     run = tmp_path / "run"
     run.mkdir()
-    (run / "results.json").write_text(json.dumps({"positioning_deviations": from_runs(HAND).to_dict()}))
+    (run / "results.json").write_text(results_json_with(from_runs(HAND)))
     assert main(["evaluate", str(run), "--standard", "vdi3441"]) == 0
     assert json.loads(capsys.readouterr().out)["P"] == pytest.approx(15.5)
     assert main(["evaluate", str(run), "--standard", "iso230-2:1988"]) == 0
     assert json.loads(capsys.readouterr().out)["A"] == pytest.approx(20)
+
+
+def results_json_with(table: PositioningDeviations) -> str:
+    """A valid results.json (a run validates as a whole) whose positioning deviations are ``table``."""
+    from rtcal.results.io import results_json
+    from rtcal.results.model import MultistationResults
+
+    budget = {"components": [], "combined_arcsec": [0.0], "expanded_arcsec": [0.0], "coverage_factor": 2.0, "not_included": []}
+    estimate = {"deviation_arcsec": [], "uncertainty_arcsec": [], "cumulative_deviation_arcsec": [0.0],
+                "cumulative_uncertainty_arcsec": [0.0], "cumulative_expanded_uncertainty_arcsec": [0.0],
+                "cumulative_covariance_arcsec2": [[0.0]], "uncertainty_budget": budget, "converged": True, "message": "",
+                "eq34_sigma_arcsec": 0.0, "algorithm_error_arcsec": 0.0,
+                "estimated_noise": {"tracer_length_noise_um_at_1m": 0.0, "cmm_point_noise_um": 0.0},
+                "plane": {"a": 0.0, "b": 0.0, "c": 1.0, "e": 0.0}, "projected_stations_mm": [], "center_mm": [0.0, 0.0, 0.0],
+                "stations_mm": [], "dead_paths_mm": {}, "rms_residual_um": 0.0}
+    results = MultistationResults.model_validate({
+        "rtcal_version": "test", "method": "laser_tracer_multistation", "procedure": {"name": "", "path": ""},
+        "metadata": {"customer": "", "machine": "", "axis": "", "serial_number": "", "location": "", "operator": "",
+                     "certificate_number": "", "instruments": {}},
+        "seed": None, "instruments": {}, "bench": None, "started_utc": None, "finished_utc": None, "starts": 1,
+        "measurement_duration_s": 0.0, "clock": "real", "nominal_angles_deg": [0.0], "raw_readings": 0,
+        "recommended": "shared_dead_path", "solver_status": {"shared_dead_path": {"status": "converged", "message": ""}},
+        "estimates": {"shared_dead_path": estimate}, "positioning_deviations": table.to_model(), "evaluation": None,
+        "skipped_readings": 0, "faults": 0, "events": [], "environment": None})
+    return results_json(results)
 
 
 @pytest.mark.parametrize("text, message", [

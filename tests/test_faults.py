@@ -38,8 +38,8 @@ def _over_wires(tmp_path: Path, procedure: Path, faults: list[dict], modbus: str
                              virtual_clock=True).results
 
 
-def _events(results: dict, kind: str) -> list[str]:
-    return [e["message"] for e in results["events"] if e["kind"] == kind]
+def _events(results, kind: str) -> list[str]:
+    return [e.message for e in results.events if e.kind == kind]
 
 
 TRANSIENT = [
@@ -61,7 +61,7 @@ TRANSIENT = [
 @pytest.mark.parametrize("fault,text", TRANSIENT, ids=[f"{f['instrument']}-{f['kind']}-{f.get('alarm', '')}" for f, _ in TRANSIENT])
 def test_transient_fault_is_retried_over_the_wire(tmp_path, fault, text):
     r = _over_wires(tmp_path, SMALL, [fault])
-    assert r["raw_readings"] == 64 and r["skipped_readings"] == 0
+    assert r.raw_readings == 64 and r.skipped_readings == 0
     faults = _events(r, "fault")
     assert faults and text in faults[0], faults
     assert _events(r, "retry")
@@ -69,17 +69,17 @@ def test_transient_fault_is_retried_over_the_wire(tmp_path, fault, text):
 
 def test_crc_error_over_rtu(tmp_path):
     r = _over_wires(tmp_path, SMALL, [{"instrument": "stage", "kind": "crc_error", "at_request": [4]}], modbus="rtu")
-    assert r["raw_readings"] == 64
+    assert r.raw_readings == 64
     assert "no valid reply" in _events(r, "fault")[0]
 
 
 def test_beam_breaks_are_reacquired_into_new_segments(tmp_path):
     r = _over_wires(tmp_path, SMALL, [{"instrument": "laser_tracer", "kind": "beam_break", "at_request": [10, 30]}])
-    assert r["raw_readings"] == 64
+    assert r.raw_readings == 64
     assert len(_events(r, "reacquire")) == 2
     store = RunStore.open(tmp_path / "run")
     assert store.max_segment() == 2  # the first reference and two re-acquisitions
-    assert set(r["estimates"]["shared_dead_path"]["dead_paths_mm"]) == {"0", "1", "2"}
+    assert set(r.estimates.shared_dead_path.dead_paths_mm) == {"0", "1", "2"}
 
 
 def test_emergency_stop_aborts_to_a_safe_state_and_keeps_readings(tmp_path):
@@ -94,7 +94,7 @@ def test_emergency_stop_aborts_to_a_safe_state_and_keeps_readings(tmp_path):
 def test_emergency_stop_with_pause_waits_for_the_operator(tmp_path):
     proc = _procedure(tmp_path, SMALL, {"stage: {retries: 2, backoff_s: 0.1, then: abort}": "stage: {retries: 1, backoff_s: 0.1, then: pause}"})
     r = _over_wires(tmp_path, proc, [{"instrument": "stage", "kind": "emergency_stop", "at_request": [5]}])
-    assert r["raw_readings"] == 64
+    assert r.raw_readings == 64
     assert _events(r, "pause")
 
 
@@ -105,7 +105,7 @@ def test_skip_policy_retakes_the_reading_after_the_pass(tmp_path):
                                         "laser_tracer: {retries: 2, backoff_s: 0.1, then: skip}"})
     r = _over_wires(tmp_path, proc, [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": [10, 11, 12]}])
     assert len(_events(r, "skip")) == 1
-    assert r["skipped_readings"] == 0 and r["raw_readings"] == 64
+    assert r.skipped_readings == 0 and r.raw_readings == 64
     store = RunStore.open(tmp_path / "run")
     lengths = [x.plan_index for x in store.readings(instrument="laser_tracer", quantity="length_mm")]
     assert sorted(lengths) == list(range(64))
@@ -116,8 +116,8 @@ def test_skip_policy_marks_the_reading_and_the_solvers_use_the_rest(tmp_path):
     proc = _procedure(tmp_path, SMALL, {"laser_tracer: {retries: 2, backoff_s: 0.1, then: reacquire}":
                                         "laser_tracer: {retries: 2, backoff_s: 0.1, then: skip}"})
     r = _over_wires(tmp_path, proc, [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": [10, 11, 12, 67, 68, 69]}])
-    assert r["skipped_readings"] == 1 and r["raw_readings"] == 63
-    assert len(r["estimates"]["shared_dead_path"]["deviation_arcsec"]) == 3
+    assert r.skipped_readings == 1 and r.raw_readings == 63
+    assert len(r.estimates.shared_dead_path.deviation_arcsec) == 3
 
 
 def test_seed001_instruments_faults_over_sockets(tmp_path):
@@ -128,7 +128,7 @@ def test_seed001_instruments_faults_over_sockets(tmp_path):
                                        "autocollimator: {backend: sim}": "autocollimator: {backend: sim, timeout_s: 0.3}",
                                        "dial_indicator_2: {backend: sim}": "dial_indicator_2: {backend: sim, timeout_s: 0.3}"})
     r = _over_wires(tmp_path, proc, faults, serial="tcp")
-    assert r["raw_readings"] == 96 and r["skipped_readings"] == 0
+    assert r.raw_readings == 96 and r.skipped_readings == 0
     messages = _events(r, "fault")
     assert len(messages) == 3
     assert any("unexpected reply" in m for m in messages)  # encoder, garbled
@@ -144,7 +144,7 @@ def test_same_faults_in_process(tmp_path, fault):
 
     scenario.write_text(yaml.safe_dump({"seed": 3, "faults": [fault]}))
     r = run_procedure(SMALL, scenario, out_dir=tmp_path / "run", show_progress=False).results
-    assert r["raw_readings"] == 64 and r["faults"] >= 1
+    assert r.raw_readings == 64 and r.faults >= 1
 
 
 def test_paper000_with_two_percent_beam_breaks_completes_within_no_fault_noise(tmp_path):
@@ -153,23 +153,21 @@ def test_paper000_with_two_percent_beam_breaks_completes_within_no_fault_noise(t
     deviation within 3.5σ of the no-fault uncertainty, RMS error below 1.5× the no-fault RMS
     uncertainty (measured: 0.91″ against 1.08″). The per-station model pays for the extra dead
     paths (one per segment and station): its error stays within its own, larger, 3.5σ."""
-    import json
-
     import numpy as np
 
     faulty = run_procedure(REPO / "procedures" / "laser_tracer_multistation.yaml", REPO / "tests" / "data" / "paper000_beam_breaks.yaml",
                            out_dir=tmp_path / "faulty", show_progress=False).results
-    clean = json.loads(json.dumps(run_procedure(REPO / "procedures" / "laser_tracer_multistation.yaml", out_dir=tmp_path / "clean",
-                                                show_progress=False).results))
-    assert faulty["raw_readings"] == 704 and faulty["skipped_readings"] == 0
+    clean = run_procedure(REPO / "procedures" / "laser_tracer_multistation.yaml", out_dir=tmp_path / "clean",
+                          show_progress=False).results
+    assert faulty.raw_readings == 704 and faulty.skipped_readings == 0
     assert len(_events(faulty, "reacquire")) >= 5
-    truth = np.array(faulty["truth"]["realized_deviation_arcsec"])
-    shared = np.array(faulty["estimates"]["shared_dead_path"]["deviation_arcsec"]) - truth
-    no_fault_unc = np.array(clean["estimates"]["shared_dead_path"]["uncertainty_arcsec"])
+    truth = np.array(faulty.truth.realized_deviation_arcsec)
+    shared = np.array(faulty.estimates.shared_dead_path.deviation_arcsec) - truth
+    no_fault_unc = np.array(clean.estimates.shared_dead_path.uncertainty_arcsec)
     assert np.all(np.abs(shared) < 3.5 * no_fault_unc)
     assert np.sqrt(np.mean(shared**2)) < 1.5 * np.sqrt(np.mean(no_fault_unc**2))
-    paper = faulty["estimates"]["paper"]
-    assert np.all(np.abs(np.array(paper["deviation_arcsec"]) - truth) < 3.5 * np.array(paper["uncertainty_arcsec"]))
+    paper = faulty.estimates.paper
+    assert np.all(np.abs(np.array(paper.deviation_arcsec) - truth) < 3.5 * np.array(paper.uncertainty_arcsec))
 
 
 def test_a_run_whose_data_the_solvers_cannot_use_says_so(tmp_path, capsys):
@@ -195,7 +193,7 @@ def test_pause_resets_the_drive_once_the_operator_has_released_the_emergency_sto
     latched alarm and the run stopped)."""
     proc = _procedure(tmp_path, SMALL, {"stage: {retries: 2, backoff_s: 0.1, then: abort}": "stage: {retries: 0, backoff_s: 0.1, then: pause}"})
     r = _over_wires(tmp_path, proc, [{"instrument": "stage", "kind": "emergency_stop", "at_request": [5]}])
-    assert r["raw_readings"] == 64 and r["skipped_readings"] == 0
+    assert r.raw_readings == 64 and r.skipped_readings == 0
     assert len(_events(r, "pause")) == 1
 
 
@@ -209,7 +207,7 @@ def test_pause_after_a_beam_break_references_the_tracer_again(tmp_path):
     scenario = tmp_path / "s.yaml"
     scenario.write_text(yaml.safe_dump({"faults": [{"instrument": "laser_tracer", "kind": "beam_break", "at_request": [10]}]}))
     r = run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False).results
-    assert r["raw_readings"] == 64 and len(_events(r, "pause")) == 1
+    assert r.raw_readings == 64 and len(_events(r, "pause")) == 1
     assert len(_events(r, "reacquire")) == 1
     assert RunStore.open(tmp_path / "run").max_segment() == 1  # the first reference and the one after the pause
 
@@ -257,7 +255,7 @@ def test_a_safe_stop_keeps_what_the_interrupted_reading_took(tmp_path):
     assert rows == [(0, "stage", "feedback_deg"), (0, "cmm", "position_x_mm"), (0, "cmm", "position_y_mm"),
                     (0, "cmm", "position_z_mm"), (0, "laser_tracer", "skipped")]
     assert pending
-    assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
+    assert (r.raw_readings, r.skipped_readings) == (64, 0)
 
 
 def test_a_safe_stop_keeps_what_the_interrupted_visit_took(tmp_path):
@@ -272,7 +270,7 @@ def test_a_safe_stop_keeps_what_the_interrupted_visit_took(tmp_path):
     rows, _, r = _stopped_then_resumed(tmp_path, proc, bench, "dial_indicator_2")
     assert rows == [(0, "stage", "feedback_deg"), (0, "encoder", "angle_deg"), (0, "autocollimator", "x_arcsec"),
                     (0, "dial_indicator_1", "y_um"), (0, "dial_indicator_2", "skipped")]
-    assert (r["raw_readings"], r["skipped_readings"]) == (96, 0)
+    assert (r.raw_readings, r.skipped_readings) == (96, 0)
 
 
 def test_resume_retakes_what_a_solved_run_skipped(tmp_path, capsys):
@@ -311,7 +309,7 @@ def test_seed001_counts_whole_visits_as_readings(tmp_path):
     scenario.write_text(yaml.safe_dump({**bench, "faults": [{"instrument": "autocollimator", "kind": "no_reply",
                                                              "at_request": [3, 4, 5]}]}))
     r = run_procedure(proc, scenario, out_dir=tmp_path / "run", show_progress=False, outputs=False).results
-    assert (r["raw_readings"], r["skipped_readings"]) == (95, 1)
+    assert (r.raw_readings, r.skipped_readings) == (95, 1)
 
 
 def test_an_operator_who_cannot_be_reached_is_a_typed_error():

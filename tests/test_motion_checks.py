@@ -87,8 +87,8 @@ def test_a_drive_that_stops_short_is_tried_again_then_stops_the_run(tmp_path):
 def test_a_drive_that_stops_short_once_is_approached_again_and_the_run_goes_on(tmp_path):
     path = _scenario(tmp_path, [{"instrument": "stage", "kind": "short", "shortfall_deg": 0.01, "at_request": [3]}])
     r = run_procedure(SMALL, path, out_dir=tmp_path / "run", show_progress=False).results
-    assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
-    faults = [e["message"] for e in r["events"] if e["kind"] == "fault"]
+    assert (r.raw_readings, r.skipped_readings) == (64, 0)
+    faults = [e.message for e in r.events if e.kind == "fault"]
     assert len(faults) == 1 and "feedback position" in faults[0]
 
 
@@ -107,8 +107,8 @@ def test_a_table_turned_between_readings_is_approached_again(tmp_path):
     """Read 3 is the second reading's before: the table is found off and approached anew."""
     path = _scenario(tmp_path, [{"instrument": "stage", "kind": "moved", "offset_deg": 0.003, "at_request": [3]}])
     r = run_procedure(SMALL, path, out_dir=tmp_path / "run", show_progress=False).results
-    assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
-    assert len([e for e in r["events"] if e["kind"] == "fault"]) == 1
+    assert (r.raw_readings, r.skipped_readings) == (64, 0)
+    assert len([e for e in r.events if e.kind == "fault"]) == 1
 
 
 def test_a_rejected_reading_is_kept_retaken_and_never_used(tmp_path):
@@ -118,7 +118,7 @@ def test_a_rejected_reading_is_kept_retaken_and_never_used(tmp_path):
     path = _scenario(tmp_path, [{"instrument": "stage", "kind": "stuck", "at_request": [3]}])
     clean = run_procedure(SMALL, out_dir=tmp_path / "clean", show_progress=False).results
     r = run_procedure(proc, path, out_dir=tmp_path / "run", show_progress=False).results
-    assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
+    assert (r.raw_readings, r.skipped_readings) == (64, 0)
     store = RunStore.open(tmp_path / "run")
     rejected = {(x.plan_index, x.attempt) for x in store.readings() if x.quantity == REJECTED}
     assert len(rejected) == 1
@@ -126,7 +126,7 @@ def test_a_rejected_reading_is_kept_retaken_and_never_used(tmp_path):
     assert lengths  # the contradicted length is kept in the store …
     # … and used nowhere: the deviations agree with a clean run's to the bench's noise (0.2 µm over 65 mm ≈ 0.6″, 1σ)
     for name in ("shared_dead_path", "network"):
-        a, b = r["estimates"][name]["cumulative_deviation_arcsec"], clean["estimates"][name]["cumulative_deviation_arcsec"]
+        a, b = r.estimates.named(name).cumulative_deviation_arcsec, clean.estimates.named(name).cumulative_deviation_arcsec
         assert max(abs(x - y) for x, y in zip(a, b)) < 3.0
 
 
@@ -137,7 +137,7 @@ def test_a_run_stopped_by_a_contradiction_resumes_once_the_cause_is_gone(tmp_pat
     path = _scenario(tmp_path, [{"instrument": "stage", "kind": "stuck", "at_request": [3, 4, 5, 6, 7]}])
     _aborted(tmp_path, SMALL, path)
     r = resume_run(tmp_path / "run", show_progress=False).results
-    assert (r["raw_readings"], r["skipped_readings"]) == (64, 0)
+    assert (r.raw_readings, r.skipped_readings) == (64, 0)
 
 
 # -- over the wires -------------------------------------------------------------------------------

@@ -42,18 +42,18 @@ def sim_serve(scenario: Path, *options: str):
     assert proc.returncode == 0, proc.stderr.read()
 
 
-def _values(results: dict, estimator: str, key: str) -> np.ndarray:
-    return np.array([np.nan if v is None else v for v in results["estimates"][estimator][key]], float)
+def _values(results, estimator: str, key: str) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in getattr(results.estimates.named(estimator), key)], float)
 
 
-def _compare(procedure: Path, scenario: Path, tmp_path: Path, checks: dict[str, list[str]], *options: str) -> dict:
+def _compare(procedure: Path, scenario: Path, tmp_path: Path, checks: dict[str, list[str]], *options: str):
     local = run_procedure(procedure, scenario, out_dir=tmp_path / "local", show_progress=False).results
     with sim_serve(scenario, *options) as addresses:
         assert set(addresses) >= {"stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2"}
         remote = run_procedure(procedure, out_dir=tmp_path / "remote", show_progress=False, addresses=addresses,
                                virtual_clock=True).results
-    assert remote["raw_readings"] == local["raw_readings"]
-    assert "truth" not in remote and isinstance(remote["instruments"], dict)
+    assert remote.raw_readings == local.raw_readings
+    assert remote.truth is None and isinstance(remote.instruments, dict)
     for estimator, keys in checks.items():
         for key in keys:
             a, b = _values(local, estimator, key), _values(remote, estimator, key)
@@ -65,16 +65,16 @@ def _compare(procedure: Path, scenario: Path, tmp_path: Path, checks: dict[str, 
 def test_paper000_over_modbus_tcp_ipp_and_ptys(tmp_path):
     remote = _compare(PROC / "laser_tracer_multistation.yaml", PROC / "scenarios" / "paper000_bench.yaml", tmp_path,
                       {"paper": ["deviation_arcsec"], "shared_dead_path": ["deviation_arcsec"]})
-    assert remote["instruments"]["stage"].startswith("modbus-tcp://127.0.0.1:")
-    assert remote["instruments"]["laser_tracer"].startswith("/dev/pts/")
+    assert remote.instruments["stage"].startswith("modbus-tcp://127.0.0.1:")
+    assert remote.instruments["laser_tracer"].startswith("/dev/pts/")
 
 
 def test_seed001_over_modbus_rtu_and_sockets(tmp_path):
     remote = _compare(PROC / "encoder_abbe_error.yaml", PROC / "scenarios" / "abbe_bench.yaml", tmp_path,
                       {"abbe": ["predicted_encoder_error_arcsec", "measured_encoder_error_arcsec", "positioning_error_arcsec"]},
                       "--modbus", "rtu", "--serial", "tcp")
-    assert remote["instruments"]["stage"].startswith("modbus-rtu:///dev/pts/")
-    assert remote["instruments"]["encoder"].startswith("socket://127.0.0.1:")
+    assert remote.instruments["stage"].startswith("modbus-rtu:///dev/pts/")
+    assert remote.instruments["encoder"].startswith("socket://127.0.0.1:")
 
 
 def test_closure_with_the_simulated_operator(tmp_path):
@@ -117,5 +117,5 @@ def test_two_mounts_and_the_environment_sensor_over_the_wires(tmp_path):
                          .replace("bench: scenarios/paper000_bench.yaml", f"bench: {scenario}")
                          + "\nsecond_mount: {first_station_guess_mm: [54.9, -117.8, 122.5]}\n")
     remote = _compare(procedure, scenario, tmp_path, {"network": ["cumulative_deviation_arcsec"]})
-    assert "environment" in remote["instruments"] and remote["environment"]["air_temperature_c"]["max"] > 20.0
-    assert any("moved on mount 2" in e["message"] for e in remote["events"])
+    assert "environment" in remote.instruments and remote.environment.air_temperature_c.max > 20.0
+    assert any("moved on mount 2" in e.message for e in remote.events)

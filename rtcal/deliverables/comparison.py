@@ -13,9 +13,10 @@ import numpy as np
 
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
+from rtcal.results.model import RunResults, TargetedEstimate
 
 
-def mean_curve(table: PositioningDeviations, results: dict | None, wrap: bool = True) -> dict[tuple[float, int], tuple[float, float]]:
+def mean_curve(table: PositioningDeviations, results: RunResults | None, wrap: bool = True) -> dict[tuple[float, int], tuple[float, float]]:
     """(target, direction) → (mean deviation, its standard uncertainty). From a run, the recommended
     estimate's own cumulative deviation and u (its covariance knows what the runs share); from a
     CSV, the mean over the runs with u = RMS(u)/√n (independent rows assumed). ``wrap``: targets
@@ -24,15 +25,15 @@ def mean_curve(table: PositioningDeviations, results: dict | None, wrap: bool = 
     def key(t: float) -> float:
         return round(float(t) % 360.0 if wrap else float(t), 6)
 
-    if results and results.get("recommended") in results.get("estimates", {}):
-        e = results["estimates"][results["recommended"]]
-        if "target_deg" in e:
-            targets, dirs = e["target_deg"], e["target_direction"]
+    e = results.recommended_estimate() if results is not None else None
+    if results is not None and e is not None:
+        if isinstance(e, TargetedEstimate):
+            targets, dirs = e.target_deg, list(e.target_direction)
         else:
-            targets = results["nominal_angles_deg"]
+            targets = results.nominal_angles_deg
             dirs = [int(table.direction[0])] * len(targets)
         return {(key(t), int(d)): (float(x), float(u))
-                for t, d, x, u in zip(targets, dirs, e["cumulative_deviation_arcsec"], e["cumulative_uncertainty_arcsec"])
+                for t, d, x, u in zip(targets, dirs, e.cumulative_deviation_arcsec, e.cumulative_uncertainty_arcsec)
                 if x is not None and u is not None}
     out = {}
     for t in np.unique(np.round(table.target_deg, 6)):
@@ -45,7 +46,7 @@ def mean_curve(table: PositioningDeviations, results: dict | None, wrap: bool = 
     return out
 
 
-def compare(a: tuple[PositioningDeviations, dict | None], b: tuple[PositioningDeviations, dict | None],
+def compare(a: tuple[PositioningDeviations, RunResults | None], b: tuple[PositioningDeviations, RunResults | None],
             names: tuple[str, str]) -> dict[str, Any]:
     ca, cb = mean_curve(*a), mean_curve(*b)
     common = sorted(set(ca) & set(cb), key=lambda k: (-k[1], k[0]))
@@ -70,7 +71,8 @@ def compare(a: tuple[PositioningDeviations, dict | None], b: tuple[PositioningDe
     }
 
 
-def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, dict | None], b: tuple[PositioningDeviations, dict | None],
+def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, RunResults | None],
+                    b: tuple[PositioningDeviations, RunResults | None],
                     path: Path) -> Path:
     """Both runs' mean deviation per target and direction on one axis, each with its U (k = 2)
     band; ↑ solid, ↓ dashed; the title names both runs and how many values changed beyond U_c."""

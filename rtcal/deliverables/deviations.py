@@ -16,9 +16,10 @@ import csv
 import io
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+
+from rtcal.results.model import DeviationTable
 
 CSV_HEADER = ("target_deg", "direction", "run", "deviation_arcsec")
 CSV_OPTIONAL = ("uncertainty_arcsec",)
@@ -69,37 +70,35 @@ class PositioningDeviations:
                                      self.estimator, self.notes)
 
     # -- results.json ---------------------------------------------------------------------
-    def to_dict(self, digits: int = 4) -> dict[str, Any]:
-        """Columns for results.json (the covariance is not repeated here: the estimate has it)."""
-        def col(a, d=None):
+    def to_model(self, digits: int = 4) -> DeviationTable:
+        """The ``positioning_deviations`` block of results.json (the covariance is not repeated
+        there: the estimate has it)."""
+        def col(a: np.ndarray, d: int | None = None) -> list[float | None]:
             a = np.asarray(a, float)
             return [None if not np.isfinite(v) else (round(float(v), d) if d is not None else float(v)) for v in a]
 
-        return {
-            "estimator": self.estimator,
-            "target_deg": col(self.target_deg, 9),
-            "direction": [int(d) for d in self.direction],
-            "run": [int(r) for r in self.run],
-            "deviation_arcsec": col(self.deviation_arcsec, digits),
-            "uncertainty_arcsec": col(self.uncertainty_arcsec, digits),
-            "notes": list(self.notes),
-        }
+        return DeviationTable(
+            estimator=self.estimator,
+            target_deg=[round(float(t), 9) for t in self.target_deg],
+            direction=[int(d) for d in self.direction],
+            run=[int(r) for r in self.run],
+            deviation_arcsec=col(self.deviation_arcsec, digits),
+            uncertainty_arcsec=col(self.uncertainty_arcsec, digits),
+            notes=list(self.notes),
+        )
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], where: str = "results.json") -> "PositioningDeviations":
-        try:
-            unc = data.get("uncertainty_arcsec") or [None] * len(data["target_deg"])
-            table = cls(
-                np.asarray(data["target_deg"], float),
-                np.asarray(data["direction"], int),
-                np.asarray(data["run"], int),
-                np.asarray([np.nan if v is None else v for v in data["deviation_arcsec"]], float),
-                np.asarray([np.nan if v is None else v for v in unc], float),
-                estimator=str(data.get("estimator", "")),
-                notes=tuple(data.get("notes", ())),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise DeviationTableError(f"{where}: positioning_deviations is not a deviation table ({exc})") from None
+    def from_model(cls, block: DeviationTable, where: str = "results.json") -> "PositioningDeviations":
+        """The table of a (validated) results.json; a row twice is a DeviationTableError naming ``where``."""
+        table = cls(
+            np.asarray(block.target_deg, float),
+            np.asarray(block.direction, int),
+            np.asarray(block.run, int),
+            np.asarray([np.nan if v is None else v for v in block.deviation_arcsec], float),
+            np.asarray([np.nan if v is None else v for v in block.uncertainty_arcsec], float),
+            estimator=block.estimator,
+            notes=tuple(block.notes),
+        )
         table.check(where)
         return table
 

@@ -1,9 +1,9 @@
-"""The run's report: results.json, report.md, and the certificate-grade report.html and report.pdf.
+"""The run's report: report.md, and the certificate-grade report.html and report.pdf.
 
 The certificate leads with what a reader signs off: who and what (metadata), the result per
 target and direction with its expanded uncertainty U (k = 2), the ISO 230-2 and VDI 3441
 parameters and the figures; then the uncertainty budget, the method, the conditions and the
-run's events. One model (:func:`report_model`, a pure function of results.json) feeds both
+run's events. One model (:func:`report_model`, a pure function of the run's results) feeds both
 renderers. report.md is the Markdown frame every run shares around its method's body.
 """
 
@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import base64
 import datetime as _dt
-import json
 from pathlib import Path
 from typing import Any
 
 from rtcal.deliverables.comparison import mean_curve
 from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.results.model import Event, InstrumentRecord, MultistationResults, RunResults
 
 ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, positive approach"),
             ("E_down", "E↓", "unidirectional systematic positional deviation, negative approach"),
@@ -33,32 +33,57 @@ METADATA_KEYS = (("certificate_number", "Certificate"), ("customer", "Customer")
                  ("serial_number", "Serial number"), ("location", "Location"), ("operator", "Operator"))
 
 
-def _fmt(v: Any, digits: int = 2) -> str:
-    return "–" if v is None else f"{v:.{digits}f}"
+def fmt(v: float | None, spec: str) -> str:
+    """A value as ``format(v, spec)``; "–" for a missing one."""
+    return "–" if v is None else format(v, spec)
 
 
-def report_model(results: dict[str, Any], run_dir: Path, figures: list[tuple[str, str]], method_text: list[str]) -> dict[str, Any]:
-    """Everything the report shows, as strings and rows, from results.json."""
-    meta = results.get("metadata") or {}
-    header = [(label, meta.get(key)) for key, label in METADATA_KEYS if meta.get(key)]
-    header += [("Procedure", results["procedure"].get("name") or results["procedure"].get("path", "")),
-               ("Calibration method", results["method"]), ("Measured", f"{results.get('started_utc') or '?'} – {results.get('finished_utc') or '?'} (UTC)"),
+def _fmt(v: float | None, digits: int = 2) -> str:
+    return fmt(v, f".{digits}f")
+
+
+def largest(values: list[float | None]) -> float | None:
+    """The largest of the values present (None: none is)."""
+    present = [v for v in values if v is not None]
+    return max(present) if present else None
+
+
+def smallest(values: list[float | None]) -> float | None:
+    """The smallest of the values present (None: none is)."""
+    present = [v for v in values if v is not None]
+    return min(present) if present else None
+
+
+def status_lines(results: RunResults) -> list[str]:
+    """One line per estimator that did not converge or could not run (empty when all is well)."""
+    return [f"estimator {name} {st.status}: {st.message}" for name, st in results.solver_status.items()
+            if st.status != "converged"]
+
+
+def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, str]], method_text: list[str]) -> dict[str, Any]:
+    """Everything the report shows, as strings and rows, from the run's results."""
+    meta = results.metadata
+    header = [(label, getattr(meta, key)) for key, label in METADATA_KEYS if getattr(meta, key)]
+    header += [("Procedure", results.procedure.name or results.procedure.path),
+               ("Calibration method", results.method),
+               ("Measured", f"{results.started_utc or '?'} – {results.finished_utc or '?'} (UTC)"),
                ("Report", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")),
-               ("Software", f"rtcal {results['rtcal_version']}")]
-    if isinstance(results.get("instruments"), dict):
-        instruments = [(name, address) for name, address in results["instruments"].items()]
+               ("Software", f"rtcal {results.rtcal_version}")]
+    if isinstance(results.instruments, dict):
+        instruments = [(name, address) for name, address in results.instruments.items()]
     else:
-        instruments = [("all", f"simulated in process; bench {results.get('bench')}; seed {results.get('seed')}")]
-    records = meta.get("instruments") or {}
-    instruments = [(name, where, (records.get(name) or {}).get("id", ""), (records.get(name) or {}).get("calibration_due", ""))
-                   for name, where in instruments]
-    warnings = [f"Estimator {n} {st['status']}: {st['message']}" for n, st in results.get("solver_status", {}).items()
-                if st["status"] != "converged"]
-    if str(results.get("bench", "")).startswith("ideal bench"):
-        warnings.append(results["bench"])
+        instruments = [("all", f"simulated in process; bench {results.bench}; seed {results.seed}")]
+    records = meta.instruments
+    none = InstrumentRecord(id="", calibration_due="")
+    instrument_rows = [(name, where, records.get(name, none).id, records.get(name, none).calibration_due)
+                       for name, where in instruments]
+    warnings = [f"Estimator {n} {st.status}: {st.message}" for n, st in results.solver_status.items()
+                if st.status != "converged"]
+    if results.bench is not None and results.bench.startswith("ideal bench"):
+        warnings.append(results.bench)
     rows = []
-    if "positioning_deviations" in results:
-        table = PositioningDeviations.from_dict(results["positioning_deviations"])
+    if results.positioning_deviations is not None:
+        table = PositioningDeviations.from_model(results.positioning_deviations)
         curve = mean_curve(table, results, wrap=False)
         counts: dict[tuple[float, int], int] = {}
         for t, d in zip(table.target_deg, table.direction):
@@ -66,42 +91,41 @@ def report_model(results: dict[str, Any], run_dir: Path, figures: list[tuple[str
         for key in curve:  # in the measurement's order
             x, u = curve[key]
             rows.append((f"{key[0]:g}", "↑" if key[1] > 0 else "↓", f"{x:+.2f}", _fmt(u), _fmt(2 * u), str(counts.get(key, ""))))
-    evaluation = results.get("evaluation") or {}
-    iso = evaluation.get("iso230_2") or {}
-    vdi = evaluation.get("vdi3441") or {}
-    rec = results.get("recommended")
+    iso = results.evaluation.iso230_2 if results.evaluation else None
+    vdi = results.evaluation.vdi3441 if results.evaluation else None
     budget_rows = []
-    if rec:
-        b = results["estimates"][rec]["uncertainty_budget"]
-        for c in b["components"]:
-            contrib = [v for v in c["contribution_arcsec"] if v is not None]
-            stated = c["note"] if "," in c["unit"] else f"{c['input_sigma']:.3g} {c['unit']}"  # several inputs: say them
-            budget_rows.append((c["source"], c["type"], stated + (" (from the data)" if c["estimated_from_data"] else ""),
-                                _fmt(max(contrib) if contrib else None, 3)))
-        comb = [v for v in b["combined_arcsec"] if v is not None]
-        budget_rows.append(("combined standard uncertainty u", "", "", _fmt(max(comb) if comb else None, 3)))
-        budget_rows.append(("expanded uncertainty U (k = 2)", "", "", _fmt(2 * max(comb) if comb else None, 3)))
-        not_included = b["not_included"]
-    else:
-        not_included = []
+    not_included: list[str] = []
+    e = results.recommended_estimate()
+    if e is not None:
+        b = e.uncertainty_budget
+        for c in b.components:
+            stated = c.note if "," in c.unit else f"{c.input_sigma:.3g} {c.unit}"  # several inputs: say them
+            budget_rows.append((c.source, c.type, stated + (" (from the data)" if c.estimated_from_data else ""),
+                                _fmt(largest(c.contribution_arcsec), 3)))
+        comb = largest(b.combined_arcsec)
+        budget_rows.append(("combined standard uncertainty u", "", "", _fmt(comb, 3)))
+        budget_rows.append(("expanded uncertainty U (k = 2)", "", "", _fmt(None if comb is None else 2 * comb, 3)))
+        not_included = b.not_included
     environment = []
-    for name, v in (results.get("environment") or {}).items():
-        environment.append((name.replace("_", " "), f"{v['min']:g} … {v['max']:g} (mean {v['mean']:g})"))
-    events = {}
-    for ev in results.get("events", []):
-        events[ev["kind"]] = events.get(ev["kind"], 0) + 1
+    if isinstance(results, MultistationResults) and results.environment is not None:
+        for name, v in results.environment.items():
+            environment.append((name.replace("_", " "), f"{v.min:g} … {v.max:g} (mean {v.mean:g})"))
+    events: dict[str, int] = {}
+    for ev in results.events:
+        events[ev.kind] = events.get(ev.kind, 0) + 1
+    iso_notes = iso.notes if iso else []
     return {
-        "title": results["procedure"].get("name") or "rtcal calibration",
-        "header": header, "instruments": instruments, "warnings": warnings,
-        "rows": rows, "recommended": rec,
-        "iso": [(sym, desc, _fmt(iso.get(key))) for key, sym, desc in ISO_KEYS] if iso else [],
-        "vdi": [(sym, desc, _fmt(vdi.get(key))) for key, sym, desc in VDI_KEYS] if vdi else [],
-        "evaluation_notes": (iso.get("notes") or []) + [n for n in (vdi.get("notes") or []) if n not in (iso.get("notes") or [])],
+        "title": results.procedure.name or "rtcal calibration",
+        "header": header, "instruments": instrument_rows, "warnings": warnings,
+        "rows": rows, "recommended": results.recommended,
+        "iso": [(sym, desc, _fmt(getattr(iso, key))) for key, sym, desc in ISO_KEYS] if iso else [],
+        "vdi": [(sym, desc, _fmt(getattr(vdi, key))) for key, sym, desc in VDI_KEYS] if vdi else [],
+        "evaluation_notes": iso_notes + [n for n in (vdi.notes if vdi else []) if n not in iso_notes],
         "figures": [(run_dir / f, caption) for f, caption in figures if (run_dir / f).exists()],
         "budget": budget_rows, "not_included": not_included,
         "method": method_text, "environment": environment,
         "events": ", ".join(f"{k}: {n}" for k, n in events.items()),
-        "raw_readings": results.get("raw_readings"), "skipped": results.get("skipped_readings", 0),
+        "raw_readings": results.raw_readings, "skipped": results.skipped_readings,
     }
 
 
@@ -199,37 +223,31 @@ def _fonts(pdfmetrics, TTFont) -> tuple[str, str]:
         return "Helvetica", "Helvetica-Bold"
 
 
-def write_results(run_dir: Path, results: dict[str, Any]) -> Path:
-    path = run_dir / "results.json"
-    path.write_text(json.dumps(results, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    return path
-
-
-def write_report(run_dir: Path, results: dict[str, Any], body: list[str]) -> Path:
+def write_report(run_dir: Path, results: RunResults, body: list[str]) -> Path:
     """The Markdown report: a header every run shares, the method's body, the run's events."""
-    lines = [f"# rtcal run — {results['procedure'].get('name') or results['method']}", ""]
-    for name, st in results.get("solver_status", {}).items():
-        if st["status"] != "converged":
-            lines.append(f"> **Estimator `{name}` {st['status']}**: {st['message']}")
+    lines = [f"# rtcal run — {results.procedure.name or results.method}", ""]
+    for name, st in results.solver_status.items():
+        if st.status != "converged":
+            lines.append(f"> **Estimator `{name}` {st.status}**: {st.message}")
             lines.append(">")
-    if results.get("bench") and results["bench"].startswith("ideal bench"):
-        lines += [f"> **Note:** {results['bench']}.", ""]
-    lines += [f"- method: `{results['method']}`", f"- software: rtcal {results['rtcal_version']}",
-              f"- started: {results.get('started_utc') or '?'} (UTC); measured until {results.get('finished_utc') or '?'}; "
+    if results.bench and results.bench.startswith("ideal bench"):
+        lines += [f"> **Note:** {results.bench}.", ""]
+    lines += [f"- method: `{results.method}`", f"- software: rtcal {results.rtcal_version}",
+              f"- started: {results.started_utc or '?'} (UTC); measured until {results.finished_utc or '?'}; "
               f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}",
-              f"- measurement duration: {results.get('measurement_duration_s')} s"
+              f"- measurement duration: {results.measurement_duration_s} s"
               + (" of simulated time (virtual clock: settle times and motions were not waited for)"
-                 if results.get("clock") == "virtual" else ""),
-              f"- raw readings: {results['raw_readings']}"]
-    if isinstance(results.get("instruments"), dict):
-        lines += ["- instruments:"] + [f"  - {k}: `{v}`" for k, v in results["instruments"].items()]
+                 if results.clock == "virtual" else ""),
+              f"- raw readings: {results.raw_readings}"]
+    if isinstance(results.instruments, dict):
+        lines += ["- instruments:"] + [f"  - {k}: `{v}`" for k, v in results.instruments.items()]
     else:
-        lines += [f"- instruments: {results.get('instruments')}, bench `{results.get('bench')}`, seed {results['seed']}"]
-    if results.get("recommended"):
-        lines.append(f"- recommended estimate: `{results['recommended']}` (converged, smallest uncertainty)")
+        lines += [f"- instruments: {results.instruments}, bench `{results.bench}`, seed {results.seed}"]
+    if results.recommended:
+        lines.append(f"- recommended estimate: `{results.recommended}` (converged, smallest uncertainty)")
     lines.append("")
     lines += body
-    lines += events_section(results.get("events", []))
+    lines += events_section(results.events)
     path = run_dir / "report.md"
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
@@ -238,18 +256,18 @@ def write_report(run_dir: Path, results: dict[str, Any], body: list[str]) -> Pat
 NOTABLE_EVENTS = ("fault", "retry", "reacquire", "skip", "pause", "abort", "resume")
 
 
-def events_section(events: list[dict], limit: int = 60) -> list[str]:
+def events_section(events: list[Event], limit: int = 60) -> list[str]:
     """Counts of every kind of event, then the faults and the actions taken, in order."""
     if not events:
         return []
     counts: dict[str, int] = {}
     for ev in events:
-        counts[ev["kind"]] = counts.get(ev["kind"], 0) + 1
+        counts[ev.kind] = counts.get(ev.kind, 0) + 1
     lines = ["## Events", "", ", ".join(f"{k}: {n}" for k, n in counts.items()), ""]
-    notable = [ev for ev in events if ev["kind"] in NOTABLE_EVENTS]
+    notable = [ev for ev in events if ev.kind in NOTABLE_EVENTS]
     for ev in notable[:limit]:
-        who = f" ({ev['instrument']})" if ev.get("instrument") else ""
-        lines.append(f"- t = {ev['t_s']:.1f} s, {ev['kind']}{who}: {ev['message']}")
+        who = f" ({ev.instrument})" if ev.instrument else ""
+        lines.append(f"- t = {ev.t_s:.1f} s, {ev.kind}{who}: {ev.message}")
     if len(notable) > limit:
         lines.append(f"- … {len(notable) - limit} more in results.json and run.sqlite")
     return lines + [""]

@@ -1,6 +1,7 @@
 """What every estimate reports, and which one a certificate should quote.
 
-Every estimate under ``results.json["estimates"][name]`` carries the same block: the
+Every estimate under ``estimates.<name>`` of results.json carries the same block
+(:class:`rtcal.results.model.DeviationBlock`): the
 cumulative positioning deviation (actual − commanded relative to the first target; ISO 230-1
 ECC for a C axis) with its standard uncertainty, expanded uncertainty (k = 2), covariance and
 budget, and its per-step differences (seed 000's eq. 33 Δθ) with theirs. ``recommended`` names
@@ -9,37 +10,37 @@ the estimate to quote: converged, and the smallest uncertainty among those that 
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Callable, Iterable, TypeVar
 
 import numpy as np
 
+from rtcal.results.model import BudgetComponent, DeviationBlock, Estimate, SolverStatus, UncertaintyBudget
 from rtcal.solvers.uncertainty import DeviationBudget, difference_matrix
 
 COVERAGE_FACTOR = 2.0
 
 
-def _round(values, digits: int = 4) -> list:
+def _round(values: Iterable[float] | np.ndarray, digits: int = 4) -> list[float | None]:
     return [None if not np.isfinite(v) else round(float(v), digits) for v in np.asarray(values, float).ravel()]
 
 
-def budget_dict(budget: DeviationBudget, not_included: list[str] | None = None) -> dict[str, Any]:
+def uncertainty_budget(budget: DeviationBudget, not_included: list[str] | None = None) -> UncertaintyBudget:
     """The GUM table: per source its type, input σ and contribution per target; combined u and U."""
     u = budget.uncertainty_arcsec
-    return {
-        "components": [{
-            "source": c.name, "type": c.type, "input_sigma": round(float(c.sigma), 6), "unit": c.unit,
-            "estimated_from_data": c.estimated, "note": c.note,
-            "contribution_arcsec": _round(c.uncertainty_arcsec),
-        } for c in budget.components],
-        "combined_arcsec": _round(u),
-        "expanded_arcsec": _round(COVERAGE_FACTOR * u),
-        "coverage_factor": COVERAGE_FACTOR,
-        "not_included": list(not_included or []),
-    }
+    return UncertaintyBudget(
+        components=[BudgetComponent(
+            source=c.name, type=c.type, input_sigma=round(float(c.sigma), 6), unit=c.unit,
+            estimated_from_data=c.estimated, note=c.note, contribution_arcsec=_round(c.uncertainty_arcsec),
+        ) for c in budget.components],
+        combined_arcsec=_round(u),
+        expanded_arcsec=_round(COVERAGE_FACTOR * u),
+        coverage_factor=COVERAGE_FACTOR,
+        not_included=list(not_included or []),
+    )
 
 
 def deviation_block(cumulative_arcsec: np.ndarray, budget: DeviationBudget, steps: np.ndarray | None = None,
-                    not_included: list[str] | None = None) -> dict[str, Any]:
+                    not_included: list[str] | None = None) -> DeviationBlock:
     """The standard keys of an estimate from its cumulative deviation and that deviation's budget.
 
     ``steps`` (k×n) forms the per-step deviations from the cumulative ones (default: consecutive
@@ -49,22 +50,26 @@ def deviation_block(cumulative_arcsec: np.ndarray, budget: DeviationBudget, step
     D = difference_matrix(len(cum)) if steps is None else np.asarray(steps, float)
     step_budget = budget.transformed(D)
     u = budget.uncertainty_arcsec
-    return {
-        "deviation_arcsec": _round(D @ cum),
-        "uncertainty_arcsec": _round(step_budget.uncertainty_arcsec),
-        "cumulative_deviation_arcsec": _round(cum),
-        "cumulative_uncertainty_arcsec": _round(u),
-        "cumulative_expanded_uncertainty_arcsec": _round(COVERAGE_FACTOR * u),
-        "cumulative_covariance_arcsec2": [_round(row, 6) for row in budget.covariance_arcsec2],
-        "uncertainty_budget": budget_dict(budget, not_included),
-    }
+    return DeviationBlock(
+        deviation_arcsec=_round(D @ cum),
+        uncertainty_arcsec=_round(step_budget.uncertainty_arcsec),
+        cumulative_deviation_arcsec=_round(cum),
+        cumulative_uncertainty_arcsec=_round(u),
+        cumulative_expanded_uncertainty_arcsec=_round(COVERAGE_FACTOR * u),
+        cumulative_covariance_arcsec2=[_round(row, 6) for row in budget.covariance_arcsec2],
+        uncertainty_budget=uncertainty_budget(budget, not_included),
+    )
 
 
-def choose_recommended(estimates: dict[str, dict[str, Any]], status: dict[str, dict[str, str]]) -> str | None:
+E = TypeVar("E", bound=Estimate)
+
+
+def choose_recommended(estimates: dict[str, E], status: dict[str, SolverStatus]) -> str | None:
     """The estimate a certificate should quote: converged first, then the smallest RMS uncertainty."""
-    def key(name: str):
-        u = np.array([v for v in estimates[name]["cumulative_uncertainty_arcsec"][1:] if v is not None], float)
-        return (status.get(name, {}).get("status") != "converged", float(np.sqrt(np.mean(u**2))) if u.size else np.inf)
+    def key(name: str) -> tuple[bool, float]:
+        u = np.array([v for v in estimates[name].cumulative_uncertainty_arcsec[1:] if v is not None], float)
+        st = status.get(name)
+        return (st is None or st.status != "converged", float(np.sqrt(np.mean(u**2))) if u.size else np.inf)
 
     names = sorted(estimates, key=key)
     return names[0] if names else None
@@ -73,33 +78,26 @@ def choose_recommended(estimates: dict[str, dict[str, Any]], status: dict[str, d
 ESTIMATOR_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
 
 
-def run_estimators(solvers: dict[str, Callable[[], dict[str, Any]]]) -> tuple[dict[str, dict], dict[str, dict[str, str]]]:
+def run_estimators(solvers: dict[str, Callable[[], E]]) -> tuple[dict[str, E], dict[str, SolverStatus]]:
     """Run every estimator; one that cannot run is recorded as failed and hides none of the others.
 
-    Each solver returns its estimate block (with ``converged`` and ``message``); the status of
-    each is ``converged``, ``not converged`` (results kept, flagged) or ``failed`` (no results).
+    Each solver returns its estimate (with ``converged`` and ``message``); the status of each is
+    ``converged``, ``not converged`` (results kept, flagged) or ``failed`` (no results).
     """
-    estimates: dict[str, dict] = {}
-    status: dict[str, dict[str, str]] = {}
+    estimates: dict[str, E] = {}
+    status: dict[str, SolverStatus] = {}
     for name, solve in solvers.items():
         try:
             block = solve()
         except ESTIMATOR_ERRORS as exc:
-            status[name] = {"status": "failed", "message": f"could not run: {exc}"}
+            status[name] = SolverStatus(status="failed", message=f"could not run: {exc}")
             continue
         estimates[name] = block
-        status[name] = {"status": "converged" if block.get("converged") else "not converged",
-                        "message": str(block.get("message", ""))}
+        status[name] = SolverStatus(status="converged" if block.converged else "not converged", message=block.message)
     return estimates, status
 
 
-def status_lines(results: dict[str, Any]) -> list[str]:
-    """One line per estimator that did not converge or could not run (empty when all is well)."""
-    return [f"estimator {name} {st['status']}: {st['message']}" for name, st in results.get("solver_status", {}).items()
-            if st["status"] != "converged"]
-
-
-def finite_or_none(values) -> list[float | None]:
+def finite_or_none(values: Iterable[float] | np.ndarray) -> list[float | None]:
     """JSON has no NaN: missing values (no face in front, say) become null."""
     out = []
     for v in values:

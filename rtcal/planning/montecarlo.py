@@ -43,7 +43,7 @@ class TrialSpec:
 def plan_trials(procedure_path: Path, proc: Procedure, scenario, trials: int, seed: int, workdir: Path,
                 vary_systematics: bool = True) -> list[TrialSpec]:
     """N trial specifications; the systematic draws come from one generator seeded by ``seed``."""
-    from rtcal.run.runner import METHODS
+    from rtcal.methods import METHODS
 
     method = METHODS[proc.method]
     rng = np.random.default_rng([seed, 0x5EED])
@@ -57,7 +57,8 @@ def plan_trials(procedure_path: Path, proc: Procedure, scenario, trials: int, se
 
 
 def run_trial(spec: TrialSpec, single_thread: bool = True) -> dict[str, Any]:
-    """Run one trial; return per estimator the error against truth and the reported 1σ per target."""
+    """Run one trial; return per estimator the error against truth and the reported 1σ per target
+    (``per_estimator``), the recommended estimator and the target labels; or why it ``failed``."""
     from threadpoolctl import threadpool_limits
 
     from rtcal.run.runner import AnalysisFailed, run_procedure
@@ -72,20 +73,19 @@ def run_trial(spec: TrialSpec, single_thread: bool = True) -> dict[str, Any]:
                                         show_progress=False, outputs=False)
             except AnalysisFailed as exc:
                 return {"index": spec.index, "failed": str(exc)}
-        from rtcal.run.runner import METHODS
-
         r = outcome.results
-        truth = np.asarray(r["truth"]["cumulative_deviation_arcsec"], float)
-        out: dict[str, Any] = {"index": spec.index, "recommended": r["recommended"], "estimates": {},
-                               "labels": METHODS[r["method"]].target_labels(r)}
-        for name, est in r["estimates"].items():
-            cum = np.array([np.nan if v is None else v for v in est["cumulative_deviation_arcsec"]], float)
-            u = np.array([np.nan if v is None else v for v in est["cumulative_uncertainty_arcsec"]], float)
+        if r.truth is None:
+            return {"index": spec.index, "failed": "the trial's results carry no truth"}
+        truth = np.asarray(r.truth.cumulative_deviation_arcsec, float)
+        per_estimator: dict[str, dict[str, Any]] = {}
+        for name, est in r.estimates.items():
+            cum = np.array([np.nan if v is None else v for v in est.cumulative_deviation_arcsec], float)
+            u = np.array([np.nan if v is None else v for v in est.cumulative_uncertainty_arcsec], float)
             if len(cum) != len(truth):  # an estimate on other targets than the truth's (none today)
                 continue
-            out["estimates"][name] = {"error": (cum - truth).tolist(), "u": u.tolist(),
-                                      "status": r["solver_status"][name]["status"]}
-        return out
+            per_estimator[name] = {"error": (cum - truth).tolist(), "u": u.tolist(), "status": r.solver_status[name].status}
+        return {"index": spec.index, "recommended": r.recommended, "per_estimator": per_estimator,
+                "labels": r.target_labels()}
     finally:
         shutil.rmtree(trial_dir, ignore_errors=True)
 
@@ -114,13 +114,13 @@ def run_trials(specs: list[TrialSpec], workers: int | None = None, scheduler: st
 def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[str, Any]:
     """Per estimator and target: RMS error, RMS reported 1σ, their ratio, and the mean error (bias)."""
     ok = [t for t in trials if "failed" not in t]
-    names = sorted({n for t in ok for n in t["estimates"]})
+    names = sorted({n for t in ok for n in t["per_estimator"]})
     out: dict[str, Any] = {"trials": len(trials), "failed_trials": len(trials) - len(ok), "targets": target_labels,
                            "estimators": {}}
     recs = [t["recommended"] for t in ok]
     out["recommended"] = max(set(recs), key=recs.count) if recs else None
     for name in names:
-        rows = [t["estimates"][name] for t in ok if name in t["estimates"]]
+        rows = [t["per_estimator"][name] for t in ok if name in t["per_estimator"]]
         err = np.array([r["error"] for r in rows], float)
         u = np.array([r["u"] for r in rows], float)
         rms_err = np.sqrt(np.nanmean(err**2, axis=0))

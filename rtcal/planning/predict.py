@@ -22,7 +22,7 @@ from rtcal.procedure.models import Procedure
 
 def predict(procedure_path: Path, proc: Procedure, scenario, workdir: Path | None = None) -> dict[str, Any]:
     """Predicted 1σ per target for every estimator, the recommended one, and the run's duration."""
-    from rtcal.run.runner import METHODS, run_procedure
+    from rtcal.run.runner import run_procedure
 
     tmp = Path(tempfile.mkdtemp(prefix="plan-", dir=workdir))
     try:
@@ -33,17 +33,16 @@ def predict(procedure_path: Path, proc: Procedure, scenario, workdir: Path | Non
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     r = outcome.results
-    labels = METHODS[r["method"]].target_labels(r)
     return {
         "procedure": str(procedure_path),
-        "targets": labels,
-        "measurement_duration_s": r["measurement_duration_s"],
-        "raw_readings": r["raw_readings"],
-        "recommended": r["recommended"],
-        "estimators": {name: {"predicted_sigma_arcsec": est["cumulative_uncertainty_arcsec"],
-                              "predicted_expanded_arcsec": est["cumulative_expanded_uncertainty_arcsec"],
+        "targets": r.target_labels(),
+        "measurement_duration_s": r.measurement_duration_s,
+        "raw_readings": r.raw_readings,
+        "recommended": r.recommended,
+        "estimators": {name: {"predicted_sigma_arcsec": est.cumulative_uncertainty_arcsec,
+                              "predicted_expanded_arcsec": est.cumulative_expanded_uncertainty_arcsec,
                               "rms_predicted_sigma_arcsec": round(float(np.sqrt(np.mean(np.square(
-                                  [v for v in est["cumulative_uncertainty_arcsec"][1:] if v is not None])))), 4),
-                              "budget": {c["source"]: c["contribution_arcsec"] for c in est["uncertainty_budget"]["components"]}}
-                       for name, est in r["estimates"].items()},
+                                  [v for v in est.cumulative_uncertainty_arcsec[1:] if v is not None])))), 4),
+                              "budget": {c.source: c.contribution_arcsec for c in est.uncertainty_budget.components}}
+                       for name, est in r.estimates.items()},
     }

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import fcntl
-import json
 import os
 import shutil
 import socket
@@ -24,6 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+from rtcal.results import RunResults, read_results
 from rtcal.run.store import RunStore, StoreUnusable
 
 LOCK_NAME = ".rtcal.lock"
@@ -184,13 +184,10 @@ def staged_outputs(run_dir: Path) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def stored_results(run_dir: Path) -> dict | None:
-    """results.json of a finished run, if it is a whole regular file; else None."""
+def stored_results(run_dir: Path) -> RunResults | None:
+    """results.json of a finished run, validated, if it is a regular file; else None. One that does
+    not validate is a ResultsError naming the field."""
     path = Path(run_dir) / "results.json"
     if path.is_symlink() or not path.is_file():
         return None
-    try:
-        results = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return results if isinstance(results, dict) and "method" in results else None
+    return read_results(run_dir)

@@ -1,7 +1,8 @@
 """A run end to end: procedure → instruments → sequencer → store → dataset → solvers → results.
 
-The method modules (:mod:`rtcal.methods`) hold what differs between methods; this module holds
-what every run shares: the run directory, the store's metadata, the bench, the progress bar.
+The methods (:mod:`rtcal.methods`, each a :class:`~rtcal.methods.protocol.Method`) hold what
+differs between methods; this module holds what every run shares: the run directory, the
+store's metadata, the bench, the progress bar, and the typed results it assembles and writes.
 """
 
 from __future__ import annotations
@@ -11,8 +12,6 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from types import ModuleType
-from typing import Any
 
 import numpy as np
 import yaml
@@ -24,10 +23,14 @@ from rtcal.deliverables.report import report_model, write_html, write_pdf
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
-from rtcal.methods import abbe, multistation
+from rtcal.deliverables.outputs import outputs_for
+from rtcal.methods import METHODS
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
-from rtcal.deliverables.report import write_report, write_results
+from rtcal.deliverables.report import write_report
+from rtcal.results import RunResults, write_results
+from rtcal.results.model import (Analysis, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog, RunMetadata,
+                                 VdiEvaluation, assemble)
 from rtcal.run.rundir import claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
@@ -36,7 +39,7 @@ from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_tex
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
-METHODS: dict[str, ModuleType] = {"laser_tracer_multistation": multistation, "encoder_abbe_error": abbe}
+__all__ = ["METHODS", "AnalysisFailed", "RunOutcome", "resume_run", "run_procedure"]
 
 
 class AnalysisFailed(Exception):
@@ -46,7 +49,7 @@ class AnalysisFailed(Exception):
 @dataclass(frozen=True)
 class RunOutcome:
     run_dir: Path
-    results: dict[str, Any]
+    results: RunResults
 
 
 def default_run_dir(method: str) -> Path:
@@ -240,12 +243,13 @@ def resume_run(
         lock.release()
 
 
-def evaluation_of(analysis: dict[str, Any]) -> dict[str, Any] | None:
+def evaluation_of(analysis: Analysis) -> Evaluation | None:
     """ISO 230-2 and VDI 3441 parameters of the run's positioning deviations (what a certificate lists)."""
-    if "positioning_deviations" not in analysis:
+    if analysis.positioning_deviations is None:
         return None
-    table = PositioningDeviations.from_dict(analysis["positioning_deviations"])
-    return {"iso230_2": evaluate(table, "iso230-2"), "vdi3441": evaluate(table, "vdi3441")}
+    table = PositioningDeviations.from_model(analysis.positioning_deviations)
+    return Evaluation(iso230_2=Iso230Evaluation.model_validate(evaluate(table, "iso230-2")),
+                      vdi3441=VdiEvaluation.model_validate(evaluate(table, "vdi3441")))
 
 
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
@@ -284,44 +288,49 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         store.close()
         raise AnalysisFailed(f"the readings are complete but the solvers could not use them: {exc}; "
                              f"every reading is in {run_dir / RunStore.FILENAME}") from exc
-    if analysis.get("recommended") is None:
+    if analysis.recommended is None:
         store.close()
-        failures = "; ".join(f"{n}: {st['message']}" for n, st in analysis.get("solver_status", {}).items())
+        failures = "; ".join(f"{n}: {st.message}" for n, st in analysis.solver_status.items())
         raise AnalysisFailed(f"the readings are complete but the solvers could not use them: no estimator ran ({failures}); "
                              f"every reading is in {run_dir / RunStore.FILENAME}")
-    events = store.events()
+    events = [Event(**e) for e in store.events()]
     virtual = isinstance(clock, VirtualClock)
-    results: dict[str, Any] = {
-        "rtcal_version": __version__,
-        "method": proc.method,
-        "procedure": {"name": proc.name, "path": meta.get("procedure_path", "")},
-        "metadata": proc.metadata.model_dump(),
-        "seed": int(meta["seed"]) if simulated else None,
-        "instruments": "simulated in process" if simulated else {
-            f: getattr(proc.instruments, f).address for f in proc.instruments.present()},
-        "bench": (meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
-        "started_utc": meta.get("started_utc"),
-        "finished_utc": meta.get("finished_utc"),
-        "starts": generation + 1,
-        "measurement_duration_s": round(clock.now_s(), 1),
-        "clock": "virtual" if virtual else "real",
-        **analysis,
-        "evaluation": evaluation_of(analysis),
-        "skipped_readings": len(store.skipped_plan_indices()),
-        "faults": sum(1 for e in events if e["kind"] == "fault"),
-        "events": events,
-    }
+    try:
+        info = RunInfo(
+            rtcal_version=__version__,
+            method=proc.method,
+            procedure=ProcedureRef(name=proc.name, path=meta.get("procedure_path", "")),
+            metadata=RunMetadata.model_validate(proc.metadata.model_dump()),
+            seed=int(meta["seed"]) if simulated else None,
+            instruments="simulated in process" if simulated else {
+                f: getattr(proc.instruments, f).address for f in proc.instruments.present()},
+            bench=(meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
+            started_utc=meta.get("started_utc"),
+            finished_utc=meta.get("finished_utc"),
+            starts=generation + 1,
+            measurement_duration_s=round(clock.now_s(), 1),
+            clock="virtual" if virtual else "real",
+        )
+        log = RunLog(evaluation=evaluation_of(analysis), skipped_readings=len(store.skipped_plan_indices()),
+                     faults=sum(1 for e in events if e.kind == "fault"), events=events)
+        results = assemble(info, analysis, log)
+    except ValidationError as exc:  # a value beyond what results.json admits: the readings stay, the file is not written
+        store.close()
+        first = exc.errors()[0]
+        raise AnalysisFailed(f"the results cannot be written: {'.'.join(map(str, first['loc']))}: {first['msg']}; "
+                             f"every reading is in {run_dir / RunStore.FILENAME}") from exc
     store.set_meta({"status": "solved"})
     store.close()
     if not outputs:
         return RunOutcome(run_dir, results)
+    method_outputs = outputs_for(results)
     with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
         write_results(out, results)
-        if "positioning_deviations" in results:  # the table every method hands downstream, for spreadsheets too
-            PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(out / "positioning_deviations.csv")
-        method.write_files(out, results)
-        write_report(out, results, method.report_body(results))
-        model = report_model(results, out, method.certificate_figures(results), method.method_text(results))
+        if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
+            PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
+        method_outputs.write_files(out)
+        write_report(out, results, method_outputs.report_body())
+        model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text())
         write_html(model, out / "report.html")
         write_pdf(model, out / "report.pdf")
     return RunOutcome(run_dir, results)

@@ -1,0 +1,277 @@
+"""The encoder Abbe-error method's outputs (seed 001): abbe_steps.csv, Figures 9–12 in the
+manner of seed 001, harmonics and closure figures, its report sections and console summary,
+all from the typed results."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+from matplotlib.axes import Axes
+
+from rtcal.deliverables.figures import plt
+from rtcal.deliverables.report import fmt, largest, smallest, status_lines
+from rtcal.results.model import AbbeEstimate, AbbeResults, ClosureEstimate, Estimate, HarmonicTerm, TargetedEstimate
+
+ARROW = {1: "↑", -1: "↓"}
+
+
+def _figure(run_dir: Path, name: str, draw: Callable[[Axes], None]) -> Path:
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    draw(ax)
+    ax.set_xlabel("table angle / °")
+    ax.set_xlim(0, 360)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = run_dir / name
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+class AbbeOutputs:
+    """What an encoder Abbe-error run hands the user besides the files every run has."""
+
+    def __init__(self, results: AbbeResults):
+        self.results = results
+        abbe = results.estimates.abbe
+        if abbe is None:
+            raise ValueError("estimates.abbe: missing (results of an encoder Abbe-error run always have it)")
+        self.abbe: AbbeEstimate = abbe
+
+    def _recommended(self) -> tuple[str, Estimate]:
+        e = self.results.recommended_estimate()
+        return (self.results.recommended or "abbe", self.abbe if e is None else e)
+
+    def _series(self, values: list[float | None], direction: int) -> tuple[np.ndarray, np.ndarray]:
+        """One per-step series of the given approach: (angle, value), missing values NaN."""
+        a = self.abbe
+        sel = [i for i, d in enumerate(a.direction) if d == direction]
+        x = np.array([a.angle_deg[i] for i in sel])
+        y = np.array([np.nan if values[i] is None else values[i] for i in sel], dtype=float)
+        return x, y
+
+    def write_files(self, run_dir: Path) -> list[Path]:
+        """abbe_steps.csv and figures in the manner of seed 001's Figures 9–12, plus harmonics and closure."""
+        a = self.abbe
+        columns: list[tuple[str, Sequence[float | None]]] = [
+            ("angle_deg", a.angle_deg), ("direction", a.direction), ("tilt_x_arcsec", a.tilt_x_arcsec),
+            ("radial_y_um", a.radial_y_um), ("predicted_encoder_error_arcsec", a.predicted_encoder_error_arcsec),
+            ("measured_encoder_error_arcsec", a.measured_encoder_error_arcsec), ("residual_arcsec", a.residual_arcsec),
+            ("positioning_error_arcsec", a.positioning_error_arcsec), ("encoder_vs_command_arcsec", a.encoder_vs_command_arcsec)]
+        csv_path = run_dir / "abbe_steps.csv"
+        with csv_path.open("w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow([name for name, _ in columns])
+            for i in range(len(a.angle_deg)):
+                w.writerow(["" if values[i] is None else values[i] for _, values in columns])
+        dirs = sorted(set(a.direction), reverse=True)
+        series = self._series
+
+        def fig9(ax: Axes) -> None:
+            for d in dirs:
+                ax.plot(*series(a.tilt_x_arcsec, d), marker=".", label=f"tilt εx / ″ {ARROW[d]}")
+                ax.plot(*series(a.radial_y_um, d), marker=".", ls="--", label=f"radial δy / µm {ARROW[d]}")
+            ax.set_title("Fig. 9 — tilt motion about X and radial motion in Y (from the dial indicators)")
+
+        def fig10(ax: Axes) -> None:
+            enc_zero = None
+            for k, d in enumerate(dirs):
+                x, y = series(a.positioning_error_arcsec, d)
+                _, u = series(a.positioning_error_sigma_arcsec, d)
+                ok = np.isfinite(y)
+                ax.fill_between(x[ok], (y - 2 * u)[ok], (y + 2 * u)[ok], color=f"C{2 * k}", alpha=0.2, lw=0,
+                                label=f"εz {ARROW[d]} ±U (k = 2)")
+                ax.plot(x[ok], y[ok], marker="o", color=f"C{2 * k}", label=f"εz (autocollimator + polygon) {ARROW[d]}")
+                xe, ye = series(a.encoder_vs_command_arcsec, d)
+                if enc_zero is None:  # the encoder's zero is arbitrary: refer it to the same first target
+                    first = x[ok][0]
+                    enc_zero = ye[np.argmin(np.abs(xe - first))]
+                ax.plot(xe, ye - enc_zero, marker=".", ls="--", lw=0.8, color=f"C{2 * k + 1}",
+                        label=f"encoder − command {ARROW[d]}")
+            rev = a.reversal_reference_arcsec
+            ax.set_ylabel("εz (ECC) / ″, relative to the first target")
+            ax.set_title("Fig. 10 — angular positioning error" + (f"; reversal ↑ − ↓ = {rev:+.2f}″" if rev is not None else ""))
+
+        def fig11(ax: Axes) -> None:
+            for k, d in enumerate(dirs):
+                x, y = series(a.predicted_encoder_error_arcsec, d)
+                _, u = series(a.predicted_encoder_error_sigma_arcsec, d)
+                ax.errorbar(x, y, yerr=u, fmt=".-", capsize=2, lw=0.8, color=f"C{2 * k}",
+                            label=f"predicted (δy + Zs·εx)/rE {ARROW[d]}, ±1σ")
+                x, y = series(a.measured_encoder_error_arcsec, d)
+                _, u = series(a.measured_encoder_error_sigma_arcsec, d)
+                ok = np.isfinite(y)
+                ax.errorbar(x[ok], y[ok], yerr=u[ok], fmt="o", capsize=2, color=f"C{2 * k + 1}",
+                            label=f"measured (encoder − reference) {ARROW[d]}, ±1σ")
+            ax.set_ylabel("encoder error / ″ (mean over the faces removed)")
+            ax.set_title("Fig. 11 — predicted and measured encoder error")
+
+        def fig12(ax: Axes) -> None:
+            for k, d in enumerate(dirs):
+                x, y = series(a.residual_arcsec, d)
+                _, u = series(a.residual_sigma_arcsec, d)
+                ok = np.isfinite(y)
+                ax.errorbar(x[ok], y[ok], yerr=2 * u[ok], fmt="o", capsize=2, color=f"C{2 * k}",
+                            label=f"measured − predicted {ARROW[d]}, ±2σ")
+            ax.axhline(0, color="0.6", lw=0.8)
+            ax.set_ylabel("residual / ″")
+            ax.set_title(f"Fig. 12 — residual (RMS {a.residual_rms_arcsec}″)")
+
+        paths = [csv_path] + [_figure(run_dir, n, f) for n, f in (
+            ("fig09_tilt_radial.png", fig9), ("fig10_positioning.png", fig10),
+            ("fig11_encoder_error.png", fig11), ("fig12_residual.png", fig12))]
+        paths.append(self._plot_harmonics(run_dir))
+        if self.results.estimates.closure is not None:
+            paths.append(self._plot_closure(run_dir, self.results.estimates.closure))
+        return paths
+
+    def _plot_harmonics(self, run_dir: Path) -> Path:
+        h = self.abbe.harmonics
+        fig, ax = plt.subplots(figsize=(8, 4.2))
+        present: list[tuple[str, list[HarmonicTerm]]] = [
+            (name, terms) for name, terms in (("positioning_error", h.positioning_error_arcsec),
+                                              ("encoder_vs_command", h.encoder_vs_command_arcsec),
+                                              ("measured_encoder_error", h.measured_encoder_error_arcsec),
+                                              ("predicted_encoder_error", h.predicted_encoder_error_arcsec)) if terms is not None]
+        width = 0.8 / max(len(present), 1)
+        for k, (label, terms) in enumerate(present):
+            ax.bar([t.order + (k - len(present) / 2 + 0.5) * width for t in terms], [t.amplitude for t in terms],
+                   width, yerr=[t.amplitude_sigma for t in terms], label=label)
+        ax.set_xlabel("harmonic order (per revolution)")
+        ax.set_ylabel("amplitude / arcsec")
+        ax.set_title("Harmonic analysis")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        path = run_dir / "harmonics.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return path
+
+    def _plot_closure(self, run_dir: Path, c: ClosureEstimate) -> Path:
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6))
+        ax1.errorbar(range(len(c.face_error_arcsec)), c.face_error_arcsec, yerr=c.face_uncertainty_arcsec, marker="o", capsize=3)
+        ax1.set_xlabel("polygon face")
+        ax1.set_ylabel("face error / ″")
+        for d in sorted(set(c.direction), reverse=True):
+            sel = [i for i, x in enumerate(c.direction) if x == d]
+            ax2.errorbar([c.table_angle_deg[i] for i in sel], [c.table_error_arcsec[i] for i in sel],
+                         yerr=[c.table_uncertainty_arcsec[i] for i in sel], marker="o", capsize=3, label=ARROW[d])
+        ax2.set_xlabel("table angle / °")
+        ax2.set_ylabel("table error εz / ″")
+        ax2.legend()
+        ax1.set_title("Closure: polygon face errors and table errors, separated (1σ)")
+        fig.tight_layout()
+        path = run_dir / "closure.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return path
+
+    def report_body(self) -> list[str]:
+        """The recommended εz per target and direction with u and U first, then the budget, the
+        encoder analysis, harmonics and closure."""
+        r, a = self.results, self.abbe
+        rec, e = self._recommended()
+        truth = r.truth.cumulative_deviation_arcsec if rec == "abbe" and r.truth is not None else None
+        lines = [f"## Result: angular positioning deviation ECC ({rec}, recommended)", "",
+                 "εz = actual − commanded angle, relative to the first target of the first direction, arcsec; u standard "
+                 "uncertainty, U expanded uncertainty (k = 2); ↑ positive, ↓ negative approach.", "",
+                 "| target / ° | direction | ECC / ″ | u / ″ | U (k = 2) / ″ |" + (" truth / ″ |" if truth else ""),
+                 "|---|---|---|---|---|" + ("---|" if truth else "")]
+        targets = zip(e.target_deg, e.target_direction) if isinstance(e, TargetedEstimate) else []
+        for j, (target, d) in enumerate(targets):
+            cells = [f"{target:g}", ARROW[d], fmt(e.cumulative_deviation_arcsec[j], "+.3f"),
+                     fmt(e.cumulative_uncertainty_arcsec[j], ".3f"), fmt(e.cumulative_expanded_uncertainty_arcsec[j], ".3f")]
+            if truth:
+                cells.append(f"{truth[j]:+.3f}")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", "![fig10](fig10_positioning.png)", "", "## Uncertainty budget (contributions u / ″; first and largest targets)", ""]
+        b = e.uncertainty_budget
+        comb = np.array([np.nan if v is None else v for v in b.combined_arcsec], float)
+        worst = int(np.nanargmax(comb)) if np.any(np.isfinite(comb)) else 0
+        lines += ["| source | type | input σ | at the largest u | RMS over targets |", "|---|---|---|---|---|"]
+        for c in b.components:
+            contrib = np.array([np.nan if v is None else v for v in c.contribution_arcsec], float)
+            origin = " (from the data)" if c.estimated_from_data else ""
+            lines.append(f"| {c.source} | {c.type} | {c.input_sigma:.3g} {c.unit}{origin} | {contrib[worst]:.3f} | "
+                         f"{float(np.sqrt(np.mean(contrib[1:] ** 2))):.3f} |")
+        lines += [f"| **combined u** | | | **{comb[worst]:.3f}** | **{float(np.sqrt(np.mean(comb[1:] ** 2))):.3f}** |", ""]
+        lines += [f"- not included: {n}" for n in b.not_included] + [""]
+        lines += ["## Encoder error (seed 001)", "",
+                  f"- polygon face errors from: {a.polygon_source}; random error of the reference from: {a.random_error_from}",
+                  f"- extrapolation factor a = (Zs − L1)/(L2 − L1) = {a.extrapolation_factor:.3f} "
+                  f"(indicator errors reach the grating ×{abs(1 - a.extrapolation_factor) + abs(a.extrapolation_factor):.2f})",
+                  f"- residual (measured − predicted encoder error): RMS {a.residual_rms_arcsec}″"]
+        if a.reversal_reference_arcsec is not None:
+            lines.append(f"- reversal B = ↑ − ↓: {a.reversal_reference_arcsec:+.2f}″ from the autocollimator, "
+                         f"{fmt(a.reversal_arcsec, '+.2f')}″ from the encoder")
+        if a.repeatability_arcsec is not None:
+            lines.append(f"- repeatability of εz over the runs (pooled 1σ): {a.repeatability_arcsec:.3f}″")
+        lines += ["", "## Harmonics (significant: above the family-wise 1 % threshold, the readings' resolution and what "
+                  "rounding alone produces)", "", "| series | order | amplitude | 1σ | phase / ° |", "|---|---|---|---|---|"]
+        for name, terms in a.harmonics.items():
+            for t in terms:
+                if t.significant:
+                    phase = "unknown (Nyquist)" if t.aliased else f"{t.phase_deg:.1f}"
+                    lines.append(f"| {name} | {t.order} | {t.amplitude:.3f} | {t.amplitude_sigma:.3f} | {phase} |")
+        for name, warns in a.harmonic_warnings.items():
+            lines += [f"- {name}: {w}" for w in warns]
+        lines.append("")
+        closure = r.estimates.closure
+        if closure is not None:
+            lines += ["## Closure", "", f"Face errors and table errors separated from {len(closure.seating_offset_arcsec)} "
+                      f"seatings; residual RMS {closure.residual_rms_arcsec}″; 1σ of a face error up to "
+                      f"{fmt(largest(closure.face_uncertainty_arcsec), '.3f')}″.", "", "![closure](closure.png)", ""]
+        lines += [f"![{n}]({n}.png)" for n in ("fig09_tilt_radial", "fig11_encoder_error", "fig12_residual", "harmonics")]
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in a.notes] + [""]
+        return lines
+
+    def certificate_figures(self) -> list[tuple[str, str]]:
+        figs = [("fig10_positioning.png", "Angular positioning error εz against the autocollimator and polygon for each "
+                                          "approach direction, with its U band (k = 2), and the stage encoder's reading."),
+                ("fig11_encoder_error.png", "Encoder error: predicted from tilt and radial motion (Abbe) and measured (±1σ)."),
+                ("fig12_residual.png", "Measured − predicted encoder error (±2σ)."),
+                ("fig09_tilt_radial.png", "Tilt and radial motion of the shaft from the two dial indicators.")]
+        if self.results.estimates.closure is not None:
+            figs.append(("closure.png", "Polygon face errors and table errors separated by closure (±1σ)."))
+        return figs
+
+    def method_text(self) -> list[str]:
+        a = self.abbe
+        return [
+            "The reference angle comes from an autocollimator on an optical polygon on the table (face errors from its "
+            f"{a.polygon_source}); the positioning deviation is the autocollimator reading minus the face error, relative "
+            "to the first target. Runs are kept apart; targets are approached from their own side past an overrun.",
+            "Seed 001's Abbe analysis: two dial indicators on the shaft separate tilt from radial motion, which predicts the "
+            f"encoder's misreading (Δt/rE, extrapolation factor {a.extrapolation_factor:.3f}); the measured encoder error "
+            "is encoder − reference.",
+            f"Uncertainty (GUM): the random error per visit from {a.random_error_from}, the certificate's uncertainty per "
+            "face, propagated exactly through the (linear) analysis.",
+        ]
+
+    def summary(self) -> list[str]:
+        r, a = self.results, self.abbe
+        rec, e = self._recommended()
+        pred = [abs(v) for v in a.predicted_encoder_error_arcsec if v is not None] or [float("nan")]
+        targets = len(e.target_deg) if isinstance(e, TargetedEstimate) else len(e.cumulative_deviation_arcsec)
+        lines = [f"positioning deviation ECC ({rec}, recommended): {fmt(smallest(e.cumulative_deviation_arcsec), '+.2f')}″ … "
+                 f"{fmt(largest(e.cumulative_deviation_arcsec), '+.2f')}″ over {targets} targets, U (k = 2) up to "
+                 f"{fmt(largest(e.cumulative_expanded_uncertainty_arcsec), '.2f')}″"
+                 + (f"; reversal {a.reversal_reference_arcsec:+.2f}″" if a.reversal_reference_arcsec is not None else ""),
+                 f"encoder error predicted from tilt and radial motion: up to ±{max(pred):.2f}″; "
+                 f"measured − predicted RMS {a.residual_rms_arcsec}″ (polygon from {a.polygon_source})"]
+        for name, terms in (("positioning_error", a.harmonics.positioning_error_arcsec),
+                            ("encoder_vs_command", a.harmonics.encoder_vs_command_arcsec)):
+            sig = [t for t in terms or [] if t.significant]
+            if sig:
+                lines.append(f"{name}: significant harmonics "
+                             + ", ".join(f"{t.order}× {t.amplitude:.2f}″" + (" (Nyquist: lower bound)" if t.aliased else "")
+                                         for t in sig))
+        closure = r.estimates.closure
+        if closure is not None:
+            lines.append(f"closure: polygon face errors 1σ ≤ {fmt(largest(closure.face_uncertainty_arcsec), '.3f')}″, "
+                         f"table errors 1σ ≤ {fmt(largest(closure.table_uncertainty_arcsec), '.3f')}″")
+        return lines + status_lines(r)

@@ -1,0 +1,240 @@
+"""The multi-station method's outputs (seed 000): deviations.csv, deviation.png, its report
+sections and console summary, all from the typed results."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from rtcal.deliverables.figures import plt
+from rtcal.deliverables.report import fmt, largest, status_lines
+from rtcal.results.model import Estimate, MultistationResults, NetworkEstimate, PaperEstimate, StationChainEstimate
+
+ESTIMATOR_LABELS = {
+    "paper": "paper (as printed: one dead path per station)",
+    "shared_dead_path": "shared dead path (one per tracking segment)",
+    "network": "network (one circle, CMM solved)",
+}
+
+
+def _values(values: list[float | None]) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], float)
+
+
+def _mathtext_safe(text: str) -> str:
+    """A title exactly as the user wrote it: matplotlib would read ``$…$`` as mathtext."""
+    return text.replace("$", r"\$")
+
+
+class MultistationOutputs:
+    """What a multi-station run hands the user besides the files every run has."""
+
+    def __init__(self, results: MultistationResults):
+        self.results = results
+
+    def _by_recommended(self) -> list[tuple[str, Estimate]]:
+        """Every estimate, the recommended one first."""
+        return sorted(self.results.estimates.items(), key=lambda item: item[0] != self.results.recommended)
+
+    def write_files(self, run_dir: Path) -> list[Path]:
+        return [self.write_deviation_csv(run_dir), self.plot_deviation(run_dir)]
+
+    def write_deviation_csv(self, run_dir: Path) -> Path:
+        """One row per station: nominal angle, then each estimator's cumulative and per-step deviation with 1σ."""
+        r = self.results
+        path = run_dir / "deviations.csv"
+        estimates = r.estimates.items()
+        truth = None if r.truth is None else r.truth.cumulative_deviation_arcsec
+        header = ["station", "nominal_angle_deg"]
+        for n, _ in estimates:
+            header += [f"{n}_cumulative_arcsec", f"{n}_cumulative_u_arcsec", f"{n}_step_deviation_arcsec", f"{n}_step_u_arcsec"]
+        if truth is not None:
+            header.append("truth_cumulative_arcsec")
+        with path.open("w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            for j, angle in enumerate(r.nominal_angles_deg):
+                row: list[object] = [j + 1, angle]
+                for _, e in estimates:
+                    row += [e.cumulative_deviation_arcsec[j], e.cumulative_uncertainty_arcsec[j],
+                            "" if j == 0 else e.deviation_arcsec[j - 1], "" if j == 0 else e.uncertainty_arcsec[j - 1]]
+                if truth is not None:
+                    row.append(round(truth[j], 4))
+                w.writerow(row)
+        return path
+
+    def plot_deviation(self, run_dir: Path) -> Path:
+        """Main panel: the cumulative deviation of every estimator, the recommended one with its U (k = 2)
+        band; lower panel: the paper's per-step Δθ (eq. 33) with 1σ bars. Truth where simulated."""
+        r = self.results
+        angles = np.array(r.nominal_angles_deg, float)
+        rec = r.recommended
+        ordered = self._by_recommended()
+        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.5, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+        for k, (name, est) in enumerate(ordered):
+            cum, u = _values(est.cumulative_deviation_arcsec), _values(est.cumulative_uncertainty_arcsec)
+            label = ESTIMATOR_LABELS.get(name, name)
+            if name == rec:
+                ax.fill_between(angles, cum - 2 * u, cum + 2 * u, color="C0", alpha=0.2, lw=0,
+                                label=f"{label}: ±U (k = 2)")
+                ax.plot(angles, cum, "o-", color="C0", lw=2, label=f"{label} — recommended")
+            else:
+                ax.errorbar(angles, cum, yerr=2 * u, fmt="s--", color=f"C{k + 1}", ms=4, lw=1, capsize=3,
+                            label=f"{label}, bars ±U (k = 2)")
+            step, su = _values(est.deviation_arcsec), _values(est.uncertainty_arcsec)
+            offset = (k - (len(ordered) - 1) / 2) * 0.012 * (angles.max() - angles.min())
+            ax2.errorbar(angles[1:] + offset, step, yerr=su, fmt="o" if name == rec else "s", ms=4, capsize=3,
+                         color="C0" if name == rec else f"C{k + 1}", label=f"{name}, bars ±1σ")
+        if r.truth is not None:
+            ax.plot(angles, r.truth.cumulative_deviation_arcsec, "kx:", label="truth (simulated bench)")
+            ax2.plot(angles[1:], r.truth.deviation_arcsec, "kx", label="truth (simulated bench)")
+        for a in (ax, ax2):
+            a.axhline(0.0, color="0.6", lw=0.8)
+            a.grid(alpha=0.3)
+        ax.set_ylabel("cumulative positioning deviation ECC / ″\n(actual − commanded, relative to the first station)")
+        ax2.set_ylabel("per-step deviation Δθ / ″\n(eq. 33: actual − nominal step)")
+        ax2.set_xlabel("commanded table angle / °  (" + ("positive" if angles[-1] > angles[0] else "negative") + " approach)")
+        ax2.set_xticks(angles, [f"{a:g}" for a in angles], fontsize=8)
+        ax.legend(fontsize=8, loc="best")
+        ax2.legend(fontsize=8, loc="best")
+        ax.set_title(_mathtext_safe(r.procedure.name or r.method), fontsize=11)
+        fig.tight_layout()
+        path = run_dir / "deviation.png"
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        return path
+
+    def budget_table(self, est: Estimate) -> list[str]:
+        """The uncertainty budget as a Markdown table: one row per source, one column per target."""
+        angles = self.results.nominal_angles_deg
+        b = est.uncertainty_budget
+        head = "| source | type | input σ | " + " | ".join(f"{a:g}°" for a in angles[1:]) + " |"
+        lines = [head, "|" + "---|" * (3 + len(angles) - 1)]
+        for c in b.components:
+            origin = " (from the data)" if c.estimated_from_data else ""
+            cells = [c.source, c.type, f"{c.input_sigma:.3g} {c.unit}{origin}"]
+            cells += [fmt(v, ".3f") for v in c.contribution_arcsec[1:]]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("| **combined u** | | | " + " | ".join(f"**{fmt(v, '.3f')}**" for v in b.combined_arcsec[1:]) + " |")
+        lines.append("| **U (k = 2)** | | | " + " | ".join(f"**{fmt(v, '.3f')}**" for v in b.expanded_arcsec[1:]) + " |")
+        lines.append("")
+        lines += [f"- not included: {n}" for n in b.not_included]
+        return lines + [""]
+
+    def report_body(self) -> list[str]:
+        """The recommended result first (cumulative deviation with U), then every estimator, the budget, the paper's gaps."""
+        r = self.results
+        angles = r.nominal_angles_deg
+        rec = r.recommended
+        ordered = self._by_recommended()
+        truth = None if r.truth is None else r.truth.cumulative_deviation_arcsec
+        lines = []
+        e = r.recommended_estimate()
+        if e is not None:
+            lines += [f"## Result: cumulative positioning deviation ECC ({ESTIMATOR_LABELS.get(str(rec), str(rec))}, recommended)",
+                      "", "Actual − commanded angle relative to the first station, arcsec; u standard uncertainty, "
+                      "U expanded uncertainty (k = 2).", "",
+                      "| station | commanded / ° | ECC / ″ | u / ″ | U (k = 2) / ″ |" + (" truth / ″ |" if truth else ""),
+                      "|---|---|---|---|---|" + ("---|" if truth else "")]
+            for j, a in enumerate(angles):
+                cells = [f"P{j + 1}", f"{a:g}", fmt(e.cumulative_deviation_arcsec[j], "+.3f"),
+                         fmt(e.cumulative_uncertainty_arcsec[j], ".3f"), fmt(e.cumulative_expanded_uncertainty_arcsec[j], ".3f")]
+                if truth:
+                    cells.append(f"{truth[j]:+.3f}")
+                lines.append("| " + " | ".join(cells) + " |")
+            lines += ["", "![deviation](deviation.png)", ""]
+        names = [n for n, _ in ordered]
+        lines += ["## Every estimator", "",
+                  "| station | " + " | ".join(f"{n}: ECC / ″ (u)" for n in names) + " | "
+                  + " | ".join(f"{n}: Δθ / ″ (u)" for n in names) + " |",
+                  "|" + "---|" * (1 + 2 * len(names))]
+        for j in range(len(angles)):
+            cells = [f"P{j + 1}"]
+            for _, est in ordered:
+                cells.append(f"{fmt(est.cumulative_deviation_arcsec[j], '+.3f')} ({fmt(est.cumulative_uncertainty_arcsec[j], '.3f')})")
+            for _, est in ordered:
+                cells.append("" if j == 0 else f"{fmt(est.deviation_arcsec[j - 1], '+.3f')} ({fmt(est.uncertainty_arcsec[j - 1], '.3f')})")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+        for n, est in ordered:
+            st = r.solver_status[n]
+            if not isinstance(est, (StationChainEstimate, NetworkEstimate)):
+                continue
+            noise = est.estimated_noise
+            said = (f"noise estimated from the readings: tracer {noise.tracer_length_noise_um_at_1m:.3f} µm at 1 m, "
+                    f"CMM points {noise.cmm_point_noise_um:.3f} µm")
+            if isinstance(est, StationChainEstimate):
+                lines.append(f"- {n}: {st.status} ({st.message}); σΔθ = {est.eq34_sigma_arcsec:.2f}″ is the paper's "
+                             f"eq. 34 statistic of the deviations, not an uncertainty; algorithm error (eq. 36) "
+                             f"{est.algorithm_error_arcsec:.2e}″; {said}")
+            else:
+                cmm = ", ".join(f"{k} {v.value:+.3f} ± {fmt(v.sigma, '.3f')}" for k, v in est.cmm_errors.items())
+                lines.append(f"- {n}: {st.status} ({st.message}); {said}; the CMM's errors found (1σ): {cmm}")
+        for n, failed in r.solver_status.items():
+            if failed.status == "failed":
+                lines.append(f"- {n}: **failed** — {failed.message}")
+        lines += ["", "`paper` is the printed method (one dead path per station); `shared_dead_path` solves all stations "
+                  "together with one dead path per uninterrupted tracking segment; `network` adjusts everything at once: the "
+                  "stations on one circle about one axis (one angle each), the CMM points as observations weighted by their "
+                  "noise, and the CMM's scales and squarenesses.", ""]
+        net = r.estimates.network
+        if net is not None:
+            lines += ["## The CMM, checked by the network adjustment", "",
+                      "Scale and squareness errors of the CMM found from the traceable tracer lengths (1σ):", "",
+                      "| parameter | value | 1σ |", "|---|---|---|"]
+            lines += [f"| {k} | {v.value:+.3f} | {fmt(v.sigma, '.3f')} |" for k, v in net.cmm_errors.items()] + [""]
+            em = net.error_motions
+            if em is not None:
+                lines += ["## Error motions, separated by the second tracer mount", "", em.note[0].upper() + em.note[1:] + ".", "",
+                          "| station | angle / ° | EXC / µm (1σ) | EYC / µm (1σ) | tilt / ″ (1σ) | tilt axis / ° |",
+                          "|---|---|---|---|---|---|"]
+                for j, a in enumerate(angles):
+                    lines.append(f"| P{j + 1} | {a:g} | {em.EXC_um[j]:+.3f} ({em.EXC_sigma_um[j]:.3f}) | "
+                                 f"{em.EYC_um[j]:+.3f} ({em.EYC_sigma_um[j]:.3f}) | "
+                                 f"{em.tilt_arcsec[j]:+.2f} ({em.tilt_sigma_arcsec[j]:.2f}) | "
+                                 f"{em.tilt_axis_deg[j]:.0f} |")
+                lines.append("")
+        if e is not None:
+            lines += [f"## Uncertainty budget of the cumulative deviation ({rec}), contributions u / ″ per station", ""]
+            lines += self.budget_table(e)
+        paper = r.estimates.paper
+        notes = paper.notes if isinstance(paper, PaperEstimate) else []
+        if notes:
+            lines += ["## Where the printed equations and the paper's figures differ", ""] + [f"- {n}" for n in notes] + [""]
+        return lines
+
+    def certificate_figures(self) -> list[tuple[str, str]]:
+        return [("deviation.png", "Cumulative positioning deviation ECC of every estimator (the recommended one with its "
+                                  "U band, k = 2) and the per-step deviation Δθ of seed 000's eq. 33 (bars ±1σ).")]
+
+    def method_text(self) -> list[str]:
+        rec = self.results.recommended
+        return [
+            "Laser tracer multi-station method: the laser tracer sits on the table; a CMM moves its cat-eye reflector through "
+            "a set of points while the table indexes through the stations, and the tracer measures interferometric lengths. "
+            "The tracer's reference centre at each station is self-calibrated from the lengths; the stations lie on a circle "
+            "about the rotation axis, and the angle between them gives the positioning deviation.",
+            "Estimators: 'paper' as published (one dead path per station, plane, circle, eq. 32–33); 'shared_dead_path' "
+            "(all stations together, one dead path per tracking segment); 'network' (one adjustment of axis, radius, station "
+            "angles, CMM points as weighted observations and the CMM's scales and squarenesses). The report quotes the "
+            f"recommended one ({rec}): converged, with the smallest uncertainty.",
+            "Uncertainty (GUM): the tracer's and the CMM's noise are estimated from the readings (Type A); stage "
+            "repeatability, CMM geometry, error motions and the air's refractive index as the procedure states them "
+            "(Type B); all propagated through the estimator with their correlations.",
+        ]
+
+    def summary(self) -> list[str]:
+        """The console: the recommended cumulative deviation with U, then what did not converge."""
+        r = self.results
+        lines = []
+        e = r.recommended_estimate()
+        if e is not None:
+            cum = ", ".join(fmt(v, "+.2f") for v in e.cumulative_deviation_arcsec)
+            lines.append(f"cumulative positioning deviation ECC (arcsec, {r.recommended}, recommended): {cum}")
+            lines.append(f"expanded uncertainty U (k = 2) up to {fmt(largest(e.cumulative_expanded_uncertainty_arcsec), '.2f')}″")
+        for name, est in r.estimates.items():
+            if name != r.recommended:
+                lines.append(f"also {name}: U (k = 2) up to {fmt(largest(est.cumulative_expanded_uncertainty_arcsec), '.2f')}″")
+        return lines + status_lines(r)

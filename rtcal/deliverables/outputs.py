@@ -1,0 +1,45 @@
+"""Each method's own outputs (its files, report sections and console lines), chosen by the
+typed results they are made from. The files every run has (results.json, the positioning
+deviations, report.md/html/pdf) are written around them by the runner."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol
+
+from rtcal.deliverables.abbe import AbbeOutputs
+from rtcal.deliverables.multistation import MultistationOutputs
+from rtcal.results.model import AbbeResults, MultistationResults, RunResults
+
+
+class MethodOutputs(Protocol):
+    """What a method adds to a run directory, the report and the console, from its results alone."""
+
+    def write_files(self, run_dir: Path) -> list[Path]:
+        """The method's own files (CSV, figures) into ``run_dir``; returns their paths."""
+        ...
+
+    def report_body(self) -> list[str]:
+        """The method's sections of report.md (Markdown lines)."""
+        ...
+
+    def certificate_figures(self) -> list[tuple[str, str]]:
+        """(file name, caption) of the figures the certificate shows, in order."""
+        ...
+
+    def method_text(self) -> list[str]:
+        """The certificate's paragraphs on the method."""
+        ...
+
+    def summary(self) -> list[str]:
+        """The console lines after a run: the recommended result, then what did not converge."""
+        ...
+
+
+def outputs_for(results: RunResults) -> MethodOutputs:
+    """The outputs of the method the results are of."""
+    if isinstance(results, MultistationResults):
+        return MultistationOutputs(results)
+    if isinstance(results, AbbeResults):
+        return AbbeOutputs(results)
+    raise TypeError(f"no outputs for results of {type(results).__name__}")

@@ -1,0 +1,95 @@
+"""The one shape every calibration method has: what the runner, planning and the CLI rely on.
+
+A method is an object with the :class:`Method` protocol's members: the plan's size, its
+instruments (simulated on the bench, or over their transports), what to fix before the first
+motion, the measurement, the analysis of the logged readings into a typed
+:class:`~rtcal.results.model.Analysis`, and the Monte Carlo's draws of the stated systematic
+errors. Figures, reports and console text are the output layer's (:mod:`rtcal.deliverables`);
+they read only the typed results. A new method is a class with these members, registered in
+:data:`rtcal.methods.METHODS`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol, TypeVar, runtime_checkable
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from rtcal.clock import Clock
+    from rtcal.results.model import Analysis
+    from rtcal.run.store import RunStore
+    from rtcal.sequencer.operator import Operator
+    from simulators.bench import Bench
+    from simulators.scenario import Scenario
+
+
+class PreparationError(Exception):
+    """What a method's ``prepare`` cannot fix before the first motion with what it was given: a
+    mistake the user corrects (the CLI says it in one line, exit 2)."""
+
+
+class InstrumentSet(Protocol):
+    """The instruments a method measures with, opened together and closed together."""
+
+    def close(self) -> None: ...
+
+
+ProcedureT = TypeVar("ProcedureT", contravariant=True)
+InstrumentsT = TypeVar("InstrumentsT", bound=InstrumentSet)
+Progress = Callable[[Iterator[Any]], Iterator[Any]]
+"""Wraps the iteration over the pending planned readings (a progress bar)."""
+
+
+class Addressed(Protocol):
+    """An instrument section of a procedure: `backend: sim` or an address."""
+
+    @property
+    def address(self) -> str | None: ...
+
+
+def address_of(instrument: Addressed) -> str:
+    """The address of an instrument a run reaches over its transport (validation refuses a
+    procedure that mixes simulated instruments with addresses, so there is one)."""
+    if instrument.address is None:
+        raise ValueError("an instrument without an address cannot be opened over a transport (`backend: sim`?)")
+    return instrument.address
+
+
+@runtime_checkable
+class Method(Protocol[ProcedureT, InstrumentsT]):
+    """A calibration method over its procedure model ``ProcedureT`` and instrument set ``InstrumentsT``."""
+
+    name: str
+    """The procedure's ``method:`` this class implements."""
+
+    def plan_length(self, proc: ProcedureT) -> int:
+        """How many planned readings the procedure takes (resume counts against it)."""
+        ...
+
+    def sim_instruments(self, proc: ProcedureT, bench: Bench) -> InstrumentsT:
+        """The instruments as in-process simulators reading ``bench``."""
+        ...
+
+    def transport_instruments(self, proc: ProcedureT) -> InstrumentsT:
+        """The instruments at the procedure's addresses, over their real transports."""
+        ...
+
+    def prepare(self, proc: ProcedureT, operator: Operator) -> dict[str, str]:
+        """What must be fixed before the first motion, as store metadata (may ask the operator);
+        :class:`PreparationError` when it cannot be."""
+        ...
+
+    def measure(self, proc: ProcedureT, inst: InstrumentsT, store: RunStore, clock: Clock, operator: Operator,
+                progress: Progress, generation: int = 0) -> None:
+        """Take every planned reading not yet in ``store``, each stored before the next motion."""
+        ...
+
+    def analyse(self, proc: ProcedureT, store: RunStore, bench: Bench | None, estimate_noise: bool = True) -> Analysis:
+        """The logged readings → every estimate that can run, the recommended one, its positioning
+        deviations, and the truth of a simulated run (``estimate_noise`` False: noise as stated)."""
+        ...
+
+    def draw_systematics(self, proc: ProcedureT, scenario: Scenario, rng: np.random.Generator) -> Scenario:
+        """A Monte Carlo trial's bench: the stated systematic errors drawn from their distributions."""
+        ...

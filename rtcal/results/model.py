@@ -1,0 +1,712 @@
+"""The typed model of results.json: every block a run writes, with units, meanings and bounds.
+
+A method's ``analyse`` returns its :class:`Analysis` (estimates, the recommended one, the
+positioning deviations, the truth of a simulated run); the runner adds what it knows of the run
+(:class:`RunInfo`) and of its log (:class:`RunLog`) and :func:`assemble` makes the method's
+:class:`RunResults`. The fields' descriptions are the published JSON Schema's documentation
+(`rtcal schema --results`); keys and meanings are those README's "Results" documents.
+
+Every number is finite and bounded to what is physically meaningful (a deviation within
+±10⁷″, a length within ±10⁷ mm, …): a tampered file is refused at the field, before any
+consumer computes with it. A key that is absent when it does not apply (``truth`` of a run on
+hardware, ``estimates.closure`` without a closure, …) is left out of the file, never null.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar, Union
+
+from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
+
+SCHEMA_VERSION = "1.0"
+
+# -- bounded numbers ------------------------------------------------------------------------------
+Arcsec = Annotated[float, Field(ge=-1e7, le=1e7)]
+"""An angle of deviation, arcsec (±10⁷″ ≈ ±2778°: far beyond any table)."""
+SigmaArcsec = Annotated[float, Field(ge=0.0, le=1e7)]
+"""A standard (or expanded) uncertainty, arcsec."""
+Arcsec2 = Annotated[float, Field(ge=-1e14, le=1e14)]
+"""A covariance, arcsec²."""
+Deg = Annotated[float, Field(ge=-1e6, le=1e6)]
+"""A commanded or table angle, degrees."""
+Mm = Annotated[float, Field(ge=-1e7, le=1e7)]
+"""A length or coordinate, mm."""
+Um = Annotated[float, Field(ge=-1e9, le=1e9)]
+"""A small length, µm."""
+Number = Annotated[float, Field(ge=-1e12, le=1e12)]
+"""Any other finite quantity (its unit in its name or description)."""
+Parameter = Annotated[float, Field(ge=-1e9, le=1e9)]
+"""An evaluated parameter (a span of deviations), arcsec."""
+Seconds = Annotated[float, Field(ge=-1e10, le=1e10)]
+"""A time, s."""
+Count = Annotated[int, Field(ge=0, le=1_000_000_000)]
+RunNumber = Annotated[int, Field(ge=1, le=1_000_000)]
+Direction = Literal[1, -1]
+Text = Annotated[str, Field(max_length=100_000)]
+Name = Annotated[str, Field(max_length=1_000)]
+
+EstimatorName = Literal["paper", "shared_dead_path", "network", "abbe", "closure"]
+EstimatorKey = Annotated[str, Field(pattern=r"^(paper|shared_dead_path|network|abbe|closure)$")]
+"""An estimator's name as a key (``solver_status``)."""
+MultistationEstimator = Literal["paper", "shared_dead_path", "network"]
+AbbeEstimator = Literal["abbe", "closure"]
+
+
+class ResultsModel(BaseModel):
+    """A block of results.json: known keys only, finite numbers, not changed once made.
+
+    ``OPTIONAL_KEYS`` names the fields that are left out of the file when they are None (a key
+    that does not apply), as against a null the file always carries (a value that is missing).
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+    OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset()
+
+    @model_serializer(mode="wrap")
+    def _leave_out_absent(self, handler: SerializerFunctionWrapHandler) -> Any:
+        data = handler(self)
+        if isinstance(data, dict):
+            for key in self.OPTIONAL_KEYS:
+                if data.get(key, 0) is None:
+                    del data[key]
+        return data
+
+
+V = TypeVar("V")
+
+
+class NamedSet(ResultsModel, Generic[V]):
+    """A block whose keys are a fixed set of names, each present only when it applies."""
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        cls.OPTIONAL_KEYS = frozenset(cls.model_fields)
+
+    def items(self) -> list[tuple[str, V]]:
+        """The present entries, in the file's order."""
+        return [(name, getattr(self, name)) for name in type(self).model_fields if getattr(self, name) is not None]
+
+    def named(self, name: str) -> V | None:
+        """The entry called ``name``, if present."""
+        return getattr(self, name, None) if name in type(self).model_fields else None
+
+    def names(self) -> list[str]:
+        return [name for name, _ in self.items()]
+
+
+# -- the uncertainty budget and the block every estimate shares ------------------------------------
+class BudgetComponent(ResultsModel):
+    """One source of the GUM uncertainty budget."""
+
+    source: Text = Field(description="what the source is (e.g. `tracer length noise`)")
+    type: Literal["A", "B"] = Field(description="GUM type: A estimated from the readings, B as the procedure states it")
+    input_sigma: Number = Field(description="the source's standard uncertainty (1σ) in `unit`")
+    unit: Name = Field(description="unit of `input_sigma` (e.g. `µm`, `″`, `ppm`; several inputs: listed in `note`)")
+    estimated_from_data: bool = Field(description="true when `input_sigma` was estimated from this run's readings")
+    note: Text = Field(description="what the source covers, or its several inputs")
+    contribution_arcsec: list[SigmaArcsec | None] = Field(
+        description="its contribution to the standard uncertainty per target, arcsec (null: not defined)")
+
+
+class UncertaintyBudget(ResultsModel):
+    """The GUM table of an estimate's cumulative deviation."""
+
+    components: list[BudgetComponent] = Field(description="per source: type, input σ and contribution per target")
+    combined_arcsec: list[SigmaArcsec | None] = Field(description="combined standard uncertainty u per target, arcsec")
+    expanded_arcsec: list[SigmaArcsec | None] = Field(description="expanded uncertainty U = k·u per target, arcsec")
+    coverage_factor: Annotated[float, Field(gt=0.0, le=10.0)] = Field(description="k of the expanded uncertainty (2)")
+    not_included: list[Text] = Field(description="sources the procedure did not state: the budget is silent on them")
+
+
+class DeviationBlock(ResultsModel):
+    """The keys every estimate has: the cumulative positioning deviation ECC with its u, U,
+    covariance and budget, and its per-step differences with their u."""
+
+    deviation_arcsec: list[Arcsec | None] = Field(
+        description="per-step differences of the cumulative deviation (seed 000's eq. 33 Δθ), arcsec")
+    uncertainty_arcsec: list[SigmaArcsec | None] = Field(
+        description="standard uncertainty (1σ) of each per-step difference, arcsec, from the same covariance")
+    cumulative_deviation_arcsec: list[Arcsec | None] = Field(
+        description="the positioning deviation ECC: actual − commanded angle relative to the first target (0 at the "
+                    "first), arcsec; positive: the table turned further than commanded")
+    cumulative_uncertainty_arcsec: list[SigmaArcsec | None] = Field(
+        description="standard uncertainty u (1σ) of the cumulative deviation per target, arcsec")
+    cumulative_expanded_uncertainty_arcsec: list[SigmaArcsec | None] = Field(
+        description="expanded uncertainty U (k = 2) of the cumulative deviation per target, arcsec")
+    cumulative_covariance_arcsec2: list[list[Arcsec2 | None]] = Field(
+        description="covariance of the cumulative deviation, target × target, arcsec²")
+    uncertainty_budget: UncertaintyBudget = Field(description="the GUM budget of the cumulative deviation")
+
+    @model_validator(mode="after")
+    def _one_row_per_target(self) -> DeviationBlock:
+        n = len(self.cumulative_deviation_arcsec)
+        if len(self.cumulative_uncertainty_arcsec) != n or len(self.cumulative_expanded_uncertainty_arcsec) != n:
+            raise ValueError(f"the cumulative deviation has {n} targets; its u and U must have as many")
+        if len(self.cumulative_covariance_arcsec2) != n or any(len(row) != n for row in self.cumulative_covariance_arcsec2):
+            raise ValueError(f"the covariance must be {n} × {n} (one row and column per target)")
+        if len(self.uncertainty_arcsec) != len(self.deviation_arcsec):
+            raise ValueError("deviation_arcsec and uncertainty_arcsec must have as many values")
+        return self
+
+
+class Estimate(DeviationBlock):
+    """An estimator's result: the deviation block and how the solver ended."""
+
+    converged: bool = Field(description="whether the solver converged (a linear estimate always does)")
+    message: Text = Field(description="how the solver ended, in words")
+
+
+class TargetedEstimate(Estimate):
+    """An estimate on targets approached from either side (seed 001: target and direction per row)."""
+
+    target_deg: list[Deg] = Field(description="commanded angle of each target, degrees, in the order of the cumulative deviation")
+    target_direction: list[Direction] = Field(description="approach of each target: 1 positive (↑), −1 negative (↓)")
+
+    @model_validator(mode="after")
+    def _targets_match(self) -> TargetedEstimate:
+        n = len(self.cumulative_deviation_arcsec)
+        if len(self.target_deg) != n or len(self.target_direction) != n:
+            raise ValueError(f"target_deg and target_direction must have one value per target ({n})")
+        return self
+
+
+# -- the multi-station method (seed 000) --------------------------------------------------------------
+class EstimatedNoise(ResultsModel):
+    """Noise sizes the estimator found in the readings (Type A)."""
+
+    tracer_length_noise_um_at_1m: Um = Field(description="laser tracer length noise (1σ) at 1 m, µm")
+    cmm_point_noise_um: Um = Field(description="CMM point noise (1σ) per coordinate, µm")
+
+
+class Plane(ResultsModel):
+    """The stations' best-fit plane a·x + b·y + c·z = e (eq. 20–24): (a, b, c) its unit normal, e mm."""
+
+    a: Number = Field(description="x component of the plane's unit normal")
+    b: Number = Field(description="y component of the plane's unit normal")
+    c: Number = Field(description="z component of the plane's unit normal")
+    e: Number = Field(description="the plane's distance term, mm")
+
+
+class StationChainEstimate(Estimate):
+    """What the station-based estimators share: stations → plane → circle → angles (eq. 20–36)."""
+
+    eq34_sigma_arcsec: SigmaArcsec = Field(
+        description="seed 000's eq. 34 σΔθ: the paper's statistic of the deviations, not an uncertainty, arcsec")
+    algorithm_error_arcsec: Arcsec = Field(description="eq. 36: the algorithm's closure error, arcsec")
+    estimated_noise: EstimatedNoise = Field(description="noise sizes estimated from the readings")
+    plane: Plane = Field(description="the stations' best-fit plane")
+    projected_stations_mm: list[list[Mm]] = Field(description="each station projected on the plane, X, Y, Z in mm")
+    center_mm: list[Mm] = Field(description="centre of the stations' circle, X, Y, Z in mm")
+
+
+class PaperEstimate(StationChainEstimate):
+    """``estimates.paper``: the printed method, one dead path per station."""
+
+    stations_mm: list[list[Mm]] = Field(description="per station its self-calibrated centre and dead path: X, Y, Z, d in mm")
+    station_rms_residual_um: list[Um] = Field(description="RMS length residual of each station's fit, µm")
+    station_iterations: list[Count] = Field(description="Levenberg–Marquardt iterations of each station's fit")
+    notes: list[Text] = Field(description="where the printed equations and the paper's figures differ, and caveats")
+
+
+class SharedDeadPathEstimate(StationChainEstimate):
+    """``estimates.shared_dead_path``: all stations together, one dead path per tracking segment."""
+
+    stations_mm: list[list[Mm]] = Field(description="station centres, X, Y, Z in mm")
+    dead_paths_mm: dict[Annotated[str, Field(pattern=r"^[0-9]{1,9}$")], Mm] = Field(
+        description="dead path of each uninterrupted tracking segment (keyed by segment number), mm")
+    rms_residual_um: Um = Field(description="RMS length residual, µm")
+
+
+class CmmError(ResultsModel):
+    """One CMM geometry parameter found by the network adjustment."""
+
+    value: Number = Field(description="the parameter's value, in the unit its name ends with (ppm or arcsec)")
+    sigma: Number | None = Field(description="its standard uncertainty (1σ), same unit; null: not determined")
+
+
+class CmmErrors(NamedSet[CmmError]):
+    """The CMM's scale and squareness errors, checked against the traceable tracer lengths."""
+
+    scale_x_ppm: CmmError = Field(description="scale error of the X axis, ppm")
+    scale_y_ppm: CmmError = Field(description="scale error of the Y axis, ppm")
+    scale_z_ppm: CmmError = Field(description="scale error of the Z axis, ppm")
+    squareness_xy_arcsec: CmmError = Field(description="squareness error between X and Y, arcsec")
+    squareness_xz_arcsec: CmmError = Field(description="squareness error between X and Z, arcsec")
+    squareness_yz_arcsec: CmmError = Field(description="squareness error between Y and Z, arcsec")
+
+
+class ErrorMotions(ResultsModel):
+    """The table's synchronous error motions per station, separated by a second tracer mount."""
+
+    note: Text = Field(description="what is and is not seen of the error motions")
+    EXC_um: list[Um] = Field(description="radial error motion EXC per station, µm")
+    EYC_um: list[Um] = Field(description="radial error motion EYC per station, µm")
+    EXC_sigma_um: list[Um] = Field(description="standard uncertainty (1σ) of EXC per station, µm")
+    EYC_sigma_um: list[Um] = Field(description="standard uncertainty (1σ) of EYC per station, µm")
+    tilt_arcsec: list[Arcsec] = Field(description="the visible tilt error motion per station, arcsec")
+    tilt_sigma_arcsec: list[Arcsec] = Field(description="standard uncertainty (1σ) of the tilt per station, arcsec")
+    tilt_axis_deg: list[Deg] = Field(description="direction of the axis the visible tilt is about, per station, degrees")
+    mounts_mm: list[list[Mm]] = Field(description="the tracer mounts' positions, X, Y, Z in mm")
+
+
+class NetworkEstimate(Estimate):
+    """``estimates.network``: one adjustment of axis, radius, station angles, dead paths, the CMM's
+    geometry and the CMM points as weighted observations."""
+
+    OPTIONAL_KEYS = frozenset({"error_motions"})
+
+    estimated_noise: EstimatedNoise = Field(description="noise sizes estimated from the readings")
+    cmm_errors: CmmErrors = Field(description="the CMM's scales and squarenesses (the CMM checked as a by-product)")
+    axis_point_mm: list[Mm] = Field(description="a point on the rotation axis, X, Y, Z in mm")
+    axis_direction: list[Number] = Field(description="the rotation axis' unit direction (x, y, z)")
+    radius_mm: Mm = Field(description="radius of the stations' circle, mm")
+    stations_mm: list[list[Mm]] = Field(description="station centres, X, Y, Z in mm")
+    dead_paths_mm: dict[Annotated[str, Field(pattern=r"^[0-9]{1,9}$")], Mm] = Field(
+        description="dead path of each uninterrupted tracking segment (keyed by segment number), mm")
+    rms_length_residual_um: Um = Field(description="RMS length residual, µm")
+    rms_point_residual_um: Um = Field(description="RMS residual of the CMM points against their reported positions, µm")
+    error_motions: ErrorMotions | None = Field(
+        None, description="error motions separated by a second tracer mount (only with `second_mount:`)")
+
+
+class MultistationEstimates(NamedSet[Estimate]):
+    """``estimates`` of the multi-station method: every estimator the procedure asked for that could run."""
+
+
+    paper: PaperEstimate | None = Field(None, description="the printed method: one dead path per station")
+    shared_dead_path: SharedDeadPathEstimate | None = Field(
+        None, description="all stations solved together, one dead path per tracking segment")
+    network: NetworkEstimate | None = Field(
+        None, description="one adjustment of everything: stations on one circle, CMM points and geometry")
+
+
+class Truth(ResultsModel):
+    """What the simulated bench really had (a simulated run only), signed as the estimates."""
+
+    cumulative_deviation_arcsec: list[Arcsec] = Field(
+        description="true εz at the targets relative to the first target, arcsec (what the estimates' ECC estimates)")
+
+
+class StationTruth(Truth):
+    """What the simulated stations really had (a simulated run only), signed as the estimates."""
+
+    deviation_arcsec: list[Arcsec] = Field(description="true per-step deviation (systematic part), arcsec")
+    realized_deviation_arcsec: list[Arcsec] = Field(
+        description="true per-step deviation of the mean actual angle of every visit (includes the repeatability drawn), arcsec")
+    positioning_error_arcsec: list[Arcsec] = Field(description="true εz (actual − commanded) per station, arcsec")
+
+
+class Range(ResultsModel):
+    """The range of one recorded condition over the run."""
+
+    min: Number = Field(description="smallest reading")
+    max: Number = Field(description="largest reading")
+    mean: Number = Field(description="mean of the readings")
+
+
+class EnvironmentSummary(NamedSet[Range]):
+    """The conditions the environment sensor recorded with the lengths."""
+
+
+    air_temperature_c: Range | None = Field(None, description="air temperature, °C")
+    air_pressure_pa: Range | None = Field(None, description="air pressure, Pa")
+    humidity_pct: Range | None = Field(None, description="relative humidity, %")
+    material_temperature_c: Range | None = Field(None, description="the table's (material) temperature, °C")
+
+
+# -- the encoder Abbe-error method (seed 001) ---------------------------------------------------------
+class HarmonicTerm(ResultsModel):
+    """One order of a harmonic fit: value(θ) = Σ amplitude · sin(order·θ + phase)."""
+
+    order: Annotated[int, Field(ge=1, le=100_000)] = Field(description="harmonic order, per revolution")
+    amplitude: Number = Field(description="amplitude, in the unit of the series (arcsec or µm)")
+    amplitude_sigma: Number = Field(description="standard uncertainty (1σ) of the amplitude")
+    phase_deg: Deg = Field(description="phase, degrees")
+    phase_sigma_deg: Annotated[float, Field(ge=0.0, le=1e300)] = Field(
+        description="standard uncertainty (1σ) of the phase, degrees (huge when the amplitude is near 0: phase undetermined)")
+    significant: bool = Field(description="above the family-wise 1 % threshold, the resolution and what rounding produces")
+    threshold: Number = Field(description="amplitude above which this order counts as significant")
+    aliased: bool = Field(description="the Nyquist order: only |A·sin φ| is seen, the phase is unknown")
+
+
+class HarmonicSeries(NamedSet[list[HarmonicTerm]]):
+    """Harmonic fits of the per-step series (a series is absent when no order could be resolved)."""
+
+    positioning_error_arcsec: list[HarmonicTerm] | None = Field(None, description="εz against the reference, arcsec")
+    encoder_vs_command_arcsec: list[HarmonicTerm] | None = Field(None, description="encoder − command, arcsec")
+    measured_encoder_error_arcsec: list[HarmonicTerm] | None = Field(None, description="measured encoder error, arcsec")
+    predicted_encoder_error_arcsec: list[HarmonicTerm] | None = Field(None, description="predicted encoder error, arcsec")
+    residual_arcsec: list[HarmonicTerm] | None = Field(None, description="measured − predicted encoder error, arcsec")
+    tilt_x_arcsec: list[HarmonicTerm] | None = Field(None, description="tilt εx of the shaft, arcsec")
+    radial_y_um: list[HarmonicTerm] | None = Field(None, description="radial motion δy of the shaft, µm")
+
+
+class HarmonicWarnings(NamedSet[list[Text]]):
+    """Per series, what the sampling cannot resolve (absent: nothing to say)."""
+
+    positioning_error_arcsec: list[Text] | None = Field(None, description="warnings of the εz series")
+    encoder_vs_command_arcsec: list[Text] | None = Field(None, description="warnings of the encoder − command series")
+    measured_encoder_error_arcsec: list[Text] | None = Field(None, description="warnings of the measured encoder error")
+    predicted_encoder_error_arcsec: list[Text] | None = Field(None, description="warnings of the predicted encoder error")
+    residual_arcsec: list[Text] | None = Field(None, description="warnings of the residual series")
+    tilt_x_arcsec: list[Text] | None = Field(None, description="warnings of the tilt series")
+    radial_y_um: list[Text] | None = Field(None, description="warnings of the radial motion series")
+
+
+class AbbeEstimate(TargetedEstimate):
+    """``estimates.abbe``: εz against the autocollimator and polygon, and seed 001's encoder analysis per step."""
+
+    random_error_from: Text = Field(description="where the per-visit random error of the reference comes from")
+    angle_deg: list[Deg] = Field(description="commanded angle of each step, degrees")
+    direction: list[Direction] = Field(description="approach of each step: 1 positive, −1 negative")
+    tilt_x_arcsec: list[Arcsec | None] = Field(description="tilt εx of the shaft per step (dial indicators), arcsec")
+    radial_y_um: list[Um | None] = Field(description="radial motion δy of the shaft per step, µm")
+    predicted_encoder_error_arcsec: list[Arcsec | None] = Field(
+        description="encoder error predicted from tilt and radial motion, (δy + Zs·εx)/rE, per step, arcsec")
+    predicted_encoder_error_sigma_arcsec: list[SigmaArcsec | None] = Field(description="its 1σ per step, arcsec")
+    measured_encoder_error_arcsec: list[Arcsec | None] = Field(
+        description="encoder − reference per step (mean over the faces removed), arcsec")
+    measured_encoder_error_sigma_arcsec: list[SigmaArcsec | None] = Field(description="its 1σ per step, arcsec")
+    residual_arcsec: list[Arcsec | None] = Field(description="measured − predicted encoder error per step, arcsec")
+    residual_sigma_arcsec: list[SigmaArcsec | None] = Field(description="its 1σ per step, arcsec")
+    positioning_error_arcsec: list[Arcsec | None] = Field(
+        description="εz (actual − commanded) per step, relative to the first target of the first direction, arcsec")
+    positioning_error_sigma_arcsec: list[SigmaArcsec | None] = Field(description="its 1σ per step, arcsec")
+    encoder_vs_command_arcsec: list[Arcsec | None] = Field(description="encoder reading − command per step, arcsec")
+    residual_rms_arcsec: SigmaArcsec | None = Field(description="RMS of the residual, arcsec (null: no residual)")
+    reversal_arcsec: Arcsec | None = Field(description="reversal ↑ − ↓ from the encoder, arcsec (null: one direction)")
+    reversal_reference_arcsec: Arcsec | None = Field(
+        description="reversal ↑ − ↓ from the autocollimator, arcsec (null: one direction)")
+    repeatability_arcsec: SigmaArcsec | None = Field(
+        description="repeatability of εz over the runs (pooled 1σ), arcsec (null: one run)")
+    extrapolation_factor: Number = Field(description="a = (Zs − L1)/(L2 − L1): how the indicators extrapolate to the grating")
+    face_errors_used_arcsec: list[Arcsec | None] = Field(description="the polygon's face errors the analysis used, arcsec")
+    polygon_source: Literal["certificate", "closure"] = Field(description="where the face errors come from")
+    harmonics: HarmonicSeries = Field(description="harmonic analysis of the per-step series")
+    harmonic_warnings: HarmonicWarnings = Field(description="what the sampling cannot resolve, per series")
+    notes: list[Text] = Field(description="the model's assumptions and sign conventions")
+
+
+class ClosureEstimate(TargetedEstimate):
+    """``estimates.closure``: table and polygon errors separated by re-seating the polygon."""
+
+    table_angle_deg: list[Deg] = Field(description="table angle of each table error, degrees")
+    direction: list[Direction] = Field(description="approach of each table error: 1 positive, −1 negative")
+    table_error_arcsec: list[Arcsec | None] = Field(description="the table's error εz per angle and direction, arcsec")
+    table_uncertainty_arcsec: list[SigmaArcsec | None] = Field(description="its 1σ, arcsec")
+    face_error_arcsec: list[Arcsec | None] = Field(description="the polygon's face errors, arcsec")
+    face_uncertainty_arcsec: list[SigmaArcsec | None] = Field(description="their 1σ, arcsec")
+    seating_offset_arcsec: list[Arcsec | None] = Field(description="the zero of each seating, arcsec")
+    residual_rms_arcsec: SigmaArcsec = Field(description="RMS of the closure residuals, arcsec")
+
+
+class AbbeEstimates(NamedSet[Estimate]):
+    """``estimates`` of the encoder Abbe-error method."""
+
+
+    abbe: AbbeEstimate | None = Field(None, description="εz and the encoder's Abbe analysis (absent: it could not run)")
+    closure: ClosureEstimate | None = Field(None, description="table and polygon separated by closure (no certificate)")
+
+
+class AbbeTruth(Truth):
+    """What the simulated bench really had (a simulated run only), arcsec."""
+
+    encoder_error_arcsec: list[Arcsec] = Field(description="true systematic encoder error per step, arcsec")
+    positioning_error_arcsec: list[Arcsec] = Field(description="true εz per step, arcsec")
+    face_error_arcsec: list[Arcsec] = Field(description="the polygon's true face errors, arcsec")
+
+
+# -- what every run has ----------------------------------------------------------------------------
+class SolverStatus(ResultsModel):
+    """How one estimator ended."""
+
+    status: Literal["converged", "not converged", "failed"] = Field(
+        description="`converged`; `not converged` (results kept, flagged); `failed` (could not run, no results)")
+    message: Text = Field(description="the solver's message, or why it could not run")
+
+
+class DeviationTable(ResultsModel):
+    """``positioning_deviations``: the table every method hands downstream, one row per
+    (target, direction, run); evaluation, compensation and comparison read only this."""
+
+    estimator: Name = Field(description="the estimate the rows come from (the recommended one)")
+    target_deg: list[Deg] = Field(description="commanded angle of each row, degrees")
+    direction: list[Direction] = Field(description="approach of each row: 1 positive (↑), −1 negative (↓)")
+    run: list[RunNumber] = Field(description="run number of each row, from 1")
+    deviation_arcsec: list[Arcsec | None] = Field(
+        description="deviation x = actual − target, arcsec, relative to the first target of the first direction (null: no reading)")
+    uncertainty_arcsec: list[SigmaArcsec | None] = Field(description="its standard uncertainty u (1σ), arcsec (null: unknown)")
+    notes: list[Text] = Field(description="what the rows are")
+
+    @model_validator(mode="after")
+    def _same_rows(self) -> DeviationTable:
+        n = len(self.target_deg)
+        for name in ("direction", "run", "deviation_arcsec", "uncertainty_arcsec"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name} has {len(getattr(self, name))} rows, target_deg {n}")
+        return self
+
+
+class MinMax(ResultsModel):
+    """The fewest and most approaches of a target in one direction."""
+
+    min: Count = Field(description="fewest approaches of a target")
+    max: Count = Field(description="most approaches of a target")
+
+
+class RunsPerDirection(ResultsModel):
+    """Approaches per target in each direction."""
+
+    up: MinMax = Field(description="positive approach (↑)")
+    down: MinMax = Field(description="negative approach (↓)")
+
+
+class StandardEvaluation(ResultsModel):
+    """What every evaluation states of the table it evaluated."""
+
+    standard: Literal["iso230-2", "iso230-2:1988", "vdi3441"] = Field(description="the standard evaluated")
+    unit: Literal["arcsec"] = Field(description="unit of every parameter")
+    targets: Count = Field(description="number of targets")
+    runs_per_direction: RunsPerDirection = Field(description="approaches per target and direction")
+    runs: list[RunNumber] = Field(description="the run numbers in the table")
+
+
+class IsoTarget(ResultsModel):
+    """ISO 230-2 statistics of one target, arcsec (null: not defined)."""
+
+    target_deg: Deg = Field(description="the target, degrees")
+    mean_up: Parameter | None = Field(description="mean deviation x̄↑")
+    mean_down: Parameter | None = Field(description="mean deviation x̄↓")
+    mean: Parameter | None = Field(description="mean bidirectional deviation x̄ = (x̄↑ + x̄↓)/2")
+    B_i: Parameter | None = Field(description="reversal value B_i = x̄↑ − x̄↓")
+    s_up: Parameter | None = Field(description="estimator of the standard uncertainty s↑")
+    s_down: Parameter | None = Field(description="estimator of the standard uncertainty s↓")
+    R_up_i: Parameter | None = Field(description="unidirectional repeatability R_i↑")
+    R_down_i: Parameter | None = Field(description="unidirectional repeatability R_i↓")
+    R_i: Parameter | None = Field(description="bidirectional repeatability R_i")
+    n_up: Count = Field(description="approaches ↑")
+    n_down: Count = Field(description="approaches ↓")
+
+
+class Iso230Evaluation(StandardEvaluation):
+    """ISO 230-2 parameters of the positioning deviations, arcsec (null: not defined; `notes` say why)."""
+
+    E_up: Parameter | None = Field(description="E↑: unidirectional systematic positional deviation, positive approach")
+    E_down: Parameter | None = Field(description="E↓: unidirectional systematic positional deviation, negative approach")
+    E: Parameter | None = Field(description="E: bidirectional systematic positional deviation")
+    M: Parameter | None = Field(description="M: range of the mean bidirectional positional deviation")
+    B: Parameter | None = Field(description="B: reversal value, max |B_i|")
+    B_mean: Parameter | None = Field(description="B mean: mean reversal value")
+    R_up: Parameter | None = Field(description="R↑: unidirectional repeatability, positive")
+    R_down: Parameter | None = Field(description="R↓: unidirectional repeatability, negative")
+    R: Parameter | None = Field(description="R: bidirectional repeatability")
+    A_up: Parameter | None = Field(description="A↑: unidirectional accuracy, positive")
+    A_down: Parameter | None = Field(description="A↓: unidirectional accuracy, negative")
+    A: Parameter | None = Field(description="A: bidirectional accuracy")
+    per_target: list[IsoTarget] = Field(description="per target its statistics")
+    notes: list[Text] = Field(description="what is undefined and why, and what is not confirmed")
+
+
+class VdiTarget(ResultsModel):
+    """VDI/DGQ 3441 statistics of one target, arcsec (null: not defined)."""
+
+    target_deg: Deg = Field(description="the target, degrees")
+    mean: Parameter | None = Field(description="mean deviation x̄ of the target")
+    U_j: Parameter | None = Field(description="reversal span |x̄↑ − x̄↓|")
+    Ps_j: Parameter | None = Field(description="positional scatter 6·(s↑ + s↓)/2")
+    n_up: Count = Field(description="approaches ↑")
+    n_down: Count = Field(description="approaches ↓")
+
+
+class VdiEvaluation(StandardEvaluation):
+    """VDI/DGQ 3441 parameters of the positioning deviations, arcsec (null: not defined)."""
+
+    Pa: Parameter | None = Field(description="Pa: position deviation")
+    P: Parameter | None = Field(description="P: position uncertainty")
+    Ps_max: Parameter | None = Field(description="Ps max: positional scatter, largest")
+    Ps_mean: Parameter | None = Field(description="Ps mean: positional scatter, mean")
+    U_max: Parameter | None = Field(description="U max: reversal span, largest")
+    U_mean: Parameter | None = Field(description="U mean: reversal span, mean")
+    per_target: list[VdiTarget] = Field(description="per target its statistics")
+    notes: list[Text] = Field(description="what is undefined and why, and what is not confirmed")
+
+
+class Evaluation(ResultsModel):
+    """The positioning deviations evaluated as a certificate lists them."""
+
+    iso230_2: Iso230Evaluation = Field(description="ISO 230-2 (1997/2006/2014) parameters")
+    vdi3441: VdiEvaluation = Field(description="VDI/DGQ 3441 parameters")
+
+
+class Event(ResultsModel):
+    """One entry of the run's log: a fault, what was done about it, a reference, a resume, …"""
+
+    t_s: Seconds = Field(description="time since the run started (the clock of `clock`), s")
+    kind: Name = Field(description="what happened (e.g. `fault`, `retry`, `reacquire`, `skip`, `pause`, `resume`)")
+    instrument: Name | None = Field(description="the instrument concerned (null: none)")
+    message: Text = Field(description="what happened, in words")
+
+
+class ProcedureRef(ResultsModel):
+    """The procedure the run followed."""
+
+    name: Name = Field(description="the procedure's title")
+    path: Text = Field(description="the procedure file the run started from")
+
+
+class InstrumentRecord(ResultsModel):
+    """An instrument as the certificate names it."""
+
+    id: Name = Field(description="make, model and serial number")
+    calibration_due: Name = Field(description="its calibration due date (YYYY-MM-DD), or empty")
+
+
+class RunMetadata(ResultsModel):
+    """Who and what the calibration is for (the procedure's `metadata:`)."""
+
+    customer: Name = Field(description="the customer")
+    machine: Name = Field(description="the machine")
+    axis: Name = Field(description="the axis calibrated")
+    serial_number: Name = Field(description="the machine's or table's serial number")
+    location: Name = Field(description="where it was calibrated")
+    operator: Name = Field(description="who calibrated it")
+    certificate_number: Name = Field(description="the certificate's number")
+    instruments: dict[Name, InstrumentRecord] = Field(description="per instrument: its id and calibration due date")
+
+
+# -- the three parts of a run's results, and the results of each method ------------------------------
+class RunInfo(ResultsModel):
+    """What the runner knows of every run before its analysis."""
+
+    schema_version: Annotated[str, Field(pattern=r"^1\.[0-9]{1,4}$")] = Field(
+        SCHEMA_VERSION, description="version of this schema: a minor step adds optional keys, a major one changes keys "
+                                    "(absent in files of rtcal before 0.1.0's results model: read as 1.0)")
+    rtcal_version: Name = Field(description="the rtcal that wrote the file")
+    method: Literal["laser_tracer_multistation", "encoder_abbe_error"] = Field(description="the calibration method")
+    procedure: ProcedureRef = Field(description="the procedure followed")
+    metadata: RunMetadata = Field(description="the report's header: customer, machine, axis, instruments, …")
+    seed: Annotated[int, Field(ge=0, le=2**63 - 1)] | None = Field(
+        description="seed of the simulated run's random generator (null: a run on instruments)")
+    instruments: Literal["simulated in process"] | dict[Name, Text] = Field(
+        description="`simulated in process`, or per instrument the address it was reached at")
+    bench: Text | None = Field(description="the simulated bench's scenario file, or why it is ideal (null: not simulated)")
+    started_utc: Name | None = Field(description="when the run started, ISO 8601 UTC")
+    finished_utc: Name | None = Field(description="when the last reading was taken, ISO 8601 UTC")
+    starts: Annotated[int, Field(ge=1, le=1_000_000)] = Field(description="how many times the run was started (1 + resumes)")
+    measurement_duration_s: Seconds = Field(description="time the measurement took on `clock`, s")
+    clock: Literal["virtual", "real"] = Field(description="`virtual`: simulated time (settle waits skipped); `real`: wall clock")
+
+
+class Analysis(ResultsModel):
+    """What a method's analysis of the logged readings gives (every method)."""
+
+    OPTIONAL_KEYS = frozenset({"positioning_deviations", "truth"})
+
+    nominal_angles_deg: list[Deg] = Field(description="commanded angle of each station or step, degrees")
+    raw_readings: Count = Field(description="planned readings taken whole")
+    recommended: EstimatorName | None = Field(
+        description="the estimate to quote: converged, and the smallest uncertainty among those that did")
+    solver_status: dict[EstimatorKey, SolverStatus] = Field(
+        description="every estimator the procedure asked for, including one that could not run")
+    estimates: NamedSet[Estimate] = Field(description="every estimate, by estimator")
+    positioning_deviations: DeviationTable | None = Field(
+        None, description="the recommended estimate as the positioning-deviation table (absent: no estimate)")
+    truth: Truth | None = Field(None, description="what the simulated bench really had (absent: a run on instruments)")
+
+    @model_validator(mode="after")
+    def _status_of_every_estimate(self) -> Analysis:
+        missing = [name for name in self.estimates.names() if name not in self.solver_status]
+        if missing:
+            raise ValueError(f"solver_status has no entry for the estimate {missing[0]}")
+        if self.recommended is not None and self.estimates.named(self.recommended) is None:
+            raise ValueError(f"recommended names {self.recommended}, which is not among the estimates")
+        return self
+
+    def recommended_estimate(self) -> Estimate | None:
+        """The estimate ``recommended`` names, if any."""
+        return None if self.recommended is None else self.estimates.named(self.recommended)
+
+    def target_labels(self) -> list[str]:
+        """Each target as ``angle↑`` or ``angle↓``: the recommended estimate's targets, else the
+        nominal angles in the direction they were measured."""
+        e = self.recommended_estimate()
+        if isinstance(e, TargetedEstimate):
+            pairs = list(zip(e.target_deg, e.target_direction))
+        else:
+            angles = self.nominal_angles_deg
+            up = len(angles) > 1 and angles[-1] > angles[0]
+            pairs = [(a, 1 if up else -1) for a in angles]
+        return [f"{t:g}{'↑' if d > 0 else '↓'}" for t, d in pairs]
+
+
+class MultistationAnalysis(Analysis):
+    """The multi-station method's analysis."""
+
+    recommended: MultistationEstimator | None = Field(
+        description="the estimate to quote: converged, and the smallest uncertainty among those that did")
+    estimates: MultistationEstimates = Field(description="every estimate that could run, by estimator")
+    truth: StationTruth | None = Field(None, description="what the simulated stations really had (absent: on instruments)")
+    environment: EnvironmentSummary | None = Field(
+        description="the air and table conditions recorded with the lengths (null: no environment sensor)")
+
+
+class AbbeAnalysis(Analysis):
+    """The encoder Abbe-error method's analysis."""
+
+    recommended: AbbeEstimator | None = Field(
+        description="the estimate to quote: converged, and the smallest uncertainty among those that did")
+    estimates: AbbeEstimates = Field(description="every estimate that could run, by estimator")
+    truth: AbbeTruth | None = Field(None, description="what the simulated bench really had (absent: on instruments)")
+
+    @model_validator(mode="after")
+    def _closure_from_abbe(self) -> AbbeAnalysis:
+        if self.estimates.closure is not None and self.estimates.abbe is None:
+            raise ValueError("estimates.closure is separated from the readings estimates.abbe analyses: abbe is missing")
+        return self
+
+
+class RunLog(ResultsModel):
+    """What the runner adds after the analysis: the evaluation and the run's log."""
+
+    evaluation: Evaluation | None = Field(description="ISO 230-2 and VDI 3441 parameters (null: no positioning deviations)")
+    skipped_readings: Count = Field(description="planned readings a fault policy skipped and no start took again")
+    faults: Count = Field(description="instrument faults during the run")
+    events: list[Event] = Field(description="the run's log, in order")
+
+
+class RunResults(RunLog, Analysis, RunInfo):
+    """results.json of any method: the run, its analysis, its log (the fields in that order)."""
+
+    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS
+
+    @model_validator(mode="after")
+    def _names_its_estimate(self) -> RunResults:
+        if self.recommended is None:
+            raise ValueError("recommended: a run's results name the estimate to quote (null only in a failed analysis, "
+                             "which writes no results)")
+        return self
+
+
+class MultistationResults(MultistationAnalysis, RunResults):
+    """results.json of the laser-tracer multi-station method (seed 000)."""
+
+    method: Literal["laser_tracer_multistation"] = Field(description="the calibration method")
+
+
+class AbbeResults(AbbeAnalysis, RunResults):
+    """results.json of the encoder Abbe-error method (seed 001)."""
+
+    method: Literal["encoder_abbe_error"] = Field(description="the calibration method")
+
+
+Results = Annotated[Union[MultistationResults, AbbeResults], Field(discriminator="method")]
+"""results.json: one of the methods' results, told apart by ``method``."""
+
+_RESULTS_OF: dict[type[Analysis], type[RunResults]] = {MultistationAnalysis: MultistationResults, AbbeAnalysis: AbbeResults}
+
+
+def assemble(info: RunInfo, analysis: Analysis, log: RunLog) -> RunResults:
+    """The run's results from its three parts (validated as the file will be read)."""
+    fields = {**dict(info), **dict(analysis), **dict(log)}
+    return _RESULTS_OF[type(analysis)].model_validate(fields)
