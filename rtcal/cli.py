@@ -14,6 +14,7 @@ import numpy as np
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentError
 from rtcal import __version__
+from rtcal.outputs import OutputRefused, is_disk_failure, output_file, write_output
 from rtcal.procedure.yamlfile import FileProblems
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
@@ -35,6 +36,12 @@ def _how_to_go_on(run_dir: str) -> str:
     return "nothing was measured"
 
 
+def _disk_failure(exc: OSError, folder: str | Path | None = None) -> str:
+    """One line for a write the disk refused: what, where, and that it is the disk's doing."""
+    where = f"{exc.filename}: " if exc.filename else (f"in {folder}: " if folder else "")
+    return f"rtcal: the disk refused a write: {where}{exc.strerror or exc}"
+
+
 def _execute(start, run_dir: str) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on."""
     import signal
@@ -46,7 +53,7 @@ def _execute(start, run_dir: str) -> int:
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
         outcome = start()
-    except (FileExistsError, CertificateUnavailable, RunDirError) as exc:
+    except (FileExistsError, CertificateUnavailable, RunDirError, OutputRefused) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
@@ -55,11 +62,20 @@ def _execute(start, run_dir: str) -> int:
         print(f"rtcal: instrument error: {exc}", file=sys.stderr)
         print(f"rtcal: {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_FAILED
+    except OSError as exc:
+        if not is_disk_failure(exc):
+            raise
+        print(_disk_failure(exc, run_dir), file=sys.stderr)
+        for note in getattr(exc, "__notes__", ()):
+            print(f"rtcal: {note}", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir)} once there is space", file=sys.stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt:
         print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     results = outcome.results
-    print(f"run complete: {results['raw_readings']} readings stored")
+    print(f"run complete: {results['raw_readings']} planned readings taken, {outcome.instrument_readings} instrument "
+          "readings stored")
     if results.get("bench") == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
     for line in METHODS[results["method"]].summary(results):
@@ -290,24 +306,52 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    """Every raw reading and event of a run as CSV, for spreadsheets."""
-    from rtcal.run.store import RunStore
+    """Every raw reading and event of a run as CSV, for spreadsheets; from a damaged store, every
+    one that can still be read (exit 1: the store is damaged, and the count of what is lost)."""
+    from rtcal.run.salvage import salvage_store
+    from rtcal.run.store import EVENT_COLUMNS, READING_COLUMNS, RunStore, check_store, write_csv
 
     run = Path(args.run_dir)
-    try:
-        store = RunStore.open(run)
-    except FileNotFoundError as exc:
-        raise UserError(f"{run}: not a run directory: {exc}") from None
+    path = run / RunStore.FILENAME
+    if not run.is_dir():
+        raise UserError(f"{run}: not a run directory ({'no such directory' if not os.path.lexists(run) else 'not a directory'})")
+    if not os.path.lexists(path):
+        raise UserError(f"{run}: not a run directory (no {RunStore.FILENAME})")
+    found = check_store(path)
+    if found.kind in ("foreign", "empty"):
+        raise UserError(f"{path} {found.detail}: nothing to export")
     out = Path(args.out) if args.out else run
+    _make_folder(out, "--out")
+    readings_csv, events_csv = out / "readings.csv", out / "events.csv"
+    if found.kind == "run":
+        store = RunStore.open(run)
+        try:
+            planned, instrument = len(store.done_plan_indices()), store.instrument_readings()
+            rows, events = store.export_csv(out)
+        finally:
+            store.close()
+        markers = f" and {rows - instrument} skip markers" if rows > instrument else ""
+        print(f"{instrument} instrument readings{markers} ({planned} planned readings taken) → {readings_csv}, "
+              f"{events} events → {events_csv}")
+        return EXIT_OK
+    saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
+    write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
+    write_csv(events_csv, ("id",) + EVENT_COLUMNS, ((i, *saved.events[i]) for i in sorted(saved.events)))
+    print(f"{len(saved.readings)} salvaged readings → {readings_csv}, {len(saved.events)} salvaged events → {events_csv}")
+    print(f"rtcal: {path} {found.detail}; salvaged page by page: {saved.summary()}", file=sys.stderr)
+    return EXIT_FAILED if found.kind == "damaged" or saved.unreadable_readings else EXIT_OK
+
+
+def _make_folder(folder: Path, option: str) -> None:
+    """Create an output folder (and its parents); a path that cannot be one is the user's to change."""
+    if os.path.lexists(folder) and not folder.is_dir():
+        raise UserError(f"{option} {folder}: exists and is not a directory")
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        readings, events = store.export_csv(out)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UserError(f"--out {out}: cannot write: {exc}") from None
-    finally:
-        store.close()
-    print(f"{readings} readings → {out / 'readings.csv'}, {events} events → {out / 'events.csv'}")
-    return EXIT_OK
+        if is_disk_failure(exc):
+            raise
+        raise UserError(f"{option} {folder}: cannot create: {exc.strerror or exc}") from None
 
 
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
@@ -566,7 +610,7 @@ def main(argv: list[str] | None = None) -> int:
         for p in exc.problems:
             print(p, file=sys.stderr)
         return EXIT_USAGE
-    except (UserError, AddressError) as exc:
+    except (UserError, AddressError, OutputRefused) as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except InstrumentError as exc:
@@ -575,6 +619,12 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the reader of our output went away (| head): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except OSError as exc:  # a file the command reads or writes: the disk's failure (exit 1), else the user's path
+        if is_disk_failure(exc):
+            print(_disk_failure(exc), file=sys.stderr)
+            return EXIT_FAILED
+        print(f"rtcal: {exc.filename or ''}{': ' if exc.filename else ''}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print("rtcal: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

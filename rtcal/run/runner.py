@@ -28,7 +28,7 @@ from rtcal.methods import abbe, multistation
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
 from rtcal.deliverables.report import write_report, write_results
-from rtcal.run.rundir import claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
+from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.run.store import RunStore, StoreUnusable
@@ -47,6 +47,7 @@ class AnalysisFailed(Exception):
 class RunOutcome:
     run_dir: Path
     results: dict[str, Any]
+    instrument_readings: int | None = None  # raw values stored (results' raw_readings counts planned readings)
 
 
 def default_run_dir(method: str) -> Path:
@@ -169,7 +170,7 @@ def run_procedure(
             "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text,
             "scenario_path": scenario_label(procedure_path, proc, scenario_path) if simulated else "",
             "seed": str(seed) if simulated else "", "software_version": __version__,
-            "started_utc": _now(), "status": "running", "generation": "0", "large": "1" if large else "",
+            "started_utc": _now(), "status": "not started", "generation": "0", "large": "1" if large else "",
             "operator_address": (addresses or {}).get("operator", ""),
         })
         _keep_fault_counters(store, bench)
@@ -195,16 +196,14 @@ def resume_run(
     those of a run that was solved without them. A complete run is left as it is. The run directory is locked (RunBusy) until the resume ends.
     """
     run_dir = Path(run_dir)
-    if not (run_dir / RunStore.FILENAME).exists():
-        raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: no run store at {run_dir / RunStore.FILENAME}")])
-    lock = claim_run_dir(run_dir)
+    lock = claim_run_dir(run_dir)  # RunDirError: no such directory, no store in it
     try:
         try:
             store = RunStore.open(run_dir)
         except FileNotFoundError as exc:
-            raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: {exc}")]) from None
+            raise RunDirError(f"{run_dir}: nothing to resume: {exc}") from None
         except StoreUnusable as exc:
-            raise FileProblems([Problem(str(run_dir / RunStore.FILENAME), 1, 1, "(run)", f"cannot resume: {exc}")]) from None
+            raise RunDirError(f"cannot resume: {exc}") from None
         meta = store.meta()
         where = f"{run_dir / RunStore.FILENAME}"
         model = PROCEDURE_MODELS[meta["method"]]
@@ -213,8 +212,9 @@ def resume_run(
         complete = len(store.done_plan_indices()) >= METHODS[proc.method].plan_length(proc)
         finished = stored_results(run_dir) if meta.get("status") == "solved" and complete else None
         if finished is not None:  # nothing to take, nothing to count: the run stays as it is
+            counted = store.instrument_readings()
             store.close()
-            return RunOutcome(run_dir, finished)
+            return RunOutcome(run_dir, finished, counted)
         # a run solved with readings its skip policy left out goes on too: it retakes them and solves again
         if addresses:
             proc = with_addresses(proc, addresses)
@@ -256,10 +256,10 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     simulated = bench is not None
     clock = bench.clock if bench else (VirtualClock(store.last_time_s()) if virtual_clock else RealClock())
     try:
+        store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
-        store.set_meta({"status": "not started", "error": repr(exc)})
-        store.close()
+        _stop(store, "not started", exc)
         raise
     disable = (not sys.stderr.isatty()) if show_progress is None else not show_progress
     already = len(store.done_plan_indices())  # the sequencers pass only pending readings through progress()
@@ -269,10 +269,10 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
                     file=sys.stderr)
 
     try:
+        store.set_meta({"status": "running"})
         method.measure(proc, inst, store, clock, operator, progress, generation)
     except BaseException as exc:
-        store.set_meta({"status": "aborted" if isinstance(exc, RunAborted) else "interrupted", "error": repr(exc)})
-        store.close()
+        _stop(store, "aborted" if isinstance(exc, RunAborted) else "interrupted", exc)
         raise
     finally:
         inst.close()
@@ -311,17 +311,33 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         "faults": sum(1 for e in events if e["kind"] == "fault"),
         "events": events,
     }
-    store.set_meta({"status": "solved"})
-    store.close()
+    counted = store.instrument_readings()
     if not outputs:
-        return RunOutcome(run_dir, results)
-    with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
-        write_results(out, results)
-        if "positioning_deviations" in results:  # the table every method hands downstream, for spreadsheets too
-            PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(out / "positioning_deviations.csv")
-        method.write_files(out, results)
-        write_report(out, results, method.report_body(results))
-        model = report_model(results, out, method.certificate_figures(results), method.method_text(results))
-        write_html(model, out / "report.html")
-        write_pdf(model, out / "report.pdf")
-    return RunOutcome(run_dir, results)
+        store.set_meta({"status": "solved"})
+        store.close()
+        return RunOutcome(run_dir, results, counted)
+    try:
+        with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
+            write_results(out, results)
+            if "positioning_deviations" in results:  # the table every method hands downstream, for spreadsheets too
+                PositioningDeviations.from_dict(results["positioning_deviations"]).write_csv(out / "positioning_deviations.csv")
+            method.write_files(out, results)
+            write_report(out, results, method.report_body(results))
+            model = report_model(results, out, method.certificate_figures(results), method.method_text(results))
+            write_html(model, out / "report.html")
+            write_pdf(model, out / "report.pdf")
+    except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
+        _stop(store, "measured", exc)
+        raise
+    store.set_meta({"status": "solved"})  # only now: `resume` of a solved run changes nothing
+    store.close()
+    return RunOutcome(run_dir, results, counted)
+
+
+def _stop(store: RunStore, status: str, exc: BaseException) -> None:
+    """Record why the run stopped and close the store. On a full disk the status goes into the
+    space the store reserved; if even that is refused the stored status stays as it was (a
+    resume treats every run that is not solved alike) and the error says so."""
+    if not store.set_final_meta({"status": status, "error": repr(exc)}):
+        exc.add_note(f"(the status `{status}` could not be recorded in {store.path}: the disk refused it)")
+    store.close()
