@@ -144,10 +144,7 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     out = Path(args.out) if args.out else default_run_dir("uncertainty")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"--out {out}: cannot create: {exc}") from None
+    _make_folder(out, "--out")
     seed = scenario.seed if args.seed is None else args.seed
     specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics)
     trials = []
@@ -168,9 +165,10 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     summary.update(procedure=str(path), bench=args.scenario or (str(path.parent / proc.bench) if proc.bench else "ideal"),
                    seed=seed, systematics="drawn from the stated uncertainties" if not args.fixed_systematics
                    else "fixed as in the scenario")
-    (out / "uncertainty.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} simulated runs",
-                            out / "uncertainty.png")
+    write_output(out / "uncertainty.json", json.dumps(summary, indent=2) + "\n")
+    with output_file(out / "uncertainty.png") as png:
+        montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} "
+                                "simulated runs", png)
     print(f"{len(ok)} trials ({summary['failed_trials']} failed), systematics {summary['systematics']}")
     for name, e in summary["estimators"].items():
         rec = " (recommended)" if name == summary["recommended"] else ""
@@ -191,8 +189,19 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from rtcal.procedure.loader import load_procedure
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
 
+    from rtcal.procedure.models import LaserTracerMultistation
+
     path = Path(args.procedure)
+    if args.json and args.optimize:
+        raise UserError("--json and --optimize: choose one (--json prints the prediction alone)")
     proc = load_procedure(path)
+    if args.optimize:
+        target = Path(args.optimize)
+        if not isinstance(proc, LaserTracerMultistation):
+            raise UserError(f"--optimize: {path} is a {proc.method} procedure; choosing CMM points is for "
+                            "laser_tracer_multistation procedures")
+        if target.exists() and os.path.samefile(target, path):
+            raise UserError(f"--optimize {target}: that is the procedure itself; write the optimised plan to a new file")
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     plan = predict(path, proc, scenario)
@@ -200,7 +209,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         print(json.dumps(plan, indent=2))
         return EXIT_OK
     hours = plan["measurement_duration_s"] / 3600
-    print(f"{path}: {plan['raw_readings']} readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
+    print(f"{path}: {plan['raw_readings']} planned readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
           "motions, settling and readings; predicted 1σ from the stated noise:")
     for name, e in plan["estimators"].items():
         rec = " (recommended)" if name == plan["recommended"] else ""
@@ -212,7 +221,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
         try:
             print(optimize_points(path, proc, scenario, Path(args.optimize)))
-        except (ValueError, OSError) as exc:
+        except ValueError as exc:
             raise UserError(f"--optimize: {exc}") from None
     return EXIT_OK
 
@@ -269,11 +278,7 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
         text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
-    out = Path(args.out)
-    try:
-        out.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"--out {out}: cannot write: {exc}") from None
+    out = write_output(Path(args.out), text)
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): from {len(comp.positions_deg)} points every "
           f"{comp.step_deg:g}° over one turn, trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
@@ -294,13 +299,12 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
-    out = Path(args.out) if args.out else Path(args.run_b)
-    if not out.is_dir():
-        try:
-            out.mkdir(parents=True)
-        except OSError as exc:
-            raise UserError(f"--out {out}: cannot create: {exc}") from None
-    result["plot"] = str(plot_comparison(result, a, b, out / "compare.png"))
+    run_b = Path(args.run_b)
+    out = Path(args.out) if args.out else (run_b if run_b.is_dir() else run_b.parent)
+    _make_folder(out, "--out")
+    with output_file(out / "compare.png") as png:
+        plot_comparison(result, a, b, png)
+    result["plot"] = str(out / "compare.png")
     print(json.dumps(result, indent=2))
     return EXIT_OK
 
