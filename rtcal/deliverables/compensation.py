@@ -74,8 +74,8 @@ def table_from_deviations(table: PositioningDeviations, step_deg: float = 15.0, 
         if not sel.any():
             continue
         angles = np.mod(np.round(table.target_deg[sel], 9), 360.0)
-        targets = np.unique(angles)
-        means = np.array([table.deviation_arcsec[sel][angles == t].mean() for t in targets])
+        targets, group = np.unique(angles, return_inverse=True)  # sorted once: n log n in rows
+        means = np.bincount(group, weights=table.deviation_arcsec[sel]) / np.bincount(group)
         gaps = np.diff(np.concatenate([targets, [targets[0] + 360.0]]))
         if len(targets) < 3 or gaps.max() > max_gap_deg + 1e-9:
             worst = int(np.argmax(gaps))
