@@ -16,7 +16,7 @@ from drivers.addresses import AddressError
 from drivers.errors import InstrumentError
 from rtcal import __version__
 from rtcal.outputs import OutputRefused, is_disk_failure, output_file, write_output
-from rtcal.procedure.yamlfile import FileProblems
+from rtcal.procedure.yamlfile import FileProblems, read_bytes
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130
@@ -138,6 +138,9 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
 
     if not 2 <= args.trials <= 100_000:
         raise UserError("--trials must lie in 2..100000")
+    workers = _workers(args.workers, args.large)
+    if args.scheduler:
+        _check_scheduler(args.scheduler)
     path = Path(args.procedure)
     proc = load_procedure(path)
     if not proc.instruments.all_sim():
@@ -151,10 +154,12 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     trials = []
     bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
     try:
-        for result in montecarlo.run_trials(specs, args.workers, args.scheduler):
+        for result in montecarlo.run_trials(specs, workers, args.scheduler):
             trials.append(result)
             bar.update()
     except OSError as exc:
+        if not args.scheduler:
+            raise
         raise UserError(f"--scheduler {args.scheduler}: cannot reach the Dask scheduler: {exc}") from None
     finally:
         bar.close()
@@ -182,6 +187,39 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
         print("  ratio       " + " ".join(f"{v:8.2f}" for v in e["ratio"][1:]))
     print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
     return EXIT_OK
+
+
+MAX_WORKERS = 256  # with --large: beyond the cores, e.g. when trials wait on I/O
+
+
+def _workers(requested: int | None, large: bool) -> int:
+    """``--workers``: 1 … the machine's cores (more only with --large, up to MAX_WORKERS); default the cores.
+    A process per trial beyond the cores only makes each trial slower and takes memory."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if requested is None:
+        return cores
+    limit = MAX_WORKERS if large else cores
+    if not 1 <= requested <= limit:
+        beyond = "" if large else f" (this machine has {cores} cores; --large allows up to {MAX_WORKERS})"
+        raise UserError(f"--workers {requested}: must lie in 1 … {limit}{beyond}")
+    return requested
+
+
+SCHEDULER_SCHEMES = ("tcp",)  # tls would need certificates rtcal has no option for
+
+
+def _check_scheduler(address: str) -> None:
+    """``--scheduler``: a Dask scheduler's ``tcp://host:port``, checked before any trial."""
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(address)
+        port = parts.port
+    except ValueError as exc:
+        raise UserError(f"--scheduler {address!r}: not an address ({exc})") from None
+    if parts.scheme not in SCHEDULER_SCHEMES or not parts.hostname or port is None or parts.path not in ("", "/"):
+        raise UserError(f"--scheduler {address!r}: expected a Dask scheduler's address, "
+                        f"{' or '.join(s + '://HOST:PORT' for s in SCHEDULER_SCHEMES)} (e.g. tcp://127.0.0.1:8786)")
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
@@ -227,7 +265,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-MAX_RESULTS_BYTES = 200_000_000  # results.json and deviation CSVs are read whole: bounded
+MAX_RESULTS_BYTES = 200_000_000  # results.json is read whole: bounded (deviation CSVs: deviations.MAX_CSV_BYTES)
 
 
 def read_deviation_table(path_text: str):
@@ -239,16 +277,14 @@ def read_deviation_table(path_text: str):
         if path.is_dir():
             results = path / "results.json"
             try:
-                if results.stat().st_size > MAX_RESULTS_BYTES:
-                    raise UserError(f"{results}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a results file rtcal wrote")
-                data = json.loads(results.read_text(encoding="utf-8"))
-            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+                data = json.loads(read_bytes(results, MAX_RESULTS_BYTES).decode("utf-8"))  # regular and bounded
+            except FileProblems as exc:
+                raise UserError(f"{path}: not a run directory with a readable results.json ({exc.problems[0].message})") from None
+            except (UnicodeDecodeError, json.JSONDecodeError) as exc:
                 raise UserError(f"{path}: not a run directory with a readable results.json ({exc})") from None
             if not isinstance(data, dict) or "positioning_deviations" not in data:
                 raise UserError(f"{results}: no positioning_deviations (a run of an older rtcal, or not solved)")
             return PositioningDeviations.from_dict(data["positioning_deviations"], str(results)), data
-        if path.is_file() and path.stat().st_size > MAX_RESULTS_BYTES:
-            raise UserError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a deviation table")
         return PositioningDeviations.read_csv(path), None
     except DeviationTableError as exc:
         raise UserError(str(exc)) from None
@@ -310,6 +346,11 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from rtcal.deliverables.comparison import compare, plot_comparison
 
     a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
+    methods = [r.get("method") if r else None for _, r in (a, b)]
+    if None not in methods and methods[0] != methods[1]:
+        raise UserError(f"{args.run_a} is a run of {methods[0]}, {args.run_b} of {methods[1]}: compare sets two "
+                        "measurements of one kind side by side (give their positioning_deviations.csv to compare "
+                        "the tables anyway)")
     result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
@@ -437,14 +478,12 @@ def read_stations_csv(path: Path) -> np.ndarray:
     """Station centres from a CSV with header X,Y,Z (mm), one station per row, in order."""
     import io
 
-    from rtcal.procedure.yamlfile import read_bytes
-
     try:
         data = read_bytes(path, 16 * 1024 * 1024)
     except FileProblems as exc:
         raise UserError(str(exc.problems[0])) from None
     try:
-        with io.StringIO(data.decode("utf-8"), newline="") as fh:
+        with io.StringIO(data.decode("utf-8-sig"), newline="") as fh:  # -sig: a spreadsheet's byte-order mark
             reader = csv.DictReader(fh)
             fields = [f.strip() for f in (reader.fieldnames or [])]
             if not {"X", "Y", "Z"} <= set(fields):
@@ -505,8 +544,15 @@ def _seed(text: str) -> int:
     return value
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its mistakes on one line (what, and where to read more), exit 2."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"{self.prog}: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rtcal", description="Angular positioning calibration of rotary tables.")
+    parser = _Parser(prog="rtcal", description="Angular positioning calibration of rotary tables.")
     parser.add_argument("--version", action="version", version=f"rtcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -534,8 +580,10 @@ def build_parser() -> argparse.ArgumentParser:
     unc.add_argument("procedure", help="procedure YAML file (every instrument `backend: sim`)")
     unc.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
     unc.add_argument("--trials", type=int, default=30, help="number of simulated runs (default 30)")
-    unc.add_argument("--seed", type=int, help="seed of the trials (default: the scenario's)")
-    unc.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1: in this process)")
+    unc.add_argument("--seed", type=_seed, help="seed of the trials (default: the scenario's)")
+    unc.add_argument("--workers", type=int, help="local worker processes, at most one per core unless --large "
+                                                 "(default: one per core; 1: in this process)")
+    unc.add_argument("--large", action="store_true", help="allow more --workers than the machine has cores")
     unc.add_argument("--scheduler", help="address of a running Dask scheduler (e.g. tcp://127.0.0.1:8786) to run the trials on")
     unc.add_argument("--fixed-systematics", action="store_true",
                      help="keep the scenario's CMM errors and error motions in every trial instead of drawing them from "

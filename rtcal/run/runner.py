@@ -84,8 +84,29 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat()
 
 
+NON_INSTRUMENT_ADDRESSES = ("operator",)  # what `rtcal sim serve` prints besides the instruments
+
+
+def known_address_names() -> list[str]:
+    """Every name an ``--instruments`` object may hold: any method's instruments (`rtcal sim serve`
+    serves them all, a procedure uses some) and the simulated operator."""
+    names = {f for model in PROCEDURE_MODELS.values() for f in model.model_fields["instruments"].annotation.model_fields}
+    return sorted(names) + list(NON_INSTRUMENT_ADDRESSES)
+
+
 def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
-    """The procedure with its instruments moved to the given addresses, validated again."""
+    """The procedure with its instruments moved to the given addresses, validated again. A name
+    that is no instrument (a misspelling) is refused: ignored, it would leave that instrument
+    where the procedure put it — on the in-process bench, for a simulated one."""
+    known = known_address_names()
+    unknown = [name for name in addresses if name not in known]
+    if unknown:
+        from difflib import get_close_matches
+
+        hints = {n: get_close_matches(n, known, 1) for n in unknown}
+        raise FileProblems([Problem("--instruments", 1, 1, n[:60], "not an instrument rtcal knows"
+                                    + (f"; did you mean `{hints[n][0]}`?" if hints[n] else f" ({', '.join(known)})"))
+                            for n in unknown])
     section = proc.instruments.model_dump()
     for name in section:
         if name in addresses and section[name] is not None:  # an instrument the procedure does not use stays out
