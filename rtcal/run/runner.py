@@ -227,9 +227,19 @@ def resume_run(
             raise RunDirError(f"cannot resume: {exc}") from None
         meta = store.meta()
         where = f"{run_dir / RunStore.FILENAME}"
-        model = PROCEDURE_MODELS[meta["method"]]
-        proc = validate_text(meta["procedure_yaml"], model, f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
-        proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta["instruments"])})
+        model = PROCEDURE_MODELS[_stored(meta, "method", lambda v: v if v in PROCEDURE_MODELS else None, run_dir,
+                                         f"one of {', '.join(PROCEDURE_MODELS)}")]
+        proc = validate_text(_stored(meta, "procedure_yaml", str, run_dir, "the procedure's text"), model,
+                             f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
+        instruments = _stored(meta, "instruments", type(proc.instruments).model_validate_json, run_dir,
+                              "the procedure's instrument section as JSON")
+        proc = proc.model_copy(update={"instruments": instruments})
+        previous_generation = _stored(meta, "generation", _count, run_dir, "a whole number ≥ 0")
+        twice = store.readings_stored_twice()
+        if twice:
+            raise RunDirError(f"cannot resume: {where} holds {twice} readings more than once (the same instrument, "
+                              "quantity and sample of one attempt at a planned reading): the store was edited or "
+                              f"merged, and its results would count them twice; `rtcal export {run_dir}` writes them all")
         complete = len(store.done_plan_indices()) >= METHODS[proc.method].plan_length(proc)
         finished = stored_results(run_dir) if meta.get("status") == "solved" and complete else None
         if finished is not None:  # nothing to take, nothing to count: the run stays as it is
@@ -246,11 +256,15 @@ def resume_run(
         simulated = proc.instruments.all_sim()
         done = len(store.done_plan_indices())
         planned = METHODS[proc.method].plan_length(proc)
-        generation = int(meta.get("generation", "0")) + (1 if done < planned else 0)
+        generation = previous_generation + (1 if done < planned else 0)
         bench = None
         if simulated:
-            scenario = validate_text(meta["scenario_yaml"], Scenario, f"{where} (stored scenario)") if meta["scenario_yaml"] else Scenario()
-            bench = Bench(scenario, VirtualClock(store.last_time_s()), int(meta["seed"]), generation)
+            scenario_yaml = _stored(meta, "scenario_yaml", str, run_dir, "a bench scenario's text")
+            scenario = validate_text(scenario_yaml, Scenario, f"{where} (stored scenario)") if scenario_yaml else Scenario()
+            seed = _stored(meta, "seed", lambda v: _count(v) if _count(v) <= 2**63 - 1 else None, run_dir,
+                           "a whole number 0 … 2⁶³ − 1")
+            _stored(meta, "fault_requests", _counters, run_dir, "a JSON object of request counts", "{}")
+            bench = Bench(scenario, VirtualClock(store.last_time_s()), seed, generation)
             _keep_fault_counters(store, bench)
         if done < planned:
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
@@ -259,6 +273,36 @@ def resume_run(
         return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation)
     finally:
         lock.release()
+
+
+def _stored(meta: dict[str, str], key: str, parse, run_dir: Path, expected: str, default: str | None = None) -> Any:
+    """``meta[key]`` parsed, or a RunDirError naming the key, what it holds and what it should: a
+    store edited by hand is refused with one line, not a traceback. ``parse`` returns None or
+    raises ValueError for a value it refuses (a pydantic ValidationError is one)."""
+    value = meta.get(key, default)
+    try:
+        parsed = parse(value) if value is not None else None
+    except (ValueError, TypeError, RecursionError):
+        parsed = None
+    if parsed is None:
+        shown = "missing" if value is None else repr(value if len(value) <= 60 else value[:60] + "…")
+        raise RunDirError(f"cannot resume: {run_dir / RunStore.FILENAME}: its `{key}` is {shown}, not {expected}: the "
+                          f"store was edited; `rtcal export {run_dir}` writes its readings")
+    return parsed
+
+
+def _count(text: str) -> int:
+    """A whole number ≥ 0 written in decimal digits (no sign, no spaces)."""
+    if not (text.isascii() and text.isdigit()) or len(text) > 30:
+        raise ValueError(text)
+    return int(text)
+
+
+def _counters(text: str) -> dict[str, int]:
+    data = json.loads(text)
+    if not isinstance(data, dict) or not all(isinstance(k, str) and type(v) is int and v >= 0 for k, v in data.items()):
+        raise ValueError(text)
+    return data
 
 
 def evaluation_of(analysis: dict[str, Any]) -> dict[str, Any] | None:

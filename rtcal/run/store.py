@@ -351,6 +351,13 @@ class RunStore:
             "(SELECT 1 FROM readings s WHERE s.plan_index = r.plan_index AND s.attempt IS r.attempt AND s.quantity = ?)",
             (SKIPPED, SKIPPED))}
 
+    def readings_stored_twice(self) -> int:
+        """Readings beyond the first with the same planned reading, attempt, instrument, quantity and
+        sample: none in a store rtcal wrote (an attempt is stored whole, once), so a sign of editing."""
+        return int(self._db.execute(
+            "SELECT COALESCE(SUM(n - 1), 0) FROM (SELECT COUNT(*) AS n FROM readings WHERE plan_index IS NOT NULL "
+            "GROUP BY plan_index, attempt, instrument, quantity, sample HAVING n > 1)").fetchone()[0])
+
     def skipped_plan_indices(self) -> set[int]:
         """Planned readings whose every attempt so far skipped something (resume retakes them)."""
         skipped = {row[0] for row in self._db.execute("SELECT DISTINCT plan_index FROM readings WHERE quantity = ?", (SKIPPED,))}
