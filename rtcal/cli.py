@@ -237,7 +237,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if args.optimize:
         target = Path(args.optimize)
         if not isinstance(proc, LaserTracerMultistation):
-            raise UserError(f"--optimize: {path} is a {proc.method} procedure; choosing CMM points is for "
+            raise UserError(f"--optimize: {path} is a procedure of {proc.method}; choosing CMM points is for "
                             "laser_tracer_multistation procedures")
         if target.exists() and os.path.samefile(target, path):
             raise UserError(f"--optimize {target}: that is the procedure itself; write the optimised plan to a new file")

@@ -94,10 +94,9 @@ def known_address_names() -> list[str]:
     return sorted(names) + list(NON_INSTRUMENT_ADDRESSES)
 
 
-def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
-    """The procedure with its instruments moved to the given addresses, validated again. A name
-    that is no instrument (a misspelling) is refused: ignored, it would leave that instrument
-    where the procedure put it — on the in-process bench, for a simulated one."""
+def check_address_names(addresses: dict[str, str]) -> None:
+    """A name that is no instrument (a misspelling) is refused: ignored, it would leave that
+    instrument where the procedure put it — on the in-process bench, for a simulated one."""
     known = known_address_names()
     unknown = [name for name in addresses if name not in known]
     if unknown:
@@ -107,6 +106,11 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
         raise FileProblems([Problem("--instruments", 1, 1, n[:60], "not an instrument rtcal knows"
                                     + (f"; did you mean `{hints[n][0]}`?" if hints[n] else f" ({', '.join(known)})"))
                             for n in unknown])
+
+
+def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
+    """The procedure with its instruments moved to the given addresses, validated again."""
+    check_address_names(addresses)
     section = proc.instruments.model_dump()
     for name in section:
         if name in addresses and section[name] is not None:  # an instrument the procedure does not use stays out
@@ -217,6 +221,8 @@ def resume_run(
     those of a run that was solved without them. A complete run is left as it is. The run directory is locked (RunBusy) until the resume ends.
     """
     run_dir = Path(run_dir)
+    if addresses:
+        check_address_names(addresses)
     lock = claim_run_dir(run_dir)  # RunDirError: no such directory, no store in it
     try:
         try:

@@ -141,7 +141,7 @@ def check_store(path: Path) -> StoreCheck:
     if method is not None:
         return StoreCheck("run", f"holds a run ({method[0]})")
     if rows:
-        return StoreCheck("orphan", f"holds {rows} readings and events but no procedure")
+        return StoreCheck("orphan", f"holds readings or events ({rows} rows) but no procedure")
     return StoreCheck("empty", "holds no procedure, no reading and no event")
 
 
