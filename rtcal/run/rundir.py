@@ -24,6 +24,7 @@ from rtcal.outputs import STAGING_PREFIX, remove_stale_staging, staged_outputs  
 from rtcal.run.store import RunStore, check_store
 
 LOCK_NAME = ".rtcal.lock"
+MAX_RESULTS_BYTES = 200_000_000
 
 
 class RunDirError(Exception):
@@ -162,8 +163,10 @@ def stored_results(run_dir: Path) -> dict | None:
     path = Path(run_dir) / "results.json"
     if path.is_symlink() or not path.is_file():
         return None
+    from rtcal.procedure.yamlfile import FileProblems, read_bytes
+
     try:
-        results = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        results = json.loads(read_bytes(path, MAX_RESULTS_BYTES))  # bounded: a run's results are far smaller
+    except (FileProblems, ValueError, RecursionError):  # unreadable, not JSON, nested beyond the parser
         return None
     return results if isinstance(results, dict) and "method" in results else None
