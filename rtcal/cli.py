@@ -8,14 +8,15 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentError
 from rtcal import __version__
-from rtcal.procedure.yamlfile import FileProblems
+from rtcal.outputs import OutputRefused, is_disk_failure, output_file, write_output
+from rtcal.procedure.yamlfile import FileProblems, read_bytes
 
 if TYPE_CHECKING:
     from rtcal.deliverables.deviations import PositioningDeviations
@@ -40,6 +41,12 @@ def _how_to_go_on(run_dir: str) -> str:
     return "nothing was measured"
 
 
+def _disk_failure(exc: OSError, folder: str | Path | None = None) -> str:
+    """One line for a write the disk refused: what, where, and that it is the disk's doing."""
+    where = f"{exc.filename}: " if exc.filename else (f"in {folder}: " if folder else "")
+    return f"rtcal: the disk refused a write: {where}{exc.strerror or exc}"
+
+
 def _execute(start, run_dir: str) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on."""
     import signal
@@ -53,7 +60,7 @@ def _execute(start, run_dir: str) -> int:
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
         outcome = start()
-    except (FileExistsError, PreparationError, RunDirError, ResultsError) as exc:
+    except (FileExistsError, PreparationError, RunDirError, ResultsError, OutputRefused) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
@@ -62,11 +69,20 @@ def _execute(start, run_dir: str) -> int:
         print(f"rtcal: instrument error: {exc}", file=sys.stderr)
         print(f"rtcal: {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_FAILED
+    except OSError as exc:
+        if not is_disk_failure(exc):
+            raise
+        print(_disk_failure(exc, run_dir), file=sys.stderr)
+        for note in getattr(exc, "__notes__", ()):
+            print(f"rtcal: {note}", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir)} once there is space", file=sys.stderr)
+        return EXIT_FAILED
     except KeyboardInterrupt:
         print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     results = outcome.results
-    print(f"run complete: {results.raw_readings} readings stored")
+    print(f"run complete: {results.raw_readings} planned readings taken, {outcome.instrument_readings} instrument "
+          "readings stored")
     if results.bench == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
     for line in outputs_for(results).summary():
@@ -129,6 +145,9 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
 
     if not 2 <= args.trials <= 100_000:
         raise UserError("--trials must lie in 2..100000")
+    workers = _workers(args.workers, args.large)
+    if args.scheduler:
+        _check_scheduler(args.scheduler)
     path = Path(args.procedure)
     proc = load_procedure(path)
     if not proc.instruments.all_sim():
@@ -136,19 +155,18 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     out = Path(args.out) if args.out else default_run_dir("uncertainty")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"--out {out}: cannot create: {exc}") from None
+    _make_folder(out, "--out")
     seed = scenario.seed if args.seed is None else args.seed
     specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics)
     trials = []
     bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
     try:
-        for result in montecarlo.run_trials(specs, args.workers, args.scheduler):
+        for result in montecarlo.run_trials(specs, workers, args.scheduler):
             trials.append(result)
             bar.update()
     except OSError as exc:
+        if not args.scheduler:
+            raise
         raise UserError(f"--scheduler {args.scheduler}: cannot reach the Dask scheduler: {exc}") from None
     finally:
         bar.close()
@@ -160,9 +178,10 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     summary.update(procedure=str(path), bench=args.scenario or (str(path.parent / proc.bench) if proc.bench else "ideal"),
                    seed=seed, systematics="drawn from the stated uncertainties" if not args.fixed_systematics
                    else "fixed as in the scenario")
-    (out / "uncertainty.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} simulated runs",
-                            out / "uncertainty.png")
+    write_output(out / "uncertainty.json", json.dumps(summary, indent=2) + "\n")
+    with output_file(out / "uncertainty.png") as png:
+        montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} "
+                                "simulated runs", png)
     print(f"{len(ok)} trials ({summary['failed_trials']} failed), systematics {summary['systematics']}")
     for name, e in summary["estimators"].items():
         rec = " (recommended)" if name == summary["recommended"] else ""
@@ -177,14 +196,58 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+MAX_WORKERS = 256  # with --large: beyond the cores, e.g. when trials wait on I/O
+
+
+def _workers(requested: int | None, large: bool) -> int:
+    """``--workers``: 1 … the machine's cores (more only with --large, up to MAX_WORKERS); default the cores.
+    A process per trial beyond the cores only makes each trial slower and takes memory."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if requested is None:
+        return cores
+    limit = MAX_WORKERS if large else cores
+    if not 1 <= requested <= limit:
+        beyond = "" if large else f" (this machine has {cores} cores; --large allows up to {MAX_WORKERS})"
+        raise UserError(f"--workers {requested}: must lie in 1 … {limit}{beyond}")
+    return requested
+
+
+SCHEDULER_SCHEMES = ("tcp",)  # tls would need certificates rtcal has no option for
+
+
+def _check_scheduler(address: str) -> None:
+    """``--scheduler``: a Dask scheduler's ``tcp://host:port``, checked before any trial."""
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(address)
+        port = parts.port
+    except ValueError as exc:
+        raise UserError(f"--scheduler {address!r}: not an address ({exc})") from None
+    if parts.scheme not in SCHEDULER_SCHEMES or not parts.hostname or port is None or parts.path not in ("", "/"):
+        raise UserError(f"--scheduler {address!r}: expected a Dask scheduler's address, "
+                        f"{' or '.join(s + '://HOST:PORT' for s in SCHEDULER_SCHEMES)} (e.g. tcp://127.0.0.1:8786)")
+
+
 def _cmd_plan(args: argparse.Namespace) -> int:
     """Predicted 1σ per target and the duration of a procedure, before anything moves."""
     from rtcal.planning.predict import predict
     from rtcal.procedure.loader import load_procedure
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
 
+    from rtcal.procedure.models import LaserTracerMultistation
+
     path = Path(args.procedure)
+    if args.json and args.optimize:
+        raise UserError("--json and --optimize: choose one (--json prints the prediction alone)")
     proc = load_procedure(path)
+    if args.optimize:
+        target = Path(args.optimize)
+        if not isinstance(proc, LaserTracerMultistation):
+            raise UserError(f"--optimize: {path} is a procedure of {proc.method}; choosing CMM points is for "
+                            "laser_tracer_multistation procedures")
+        if target.exists() and os.path.samefile(target, path):
+            raise UserError(f"--optimize {target}: that is the procedure itself; write the optimised plan to a new file")
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     plan = predict(path, proc, scenario)
@@ -192,7 +255,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         print(json.dumps(plan, indent=2))
         return EXIT_OK
     hours = plan["measurement_duration_s"] / 3600
-    print(f"{path}: {plan['raw_readings']} readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
+    print(f"{path}: {plan['raw_readings']} planned readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
           "motions, settling and readings; predicted 1σ from the stated noise:")
     for name, e in plan["estimators"].items():
         rec = " (recommended)" if name == plan["recommended"] else ""
@@ -204,7 +267,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
         try:
             print(optimize_points(path, proc, scenario, Path(args.optimize)))
-        except (ValueError, OSError) as exc:
+        except ValueError as exc:
             raise UserError(f"--optimize: {exc}") from None
     return EXIT_OK
 
@@ -214,13 +277,12 @@ def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResu
     mistakes are UserErrors naming the file and, in results.json, the field."""
     from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
     from rtcal.results import ResultsError, read_results
-    from rtcal.results.io import MAX_RESULTS_BYTES
 
     path = Path(path_text)
     try:
         if path.is_dir():
             if not (path / "results.json").exists():
-                raise UserError(f"{path}: not a run directory with a results.json (a run that was not solved?)")
+                raise UserError(f"{path}: not a run directory with a readable results.json (a run that was not solved?)")
             try:
                 results = read_results(path)
             except ResultsError as exc:
@@ -228,11 +290,22 @@ def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResu
             if results.positioning_deviations is None:
                 raise UserError(f"{path / 'results.json'}: no positioning_deviations (the run has no recommended estimate)")
             return PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json")), results
-        if path.is_file() and path.stat().st_size > MAX_RESULTS_BYTES:
-            raise UserError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a deviation table")
         return PositioningDeviations.read_csv(path), None
     except DeviationTableError as exc:
         raise UserError(str(exc)) from None
+
+
+def json_text(data: Any, indent: str = "") -> str:
+    """JSON with a line per key and per row of a table (a list of objects), each line written by
+    json's C encoder — ``indent=`` would send the whole document through its pure-Python one,
+    which takes seconds for a table of 100 000 rows."""
+    inner = indent + "  "
+    if isinstance(data, dict) and data:
+        items = ",\n".join(f"{inner}{json.dumps(str(k))}: {json_text(v, inner)}" for k, v in data.items())
+        return "{\n" + items + "\n" + indent + "}"
+    if isinstance(data, list) and data and all(isinstance(v, dict) for v in data):
+        return "[\n" + ",\n".join(inner + json.dumps(v) for v in data) + "\n" + indent + "]"
+    return json.dumps(data)
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
@@ -244,7 +317,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         result = evaluate(table, args.standard)
     except ValueError as exc:
         raise UserError(f"{args.source}: {exc}") from None
-    print(json.dumps(result, indent=2))
+    print(json_text(result))
     return EXIT_OK
 
 
@@ -260,11 +333,7 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
         text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
-    out = Path(args.out)
-    try:
-        out.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"--out {out}: cannot write: {exc}") from None
+    out = write_output(Path(args.out), text)
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): from {len(comp.positions_deg)} points every "
           f"{comp.step_deg:g}° over one turn, trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
@@ -282,39 +351,71 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from rtcal.deliverables.comparison import compare, plot_comparison
 
     a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
+    methods = [r.method if r else None for _, r in (a, b)]
+    if None not in methods and methods[0] != methods[1]:
+        raise UserError(f"{args.run_a} is a run of {methods[0]}, {args.run_b} of {methods[1]}: compare sets two "
+                        "measurements of one kind side by side (give their positioning_deviations.csv to compare "
+                        "the tables anyway)")
     result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
-    out = Path(args.out) if args.out else Path(args.run_b)
-    if not out.is_dir():
-        try:
-            out.mkdir(parents=True)
-        except OSError as exc:
-            raise UserError(f"--out {out}: cannot create: {exc}") from None
-    result["plot"] = str(plot_comparison(result, a, b, out / "compare.png"))
-    print(json.dumps(result, indent=2))
+    run_b = Path(args.run_b)
+    out = Path(args.out) if args.out else (run_b if run_b.is_dir() else run_b.parent)
+    _make_folder(out, "--out")
+    with output_file(out / "compare.png") as png:
+        plot_comparison(result, a, b, png)
+    result["plot"] = str(out / "compare.png")
+    print(json_text(result))
     return EXIT_OK
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    """Every raw reading and event of a run as CSV, for spreadsheets."""
-    from rtcal.run.store import RunStore
+    """Every raw reading and event of a run as CSV, for spreadsheets; from a damaged store, every
+    one that can still be read (exit 1: the store is damaged, and the count of what is lost)."""
+    from rtcal.run.salvage import salvage_store
+    from rtcal.run.store import EVENT_COLUMNS, READING_COLUMNS, RunStore, check_store, write_csv
 
     run = Path(args.run_dir)
-    try:
-        store = RunStore.open(run)
-    except FileNotFoundError as exc:
-        raise UserError(f"{run}: not a run directory: {exc}") from None
+    path = run / RunStore.FILENAME
+    if not run.is_dir():
+        raise UserError(f"{run}: not a run directory ({'no such directory' if not os.path.lexists(run) else 'not a directory'})")
+    if not os.path.lexists(path):
+        raise UserError(f"{run}: not a run directory (no {RunStore.FILENAME})")
+    found = check_store(path)
+    if found.kind in ("foreign", "empty"):
+        raise UserError(f"{path} {found.detail}: nothing to export")
     out = Path(args.out) if args.out else run
+    _make_folder(out, "--out")
+    readings_csv, events_csv = out / "readings.csv", out / "events.csv"
+    if found.kind == "run":
+        store = RunStore.open(run)
+        try:
+            planned, instrument = len(store.done_plan_indices()), store.instrument_readings()
+            rows, events = store.export_csv(out)
+        finally:
+            store.close()
+        markers = f" and {rows - instrument} skip markers" if rows > instrument else ""
+        print(f"{instrument} instrument readings{markers} ({planned} planned readings taken) → {readings_csv}, "
+              f"{events} events → {events_csv}")
+        return EXIT_OK
+    saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
+    write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
+    write_csv(events_csv, ("id",) + EVENT_COLUMNS, ((i, *saved.events[i]) for i in sorted(saved.events)))
+    print(f"{len(saved.readings)} salvaged readings → {readings_csv}, {len(saved.events)} salvaged events → {events_csv}")
+    print(f"rtcal: {path} {found.detail}; salvaged page by page: {saved.summary()}", file=sys.stderr)
+    return EXIT_FAILED if found.kind == "damaged" or saved.unreadable_readings else EXIT_OK
+
+
+def _make_folder(folder: Path, option: str) -> None:
+    """Create an output folder (and its parents); a path that cannot be one is the user's to change."""
+    if os.path.lexists(folder) and not folder.is_dir():
+        raise UserError(f"{option} {folder}: exists and is not a directory")
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        readings, events = store.export_csv(out)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UserError(f"--out {out}: cannot write: {exc}") from None
-    finally:
-        store.close()
-    print(f"{readings} readings → {out / 'readings.csv'}, {events} events → {out / 'events.csv'}")
-    return EXIT_OK
+        if is_disk_failure(exc):
+            raise
+        raise UserError(f"{option} {folder}: cannot create: {exc.strerror or exc}") from None
 
 
 def _cmd_sim_serve(args: argparse.Namespace) -> int:
@@ -429,14 +530,12 @@ def read_stations_csv(path: Path) -> np.ndarray:
     """Station centres from a CSV with header X,Y,Z (mm), one station per row, in order."""
     import io
 
-    from rtcal.procedure.yamlfile import read_bytes
-
     try:
         data = read_bytes(path, 16 * 1024 * 1024)
     except FileProblems as exc:
         raise UserError(str(exc.problems[0])) from None
     try:
-        with io.StringIO(data.decode("utf-8"), newline="") as fh:
+        with io.StringIO(data.decode("utf-8-sig"), newline="") as fh:  # -sig: a spreadsheet's byte-order mark
             reader = csv.DictReader(fh)
             fields = [f.strip() for f in (reader.fieldnames or [])]
             if not {"X", "Y", "Z"} <= set(fields):
@@ -497,8 +596,15 @@ def _seed(text: str) -> int:
     return value
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its mistakes on one line (what, and where to read more), exit 2."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"{self.prog}: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rtcal", description="Angular positioning calibration of rotary tables.")
+    parser = _Parser(prog="rtcal", description="Angular positioning calibration of rotary tables.")
     parser.add_argument("--version", action="version", version=f"rtcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -526,8 +632,10 @@ def build_parser() -> argparse.ArgumentParser:
     unc.add_argument("procedure", help="procedure YAML file (every instrument `backend: sim`)")
     unc.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
     unc.add_argument("--trials", type=int, default=30, help="number of simulated runs (default 30)")
-    unc.add_argument("--seed", type=int, help="seed of the trials (default: the scenario's)")
-    unc.add_argument("--workers", type=int, help="local worker processes (default: one per core; 1: in this process)")
+    unc.add_argument("--seed", type=_seed, help="seed of the trials (default: the scenario's)")
+    unc.add_argument("--workers", type=int, help="local worker processes, at most one per core unless --large "
+                                                 "(default: one per core; 1: in this process)")
+    unc.add_argument("--large", action="store_true", help="allow more --workers than the machine has cores")
     unc.add_argument("--scheduler", help="address of a running Dask scheduler (e.g. tcp://127.0.0.1:8786) to run the trials on")
     unc.add_argument("--fixed-systematics", action="store_true",
                      help="keep the scenario's CMM errors and error motions in every trial instead of drawing them from "
@@ -642,7 +750,7 @@ def main(argv: list[str] | None = None) -> int:
         for p in exc.problems:
             print(p, file=sys.stderr)
         return EXIT_USAGE
-    except (UserError, AddressError) as exc:
+    except (UserError, AddressError, OutputRefused) as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except InstrumentError as exc:
@@ -651,6 +759,12 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the reader of our output went away (| head): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+    except OSError as exc:  # a file the command reads or writes: the disk's failure (exit 1), else the user's path
+        if is_disk_failure(exc):
+            print(_disk_failure(exc), file=sys.stderr)
+            return EXIT_FAILED
+        print(f"rtcal: {exc.filename or ''}{': ' if exc.filename else ''}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print("rtcal: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

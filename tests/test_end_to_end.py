@@ -56,8 +56,10 @@ def test_store_keeps_every_raw_reading_with_its_state(noise_free_run):
     assert pairs == 704  # each planned reading exactly once
     assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='cmm' AND quantity LIKE 'position%'").fetchone()[0] == 64 * 3
     # and the checks' readings: the CMM's position and the stage's feedback before and after every reading
-    assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='cmm' AND quantity LIKE 'check%'").fetchone()[0] == (2 * 704 - 64) * 3
-    assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='stage' AND quantity='feedback_deg'").fetchone()[0] == 2 * 704
+    assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='cmm' AND quantity LIKE 'check%'").fetchone()[0] == (704 - 64) * 3
+    assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='cmm' AND quantity LIKE 'after%'").fetchone()[0] == 704 * 3
+    assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='stage' AND quantity='feedback_deg'").fetchone()[0] == 704
+    assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='stage' AND quantity='feedback_after_deg'").fetchone()[0] == 704
     meta = dict(db.execute("SELECT key, value FROM meta"))
     assert meta["seed"] == "1" and meta["software_version"] and "method:" in meta["procedure_yaml"]
     assert "positioning_error" in meta["scenario_yaml"]

@@ -292,7 +292,7 @@ def test_resume_retakes_what_a_solved_run_skipped(tmp_path, capsys):
     first = json.loads((run_dir / "results.json").read_text())
     assert (first["raw_readings"], first["skipped_readings"], first["starts"]) == (63, 1, 1)
     assert main(["resume", str(run_dir)]) == 0
-    assert "run complete: 64 readings stored" in capsys.readouterr().out
+    assert "run complete: 64 planned readings taken" in capsys.readouterr().out
     again = json.loads((run_dir / "results.json").read_text())
     assert (again["raw_readings"], again["skipped_readings"], again["starts"]) == (64, 0, 2)
     assert main(["resume", str(run_dir)]) == 0  # now finished: left as it is

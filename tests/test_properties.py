@@ -4,6 +4,8 @@ value — never another exception, never a hang — and no out-of-limits motion 
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -350,3 +352,195 @@ def test_stations_csv_reader(tmp_path, text):
         pass
     else:
         assert rows.shape[1] == 3 and np.all(np.isfinite(rows))
+
+
+# -- readers of a run directory: a damaged store, results.json, a deviation CSV ----------------
+
+def _small_store() -> tuple[bytes, dict[int, tuple], dict[int, tuple]]:
+    """A store of 300 readings and 20 events (about 12 pages), its bytes and its rows by id."""
+    import sqlite3
+    import tempfile
+
+    from rtcal.run.store import Reading, RunStore
+
+    folder = Path(tempfile.mkdtemp(prefix="prop-store-"))
+    store = RunStore.create(folder, {"method": "encoder_abbe_error", "procedure_yaml": "x" * 3000})
+    for k in range(30):
+        store.add_readings([Reading(0.5 * k + j, "encoder", "angle_deg", 1.0 / (j + 1) + k, "deg", sample=j, run=k % 3,
+                                    direction=1 - 2 * (k % 2), plan_index=k, attempt=k) for j in range(10)])
+        store.add_event(0.5 * k, "fault" if k % 2 else "retry", f"event {k} " + "é" * k, None if k % 3 else "stage")
+    store.close()
+    with sqlite3.connect(f"file:{folder / 'run.sqlite'}?immutable=1", uri=True) as db:
+        readings = {row[0]: tuple(row[1:]) for row in db.execute("SELECT * FROM readings")}
+        events = {row[0]: tuple(row[1:]) for row in db.execute("SELECT * FROM events")}
+    data = (folder / "run.sqlite").read_bytes()
+    import shutil
+
+    shutil.rmtree(folder)
+    return data, readings, events
+
+
+STORE_BYTES, STORE_READINGS, STORE_EVENTS = _small_store()
+PAGES = len(STORE_BYTES) // 4096
+PAGE_DAMAGE = st.lists(st.tuples(st.integers(0, PAGES - 1), st.sampled_from(["zero", "noise", "copy"]),
+                                 st.integers(0, PAGES - 1), st.binary(min_size=16, max_size=16)), max_size=4)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(PAGE_DAMAGE, st.integers(0, len(STORE_BYTES)))
+@example([], len(STORE_BYTES))  # undamaged: everything back
+@example([(0, "zero", 0, b"\0" * 16)], len(STORE_BYTES))  # the header page lost
+def test_damaged_store_readers(tmp_path, damage, length):
+    """Pages zeroed, filled with noise or overwritten by another page, and the file cut short
+    anywhere: the store's readers answer with a verdict, never another exception; every reading
+    salvaged is one that was stored, as it was; `export` exits 0, 1 or 2."""
+    from rtcal.run.salvage import salvage_store
+    from rtcal.run.store import RunStore, StoreUnusable, check_store
+
+    data = bytearray(STORE_BYTES)
+    for page, kind, source, noise in damage:
+        at = page * 4096
+        data[at:at + 4096] = {"zero": bytes(4096), "noise": noise * 256,
+                              "copy": STORE_BYTES[source * 4096:(source + 1) * 4096]}[kind]
+    run = Path(tempfile.mkdtemp(prefix="run", dir=tmp_path))  # hypothesis may draw the same damage twice
+    (run / "run.sqlite").write_bytes(bytes(data[:length]))
+    assert check_store(run / "run.sqlite").kind in ("run", "empty", "orphan", "damaged")
+    try:
+        RunStore.open(run).close()
+    except StoreUnusable:
+        pass
+    saved = salvage_store(run / "run.sqlite")
+    assert all(STORE_READINGS.get(i) == row for i, row in saved.readings.items())
+    assert all(STORE_EVENTS.get(i) == row for i, row in saved.events.items())
+    assert saved.unreadable_readings >= 0
+    if not damage and length == len(STORE_BYTES):
+        assert saved.readings == STORE_READINGS and saved.events == STORE_EVENTS and saved.unreadable_readings == 0
+    from rtcal.cli import main
+
+    assert main(["export", str(run), "--out", str(run / "out")]) in (0, 1, 2)
+
+
+@FAST
+@given(st.one_of(st.binary(max_size=200), st.builds(lambda t: t.encode(), st.text(max_size=200)),
+                 st.sampled_from([b'{"method": 1}', b"[]", b'{"method": "x"}', b"\xef\xbb\xbf{}", b"[" * 5000])))
+def test_stored_results_reader(tmp_path, data):
+    """results.json as found in a run directory: validated results, None (no file), or a ResultsError
+    naming the file (and the field)."""
+    from rtcal.results import ResultsError, RunResults
+    from rtcal.run.rundir import stored_results
+
+    (tmp_path / "results.json").write_bytes(data)
+    try:
+        found = stored_results(tmp_path)
+    except ResultsError as exc:
+        assert str(exc).startswith(str(tmp_path / "results.json"))
+    else:
+        assert found is None or isinstance(found, RunResults)
+
+
+@FAST
+@given(st.binary(max_size=300), st.booleans())
+@example(b"\xef\xbb\xbftarget_deg,direction,run,deviation_arcsec\n0,1,1,0\n", False)
+def test_deviation_csv_file_reader(tmp_path, data, bom):
+    """A deviation CSV's bytes, with or without a byte-order mark: a table, or a located error."""
+    from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
+
+    path = tmp_path / "d.csv"
+    path.write_bytes((b"\xef\xbb\xbf" if bom else b"") + data)
+    try:
+        table = PositioningDeviations.read_csv(path)
+    except DeviationTableError as exc:
+        assert str(exc).startswith(str(path))
+    else:
+        assert len(table) >= 1 and np.all(np.abs(table.deviation_arcsec[np.isfinite(table.deviation_arcsec)]) <= 1.3e6)
+
+
+# -- every command's arguments -------------------------------------------------------------
+
+NUMBERS = st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr), st.integers(-10**30, 10**30).map(str),
+                    st.text(max_size=12), st.sampled_from(["nan", "-inf", "1e309", "0x10", "15", "7.5", "-0", "٣"]))
+
+
+@FAST
+@given(st.one_of(st.none(), st.integers(-10**20, 10**20)), st.booleans())
+def test_workers_option(requested, large):
+    from rtcal.cli import MAX_WORKERS, UserError, _workers
+
+    try:
+        n = _workers(requested, large)
+    except UserError as exc:
+        assert str(exc).startswith(f"--workers {requested}")
+    else:
+        cores = len(os.sched_getaffinity(0))
+        assert 1 <= n <= (MAX_WORKERS if large else cores)
+
+
+@FAST
+@given(st.one_of(st.text(max_size=40), st.builds(lambda h, p: f"tcp://{h}:{p}", st.text(max_size=10), st.integers(-5, 10**6))))
+@example("tcp://127.0.0.1:8786")
+def test_scheduler_option(address):
+    from urllib.parse import urlsplit
+
+    from rtcal.cli import UserError, _check_scheduler
+
+    try:
+        _check_scheduler(address)
+    except UserError as exc:
+        assert str(exc).startswith("--scheduler")
+    else:
+        parts = urlsplit(address)
+        assert parts.scheme == "tcp" and parts.hostname and 0 <= parts.port <= 65535
+
+
+@FAST
+@given(st.text(max_size=30))
+@example("-1")
+@example("9223372036854775808")
+def test_seed_option(text):
+    import argparse
+
+    from rtcal.cli import MAX_SEED, _seed
+
+    try:
+        assert 0 <= _seed(text) <= MAX_SEED
+    except argparse.ArgumentTypeError:
+        pass
+
+
+COMMAND_ARGS = st.one_of(
+    st.tuples(st.just("evaluate"), st.sampled_from(["iso230-2", "vdi3441", "iso230-2:1988", "x"])).map(
+        lambda a: ["evaluate", "{csv}", "--standard", a[1]]),
+    st.tuples(st.sampled_from(["linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain"]), NUMBERS, NUMBERS,
+              NUMBERS, NUMBERS).map(lambda a: ["compensate", "{csv}", "--format", a[0], "--out", "{out}/c.txt",
+                                               "--step-deg", a[1], "--max-gap-deg", a[2], "--range-deg", "0", a[3],
+                                               "--detection-unit-deg", a[4]]),
+    st.tuples(NUMBERS, NUMBERS).map(lambda a: ["solve", "stations", "{stations}", "--step-deg", a[0], "--first-deg", a[1]]),
+    st.lists(st.sampled_from(["{csv}", "{out}", "{out}/missing", "/dev/null", "{csv}/x"]), min_size=1, max_size=3).map(
+        lambda a: ["compare", *a[:2], *(["--out", a[2]] if len(a) > 2 else [])]),
+    st.sampled_from(["{out}", "{csv}", "/dev/null", "{out}/none"]).map(lambda a: ["export", a]),
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(COMMAND_ARGS)
+def test_command_arguments(tmp_path, capsys, argv):
+    """Arbitrary option values for the commands that read a table and write a file: exit 0 or 2
+    with a message, never a traceback (argparse's own mistakes included)."""
+    from rtcal.cli import main
+
+    (tmp_path / "d.csv").write_text("target_deg,direction,run,deviation_arcsec,uncertainty_arcsec\n" + "".join(
+        f"{t},{d},{r},{d * 0.5 + r * 0.1},0.1\n" for t in range(0, 360, 30) for d in (1, -1) for r in (1, 2)))
+    (tmp_path / "s.csv").write_text("X,Y,Z\n65,0,0\n0,65,0\n-65,0,0\n0,-65,0\n")
+    paths = {"{csv}": str(tmp_path / "d.csv"), "{out}": str(tmp_path), "{stations}": str(tmp_path / "s.csv")}
+    args = []
+    for a in argv:
+        for key, value in paths.items():
+            a = a.replace(key, value)
+        args.append(a)
+    try:
+        code = main(args)
+    except SystemExit as exc:
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code in (0, 2) and "Traceback" not in err, (args, code, err)
+    assert code == 0 or err.strip(), args

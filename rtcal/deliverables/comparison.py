@@ -19,8 +19,9 @@ from rtcal.results.model import RunResults, TargetedEstimate
 def mean_curve(table: PositioningDeviations, results: RunResults | None, wrap: bool = True) -> dict[tuple[float, int], tuple[float, float]]:
     """(target, direction) → (mean deviation, its standard uncertainty). From a run, the recommended
     estimate's own cumulative deviation and u (its covariance knows what the runs share); from a
-    CSV, the mean over the runs with u = RMS(u)/√n (independent rows assumed). ``wrap``: targets
-    taken modulo 360° (to match two runs); the order is the measurement's."""
+    CSV, the mean over the runs with u = RMS(u)/√n (independent rows assumed; the RMS over the rows
+    that have a u). ``wrap``: targets taken modulo 360° (to match two runs; rows at 0° and 360° are
+    one target); from a CSV in ascending target order, ↑ before ↓."""
 
     def key(t: float) -> float:
         return round(float(t) % 360.0 if wrap else float(t), 6)
@@ -35,15 +36,22 @@ def mean_curve(table: PositioningDeviations, results: RunResults | None, wrap: b
         return {(key(t), int(d)): (float(x), float(u))
                 for t, d, x, u in zip(targets, dirs, e.cumulative_deviation_arcsec, e.cumulative_uncertainty_arcsec)
                 if x is not None and u is not None}
-    out = {}
-    for t in np.unique(np.round(table.target_deg, 6)):
-        for d in (1, -1):
-            sel = np.isclose(table.target_deg, t) & (table.direction == d) & np.isfinite(table.deviation_arcsec)
-            if sel.any():
-                u = table.uncertainty_arcsec[sel]
-                u_mean = float(np.sqrt(np.nanmean(u**2) / sel.sum())) if np.any(np.isfinite(u)) else float("nan")
-                out[(key(t), d)] = (float(table.deviation_arcsec[sel].mean()), u_mean)
-    return out
+    ok = np.isfinite(table.deviation_arcsec)
+    angles = np.round(np.asarray(table.target_deg, float)[ok], 6)
+    angles = np.round(np.mod(angles, 360.0), 6) if wrap else angles
+    direction = np.asarray(table.direction, int)[ok]
+    x, u = np.asarray(table.deviation_arcsec, float)[ok], np.asarray(table.uncertainty_arcsec, float)[ok]
+    # one sort groups the rows by (target, direction): n log n in rows, however many targets there are
+    groups, group = np.unique(np.column_stack([angles, -direction]), axis=0, return_inverse=True)
+    group = group.ravel()
+    n = np.bincount(group, minlength=len(groups))
+    mean = np.bincount(group, weights=x, minlength=len(groups)) / n
+    u_known = np.isfinite(u)
+    n_u = np.bincount(group, weights=u_known, minlength=len(groups))
+    with np.errstate(invalid="ignore", divide="ignore"):  # a group without any u: NaN
+        u2 = np.bincount(group, weights=np.where(u_known, u, 0.0) ** 2, minlength=len(groups)) / n_u
+        u_mean = np.where(n_u > 0, np.sqrt(u2 / n), np.nan)
+    return {(float(t), -int(d)): (float(m), float(v)) for (t, d), m, v in zip(groups, mean, u_mean)}
 
 
 def compare(a: tuple[PositioningDeviations, RunResults | None], b: tuple[PositioningDeviations, RunResults | None],
@@ -93,7 +101,7 @@ def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, RunR
             color = f"C{k}"
             if np.all(np.isfinite(u)):
                 ax.fill_between(x, y - 2 * u, y + 2 * u, color=color, alpha=0.25, lw=0)
-            ax.plot(x, y, style, marker="o", ms=4, color=color, label=f"{'A' if k == 0 else 'B'}: {name}, {'↑ positive' if d > 0 else '↓ negative'} approach")
+            ax.plot(x, y, style, marker="o" if len(x) <= 500 else None, ms=4, color=color, label=f"{'A' if k == 0 else 'B'}: {name}, {'↑ positive' if d > 0 else '↓ negative'} approach")
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("target (commanded angle) / °")
     ax.set_ylabel("mean positioning deviation (actual − commanded) / ″")

@@ -67,6 +67,8 @@ def table_from_deviations(table: PositioningDeviations, step_deg: float = 15.0, 
     """Trims on a regular grid from the measured deviations (mean over runs per target and direction)."""
     if not (0.0 < step_deg <= 90.0) or abs(360.0 / step_deg - round(360.0 / step_deg)) > 1e-9:
         raise CompensationError(f"--step-deg {step_deg:g}: the grid must divide one turn (e.g. 5, 10, 15, 30)")
+    if not 0.0 < max_gap_deg <= 360.0:  # also false for NaN, which would let every gap through
+        raise CompensationError(f"--max-gap-deg {max_gap_deg:g}: must lie in (0, 360]")
     grid = np.linspace(0.0, 360.0, int(round(360.0 / step_deg)) + 1)
     errors = {}
     for d in (1, -1):
@@ -74,8 +76,8 @@ def table_from_deviations(table: PositioningDeviations, step_deg: float = 15.0, 
         if not sel.any():
             continue
         angles = np.mod(np.round(table.target_deg[sel], 9), 360.0)
-        targets = np.unique(angles)
-        means = np.array([table.deviation_arcsec[sel][angles == t].mean() for t in targets])
+        targets, group = np.unique(angles, return_inverse=True)  # sorted once: n log n in rows
+        means = np.bincount(group, weights=table.deviation_arcsec[sel]) / np.bincount(group)
         gaps = np.diff(np.concatenate([targets, [targets[0] + 360.0]]))
         if len(targets) < 3 or gaps.max() > max_gap_deg + 1e-9:
             worst = int(np.argmax(gaps))
@@ -104,6 +106,8 @@ def write_linuxcnc(table: CompensationTable, range_deg: tuple[float, float] = (0
     ``range_deg``: the joint's travel to cover (default one turn); LinuxCNC does not wrap a table,
     so a joint that travels −145 … 155° needs lines there, repeated from the turn's grid."""
     lo, hi = (float(v) for v in range_deg)
+    if not (abs(lo) <= 36000.0 and abs(hi) <= 36000.0):  # also false for NaN
+        raise CompensationError(f"--range-deg {lo:g} {hi:g}: the travel must lie within ±36000° (100 turns)")
     n = round((hi - lo) / table.step_deg) if hi > lo else 0
     if n < 2 or abs(n * table.step_deg - (hi - lo)) > 1e-9:
         raise CompensationError(f"--range-deg {lo:g} {hi:g}: an ascending range of whole {table.step_deg:g}° steps")

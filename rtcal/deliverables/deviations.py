@@ -23,6 +23,9 @@ from rtcal.results.model import DeviationTable
 
 CSV_HEADER = ("target_deg", "direction", "run", "deviation_arcsec")
 CSV_OPTIONAL = ("uncertainty_arcsec",)
+MAX_CSV_BYTES = 200_000_000  # a million rows with room to spare; read whole, so bounded
+MAX_TARGET_DEG = 36_000.0  # a hundred turns either way: beyond it a target is a mistake, not a table
+MAX_DEVIATION_ARCSEC = 1_296_000.0  # one turn: no positioning deviation or uncertainty is larger
 
 
 class DeviationTableError(ValueError):
@@ -119,12 +122,20 @@ class PositioningDeviations:
 
     @classmethod
     def read_csv(cls, path: str | Path, max_rows: int = 1_000_000) -> "PositioningDeviations":
-        """Read a deviation CSV; every problem names the file and line."""
-        path = Path(path)
+        """Read a deviation CSV (UTF-8, with or without the byte-order mark a spreadsheet writes);
+        every problem names the file and line. Only a regular file of bounded size is read: a
+        device, a pipe or a directory is refused without reading it."""
+        from rtcal.procedure.yamlfile import FileProblems, read_bytes
+
         try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise DeviationTableError(f"{path}: cannot read: {exc}") from None
+            data = read_bytes(path, MAX_CSV_BYTES)
+        except FileProblems as exc:
+            raise DeviationTableError(f"{path}: {exc.problems[0].message}") from None
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line = data.count(b"\n", 0, exc.start) + 1
+            raise DeviationTableError(f"{path}:{line}: not UTF-8 text (a deviation CSV is UTF-8)") from None
         return cls.parse_csv(text, str(path), max_rows)
 
     @classmethod
@@ -177,7 +188,15 @@ class PositioningDeviations:
         return table
 
     def check(self, where: str) -> None:
-        """One row per (target, direction, run)."""
+        """Targets within ±100 turns, deviations and uncertainties within one turn (and so every sum
+        and square of them finite), one row per (target, direction, run)."""
+        for name, limit, unit in (("target_deg", MAX_TARGET_DEG, "°"), ("deviation_arcsec", MAX_DEVIATION_ARCSEC, "″"),
+                                  ("uncertainty_arcsec", MAX_DEVIATION_ARCSEC, "″")):
+            values = np.asarray(getattr(self, name), float)
+            beyond = np.nonzero(np.abs(values) > limit)[0]  # NaN (a missing value) is not beyond
+            if len(beyond):
+                raise DeviationTableError(f"{where}: row {int(beyond[0]) + 1}: {name} {values[beyond[0]]:.6g} lies beyond "
+                                          f"±{limit:,.0f}{unit}; not a positioning deviation table")
         keys = list(zip(np.round(self.target_deg, 9), self.direction, self.run))
         if len(set(keys)) != len(keys):
             seen: set = set()

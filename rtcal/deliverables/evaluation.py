@@ -60,31 +60,32 @@ class TargetStatistics:
         return (self.mean_up, self.s_up, self.n_up) if direction > 0 else (self.mean_down, self.s_down, self.n_down)
 
 
-def _stats(values: list[float]) -> tuple[float | None, float | None, int]:
-    n = len(values)
-    if n == 0:
-        return None, None, 0
-    mean = math.fsum(values) / n
-    s = math.sqrt(math.fsum((v - mean) ** 2 for v in values) / (n - 1)) if n > 1 else None
-    return mean, s, n
+def _side(group: np.ndarray, x: np.ndarray, targets: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per target: the number of approaches, their mean and s (NaN where undefined), two-pass."""
+    n = np.bincount(group, minlength=targets)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.bincount(group, weights=x, minlength=targets) / n
+        squares = np.bincount(group, weights=(x - mean[group]) ** 2, minlength=targets)
+        s = np.where(n > 1, np.sqrt(squares / (n - 1)), np.nan)
+    return n, mean, s
 
 
 def target_statistics(table: PositioningDeviations) -> list[TargetStatistics]:
     """Per target (ascending): number, mean and s of the approaches from each side; rows
-    without a deviation (missing readings) are left out."""
-    keys = np.round(np.asarray(table.target_deg, float), 9)
+    without a deviation (missing readings) are left out. One sort: n log n in rows."""
     x = np.asarray(table.deviation_arcsec, float)
-    groups: dict[float, tuple[list[float], list[float]]] = {}
-    for t, d, v in zip(keys, np.asarray(table.direction, int), x):
-        up, down = groups.setdefault(float(t), ([], []))
-        if np.isfinite(v):
-            (up if d > 0 else down).append(float(v))
-    out = []
-    for t, (up, down) in sorted(groups.items()):
-        if up or down:
-            (mu, su, nu), (md, sd, nd) = _stats(up), _stats(down)
-            out.append(TargetStatistics(t, mean_up=mu, mean_down=md, s_up=su, s_down=sd, n_up=nu, n_down=nd))
-    return out
+    ok = np.isfinite(x)
+    targets, group = np.unique(np.round(np.asarray(table.target_deg, float)[ok], 9), return_inverse=True)
+    up = np.asarray(table.direction, int)[ok] > 0
+    sides = [_side(group[sel], x[ok][sel], len(targets)) for sel in (up, ~up)]
+
+    def value(a: np.ndarray, k: int) -> float | None:
+        return float(a[k]) if np.isfinite(a[k]) else None
+
+    (n_up, mean_up, s_up), (n_down, mean_down, s_down) = sides
+    return [TargetStatistics(float(t), mean_up=value(mean_up, k), mean_down=value(mean_down, k), s_up=value(s_up, k),
+                             s_down=value(s_down, k), n_up=int(n_up[k]), n_down=int(n_down[k]))
+            for k, t in enumerate(targets)]
 
 
 def _span(values: list[float | None]) -> float | None:

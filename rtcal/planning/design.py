@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from rtcal.outputs import write_output
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.solvers.network import _Layout, _model, solve_network
 from rtcal.units import ARCSEC_PER_RAD
@@ -135,21 +136,22 @@ def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenari
     order = np.lexsort((new_points[:, 0], new_points[:, 1], new_points[:, 2]))  # layer by layer, row by row
     new_points = new_points[order]
     data_yaml, _ = load_yaml(read_text(procedure_path), str(procedure_path))
+    copy = None
     data_yaml["points"] = {"kind": "list", "points_mm": [[round(float(v), 3) for v in p] for p in new_points]}
     if data_yaml.get("bench"):  # the same bench, inside the new file's folder (a procedure reads no bench outside it)
         bench_file = (procedure_path.parent / data_yaml["bench"]).resolve()
         folder = out_path.resolve().parent
         if os.path.commonpath([folder, bench_file]) == str(folder):
             data_yaml["bench"] = os.path.relpath(bench_file, folder)
-        else:
-            copy = out_path.with_name(f"{out_path.stem}.bench.yaml")
-            copy.write_text(read_text(bench_file), encoding="utf-8")
+        else:  # the bench is copied beside the new file (and named on the console)
+            copy = write_output(out_path.with_name(f"{out_path.stem}.bench.yaml"), read_text(bench_file))
             data_yaml["bench"] = copy.name
     data_yaml["name"] = f"{data_yaml.get('name') or procedure_path.stem} — points optimised by rtcal plan"
-    out_path.write_text("# Written by `rtcal plan --optimize`: CMM points chosen to lower the network estimator's "
-                        "predicted 1σ.\n" + yaml.safe_dump(data_yaml, sort_keys=False, allow_unicode=True, default_flow_style=None), encoding="utf-8")
+    write_output(out_path, "# Written by `rtcal plan --optimize`: CMM points chosen to lower the network estimator's "
+                 "predicted 1σ.\n" + yaml.safe_dump(data_yaml, sort_keys=False, allow_unicode=True, default_flow_style=None))
     kept = int(np.sum(chosen < 0))
-    return (f"optimised plan written to {out_path}: {len(points) - kept} of {len(points)} points moved (candidates: "
+    written = f"{out_path} (its bench copied to {copy})" if copy is not None else str(out_path)
+    return (f"optimised plan written to {written}: {len(points) - kept} of {len(points)} points moved (candidates: "
             f"{len(cand)} on a {grid}³ grid in the CMM volume, at least {keep_out:.0f} mm from the axis); predicted RMS 1σ "
             f"from the tracer and CMM noise "
             f"of the network's cumulative deviation {np.sqrt(before):.3f}″ → {np.sqrt(after):.3f}″")

@@ -46,10 +46,11 @@ def read_results(run_dir: str | Path) -> RunResults:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO planted as results.json must not block
     except OSError as exc:
         raise ResultsError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):  # a folder opens too, and fdopen would refuse it with the fd's number
+        os.close(fd)
+        raise ResultsError(f"{path}: not a regular file")
     with os.fdopen(fd, "rb") as fh:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise ResultsError(f"{path}: not a regular file")
         if st.st_size > MAX_RESULTS_BYTES:
             raise ResultsError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a results file rtcal wrote")
         try:

@@ -4,9 +4,10 @@ written without following links planted in it.
 - :class:`RunLock` is an OS file lock (``flock``) on ``RUN_DIR/.rtcal.lock`` held for the whole
   run or resume; the file names its holder, so a second process can say who has the run.
 - :func:`claim_new_run_dir` accepts a ``--out`` that is new, empty, or holds only what a run
-  killed before its store existed left behind; anything else is refused.
-- :func:`staged_outputs` writes a run's output files into a fresh private folder and renames
-  them into place: a rename replaces a planted symbolic link itself, never its target.
+  killed before its store existed left behind; anything else is refused. A store is never
+  deleted unless SQLite reads it whole and it holds no procedure, no reading and no event.
+- :func:`staged_outputs` (rtcal.outputs) writes a run's output files into a fresh private folder
+  and renames them into place: a rename replaces a planted symbolic link itself, never its target.
 """
 
 from __future__ import annotations
@@ -14,17 +15,14 @@ from __future__ import annotations
 import datetime as _dt
 import fcntl
 import os
-import shutil
 import socket
 import sys
 import time
-import tempfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
+from rtcal.outputs import STAGING_PREFIX, remove_stale_staging, staged_outputs  # noqa: F401 — staged_outputs: the runner's
 from rtcal.results import RunResults, read_results
-from rtcal.run.store import RunStore, StoreUnusable
+from rtcal.run.store import RunStore, check_store
 
 LOCK_NAME = ".rtcal.lock"
 
@@ -99,14 +97,15 @@ class RunLock:
 
 def _leftover(name: str) -> bool:
     """Files a run killed before its store existed leaves behind (ours, safe to replace)."""
-    return name == LOCK_NAME or name.startswith(RunStore.PARTIAL_PREFIX)
+    return name in (LOCK_NAME, RunStore.RESERVE_NAME) or name.startswith((RunStore.PARTIAL_PREFIX, STAGING_PREFIX))
 
 
 def claim_new_run_dir(run_dir: Path) -> RunLock:
     """Create (or take over an empty) ``--out`` directory and lock it for a new run.
 
     Refused: a path under a file, a name the file system cannot hold, a directory that already
-    holds a run (resume it instead) or other files (they would mix with the results).
+    holds a run (resume it instead), a store that SQLite cannot read whole (it may hold
+    readings: it is left as it is) or other files (they would mix with the results).
     """
     run_dir = Path(run_dir)
     if os.path.lexists(run_dir) and not run_dir.is_dir():
@@ -119,17 +118,15 @@ def claim_new_run_dir(run_dir: Path) -> RunLock:
     try:
         store = run_dir / RunStore.FILENAME
         if os.path.lexists(store):
-            try:
-                RunStore.open(run_dir).close()
-            except StoreUnusable:
-                if _has_readings(store):
-                    raise RunDirError(f"--out {run_dir}: its {RunStore.FILENAME} holds readings but no procedure; "
-                                      "move it away or choose another --out") from None
-                for suffix in ("", "-wal", "-shm", "-journal"):  # a store killed while being created: no reading in it
-                    _unlink(Path(f"{store}{suffix}"))
-            else:
+            found = check_store(store)
+            if found.kind == "run":
                 raise RunDirError(f"--out {run_dir}: already holds a run; `rtcal resume {run_dir}` goes on, "
                                   "or choose another --out")
+            if found.kind != "empty":
+                raise RunDirError(f"--out {run_dir}: its {RunStore.FILENAME} {found.detail}; rtcal does not replace "
+                                  f"it — {found.advice(run_dir)}; choose another --out")
+            for suffix in ("", "-wal", "-shm", "-journal"):  # proven empty: SQLite read it whole, nothing in it
+                _unlink(Path(f"{store}{suffix}"))
         others = sorted(n for n in os.listdir(run_dir) if not _leftover(n))
         if others:
             shown = ", ".join(others[:5]) + (", …" if len(others) > 5 else "")
@@ -137,6 +134,7 @@ def claim_new_run_dir(run_dir: Path) -> RunLock:
         for name in os.listdir(run_dir):
             if name.startswith(RunStore.PARTIAL_PREFIX):
                 _unlink(run_dir / name)
+        remove_stale_staging(run_dir)
     except BaseException:
         lock.release()
         raise
@@ -144,18 +142,21 @@ def claim_new_run_dir(run_dir: Path) -> RunLock:
 
 
 def claim_run_dir(run_dir: Path) -> RunLock:
-    """Lock an existing run directory for a resume."""
-    return RunLock(Path(run_dir)).acquire()
-
-
-def _has_readings(store: Path) -> bool:
-    import sqlite3
-
+    """Lock an existing run directory for a resume, and clear what killed writers left in it
+    (staging folders of outputs never renamed into place)."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        what = "no such directory" if not os.path.lexists(run_dir) else "not a directory"
+        raise RunDirError(f"{run_dir}: {what}; nothing to resume (`rtcal run … --out {run_dir}` starts a run there)")
+    if not os.path.lexists(run_dir / RunStore.FILENAME):
+        raise RunDirError(f"{run_dir}: not a run directory (no {RunStore.FILENAME}); nothing to resume")
+    lock = RunLock(run_dir).acquire()
     try:
-        with sqlite3.connect(f"file:{store}?mode=ro", uri=True, timeout=1.0) as db:
-            return bool(db.execute("SELECT COUNT(*) FROM readings").fetchone()[0])
-    except sqlite3.DatabaseError:
-        return False
+        remove_stale_staging(run_dir)
+    except BaseException:
+        lock.release()
+        raise
+    return lock
 
 
 def _unlink(path: Path) -> None:
@@ -163,25 +164,6 @@ def _unlink(path: Path) -> None:
         os.unlink(path)
     except FileNotFoundError:
         pass
-
-
-@contextmanager
-def staged_outputs(run_dir: Path) -> Iterator[Path]:
-    """A private folder to write the outputs into; on success each file is renamed into ``run_dir``.
-
-    ``mkdtemp`` creates a new folder (mode 700) that nobody can have planted links in; a
-    rename replaces whatever entry has the name — a planted link included — without following it.
-    """
-    staging = Path(tempfile.mkdtemp(prefix=".outputs-", dir=run_dir))
-    try:
-        yield staging
-        for entry in sorted(staging.iterdir()):
-            target = run_dir / entry.name
-            if target.is_dir() and not target.is_symlink():
-                raise RunDirError(f"{target} is a directory; move it away and `rtcal resume {run_dir}` writes the results")
-            os.replace(entry, target)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
 
 
 def stored_results(run_dir: Path) -> RunResults | None:

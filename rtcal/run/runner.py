@@ -31,7 +31,7 @@ from rtcal.deliverables.report import write_report
 from rtcal.results import RunResults, write_results
 from rtcal.results.model import (Analysis, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog, RunMetadata,
                                  VdiEvaluation, assemble)
-from rtcal.run.rundir import claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
+from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.run.store import RunStore, StoreUnusable
@@ -50,6 +50,7 @@ class AnalysisFailed(Exception):
 class RunOutcome:
     run_dir: Path
     results: RunResults
+    instrument_readings: int | None = None  # raw values stored (results' raw_readings counts planned readings)
 
 
 def default_run_dir(method: str) -> Path:
@@ -86,8 +87,33 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat()
 
 
+NON_INSTRUMENT_ADDRESSES = ("operator",)  # what `rtcal sim serve` prints besides the instruments
+
+
+def known_address_names() -> list[str]:
+    """Every name an ``--instruments`` object may hold: any method's instruments (`rtcal sim serve`
+    serves them all, a procedure uses some) and the simulated operator."""
+    names = {f for model in PROCEDURE_MODELS.values() for f in model.model_fields["instruments"].annotation.model_fields}
+    return sorted(names) + list(NON_INSTRUMENT_ADDRESSES)
+
+
+def check_address_names(addresses: dict[str, str]) -> None:
+    """A name that is no instrument (a misspelling) is refused: ignored, it would leave that
+    instrument where the procedure put it — on the in-process bench, for a simulated one."""
+    known = known_address_names()
+    unknown = [name for name in addresses if name not in known]
+    if unknown:
+        from difflib import get_close_matches
+
+        hints = {n: get_close_matches(n, known, 1) for n in unknown}
+        raise FileProblems([Problem("--instruments", 1, 1, n[:60], "not an instrument rtcal knows"
+                                    + (f"; did you mean `{hints[n][0]}`?" if hints[n] else f" ({', '.join(known)})"))
+                            for n in unknown])
+
+
 def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
     """The procedure with its instruments moved to the given addresses, validated again."""
+    check_address_names(addresses)
     section = proc.instruments.model_dump()
     for name in section:
         if name in addresses and section[name] is not None:  # an instrument the procedure does not use stays out
@@ -172,7 +198,7 @@ def run_procedure(
             "instruments": proc.instruments.model_dump_json(), "scenario_yaml": scenario_text,
             "scenario_path": scenario_label(procedure_path, proc, scenario_path) if simulated else "",
             "seed": str(seed) if simulated else "", "software_version": __version__,
-            "started_utc": _now(), "status": "running", "generation": "0", "large": "1" if large else "",
+            "started_utc": _now(), "status": "not started", "generation": "0", "large": "1" if large else "",
             "operator_address": (addresses or {}).get("operator", ""),
         })
         _keep_fault_counters(store, bench)
@@ -198,26 +224,37 @@ def resume_run(
     those of a run that was solved without them. A complete run is left as it is. The run directory is locked (RunBusy) until the resume ends.
     """
     run_dir = Path(run_dir)
-    if not (run_dir / RunStore.FILENAME).exists():
-        raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: no run store at {run_dir / RunStore.FILENAME}")])
-    lock = claim_run_dir(run_dir)
+    if addresses:
+        check_address_names(addresses)
+    lock = claim_run_dir(run_dir)  # RunDirError: no such directory, no store in it
     try:
         try:
             store = RunStore.open(run_dir)
         except FileNotFoundError as exc:
-            raise FileProblems([Problem(str(run_dir), 1, 1, "(run)", f"nothing to resume: {exc}")]) from None
+            raise RunDirError(f"{run_dir}: nothing to resume: {exc}") from None
         except StoreUnusable as exc:
-            raise FileProblems([Problem(str(run_dir / RunStore.FILENAME), 1, 1, "(run)", f"cannot resume: {exc}")]) from None
+            raise RunDirError(f"cannot resume: {exc}") from None
         meta = store.meta()
         where = f"{run_dir / RunStore.FILENAME}"
-        model = PROCEDURE_MODELS[meta["method"]]
-        proc = validate_text(meta["procedure_yaml"], model, f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
-        proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta["instruments"])})
+        model = PROCEDURE_MODELS[_stored(meta, "method", lambda v: v if v in PROCEDURE_MODELS else None, run_dir,
+                                         f"one of {', '.join(PROCEDURE_MODELS)}")]
+        proc = validate_text(_stored(meta, "procedure_yaml", str, run_dir, "the procedure's text"), model,
+                             f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
+        instruments = _stored(meta, "instruments", type(proc.instruments).model_validate_json, run_dir,
+                              "the procedure's instrument section as JSON")
+        proc = proc.model_copy(update={"instruments": instruments})
+        previous_generation = _stored(meta, "generation", _count, run_dir, "a whole number ≥ 0")
+        twice = store.readings_stored_twice()
+        if twice:
+            raise RunDirError(f"cannot resume: {where} holds {twice} readings more than once (the same instrument, "
+                              "quantity and sample of one attempt at a planned reading): the store was edited or "
+                              f"merged, and its results would count them twice; `rtcal export {run_dir}` writes them all")
         complete = len(store.done_plan_indices()) >= METHODS[proc.method].plan_length(proc)
         finished = stored_results(run_dir) if meta.get("status") == "solved" and complete else None
         if finished is not None:  # nothing to take, nothing to count: the run stays as it is
+            counted = store.instrument_readings()
             store.close()
-            return RunOutcome(run_dir, finished)
+            return RunOutcome(run_dir, finished, counted)
         # a run solved with readings its skip policy left out goes on too: it retakes them and solves again
         if addresses:
             proc = with_addresses(proc, addresses)
@@ -228,11 +265,15 @@ def resume_run(
         simulated = proc.instruments.all_sim()
         done = len(store.done_plan_indices())
         planned = METHODS[proc.method].plan_length(proc)
-        generation = int(meta.get("generation", "0")) + (1 if done < planned else 0)
+        generation = previous_generation + (1 if done < planned else 0)
         bench = None
         if simulated:
-            scenario = validate_text(meta["scenario_yaml"], Scenario, f"{where} (stored scenario)") if meta["scenario_yaml"] else Scenario()
-            bench = Bench(scenario, VirtualClock(store.last_time_s()), int(meta["seed"]), generation)
+            scenario_yaml = _stored(meta, "scenario_yaml", str, run_dir, "a bench scenario's text")
+            scenario = validate_text(scenario_yaml, Scenario, f"{where} (stored scenario)") if scenario_yaml else Scenario()
+            seed = _stored(meta, "seed", lambda v: _count(v) if _count(v) <= 2**63 - 1 else None, run_dir,
+                           "a whole number 0 … 2⁶³ − 1")
+            _stored(meta, "fault_requests", _counters, run_dir, "a JSON object of request counts", "{}")
+            bench = Bench(scenario, VirtualClock(store.last_time_s()), seed, generation)
             _keep_fault_counters(store, bench)
         if done < planned:
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
@@ -241,6 +282,36 @@ def resume_run(
         return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation)
     finally:
         lock.release()
+
+
+def _stored(meta: dict[str, str], key: str, parse, run_dir: Path, expected: str, default: str | None = None) -> Any:
+    """``meta[key]`` parsed, or a RunDirError naming the key, what it holds and what it should: a
+    store edited by hand is refused with one line, not a traceback. ``parse`` returns None or
+    raises ValueError for a value it refuses (a pydantic ValidationError is one)."""
+    value = meta.get(key, default)
+    try:
+        parsed = parse(value) if value is not None else None
+    except (ValueError, TypeError, RecursionError):
+        parsed = None
+    if parsed is None:
+        shown = "missing" if value is None else repr(value if len(value) <= 60 else value[:60] + "…")
+        raise RunDirError(f"cannot resume: {run_dir / RunStore.FILENAME}: its `{key}` is {shown}, not {expected}: the "
+                          f"store was edited; `rtcal export {run_dir}` writes its readings")
+    return parsed
+
+
+def _count(text: str) -> int:
+    """A whole number ≥ 0 written in decimal digits (no sign, no spaces)."""
+    if not (text.isascii() and text.isdigit()) or len(text) > 30:
+        raise ValueError(text)
+    return int(text)
+
+
+def _counters(text: str) -> dict[str, int]:
+    data = json.loads(text)
+    if not isinstance(data, dict) or not all(isinstance(k, str) and type(v) is int and v >= 0 for k, v in data.items()):
+        raise ValueError(text)
+    return data
 
 
 def evaluation_of(analysis: Analysis) -> Evaluation | None:
@@ -260,10 +331,10 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     simulated = bench is not None
     clock = bench.clock if bench else (VirtualClock(store.last_time_s()) if virtual_clock else RealClock())
     try:
+        store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
-        store.set_meta({"status": "not started", "error": repr(exc)})
-        store.close()
+        _stop(store, "not started", exc)
         raise
     disable = (not sys.stderr.isatty()) if show_progress is None else not show_progress
     already = len(store.done_plan_indices())  # the sequencers pass only pending readings through progress()
@@ -273,10 +344,10 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
                     file=sys.stderr)
 
     try:
+        store.set_meta({"status": "running"})
         method.measure(proc, inst, store, clock, operator, progress, generation)
     except BaseException as exc:
-        store.set_meta({"status": "aborted" if isinstance(exc, RunAborted) else "interrupted", "error": repr(exc)})
-        store.close()
+        _stop(store, "aborted" if isinstance(exc, RunAborted) else "interrupted", exc)
         raise
     finally:
         inst.close()
@@ -319,18 +390,34 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         first = exc.errors()[0]
         raise AnalysisFailed(f"the results cannot be written: {'.'.join(map(str, first['loc']))}: {first['msg']}; "
                              f"every reading is in {run_dir / RunStore.FILENAME}") from exc
-    store.set_meta({"status": "solved"})
-    store.close()
+    counted = store.instrument_readings()
     if not outputs:
-        return RunOutcome(run_dir, results)
+        store.set_meta({"status": "solved"})
+        store.close()
+        return RunOutcome(run_dir, results, counted)
     method_outputs = outputs_for(results)
-    with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
-        write_results(out, results)
-        if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
-            PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
-        method_outputs.write_files(out)
-        write_report(out, results, method_outputs.report_body())
-        model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text())
-        write_html(model, out / "report.html")
-        write_pdf(model, out / "report.pdf")
-    return RunOutcome(run_dir, results)
+    try:
+        with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
+            write_results(out, results)
+            if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
+                PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
+            method_outputs.write_files(out)
+            write_report(out, results, method_outputs.report_body())
+            model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text())
+            write_html(model, out / "report.html")
+            write_pdf(model, out / "report.pdf")
+    except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
+        _stop(store, "measured", exc)
+        raise
+    store.set_meta({"status": "solved"})  # only now: `resume` of a solved run changes nothing
+    store.close()
+    return RunOutcome(run_dir, results, counted)
+
+
+def _stop(store: RunStore, status: str, exc: BaseException) -> None:
+    """Record why the run stopped and close the store. On a full disk the status goes into the
+    space the store reserved; if even that is refused the stored status stays as it was (a
+    resume treats every run that is not solved alike) and the error says so."""
+    if not store.set_final_meta({"status": status, "error": repr(exc)}):
+        exc.add_note(f"(the status `{status}` could not be recorded in {store.path}: the disk refused it)")
+    store.close()

@@ -10,15 +10,25 @@ and links it into place, so a run killed in its first milliseconds leaves no sto
 procedure. A planned reading may take several attempts (a skipped reading is retaken on resume);
 each attempt's readings share an ``attempt`` number, and a planned reading is done once one
 attempt stored it without a skip.
+
+A store is never deleted or overwritten unless it is proven empty (:func:`check_store`): one
+that SQLite cannot read whole is damaged, left as it is, and its readings are salvaged page by
+page (rtcal.run.salvage, `rtcal export`). A write the disk refuses (full, I/O error) is a
+:class:`StoreWriteError` — an OSError, so the command exits 1 with the resume hint — and the
+run's last status is written into space reserved for it when the run started.
 """
 
 from __future__ import annotations
 
+import csv
+import errno
 import os
 import sqlite3
+from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
+from urllib.parse import quote
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -61,10 +71,80 @@ READING_COLUMNS = (
 SKIPPED = "skipped"  # the quantity of a marker row: this attempt skipped the instrument's reading
 REJECTED = "rejected"  # the quantity of a marker row: this attempt's readings contradict the commands; none is used
 MARKERS = (SKIPPED, REJECTED)
+LAST_READING_ID = "last_reading_id"  # meta key: the id of the last reading stored
+EVENT_COLUMNS = ("t_s", "kind", "instrument", "message")
 
 
 class StoreUnusable(Exception):
-    """A run directory's store that cannot be resumed (unfinished at creation, not a store)."""
+    """A run directory's store that cannot be resumed (a link, a directory, no procedure in it)."""
+
+
+class StoreDamaged(StoreUnusable):
+    """A store SQLite cannot read whole: left as it is; `rtcal export` salvages its readings."""
+
+
+class StoreWriteError(OSError):
+    """The disk refused a write to the store (full, quota, I/O error): a failure, not bad input."""
+
+
+# SQLite's primary result codes for a file that the disk, not the program, let down
+_DISK_CODES = {8: errno.EROFS, 10: errno.EIO, 11: errno.EIO, 13: errno.ENOSPC, 14: errno.EIO, 26: errno.EIO}
+
+
+def _as_disk_failure(exc: sqlite3.Error, path: Path) -> StoreWriteError | None:
+    """A StoreWriteError for SQLITE_FULL, IOERR, CORRUPT, READONLY, CANTOPEN, NOTADB; None otherwise."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    if code is None or (code & 0xFF) not in _DISK_CODES:
+        return None
+    return StoreWriteError(_DISK_CODES[code & 0xFF], f"cannot write the run store: {exc}", str(path))
+
+
+@dataclass(frozen=True)
+class StoreCheck:
+    """What a run.sqlite holds, found without changing a byte of it.
+
+    ``kind``: "run" (whole, with its procedure), "empty" (whole, and no procedure, reading or
+    event in it: safe to replace), "orphan" (whole, readings or events but no procedure),
+    "damaged" (SQLite cannot read it whole, or not at all) or "foreign" (a link, a directory, a
+    device: not opened). ``detail`` says what was found.
+    """
+
+    kind: str
+    detail: str = ""
+
+    def advice(self, run_dir: Path) -> str:
+        """What the user can do about a store that is neither a run nor empty."""
+        if self.kind == "damaged":
+            return (f"`rtcal export {run_dir}` salvages every reading that can still be read (and counts those that "
+                    "cannot)")
+        if self.kind == "orphan":
+            return f"`rtcal export {run_dir}` writes its readings and events as CSV"
+        return "move it away"
+
+
+def check_store(path: Path) -> StoreCheck:
+    """Read ``path`` with SQLite, read-only, to the last page (``PRAGMA quick_check``)."""
+    path = Path(path)
+    if os.path.islink(path) or not path.is_file():
+        return StoreCheck("foreign", "is not a regular file (a link, a directory or a device); rtcal does not follow it")
+    # without a write-ahead log there is no writer and nothing uncommitted: read the file as it is
+    # (`immutable`: SQLite creates no -wal or -shm beside it); with one, read-only through the log
+    mode = "mode=ro" if os.path.lexists(f"{path}-wal") else "immutable=1"
+    try:
+        with closing(sqlite3.connect(f"file:{quote(str(path.absolute()))}?{mode}", uri=True, timeout=10.0)) as db:
+            verdict = db.execute("PRAGMA quick_check(1)").fetchone()[0]
+            if verdict != "ok":
+                return StoreCheck("damaged", f"is damaged ({verdict})")
+            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            rows = sum(db.execute(f"SELECT COUNT(*) FROM {t}").fetchone()[0] for t in ("readings", "events") if t in tables)
+            method = db.execute("SELECT value FROM meta WHERE key = 'method'").fetchone() if "meta" in tables else None
+    except sqlite3.DatabaseError as exc:  # not a database, malformed, cut short, unreadable
+        return StoreCheck("damaged", f"is damaged: SQLite cannot read it whole ({exc})")
+    if method is not None:
+        return StoreCheck("run", f"holds a run ({method[0]})")
+    if rows:
+        return StoreCheck("orphan", f"holds readings or events ({rows} rows) but no procedure")
+    return StoreCheck("empty", "holds no procedure, no reading and no event")
 
 
 @dataclass(frozen=True)
@@ -97,11 +177,14 @@ class RunStore:
     FILENAME = "run.sqlite"
 
     PARTIAL_PREFIX = ".run.sqlite.partial-"  # a store being created; never resumed, removed by the next `run --out`
+    RESERVE_NAME = ".run.sqlite.reserve"  # disk space held back for the run's last status (see reserve_space)
+    RESERVE_BYTES = 256 * 1024  # the status transaction needs a few pages of the write-ahead log
 
     def __init__(self, connection: sqlite3.Connection, path: Path):
         self._db = connection
         self.path = path
         self._extra_meta: Callable[[], dict[str, str]] | None = None
+        self._reserve: Path | None = None
         row = self._db.execute("SELECT MAX(attempt) FROM readings").fetchone()
         self._next_attempt = 0 if row[0] is None else int(row[0]) + 1
 
@@ -116,16 +199,17 @@ class RunStore:
             os.unlink(partial)
         except FileNotFoundError:
             pass
-        db = sqlite3.connect(partial, isolation_level=None)
         try:
-            db.execute("BEGIN IMMEDIATE")
-            for statement in SCHEMA.split(";"):
-                if statement.strip():
-                    db.execute(statement)
-            db.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", [(k, str(v)) for k, v in meta.items()])
-            db.execute("COMMIT")
-        finally:
-            db.close()
+            with closing(sqlite3.connect(partial, isolation_level=None)) as db:
+                db.execute("BEGIN IMMEDIATE")
+                for statement in SCHEMA.split(";"):
+                    if statement.strip():
+                        db.execute(statement)
+                db.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", [(k, str(v)) for k, v in meta.items()])
+                db.execute("COMMIT")
+        except sqlite3.Error as exc:
+            os.unlink(partial)
+            raise _as_disk_failure(exc, path) or exc from None
         try:
             os.link(partial, path)  # unlike rename, never replaces an existing store
         except FileExistsError:
@@ -137,34 +221,76 @@ class RunStore:
 
     @classmethod
     def open(cls, run_dir: Path) -> "RunStore":
-        """An existing run's store; FileNotFoundError if there is none, StoreUnusable if it cannot be resumed."""
+        """An existing run's store; FileNotFoundError if there is none, StoreDamaged if SQLite cannot
+        read it whole, StoreUnusable if it holds no procedure. The file is checked read-only first."""
         path = run_dir / cls.FILENAME
         if not os.path.lexists(path):
             raise FileNotFoundError(f"no run store at {path}")
-        if os.path.islink(path) or not path.is_file():
-            raise StoreUnusable(f"{path} is not a regular file (a link or a directory); rtcal does not follow it")
+        found = check_store(path)
+        if found.kind == "damaged":
+            raise StoreDamaged(f"{path} {found.detail}; it is left as it is: {found.advice(run_dir)}")
+        if found.kind == "empty":
+            raise StoreUnusable(f"{path} {found.detail}: start the run again with `rtcal run … --out {run_dir}` "
+                                "(which replaces it)")
+        if found.kind != "run":
+            raise StoreUnusable(f"{path} {found.detail}: not a run to go on with; {found.advice(run_dir)}")
+        db = cls._connect(path)
         try:
-            db = cls._connect(path)
-            method = db.execute("SELECT value FROM meta WHERE key = 'method'").fetchone()
-        except sqlite3.DatabaseError as exc:
-            raise StoreUnusable(f"{path} is not a usable run store ({exc}); the run may have been killed while it "
-                                "was being created, before any reading: start it again with `rtcal run … --out`") from None
-        if method is None:
+            columns = {row[1] for row in db.execute("PRAGMA table_info(readings)")}
+            if "attempt" not in columns:  # a store from before attempts: each planned reading was attempted once
+                db.execute("ALTER TABLE readings ADD COLUMN attempt INTEGER")
+                db.execute("CREATE INDEX IF NOT EXISTS readings_by_plan ON readings(plan_index, attempt)")
+        except sqlite3.Error as exc:
             db.close()
-            raise StoreUnusable(f"{path} holds no procedure (killed while it was being created, before any reading): "
-                                "start the run again with `rtcal run … --out`")
-        columns = {row[1] for row in db.execute("PRAGMA table_info(readings)")}
-        if "attempt" not in columns:  # a store from before attempts: each planned reading was attempted once
-            db.execute("ALTER TABLE readings ADD COLUMN attempt INTEGER")
-            db.execute("CREATE INDEX IF NOT EXISTS readings_by_plan ON readings(plan_index, attempt)")
+            raise _as_disk_failure(exc, path) or StoreDamaged(f"{path}: {exc}") from None
         return cls(db, path)
 
     @staticmethod
     def _connect(path: Path) -> sqlite3.Connection:
         db = sqlite3.connect(path, isolation_level=None, timeout=10.0)
-        db.execute("PRAGMA journal_mode=WAL")
-        db.execute("PRAGMA synchronous=FULL")
+        try:
+            db.execute("PRAGMA journal_mode=WAL")  # writes the file's header: a full disk can refuse it
+            db.execute("PRAGMA synchronous=FULL")
+        except sqlite3.Error as exc:
+            db.close()
+            raise _as_disk_failure(exc, path) or StoreDamaged(f"{path}: {exc}") from None
         return db
+
+    def reserve_space(self) -> None:
+        """Hold back disk space beside the store (a run or resume calls this before measuring), so
+        that a disk that fills up mid-run still takes the run's last status (:meth:`set_final_meta`)."""
+        reserve = self.path.parent / self.RESERVE_NAME
+        fd = os.open(reserve, os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0), 0o600)
+        try:
+            os.posix_fallocate(fd, 0, self.RESERVE_BYTES)
+        except OSError as exc:
+            os.unlink(reserve)
+            raise OSError(exc.errno, f"cannot set {self.RESERVE_BYTES // 1024} KiB aside for the run's status: "
+                                     f"{exc.strerror}", str(reserve)) from None
+        finally:
+            os.close(fd)
+        self._reserve = reserve
+
+    def _give_up_reserve(self) -> None:
+        if self._reserve is not None:
+            try:
+                os.unlink(self._reserve)
+            except FileNotFoundError:
+                pass
+            self._reserve = None
+
+    def set_final_meta(self, meta: dict[str, str]) -> bool:
+        """The run's last status (stopped, failed): on a full disk the reserve is given up for it.
+        False if even then the disk refused it (the caller says so; the readings are unaffected)."""
+        for _ in range(2):
+            try:
+                self.set_meta(meta)
+                return True
+            except StoreWriteError:
+                if self._reserve is None:
+                    return False
+                self._give_up_reserve()
+        return False
 
     def keep_meta(self, provider: Callable[[], dict[str, str]] | None) -> None:
         """Write ``provider()``'s metadata in every later transaction, so that state outside the
@@ -192,6 +318,9 @@ class RunStore:
         placeholders = ", ".join("?" for _ in READING_COLUMNS)
         with self._transaction():
             self._db.executemany(f"INSERT INTO readings({', '.join(READING_COLUMNS)}) VALUES ({placeholders})", rows)
+            # how many readings there are, where a damaged store's salvage can still find it (ids run 1, 2, …)
+            self._db.execute(f"INSERT OR REPLACE INTO meta(key, value) VALUES ('{LAST_READING_ID}', "
+                             "(SELECT MAX(id) FROM readings))")
             self._keep()
 
     def add_event(self, t_s: float, kind: str, message: str, instrument: str | None = None) -> None:
@@ -225,6 +354,13 @@ class RunStore:
             "(SELECT 1 FROM readings s WHERE s.plan_index = r.plan_index AND s.attempt IS r.attempt AND s.quantity IN (?, ?))",
             MARKERS + MARKERS)}
 
+    def readings_stored_twice(self) -> int:
+        """Readings beyond the first with the same planned reading, attempt, instrument, quantity and
+        sample: none in a store rtcal wrote (an attempt is stored whole, once), so a sign of editing."""
+        return int(self._db.execute(
+            "SELECT COALESCE(SUM(n - 1), 0) FROM (SELECT COUNT(*) AS n FROM readings WHERE plan_index IS NOT NULL "
+            "GROUP BY plan_index, attempt, instrument, quantity, sample HAVING n > 1)").fetchone()[0])
+
     def skipped_plan_indices(self) -> set[int]:
         """Planned readings whose every attempt so far skipped something or was rejected (resume retakes them)."""
         skipped = {row[0] for row in self._db.execute("SELECT DISTINCT plan_index FROM readings WHERE quantity IN (?, ?)", MARKERS)}
@@ -249,38 +385,52 @@ class RunStore:
         cur = self._db.execute("SELECT t_s, kind, instrument, message FROM events ORDER BY id")
         return [dict(zip(("t_s", "kind", "instrument", "message"), row)) for row in cur]
 
+    def instrument_readings(self) -> int:
+        """Raw instrument values stored (what `rtcal export` writes, skip markers apart)."""
+        return int(self._db.execute("SELECT COUNT(*) FROM readings WHERE quantity <> ?", (SKIPPED,)).fetchone()[0])
+
     def export_csv(self, directory: Path) -> tuple[int, int]:
         """readings.csv (every column) and events.csv, streamed row by row; returns the row counts."""
-        import csv
-
-        counts = []
-        for name, columns, table in (("readings.csv", ("id",) + READING_COLUMNS, "readings"),
-                                     ("events.csv", ("id", "t_s", "kind", "instrument", "message"), "events")):
-            n = 0
-            with (directory / name).open("w", newline="", encoding="utf-8") as fh:
-                w = csv.writer(fh)
-                w.writerow(columns)
-                for row in self._db.execute(f"SELECT {', '.join(columns)} FROM {table} ORDER BY id"):
-                    w.writerow("" if v is None else v for v in row)
-                    n += 1
-            counts.append(n)
-        return counts[0], counts[1]
+        readings = self._db.execute(f"SELECT id, {', '.join(READING_COLUMNS)} FROM readings ORDER BY id")
+        events = self._db.execute(f"SELECT id, {', '.join(EVENT_COLUMNS)} FROM events ORDER BY id")
+        return write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS, readings), \
+            write_csv(directory / "events.csv", ("id",) + EVENT_COLUMNS, events)
 
     def close(self) -> None:
         self._db.close()
+        self._give_up_reserve()
 
-    class _Tx:
-        def __init__(self, db: sqlite3.Connection):
-            self.db = db
+    @contextmanager
+    def _transaction(self) -> Iterator[None]:
+        """One durable transaction; rolled back on any failure, a disk's refusal raised as StoreWriteError."""
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+            yield
+            self._db.execute("COMMIT")
+        except BaseException as exc:
+            if self._db.in_transaction:  # SQLite may have rolled back itself (SQLITE_FULL, IOERR)
+                try:
+                    self._db.execute("ROLLBACK")
+                except sqlite3.Error:
+                    pass
+            failure = _as_disk_failure(exc, self.path) if isinstance(exc, sqlite3.Error) else None
+            if failure is not None:
+                raise failure from None
+            raise
 
-        def __enter__(self) -> None:
-            self.db.execute("BEGIN IMMEDIATE")
 
-        def __exit__(self, exc_type, exc, tb) -> None:
-            self.db.execute("COMMIT" if exc_type is None else "ROLLBACK")
+def write_csv(path: Path, columns: tuple[str, ...], rows: Iterable[tuple]) -> int:
+    """``rows`` (None as an empty cell) under a header, through rtcal.outputs; returns the row count."""
+    from rtcal.outputs import output_file
 
-    def _transaction(self) -> "_Tx":
-        return RunStore._Tx(self._db)
+    n = 0
+    with output_file(path) as tmp, tmp.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(columns)
+        for row in rows:
+            w.writerow("" if v is None else v for v in row)
+            n += 1
+    return n
 
 
 def _fsync_dir(directory: Path) -> None:
@@ -292,4 +442,3 @@ def _fsync_dir(directory: Path) -> None:
         pass
     finally:
         os.close(fd)
-

@@ -142,7 +142,7 @@ def run_abbe(
         if after is SKIPPED:
             readings.append(Reading(clock.now_s(), "stage", SKIPPED_QUANTITY, 0.0, "", **state))
             return
-        readings.append(Reading(clock.now_s(), "stage", "feedback_deg", float(after), "deg", **state))
+        readings.append(Reading(clock.now_s(), "stage", "feedback_after_deg", float(after), "deg", **state))
 
     for k, v in progress(iter([(k, v) for k, v in enumerate(plan) if k not in done])):
         if v.seating != seating:

@@ -229,14 +229,14 @@ def run_multistation(
         if after is SKIPPED:
             at_station = None
             return skip("stage")
-        readings.append(Reading(clock.now_s(), "stage", "feedback_deg", float(after), "deg", **state))
+        readings.append(Reading(clock.now_s(), "stage", "feedback_after_deg", float(after), "deg", **state))
         xyz_after = faults.call("cmm", lambda: checks.cmm_still(inst.cmm, xyz), recover=inst.cmm.recover,
                                 what=f"position at point {i + 1}")
         if xyz_after is SKIPPED:
             at_point = None
             return skip("cmm")
         t = clock.now_s()
-        readings += [Reading(t, "cmm", f"check_position_{axis}_mm", float(value), "mm", **state) for axis, value in zip("xyz", xyz_after)]
+        readings += [Reading(t, "cmm", f"after_position_{axis}_mm", float(value), "mm", **state) for axis, value in zip("xyz", xyz_after)]
         store.add_readings(readings)
         return True
 
