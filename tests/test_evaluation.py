@@ -144,14 +144,27 @@ def test_minimum_in_E_is_the_minimum_of_both_directions():
 
 
 def test_R_is_bidirectional_not_R_up():
-    # 0°: ↑ [0, 0, 0] (s↑ = 0), ↓ [−1, 0, 1] (s↓ = 1), B = 0 → R_i = max(0 + 2 + 0, 0, 4) = 4
-    # 90°: ↑ [2, 2, 2], ↓ [1, 1, 1]: s = 0, B = 1 → R_i = max(1, 0, 0) = 1
-    # R↑ = 0, R↓ = 4, R = 4.  The published error reported R = R↑ = 0.
-    data = {0.0: {1: [0, 0, 0], -1: [-1, 0, 1]}, 90.0: {1: [2, 2, 2], -1: [1, 1, 1]}}
+    # The published evaluator takes the axis's R from the unidirectional repeatabilities only (its
+    # code means max(R↑, R↓); as written it reports R↑), dropping 2s↑ + 2s↓ + |B_i|. On data where
+    # that term exceeds 4s of either direction, both readings of the error are wrong:
+    # 0°:  ↑ [0, 1, 2] (x̄ 1, s 1), ↓ [−4, −3, −2] (x̄ −3, s 1), B_0 = 4
+    #      → R_i = max(2 + 2 + 4, 4, 4) = 8
+    # 90°: ↑ [5, 5, 5] (x̄ 5, s 0), ↓ [3.5, 4, 4.5] (x̄ 4, s 0.5), B_90 = 1
+    #      → R_i = max(0 + 1 + 1, 0, 2) = 2
+    # R↑ = max(4, 0) = 4, R↓ = max(4, 2) = 4, R = max(8, 2) = 8 (the standard's formula, by hand),
+    # where the error gives 4.
+    data = {0.0: {1: [0, 1, 2], -1: [-4, -3, -2]}, 90.0: {1: [5, 5, 5], -1: [3.5, 4, 4.5]}}
     out = iso230_2(from_runs(data))
-    assert out["R"] == pytest.approx(4) and out["R_up"] == pytest.approx(0) and out["R_down"] == pytest.approx(4)
-    assert [r["R_i"] for r in out["per_target"]] == pytest.approx([4, 1])
-    assert out["R"] != out["R_up"]
+    assert [r["R_i"] for r in out["per_target"]] == pytest.approx([8, 2], abs=EXACT)
+    assert out["R_up"] == pytest.approx(4, abs=EXACT) and out["R_down"] == pytest.approx(4, abs=EXACT)
+    assert out["R"] == pytest.approx(8, abs=EXACT)
+    # the standard's formula, from rtcal's own per-target statistics
+    standard = max(max(2 * r["s_up"] + 2 * r["s_down"] + abs(r["B_i"]), 4 * r["s_up"], 4 * r["s_down"])
+                   for r in out["per_target"])
+    assert out["R"] == pytest.approx(standard, abs=EXACT)
+    # the error, in both readings of its code, gives another value
+    for erroneous in (out["R_up"], max(out["R_up"], out["R_down"])):
+        assert erroneous != pytest.approx(out["R"], abs=1.0)
 
 
 def test_published_report_values_are_corrected():

@@ -7,7 +7,7 @@ evaluator's four errors divided by the number of targets), s_i = √(Σ_j (x_ij 
 
 - ISO 230-2 (1997, 2006, 2014): B_i = x̄_i↑ − x̄_i↓ (↑ minus ↓: swapping them flips B's sign, the
   second error), B = max|B_i|, B̄ = mean B_i; R_i↑ = 4s_i↑, R_i = max(2s_i↑ + 2s_i↓ + |B_i|, R_i↑,
-  R_i↓) and R = max R_i (not R↑: the fourth error); E↑ = max x̄↑ − min x̄↑, E over both directions
+  R_i↓) and R = max R_i (not from R↑ and R↓ alone: the fourth error); E↑ = max x̄↑ − min x̄↑, E over both directions
   (the minimum over both: the third error took it with the wrong comparison), M = range of
   x̄_i = (x̄↑ + x̄↓)/2, A↑ = max(x̄↑ + 2s↑) − min(x̄↑ − 2s↑), A over both directions.
 - ISO 230-2:1988: ±3s in A and 6s in R (R_i↑ = 6s_i↑, R_i = max(3s↑ + 3s↓ + |B_i|, …)).
