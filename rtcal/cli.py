@@ -322,21 +322,32 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_compensate(args: argparse.Namespace) -> int:
-    """A controller's compensation table from a run's (or a CSV's) positioning deviations."""
-    from rtcal.deliverables.compensation import CompensationError, table_from_deviations, write_table
+    """A controller's compensation table from a run's (or a CSV's) positioning deviations: at the
+    measured targets unless a grid is asked for (--step-deg); a one-direction run only with
+    --allow-one-direction; warnings on stderr (and in the file where the format takes comments)."""
+    from rtcal.deliverables.compensation import COMMENT, CompensationError, off_grid_targets, table_from_deviations, write_table
 
     table, _ = read_deviation_table(args.source)
     given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
              "first_point": args.first_point}
     try:
-        comp = table_from_deviations(table, args.step_deg, args.max_gap_deg)
+        comp = table_from_deviations(table, args.step_deg, args.max_gap_deg, args.allow_one_direction, args.format)
         text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
     out = write_output(Path(args.out), text)
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
-    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): from {len(comp.positions_deg)} points every "
-          f"{comp.step_deg:g}° over one turn, trims up to {worst:.2f}″ (docs/compensation.md: the format's rules and sign)")
+    summary = comp.summary()
+    if comp.resampled:
+        targets = np.mod(np.round(table.target_deg[np.isfinite(table.deviation_arcsec)], 9), 360.0)
+        between = off_grid_targets(comp, np.unique(targets))
+        summary += (f" (--step-deg; {between} of the measured targets lie between the grid's points, which keep only "
+                    "their interpolation)" if between else " (--step-deg; every measured target is a grid point)")
+    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {summary}, trims up to {worst:.2f}″ "
+          "(docs/compensation.md: the format's rules and sign)")
+    for warning in comp.warnings:
+        where = "" if args.format in COMMENT else f" (not in {out}: a {args.format} file takes no comment)"
+        print(f"rtcal: warning: {warning}{where}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -655,7 +666,12 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--format", required=True, choices=["linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain"],
                       help="the controller's format (docs/compensation.md)")
     comp.add_argument("--out", required=True, help="the table file to write")
-    comp.add_argument("--step-deg", type=float, default=15.0, help="grid step over one turn (default 15°; must divide 360)")
+    comp.add_argument("--step-deg", type=float,
+                      help="resample onto a regular grid every STEP° over one turn (must divide 360; default: none, the "
+                           "table's points are the measured targets — formats with a fixed pitch need evenly spaced ones)")
+    comp.add_argument("--allow-one-direction", action="store_true",
+                      help="write a run measured in one direction with the same values both ways (what that does to the "
+                           "machine's backlash compensation depends on the format: docs/compensation.md)")
     comp.add_argument("--max-gap-deg", type=float, default=60.0,
                       help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
     comp.add_argument("--axis", help="axis name in the file: siemens-lec/-cec (default C1), heidenhain (default C)")

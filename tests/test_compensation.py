@@ -209,7 +209,7 @@ def calibrated(tmp_path_factory) -> Path:
 
 def _compensated_bench(calibrated: Path, tmp_path: Path, fmt: str) -> Path:
     table = tmp_path / f"table.{fmt}"
-    assert main(["compensate", str(calibrated), "--format", fmt, "--out", str(table)]) == 0
+    assert main(["compensate", str(calibrated), "--format", fmt, "--step-deg", "15", "--out", str(table)]) == 0
     bench = tmp_path / "compensated.yaml"
     bench.write_text(BENCH.read_text().replace("  repeatability_arcsec: 0.1\n",
                                                f"  repeatability_arcsec: 0.1\n  compensation: {{format: {fmt}, file: {table.name}}}\n"))
@@ -263,7 +263,7 @@ def test_a_bad_table_in_a_scenario_is_located(tmp_path, capsys):
 @pytest.mark.parametrize("options, message", [
     (["--format", "linuxcnc", "--step-deg", "7"], "--step-deg 7: the grid must divide one turn"),
     (["--format", "linuxcnc", "--axis", "C"], "linuxcnc takes no --axis"),
-    (["--format", "fanuc", "--first-point", "1000"], "do not fit 0 … 1023"),
+    (["--format", "fanuc", "--step-deg", "15", "--first-point", "1000"], "do not fit 0 … 1023"),
     (["--format", "siemens-lec", "--axis", "c1"], "not a siemens-lec axis name"),
 ])
 def test_compensate_refuses_bad_options_in_one_line(tmp_path, capsys, options, message):
@@ -280,9 +280,10 @@ def test_compensate_options_reach_the_file(tmp_path):
     _smooth_table().write_csv(csv)
     assert main(["compensate", str(csv), "--format", "linuxcnc", "--range-deg", "-180", "180", "--out", str(tmp_path / "c")]) == 0
     assert (tmp_path / "c").read_text().splitlines()[0].startswith("-180.000000 ")
-    assert main(["compensate", str(csv), "--format", "heidenhain", "--axis", "B", "--out", str(tmp_path / "h")]) == 0
+    assert main(["compensate", str(csv), "--format", "heidenhain", "--step-deg", "15", "--axis", "B",
+                 "--out", str(tmp_path / "h")]) == 0
     assert (tmp_path / "h").read_text().startswith("BEGIN AXIS-B.COM ")
-    assert main(["compensate", str(csv), "--format", "fanuc", "--detection-unit-deg", "0.001", "--first-point", "100",
+    assert main(["compensate", str(csv), "--format", "fanuc", "--step-deg", "15", "--detection-unit-deg", "0.001", "--first-point", "100",
                  "--out", str(tmp_path / "f")]) == 0
     text = (tmp_path / "f").read_text()
     assert "3620 = 100 " in text and "3625 = 360000 " in text

@@ -1,9 +1,15 @@
 """Compensation tables for a rotary axis: one writer and one parser per controller format.
 
 From a positioning-deviation table: per direction the mean deviation e = actual − commanded over
-the runs at each target, resampled onto a regular grid over one turn by periodic linear
-interpolation (a controller interpolates linearly between its entries too), and referred to the
-axis datum (e = 0 at 0° in the positive direction: the reference point stays where it is). The
+the runs at each target, written at the measured targets themselves (or, when asked, resampled
+onto a regular grid over one turn by periodic linear interpolation — a controller interpolates
+linearly between its entries too), and referred to the axis datum (e = 0 at 0° in the positive
+direction: the reference point stays where it is). Formats with a fixed pitch (SINUMERIK, FANUC,
+HEIDENHAIN) take only evenly spaced points from 0°; irregular targets need a grid asked for. A
+run measured in one direction is refused unless the caller allows writing its values both ways
+(what that does to the machine's reversal compensation depends on the format: ONE_DIRECTION).
+Whether the targets lie close enough together for the error the data show is checked against
+its harmonics (:func:`interpolation_check`). The
 controller then commands θ + trim(θ) with trim = −e, so that the table reaches θ. How each
 format expresses that (actual positions, trims, values that "move the axis negative",
 increments) and its rules are in docs/compensation.md; every parser returns the trims, so a
@@ -36,25 +42,76 @@ class CompensationError(ValueError):
     """A table that cannot be made or read; the message says why (and where, for a file)."""
 
 
+FIXED_PITCH = {"siemens-lec": "$AA_ENC_COMP_STEP", "siemens-cec": "$AN_CEC_STEP", "fanuc": "parameter 3624",
+               "heidenhain": "the header's DISTANCE"}  # formats whose points lie at one pitch from 0°
+COMMENT = {"siemens-lec": "; ", "siemens-cec": "; ", "fanuc": "("}  # formats whose files take a comment line
+# What writing one measured direction's values for both directions does to the machine's reversal
+# (backlash) compensation, per format (docs/compensation.md)
+ONE_DIRECTION = {
+    "linuxcnc": "LinuxCNC ignores the joint's BACKLASH once a comp file is set, so forward and reverse columns with the "
+                "same values leave the axis with no reversal (backlash) compensation at all",
+    "siemens-cec": "both CEC tables (DIRECTION 1 and -1) would hold the same values and compensate no reversal: that is "
+                   "left to the axis's backlash compensation (keep it set), and the unmeasured direction is assumed to "
+                   "follow the measured one",
+    "fanuc": "the negative-travel table would repeat the positive one with 3627 = 0: the bidirectional pitch error "
+             "compensation then compensates no reversal, and the unmeasured direction is assumed to follow the measured one",
+    "siemens-lec": "the one LEC table stands for the mean of both directions, the reversal left to the axis's backlash "
+                   "compensation; from one direction it is that direction's curve, off the mean by half the reversal at "
+                   "each target",
+    "heidenhain": "the one table stands for the mean of both directions, the reversal left to the axis's backlash "
+                  "compensation; from one direction it is that direction's curve, off the mean by half the reversal at "
+                  "each target",
+}
+GRID_STEPS_DEG = (90, 60, 45, 40, 36, 30, 24, 20, 18, 15, 12, 10, 9, 8, 7.5, 6, 5, 4.5, 4, 3.6, 3, 2.5, 2, 1.5, 1.25, 1,
+                  0.75, 0.5, 0.25)
+
+
 @dataclass(frozen=True)
 class CompensationTable:
-    """Trims (deg) at ascending positions: from ``table_from_deviations`` a regular grid over one
-    turn, 0 … 360 inclusive (the last equals the first).
+    """Trims (deg) at ascending positions. From ``table_from_deviations``: one turn, 0 … 360
+    inclusive (the last repeats the first), at the measured targets — with 0° (and so 360°)
+    interpolated across the wrap when 0° was not measured — or on a regular grid when one was
+    asked for (``resampled``).
 
     ``modulo``: the controller applies the table to the command modulo one turn (SINUMERIK modulo
     tables, FANUC rotary axes, HEIDENHAIN 0 … 360 tables). False for LinuxCNC, which does not wrap:
     beyond its first and last lines the end trims hold (its sentinel entries have zero slope), so
     its table must span the joint's travel.
+
+    ``measured_targets``: how many distinct targets the table was made from (0: read from a file).
+    ``warnings``: what the user must read before loading it (one direction written both ways,
+    gaps too wide for the error the data show) — on the console, and in the file where the
+    format takes comments.
     """
 
     positions_deg: np.ndarray
     trim_up_deg: np.ndarray
     trim_down_deg: np.ndarray  # equal to trim_up_deg for a one-direction format
     modulo: bool = True
+    measured_targets: int = 0
+    resampled: bool = False
+    warnings: tuple[str, ...] = ()
 
     @property
     def step_deg(self) -> float:
         return float(self.positions_deg[1] - self.positions_deg[0])
+
+    @property
+    def evenly_spaced(self) -> bool:
+        """Entries at one pitch from 0° to 360° (what a format with a fixed pitch can hold)."""
+        p = np.asarray(self.positions_deg, float)
+        return len(p) >= 3 and abs(p[0]) < 1e-6 and abs(p[-1] - 360.0) < 1e-6 and float(np.ptp(np.diff(p))) < 1e-6
+
+    def summary(self) -> str:
+        """How many points were measured and how many written, e.g. "12 measured targets, 12 points
+        written" or "12 measured targets resampled to 24 points every 15°" (per turn: the entry at
+        360° repeats the one at 0°)."""
+        per_turn = len(self.positions_deg) - 1
+        if self.resampled:
+            return f"{self.measured_targets} measured targets resampled to {per_turn} points every {self.step_deg:g}°"
+        extra = per_turn - self.measured_targets
+        return (f"{self.measured_targets} measured targets, {per_turn} points written"
+                + (" (0° interpolated across the wrap: it was not measured)" if extra else ""))
 
     def trim_deg(self, commanded_deg: float, direction: int) -> float:
         """What the controller adds to a command approached in ``direction``: linear between entries."""
@@ -63,58 +120,240 @@ class CompensationTable:
         return float(np.interp(at, self.positions_deg, values))  # np.interp holds the end values outside
 
 
-def table_from_deviations(table: PositioningDeviations, step_deg: float = 15.0, max_gap_deg: float = 60.0) -> CompensationTable:
-    """Trims on a regular grid from the measured deviations (mean over runs per target and direction)."""
-    if not (0.0 < step_deg <= 90.0) or abs(360.0 / step_deg - round(360.0 / step_deg)) > 1e-9:
-        raise CompensationError(f"--step-deg {step_deg:g}: the grid must divide one turn (e.g. 5, 10, 15, 30)")
-    if not 0.0 < max_gap_deg <= 360.0:  # also false for NaN, which would let every gap through
-        raise CompensationError(f"--max-gap-deg {max_gap_deg:g}: must lie in (0, 360]")
-    grid = np.linspace(0.0, 360.0, int(round(360.0 / step_deg)) + 1)
-    errors = {}
+@dataclass(frozen=True)
+class MeasuredDeviations:
+    """Per direction (+1, −1): the distinct targets (deg, in [0, 360), ascending) and the mean
+    deviation over the runs at each (arcsec); and per (target, direction) cell the count and the
+    pooled within-cell sum of squares (the repeatability the runs show)."""
+
+    targets: dict[int, np.ndarray]
+    means: dict[int, np.ndarray]
+    counts: dict[int, np.ndarray]
+    within_ss: float
+    within_dof: int
+
+
+def measured_deviations(table: PositioningDeviations) -> MeasuredDeviations:
+    targets, means, counts = {}, {}, {}
+    within_ss, within_dof = 0.0, 0
     for d in (1, -1):
         sel = (table.direction == d) & np.isfinite(table.deviation_arcsec)
         if not sel.any():
             continue
+        x = np.asarray(table.deviation_arcsec, float)[sel]
         angles = np.mod(np.round(table.target_deg[sel], 9), 360.0)
-        targets, group = np.unique(angles, return_inverse=True)  # sorted once: n log n in rows
-        means = np.bincount(group, weights=table.deviation_arcsec[sel]) / np.bincount(group)
-        gaps = np.diff(np.concatenate([targets, [targets[0] + 360.0]]))
-        if len(targets) < 3 or gaps.max() > max_gap_deg + 1e-9:
-            worst = int(np.argmax(gaps))
+        t, group = np.unique(angles, return_inverse=True)  # sorted once: n log n in rows
+        n = np.bincount(group)
+        m = np.bincount(group, weights=x) / n
+        within_ss += float(np.sum((x - m[group]) ** 2))
+        within_dof += int(len(x) - len(t))
+        targets[d], means[d], counts[d] = t, m, n
+    return MeasuredDeviations(targets, means, counts, within_ss, within_dof)
+
+
+def _gap(targets: np.ndarray) -> tuple[float, float]:
+    """The widest gap between neighbouring targets over one turn, and the target it follows."""
+    gaps = np.diff(np.concatenate([targets, [targets[0] + 360.0]]))
+    k = int(np.argmax(gaps))
+    return float(gaps[k]), float(targets[k])
+
+
+def one_direction_message(fmt: str | None, direction: int) -> str:
+    which = "positive" if direction > 0 else "negative"
+    what = ONE_DIRECTION.get(fmt or "", "a table with the same values for both directions compensates no reversal")
+    return f"one direction measured ({which} only): {what}"
+
+
+def table_from_deviations(table: PositioningDeviations, step_deg: float | None = None, max_gap_deg: float = 60.0,
+                          allow_one_direction: bool = False, fmt: str | None = None) -> CompensationTable:
+    """Trims from the measured deviations (mean over runs per target and direction): at the
+    measured targets, or on a regular grid every ``step_deg`` when given. A run measured in one
+    direction is refused unless ``allow_one_direction`` (then its values are written for both,
+    with a warning naming what that does on ``fmt``'s controller)."""
+    if step_deg is not None and (not (0.0 < step_deg <= 90.0) or abs(360.0 / step_deg - round(360.0 / step_deg)) > 1e-9):
+        raise CompensationError(f"--step-deg {step_deg:g}: the grid must divide one turn (e.g. 5, 10, 15, 30)")
+    if not 0.0 < max_gap_deg <= 360.0:  # also false for NaN, which would let every gap through
+        raise CompensationError(f"--max-gap-deg {max_gap_deg:g}: must lie in (0, 360]")
+    data = measured_deviations(table)
+    for d, targets in data.targets.items():
+        gap, after = _gap(targets)
+        if len(targets) < 3 or gap > max_gap_deg + 1e-9:
             raise CompensationError(
-                f"the {'positive' if d > 0 else 'negative'} direction's targets leave a gap of {gaps.max():g}° after "
-                f"{targets[worst]:g}° (at most {max_gap_deg:g}° is interpolated over): measure more targets")
-        errors[d] = np.interp(grid, targets, means, period=360.0)
-    if 1 not in errors:
-        raise CompensationError("no deviations in the positive direction: nothing to refer the datum to")
-    datum = errors[1][0]
-    up = -(errors[1] - datum) / ARCSEC_PER_DEG
-    down = -(errors[-1] - datum) / ARCSEC_PER_DEG if -1 in errors else up.copy()
-    return CompensationTable(grid, up, down)
+                f"the {'positive' if d > 0 else 'negative'} direction's targets leave a gap of {gap:g}° after "
+                f"{after:g}° (at most {max_gap_deg:g}° is interpolated over): measure more targets")
+    if not data.targets:
+        raise CompensationError("no deviations: every row is missing its deviation")
+    warnings = []
+    if len(data.targets) == 1:
+        (only,) = data.targets
+        if not allow_one_direction:
+            raise CompensationError(f"{one_direction_message(fmt, only)}; measure both directions, or give "
+                                    "--allow-one-direction to write the measured values both ways knowingly")
+        warnings.append(f"{one_direction_message(fmt, only)} (written both ways: --allow-one-direction)")
+    measured = np.unique(np.concatenate(list(data.targets.values())))
+    if step_deg is None:
+        points = np.append(np.unique(np.concatenate([measured, [0.0]])), 360.0)
+    else:
+        points = np.linspace(0.0, 360.0, int(round(360.0 / step_deg)) + 1)
+    check = interpolation_check(data, step_deg)
+    if check.warning:
+        warnings.append(check.warning)
+    errors = {d: np.interp(points, data.targets[d], data.means[d], period=360.0) for d in data.targets}
+    first = 1 if 1 in errors else -1
+    datum = errors[first][0]
+    up = -(errors[first] - datum) / ARCSEC_PER_DEG
+    down = -(errors[-1] - datum) / ARCSEC_PER_DEG if -1 in errors and 1 in errors else up.copy()
+    return CompensationTable(points, up, down, measured_targets=len(measured), resampled=step_deg is not None,
+                             warnings=tuple(warnings))
+
+
+def off_grid_targets(table: CompensationTable, targets: np.ndarray) -> int:
+    """How many measured targets a resampled table's grid does not hold (it keeps only their interpolation)."""
+    on = np.isclose(np.mod(targets[:, None] - table.positions_deg[None, :-1] + 180.0, 360.0) - 180.0, 0.0, atol=1e-6)
+    return int(np.count_nonzero(~on.any(axis=1)))
+
+
+# -- are the targets close enough for the error they show? -----------------------------------
+QUARTER_PERIOD = 0.25  # the rule: the widest gap below a quarter of the period of every error the data show
+MAX_CHECKED_ORDER = 90  # period 4°: finer errors than this are beyond what a gap check of a calibration can see
+LACK_OF_FIT_ALPHA = 0.01
+
+
+@dataclass(frozen=True)
+class GapCheck:
+    """What the measured deviations say about the gaps between their targets.
+
+    A linear table between targets g apart follows a harmonic of order n (period P = 360°/n,
+    amplitude A) up to the chord, which misses it by up to A·(1 − cos(π·g/P)) in the middle of the
+    gap: 7.6 % of A at g = P/8, 29 % at g = P/4, all of it at g = P/2 (where targets can sit on the
+    zeros and the table sees nothing). The rule: the widest gap below a quarter of the period of
+    every error the data show, i.e. n·g < 90°. "Show" means a harmonic the fit finds significant
+    (orders up to what the targets resolve, rtcal.solvers.harmonics), or, with repeated runs, a
+    lack of fit of those orders against the runs' own scatter — structure of a higher order than
+    the targets resolve, whose period is then under 360°/(K + 1). A warning is given when the
+    rule fails and what the table may miss exceeds twice the standard deviation of a target's
+    mean (what a verification between the targets could see)."""
+
+    gap_deg: float
+    after_deg: float
+    orders: tuple[int, ...] = ()
+    significant: tuple[tuple[int, float], ...] = ()  # (order, amplitude ″)
+    lack_of_fit_p: float | None = None
+    unresolved_rms_arcsec: float = 0.0
+    noise_arcsec: float = 0.0  # 1σ of a target's mean
+    failing_order: int | None = None
+    missed_arcsec: float = 0.0  # what the table may miss between the targets
+    warning: str | None = None
+
+
+def interpolation_check(data: MeasuredDeviations, step_deg: float | None = None) -> GapCheck:
+    """Check the widest gap the table interpolates over (between measured targets, or the grid's
+    step if coarser) against the harmonics of the measured deviations (GapCheck: the rule)."""
+    from scipy.stats import f as f_dist
+
+    from rtcal.solvers.harmonics import fit_harmonics, resolvable_orders, smooth_values
+
+    gap, after = max(_gap(t) for t in data.targets.values())
+    if step_deg is not None and step_deg > gap:
+        gap, after = float(step_deg), 0.0
+    first_failing = int(np.ceil(90.0 / gap - 1e-9))  # the lowest order n with n·g ≥ 90°
+    if first_failing > MAX_CHECKED_ORDER + 1:
+        return GapCheck(gap, after)
+    dirs = sorted(data.targets)
+    angles = np.radians(np.concatenate([data.targets[d] for d in dirs]))
+    means = np.concatenate([data.means[d] for d in dirs])
+    counts = np.concatenate([data.counts[d] for d in dirs])
+    groups = np.concatenate([np.full(len(data.targets[d]), d) for d in dirs])
+    orders = resolvable_orders(angles, MAX_CHECKED_ORDER, n_offsets=len(dirs))
+    if not orders:
+        return GapCheck(gap, after)
+    fit = fit_harmonics(angles, means, orders, groups)
+    significant = tuple((t.order, t.amplitude) for t in fit.terms if t.significant)
+    n_mean = float(np.mean(counts))
+    within = data.within_ss / data.within_dof if data.within_dof > 0 else None
+    noise = float(np.sqrt(within / n_mean)) if within is not None else fit.sigma
+    p_value, unresolved = None, 0.0
+    lof_dof = len(means) - (2 * len(orders) + len(dirs))
+    if within is not None and lof_dof > 0:
+        lof_ms = float(np.sum(counts * (means - smooth_values(angles, means, orders, groups)) ** 2)) / lof_dof
+        floor = (1e-9 * float(np.max(np.abs(means)))) ** 2
+        p_value = float(f_dist.sf(lof_ms / max(within, floor), lof_dof, data.within_dof))
+        unresolved = float(np.sqrt(max(lof_ms - within, 0.0) * lof_dof / n_mean / len(means)))  # RMS over the cells
+    check = dict(gap_deg=gap, after_deg=after, orders=tuple(orders), significant=significant, lack_of_fit_p=p_value,
+                 unresolved_rms_arcsec=unresolved, noise_arcsec=noise)
+    failing = [(n, a) for n, a in significant if n >= first_failing]
+    beyond = p_value is not None and p_value < LACK_OF_FIT_ALPHA and orders[-1] + 1 >= first_failing
+    missed = float(sum(a * (1.0 - np.cos(min(np.pi * gap * n / 360.0, np.pi))) for n, a in failing))
+    missed += float(np.sqrt(2.0) * unresolved) if beyond else 0.0  # a sine of that RMS, missed whole
+    if not (failing or beyond) or missed <= 2.0 * noise:
+        return GapCheck(**check)
+    shown = []
+    if failing:
+        low, high = failing[0][0], failing[-1][0]
+        which = f"order {high}" if low == high else f"orders {low}–{high}"
+        shown.append(f"{which} (up to {max(a for _, a in failing):.2f}″; period {360 / high:.3g}°)")
+    if beyond:
+        k = orders[-1]
+        shown.append(f"an error of order above {k}, which {len(means) // len(dirs)} targets cannot resolve ({unresolved:.2f}″ "
+                     f"RMS beyond orders 1–{k}: lack of fit, p = {p_value:.1g})")
+    order = orders[-1] + 1 if beyond else failing[-1][0]
+    span = f"the {gap:g}° grid step" if step_deg is not None and gap == step_deg else f"gaps up to {gap:g}° (after {after:g}°)"
+    return GapCheck(**check, failing_order=order, missed_arcsec=missed, warning=(
+        f"the table interpolates over {span}, too wide for the error the data show: {' and '.join(shown)}. "
+        f"Linear interpolation over a gap of a quarter period or more misses up to A·(1 − cos(180°·gap/period)) of a "
+        f"harmonic of amplitude A: here up to {missed:.1f}″ between the targets. Measure targets closer than "
+        f"{90 / order:.3g}°{' (or closer still: the order may be higher)' if beyond else ''}, and verify between them"))
 
 
 def _check_points(fmt: str, table: CompensationTable) -> None:
+    if fmt in FIXED_PITCH and not table.evenly_spaced:
+        step = next((s for s in GRID_STEPS_DEG if 360.0 / s + 1 <= MAX_POINTS[fmt]
+                     and np.allclose(table.positions_deg / s, np.round(table.positions_deg / s), atol=1e-6)), None)
+        hint = f"--step-deg {step:g} keeps every measured target" if step else "e.g. --step-deg 5"
+        raise CompensationError(
+            f"{fmt}: the {table.measured_targets or len(table.positions_deg) - 1} measured targets are not evenly spaced "
+            f"from 0°, and the format holds points at one pitch ({FIXED_PITCH[fmt]}): give --step-deg to resample "
+            f"them onto a grid ({hint}; the table then says so), or use a format that takes the measured targets (linuxcnc)")
     if len(table.positions_deg) > MAX_POINTS[fmt]:
         raise CompensationError(f"{fmt}: {len(table.positions_deg)} points; the format takes at most {MAX_POINTS[fmt]} "
                                 "(choose a larger --step-deg)")
+
+
+ASCII = {"″": " arcsec", "°": " deg", "—": "-", "–": "-", "−": "-", "…": "...", "·": "*", "×": "x", "≥": ">=",
+         "≤": "<=", "π": "pi", "↑": "up", "↓": "down", "(": "[", ")": "]"}
+
+
+def _comments(fmt: str, table: CompensationTable) -> list[str]:
+    """The table's warnings as comment lines of ``fmt`` (plain ASCII: a controller's character set)."""
+    lines = []
+    for text in table.warnings:
+        plain = "".join(ASCII.get(c, c) for c in f"rtcal warning: {text}").encode("ascii", "replace").decode()
+        lines.append(f"; {plain}" if COMMENT[fmt] == "; " else f"({plain})")
+    return lines
 
 
 # -- LinuxCNC ------------------------------------------------------------------------------
 def write_linuxcnc(table: CompensationTable, range_deg: tuple[float, float] = (0.0, 360.0)) -> str:
     """COMP_FILE_TYPE = 0: ``nominal forward_actual reverse_actual`` per line, degrees, ascending;
     no header or comment (LinuxCNC stops reading at the first line that is not three numbers).
-    ``range_deg``: the joint's travel to cover (default one turn); LinuxCNC does not wrap a table,
-    so a joint that travels −145 … 155° needs lines there, repeated from the turn's grid."""
+    Lines at the table's points (measured targets or grid, any spacing) repeated every turn over
+    ``range_deg``, the joint's travel (default one turn), and at its two ends: LinuxCNC does not
+    wrap a table, so a joint that travels −145 … 155° needs lines there."""
     lo, hi = (float(v) for v in range_deg)
     if not (abs(lo) <= 36000.0 and abs(hi) <= 36000.0):  # also false for NaN
         raise CompensationError(f"--range-deg {lo:g} {hi:g}: the travel must lie within ±36000° (100 turns)")
-    n = round((hi - lo) / table.step_deg) if hi > lo else 0
-    if n < 2 or abs(n * table.step_deg - (hi - lo)) > 1e-9:
-        raise CompensationError(f"--range-deg {lo:g} {hi:g}: an ascending range of whole {table.step_deg:g}° steps")
-    if n + 1 > MAX_POINTS["linuxcnc"]:
-        raise CompensationError(f"linuxcnc: {n + 1} lines over {lo:g} … {hi:g}°; LinuxCNC reads at most "
-                                f"{MAX_POINTS['linuxcnc']} (choose a larger --step-deg or a narrower --range-deg)")
-    nominal = lo + table.step_deg * np.arange(n + 1)
+    if not hi > lo:
+        raise CompensationError(f"--range-deg {lo:g} {hi:g}: an ascending range (the joint's lowest and highest position)")
+    turn = np.asarray(table.positions_deg[:-1], float)  # one turn: the last entry (360°) repeats the first
+    turns = np.arange(np.floor((lo - turn.max()) / 360.0), np.ceil((hi - turn.min()) / 360.0) + 1)
+    if len(turn) * len(turns) > 100 * MAX_POINTS["linuxcnc"]:
+        raise CompensationError(f"linuxcnc: {len(turn)} points a turn over {lo:g} … {hi:g}°; LinuxCNC reads at most "
+                                f"{MAX_POINTS['linuxcnc']} lines (a larger --step-deg or a narrower --range-deg)")
+    nominal = (turn[None, :] + 360.0 * turns[:, None]).ravel()
+    nominal = np.unique(np.round(np.concatenate([nominal[(nominal >= lo) & (nominal <= hi)], [lo, hi]]), 6))
+    if len(nominal) > MAX_POINTS["linuxcnc"]:
+        raise CompensationError(f"linuxcnc: {len(nominal)} lines over {lo:g} … {hi:g}°; LinuxCNC reads at most "
+                                f"{MAX_POINTS['linuxcnc']} (fewer targets, a larger --step-deg or a narrower --range-deg)")
     up = np.array([table.trim_deg(a, +1) for a in nominal])
     down = np.array([table.trim_deg(a, -1) for a in nominal])
     return "".join(f"{p:.6f} {p - u:.8f} {p - d:.8f}\n" for p, u, d in zip(nominal, up, down))
@@ -156,7 +395,7 @@ def write_siemens_lec(table: CompensationTable, axis: str = "C1") -> str:
     the value is the deviation, −trim, in degrees; modulo: the value at MAX repeats MIN's."""
     _check_points("siemens-lec", table)
     mean = (table.trim_up_deg + table.trim_down_deg) / 2
-    lines = ["%_N_AX_EEC_INI", "CHANDATA(1)"]
+    lines = ["%_N_AX_EEC_INI", *_comments("siemens-lec", table), "CHANDATA(1)"]
     lines += [f"$AA_ENC_COMP[0,{i},{axis}]={-v + 0.0:.8f}" for i, v in enumerate(mean)]
     lines += [f"$AA_ENC_COMP_STEP[0,{axis}]={table.step_deg:.6f}", f"$AA_ENC_COMP_MIN[0,{axis}]=0.0",
               f"$AA_ENC_COMP_MAX[0,{axis}]=360.0", f"$AA_ENC_COMP_IS_MODULO[0,{axis}]=1", "M17"]
@@ -167,7 +406,7 @@ def write_siemens_cec(table: CompensationTable, axis: str = "C1") -> str:
     """CEC, one table per direction (table 0 positive, table 1 negative approach): the value is
     added to the axis's setpoint, so it is the trim, in degrees."""
     _check_points("siemens-cec", table)
-    lines = ["%_N_NC_CEC_INI", "CHANDATA(1)"]
+    lines = ["%_N_NC_CEC_INI", *_comments("siemens-cec", table), "CHANDATA(1)"]
     for t, (values, sense) in enumerate(((table.trim_up_deg, 1), (table.trim_down_deg, -1))):
         lines += [f"$AN_CEC[{t},{i}]={v + 0.0:.8f}" for i, v in enumerate(values)]  # + 0.0: no "-0.0"
         lines += [f"$AN_CEC_INPUT_AXIS[{t}]={axis}", f"$AN_CEC_OUTPUT_AXIS[{t}]={axis}", f"$AN_CEC_STEP[{t}]={table.step_deg:.6f}",
@@ -309,7 +548,7 @@ def write_fanuc(table: CompensationTable, unit_deg: float = 0.0001, first_point:
         return [int(inc[-1])] + [int(v) for v in inc]  # the first point (0°) is the last (360°)
 
     lines = [f"(FANUC pitch error compensation for the rotary axis; detection unit {unit_deg:g} deg; written by rtcal)",
-             "3605 #0 = 1  (bidirectional pitch error compensation)",
+             *_comments("fanuc", table), "3605 #0 = 1  (bidirectional pitch error compensation)",
              f"3620 = {first_point}  (compensation point of the reference position)",
              f"3621 = {up_points[0]}  (farthest point on the - side, positive travel)",
              f"3622 = {up_points[-1]}  (farthest point on the + side, positive travel)",
