@@ -66,7 +66,8 @@ def main() -> None:
             a = deviation_csv(folder / f"a{rows}.csv", rows, seed=1)
             b = deviation_csv(folder / f"b{rows}.csv", rows, seed=2)
             times = [timed(["evaluate", str(a)], args.timeout),
-                     timed(["compensate", str(a), "--format", "linuxcnc", "--out", str(folder / f"c{rows}.comp")], args.timeout),
+                     timed(["compensate", str(a), "--format", "linuxcnc", "--step-deg", "15", "--out", str(folder / f"c{rows}.comp")],
+                           args.timeout),
                      timed(["compare", str(a), str(b), "--out", str(folder / f"cmp{rows}")], args.timeout)]
             print(f"{rows:>8}  " + "  ".join(f"{t:>24}" for t in times), flush=True)
 
