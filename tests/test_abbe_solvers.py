@@ -48,6 +48,24 @@ def test_nyquist_and_degrees_of_freedom_limit_the_orders():
     assert resolvable_orders(theta, 24)[-1] == 5  # 2K + 1 ≤ 12
 
 
+@pytest.mark.parametrize("offset_deg", [0.0, 7.5, 5.0])
+def test_the_nyquist_order_is_seen_on_a_grid_that_misses_0(offset_deg):
+    """24 angles every 15° from an offset (a polygon seated between faces): order 12 shows the part
+    A·sin(12·θ0 + φ) whatever θ0 is — at 7.5° that is A·cos φ, which a column cos(12θ) (zero on
+    that grid) would miss entirely."""
+    rng = np.random.default_rng(3)
+    theta = np.deg2rad(offset_deg + 15.0 * np.arange(24))
+    a, phi = 6.0, np.deg2rad(-30)
+    y = 20 * np.sin(theta + 0.7) + a * np.sin(12 * theta + phi) + 0.05 * rng.standard_normal(24)
+    fit = fit_harmonics(np.tile(theta, 4), np.tile(y, 4) + 0.05 * rng.standard_normal(96), resolvable_orders(np.tile(theta, 4), 24),
+                        aliased_order=12)
+    term = fit.terms[-1]
+    assert term.order == 12 and term.aliased and term.significant
+    assert term.amplitude == pytest.approx(abs(a * np.sin(12 * theta[0] + phi)), abs=0.05)
+    # the reported phase reproduces the visible values at the samples
+    np.testing.assert_allclose(term.amplitude * np.sin(12 * theta + term.phase_rad), a * np.sin(12 * theta + phi), atol=0.05)
+
+
 def _closure_data(rng, eps, faces_err, offsets_faces, noise):
     n = len(eps)
     vals, ti, fi, gi = [], [], [], []

@@ -10,7 +10,9 @@ may each carry their own unknown offset (a re-seated polygon, another direction)
 amplitude gets a 1σ from the fit's residuals.
 
 Which orders a sampling resolves: with U distinct angles, orders n < U/2 fully (Nyquist). For
-U even, order U/2 shows only its cosine part at the sample points (sin(U/2·θ) vanishes there):
+U even, order U/2 shows only one part at the sample points — its cosine about a sampled angle θ0,
+cos(U/2·(θ − θ0)), since sin(U/2·(θ − θ0)) vanishes there (θ0 = 0 when 0 is sampled; a grid
+offset by half its step, as a polygon seated between faces gives, sees the other part):
 it is fitted as that one column and reported ``aliased`` — its visible amplitude |A·sin φ| is a
 lower bound, its phase unknown; orders above U/2 alias onto lower ones, which a warning says.
 Orders are also limited so that the fit keeps at least half its samples as degrees of freedom.
@@ -106,12 +108,13 @@ def nyquist_order(angles_rad: np.ndarray) -> int | None:
     return len(d) // 2 if np.allclose(gaps, gaps[0], atol=1e-7) else None
 
 
-def _design(theta: np.ndarray, orders: list[int], groups: np.ndarray, aliased_order: int | None) -> tuple[np.ndarray, int]:
+def _design(theta: np.ndarray, orders: list[int], groups: np.ndarray, aliased_order: int | None,
+            theta0: float = 0.0) -> tuple[np.ndarray, int]:
     groups = np.unique(np.asarray(groups), return_inverse=True)[1]
     n_groups = int(groups.max()) + 1 if len(groups) else 1
     cols = [np.sin(n * theta) for n in orders] + [np.cos(n * theta) for n in orders]
     if aliased_order is not None:
-        cols.append(np.cos(aliased_order * theta))
+        cols.append(np.cos(aliased_order * (theta - theta0)))  # the part the grid through θ0 sees
     offsets = np.zeros((len(theta), n_groups))
     offsets[np.arange(len(theta)), groups] = 1.0
     return (np.column_stack(cols + [offsets]) if cols else offsets), n_groups
@@ -140,7 +143,8 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
     readings can have (resolution/√12); ``max_order`` the highest order asked for (for the warning)."""
     theta = np.asarray(angles_rad, dtype=float)
     y = np.asarray(values, dtype=float)
-    A, n_groups = _design(theta, orders, np.zeros(len(y), int) if groups is None else groups, aliased_order)
+    theta0 = float(distinct_angles(theta)[0]) if aliased_order is not None and len(theta) else 0.0
+    A, n_groups = _design(theta, orders, np.zeros(len(y), int) if groups is None else groups, aliased_order, theta0)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     quantisation_threshold = quantisation_threshold or {}
     resid = y - A @ coef
@@ -179,12 +183,13 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
         sd = float(np.sqrt(cov[2 * k, 2 * k]))
         # one visible coefficient: |b| > t has probability 2·(1 − Φ(t/σ)); the same family level
         threshold = float(t_dist.isf(p_each / 2.0, dof) if estimated else norm.isf(p_each / 2.0)) * sd
-        terms.append(HarmonicTerm(aliased_order, abs(b), float(np.sign(b) * np.pi / 2) if b else 0.0, sd, np.pi,
-                                  abs(b) > threshold, threshold, aliased=True))
+        # b = A·sin(n·θ0 + φ): reported as the phase that puts all of A in the visible part
+        phase = float(np.angle(np.exp(1j * (np.sign(b) * np.pi / 2 - aliased_order * theta0)))) if b else 0.0
+        terms.append(HarmonicTerm(aliased_order, abs(b), phase, sd, np.pi, abs(b) > threshold, threshold, aliased=True))
         if abs(b) > threshold:
             warnings.append(f"order {aliased_order} is at the Nyquist limit of {2 * aliased_order} evenly spaced angles and "
-                            f"present: only its cosine part is seen ({abs(b):.3g} = |A·sin φ|, a lower bound of its "
-                            "amplitude; phase unknown)")
+                            f"present: only one part is seen ({abs(b):.3g} = |A·sin(φ + {aliased_order}·θ0)| with θ0 = "
+                            f"{np.degrees(theta0):.4g}°, a sampled angle: a lower bound of its amplitude; phase unknown)")
             if max_order is not None and max_order > aliased_order:
                 warnings.append(f"orders above {aliased_order} cannot be resolved by this sampling: any such error "
                                 "aliases onto lower orders")
