@@ -325,7 +325,7 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
     """A controller's compensation table from a run's (or a CSV's) positioning deviations: at the
     measured targets unless a grid is asked for (--step-deg); a one-direction run only with
     --allow-one-direction; warnings on stderr (and in the file where the format takes comments)."""
-    from rtcal.deliverables.compensation import COMMENT, CompensationError, off_grid_targets, table_from_deviations, write_table
+    from rtcal.deliverables.compensation import COMMENT, CompensationError, table_from_deviations, write_table
 
     table, _ = read_deviation_table(args.source)
     given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
@@ -337,13 +337,7 @@ def _cmd_compensate(args: argparse.Namespace) -> int:
         raise UserError(f"{args.source}: {exc}") from None
     out = write_output(Path(args.out), text)
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
-    summary = comp.summary()
-    if comp.resampled:
-        targets = np.mod(np.round(table.target_deg[np.isfinite(table.deviation_arcsec)], 9), 360.0)
-        between = off_grid_targets(comp, np.unique(targets))
-        summary += (f" (--step-deg; {between} of the measured targets lie between the grid's points, which keep only "
-                    "their interpolation)" if between else " (--step-deg; every measured target is a grid point)")
-    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {summary}, trims up to {worst:.2f}″ "
+    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
           "(docs/compensation.md: the format's rules and sign)")
     for warning in comp.warnings:
         where = "" if args.format in COMMENT else f" (not in {out}: a {args.format} file takes no comment)"

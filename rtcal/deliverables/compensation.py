@@ -90,6 +90,7 @@ class CompensationTable:
     modulo: bool = True
     measured_targets: int = 0
     resampled: bool = False
+    off_grid: int = 0  # measured targets a resampled grid does not hold (it keeps only their interpolation)
     warnings: tuple[str, ...] = ()
 
     @property
@@ -108,7 +109,9 @@ class CompensationTable:
         360° repeats the one at 0°)."""
         per_turn = len(self.positions_deg) - 1
         if self.resampled:
-            return f"{self.measured_targets} measured targets resampled to {per_turn} points every {self.step_deg:g}°"
+            return (f"{self.measured_targets} measured targets resampled to {per_turn} points every {self.step_deg:g}° "
+                    + (f"(--step-deg; {self.off_grid} of the measured targets lie between the grid's points, which keep "
+                       "only their interpolation)" if self.off_grid else "(--step-deg; every measured target is a grid point)"))
         extra = per_turn - self.measured_targets
         return (f"{self.measured_targets} measured targets, {per_turn} points written"
                 + (" (0° interpolated across the wrap: it was not measured)" if extra else ""))
@@ -195,6 +198,8 @@ def table_from_deviations(table: PositioningDeviations, step_deg: float | None =
         points = np.append(np.unique(np.concatenate([measured, [0.0]])), 360.0)
     else:
         points = np.linspace(0.0, 360.0, int(round(360.0 / step_deg)) + 1)
+    k = measured / step_deg if step_deg is not None else np.zeros(0)
+    off_grid = int(np.count_nonzero(np.abs(k - np.round(k)) * (step_deg or 0.0) > 1e-6))
     check = interpolation_check(data, step_deg)
     if check.warning:
         warnings.append(check.warning)
@@ -204,13 +209,7 @@ def table_from_deviations(table: PositioningDeviations, step_deg: float | None =
     up = -(errors[first] - datum) / ARCSEC_PER_DEG
     down = -(errors[-1] - datum) / ARCSEC_PER_DEG if -1 in errors and 1 in errors else up.copy()
     return CompensationTable(points, up, down, measured_targets=len(measured), resampled=step_deg is not None,
-                             warnings=tuple(warnings))
-
-
-def off_grid_targets(table: CompensationTable, targets: np.ndarray) -> int:
-    """How many measured targets a resampled table's grid does not hold (it keeps only their interpolation)."""
-    k = np.asarray(targets, float) / table.step_deg
-    return int(np.count_nonzero(np.abs(k - np.round(k)) * table.step_deg > 1e-6))
+                             off_grid=off_grid, warnings=tuple(warnings))
 
 
 # -- are the targets close enough for the error they show? -----------------------------------
@@ -271,7 +270,7 @@ def interpolation_check(data: MeasuredDeviations, step_deg: float | None = None)
     gap, after = max(_gap(t) for t in data.targets.values())
     if step_deg is not None and step_deg > gap:
         gap, after = float(step_deg), 0.0
-    first_failing = int(np.ceil(90.0 / gap - 1e-9))  # the lowest order n with n·g ≥ 90°
+    first_failing = int(np.ceil(QUARTER_PERIOD * 360.0 / gap - 1e-9))  # the lowest order n with n·g ≥ 90°
     if first_failing > MAX_CHECKED_ORDER + 1:
         return GapCheck(gap, after)
     dirs = sorted(data.targets)
@@ -315,7 +314,7 @@ def interpolation_check(data: MeasuredDeviations, step_deg: float | None = None)
         shown.append(f"an error of order above {k}, which {targets} targets cannot resolve ({unresolved:.2f}″ "
                      f"RMS beyond orders 1–{k}: lack of fit, p = {p_value:.1g})")
     order = orders[-1] + 1 if beyond else failing[-1][0]
-    quarter = f"{90 / order:.3g}°{' (or closer still: the order may be higher)' if beyond else ''}"
+    quarter = f"{QUARTER_PERIOD * 360.0 / order:.3g}°{' (or closer still: the order may be higher)' if beyond else ''}"
     if step_deg is not None and gap == step_deg:
         span, advice = f"the {gap:g}° grid step", f"Give a --step-deg below {quarter}, or none (the measured targets)"
     else:
