@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rtcal.deliverables.deviations import PositioningDeviations
-from rtcal.results.model import Analysis, Conformity, Iso230Evaluation, IsoTarget, LimitConformity, TargetedEstimate
+from rtcal.deliverables.comparison import estimate_targets
+from rtcal.results.model import Analysis, Conformity, Iso230Evaluation, IsoTarget, LimitConformity, RunResults
 
 K = 2.0  # coverage factor of every U here
 
@@ -98,12 +99,7 @@ def means_of(evaluation: Iso230Evaluation, analysis: Analysis, table: Positionin
     cov = np.full((len(keys), len(keys)), np.nan)
     e = analysis.recommended_estimate()
     if e is not None:
-        if isinstance(e, TargetedEstimate):
-            est_keys = [(round(t, 6), int(d)) for t, d in zip(e.target_deg, e.target_direction)]
-        else:
-            direction = int(table.direction[0]) if len(table) else 1
-            est_keys = [(round(t, 6), direction) for t in analysis.nominal_angles_deg]
-        where = {k: j for j, k in enumerate(est_keys)}
+        where = {(round(t, 6), d): j for j, (t, d) in enumerate(estimate_targets(analysis, table))}
         rows = [where.get(k) for k in keys]
         if all(r is not None for r in rows):
             c = np.array([[np.nan if v is None else v for v in row] for row in e.cumulative_covariance_arcsec2], float)
@@ -298,3 +294,19 @@ def assess(decision_rule: str, limits: list[tuple[str, float]], band_arcsec: flo
     overall = "fail" if "fail" in verdicts else "undecided" if "undecided" in verdicts else "pass"
     return Conformity(decision_rule=decision_rule, rule=RULES[decision_rule], verdict=overall, coverage_factor=K,
                       per_limit=per_limit, notes=notes)
+
+
+PARAMETERS = ("E_up", "E_down", "E", "M", "B", "R_up", "R_down", "R", "A_up", "A_down", "A")
+
+
+def parameter_uncertainties(results: RunResults) -> dict[str, float | None]:
+    """U (k = 2) of every ISO 230-2 parameter the run's evaluation defines (None: not defined)."""
+    if results.evaluation is None or results.positioning_deviations is None:
+        return {}
+    iso = results.evaluation.iso230_2
+    means = means_of(iso, results, PositioningDeviations.from_model(results.positioning_deviations))
+    out: dict[str, float | None] = {}
+    for symbol in PARAMETERS:
+        form = parameter_form(symbol, iso, means) if getattr(iso, symbol) is not None else None
+        out[symbol] = None if form is None else form.expanded_uncertainty(means)
+    return out

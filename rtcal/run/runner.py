@@ -418,7 +418,8 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
                 PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
             method_outputs.write_files(out)
             write_report(out, results, method_outputs.report_body())
-            model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text())
+            model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text(),
+                                 method_outputs.method_name())
             write_html(model, out / "report.html")
             write_pdf(model, out / "report.pdf")
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
