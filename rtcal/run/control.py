@@ -19,7 +19,7 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
     if simulated:
         for name in proc.instruments.present():
             if name in MOVING:
-                access[name] = "simulated in this process: no other client can reach it"
+                access[name] = "simulated in process: no other client can reach it"
     else:
         for name in proc.instruments.present():
             if name not in MOVING:
@@ -28,17 +28,17 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
             _, model = resolve(MOVING[name], address)
             how = getattr(model.driver_class(), "exclusive_access", "")
             if how:
-                access[name] = f"exclusive: {how}"
+                access[name] = f"exclusive session: {how}"
             else:
                 access[name] = (f"not known: the {model.name} protocol has no sessions, so another client could reach it; "
-                                "the checks below would have seen it move")
+                                "the checks of every motion and reading would have seen it move")
                 exclusive = None
     if simulated:
-        access["operator"] = "the simulated bench's, in this process"
+        access["operator"] = "in process: the simulated bench re-seats its own polygon or tracer"
     elif operator_address:
-        access["operator"] = "the simulated operator of `rtcal sim serve`: only requests carrying its printed token are obeyed"
+        access["operator"] = "token: the simulated operator of `rtcal sim serve` obeys only requests carrying its printed token"
     else:
-        access["operator"] = "a person at this terminal, asked before each operator step"
+        access["operator"] = "a person: at this terminal, asked before each operator step"
     return Control(instruments=access, exclusive=exclusive, checks=checks_text(proc), rejected_attempts=rejected_attempts)
 
 
