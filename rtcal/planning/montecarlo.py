@@ -170,8 +170,9 @@ def plot_summary(summary: dict[str, Any], title: str, path: Path) -> Path:
                         label=f"reported 1σ / RMS error (bars: ±1σ of {e['trials']} trials)")
         row[1].axhline(1.0, color="0.5", lw=0.8)
         row[1].set_ylim(0, max(2.0, float(np.nanmax(ratio[1:])) * 1.1 if np.any(np.isfinite(ratio[1:])) else 2.0))
-        for ax in row:  # labels like "-115↑" stand upright: side by side they collide from a few targets on
-            ax.set_xticks(x, labels, fontsize=7, rotation=90 if len(x) > 4 else 0)
+        for ax, room in zip(row, (40, 24)):  # labels like "-115↑" stand upright, at most `room` to a panel
+            every = -(-len(x) // room)
+            ax.set_xticks(x[::every], labels[::every], fontsize=7, rotation=90 if len(x) > 4 else 0)
             ax.grid(alpha=0.3)
     axes[-1][0].set_xlabel("target: commanded angle / °, ↑ positive or ↓ negative approach")
     axes[-1][1].set_xlabel("target")
