@@ -30,7 +30,8 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
             if how:
                 access[name] = f"exclusive session: {how}"
             else:
-                access[name] = (f"not known: the {model.name} protocol has no sessions, so another client could reach it; "
+                access[name] = (f"not known: the {model.name} {name}'s protocol ({', '.join(model.schemes)}) has no sessions, so "
+                                "another client could reach it; "
                                 "the checks of every motion and reading would have seen it move")
                 exclusive = None
     if simulated:
