@@ -36,8 +36,6 @@ ISO_MEANING = {key: desc for key, _, desc in ISO_KEYS} | {"band": "every mean de
 VDI_KEYS = (("Pa", "Pa", "position deviation"), ("P", "P", "position uncertainty"), ("Ps_max", "Ps max", "positional scatter, max"),
             ("Ps_mean", "Ps mean", "positional scatter, mean"), ("U_max", "U max", "reversal span, max"),
             ("U_mean", "U mean", "reversal span, mean"))
-METADATA_KEYS = (("certificate_number", "Certificate"), ("customer", "Customer"), ("machine", "Machine"), ("axis", "Axis"),
-                 ("serial_number", "Serial number"), ("location", "Location"), ("operator", "Operator"))
 
 STANDARDS = (
     "ISO 230-2:2014 (E, M, B, R, A)",
@@ -49,11 +47,11 @@ DECISION_STANDARDS = {"simple": "ILAC-G8:09/2019 (decision rule: simple acceptan
 UNCERTAINTY_STATEMENT = (
     "The expanded uncertainty U is the standard uncertainty u multiplied by the coverage factor k = 2, which for a "
     "normal distribution corresponds to a coverage probability of about 95 %. The standard uncertainty was determined "
-    "in accordance with the GUM (JCGM 100:2008) from the budget listed in this certificate; rtcal's uncertainty "
+    "in accordance with the GUM (JCGM 100:2008) from the budget listed in this {doc}; rtcal's uncertainty "
     "model is validated against the errors of Monte Carlo simulations of the measurement.")
 RELATES_STATEMENT = (
     "The results relate only to the item calibrated, at the time and under the conditions of the measurement stated. "
-    "This certificate shall not be reproduced except in full without the written approval of the issuing laboratory.")
+    "This {doc} shall not be reproduced except in full without the written approval of the issuing laboratory.")
 CERTIFICATE_NEEDS = (("laboratory", "the laboratory (metadata.laboratory)"),
                      ("certificate_number", "a certificate number (metadata.certificate_number)"),
                      ("approved_by", "who approved it (metadata.approved_by)"))
@@ -307,6 +305,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
                       _fmt(c.guard_band_arcsec), c.verdict) for k, c in conformity.per_limit.items()],
         }
     performed = meta.performed_by or meta.operator
+    doc = "report" if missing else "certificate"
     footer = " · ".join(x for x in (meta.laboratory or results.procedure.name or results.method,
                                     f"Certificate {meta.certificate_number}" if meta.certificate_number else "") if x)
     return {
@@ -319,11 +318,10 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
                             if missing else ""),
         "identification": identification, "warnings": warnings,
         "key_results": key_results(results, uncertainties),
-        "uncertainty_statement": UNCERTAINTY_STATEMENT, "not_included": not_included,
-        "conformity": verdict, "traceability": traceability(results), "statement": RELATES_STATEMENT,
+        "uncertainty_statement": UNCERTAINTY_STATEMENT.format(doc=doc), "not_included": not_included,
+        "conformity": verdict, "traceability": traceability(results), "statement": RELATES_STATEMENT.format(doc=doc),
         "signatures": [("Performed by", performed or "not stated"), ("Approved by", meta.approved_by or "not approved"),
                        ("Date of issue", issued)],
-        "header": identification,  # the older key, kept for consumers of the model
         "instruments": instrument_rows(results), "connections": connections(results),
         "rows": rows, "recommended": results.recommended,
         "iso": [(sym, desc, _fmt(getattr(iso, key)), _fmt(uncertainties.get(key))) for key, sym, desc in ISO_KEYS] if iso else [],
@@ -511,7 +509,7 @@ def _fonts(pdfmetrics, TTFont) -> tuple[str, str]:
         return "Helvetica", "Helvetica-Bold"
 
 
-def write_report(run_dir: Path, results: RunResults, body: list[str]) -> Path:
+def write_report(run_dir: Path, results: RunResults, body: list[str], method_name: str = "") -> Path:
     """The Markdown report: a header every run shares, the method's body, the run's events."""
     lines = [f"# rtcal run — {results.procedure.name or results.method}", ""]
     for name, st in results.solver_status.items():
@@ -520,7 +518,8 @@ def write_report(run_dir: Path, results: RunResults, body: list[str]) -> Path:
             lines.append(">")
     if results.bench and results.bench.startswith("ideal bench"):
         lines += [f"> **Note:** {results.bench}.", ""]
-    lines += [f"- method: `{results.method}`", f"- software: rtcal {results.rtcal_version}",
+    lines += [f"- method: {method_name} (`{results.method}`)" if method_name else f"- method: `{results.method}`",
+              f"- software: rtcal {results.rtcal_version}",
               f"- started: {results.started_utc or '?'} (UTC); measured until {results.finished_utc or '?'}; "
               f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}",
               f"- measurement duration: {results.measurement_duration_s} s"

@@ -417,7 +417,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
             if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
                 PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
             method_outputs.write_files(out)
-            write_report(out, results, method_outputs.report_body())
+            write_report(out, results, method_outputs.report_body(), method_outputs.method_name())
             model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text(),
                                  method_outputs.method_name())
             write_html(model, out / "report.html")
