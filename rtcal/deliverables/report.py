@@ -162,7 +162,10 @@ def instrument_rows(results: RunResults) -> list[tuple[str, ...]]:
     """(instrument, role, id, its certificate, calibrated by, due) per instrument and standard."""
     records = results.metadata.instruments
     none = InstrumentRecord(id="", calibration_due="")
-    return [(name.replace("_", " "), ROLES.get(name, ""), records.get(name, none).id or "not recorded",
+    roles = dict(ROLES)
+    if isinstance(results, AbbeResults) and results.estimates.abbe is not None and results.estimates.abbe.polygon_source == "closure":
+        roles["polygon"] = "artefact: its face errors separated from the table's by closure in this run"
+    return [(name.replace("_", " "), roles.get(name, ""), records.get(name, none).id or "not recorded",
              records.get(name, none).certificate_number or "–", records.get(name, none).calibrated_by or "–",
              records.get(name, none).calibration_due or "–") for name in instruments_used(results)]
 
