@@ -75,6 +75,7 @@ class AbbeOutputs:
             for d in dirs:
                 ax.plot(*series(a.tilt_x_arcsec, d), marker=".", label=f"tilt εx / ″ {ARROW[d]}")
                 ax.plot(*series(a.radial_y_um, d), marker=".", ls="--", label=f"radial δy / µm {ARROW[d]}")
+            ax.set_ylabel("tilt εx / ″ and radial δy / µm")
             ax.set_title("Fig. 9 — tilt motion about X and radial motion in Y (from the dial indicators)")
 
         def fig10(ax: Axes) -> None:
