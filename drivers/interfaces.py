@@ -19,6 +19,9 @@ class Instrument(ABC):
 
     name: str = "instrument"
     model: str = ""  # the product whose protocol a real-transport driver speaks (drivers/models.py)
+    # how the protocol keeps other clients out while rtcal holds the instrument, as a certificate
+    # states it; empty: the protocol cannot tell whether another client reaches the instrument
+    exclusive_access: str = ""
 
     def close(self) -> None:  # noqa: B027 — optional for backends without a session
         """Release the transport; idempotent."""

@@ -33,6 +33,8 @@ MOTIONS = ("GoTo", "PtMeas", "Home")
 class IppCmm(Cmm):
     name = "cmm"
     model, kind, schemes, options, framing = "ipp", "cmm", ("ipp",), {}, None
+    exclusive_access = ("an I++ DME server serves one session at a time, and rtcal held it while measuring (a second "
+                        "client's StartSession() is refused; docs/protocols/ipp_dme.md: not confirmed for every real server)")
     _error_state = False  # the server answers 0514 until ClearAllErrors()
     version = ""
     tool: str | None = None

@@ -52,6 +52,7 @@ def _execute(start, run_dir: str) -> int:
     import signal
 
     from rtcal.deliverables.outputs import outputs_for
+    from rtcal.deliverables.report import console_lines
     from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
@@ -85,7 +86,7 @@ def _execute(start, run_dir: str) -> int:
           "readings stored")
     if results.bench == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
-    for line in outputs_for(results).summary():
+    for line in outputs_for(results).summary() + console_lines(results):
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")

@@ -67,6 +67,11 @@ def test_paper000_over_modbus_tcp_ipp_and_ptys(tmp_path):
                       {"paper": ["deviation_arcsec"], "shared_dead_path": ["deviation_arcsec"]})
     assert remote.instruments["stage"].startswith("modbus-tcp://127.0.0.1:")
     assert remote.instruments["laser_tracer"].startswith("/dev/pts/")
+    # what the certificate states of the control of the machine: I++ tells (one session), Modbus cannot
+    c = remote.control
+    assert c.instruments["cmm"].startswith("exclusive session: an I++ DME server serves one session at a time")
+    assert c.instruments["stage"].startswith("not known:") and c.exclusive is None
+    assert c.instruments["operator"].startswith("token:") and c.rejected_attempts == 0
 
 
 def test_seed001_over_modbus_rtu_and_sockets(tmp_path):

@@ -11,7 +11,7 @@ from typing import Callable, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 
-from rtcal.deliverables.figures import plt
+from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.report import fmt, largest, smallest, status_lines
 from rtcal.results.model import AbbeEstimate, AbbeResults, ClosureEstimate, Estimate, HarmonicTerm, TargetedEstimate
 
@@ -19,13 +19,13 @@ ARROW = {1: "↑", -1: "↓"}
 
 
 def _figure(run_dir: Path, name: str, draw: Callable[[Axes], None]) -> Path:
-    fig, ax = plt.subplots(figsize=(8, 4.2))
+    fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
     draw(ax)
     ax.set_xlabel("table angle / °")
     ax.set_xlim(0, 360)
+    ax.set_xticks(range(0, 361, 30))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    legend_below(fig)
     path = run_dir / name
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -75,6 +75,7 @@ class AbbeOutputs:
             for d in dirs:
                 ax.plot(*series(a.tilt_x_arcsec, d), marker=".", label=f"tilt εx / ″ {ARROW[d]}")
                 ax.plot(*series(a.radial_y_um, d), marker=".", ls="--", label=f"radial δy / µm {ARROW[d]}")
+            ax.set_ylabel("tilt εx / ″ and radial δy / µm")
             ax.set_title("Fig. 9 — tilt motion about X and radial motion in Y (from the dial indicators)")
 
         def fig10(ax: Axes) -> None:
@@ -131,7 +132,7 @@ class AbbeOutputs:
 
     def _plot_harmonics(self, run_dir: Path) -> Path:
         h = self.abbe.harmonics
-        fig, ax = plt.subplots(figsize=(8, 4.2))
+        fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
         present: list[tuple[str, list[HarmonicTerm]]] = [
             (name, terms) for name, terms in (("positioning_error", h.positioning_error_arcsec),
                                               ("encoder_vs_command", h.encoder_vs_command_arcsec),
@@ -144,15 +145,14 @@ class AbbeOutputs:
         ax.set_xlabel("harmonic order (per revolution)")
         ax.set_ylabel("amplitude / arcsec")
         ax.set_title("Harmonic analysis")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
+        legend_below(fig)
         path = run_dir / "harmonics.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
         return path
 
     def _plot_closure(self, run_dir: Path, c: ClosureEstimate) -> Path:
-        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6))
+        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6.4), layout="constrained")
         ax1.errorbar(range(len(c.face_error_arcsec)), c.face_error_arcsec, yerr=c.face_uncertainty_arcsec, marker="o", capsize=3)
         ax1.set_xlabel("polygon face")
         ax1.set_ylabel("face error / ″")
@@ -162,9 +162,8 @@ class AbbeOutputs:
                          yerr=[c.table_uncertainty_arcsec[i] for i in sel], marker="o", capsize=3, label=ARROW[d])
         ax2.set_xlabel("table angle / °")
         ax2.set_ylabel("table error εz / ″")
-        ax2.legend()
+        legend_below(fig)
         ax1.set_title("Closure: polygon face errors and table errors, separated (1σ)")
-        fig.tight_layout()
         path = run_dir / "closure.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
@@ -230,14 +229,22 @@ class AbbeOutputs:
         return lines
 
     def certificate_figures(self) -> list[tuple[str, str]]:
-        figs = [("fig10_positioning.png", "Angular positioning error εz against the autocollimator and polygon for each "
-                                          "approach direction, with its U band (k = 2), and the stage encoder's reading."),
-                ("fig11_encoder_error.png", "Encoder error: predicted from tilt and radial motion (Abbe) and measured (±1σ)."),
-                ("fig12_residual.png", "Measured − predicted encoder error (±2σ)."),
-                ("fig09_tilt_radial.png", "Tilt and radial motion of the shaft from the two dial indicators.")]
+        figs = [("fig09_tilt_radial.png", "Fig. 9: tilt and radial motion of the shaft from the two dial indicators."),
+                ("fig10_positioning.png", "Fig. 10: angular positioning error εz against the autocollimator and polygon for "
+                                          "each approach direction, with its U band (k = 2), and the stage encoder's reading."),
+                ("fig11_encoder_error.png", "Fig. 11: encoder error, predicted from tilt and radial motion (Abbe) and "
+                                            "measured (±1σ)."),
+                ("fig12_residual.png", "Fig. 12: measured − predicted encoder error (±2σ).")]
         if self.results.estimates.closure is not None:
             figs.append(("closure.png", "Polygon face errors and table errors separated by closure (±1σ)."))
         return figs
+
+    def method_name(self) -> str:
+        faces = len(self.abbe.face_errors_used_arcsec)
+        reference = ("its face errors from the polygon's certificate" if self.abbe.polygon_source == "certificate"
+                     else "its face errors separated from the table's by closure")
+        return (f"Angular positioning deviation against an autocollimator on a {faces}-face optical polygon ({reference}); "
+                "the stage encoder's Abbe error from the shaft's tilt and radial motion (two dial indicators)")
 
     def method_text(self) -> list[str]:
         a = self.abbe
@@ -256,9 +263,13 @@ class AbbeOutputs:
         r, a = self.results, self.abbe
         rec, e = self._recommended()
         pred = [abs(v) for v in a.predicted_encoder_error_arcsec if v is not None] or [float("nan")]
-        targets = len(e.target_deg) if isinstance(e, TargetedEstimate) else len(e.cumulative_deviation_arcsec)
+        if isinstance(e, TargetedEstimate):
+            dirs = len(set(e.target_direction))
+            over = f"{len({round(t, 6) for t in e.target_deg})} targets" + (" × 2 directions" if dirs == 2 else "")
+        else:
+            over = f"{len(e.cumulative_deviation_arcsec)} targets"
         lines = [f"positioning deviation ECC ({rec}, recommended): {fmt(smallest(e.cumulative_deviation_arcsec), '+.2f')}″ … "
-                 f"{fmt(largest(e.cumulative_deviation_arcsec), '+.2f')}″ over {targets} targets, U (k = 2) up to "
+                 f"{fmt(largest(e.cumulative_deviation_arcsec), '+.2f')}″ over {over}, U (k = 2) up to "
                  f"{fmt(largest(e.cumulative_expanded_uncertainty_arcsec), '.2f')}″"
                  + (f"; reversal {a.reversal_reference_arcsec:+.2f}″" if a.reversal_reference_arcsec is not None else ""),
                  f"encoder error predicted from tilt and radial motion: up to ±{max(pred):.2f}″; "

@@ -13,7 +13,19 @@ import numpy as np
 
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
-from rtcal.results.model import RunResults, TargetedEstimate
+from rtcal.results.model import Analysis, RunResults, TargetedEstimate
+
+
+def estimate_targets(analysis: Analysis, table: PositioningDeviations) -> list[tuple[float, int]]:
+    """(target, direction) of each value of the recommended estimate's cumulative deviation: its own
+    targets, or the nominal angles in the table's one direction."""
+    e = analysis.recommended_estimate()
+    if e is None:
+        return []
+    if isinstance(e, TargetedEstimate):
+        return [(float(t), int(d)) for t, d in zip(e.target_deg, e.target_direction)]
+    direction = int(table.direction[0]) if len(table) else 1
+    return [(float(t), direction) for t in analysis.nominal_angles_deg]
 
 
 def mean_curve(table: PositioningDeviations, results: RunResults | None, wrap: bool = True) -> dict[tuple[float, int], tuple[float, float]]:
@@ -28,13 +40,9 @@ def mean_curve(table: PositioningDeviations, results: RunResults | None, wrap: b
 
     e = results.recommended_estimate() if results is not None else None
     if results is not None and e is not None:
-        if isinstance(e, TargetedEstimate):
-            targets, dirs = e.target_deg, list(e.target_direction)
-        else:
-            targets = results.nominal_angles_deg
-            dirs = [int(table.direction[0])] * len(targets)
-        return {(key(t), int(d)): (float(x), float(u))
-                for t, d, x, u in zip(targets, dirs, e.cumulative_deviation_arcsec, e.cumulative_uncertainty_arcsec)
+        return {(key(t), d): (float(x), float(u))
+                for (t, d), x, u in zip(estimate_targets(results, table), e.cumulative_deviation_arcsec,
+                                        e.cumulative_uncertainty_arcsec)
                 if x is not None and u is not None}
     ok = np.isfinite(table.deviation_arcsec)
     angles = np.round(np.asarray(table.target_deg, float)[ok], 6)

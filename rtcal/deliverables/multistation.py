@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rtcal.deliverables.figures import plt
+from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.report import fmt, largest, status_lines
 from rtcal.results.model import Estimate, MultistationResults, NetworkEstimate, PaperEstimate, StationChainEstimate
 
@@ -72,24 +72,25 @@ class MultistationOutputs:
         angles = np.array(r.nominal_angles_deg, float)
         rec = r.recommended
         ordered = self._by_recommended()
-        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.5, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.5, 8.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]},
+                                      layout="constrained")
         for k, (name, est) in enumerate(ordered):
             cum, u = _values(est.cumulative_deviation_arcsec), _values(est.cumulative_uncertainty_arcsec)
             label = ESTIMATOR_LABELS.get(name, name)
             if name == rec:
                 ax.fill_between(angles, cum - 2 * u, cum + 2 * u, color="C0", alpha=0.2, lw=0,
-                                label=f"{label}: ±U (k = 2)")
-                ax.plot(angles, cum, "o-", color="C0", lw=2, label=f"{label} — recommended")
+                                label=f"ECC, {label}: ±U (k = 2)")
+                ax.plot(angles, cum, "o-", color="C0", lw=2, label=f"ECC, {label} — recommended")
             else:
                 ax.errorbar(angles, cum, yerr=2 * u, fmt="s--", color=f"C{k + 1}", ms=4, lw=1, capsize=3,
-                            label=f"{label}, bars ±U (k = 2)")
+                            label=f"ECC, {label}, bars ±U (k = 2)")
             step, su = _values(est.deviation_arcsec), _values(est.uncertainty_arcsec)
             offset = (k - (len(ordered) - 1) / 2) * 0.012 * (angles.max() - angles.min())
             ax2.errorbar(angles[1:] + offset, step, yerr=su, fmt="o" if name == rec else "s", ms=4, capsize=3,
-                         color="C0" if name == rec else f"C{k + 1}", label=f"{name}, bars ±1σ")
+                         color="C0" if name == rec else f"C{k + 1}", label=f"Δθ, {name}, bars ±1σ")
         if r.truth is not None:
-            ax.plot(angles, r.truth.cumulative_deviation_arcsec, "kx:", label="truth (simulated bench)")
-            ax2.plot(angles[1:], r.truth.deviation_arcsec, "kx", label="truth (simulated bench)")
+            ax.plot(angles, r.truth.cumulative_deviation_arcsec, "kx:", label="ECC, truth (simulated bench)")
+            ax2.plot(angles[1:], r.truth.deviation_arcsec, "kx", label="Δθ, truth (simulated bench)")
         for a in (ax, ax2):
             a.axhline(0.0, color="0.6", lw=0.8)
             a.grid(alpha=0.3)
@@ -97,10 +98,8 @@ class MultistationOutputs:
         ax2.set_ylabel("per-step deviation Δθ / ″\n(eq. 33: actual − nominal step)")
         ax2.set_xlabel("commanded table angle / °  (" + ("positive" if angles[-1] > angles[0] else "negative") + " approach)")
         ax2.set_xticks(angles, [f"{a:g}" for a in angles], fontsize=8)
-        ax.legend(fontsize=8, loc="best")
-        ax2.legend(fontsize=8, loc="best")
+        legend_below(fig)
         ax.set_title(_mathtext_safe(r.procedure.name or r.method), fontsize=11)
-        fig.tight_layout()
         path = run_dir / "deviation.png"
         fig.savefig(path, dpi=120)
         plt.close(fig)
@@ -208,6 +207,11 @@ class MultistationOutputs:
     def certificate_figures(self) -> list[tuple[str, str]]:
         return [("deviation.png", "Cumulative positioning deviation ECC of every estimator (the recommended one with its "
                                   "U band, k = 2) and the per-step deviation Δθ of seed 000's eq. 33 (bars ±1σ).")]
+
+    def method_name(self) -> str:
+        return ("Laser tracer multi-station method: a laser tracer on the table, its reflector moved through points by a "
+                "CMM while the table indexes through the stations; the stations self-calibrated from the tracer's "
+                "interferometric lengths")
 
     def method_text(self) -> list[str]:
         rec = self.results.recommended

@@ -31,6 +31,10 @@ class MethodOutputs(Protocol):
         """The certificate's paragraphs on the method."""
         ...
 
+    def method_name(self) -> str:
+        """The method as the certificate names it, in words (never the procedure's `method:` key)."""
+        ...
+
     def summary(self) -> list[str]:
         """The console lines after a run: the recommended result, then what did not converge."""
         ...

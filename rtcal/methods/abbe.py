@@ -14,7 +14,7 @@ import numpy as np
 
 from drivers import factory
 from rtcal.clock import Clock
-from rtcal.run.dataset import abbe_visits
+from rtcal.run.dataset import abbe_conditions, abbe_visits
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.methods.estimates import choose_recommended, deviation_block, finite_or_none, run_estimators
@@ -37,6 +37,7 @@ from simulators.instruments import (
     SimAutocollimator,
     SimDialIndicator,
     SimEncoder,
+    SimEnvironmentSensor,
     SimStage,
 )
 from simulators.scenario import Scenario
@@ -180,8 +181,9 @@ class AbbeMethod:
         return len(planned_visits(proc))
 
     def sim_instruments(self, proc: EncoderAbbeError, bench: Bench) -> AbbeInstrumentSet:
+        env = SimEnvironmentSensor(bench) if proc.instruments.environment is not None else None
         return AbbeInstrumentSet(SimStage(bench), SimEncoder(bench), SimAutocollimator(bench),
-                                 (SimDialIndicator(bench, 0), SimDialIndicator(bench, 1)))
+                                 (SimDialIndicator(bench, 0), SimDialIndicator(bench, 1)), env)
 
     def transport_instruments(self, proc: EncoderAbbeError) -> AbbeInstrumentSet:
         i = proc.instruments
@@ -191,6 +193,7 @@ class AbbeMethod:
             factory.open_autocollimator(address_of(i.autocollimator), i.autocollimator.timeout_s),
             (factory.open_dial_indicator(address_of(i.dial_indicator_1), "dial_indicator_1", i.dial_indicator_1.timeout_s),
              factory.open_dial_indicator(address_of(i.dial_indicator_2), "dial_indicator_2", i.dial_indicator_2.timeout_s)),
+            factory.open_environment(address_of(i.environment), i.environment.timeout_s) if i.environment is not None else None,
         )
 
     def prepare(self, proc: EncoderAbbeError, operator: Operator) -> dict[str, str]:
@@ -241,6 +244,7 @@ class AbbeMethod:
             estimates=rm.AbbeEstimates(**estimates),
             positioning_deviations=table,
             truth=truth,
+            environment=None if (conditions := abbe_conditions(store)) is None else rm.EnvironmentSummary.model_validate(conditions),
         )
 
     def draw_systematics(self, proc: EncoderAbbeError, scenario: Scenario, rng: np.random.Generator) -> Scenario:

@@ -147,11 +147,11 @@ def _r(a: np.ndarray, digits: int = 4) -> list:
 
 def plot_summary(summary: dict[str, Any], title: str, path: Path) -> Path:
     """Per estimator: RMS error against the RMS reported 1σ per target, and their ratio."""
-    from rtcal.deliverables.figures import plt
+    from rtcal.deliverables.figures import legend_below, plt
 
     names = list(summary["estimators"])
-    fig, axes = plt.subplots(len(names), 2, figsize=(10, 3.2 * len(names)), squeeze=False,
-                             gridspec_kw={"width_ratios": [3, 2]})
+    fig, axes = plt.subplots(len(names), 2, figsize=(11, 3.6 * len(names) + 0.8), squeeze=False,
+                             gridspec_kw={"width_ratios": [3, 2]}, layout="constrained")
     x = np.arange(len(summary["targets"]))
     labels = summary["targets"]
     for row, name in zip(axes, names):
@@ -164,21 +164,20 @@ def plot_summary(summary: dict[str, Any], title: str, path: Path) -> Path:
         row[0].set_ylabel("arcsec")
         row[0].set_title(f"{name}{' (recommended)' if name == summary['recommended'] else ''}: "
                          f"{e['trials']} trials", fontsize=10)
-        row[0].legend(fontsize=8)
         row[1].axhspan(0.8, 1.25, color="C2", alpha=0.15, label="0.8–1.25")
         # the ratio's own 1σ from a finite number of trials: about ratio/√(2N)
         row[1].errorbar(x[1:], ratio[1:], yerr=ratio[1:] / np.sqrt(2 * e["trials"]), fmt="o-", color="C3", capsize=3,
                         label=f"reported 1σ / RMS error (bars: ±1σ of {e['trials']} trials)")
         row[1].axhline(1.0, color="0.5", lw=0.8)
         row[1].set_ylim(0, max(2.0, float(np.nanmax(ratio[1:])) * 1.1 if np.any(np.isfinite(ratio[1:])) else 2.0))
-        row[1].legend(fontsize=8)
-        for ax in row:
-            ax.set_xticks(x, labels, fontsize=7, rotation=90 if len(x) > 16 else 0)
+        for ax, room in zip(row, (40, 24)):  # labels like "-115↑" stand upright, at most `room` to a panel
+            every = -(-len(x) // room)
+            ax.set_xticks(x[::every], labels[::every], fontsize=7, rotation=90 if len(x) > 4 else 0)
             ax.grid(alpha=0.3)
     axes[-1][0].set_xlabel("target: commanded angle / °, ↑ positive or ↓ negative approach")
     axes[-1][1].set_xlabel("target")
     fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
+    legend_below(fig)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

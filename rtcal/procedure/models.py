@@ -16,7 +16,7 @@ import difflib
 import math
 import re
 import unicodedata
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
@@ -46,22 +46,28 @@ class InstrumentRecord(_Strict):
 
     id: str = Field("", max_length=200, description="make, model and serial number (e.g. Etalon LaserTRACER 12-0034)")
     calibration_due: str = Field("", max_length=40, description="its calibration due date (e.g. 2027-03-31)")
+    certificate_number: str = Field("", max_length=100, description="the number of its own calibration certificate "
+                                                                   "(e.g. 0815 DKD-K-06901 2025-03)")
+    calibrated_by: str = Field("", max_length=200, description="who issued that certificate: the laboratory and its "
+                                                              "accreditation (e.g. PTB, or DAkkS D-K-15033-01-00); the "
+                                                              "certificate's traceability statement names it")
 
-    _plain = field_validator("id", "calibration_due")(lambda cls, text: _check_text(text))
+    _plain = field_validator("id", "calibration_due", "certificate_number", "calibrated_by")(lambda cls, text: _check_text(text))
 
-    @field_validator("calibration_due")
-    @classmethod
-    def _a_date(cls, text: str) -> str:
-        """A certificate states the due date as a date (unquoted in YAML it is read as text)."""
-        if not text:
-            return text
-        try:
-            if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
-                raise ValueError
-            datetime.date.fromisoformat(text)
-        except ValueError:
-            raise ValueError(f"{text[:40]!r} is not a date: write it as YYYY-MM-DD (e.g. 2027-03-31)") from None
+    _due = field_validator("calibration_due")(lambda cls, text: _check_date(text))
+
+
+def _check_date(text: str) -> str:
+    """A certificate states its dates as dates (unquoted in YAML a date is read as text)."""
+    if not text:
         return text
+    try:
+        if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
+            raise ValueError
+        datetime.date.fromisoformat(text)
+    except ValueError:
+        raise ValueError(f"{text[:40]!r} is not a date: write it as YYYY-MM-DD (e.g. 2027-03-31)") from None
+    return text
 
 
 class Metadata(_Strict):
@@ -75,10 +81,27 @@ class Metadata(_Strict):
     operator: str = Field("", max_length=200, description="who calibrated it")
     certificate_number: str = Field("", max_length=100, description="the certificate's number")
     instruments: dict[str, InstrumentRecord] = Field({}, description="per instrument of the procedure (stage, cmm, "
-                                                                     "laser_tracer, …): its id and calibration due date")
+                                                                     "laser_tracer, …) and reference standard (polygon): "
+                                                                     "its id, calibration due date and certificate")
+    laboratory: str = Field("", max_length=200, description="the calibration laboratory issuing the certificate, with its "
+                                                           "accreditation (e.g. Example Metrology Lab GmbH, DAkkS D-K-99999-01-00)")
+    laboratory_address: str = Field("", max_length=300, description="the laboratory's address (e.g. Messweg 1, 12345 "
+                                                                   "Musterstadt, Germany)")
+    customer_address: str = Field("", max_length=300, description="the customer's address")
+    date_of_issue: str = Field("", max_length=10, description="the certificate's date of issue, YYYY-MM-DD (empty: the "
+                                                             "day the report is written)")
+    performed_by: str = Field("", max_length=200, description="who performed the calibration, as the certificate names "
+                                                             "them (name, function; empty: the `operator`)")
+    approved_by: str = Field("", max_length=200, description="who authorised the certificate for issue (name, function), "
+                                                            "ISO/IEC 17025 7.8.2.1 o)")
+    traceability: str = Field("", max_length=2000, description="the certificate's traceability statement (empty: made from "
+                                                              "the reference standards' certificates listed under "
+                                                              "`instruments`)")
 
-    _plain = field_validator("customer", "machine", "axis", "serial_number", "location", "operator",
-                             "certificate_number")(lambda cls, text: _check_text(text))
+    _plain = field_validator("customer", "machine", "axis", "serial_number", "location", "operator", "certificate_number",
+                             "laboratory", "laboratory_address", "customer_address", "performed_by", "approved_by",
+                             "traceability")(lambda cls, text: _check_text(text))
+    _issued = field_validator("date_of_issue")(lambda cls, text: _check_date(text))
 
 
 class InstrumentChoice(_Strict):
@@ -232,6 +255,8 @@ class AbbeOnFault(_Strict):
     autocollimator: FaultPolicy = Field(FaultPolicy(), description="when the autocollimator fails")
     dial_indicator_1: FaultPolicy = Field(FaultPolicy(), description="when dial indicator 1 fails")
     dial_indicator_2: FaultPolicy = Field(FaultPolicy(), description="when dial indicator 2 fails")
+    environment: FaultPolicy = Field(FaultPolicy(then="skip"), description="when the environment sensor fails "
+                                     "(default: skip; the visit is kept, its conditions are not recorded)")
 
     @model_validator(mode="after")
     def _no_reacquire(self) -> "AbbeOnFault":
@@ -420,21 +445,99 @@ class SecondMount(_Strict):
                                                       "mm (nominal, for the solver's start; e.g. [-22.6, 128.0, 122.5])")
 
 
+Limit_arcsec = Annotated[float, Field(gt=0.0, le=1e6)]
+
+
+class AcceptanceLimits(_Strict):
+    """Upper limits of ISO 230-2 parameters of the axis, arcsec (any subset; docs/conformity.md)."""
+
+    E: Limit_arcsec | None = Field(None, description="bidirectional systematic positional deviation E, arcsec (e.g. 60)")
+    E_up: Limit_arcsec | None = Field(None, description="unidirectional systematic positional deviation E↑, arcsec")
+    E_down: Limit_arcsec | None = Field(None, description="unidirectional systematic positional deviation E↓, arcsec")
+    M: Limit_arcsec | None = Field(None, description="range of the mean bidirectional positional deviation M, arcsec")
+    B: Limit_arcsec | None = Field(None, description="reversal value B (max |B_i|), arcsec (e.g. 12)")
+    R: Limit_arcsec | None = Field(None, description="bidirectional repeatability R, arcsec (needs two runs or more)")
+    R_up: Limit_arcsec | None = Field(None, description="unidirectional repeatability R↑, arcsec (needs two runs or more)")
+    R_down: Limit_arcsec | None = Field(None, description="unidirectional repeatability R↓, arcsec (needs two runs or more)")
+    A: Limit_arcsec | None = Field(None, description="bidirectional accuracy A, arcsec (needs two runs or more)")
+    A_up: Limit_arcsec | None = Field(None, description="unidirectional accuracy A↑, arcsec (needs two runs or more)")
+    A_down: Limit_arcsec | None = Field(None, description="unidirectional accuracy A↓, arcsec (needs two runs or more)")
+
+    def items(self) -> list[tuple[str, float]]:
+        """The limits given, in the order above."""
+        return [(k, getattr(self, k)) for k in type(self).model_fields if getattr(self, k) is not None]
+
+
+class Acceptance(_Strict):
+    """Acceptance limits and the decision rule that turns the measured parameters into a verdict
+    (docs/conformity.md). ``simple`` (ILAC-G8:09/2019, simple acceptance): pass when the value is
+    at most the limit. ``guarded`` (ISO 14253-1:2017): pass when the value is at most the limit
+    less its expanded uncertainty U (k = 2), fail when it exceeds the limit plus U, undecided
+    between."""
+
+    decision_rule: Literal["simple", "guarded"] = Field(
+        description="`simple` (ILAC-G8: pass if value ≤ limit) or `guarded` (ISO 14253-1: pass if value ≤ limit − U, "
+                    "fail if value > limit + U, else undecided)")
+    limits_arcsec: AcceptanceLimits = Field(AcceptanceLimits(), description="upper limits of ISO 230-2 parameters, "
+                                            "arcsec, e.g. {E: 60, B: 12}")
+    band_arcsec: Limit_arcsec | None = Field(
+        None, description="tolerance band on the positioning deviation: every mean deviation x̄↑, x̄↓ per target (relative "
+                          "to the first target, as the result table gives them) within ±band_arcsec (e.g. 30)")
+
+    @model_validator(mode="after")
+    def _something_to_decide(self) -> "Acceptance":
+        if not self.limits_arcsec.items() and self.band_arcsec is None:
+            raise ValueError("limits_arcsec: give at least one limit (E, E_up, E_down, M, B, R, R_up, R_down, A, A_up, "
+                             "A_down) or a band_arcsec")
+        return self
+
+
+def acceptance_problem(acceptance: Acceptance, directions: set[int], runs: int) -> str | None:
+    """``field: message`` when a limit names a parameter the plan cannot define (one direction, one run)."""
+    for key, _ in acceptance.limits_arcsec.items():
+        needs = {1} if key.endswith("_up") else {-1} if key.endswith("_down") else {1, -1}
+        if not needs <= directions:
+            side = {1: "positive", -1: "negative"}
+            return (f"limits_arcsec.{key}: {key} needs the {' and '.join(side[d] for d in sorted(needs, reverse=True))} "
+                    f"approach{'es' if len(needs) > 1 else ''}; this procedure measures "
+                    f"{' and '.join(side[d] for d in sorted(directions, reverse=True))} only")
+        if key[0] in "RA" and runs < 2:
+            return f"limits_arcsec.{key}: {key} needs the scatter of at least two runs per direction; this procedure has {runs}"
+    return None
+
+
 class _Procedure(_Strict):
     """What every procedure has besides its method: a title, the report's header, its bench."""
+
+    REFERENCE_STANDARDS: ClassVar[tuple[str, ...]] = ()  # artefacts `metadata.instruments` may record besides instruments
 
     name: str = Field("", max_length=200, description="a title for the report and plots")
     metadata: Metadata = Field(Metadata(), description="customer, machine, axis, operator, instruments: the report's header")
     bench: str | None = Field(None, max_length=4096, description="scenario of the simulated bench, a path relative to this "
                               "file and inside its folder (e.g. `scenarios/abbe_bench.yaml`)")
+    acceptance: Acceptance | None = Field(None, description="acceptance limits and decision rule: a conformity verdict "
+                                          "(pass, fail, undecided) in results.json, the console and the certificate "
+                                          "(docs/conformity.md)")
 
     _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
+
+    def approaches(self) -> tuple[set[int], int]:
+        """The directions (+1, −1) the positioning-deviation table will have, and its runs per direction."""
+        raise NotImplementedError
+
+    @model_validator(mode="after")
+    def _acceptance_defined(self) -> "_Procedure":
+        if self.acceptance is not None:
+            problem = acceptance_problem(self.acceptance, *self.approaches())
+            if problem:
+                raise ValueError(f"acceptance.{problem}")
+        return self
 
     @model_validator(mode="after")
     def _records_of_instruments(self) -> "_Procedure":
         """A certificate lists the instruments the procedure uses: a misspelt key would print an
         instrument that took no part."""
-        known = list(type(getattr(self, "instruments")).model_fields)
+        known = list(type(getattr(self, "instruments")).model_fields) + list(self.REFERENCE_STANDARDS)
         for key in self.metadata.instruments:
             if key not in known:
                 close = difflib.get_close_matches(key, known, n=1)
@@ -488,6 +591,10 @@ class LaserTracerMultistation(_Procedure):
     def mounts(self) -> int:
         return 1 if self.second_mount is None else 2
 
+    def approaches(self) -> tuple[set[int], int]:
+        """Every station in one direction, once: the table has one run."""
+        return {1 if self.stations.approach == "positive" else -1}, 1
+
     def points_array(self) -> np.ndarray:
         return self.points.points_mm() if isinstance(self.points, GridPlan) else self.points.points_mm_array()
 
@@ -527,6 +634,9 @@ class AbbeInstruments(_Instruments):
     autocollimator: InstrumentChoice = Field(InstrumentChoice(), description="the autocollimator facing the polygon")
     dial_indicator_1: InstrumentChoice = Field(InstrumentChoice(), description="the dial indicator on the shaft at L1")
     dial_indicator_2: InstrumentChoice = Field(InstrumentChoice(), description="the dial indicator on the shaft at L2")
+    environment: InstrumentChoice | None = Field(
+        None, description="an air and material sensor, read at every visit: the conditions during the measurement, "
+                          "summarised in results.json and the certificate (e.g. {backend: sim})")
 
 
 class AbbeSteps(_Strict):
@@ -655,9 +765,14 @@ class EncoderAbbeError(_Procedure):
     max_harmonic_order: int = Field(24, ge=1, le=360, description="highest harmonic order fitted per revolution")
     uncertainty: AbbeUncertainty = Field(AbbeUncertainty(), description="inputs of the uncertainty budget")
 
+    REFERENCE_STANDARDS: ClassVar[tuple[str, ...]] = ("polygon",)
+
     @property
     def step_deg(self) -> float:
         return self.polygon.pitch_deg / self.steps.steps_per_face
+
+    def approaches(self) -> tuple[set[int], int]:
+        return {1 if d == "positive" else -1 for d in self.steps.directions}, self.steps.runs
 
     def visit_count(self) -> int:
         """Planned stage visits, without building them."""

@@ -18,7 +18,7 @@ from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar, Union
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
 
 # -- bounded numbers ------------------------------------------------------------------------------
 Arcsec = Annotated[float, Field(ge=-1e7, le=1e7)]
@@ -306,7 +306,7 @@ class Range(ResultsModel):
 
 
 class EnvironmentSummary(NamedSet[Range]):
-    """The conditions the environment sensor recorded with the lengths."""
+    """The conditions the environment sensor recorded during the measurement."""
 
 
     air_temperature_c: Range | None = Field(None, description="air temperature, °C")
@@ -560,6 +560,8 @@ class InstrumentRecord(ResultsModel):
 
     id: Name = Field(description="make, model and serial number")
     calibration_due: Name = Field(description="its calibration due date (YYYY-MM-DD), or empty")
+    certificate_number: Name = Field("", description="the number of its own calibration certificate, or empty (1.1)")
+    calibrated_by: Name = Field("", description="who issued that certificate (laboratory, accreditation), or empty (1.1)")
 
 
 class RunMetadata(ResultsModel):
@@ -572,7 +574,17 @@ class RunMetadata(ResultsModel):
     location: Name = Field(description="where it was calibrated")
     operator: Name = Field(description="who calibrated it")
     certificate_number: Name = Field(description="the certificate's number")
-    instruments: dict[Name, InstrumentRecord] = Field(description="per instrument: its id and calibration due date")
+    instruments: dict[Name, InstrumentRecord] = Field(description="per instrument and reference standard (polygon): its "
+                                                      "id, calibration due date and certificate")
+    laboratory: Name = Field("", description="the calibration laboratory and its accreditation (1.1)")
+    laboratory_address: Name = Field("", description="the laboratory's address (1.1)")
+    customer_address: Name = Field("", description="the customer's address (1.1)")
+    date_of_issue: Name = Field("", description="the certificate's date of issue, YYYY-MM-DD (empty: the day the report "
+                                                "was written) (1.1)")
+    performed_by: Name = Field("", description="who performed the calibration (empty: `operator`) (1.1)")
+    approved_by: Name = Field("", description="who authorised the certificate for issue (1.1)")
+    traceability: Text = Field("", description="the traceability statement (empty: made from the reference standards' "
+                                               "certificates) (1.1)")
 
 
 # -- the three parts of a run's results, and the results of each method ------------------------------
@@ -580,7 +592,7 @@ class RunInfo(ResultsModel):
     """What the runner knows of every run before its analysis."""
 
     schema_version: Annotated[str, Field(pattern=r"^1\.[0-9]{1,4}$")] = Field(
-        SCHEMA_VERSION, description="version of this schema: a minor step adds optional keys, a major one changes keys "
+        "1.0", description="version of this schema: a minor step adds optional keys, a major one changes keys "
                                     "(absent in files of rtcal before 0.1.0's results model: read as 1.0)")
     rtcal_version: Name = Field(description="the rtcal that wrote the file")
     method: Literal["laser_tracer_multistation", "encoder_abbe_error"] = Field(description="the calibration method")
@@ -658,6 +670,8 @@ class AbbeAnalysis(Analysis):
         description="the estimate to quote: converged, and the smallest uncertainty among those that did")
     estimates: AbbeEstimates = Field(description="every estimate that could run, by estimator")
     truth: AbbeTruth | None = Field(None, description="what the simulated bench really had (absent: on instruments)")
+    environment: EnvironmentSummary | None = Field(
+        None, description="the air and table conditions recorded at the visits (null: no environment sensor) (1.1)")
 
     @model_validator(mode="after")
     def _closure_from_abbe(self) -> AbbeAnalysis:
@@ -666,19 +680,69 @@ class AbbeAnalysis(Analysis):
         return self
 
 
+Verdict = Literal["pass", "fail", "undecided"]
+
+
+class LimitConformity(ResultsModel):
+    """One acceptance limit against its measured parameter (docs/conformity.md)."""
+
+    OPTIONAL_KEYS = frozenset({"target_deg", "direction"})
+
+    limit_arcsec: Annotated[float, Field(gt=0.0, le=1e6)] = Field(description="the limit the procedure states, arcsec")
+    value_arcsec: Parameter | None = Field(description="the measured parameter, arcsec (null: not defined by the data)")
+    expanded_uncertainty_arcsec: SigmaArcsec | None = Field(
+        description="U (k = 2) of the parameter, from the positioning deviations' covariance (null: not defined)")
+    guard_band_arcsec: SigmaArcsec = Field(description="the guard band the rule applied: U under `guarded`, 0 under `simple`")
+    verdict: Verdict = Field(description="pass, fail or undecided (guarded: within U of the limit; or no value)")
+    target_deg: Deg | None = Field(None, description="for the band: the target closest to (or beyond) it, degrees")
+    direction: Direction | None = Field(None, description="for the band: that target's approach, 1 ↑ or −1 ↓")
+
+
+class Conformity(ResultsModel):
+    """The procedure's acceptance limits, the decision rule, and the verdict per limit and overall."""
+
+    decision_rule: Literal["simple", "guarded"] = Field(
+        description="`simple`: ILAC-G8:09/2019 simple acceptance (pass if value ≤ limit); `guarded`: ISO 14253-1:2017 "
+                    "(pass if value ≤ limit − U, fail if value > limit + U, else undecided)")
+    rule: Text = Field(description="the decision rule in words, as the certificate states it")
+    verdict: Verdict = Field(description="fail if any limit fails, else undecided if any is undecided, else pass")
+    coverage_factor: Annotated[float, Field(gt=0.0, le=10.0)] = Field(description="k of every U here (2)")
+    per_limit: dict[Annotated[str, Field(pattern=r"^(E|E_up|E_down|M|B|R|R_up|R_down|A|A_up|A_down|band)$")],
+                    LimitConformity] = Field(description="per limit (ISO 230-2 symbol, or `band`): limit, value, U, verdict")
+    notes: list[Text] = Field(description="how U was made and what it leaves out")
+
+
+class Control(ResultsModel):
+    """Whether rtcal had the machine to itself, and how every motion and reading was checked."""
+
+    instruments: dict[Name, Text] = Field(
+        description="per instrument that moves (stage, cmm) and the operator: what access rtcal had and how it is known")
+    exclusive: bool | None = Field(
+        description="true: every instrument that moves was rtcal's alone (in process, or an exclusive session); null: "
+                    "a protocol cannot tell (the checks are then the evidence)")
+    checks: list[Text] = Field(description="what every motion and reading was checked against, with the tolerances")
+    rejected_attempts: Count = Field(description="readings the checks contradicted: kept, marked rejected, never used")
+
+
 class RunLog(ResultsModel):
     """What the runner adds after the analysis: the evaluation and the run's log."""
+
+    OPTIONAL_KEYS = frozenset({"conformity", "control"})
 
     evaluation: Evaluation | None = Field(description="ISO 230-2 and VDI 3441 parameters (null: no positioning deviations)")
     skipped_readings: Count = Field(description="planned readings a fault policy skipped and no start took again")
     faults: Count = Field(description="instrument faults during the run")
     events: list[Event] = Field(description="the run's log, in order")
+    conformity: Conformity | None = Field(
+        None, description="the verdict against the procedure's `acceptance:` limits (absent: no limits) (1.1)")
+    control: Control | None = Field(
+        None, description="exclusive control of the machine and the checks of every motion and reading (1.1)")
 
 
 class RunResults(RunLog, Analysis, RunInfo):
     """results.json of any method: the run, its analysis, its log (the fields in that order)."""
 
-    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS
+    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | RunLog.OPTIONAL_KEYS
 
     @model_validator(mode="after")
     def _names_its_estimate(self) -> RunResults:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Iterable
+
 import numpy as np
 
 from rtcal.solvers.air import ciddor_n
@@ -55,13 +57,31 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         for (k, i, j), q in env.items():
             if all(name in q for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct")):
                 index[k, i, j] = ciddor_n(np.mean(q["air_temperature_c"]), np.mean(q["air_pressure_pa"]), np.mean(q["humidity_pct"]))
-        summary = {name: {"min": round(float(np.min(v)), 4), "max": round(float(np.max(v)), 4), "mean": round(float(np.mean(v)), 4)}
-                   for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")
-                   if (v := [x for q in env.values() for x in q.get(name, [])])}
+        summary = summarise_conditions(env.values())
     others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k]) for k in range(1, mounts))
     return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
                             int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others,
                             None if index is None else index[0], summary)
+
+
+CONDITIONS = ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")
+
+
+def summarise_conditions(groups: Iterable[dict[str, list[float]]]) -> dict[str, dict[str, float]] | None:
+    """min, max and mean of each condition over the readings (None: nothing recorded)."""
+    groups = list(groups)
+    summary = {name: {"min": round(float(np.min(v)), 4), "max": round(float(np.max(v)), 4), "mean": round(float(np.mean(v)), 4)}
+               for name in CONDITIONS if (v := [x for q in groups for x in q.get(name, [])])}
+    return summary or None
+
+
+def abbe_conditions(store: RunStore) -> dict[str, dict[str, float]] | None:
+    """The environment sensor's readings of the visits the analysis uses, summarised."""
+    per_visit: dict[tuple, dict[str, list[float]]] = {}
+    for r in _one_attempt_per_visit(list(store.readings())):  # all of a visit's readings: its marks decide
+        if r.instrument == "environment" and r.quantity not in MARKERS:
+            per_visit.setdefault((r.plan_index, r.attempt), {}).setdefault(r.quantity, []).append(r.value)
+    return summarise_conditions(per_visit.values())
 
 
 def _one_attempt_per_visit(readings: list) -> list:

@@ -28,9 +28,11 @@ from rtcal.methods import METHODS
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
 from rtcal.deliverables.report import write_report
-from rtcal.results import RunResults, write_results
-from rtcal.results.model import (Analysis, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog, RunMetadata,
-                                 VdiEvaluation, assemble)
+from rtcal.results import SCHEMA_VERSION, RunResults, write_results
+from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
+                                 RunMetadata, VdiEvaluation, assemble)
+from rtcal.deliverables.conformity import assess
+from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.sequencer.faults import RunAborted
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
@@ -323,6 +325,15 @@ def evaluation_of(analysis: Analysis) -> Evaluation | None:
                       vdi3441=VdiEvaluation.model_validate(evaluate(table, "vdi3441")))
 
 
+def conformity_of(proc: Procedure, analysis: Analysis, evaluation: Evaluation | None) -> Conformity | None:
+    """The verdict against the procedure's acceptance limits (None: it states none, or nothing to evaluate)."""
+    if proc.acceptance is None or evaluation is None or analysis.positioning_deviations is None:
+        return None
+    a = proc.acceptance
+    return assess(a.decision_rule, a.limits_arcsec.items(), a.band_arcsec, evaluation.iso230_2, analysis,
+                  PositioningDeviations.from_model(analysis.positioning_deviations))
+
+
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True) -> RunOutcome:
@@ -368,6 +379,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     virtual = isinstance(clock, VirtualClock)
     try:
         info = RunInfo(
+            schema_version=SCHEMA_VERSION,
             rtcal_version=__version__,
             method=proc.method,
             procedure=ProcedureRef(name=proc.name, path=meta.get("procedure_path", "")),
@@ -382,8 +394,11 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
             measurement_duration_s=round(clock.now_s(), 1),
             clock="virtual" if virtual else "real",
         )
-        log = RunLog(evaluation=evaluation_of(analysis), skipped_readings=len(store.skipped_plan_indices()),
-                     faults=sum(1 for e in events if e.kind == "fault"), events=events)
+        evaluation = evaluation_of(analysis)
+        log = RunLog(evaluation=evaluation, skipped_readings=len(store.skipped_plan_indices()),
+                     faults=sum(1 for e in events if e.kind == "fault"), events=events,
+                     conformity=conformity_of(proc, analysis, evaluation),
+                     control=control_record(proc, simulated, meta.get("operator_address", ""), len(store.rejected_attempts())))
         results = assemble(info, analysis, log)
     except ValidationError as exc:  # a value beyond what results.json admits: the readings stay, the file is not written
         store.close()
@@ -402,8 +417,9 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
             if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
                 PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
             method_outputs.write_files(out)
-            write_report(out, results, method_outputs.report_body())
-            model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text())
+            write_report(out, results, method_outputs.report_body(), method_outputs.method_name())
+            model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text(),
+                                 method_outputs.method_name())
             write_html(model, out / "report.html")
             write_pdf(model, out / "report.pdf")
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them

@@ -10,12 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
-from drivers.interfaces import Autocollimator, DialIndicator, Encoder, RotaryStage
+from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.run.store import REJECTED, Reading, RunStore
 from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
 from rtcal.sequencer.checks import Contradiction, EncoderCheck, MotionChecks, check_face
+from rtcal.sequencer.conditions import read_environment
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 from rtcal.sequencer.operator import Operator
@@ -27,10 +28,12 @@ class AbbeInstrumentSet:
     encoder: Encoder
     autocollimator: Autocollimator
     indicators: tuple[DialIndicator, DialIndicator]
+    environment: EnvironmentSensor | None = None
 
     def close(self) -> None:
-        for i in (self.stage, self.encoder, self.autocollimator, *self.indicators):
-            i.close()
+        for i in (self.stage, self.encoder, self.autocollimator, *self.indicators, self.environment):
+            if i is not None:
+                i.close()
 
 
 @dataclass(frozen=True)
@@ -122,6 +125,7 @@ def run_abbe(
             readings.append(Reading(clock.now_s(), "stage", SKIPPED_QUANTITY, 0.0, "", **state))
             return
         readings.append(Reading(clock.now_s(), "stage", "feedback_deg", float(feedback), "deg", **state))
+        readings.extend(read_environment(inst.environment, faults, clock, state, f"environment at {v.angle_deg:g}°"))
         taken = [("encoder", "angle_deg", "deg", inst.encoder.read_angle_deg)]
         if v.face_in_front:
             taken.append(("autocollimator", "x_arcsec", "arcsec", lambda: inst.autocollimator.read_arcsec()[0]))

@@ -7,7 +7,6 @@ CMM's reported position at each visit, every tracer sample — is stored before 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
@@ -20,6 +19,7 @@ from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.run.store import REJECTED, Reading, RunStore
 from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
 from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck
+from rtcal.sequencer.conditions import read_environment
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
 
@@ -37,8 +37,6 @@ class MultistationInstrumentSet:
                 i.close()
 
 
-ENVIRONMENT_QUANTITIES = (("air_temperature_c", "degC"), ("air_pressure_pa", "Pa"), ("humidity_pct", "%"),
-                          ("material_temperature_c", "degC"))
 
 
 def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int, int]]:
@@ -194,12 +192,8 @@ def run_multistation(
         t = clock.now_s()
         kind = "position" if cmm_moved else "check_position"  # the solvers average one position per visit of the point
         readings += [Reading(t, "cmm", f"{kind}_{axis}_mm", float(value), "mm", **state) for axis, value in zip("xyz", xyz)]
-        if inst.environment is not None:  # the air the lengths are counted in, with every reading
-            env = faults.call("environment", inst.environment.read, what=f"environment at point {i + 1}, station {j + 1}")
-            if env is not SKIPPED:
-                t = clock.now_s()
-                readings += [Reading(t, "environment", q, float(getattr(env, q)), unit, **state)
-                             for q, unit in ENVIRONMENT_QUANTITIES if math.isfinite(getattr(env, q))]  # NaN: not measured
+        # the air the lengths are counted in, with every reading
+        readings += read_environment(inst.environment, faults, clock, state, f"environment at point {i + 1}, station {j + 1}")
         if segment is None and faults.call("laser_tracer", lambda: reference(i, j, "reference"), what="reference") is SKIPPED:
             return skip("laser_tracer")  # no valid count without a reference
         samples: list[Reading] = []

@@ -1,0 +1,62 @@
+"""Whether a run had the machine to itself, and how every motion and reading was checked: what
+the certificate states of it (issue 18). A protocol that grants one session at a time tells; one
+without sessions (Modbus) cannot, and then the checks of every motion and reading are the
+evidence that nobody else moved the machine."""
+
+from __future__ import annotations
+
+from drivers.factory import resolve
+from rtcal.procedure.models import LaserTracerMultistation, Procedure
+from rtcal.results.model import Control
+
+MOVING = {"stage": "stage", "cmm": "cmm"}  # the instruments another client could move, and their kinds
+
+
+def control_record(proc: Procedure, simulated: bool, operator_address: str, rejected_attempts: int) -> Control:
+    """The run's control of its machine and its checks, from the procedure and how it was wired."""
+    access: dict[str, str] = {}
+    exclusive: bool | None = True
+    if simulated:
+        for name in proc.instruments.present():
+            if name in MOVING:
+                access[name] = "simulated in process: no other client can reach it"
+    else:
+        for name in proc.instruments.present():
+            if name not in MOVING:
+                continue
+            address = getattr(proc.instruments, name).address
+            _, model = resolve(MOVING[name], address)
+            how = getattr(model.driver_class(), "exclusive_access", "")
+            if how:
+                access[name] = f"exclusive session: {how}"
+            else:
+                access[name] = (f"not known: the {model.name} {name}'s protocol ({', '.join(model.schemes)}) has no sessions, so "
+                                "another client could reach it; "
+                                "the checks of every motion and reading would have seen it move")
+                exclusive = None
+    if simulated:
+        access["operator"] = "in process: the simulated bench re-seats its own polygon or tracer"
+    elif operator_address:
+        access["operator"] = "token: the simulated operator of `rtcal sim serve` obeys only requests carrying its printed token"
+    else:
+        access["operator"] = "a person: at this terminal, asked before each operator step"
+    return Control(instruments=access, exclusive=exclusive, checks=checks_text(proc), rejected_attempts=rejected_attempts)
+
+
+def checks_text(proc: Procedure) -> list[str]:
+    """What the sequencer checked at every motion and reading, with the procedure's tolerances."""
+    v = proc.verification
+    stage = (f"{v.stage_tolerance_deg * 3600:g}″ (verification.stage_tolerance_deg)" if v.stage_tolerance_deg
+             else "two steps of the drive (the default of verification.stage_tolerance_deg)")
+    out = [f"stage: the drive's feedback position read after settling and again after the readings: within {stage} "
+           "of the command, and unmoved while reading"]
+    if isinstance(proc, LaserTracerMultistation):
+        out += [f"CMM: its reported position within {v.cmm_tolerance_mm:g} mm of the commanded point before the length "
+                "is read, and unmoved after it",
+                f"laser tracer: each length within {v.tracer_tolerance_mm:g} mm of what the nominal geometry expects"]
+    else:
+        out += [f"encoder: its change since the run's first visit within {v.encoder_tolerance_arcsec:g}″ of the commanded change",
+                f"autocollimator: the face the commanded angle puts in view read within ±{v.autocollimator_tolerance_arcsec:g}″"]
+    out.append("a reading the checks contradict is kept, marked rejected and never used; a table or probe that moves "
+               "while nothing is commanded stops the run without a certificate")
+    return out
