@@ -157,7 +157,13 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else default_run_dir("uncertainty")
     _make_folder(out, "--out")
     seed = scenario.seed if args.seed is None else args.seed
-    specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics)
+    if args.balanced and args.fixed_systematics:
+        raise UserError("--balanced and --fixed-systematics: choose one (--balanced is how the systematic errors are drawn)")
+    try:
+        specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics,
+                                       args.balanced)
+    except ValueError as exc:
+        raise UserError(f"--balanced: {exc}") from None
     trials = []
     bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
     try:
@@ -176,8 +182,9 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
         return EXIT_FAILED
     summary = montecarlo.summarize(trials, ok[0]["labels"])
     summary.update(procedure=str(path), bench=args.scenario or (str(path.parent / proc.bench) if proc.bench else "ideal"),
-                   seed=seed, systematics="drawn from the stated uncertainties" if not args.fixed_systematics
-                   else "fixed as in the scenario")
+                   seed=seed, systematics="fixed as in the scenario" if args.fixed_systematics else
+                   "drawn from the stated uncertainties" + (" (balanced: moment-matched antithetic pairs)" if args.balanced
+                                                            else ""))
     write_output(out / "uncertainty.json", json.dumps(summary, indent=2) + "\n")
     with output_file(out / "uncertainty.png") as png:
         montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} "
@@ -640,6 +647,10 @@ def build_parser() -> argparse.ArgumentParser:
     unc.add_argument("--fixed-systematics", action="store_true",
                      help="keep the scenario's CMM errors and error motions in every trial instead of drawing them from "
                           "the procedure's stated uncertainties (shows this one bench's bias)")
+    unc.add_argument("--balanced", action="store_true",
+                     help="draw the systematic errors in antithetic pairs whose second moments match the stated ones "
+                          "exactly (an even --trials, at least twice the numbers a trial draws), so that sampling of the "
+                          "systematics does not decide the ratio")
     unc.add_argument("--out", help="directory for uncertainty.json and uncertainty.png (default: runs/<time>-uncertainty)")
     unc.set_defaults(func=_cmd_uncertainty)
 
