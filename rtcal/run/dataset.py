@@ -32,6 +32,7 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
             env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(r.quantity, []).append(r.value)
     len_sum = np.zeros((mounts, n_points, m))
     len_count = np.zeros((mounts, n_points, m))
+    time_sum = np.zeros((mounts, n_points, m))
     segments = np.full((mounts, n_points, m), -1)
     visits = np.full((mounts, n_points, m), -1)
     visit, last = -1, None
@@ -41,6 +42,7 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         k = r.seating or 0
         len_sum[k, r.point, r.station] += r.value
         len_count[k, r.point, r.station] += 1
+        time_sum[k, r.point, r.station] += r.t_s
         segments[k, r.point, r.station] = r.segment
         if (k, r.station, r.segment) != last:  # the table moved (or a new start re-approached it)
             visit, last = visit + 1, (k, r.station, r.segment)
@@ -49,6 +51,7 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         raise ValueError(f"the CMM position of {int(np.sum(pos_count[:, 0] == 0))} points was never read")
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
+        times = np.where(len_count > 0, time_sum / np.maximum(len_count, 1), np.nan)
     index = summary = None
     if env:
         index = np.full((mounts, n_points, m), np.nan)
@@ -58,10 +61,11 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         summary = {name: {"min": round(float(np.min(v)), 4), "max": round(float(np.max(v)), 4), "mean": round(float(np.mean(v)), 4)}
                    for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")
                    if (v := [x for q in env.values() for x in q.get(name, [])])}
-    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k]) for k in range(1, mounts))
+    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k], times[k])
+                   for k in range(1, mounts))
     return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
                             int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others,
-                            None if index is None else index[0], summary)
+                            None if index is None else index[0], summary, times[0])
 
 
 def _one_attempt_per_visit(readings: list) -> list:
