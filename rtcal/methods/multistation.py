@@ -57,11 +57,13 @@ def _round(values: Iterable[float] | np.ndarray, digits: int = 6) -> list[float]
 
 def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> StationNoiseModel:
     """The procedure's ``uncertainty`` section as the solvers' noise model (``estimate``: Type A
-    sizes from the readings; False: as stated, for a prediction)."""
+    sizes from the readings; False: as stated, for a prediction). The tracer's noise is stated per
+    sample; a reading averages ``samples_per_reading`` of them."""
     u = proc.uncertainty
     em = u.error_motions
+    per_reading = 1.0 / np.sqrt(proc.samples_per_reading)  # a reading averages its samples' independent noise
     return StationNoiseModel(
-        length_noise_um=u.laser_tracer_noise_um, length_noise_ppm=u.laser_tracer_noise_ppm,
+        length_noise_um=u.laser_tracer_noise_um * per_reading, length_noise_ppm=u.laser_tracer_noise_ppm * per_reading,
         point_noise_um=u.cmm_point_noise_um, stage_repeatability_arcsec=u.stage_repeatability_arcsec,
         cmm_scale_ppm=u.cmm_scale_ppm, cmm_squareness_arcsec=u.cmm_squareness_arcsec,
         error_motion_radial_um=em.radial_um, error_motion_axial_um=em.axial_um, error_motion_tilt_arcsec=em.tilt_arcsec,

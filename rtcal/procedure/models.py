@@ -378,8 +378,8 @@ class MultistationUncertainty(_Strict):
     The sizes of the tracer's and the CMM's random errors are estimated from the readings
     (Type A); the values here give their shape and a reference. The others are Type B."""
 
-    laser_tracer_noise_um: float = Field(0.2, ge=0.0, le=100.0, description="tracer length noise a of a + b·L, µm (1σ, e.g. 0.2)")
-    laser_tracer_noise_ppm: float = Field(0.3, ge=0.0, le=100.0, description="tracer length noise b of a + b·L, µm per m (e.g. 0.3)")
+    laser_tracer_noise_um: float = Field(0.2, ge=0.0, le=100.0, description="tracer length noise a of a + b·L, µm (1σ per sample, e.g. 0.2)")
+    laser_tracer_noise_ppm: float = Field(0.3, ge=0.0, le=100.0, description="tracer length noise b of a + b·L, µm per m (per sample, e.g. 0.3)")
     cmm_point_noise_um: float = Field(0.3, ge=0.0, le=1000.0, description="CMM reading noise per coordinate and visit, µm (1σ, e.g. 0.3)")
     cmm_scale_ppm: float = Field(0.0, ge=0.0, le=1000.0, description="standard uncertainty of each CMM scale, ppm (Type B, e.g. 1.0)")
     cmm_squareness_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="standard uncertainty of each CMM squareness, arcsec (Type B, e.g. 1.0)")
