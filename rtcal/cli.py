@@ -237,7 +237,9 @@ def _check_scheduler(address: str) -> None:
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    """Predicted 1σ per target and the duration of a procedure, before anything moves."""
+    """Predicted 1σ per target and the duration of a procedure, before anything moves; what its
+    uncertainty is made of and what each lever would do; the shortest plan for a target U."""
+    from rtcal.planning import levers as lv
     from rtcal.planning.predict import predict
     from rtcal.procedure.loader import load_procedure
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
@@ -247,20 +249,70 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     path = Path(args.procedure)
     if args.json and args.optimize:
         raise UserError("--json and --optimize: choose one (--json prints the prediction alone)")
+    if args.target_u is not None:
+        if args.optimize:
+            raise UserError("--optimize and --target-u: choose one")
+        if not (0.0 < args.target_u <= 1e6):
+            raise UserError(f"--target-u {args.target_u:g}: must be an expanded uncertainty in arcsec, above 0")
+        if not args.out:
+            raise UserError("--target-u: give --out FILE.yaml for the proposed procedure")
+        if not (0.0 <= args.margin < 1.0):
+            raise UserError(f"--margin {args.margin:g}: must lie in 0 … 1 (a fraction of the target)")
+    elif args.out:
+        raise UserError("--out: goes with --target-u (the proposed procedure); --optimize names its own file")
+    if args.max_radius_mm is not None and not (0.0 < args.max_radius_mm <= 1e5):
+        raise UserError(f"--max-radius-mm {args.max_radius_mm:g}: must lie in 0 … 100000 mm")
     proc = load_procedure(path)
-    if args.optimize:
-        target = Path(args.optimize)
-        if not isinstance(proc, LaserTracerMultistation):
-            raise UserError(f"--optimize: {path} is a procedure of {proc.method}; choosing CMM points is for "
-                            "laser_tracer_multistation procedures")
-        if target.exists() and os.path.samefile(target, path):
-            raise UserError(f"--optimize {target}: that is the procedure itself; write the optimised plan to a new file")
+    for option, target in (("--optimize", args.optimize), ("--out", args.out)):
+        if target and Path(target).exists() and os.path.samefile(target, path):
+            raise UserError(f"{option} {target}: that is the procedure itself; write the new plan to a new file")
+    if args.optimize and not isinstance(proc, LaserTracerMultistation):
+        raise UserError(f"--optimize: {path} is a procedure of {proc.method}; choosing CMM points is for "
+                        "laser_tracer_multistation procedures")
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     plan = predict(path, proc, scenario)
+    rec = plan["recommended"]
+    est = plan["estimators"].get(rec) if rec else None
+    expanded = [v for v in (est["predicted_expanded_arcsec"][1:] if est else []) if v is not None]
+    plan["expanded_uncertainty_max_arcsec"] = max(expanded) if expanded else None
+    plan["duration_s"] = plan["measurement_duration_s"]
+    shares = lv.shares_of(est["budget"], est["predicted_sigma_arcsec"]) if est else {}
+    plan["dominant_sources"] = [{"source": k, "share": round(v, 4)} for k, v in sorted(shares.items(), key=lambda kv: -kv[1])]
+    base = lv.base_plan(path, scenario)
+    lever_outcomes = [] if args.no_levers else [lv.evaluate(p) for p in lv.levers(base, proc, args.max_radius_mm)]
+    plan["levers"] = [{"lever": "; ".join(o.plan.changes), **o.summary()} for o in lever_outcomes]
+    plan["lever_notes"] = lv.lever_notes(proc)
+    proposal = written = None
+    if args.target_u is not None:
+        proposal = lv.propose(base, proc, args.target_u, args.max_radius_mm, args.margin)
+        if proposal.best is not None:
+            written = lv.write_proposal(path, base, proposal.best, Path(args.out), args.target_u, bool(args.scenario))
+        plan["proposal"] = {
+            "target_u_arcsec": args.target_u, "margin": args.margin,
+            "reached": proposal.best is not None,
+            **({"plan": proposal.best.summary(), "written": [str(w) for w in written or []]} if proposal.best else {}),
+            "smallest": proposal.smallest.summary() if proposal.smallest else None,
+            "plans_predicted": len(proposal.tried), "plans_skipped": proposal.skipped}
     if args.json:
         print(json.dumps(plan, indent=2))
-        return EXIT_OK
+    else:
+        _print_plan(path, plan, lever_outcomes)
+        if proposal is not None:
+            _print_proposal(args, proposal, written)
+    if args.optimize:
+        from rtcal.planning.design import optimize_points
+
+        try:
+            print(optimize_points(path, proc, scenario, Path(args.optimize)))
+        except ValueError as exc:
+            raise UserError(f"--optimize: {exc}") from None
+    return EXIT_FAILED if proposal is not None and proposal.best is None else EXIT_OK
+
+
+def _print_plan(path: Path, plan: dict[str, Any], lever_outcomes: list) -> None:
+    from rtcal.planning import levers as lv
+
     hours = plan["measurement_duration_s"] / 3600
     print(f"{path}: {plan['raw_readings']} planned readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
           "motions, settling and readings; predicted 1σ from the stated noise:")
@@ -269,14 +321,39 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         print(f"{name}{rec}: RMS {e['rms_predicted_sigma_arcsec']}″")
         print("  target    " + " ".join(f"{t:>8}" for t in plan["targets"][1:]))
         print("  1σ / ″    " + " ".join(f"{v:8.3f}" for v in e["predicted_sigma_arcsec"][1:]))
-    if args.optimize:
-        from rtcal.planning.design import optimize_points
+    if plan["expanded_uncertainty_max_arcsec"] is None:
+        return
+    top = ", ".join(f"{d['source']} {100 * d['share']:.0f} %" for d in plan["dominant_sources"][:4])
+    print(f"U (k = 2) of {plan['recommended']}: at most {plan['expanded_uncertainty_max_arcsec']:.2f}″; its variance: {top}")
+    if lever_outcomes:
+        print("levers, each alone (predicted the same way):")
+        as_written = lv.Outcome(lv.Plan({}, {}), plan["recommended"], plan["expanded_uncertainty_max_arcsec"],
+                                plan["measurement_duration_s"], plan["raw_readings"])
+        for line in lv.table_lines([("as written", as_written)] + [("; ".join(o.plan.changes), o) for o in lever_outcomes]):
+            print(line)
+    for note in plan["lever_notes"]:
+        print(f"  ({note})")
 
-        try:
-            print(optimize_points(path, proc, scenario, Path(args.optimize)))
-        except ValueError as exc:
-            raise UserError(f"--optimize: {exc}") from None
-    return EXIT_OK
+
+def _print_proposal(args: argparse.Namespace, proposal, written: list[Path] | None) -> None:
+    from rtcal.planning.levers import format_hours
+
+    goal = args.target_u * (1 - args.margin)
+    searched = f"{len(proposal.tried)} plans predicted" + (
+        f", {len(proposal.skipped)} with one mount skipped (its error motions alone exceed the target)" if proposal.skipped else "")
+    best = proposal.best
+    if best is None:
+        s = proposal.smallest
+        found = (f"the smallest U found is {s.expanded_max_arcsec:.2f}″ ({'; '.join(s.plan.changes) or 'as written'}, "
+                 f"{format_hours(s.duration_s)})") if s else "no plan could be predicted"
+        print(f"no plan reaches U ≤ {args.target_u:g}″ (k = 2, planned for {goal:.3g}″ with --margin {args.margin:g}): {found}; "
+              f"{searched}")
+        return
+    print(f"proposed for U ≤ {args.target_u:g}″ (k = 2, planned for {goal:.3g}″ with --margin {args.margin:g}): "
+          f"{'; '.join(best.plan.changes) or 'the procedure as written'} → U {best.expanded_max_arcsec:.2f}″ "
+          f"({best.recommended}), {format_hours(best.duration_s)} of machine time ({best.duration_s:.0f} s, "
+          f"{best.raw_readings} planned readings); {searched}")
+    print("written: " + ", ".join(str(w) for w in written or []))
 
 
 def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResults | None]:
@@ -696,6 +773,18 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--optimize", metavar="OUT.yaml",
                       help="choose CMM points (D/A-optimal exchange on a grid in the CMM volume) that lower the network "
                            "estimator's predicted 1σ, and write the procedure with them to OUT.yaml")
+    plan.add_argument("--no-levers", action="store_true", help="predict the procedure as written only, not each lever")
+    plan.add_argument("--target-u", type=float, metavar="ARCSEC",
+                      help="propose the shortest plan whose U (k = 2, recommended estimator, worst target) reaches this; "
+                           "written to --out (exit 1 when none does)")
+    plan.add_argument("--out", metavar="FILE.yaml", help="with --target-u: where the proposed procedure goes (its bench "
+                                                         "beside it, FILE.bench.yaml, when the plan moves the tracer)")
+    plan.add_argument("--margin", type=float, default=0.1,
+                      help="with --target-u: plan for this fraction below the target (default 0.1: room for what the "
+                           "prediction does not hold and for the Monte Carlo that verifies it)")
+    plan.add_argument("--max-radius-mm", type=float,
+                      help="the furthest from the axis the table lets the tracer sit, mm (default: twice where the "
+                           "procedure has it)")
     plan.set_defaults(func=_cmd_plan)
 
     sim = sub.add_parser("sim", help="simulated instruments")
