@@ -155,7 +155,6 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     out = Path(args.out) if args.out else default_run_dir("uncertainty")
-    _make_folder(out, "--out")
     seed = scenario.seed if args.seed is None else args.seed
     if args.balanced and args.fixed_systematics:
         raise UserError("--balanced and --fixed-systematics: choose one (--balanced is how the systematic errors are drawn)")
@@ -164,6 +163,7 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
                                        args.balanced)
     except ValueError as exc:
         raise UserError(f"--balanced: {exc}") from None
+    _make_folder(out, "--out")
     trials = []
     bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
     try:
