@@ -256,6 +256,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
             raise UserError(f"--target-u {args.target_u:g}: must be an expanded uncertainty in arcsec, above 0")
         if not args.out:
             raise UserError("--target-u: give --out FILE.yaml for the proposed procedure")
+        if not Path(args.out).resolve().parent.is_dir():
+            raise UserError(f"--out {args.out}: its folder {Path(args.out).parent} does not exist")
         if not (0.0 <= args.margin < 1.0):
             raise UserError(f"--margin {args.margin:g}: must lie in 0 … 1 (a fraction of the target)")
     elif args.out:
@@ -273,11 +275,11 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     check_plan_on_bench(path, proc, scenario)
     plan = predict(path, proc, scenario)
     rec = plan["recommended"]
-    est = plan["estimators"].get(rec) if rec else None
-    expanded = [v for v in (est["predicted_expanded_arcsec"][1:] if est else []) if v is not None]
+    predicted = plan["estimators"].get(rec) if rec else None
+    expanded = [v for v in (predicted["predicted_expanded_arcsec"][1:] if predicted else []) if v is not None]
     plan["expanded_uncertainty_max_arcsec"] = max(expanded) if expanded else None
     plan["duration_s"] = plan["measurement_duration_s"]
-    shares = lv.shares_of(est["budget"], est["predicted_sigma_arcsec"]) if est else {}
+    shares = lv.shares_of(predicted["budget"], predicted["predicted_sigma_arcsec"]) if predicted else {}
     plan["dominant_sources"] = [{"source": k, "share": round(v, 4)} for k, v in sorted(shares.items(), key=lambda kv: -kv[1])]
     base = lv.base_plan(path, scenario)
     lever_outcomes = [] if args.no_levers else [lv.evaluate(p) for p in lv.levers(base, proc, args.max_radius_mm)]

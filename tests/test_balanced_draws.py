@@ -35,7 +35,7 @@ def test_the_method_draws_as_many_numbers_each_time_and_pairs_mirror(tmp_path):
     counter = ScriptedNormals()
     METHODS[proc.method].draw_systematics(proc, scenario, counter)  # type: ignore[arg-type]
     assert counter.used == 6 + 4 * 2 * proc.uncertainty.error_motions.max_order
-    specs = plan_trials(SHIPPED, proc, scenario, 110, 5, tmp_path, balanced=True)
+    specs = plan_trials(SHIPPED, proc, scenario, 108, 5, tmp_path, balanced=True)
     a, b = (yaml.safe_load(s.scenario_yaml) for s in specs[:2])
     assert a["cmm"]["scale_error_ppm"] == [-v for v in b["cmm"]["scale_error_ppm"]]
     ha, hb = a["stage"]["radial_motion_x"][0], b["stage"]["radial_motion_x"][0]

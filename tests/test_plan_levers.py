@@ -154,6 +154,7 @@ def test_no_plan_reaches_the_target_exit_1_with_the_smallest_u(tmp_path, capsys,
     (["--out", "x.yaml"], "--out: goes with --target-u"),
     (["--target-u", "1", "--out", "x.yaml", "--optimize", "y.yaml"], "--optimize and --target-u: choose one"),
     (["--max-radius-mm", "-3"], "--max-radius-mm -3: must lie"),
+    (["--target-u", "1", "--out", "nowhere/x.yaml"], "--out nowhere/x.yaml: its folder nowhere does not exist"),
 ])
 def test_plan_arguments_are_refused_on_one_line(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)

@@ -310,13 +310,14 @@ DEFAULT_MARGIN = 0.1
 
 
 def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: float | None = None,
-            margin: float = DEFAULT_MARGIN, evaluate_plan: Callable[[Plan], Outcome] = evaluate) -> Proposal:
+            margin: float = DEFAULT_MARGIN, evaluate_plan: Callable[[Plan], Outcome] | None = None) -> Proposal:
     """The shortest plan whose predicted U (k = 2, recommended estimator, worst target) is ≤ the target
     less ``margin`` (a fraction of it). The prediction is linear about the noise-free bench with the noise
     as stated; the margin leaves room for what it does not hold — the noise a run finds in its readings,
     and the sampling of the Monte Carlo (`rtcal uncertainty`) that verifies the proposal, whose RMS error
     per target is known to ±1/√(2N) and whose worst target is the largest of several such estimates."""
     goal = target_arcsec * (1.0 - margin)
+    evaluate_plan = evaluate_plan or evaluate
     if isinstance(proc, LaserTracerMultistation):
         candidates = multistation_candidates(plan, proc, max_radius_mm)
     elif isinstance(proc, EncoderAbbeError):
