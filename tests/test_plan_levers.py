@@ -169,3 +169,24 @@ def test_abbe_levers_are_its_runs(tmp_path, capsys):
     runs = [r for r in plan["levers"] if r["lever"].endswith("runs")]
     assert len(runs) == 2 and all(r["expanded_uncertainty_max_arcsec"] < plan["expanded_uncertainty_max_arcsec"] for r in runs)
     assert all(r["duration_s"] > plan["duration_s"] for r in runs)
+
+
+def test_a_procedure_of_real_instruments_is_planned_on_the_bench_without_connecting(tmp_path, capsys):
+    """Every instrument at an address nobody listens on: the prediction runs on the simulated bench as
+    the procedure is written (a connection would fail: exit 1), and the proposal keeps the addresses."""
+    text = SHIPPED.read_text()
+    for old, new in (("stage: {backend: sim}", 'stage: {address: "modbus-tcp://127.0.0.1:9?unit=1&steps_per_rev=10000&gear=36"}'),
+                     ("cmm: {backend: sim, tool: CatEye}", 'cmm: {address: "ipp://127.0.0.1:9", tool: CatEye}'),
+                     ("laser_tracer: {backend: sim}", 'laser_tracer: {address: "socket://127.0.0.1:9?model=rtcal-line"}'),
+                     ("environment: {backend: sim}", 'environment: {address: "socket://127.0.0.1:9?model=vaisala-ptu300"}')):
+        assert old in text
+        text = text.replace(old, new, 1)
+    (tmp_path / "scenarios").mkdir()
+    (tmp_path / "scenarios" / "paper000_bench.yaml").write_text((SHIPPED.parent / "scenarios" / "paper000_bench.yaml").read_text())
+    (tmp_path / "hw.yaml").write_text(text)
+    assert main(["plan", str(tmp_path / "hw.yaml"), "--json", "--no-levers"]) == 0
+    plan = json.loads(capsys.readouterr().out)
+    assert main(["plan", str(SHIPPED), "--json", "--no-levers"]) == 0
+    on_sim = json.loads(capsys.readouterr().out)
+    for key in ("recommended", "expanded_uncertainty_max_arcsec", "duration_s", "raw_readings"):
+        assert plan[key] == on_sim[key], key  # the same plan: the same prediction

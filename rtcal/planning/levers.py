@@ -93,7 +93,7 @@ def shares_of(contributions: dict[str, list[float | None]], combined: list[float
 
 def evaluate(plan: Plan, workdir: Path | None = None) -> Outcome:
     """Predict ``plan`` (written to a temporary folder: the procedure beside its bench)."""
-    from rtcal.planning.predict import predict
+    from rtcal.planning.predict import predict, simulated
     from rtcal.procedure.loader import load_procedure
     from rtcal.run.runner import AnalysisFailed
     from rtcal.procedure.yamlfile import FileProblems
@@ -103,8 +103,8 @@ def evaluate(plan: Plan, workdir: Path | None = None) -> Outcome:
     try:
         (tmp / "bench.yaml").write_text(yaml.safe_dump(plan.bench, sort_keys=False), encoding="utf-8")
         path = tmp / "procedure.yaml"
-        path.write_text(yaml.safe_dump({**plan.procedure, "bench": "bench.yaml"}, sort_keys=False, allow_unicode=True),
-                        encoding="utf-8")
+        path.write_text(yaml.safe_dump({**simulated(plan.procedure), "bench": "bench.yaml"}, sort_keys=False,
+                                       allow_unicode=True), encoding="utf-8")
         try:
             proc = load_procedure(path)
             scenario = Scenario.model_validate(plan.bench)
@@ -191,14 +191,17 @@ def more_samples(plan: Plan, samples: int, note: str = "") -> Plan:
     return Plan(data, plan.bench, plan.changes + (f"{samples} samples per reading{note}",))
 
 
-def environment_sensor(plan: Plan) -> Plan:
+def environment_sensor(plan: Plan, proc: LaserTracerMultistation) -> Plan:
+    """An environment sensor read with every length (on the bench; on real instruments its address is the
+    lab's to give, so the proposal never adds one there)."""
     data = copy.deepcopy(plan.procedure)
-    data.setdefault("instruments", {})["environment"] = {"backend": "sim"}
+    data.setdefault("instruments", {})["environment"] = (
+        {"backend": "sim"} if proc.instruments.all_sim() else {"address": "socket://ADDRESS-OF-THE-SENSOR:4001?model=vaisala-ptu300"})
     sensor = EnvironmentUncertainty()
     data.setdefault("uncertainty", {})["environment"] = sensor.model_dump()
     return Plan(data, plan.bench, plan.changes + (
         f"an environment sensor ({sensor.air_temperature_k:g} K, {sensor.air_pressure_pa:g} Pa, {sensor.humidity_pct:g} % RH, "
-        "1σ): each length corrected for the air of its moment",))
+        "1σ): each length corrected for the air of its moment" + ("" if proc.instruments.all_sim() else " (give its address)"),))
 
 
 def more_runs(plan: Plan, runs: int) -> Plan:
@@ -232,7 +235,7 @@ def levers(plan: Plan, proc: Procedure, max_radius_mm: float | None = None) -> l
         out.append(more_stations(plan, proc))
         out.append(more_samples(plan, 4 * proc.samples_per_reading, SAMPLE_NOTE))
         if proc.instruments.environment is None:
-            out.append(environment_sensor(plan))
+            out.append(environment_sensor(plan, proc))
     elif isinstance(proc, EncoderAbbeError):
         out += [more_runs(plan, r) for r in (2 * proc.steps.runs, 5 * proc.steps.runs) if r <= 100]
     return out
@@ -266,7 +269,7 @@ def multistation_candidates(plan: Plan, proc: LaserTracerMultistation, max_radiu
         layers = sorted({max(2, round(L * f)) for f in (0.5, 0.75, 1.0, 1.5, 2.0)})
     from rtcal.methods.multistation import stated_air_ranges
 
-    sensor = proc.instruments.environment is None and bool(stated_air_ranges(proc))
+    sensor = proc.instruments.environment is None and bool(stated_air_ranges(proc)) and proc.instruments.all_sim()
     per_point = proc.stations.count * proc.samples_per_reading
     out = []
     for two in mounts:
@@ -279,7 +282,7 @@ def multistation_candidates(plan: Plan, proc: LaserTracerMultistation, max_radiu
             if n_layers is not None and n_layers != getattr(proc.points, "layers", None):
                 p = point_layers(p, n_layers)
             if sensor:
-                p = environment_sensor(p)
+                p = environment_sensor(p, proc)
             points = proc.point_count() if n_layers is None else n_layers * proc.point_count() // proc.points.layers  # type: ignore[union-attr]
             out.append((points * per_point * (proc.mounts + int(two)), p))
     return sorted(out, key=lambda c: c[0])
@@ -329,7 +332,7 @@ def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: fl
     one_mount_out = False
     group: list[Outcome] = []
     for k, (size, candidate) in enumerate(candidates):
-        is_one_mount = isinstance(proc, LaserTracerMultistation) and "second_mount" not in candidate.procedure
+        is_one_mount = isinstance(proc, LaserTracerMultistation) and not candidate.procedure.get("second_mount")
         if is_one_mount and one_mount_out:
             skipped.append(", ".join(candidate.changes) or "as written")
             continue
