@@ -194,7 +194,8 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
         rec = " (recommended)" if name == summary["recommended"] else ""
         o = e["overall"]
         print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″, "
-              f"ratio per target {o['ratio_min']}–{o['ratio_max']}")
+              f"ratio per target {o['ratio_min']}–{o['ratio_max']} (each ± about {1 / np.sqrt(2 * e['trials']):.0%} from "
+              f"{e['trials']} trials)")
         print("  target      " + " ".join(f"{t:>8}" for t in summary["targets"][1:]))
         print("  RMS error   " + " ".join(f"{v:8.3f}" for v in e["rms_error_arcsec"][1:]))
         print("  reported 1σ " + " ".join(f"{v:8.3f}" for v in e["rms_reported_sigma_arcsec"][1:]))

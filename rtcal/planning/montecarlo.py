@@ -194,6 +194,8 @@ def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[st
             "trials": len(rows),
             "not_converged": sum(r["status"] != "converged" for r in rows),
             "rms_error_arcsec": _r(rms_err), "rms_reported_sigma_arcsec": _r(rms_u), "ratio": _r(ratio, 3),
+            # its 1σ from the number of trials (an RMS of N normal errors is known to ±1/√(2N))
+            "ratio_sigma": _r(ratio / np.sqrt(2 * len(rows)), 3),
             "mean_error_arcsec": _r(np.nanmean(err, axis=0)),
             "overall": {"rms_error_arcsec": round(float(np.sqrt(np.nanmean(err[:, inner] ** 2))), 4),
                         "rms_reported_sigma_arcsec": round(float(np.sqrt(np.nanmean(u[:, inner] ** 2))), 4),
