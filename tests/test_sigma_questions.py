@@ -20,7 +20,6 @@ from rtcal.solvers.station_budget import StationNoiseModel
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))
-sys.path.insert(0, str(REPO / "tests"))
 
 
 def _network_ratio(m: int, n: int, seeds: int) -> tuple[float, float, np.ndarray]:
@@ -68,7 +67,7 @@ def test_the_two_mount_network_reports_the_sigma_of_its_errors_at_every_target()
     network is checked on 3 datasets by tests/test_network.py): per target, the first step after the
     reference included, the ratio is known to ±1/√60 ≈ 13 %; every target within 0.6–1.5 (3σ), and the
     pooled ratio within 0.8–1.25."""
-    from test_network import _two_mount_data
+    from tests.test_network import _two_mount_data
 
     noise = StationNoiseModel(length_noise_um=0.2, length_noise_ppm=0.0, point_noise_um=0.1)
     errs, us = [], []
