@@ -156,9 +156,15 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     out = Path(args.out) if args.out else default_run_dir("uncertainty")
-    _make_folder(out, "--out")
     seed = scenario.seed if args.seed is None else args.seed
-    specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics)
+    if args.balanced and args.fixed_systematics:
+        raise UserError("--balanced and --fixed-systematics: choose one (--balanced is how the systematic errors are drawn)")
+    try:
+        specs = montecarlo.plan_trials(path, proc, scenario, args.trials, seed, out, not args.fixed_systematics,
+                                       args.balanced)
+    except ValueError as exc:
+        raise UserError(f"--balanced: {exc}") from None
+    _make_folder(out, "--out")
     trials = []
     bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
     try:
@@ -177,8 +183,9 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
         return EXIT_FAILED
     summary = montecarlo.summarize(trials, ok[0]["labels"])
     summary.update(procedure=str(path), bench=args.scenario or (str(path.parent / proc.bench) if proc.bench else "ideal"),
-                   seed=seed, systematics="drawn from the stated uncertainties" if not args.fixed_systematics
-                   else "fixed as in the scenario")
+                   seed=seed, systematics="fixed as in the scenario" if args.fixed_systematics else
+                   "drawn from the stated uncertainties" + (" (balanced: moment-matched antithetic pairs)" if args.balanced
+                                                            else ""))
     write_output(out / "uncertainty.json", json.dumps(summary, indent=2) + "\n")
     with output_file(out / "uncertainty.png") as png:
         montecarlo.plot_summary(summary, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} "
@@ -188,7 +195,8 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
         rec = " (recommended)" if name == summary["recommended"] else ""
         o = e["overall"]
         print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″, "
-              f"ratio per target {o['ratio_min']}–{o['ratio_max']}")
+              f"ratio per target {o['ratio_min']}–{o['ratio_max']} (each ± about {1 / np.sqrt(2 * e['trials']):.0%} from "
+              f"{e['trials']} trials)")
         print("  target      " + " ".join(f"{t:>8}" for t in summary["targets"][1:]))
         print("  RMS error   " + " ".join(f"{v:8.3f}" for v in e["rms_error_arcsec"][1:]))
         print("  reported 1σ " + " ".join(f"{v:8.3f}" for v in e["rms_reported_sigma_arcsec"][1:]))
@@ -231,7 +239,9 @@ def _check_scheduler(address: str) -> None:
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    """Predicted 1σ per target and the duration of a procedure, before anything moves."""
+    """Predicted 1σ per target and the duration of a procedure, before anything moves; what its
+    uncertainty is made of and what each lever would do; the shortest plan for a target U."""
+    from rtcal.planning import levers as lv
     from rtcal.planning.predict import predict
     from rtcal.procedure.loader import load_procedure
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
@@ -241,20 +251,72 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     path = Path(args.procedure)
     if args.json and args.optimize:
         raise UserError("--json and --optimize: choose one (--json prints the prediction alone)")
+    if args.target_u is not None:
+        if args.optimize:
+            raise UserError("--optimize and --target-u: choose one")
+        if not (0.0 < args.target_u <= 1e6):
+            raise UserError(f"--target-u {args.target_u:g}: must be an expanded uncertainty in arcsec, above 0")
+        if not args.out:
+            raise UserError("--target-u: give --out FILE.yaml for the proposed procedure")
+        if not Path(args.out).resolve().parent.is_dir():
+            raise UserError(f"--out {args.out}: its folder {Path(args.out).parent} does not exist")
+        if not (0.0 <= args.margin < 1.0):
+            raise UserError(f"--margin {args.margin:g}: must lie in 0 … 1 (a fraction of the target)")
+    elif args.out:
+        raise UserError("--out: goes with --target-u (the proposed procedure); --optimize names its own file")
+    if args.max_radius_mm is not None and not (0.0 < args.max_radius_mm <= 1e5):
+        raise UserError(f"--max-radius-mm {args.max_radius_mm:g}: must lie in 0 … 100000 mm")
     proc = load_procedure(path)
-    if args.optimize:
-        target = Path(args.optimize)
-        if not isinstance(proc, LaserTracerMultistation):
-            raise UserError(f"--optimize: {path} is a procedure of {proc.method}; choosing CMM points is for "
-                            "laser_tracer_multistation procedures")
-        if target.exists() and os.path.samefile(target, path):
-            raise UserError(f"--optimize {target}: that is the procedure itself; write the optimised plan to a new file")
+    for option, target in (("--optimize", args.optimize), ("--out", args.out)):
+        if target and Path(target).exists() and os.path.samefile(target, path):
+            raise UserError(f"{option} {target}: that is the procedure itself; write the new plan to a new file")
+    if args.optimize and not isinstance(proc, LaserTracerMultistation):
+        raise UserError(f"--optimize: {path} is a procedure of {proc.method}; choosing CMM points is for "
+                        "laser_tracer_multistation procedures")
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario)
     plan = predict(path, proc, scenario)
+    rec = plan["recommended"]
+    predicted = plan["estimators"].get(rec) if rec else None
+    expanded = [v for v in (predicted["predicted_expanded_arcsec"][1:] if predicted else []) if v is not None]
+    plan["expanded_uncertainty_max_arcsec"] = max(expanded) if expanded else None
+    plan["duration_s"] = plan["measurement_duration_s"]
+    shares = lv.shares_of(predicted["budget"], predicted["predicted_sigma_arcsec"]) if predicted else {}
+    plan["dominant_sources"] = [{"source": k, "share": round(v, 4)} for k, v in sorted(shares.items(), key=lambda kv: -kv[1])]
+    base = lv.base_plan(path, scenario)
+    lever_outcomes = [] if args.no_levers else [lv.evaluate(p) for p in lv.levers(base, proc, args.max_radius_mm)]
+    plan["levers"] = [{"lever": "; ".join(o.plan.changes), **o.summary()} for o in lever_outcomes]
+    plan["lever_notes"] = lv.lever_notes(proc)
+    proposal = written = None
+    if args.target_u is not None:
+        proposal = lv.propose(base, proc, args.target_u, args.max_radius_mm, args.margin)
+        if proposal.best is not None:
+            written = lv.write_proposal(path, base, proposal.best, Path(args.out), args.target_u, bool(args.scenario))
+        plan["proposal"] = {
+            "target_u_arcsec": args.target_u, "margin": args.margin,
+            "reached": proposal.best is not None,
+            **({"plan": proposal.best.summary(), "written": [str(w) for w in written or []]} if proposal.best else {}),
+            "smallest": proposal.smallest.summary() if proposal.smallest else None,
+            "plans_predicted": len(proposal.tried), "plans_skipped": proposal.skipped}
     if args.json:
         print(json.dumps(plan, indent=2))
-        return EXIT_OK
+    else:
+        _print_plan(path, plan, lever_outcomes)
+        if proposal is not None:
+            _print_proposal(args, proposal, written)
+    if args.optimize:
+        from rtcal.planning.design import optimize_points
+
+        try:
+            print(optimize_points(path, proc, scenario, Path(args.optimize)))
+        except ValueError as exc:
+            raise UserError(f"--optimize: {exc}") from None
+    return EXIT_FAILED if proposal is not None and proposal.best is None else EXIT_OK
+
+
+def _print_plan(path: Path, plan: dict[str, Any], lever_outcomes: list) -> None:
+    from rtcal.planning import levers as lv
+
     hours = plan["measurement_duration_s"] / 3600
     print(f"{path}: {plan['raw_readings']} planned readings, about {plan['measurement_duration_s']:.0f} s ({hours:.1f} h) of "
           "motions, settling and readings; predicted 1σ from the stated noise:")
@@ -263,14 +325,39 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         print(f"{name}{rec}: RMS {e['rms_predicted_sigma_arcsec']}″")
         print("  target    " + " ".join(f"{t:>8}" for t in plan["targets"][1:]))
         print("  1σ / ″    " + " ".join(f"{v:8.3f}" for v in e["predicted_sigma_arcsec"][1:]))
-    if args.optimize:
-        from rtcal.planning.design import optimize_points
+    if plan["expanded_uncertainty_max_arcsec"] is None:
+        return
+    top = ", ".join(f"{d['source']} {100 * d['share']:.0f} %" for d in plan["dominant_sources"][:4])
+    print(f"U (k = 2) of {plan['recommended']}: at most {plan['expanded_uncertainty_max_arcsec']:.2f}″; its variance: {top}")
+    if lever_outcomes:
+        print("levers, each alone (predicted the same way):")
+        as_written = lv.Outcome(lv.Plan({}, {}), plan["recommended"], plan["expanded_uncertainty_max_arcsec"],
+                                plan["measurement_duration_s"], plan["raw_readings"])
+        for line in lv.table_lines([("as written", as_written)] + [("; ".join(o.plan.changes), o) for o in lever_outcomes]):
+            print(line)
+    for note in plan["lever_notes"]:
+        print(f"  ({note})")
 
-        try:
-            print(optimize_points(path, proc, scenario, Path(args.optimize)))
-        except ValueError as exc:
-            raise UserError(f"--optimize: {exc}") from None
-    return EXIT_OK
+
+def _print_proposal(args: argparse.Namespace, proposal, written: list[Path] | None) -> None:
+    from rtcal.planning.levers import format_hours
+
+    goal = args.target_u * (1 - args.margin)
+    searched = f"{len(proposal.tried)} plans predicted" + (
+        f", {len(proposal.skipped)} with one mount skipped (its error motions alone exceed the target)" if proposal.skipped else "")
+    best = proposal.best
+    if best is None:
+        s = proposal.smallest
+        found = (f"the smallest U found is {s.expanded_max_arcsec:.2f}″ ({'; '.join(s.plan.changes) or 'as written'}, "
+                 f"{format_hours(s.duration_s)})") if s else "no plan could be predicted"
+        print(f"no plan reaches U ≤ {args.target_u:g}″ (k = 2, planned for {goal:.3g}″ with --margin {args.margin:g}): {found}; "
+              f"{searched}")
+        return
+    print(f"proposed for U ≤ {args.target_u:g}″ (k = 2, planned for {goal:.3g}″ with --margin {args.margin:g}): "
+          f"{'; '.join(best.plan.changes) or 'the procedure as written'} → U {best.expanded_max_arcsec:.2f}″ "
+          f"({best.recommended}), {format_hours(best.duration_s)} of machine time ({best.duration_s:.0f} s, "
+          f"{best.raw_readings} planned readings); {searched}")
+    print("written: " + ", ".join(str(w) for w in written or []))
 
 
 def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResults | None]:
@@ -646,6 +733,10 @@ def build_parser() -> argparse.ArgumentParser:
     unc.add_argument("--fixed-systematics", action="store_true",
                      help="keep the scenario's CMM errors and error motions in every trial instead of drawing them from "
                           "the procedure's stated uncertainties (shows this one bench's bias)")
+    unc.add_argument("--balanced", action="store_true",
+                     help="draw the systematic errors in antithetic pairs whose second moments match the stated ones "
+                          "exactly (an even --trials, at least twice the numbers a trial draws), so that sampling of the "
+                          "systematics does not decide the ratio")
     unc.add_argument("--out", help="directory for uncertainty.json and uncertainty.png (default: runs/<time>-uncertainty)")
     unc.set_defaults(func=_cmd_uncertainty)
 
@@ -696,6 +787,18 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--optimize", metavar="OUT.yaml",
                       help="choose CMM points (D/A-optimal exchange on a grid in the CMM volume) that lower the network "
                            "estimator's predicted 1σ, and write the procedure with them to OUT.yaml")
+    plan.add_argument("--no-levers", action="store_true", help="predict the procedure as written only, not each lever")
+    plan.add_argument("--target-u", type=float, metavar="ARCSEC",
+                      help="propose the shortest plan whose U (k = 2, recommended estimator, worst target) reaches this; "
+                           "written to --out (exit 1 when none does)")
+    plan.add_argument("--out", metavar="FILE.yaml", help="with --target-u: where the proposed procedure goes (its bench "
+                                                         "beside it, FILE.bench.yaml, when the plan moves the tracer)")
+    plan.add_argument("--margin", type=float, default=0.1,
+                      help="with --target-u: plan for this fraction below the target (default 0.1: room for what the "
+                           "prediction does not hold and for the Monte Carlo that verifies it)")
+    plan.add_argument("--max-radius-mm", type=float,
+                      help="the furthest from the axis the table lets the tracer sit, mm (default: twice where the "
+                           "procedure has it)")
     plan.set_defaults(func=_cmd_plan)
 
     sim = sub.add_parser("sim", help="simulated instruments")

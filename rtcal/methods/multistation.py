@@ -14,7 +14,7 @@ import numpy as np
 
 from drivers import factory
 from rtcal.clock import Clock
-from rtcal.solvers.air import index_sensitivity, standard_air_n
+from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
 from rtcal.run.dataset import multistation_data
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
@@ -57,16 +57,18 @@ def _round(values: Iterable[float] | np.ndarray, digits: int = 6) -> list[float]
 
 def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> StationNoiseModel:
     """The procedure's ``uncertainty`` section as the solvers' noise model (``estimate``: Type A
-    sizes from the readings; False: as stated, for a prediction)."""
+    sizes from the readings; False: as stated, for a prediction). The tracer's noise is stated per
+    sample; a reading averages ``samples_per_reading`` of them."""
     u = proc.uncertainty
     em = u.error_motions
+    per_reading = 1.0 / np.sqrt(proc.samples_per_reading)  # a reading averages its samples' independent noise
     return StationNoiseModel(
-        length_noise_um=u.laser_tracer_noise_um, length_noise_ppm=u.laser_tracer_noise_ppm,
+        length_noise_um=u.laser_tracer_noise_um * per_reading, length_noise_ppm=u.laser_tracer_noise_ppm * per_reading,
         point_noise_um=u.cmm_point_noise_um, stage_repeatability_arcsec=u.stage_repeatability_arcsec,
         cmm_scale_ppm=u.cmm_scale_ppm, cmm_squareness_arcsec=u.cmm_squareness_arcsec,
         error_motion_radial_um=em.radial_um, error_motion_axial_um=em.axial_um, error_motion_tilt_arcsec=em.tilt_arcsec,
         error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm, estimate=estimate,
-        air_index_sigma=air_index_sigma(proc))
+        air_index_sigma=air_index_sigma(proc), air_index_bound=air_index_bound(proc)[0], air_note=air_index_bound(proc)[1])
 
 
 def air_index_sigma(proc: LaserTracerMultistation) -> float:
@@ -76,6 +78,33 @@ def air_index_sigma(proc: LaserTracerMultistation) -> float:
     e = proc.uncertainty.environment
     dT, dp, dh = index_sensitivity()
     return float(np.sqrt((dT * e.air_temperature_k) ** 2 + (dp * e.air_pressure_pa) ** 2 + (dh * e.humidity_pct) ** 2))
+
+
+AIR_QUANTITIES = (("air_temperature_k", "temperature", "K", 0), ("air_pressure_pa", "pressure", "Pa", 1),
+                  ("humidity_pct", "humidity", "% RH", 2))
+
+
+def stated_air_ranges(proc: LaserTracerMultistation) -> dict[str, float]:
+    """Without an environment sensor, the ranges the procedure states for the air during the run
+    (``uncertainty.environment``, only the keys written: the defaults are a sensor's uncertainty)."""
+    u = proc.uncertainty
+    if proc.instruments.environment is not None or "environment" not in u.model_fields_set:
+        return {}
+    return {key: float(getattr(u.environment, key)) for key, *_ in AIR_QUANTITIES if key in u.environment.model_fields_set}
+
+
+def air_index_bound(proc: LaserTracerMultistation) -> tuple[float, str]:
+    """Without a sensor: the root-sum-square of the index's bounds over the run from each stated
+    range (the lengths then assume standard air and nothing corrects them), and what it is made of."""
+    ranges = stated_air_ranges(proc)
+    sensitivity = index_sensitivity()
+    parts, squares = [], 0.0
+    for key, label, unit, k in AIR_QUANTITIES:
+        if ranges.get(key, 0.0) > 0:
+            bound = abs(sensitivity[k]) * ranges[key]
+            squares += bound**2
+            parts.append(f"{label} ±{ranges[key]:g} {unit} (index ±{bound * 1e6:.2g} ppm)")
+    return float(np.sqrt(squares)), ", ".join(parts)
 
 
 def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
@@ -108,6 +137,13 @@ def not_included(proc: LaserTracerMultistation) -> list[str]:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
         out.append("stage repeatability per visit: not stated (uncertainty.stage_repeatability_arcsec)")
+    if proc.instruments.environment is None:
+        ranges = stated_air_ranges(proc)
+        missing = [f"{label} (uncertainty.environment.{key})" for key, label, *_ in AIR_QUANTITIES if key not in ranges]
+        if missing:
+            out.append("air: no environment sensor and no range stated for its " + " or ".join(missing) + "; the lengths "
+                       "assume standard air (20 °C, 1013.25 hPa, 50 % RH): 1 K, 3.7 hPa or 100 % RH of change is about "
+                       "1 ppm of every length")
     return out
 
 
@@ -305,4 +341,53 @@ class MultistationMethod:
             "axial_motion": _random_series(ax, k, rng, LinearHarmonic),
             "tilt_motion_x": _random_series(t, k, rng, AngularHarmonic), "tilt_motion_y": _random_series(t, k, rng, AngularHarmonic),
             "tilt_center_height_mm": em.tilt_center_z_mm - scenario.stage.axis_point_mm[2]})
-        return scenario.model_copy(update={"cmm": cmm, "stage": stage})
+        update = {"cmm": cmm, "stage": stage}
+        ranges = stated_air_ranges(proc)
+        if ranges:  # no sensor: the air at the run's first and last length anywhere in its range, linear between
+            update["environment"] = self._drawn_air(proc, scenario, ranges, rng)
+        return scenario.model_copy(update=update)
+
+    def _drawn_air(self, proc: LaserTracerMultistation, scenario: Scenario, ranges: dict[str, float], rng: np.random.Generator):
+        """The air as the budget models it without a sensor (:func:`rtcal.solvers.station_budget.air_drift_effect`):
+        each stated quantity at the run's start and end independently uniform within ± its range about standard
+        air, changing linearly over the planned run's duration."""
+        hours = self.planned_duration_s(proc, scenario) / 3600.0
+        env = scenario.environment
+        update = {}
+        for key, start_field, drift_field, standard in (
+                ("air_temperature_k", "air_temperature_c", "air_temperature_drift_k_per_h", STANDARD_AIR["temperature_c"]),
+                ("air_pressure_pa", "air_pressure_pa", "air_pressure_drift_pa_per_h", STANDARD_AIR["pressure_pa"]),
+                ("humidity_pct", "humidity_pct", "humidity_drift_pct_per_h", STANDARD_AIR["humidity_pct"])):
+            r = ranges.get(key, 0.0)
+            first, last = (float(v) for v in rng.uniform(-r, r, 2))
+            update[start_field] = standard + first
+            update[drift_field] = (last - first) / hours if hours > 0 else 0.0
+        return env.model_copy(update=update)
+
+    def planned_duration_s(self, proc: LaserTracerMultistation, scenario: Scenario) -> float:
+        """How long the plan takes on this bench (a dry run on its noise-free copy, virtual clock),
+        remembered per procedure and bench."""
+        key = (proc.model_dump_json(), scenario.without_noise().model_dump_json())
+        cache = self.__dict__.setdefault("_durations", {})
+        if key not in cache:
+            import shutil
+            import tempfile
+            from pathlib import Path
+
+            from rtcal.clock import VirtualClock
+            from rtcal.sequencer.operator import BenchOperator
+
+            bench = Bench(scenario.without_noise(), VirtualClock(), 0)
+            tmp = Path(tempfile.mkdtemp(prefix="duration-"))
+            try:
+                store = RunStore.create(tmp, {"method": self.name})
+                inst = self.sim_instruments(proc, bench)
+                try:
+                    run_multistation(proc, inst, store, bench.clock, operator=BenchOperator(bench))
+                finally:
+                    inst.close()
+                    store.close()
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+            cache[key] = float(bench.clock.now_s())
+        return cache[key]

@@ -85,6 +85,27 @@ def exchange(current: np.ndarray, candidates: np.ndarray, G: np.ndarray, passes:
     return np.array(chosen), before, best
 
 
+def bench_file_beside(out_path: Path) -> Path:
+    """Where a procedure written to ``out_path`` gets its own bench: ``<stem>.bench.yaml`` beside it."""
+    return out_path.with_name(f"{out_path.stem}.bench.yaml")
+
+
+def keep_bench(procedure_path: Path, data_yaml: dict, out_path: Path) -> Path | None:
+    """Point ``data_yaml["bench"]`` (read from ``procedure_path``) at the same bench from ``out_path``'s
+    folder (a procedure reads no bench outside its folder): a relative path when the bench is inside
+    that folder, else a copy beside the new file, which is returned (to be named on the console)."""
+    if not data_yaml.get("bench"):
+        return None
+    bench_file = (procedure_path.parent / data_yaml["bench"]).resolve()
+    folder = out_path.resolve().parent
+    if os.path.commonpath([folder, bench_file]) == str(folder):
+        data_yaml["bench"] = os.path.relpath(bench_file, folder)
+        return None
+    copy = write_output(bench_file_beside(out_path), read_text(bench_file))
+    data_yaml["bench"] = copy.name
+    return copy
+
+
 def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenario, out_path: Path,
                     grid: int = 7) -> str:
     """Write ``out_path``: the procedure with an optimised point list; returns a summary line."""
@@ -136,16 +157,8 @@ def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenari
     order = np.lexsort((new_points[:, 0], new_points[:, 1], new_points[:, 2]))  # layer by layer, row by row
     new_points = new_points[order]
     data_yaml, _ = load_yaml(read_text(procedure_path), str(procedure_path))
-    copy = None
     data_yaml["points"] = {"kind": "list", "points_mm": [[round(float(v), 3) for v in p] for p in new_points]}
-    if data_yaml.get("bench"):  # the same bench, inside the new file's folder (a procedure reads no bench outside it)
-        bench_file = (procedure_path.parent / data_yaml["bench"]).resolve()
-        folder = out_path.resolve().parent
-        if os.path.commonpath([folder, bench_file]) == str(folder):
-            data_yaml["bench"] = os.path.relpath(bench_file, folder)
-        else:  # the bench is copied beside the new file (and named on the console)
-            copy = write_output(out_path.with_name(f"{out_path.stem}.bench.yaml"), read_text(bench_file))
-            data_yaml["bench"] = copy.name
+    copy = keep_bench(procedure_path, data_yaml, out_path)
     data_yaml["name"] = f"{data_yaml.get('name') or procedure_path.stem} — points optimised by rtcal plan"
     write_output(out_path, "# Written by `rtcal plan --optimize`: CMM points chosen to lower the network estimator's "
                  "predicted 1σ.\n" + yaml.safe_dump(data_yaml, sort_keys=False, allow_unicode=True, default_flow_style=None))

@@ -40,16 +40,78 @@ class TrialSpec:
     workdir: str
 
 
+class ScriptedNormals:
+    """A stand-in for ``numpy.random.Generator`` in ``draw_systematics`` that hands out given
+    standard normal deviates in order (``normal``, ``standard_normal``; ``uniform`` through the
+    normal's distribution function), and counts what was asked of it."""
+
+    def __init__(self, z: np.ndarray | None = None):
+        self._z = np.zeros(0) if z is None else np.asarray(z, float).ravel()
+        self.used = 0
+
+    def _take(self, size) -> np.ndarray:
+        count = int(np.prod(size)) if size is not None else 1
+        if self._z.size:
+            if self.used + count > self._z.size:
+                raise RuntimeError("the scripted draws ran out: the method drew more than it did when counted")
+            out = self._z[self.used:self.used + count]
+        else:
+            out = np.zeros(count)
+        self.used += count
+        return out.reshape(size) if size is not None else out[0]
+
+    def standard_normal(self, size=None):
+        return self._take(size)
+
+    def normal(self, loc=0.0, scale=1.0, size=None):
+        return loc + scale * self._take(size)
+
+    def uniform(self, low=0.0, high=1.0, size=None):
+        from scipy.special import ndtr
+
+        return low + (high - low) * ndtr(self._take(size))
+
+
+def balanced_normals(pairs: int, dimension: int, rng: np.random.Generator) -> np.ndarray:
+    """(2·pairs, dimension) standard normal deviates drawn in antithetic pairs (z, −z), the ``pairs``
+    base draws whitened so that their second moments are exactly the identity (needs pairs ≥ dimension):
+    every linear function of the draws then has exactly its expected mean (0) and variance over the
+    trials, and the systematic errors' share of the squared errors carries no sampling noise."""
+    z = rng.standard_normal((pairs, dimension))
+    if dimension:
+        if pairs < dimension:
+            raise ValueError(f"balanced draws need at least {dimension} pairs of trials ({2 * dimension} trials): the "
+                             f"method draws {dimension} numbers per trial")
+        chol = np.linalg.cholesky(z.T @ z / pairs)
+        z = np.linalg.solve(chol, z.T).T  # z·L⁻ᵀ: second moments exactly I
+    out = np.empty((2 * pairs, dimension))
+    out[0::2], out[1::2] = z, -z
+    return out
+
+
 def plan_trials(procedure_path: Path, proc: Procedure, scenario, trials: int, seed: int, workdir: Path,
-                vary_systematics: bool = True) -> list[TrialSpec]:
-    """N trial specifications; the systematic draws come from one generator seeded by ``seed``."""
+                vary_systematics: bool = True, balanced: bool = False) -> list[TrialSpec]:
+    """N trial specifications; the systematic draws come from one generator seeded by ``seed``
+    (``balanced``: in moment-matched antithetic pairs, :func:`balanced_normals`; N even)."""
     from rtcal.methods import METHODS
 
     method = METHODS[proc.method]
     rng = np.random.default_rng([seed, 0x5EED])
+    scripted: np.ndarray | None = None
+    if vary_systematics and balanced:
+        counter = ScriptedNormals()
+        method.draw_systematics(proc, scenario, counter)  # type: ignore[arg-type]
+        if trials % 2:
+            raise ValueError("balanced draws come in antithetic pairs: give an even number of trials")
+        scripted = balanced_normals(trials // 2, counter.used, rng)
     specs = []
     for k in range(trials):
-        bench = method.draw_systematics(proc, scenario, rng) if vary_systematics else scenario
+        if not vary_systematics:
+            bench = scenario
+        elif scripted is not None:
+            bench = method.draw_systematics(proc, scenario, ScriptedNormals(scripted[k]))  # type: ignore[arg-type]
+        else:
+            bench = method.draw_systematics(proc, scenario, rng)
         data = bench.model_dump(mode="json")
         data["seed"] = int(seed) * 100003 + k
         specs.append(TrialSpec(k, str(procedure_path), yaml.safe_dump(data, sort_keys=False), data["seed"], str(workdir)))
@@ -132,6 +194,8 @@ def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[st
             "trials": len(rows),
             "not_converged": sum(r["status"] != "converged" for r in rows),
             "rms_error_arcsec": _r(rms_err), "rms_reported_sigma_arcsec": _r(rms_u), "ratio": _r(ratio, 3),
+            # its 1σ from the number of trials (an RMS of N normal errors is known to ±1/√(2N))
+            "ratio_sigma": _r(ratio / np.sqrt(2 * len(rows)), 3),
             "mean_error_arcsec": _r(np.nanmean(err, axis=0)),
             "overall": {"rms_error_arcsec": round(float(np.sqrt(np.nanmean(err[:, inner] ** 2))), 4),
                         "rms_reported_sigma_arcsec": round(float(np.sqrt(np.nanmean(u[:, inner] ** 2))), 4),

@@ -20,15 +20,33 @@ import yaml
 from rtcal.procedure.models import Procedure
 
 
+def simulated(data: dict[str, Any]) -> dict[str, Any]:
+    """A procedure's YAML data with every instrument on the simulated bench (``backend: sim``, no address):
+    a plan of real instruments is predicted on the bench as it is written, and nothing is connected to."""
+    instruments = data.get("instruments")
+    if not isinstance(instruments, dict):
+        return data
+    sim = {name: {**{k: v for k, v in (choice or {}).items() if k != "address"}, "backend": "sim"}
+           for name, choice in instruments.items() if choice is not None}
+    return {**data, "instruments": sim}
+
+
 def predict(procedure_path: Path, proc: Procedure, scenario, workdir: Path | None = None) -> dict[str, Any]:
     """Predicted 1σ per target for every estimator, the recommended one, and the run's duration."""
+    from rtcal.procedure.yamlfile import load_yaml, read_text
     from rtcal.run.runner import run_procedure
 
     tmp = Path(tempfile.mkdtemp(prefix="plan-", dir=workdir))
     try:
         bench = tmp / "bench.yaml"
         bench.write_text(yaml.safe_dump(scenario.without_noise().model_dump(mode="json"), sort_keys=False), encoding="utf-8")
-        outcome = run_procedure(procedure_path, bench, out_dir=tmp / "run", show_progress=False, outputs=False,
+        run_path = procedure_path
+        if not proc.instruments.all_sim():  # predicted on the simulated bench, never on the instruments themselves
+            data, _ = load_yaml(read_text(procedure_path), str(procedure_path))
+            run_path = tmp / "procedure.yaml"
+            run_path.write_text(yaml.safe_dump({k: v for k, v in simulated(data).items() if k != "bench"}, sort_keys=False,
+                                               allow_unicode=True), encoding="utf-8")
+        outcome = run_procedure(run_path, bench, out_dir=tmp / "run", show_progress=False, outputs=False,
                                 estimate_noise=False)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

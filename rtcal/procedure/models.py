@@ -378,12 +378,23 @@ class ErrorMotionBounds(_Strict):
 
 
 class EnvironmentUncertainty(_Strict):
-    """Standard uncertainties of the environment sensor (Type B: its calibration, the air the beam
-    runs through against where the sensor sits)."""
+    """The air the tracer's beam runs through (Type B). Its meaning depends on the procedure:
 
-    air_temperature_k: float = Field(0.1, ge=0.0, le=10.0, description="air temperature, K (e.g. 0.1)")
-    air_pressure_pa: float = Field(20.0, ge=0.0, le=1000.0, description="air pressure, Pa (e.g. 20)")
-    humidity_pct: float = Field(5.0, ge=0.0, le=50.0, description="relative humidity, % (e.g. 5)")
+    - with an `environment` instrument: the sensor's standard uncertainties (1σ: its calibration,
+      the air the beam runs through against where the sensor sits); each length is corrected with
+      the air of its moment;
+    - without one: the range the air may take during the run — how far, at most, it may differ at
+      any moment from the conditions the tracer's lengths assume (standard air: 20 °C, 1013.25 hPa,
+      50 % RH), e.g. `{air_temperature_k: 1.0, air_pressure_pa: 500}` for 20 ± 1 °C and
+      1013.25 ± 5 hPa. Only the keys written count (the defaults are a sensor's); a quantity with
+      no range is named in the budget's `not_included`."""
+
+    air_temperature_k: float = Field(0.1, ge=0.0, le=10.0, description="air temperature, K: with a sensor its 1σ (e.g. 0.1); "
+                                     "without one the range ± the air may take during the run (e.g. 1.0)")
+    air_pressure_pa: float = Field(20.0, ge=0.0, le=10000.0, description="air pressure, Pa: with a sensor its 1σ (e.g. 20); "
+                                   "without one the range ± the air may take during the run (e.g. 500)")
+    humidity_pct: float = Field(5.0, ge=0.0, le=50.0, description="relative humidity, % RH: with a sensor its 1σ (e.g. 5); "
+                                "without one the range ± the air may take during the run (e.g. 20)")
 
 
 class MultistationUncertainty(_Strict):
@@ -392,15 +403,16 @@ class MultistationUncertainty(_Strict):
     The sizes of the tracer's and the CMM's random errors are estimated from the readings
     (Type A); the values here give their shape and a reference. The others are Type B."""
 
-    laser_tracer_noise_um: float = Field(0.2, ge=0.0, le=100.0, description="tracer length noise a of a + b·L, µm (1σ, e.g. 0.2)")
-    laser_tracer_noise_ppm: float = Field(0.3, ge=0.0, le=100.0, description="tracer length noise b of a + b·L, µm per m (e.g. 0.3)")
+    laser_tracer_noise_um: float = Field(0.2, ge=0.0, le=100.0, description="tracer length noise a of a + b·L, µm (1σ per sample, e.g. 0.2)")
+    laser_tracer_noise_ppm: float = Field(0.3, ge=0.0, le=100.0, description="tracer length noise b of a + b·L, µm per m (per sample, e.g. 0.3)")
     cmm_point_noise_um: float = Field(0.3, ge=0.0, le=1000.0, description="CMM reading noise per coordinate and visit, µm (1σ, e.g. 0.3)")
     cmm_scale_ppm: float = Field(0.0, ge=0.0, le=1000.0, description="standard uncertainty of each CMM scale, ppm (Type B, e.g. 1.0)")
     cmm_squareness_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="standard uncertainty of each CMM squareness, arcsec (Type B, e.g. 1.0)")
     stage_repeatability_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="the stage's positioning repeatability per visit, arcsec (1σ, Type B, e.g. 0.2)")
     error_motions: ErrorMotionBounds = Field(ErrorMotionBounds(), description="bounds of the error motions (Type B)")
-    environment: EnvironmentUncertainty = Field(EnvironmentUncertainty(), description="the environment sensor's "
-                                                "uncertainty (used when the procedure has one)")
+    environment: EnvironmentUncertainty = Field(EnvironmentUncertainty(), description="the air: with an environment "
+                                                "instrument its sensor's uncertainty (1σ); without one the range the air may "
+                                                "take during the run")
 
 
 class _Verification(_Strict):

@@ -34,6 +34,7 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
             env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(r.quantity, []).append(r.value)
     len_sum = np.zeros((mounts, n_points, m))
     len_count = np.zeros((mounts, n_points, m))
+    time_sum = np.zeros((mounts, n_points, m))
     segments = np.full((mounts, n_points, m), -1)
     visits = np.full((mounts, n_points, m), -1)
     visit, last = -1, None
@@ -43,6 +44,7 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         k = r.seating or 0
         len_sum[k, r.point, r.station] += r.value
         len_count[k, r.point, r.station] += 1
+        time_sum[k, r.point, r.station] += r.t_s
         segments[k, r.point, r.station] = r.segment
         if (k, r.station, r.segment) != last:  # the table moved (or a new start re-approached it)
             visit, last = visit + 1, (k, r.station, r.segment)
@@ -51,6 +53,7 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         raise ValueError(f"the CMM position of {int(np.sum(pos_count[:, 0] == 0))} points was never read")
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
+        times = np.where(len_count > 0, time_sum / np.maximum(len_count, 1), np.nan)
     index = summary = None
     if env:
         index = np.full((mounts, n_points, m), np.nan)
@@ -58,10 +61,11 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
             if all(name in q for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct")):
                 index[k, i, j] = ciddor_n(np.mean(q["air_temperature_c"]), np.mean(q["air_pressure_pa"]), np.mean(q["humidity_pct"]))
         summary = summarise_conditions(env.values())
-    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k]) for k in range(1, mounts))
+    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k], times[k])
+                   for k in range(1, mounts))
     return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
                             int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others,
-                            None if index is None else index[0], summary)
+                            None if index is None else index[0], summary, times[0])
 
 
 CONDITIONS = ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")

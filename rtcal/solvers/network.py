@@ -25,13 +25,14 @@ radius, angles, dead paths, CMM) are a few dozen.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 
 from rtcal.solvers.station_budget import (
     StationNoiseModel,
+    air_drift_source,
     cmm_matrix_derivatives,
     error_motion_covariances,
 )
@@ -342,6 +343,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         seg_l.append(segments[valid])
         vis_l.append(visits_k[valid] + k * (n * m + 1))
     pi, st, obs = np.concatenate(pi_l), np.concatenate(st_l), np.concatenate(obs_l)
+    fractions = data.run_fraction()
+    run_fraction = np.concatenate([fractions[k][np.isfinite(mounts[k][0])] for k in range(len(mounts))])
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
     lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts))
     if len(obs) < lay.g + 1:
@@ -456,7 +459,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         if settled:
             break
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
-                   (prior_idx, prior_sigma))
+                   (prior_idx, prior_sigma), run_fraction)
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -537,7 +540,8 @@ def _variance_scales(x, lay, evaluate, weights, theta, pi, prior) -> np.ndarray:
     return new
 
 
-def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior):
+def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
+            run_fraction):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
         x, lay, evaluate, weights, theta, pi, prior)
@@ -585,6 +589,9 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         L_abs = np.linalg.norm(A[pi] - P[st], axis=1)
         sources.append(Source("air refractive index", "B", np.concatenate([L_abs, zeros_pts])[:, None] * noise.air_index_sigma,
                               noise.air_index_sigma * 1e6, "ppm", "from the environment sensor's stated uncertainty"))
+    if noise.air_index_bound > 0:  # no sensor: the air drifts within the stated ranges, uncorrected
+        drift = air_drift_source(np.linalg.norm(A[pi] - P[st], axis=1), run_fraction, noise)
+        sources.append(replace(drift, effect=np.vstack([drift.effect, np.zeros((len(zeros_pts), 2))])))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
     if not lay.error_motions:

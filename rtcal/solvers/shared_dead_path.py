@@ -86,7 +86,8 @@ def solve_shared_dead_path(
     sol = least_squares(residuals, x0, jac=jacobian, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     centers = sol.x[: 3 * m].reshape(m, 3)
     chain = chain_from_stations(centers, nominal_angles_rad)
-    observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts)
+    observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts,
+                                       data.run_fraction()[0][pi, sj])
     budget = station_budget(sol.jac, sol.fun, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
                             chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise)
     converged = bool(sol.success) and sol.status > 0

@@ -13,6 +13,10 @@ results"):
   by a random angle, shared by the lengths taken during that visit;
 - **CMM scale and squareness** (Type B): the reported points are off by (M − I)·A, with M the
   CMM's (lower-triangular) scale/squareness matrix, common to every length;
+- **air refractive index** (Type B): with an environment sensor, the index each length was
+  corrected with is off by the sensor's uncertainty, one error for the whole run (a scale of every
+  counted distance); without one, the air drifts within the stated ranges and nothing corrects
+  it — see :func:`air_drift_effect`;
 - **error motions** (Type B): radial, axial and tilt error motions displace each station; no
   single-mount model sees them. Each is modelled as an unknown smooth function bounded by the
   stated value, a random Fourier series of orders 1..K with σ = bound/√2 at every angle (the
@@ -61,6 +65,9 @@ class StationNoiseModel:
     tilt_center_z_mm: float = 0.0  # height of the tilt centre in the CMM frame
     estimate: bool = True  # Type A sizes from the residuals; False: as stated (a prediction before measuring)
     air_index_sigma: float = 0.0  # of the air's refractive index the lengths were corrected with (0: not corrected)
+    air_index_bound: float = 0.0  # no sensor: the index's departure from what the lengths assume, bound over the run
+    #                               (the root-sum-square of independent bounds: temperature, pressure, humidity)
+    air_note: str = ""  # what the bound is made of (the stated ranges), for the budget's note
 
 
 @dataclass(frozen=True)
@@ -72,6 +79,7 @@ class StationObservations:
     visit: np.ndarray  # (N,) stage visit (shared by the lengths taken without the table moving)
     points_mm: np.ndarray  # (n, 3) as the solver used them
     point_visits: np.ndarray  # (n,) how many CMM readings were averaged into each point
+    run_fraction: np.ndarray | None = None  # (N,) each length's place in the run, −1 first … +1 last (air drift)
 
 
 def chain_jacobian(stations_mm: np.ndarray, chain: Callable[[np.ndarray], np.ndarray], h_mm: float = 1e-4) -> np.ndarray:
@@ -136,6 +144,35 @@ def error_motion_covariances(stations_mm: np.ndarray, nominal_angles_rad: np.nda
     return out
 
 
+AIR_DRIFT_SOURCE = "air refractive index (no sensor)"
+
+
+def air_drift_effect(distances_mm: np.ndarray, run_fraction: np.ndarray, bound: float) -> np.ndarray:
+    """(N, 2): what the air's index, uncorrected, does to the lengths' residuals per 1σ of its offset and
+    of its drift over the run.
+
+    A tracking interferometer referenced at t₀ reports l = (n(t)·L(t) − n(t₀)·L(t₀))/n_a, n_a the index
+    it assumes. With n = n_a·(1 + Δn) the reading is L(t) − L(t₀) + Δn(t)·L(t) − Δn(t₀)·L(t₀): the
+    last term is one constant per tracking segment, which its dead path absorbs (one per segment, or
+    per station in the paper's model), so each length carries Δn(t)·L(t) — L the whole distance from the
+    tracer to the reflector, not the counted one. A constant Δn is a scale of every distance (the
+    network's CMM scales and radius largely take it up); a drift scales the lengths of different
+    points and stations differently, which no unknown of the model can take up.
+
+    Δn(t) is modelled as a straight line over the run between its values at the run's first and last
+    length, each anywhere within ±B (rectangular, independent: GUM's distribution for a range with
+    nothing known inside it). With τ = −1 at the first length and +1 at the last, Δn = a + b·τ with
+    a, b the half sum and half difference of the two ends: σ(a) = σ(b) = B/√6, uncorrelated, and the
+    line stays within ±B. A straight line because the air of a closed room drifts (weather, warm-up)
+    over hours far more than it oscillates within a run; faster variations (an air conditioner's
+    cycle) act as length noise, which the residuals' Type A estimate sees. ``rtcal uncertainty``
+    draws the air the same way."""
+    L = np.asarray(distances_mm, float)
+    tau = np.nan_to_num(np.asarray(run_fraction, float))
+    s = bound / np.sqrt(6.0)
+    return np.column_stack([L * s, L * tau * s])
+
+
 def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
                         axis_direction: np.ndarray, noise: StationNoiseModel) -> list[Source]:
     """The sources that act on the lengths' residuals, each as its effect per 1σ of its inputs."""
@@ -171,6 +208,10 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
     if noise.air_index_sigma > 0:  # one error of the index for the whole run scales every counted distance
         sources.append(Source("air refractive index", "B", (L * noise.air_index_sigma)[:, None], noise.air_index_sigma * 1e6,
                               "ppm", "from the environment sensor's stated uncertainty, common to every length"))
+    if noise.air_index_bound > 0:
+        if obs.run_fraction is None:
+            raise ValueError("the air's drift needs each length's place in the run")
+        sources.append(air_drift_source(L, obs.run_fraction, noise))
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
         columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
@@ -178,6 +219,16 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         if sigma > 0:
             sources.append(Source(label, "B", np.column_stack(columns), sigma, unit, "each of three, as stated"))
     return sources
+
+
+def air_drift_source(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel) -> Source:
+    """The uncorrected air as a Type B source (:func:`air_drift_effect`), its σ in ppm of index."""
+    return Source(AIR_DRIFT_SOURCE, "B", air_drift_effect(distances_mm, run_fraction, noise.air_index_bound),
+                  noise.air_index_bound / np.sqrt(6.0) * 1e6, "ppm",
+                  f"no environment sensor, the lengths uncorrected: {noise.air_note or 'the air within the stated ranges'}; "
+                  "each linear over the run between its values at the first and the last length, each end anywhere "
+                  "within the range (rectangular, independent); input σ: of the index's mean over the run and of its "
+                  "half change, each (√(Σ bound²/6))")
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ class MountReadings:
     segments: np.ndarray  # n×m
     visits: np.ndarray  # n×m stage visits, numbered after the first mount's
     air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
+    times_s: np.ndarray | None = None  # n×m time of each length on the run's clock, s (None: not known)
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,7 @@ class MultistationData:
     other_mounts: tuple[MountReadings, ...] = ()  # the network estimator uses them; the others use the first mount
     air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
     environment: dict | None = None  # summary of the recorded air and material conditions, for the report
+    times_s: np.ndarray | None = None  # n×m time of each length on the run's clock, s (None: not known)
 
     @classmethod
     def from_arrays(cls, points_mm, lengths_mm, nominal_angles_deg, segments=None) -> "MultistationData":
@@ -54,3 +56,20 @@ class MultistationData:
     @property
     def point_visit_counts(self) -> np.ndarray:
         return np.ones(len(self.points_mm)) if self.point_visits is None else np.asarray(self.point_visits, float)
+
+    def run_fraction(self) -> list[np.ndarray]:
+        """Per mount (the first, then ``other_mounts``): each length's place in the run, n×m, −1 at the
+        first length of the whole run, +1 at its last (NaN where skipped). Without recorded times the
+        lengths are taken as evenly spaced in the order they are stored (point-major, mount by mount)."""
+        lengths = [np.asarray(self.lengths_mm, float)] + [np.asarray(o.lengths_mm, float) for o in self.other_mounts]
+        times = [self.times_s] + [o.times_s for o in self.other_mounts]
+        if any(t is None for t in times):
+            size = lengths[0].size
+            times = [np.arange(k * size, (k + 1) * size, dtype=float).reshape(lengths[0].shape) for k in range(len(lengths))]
+        times = [np.where(np.isfinite(L), np.asarray(t, float), np.nan) for t, L in zip(times, lengths)]
+        every = np.concatenate([t[np.isfinite(t)] for t in times])
+        if every.size == 0:
+            return [np.full(L.shape, np.nan) for L in lengths]
+        lo, hi = float(every.min()), float(every.max())
+        span = hi - lo if hi > lo else 1.0
+        return [2.0 * (t - lo) / span - 1.0 for t in times]

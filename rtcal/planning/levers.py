@@ -1,0 +1,396 @@
+"""`rtcal plan`: what a plan's uncertainty is made of, what each lever of its method would do, and
+the shortest plan that reaches a target uncertainty.
+
+A *plan* is a procedure's YAML data with its bench's (the simulated table, tracer and CMM the
+prediction runs on). A lever changes both where the physical setup changes (a second tracer mount,
+the tracer further from the axis: the bench must have the tracer where the procedure says) and the
+procedure alone otherwise (points, stations, samples, runs, an environment sensor). Each plan is
+predicted like `rtcal plan` predicts the procedure as written (:func:`rtcal.planning.predict.predict`:
+the stated noise on the noise-free bench, the run's simulated clock), so a lever's U and machine time
+are those of a procedure that validates and runs.
+
+The search for a target U (:func:`propose`) tries the plans its method offers in order of machine
+time (readings, then the simulated clock) and stops at the first group of equally long plans of
+which one reaches the target; between plans equally long it takes the smaller U. For the
+multi-station method it combines a second mount, the tracer as far from the axis as allowed, the
+number of CMM point layers and an environment sensor (only where the procedure states the air's
+ranges: a sensor then replaces them); the stations (the certificate's targets) and the samples per
+reading (the simulated tracer counts no time for a sample, so their machine time is not known here)
+are left as written. Plans with one mount are skipped once one of them shows that the error motions
+alone (a bias no repetition averages) exceed the target at the furthest radius.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+import yaml
+
+from rtcal.procedure.models import EncoderAbbeError, EnvironmentUncertainty, GridPlan, LaserTracerMultistation, Procedure
+
+ERROR_MOTION_PREFIX = "error motion"  # the budget's error-motion sources (radial, axial, tilt) start so
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A candidate: the procedure's and the bench's YAML data, and what was changed, in words."""
+
+    procedure: dict[str, Any]
+    bench: dict[str, Any]
+    changes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """A plan's prediction: the recommended estimator, U (k = 2) at its worst target, the machine time,
+    and each source's share of the variance (over the targets)."""
+
+    plan: Plan
+    recommended: str | None
+    expanded_max_arcsec: float
+    duration_s: float
+    raw_readings: int
+    shares: dict[str, float] = field(default_factory=dict)
+    contributions: dict[str, list[float]] = field(default_factory=dict)  # the recommended's budget, 1σ per target
+    problem: str = ""  # why the plan could not be predicted (it does not validate, no estimator converged)
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON form of a lever or proposal."""
+        return {"changes": list(self.plan.changes) or ["as written"], "recommended": self.recommended,
+                "expanded_uncertainty_max_arcsec": _finite(self.expanded_max_arcsec), "duration_s": round(self.duration_s, 1),
+                "raw_readings": self.raw_readings,
+                "sources_rms_arcsec": {k: round(float(np.sqrt(np.mean(np.square(v[1:])))), 4)
+                                       for k, v in self.contributions.items() if len(v) > 1},
+                **({"problem": self.problem} if self.problem else {})}
+
+
+def _finite(value: float) -> float | None:
+    return round(float(value), 4) if math.isfinite(value) else None
+
+
+def base_plan(procedure_path: Path, scenario) -> Plan:
+    from rtcal.procedure.yamlfile import load_yaml, read_text
+
+    data, _ = load_yaml(read_text(procedure_path), str(procedure_path))
+    return Plan(data, scenario.model_dump(mode="json"))
+
+
+def shares_of(contributions: dict[str, list[float | None]], combined: list[float | None]) -> dict[str, float]:
+    """Each source's share of the combined variance, summed over the targets after the first (the
+    reference, 0 ± 0)."""
+    total = sum((c or 0.0) ** 2 for c in combined[1:])
+    if total <= 0:
+        return {}
+    return {name: sum((v or 0.0) ** 2 for v in values[1:]) / total for name, values in contributions.items()}
+
+
+def evaluate(plan: Plan, workdir: Path | None = None) -> Outcome:
+    """Predict ``plan`` (written to a temporary folder: the procedure beside its bench)."""
+    from rtcal.planning.predict import predict, simulated
+    from rtcal.procedure.loader import load_procedure
+    from rtcal.run.runner import AnalysisFailed
+    from rtcal.procedure.yamlfile import FileProblems
+    from simulators.scenario import Scenario
+
+    tmp = Path(tempfile.mkdtemp(prefix="lever-", dir=workdir))
+    try:
+        (tmp / "bench.yaml").write_text(yaml.safe_dump(plan.bench, sort_keys=False), encoding="utf-8")
+        path = tmp / "procedure.yaml"
+        path.write_text(yaml.safe_dump({**simulated(plan.procedure), "bench": "bench.yaml"}, sort_keys=False,
+                                       allow_unicode=True), encoding="utf-8")
+        try:
+            proc = load_procedure(path)
+            scenario = Scenario.model_validate(plan.bench)
+            p = predict(path, proc, scenario, tmp)
+        except (FileProblems, AnalysisFailed, ValueError) as exc:
+            return Outcome(plan, None, math.inf, 0.0, 0, problem=str(exc).splitlines()[0].replace(str(tmp) + "/", ""))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    rec = p["recommended"]
+    if rec is None:
+        return Outcome(plan, None, math.inf, p["measurement_duration_s"], p["raw_readings"], problem="no estimator converged")
+    e = p["estimators"][rec]
+    expanded = [v for v in e["predicted_expanded_arcsec"][1:] if v is not None]
+    return Outcome(plan, rec, max(expanded) if expanded else math.inf, float(p["measurement_duration_s"]), int(p["raw_readings"]),
+                   shares_of(e["budget"], e["predicted_sigma_arcsec"]),
+                   {k: [v or 0.0 for v in vals] for k, vals in e["budget"].items()})
+
+
+# -- the multi-station method's levers ---------------------------------------------------------------------
+def _tracer_polar(data: dict[str, Any], proc: LaserTracerMultistation) -> tuple[np.ndarray, float, float, float]:
+    """(axis point, radius, angle, height) of the nominal tracer centre at the first station: as a lever
+    already set it in ``data``, else as the procedure has it."""
+    axis = np.array(proc.solver.axis_point_mm, float)
+    guess = np.array(data.get("solver", {}).get("first_station_guess_mm") or proc.solver.first_station_guess_mm, float)
+    rel = guess[:2] - axis[:2]
+    return axis, float(np.hypot(*rel)), float(np.arctan2(rel[1], rel[0])), float(guess[2])
+
+
+def _at(axis: np.ndarray, radius: float, angle: float, height: float) -> list[float]:
+    return [round(float(axis[0] + radius * math.cos(angle)), 4), round(float(axis[1] + radius * math.sin(angle)), 4),
+            round(height, 4)]
+
+
+def tracer_radius(plan: Plan, proc: LaserTracerMultistation, factor: float) -> Plan:
+    """The tracer (and a second mount) ``factor`` times as far from the axis, in the procedure and on the bench."""
+    axis, radius, angle, height = _tracer_polar(plan.procedure, proc)
+    data, bench = copy.deepcopy(plan.procedure), copy.deepcopy(plan.bench)
+    data.setdefault("solver", {})["first_station_guess_mm"] = _at(axis, radius * factor, angle, height)
+    tracer = bench["laser_tracer"]
+    tracer["mount"] = {**tracer["mount"], "radius_mm": round(tracer["mount"]["radius_mm"] * factor, 3)}
+    if data.get("second_mount") and tracer.get("second_mount"):
+        g = np.array(data["second_mount"]["first_station_guess_mm"], float)
+        data["second_mount"] = {"first_station_guess_mm": [round(float(axis[0] + (g[0] - axis[0]) * factor), 4),
+                                                           round(float(axis[1] + (g[1] - axis[1]) * factor), 4), float(g[2])]}
+        tracer["second_mount"] = {**tracer["second_mount"], "radius_mm": round(tracer["second_mount"]["radius_mm"] * factor, 3)}
+    return Plan(data, bench, plan.changes + (f"tracer {radius * factor:.0f} mm from the axis (×{factor:.3g})",))
+
+
+def second_mount(plan: Plan, proc: LaserTracerMultistation) -> Plan:
+    """A second tracer mount opposite the first (same radius and height, 180° round the table): the plan
+    is measured from both, and the network separates the error motions from the rotation. Opposite,
+    because a rotation then moves the two mounts in opposite directions while a translation moves them
+    alike; the tilt about the line joining them, which two mounts cannot see, moves both alike too."""
+    data, bench = copy.deepcopy(plan.procedure), copy.deepcopy(plan.bench)
+    axis, radius, angle, height = _tracer_polar(data, proc)
+    data["second_mount"] = {"first_station_guess_mm": _at(axis, radius, angle + math.pi, height)}
+    tracer = bench["laser_tracer"]
+    mount = tracer["mount"]
+    tracer["second_mount"] = {"radius_mm": mount["radius_mm"], "azimuth_deg": (mount["azimuth_deg"] + 180.0 + 180.0) % 360.0 - 180.0,
+                              "height_mm": mount["height_mm"]}
+    return Plan(data, bench, plan.changes + ("a second tracer mount opposite the first",))
+
+
+def point_layers(plan: Plan, layers: int) -> Plan:
+    data = copy.deepcopy(plan.procedure)
+    points = data.setdefault("points", {"kind": "grid"})
+    old = int(points.get("layers", GridPlan().layers))
+    points["layers"] = layers
+    n = layers * int(points.get("columns", GridPlan().columns)) * int(points.get("rows", GridPlan().rows))
+    return Plan(data, plan.bench, plan.changes + (f"{n} CMM points ({layers} layers instead of {old})",))
+
+
+def more_stations(plan: Plan, proc: LaserTracerMultistation) -> Plan:
+    data = copy.deepcopy(plan.procedure)
+    st = proc.stations
+    data["stations"] = {**data.get("stations", {}), "step_deg": st.step_deg / 2, "count": 2 * st.count - 1}
+    return Plan(data, plan.bench, plan.changes + (f"{2 * st.count - 1} stations, {st.step_deg / 2:g}° apart (the same span: "
+                                                  "every target kept, one between each)",))
+
+
+def more_samples(plan: Plan, samples: int, note: str = "") -> Plan:
+    data = copy.deepcopy(plan.procedure)
+    data["samples_per_reading"] = samples
+    return Plan(data, plan.bench, plan.changes + (f"{samples} samples per reading{note}",))
+
+
+def environment_sensor(plan: Plan, proc: LaserTracerMultistation) -> Plan:
+    """An environment sensor read with every length (on the bench; on real instruments its address is the
+    lab's to give, so the proposal never adds one there)."""
+    data = copy.deepcopy(plan.procedure)
+    data.setdefault("instruments", {})["environment"] = (
+        {"backend": "sim"} if proc.instruments.all_sim() else {"address": "socket://ADDRESS-OF-THE-SENSOR:4001?model=vaisala-ptu300"})
+    sensor = EnvironmentUncertainty()
+    data.setdefault("uncertainty", {})["environment"] = sensor.model_dump()
+    return Plan(data, plan.bench, plan.changes + (
+        f"an environment sensor ({sensor.air_temperature_k:g} K, {sensor.air_pressure_pa:g} Pa, {sensor.humidity_pct:g} % RH, "
+        "1σ): each length corrected for the air of its moment" + ("" if proc.instruments.all_sim() else " (give its address)"),))
+
+
+def more_runs(plan: Plan, runs: int) -> Plan:
+    data = copy.deepcopy(plan.procedure)
+    data.setdefault("steps", {})["runs"] = runs
+    return Plan(data, plan.bench, plan.changes + (f"{runs} runs",))
+
+
+SAMPLE_NOTE = " (the simulated tracer counts no time for a sample: add the real tracer's)"
+
+
+def radius_factors(plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None) -> list[float]:
+    """How much further from the axis the tracer may go: ×1.5 and ×2 by default, else up to the furthest allowed."""
+    _, radius, _, _ = _tracer_polar(plan.procedure, proc)
+    if max_radius_mm is None:
+        return [1.5, 2.0]
+    furthest = max_radius_mm / radius
+    return sorted({round(f, 4) for f in (min(1.5, furthest), furthest) if f > 1.0 + 1e-9})
+
+
+def levers(plan: Plan, proc: Procedure, max_radius_mm: float | None = None) -> list[Plan]:
+    """One plan per lever of the procedure's method, each changing one thing."""
+    out: list[Plan] = []
+    if isinstance(proc, LaserTracerMultistation):
+        if proc.second_mount is None:
+            out.append(second_mount(plan, proc))
+        out += [tracer_radius(plan, proc, f) for f in radius_factors(plan, proc, max_radius_mm)]
+        if isinstance(proc.points, GridPlan):
+            layers = proc.points.layers
+            out += [point_layers(plan, n) for n in sorted({max(layers // 2, 2), 2 * layers}) if n != layers]
+        out.append(more_stations(plan, proc))
+        out.append(more_samples(plan, 4 * proc.samples_per_reading, SAMPLE_NOTE))
+        if proc.instruments.environment is None:
+            out.append(environment_sensor(plan, proc))
+    elif isinstance(proc, EncoderAbbeError):
+        out += [more_runs(plan, r) for r in (2 * proc.steps.runs, 5 * proc.steps.runs) if r <= 100]
+    return out
+
+
+def lever_notes(proc: Procedure) -> list[str]:
+    """Levers the method has that the table does not vary, and why."""
+    if isinstance(proc, LaserTracerMultistation):
+        notes = []
+        if proc.second_mount is not None:
+            notes.append("second mount: in the plan")
+        if proc.instruments.environment is not None:
+            notes.append("environment sensor: in the plan")
+        if not isinstance(proc.points, GridPlan):
+            notes.append("points: the plan lists them (`--optimize` chooses better ones)")
+        notes.append("runs: a multi-station plan is one run; its repetition lever is the samples per reading")
+        return notes
+    if isinstance(proc, EncoderAbbeError):
+        return ["samples per reading: the budget takes each reading's stated noise as it is; runs average it"]
+    return []
+
+
+# -- the search ----------------------------------------------------------------------------------------------
+def multistation_candidates(plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None) -> list[tuple[int, Plan]]:
+    """(readings, plan) for every combination the search tries (see the module docstring)."""
+    factor = max([1.0, *radius_factors(plan, proc, max_radius_mm)])
+    mounts = [False] + ([True] if proc.second_mount is None else [])
+    layers = [None]
+    if isinstance(proc.points, GridPlan):
+        L = proc.points.layers
+        layers = sorted({max(2, round(L * f)) for f in (0.5, 0.75, 1.0, 1.5, 2.0)})
+    from rtcal.methods.multistation import stated_air_ranges
+
+    sensor = proc.instruments.environment is None and bool(stated_air_ranges(proc)) and proc.instruments.all_sim()
+    per_point = proc.stations.count * proc.samples_per_reading
+    out = []
+    for two in mounts:
+        for n_layers in layers:
+            p = plan
+            if two:
+                p = second_mount(p, proc)
+            if factor > 1.0:
+                p = tracer_radius(p, proc, factor)
+            if n_layers is not None and n_layers != getattr(proc.points, "layers", None):
+                p = point_layers(p, n_layers)
+            if sensor:
+                p = environment_sensor(p, proc)
+            points = proc.point_count() if n_layers is None else n_layers * proc.point_count() // proc.points.layers  # type: ignore[union-attr]
+            out.append((points * per_point * (proc.mounts + int(two)), p))
+    return sorted(out, key=lambda c: c[0])
+
+
+def abbe_candidates(plan: Plan, proc: EncoderAbbeError) -> list[tuple[int, Plan]]:
+    runs = sorted({r for r in (proc.steps.runs, 2, 3, 4, 5, 7, 10, 15, 20, 30, 50, 100) if proc.steps.runs <= r <= 100})
+    return [(r, plan if r == proc.steps.runs else more_runs(plan, r)) for r in runs]
+
+
+@dataclass(frozen=True)
+class Proposal:
+    best: Outcome | None  # the shortest plan that reaches the target (None: none does)
+    smallest: Outcome | None  # the smallest U found
+    tried: list[Outcome]
+    skipped: list[str]
+
+
+def error_motion_floor(outcome: Outcome) -> float:
+    """U (k = 2) the error-motion sources alone give at the worst target."""
+    em = [np.array(v) for k, v in outcome.contributions.items() if k.lower().startswith(ERROR_MOTION_PREFIX)]
+    if not em:
+        return 0.0
+    return float(2.0 * np.max(np.sqrt(sum(v**2 for v in em))))
+
+
+DEFAULT_MARGIN = 0.1
+
+
+def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: float | None = None,
+            margin: float = DEFAULT_MARGIN, evaluate_plan: Callable[[Plan], Outcome] | None = None) -> Proposal:
+    """The shortest plan whose predicted U (k = 2, recommended estimator, worst target) is ≤ the target
+    less ``margin`` (a fraction of it). The prediction is linear about the noise-free bench with the noise
+    as stated; the margin leaves room for what it does not hold — the noise a run finds in its readings,
+    and the sampling of the Monte Carlo (`rtcal uncertainty`) that verifies the proposal, whose RMS error
+    per target is known to ±1/√(2N) and whose worst target is the largest of several such estimates."""
+    goal = target_arcsec * (1.0 - margin)
+    evaluate_plan = evaluate_plan or evaluate
+    if isinstance(proc, LaserTracerMultistation):
+        candidates = multistation_candidates(plan, proc, max_radius_mm)
+    elif isinstance(proc, EncoderAbbeError):
+        candidates = abbe_candidates(plan, proc)
+    else:
+        candidates = []
+    tried: list[Outcome] = []
+    skipped: list[str] = []
+    one_mount_out = False
+    group: list[Outcome] = []
+    for k, (size, candidate) in enumerate(candidates):
+        is_one_mount = isinstance(proc, LaserTracerMultistation) and not candidate.procedure.get("second_mount")
+        if is_one_mount and one_mount_out:
+            skipped.append(", ".join(candidate.changes) or "as written")
+            continue
+        outcome = evaluate_plan(candidate)
+        tried.append(outcome)
+        if is_one_mount and error_motion_floor(outcome) > goal:
+            one_mount_out = True
+        if outcome.expanded_max_arcsec <= goal:
+            group.append(outcome)
+        last_of_size = k + 1 == len(candidates) or candidates[k + 1][0] != size
+        if group and last_of_size:
+            break
+    reached = min(group, key=lambda o: (o.duration_s, o.expanded_max_arcsec)) if group else None
+    finite = [o for o in tried if math.isfinite(o.expanded_max_arcsec)]
+    smallest = min(finite, key=lambda o: o.expanded_max_arcsec) if finite else None
+    return Proposal(reached, smallest, tried, skipped)
+
+
+def dominant(outcome: Outcome, top: int = 4) -> list[tuple[str, float]]:
+    """The sources with the largest shares of the variance, largest first."""
+    return sorted(outcome.shares.items(), key=lambda kv: -kv[1])[:top]
+
+
+def format_hours(seconds: float) -> str:
+    return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
+
+
+def table_lines(rows: Iterable[tuple[str, Outcome]]) -> list[str]:
+    lines = [f"  {'U max (k = 2)':>13}  {'machine time':>12}  lever"]
+    for label, o in rows:
+        u = f"{o.expanded_max_arcsec:.2f}″" if math.isfinite(o.expanded_max_arcsec) else "—"
+        lines.append(f"  {u:>13}  {format_hours(o.duration_s):>12}  {label}" + (f" ({o.problem})" if o.problem else ""))
+    return lines
+
+
+def write_proposal(procedure_path: Path, base: Plan, outcome: Outcome, out_path: Path, target_arcsec: float,
+                   scenario_given: bool) -> list[Path]:
+    """Write the proposed procedure to ``out_path`` (and, when the plan moves the tracer or the prediction ran
+    on a ``--scenario``, its bench beside it); returns every file written."""
+    from rtcal.outputs import write_output
+    from rtcal.planning.design import bench_file_beside, keep_bench
+
+    data = copy.deepcopy(outcome.plan.procedure)
+    written = []
+    if outcome.plan.bench != base.bench or scenario_given:
+        bench = bench_file_beside(out_path)
+        moved = "; ".join(c for c in outcome.plan.changes if "tracer" in c)
+        header = f"# Written by `rtcal plan --target-u`: the simulated bench of the proposed plan ({moved or 'as predicted'})\n"
+        written.append(write_output(bench, header + yaml.safe_dump(outcome.plan.bench, sort_keys=False, allow_unicode=True)))
+        data["bench"] = bench.name
+    else:
+        copied = keep_bench(procedure_path, data, out_path)
+        written += [copied] if copied is not None else []
+    data["name"] = f"{data.get('name') or procedure_path.stem}"[:160] + f" — proposed by rtcal plan for U ≤ {target_arcsec:g}″"
+    lines = [f"# Written by `rtcal plan --target-u {target_arcsec:g}` from {procedure_path.name}: predicted U (k = 2) "
+             f"{outcome.expanded_max_arcsec:.3f}″ at the worst target ({outcome.recommended}), "
+             f"{format_hours(outcome.duration_s)} of machine time. Changed:"]
+    lines += [f"#   - {c}" for c in outcome.plan.changes] or ["#   - nothing"]
+    written.insert(0, write_output(out_path, "\n".join(lines) + "\n" + yaml.safe_dump(
+        data, sort_keys=False, allow_unicode=True, default_flow_style=None, width=200)))
+    return written
