@@ -51,7 +51,7 @@ def _execute(start, run_dir: str) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on."""
     import signal
 
-    from rtcal.deliverables.outputs import outputs_for
+    from rtcal.deliverables.method_outputs import outputs_for
     from rtcal.deliverables.report import console_lines
     from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
@@ -542,8 +542,8 @@ def _one_line(text: str) -> str:
 
 
 def _cmd_probe(args: argparse.Namespace) -> int:
-    """Connect to one instrument, identify it, take one reading (rtcal/commission.py)."""
-    from rtcal.commission import format_probe, probe
+    """Connect to one instrument, identify it, take one reading (rtcal/run/commission.py)."""
+    from rtcal.run.commission import format_probe, probe
 
     if not 0.01 <= args.timeout_s <= 600:
         raise UserError("--timeout-s must lie in 0.01..600")
@@ -558,7 +558,7 @@ def _cmd_probe(args: argparse.Namespace) -> int:
 
 def _cmd_check(args: argparse.Namespace) -> int:
     """Probe every instrument a procedure needs and check the readings against its ranges."""
-    from rtcal.commission import check, format_table
+    from rtcal.run.commission import check, format_table
     from rtcal.procedure.loader import load_procedure
     from rtcal.run.runner import with_addresses
 

@@ -23,7 +23,7 @@ from rtcal.deliverables.report import report_model, write_html, write_pdf
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
-from rtcal.deliverables.outputs import outputs_for
+from rtcal.deliverables.method_outputs import outputs_for
 from rtcal.methods import METHODS
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
