@@ -72,9 +72,10 @@ class AbbeOutputs:
         series = self._series
 
         def fig9(ax: Axes) -> None:
-            for d in dirs:
-                ax.plot(*series(a.tilt_x_arcsec, d), marker=".", label=f"tilt εx / ″ {ARROW[d]}")
-                ax.plot(*series(a.radial_y_um, d), marker=".", ls="--", label=f"radial δy / µm {ARROW[d]}")
+            for d in dirs:  # ↑ filled circles, ↓ crosses: where the two directions agree, both stay visible
+                style = {"marker": "o", "ms": 4} if d == 1 else {"marker": "x", "ms": 7, "lw": 1}
+                ax.plot(*series(a.tilt_x_arcsec, d), **style, label=f"tilt εx / ″ {ARROW[d]}")
+                ax.plot(*series(a.radial_y_um, d), **style, ls="--", label=f"radial δy / µm {ARROW[d]}")
             ax.set_ylabel("tilt εx / ″ and radial δy / µm")
             ax.set_title("Fig. 9 — tilt motion about X and radial motion in Y (from the dial indicators)")
 
