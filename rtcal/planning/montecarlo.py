@@ -234,11 +234,14 @@ def plot_summary(summary: dict[str, Any], title: str, path: Path) -> Path:
                         label=f"reported 1σ / RMS error (bars: ±1σ of {e['trials']} trials)")
         row[1].axhline(1.0, color="0.5", lw=0.8)
         row[1].set_ylim(0, max(2.0, float(np.nanmax(ratio[1:])) * 1.1 if np.any(np.isfinite(ratio[1:])) else 2.0))
+        row[1].set_ylabel("reported 1σ / RMS error")
         for ax, room in zip(row, (40, 24)):  # labels like "-115↑" stand upright, at most `room` to a panel
             every = -(-len(x) // room)
             ax.set_xticks(x[::every], labels[::every], fontsize=7, rotation=90 if len(x) > 4 else 0)
+            ax.set_xlim(-0.6, len(x) - 0.4)  # both panels on the same targets, none on the frame
             ax.grid(alpha=0.3)
-    axes[-1][0].set_xlabel("target: commanded angle / °, ↑ positive or ↓ negative approach")
+    axes[-1][0].set_xlabel("target: commanded angle / °, ↑ positive or ↓ negative approach\n"
+                           "(the first is the reference: its deviation is 0 by definition)")
     axes[-1][1].set_xlabel("target")
     fig.suptitle(title, fontsize=11)
     legend_below(fig)
