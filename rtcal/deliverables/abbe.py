@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -73,7 +73,7 @@ class AbbeOutputs:
 
         def fig9(ax: Axes) -> None:
             for d in dirs:  # ↑ filled circles, ↓ crosses: where the two directions agree, both stay visible
-                style = {"marker": "o", "ms": 4} if d == 1 else {"marker": "x", "ms": 7, "lw": 1}
+                style: dict[str, Any] = {"marker": "o", "ms": 4} if d == 1 else {"marker": "x", "ms": 7, "lw": 1}
                 ax.plot(*series(a.tilt_x_arcsec, d), **style, label=f"tilt εx / ″ {ARROW[d]}")
                 ax.plot(*series(a.radial_y_um, d), **style, ls="--", label=f"radial δy / µm {ARROW[d]}")
             ax.set_ylabel("tilt εx / ″ and radial δy / µm")
