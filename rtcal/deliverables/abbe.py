@@ -16,13 +16,15 @@ from rtcal.deliverables.report import fmt, largest, smallest, status_lines
 from rtcal.results.model import AbbeEstimate, AbbeResults, ClosureEstimate, Estimate, HarmonicTerm, TargetedEstimate
 
 ARROW = {1: "↑", -1: "↓"}
+# ↑ filled circles, ↓ larger hollow squares: where the two directions agree, both stay visible
+MARKER: dict[int, dict[str, Any]] = {1: {"marker": "o", "ms": 4}, -1: {"marker": "s", "ms": 7, "mfc": "none"}}
 
 
 def _figure(run_dir: Path, name: str, draw: Callable[[Axes], None]) -> Path:
     fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
     draw(ax)
     ax.set_xlabel("table angle / °")
-    ax.set_xlim(0, 360)
+    ax.set_xlim(-8, 368)  # a point at 0° (or 360°) stays whole, not cut by the frame
     ax.set_xticks(range(0, 361, 30))
     ax.grid(alpha=0.3)
     legend_below(fig)
@@ -72,10 +74,9 @@ class AbbeOutputs:
         series = self._series
 
         def fig9(ax: Axes) -> None:
-            for d in dirs:  # ↑ filled circles, ↓ crosses: where the two directions agree, both stay visible
-                style: dict[str, Any] = {"marker": "o", "ms": 4} if d == 1 else {"marker": "x", "ms": 7, "lw": 1}
-                ax.plot(*series(a.tilt_x_arcsec, d), **style, label=f"tilt εx / ″ {ARROW[d]}")
-                ax.plot(*series(a.radial_y_um, d), **style, ls="--", label=f"radial δy / µm {ARROW[d]}")
+            for d in dirs:
+                ax.plot(*series(a.tilt_x_arcsec, d), **MARKER[d], label=f"tilt εx / ″ {ARROW[d]}")
+                ax.plot(*series(a.radial_y_um, d), **MARKER[d], ls="--", label=f"radial δy / µm {ARROW[d]}")
             ax.set_ylabel("tilt εx / ″ and radial δy / µm")
             ax.set_title("Fig. 9 — tilt motion about X and radial motion in Y (from the dial indicators)")
 
@@ -107,7 +108,7 @@ class AbbeOutputs:
                 x, y = series(a.measured_encoder_error_arcsec, d)
                 _, u = series(a.measured_encoder_error_sigma_arcsec, d)
                 ok = np.isfinite(y)
-                ax.errorbar(x[ok], y[ok], yerr=u[ok], fmt="o", capsize=2, color=f"C{2 * k + 1}",
+                ax.errorbar(x[ok], y[ok], yerr=u[ok], ls="none", **MARKER[d], capsize=2, color=f"C{2 * k + 1}",
                             label=f"measured (encoder − reference) {ARROW[d]}, ±1σ")
             ax.set_ylabel("encoder error / ″ (mean over the faces removed)")
             ax.set_title("Fig. 11 — predicted and measured encoder error")
@@ -117,7 +118,7 @@ class AbbeOutputs:
                 x, y = series(a.residual_arcsec, d)
                 _, u = series(a.residual_sigma_arcsec, d)
                 ok = np.isfinite(y)
-                ax.errorbar(x[ok], y[ok], yerr=2 * u[ok], fmt="o", capsize=2, color=f"C{2 * k}",
+                ax.errorbar(x[ok], y[ok], yerr=2 * u[ok], ls="none", **MARKER[d], capsize=2, color=f"C{2 * k}",
                             label=f"measured − predicted {ARROW[d]}, ±2σ")
             ax.axhline(0, color="0.6", lw=0.8)
             ax.set_ylabel("residual / ″")
@@ -135,10 +136,11 @@ class AbbeOutputs:
         h = self.abbe.harmonics
         fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
         present: list[tuple[str, list[HarmonicTerm]]] = [
-            (name, terms) for name, terms in (("positioning_error", h.positioning_error_arcsec),
-                                              ("encoder_vs_command", h.encoder_vs_command_arcsec),
-                                              ("measured_encoder_error", h.measured_encoder_error_arcsec),
-                                              ("predicted_encoder_error", h.predicted_encoder_error_arcsec)) if terms is not None]
+            (name, terms) for name, terms in (("positioning error εz (autocollimator + polygon)", h.positioning_error_arcsec),
+                                              ("encoder − command", h.encoder_vs_command_arcsec),
+                                              ("encoder error, measured", h.measured_encoder_error_arcsec),
+                                              ("encoder error, predicted (Abbe)", h.predicted_encoder_error_arcsec))
+            if terms is not None]
         width = 0.8 / max(len(present), 1)
         for k, (label, terms) in enumerate(present):
             ax.bar([t.order + (k - len(present) / 2 + 0.5) * width for t in terms], [t.amplitude for t in terms],
