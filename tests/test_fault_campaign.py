@@ -26,7 +26,7 @@ import yaml
 
 from rtcal.procedure.loader import load_procedure
 from rtcal.run.runner import METHODS, AnalysisFailed, resume_run, run_procedure
-from rtcal.sequencer.faults import RunAborted
+from rtcal.engine.faults import RunAborted
 from simulators.scenario import FaultSpec, Scenario
 from simulators.servers.hub import SimulatorHub
 

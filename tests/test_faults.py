@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from rtcal.run.runner import resume_run, run_procedure
-from rtcal.sequencer.faults import RunAborted
+from rtcal.engine.faults import RunAborted
 from rtcal.run.store import RunStore
 from simulators.scenario import FaultSpec, Scenario
 from simulators.servers.hub import SimulatorHub

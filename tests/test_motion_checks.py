@@ -24,7 +24,7 @@ from drivers import az_registers as az
 from drivers.addresses import parse_address
 from rtcal.run.runner import resume_run, run_procedure
 from rtcal.run.store import REJECTED, RunStore
-from rtcal.sequencer.faults import RunAborted
+from rtcal.engine.faults import RunAborted
 from simulators.scenario import FaultSpec, Scenario
 from simulators.servers.hub import SimulatorHub
 from tests.test_faults import _procedure
@@ -188,7 +188,7 @@ def test_the_command_line_says_exit_1_and_names_the_instrument(tmp_path):
                            str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
-    first = done.stderr.strip().splitlines()[0]
+    first = next(line for line in done.stderr.splitlines() if line.startswith("rtcal:"))  # after the progress lines
     assert first.startswith("rtcal: instrument error: stage: run aborted after stage: the laser tracer's length"), first
     assert "rtcal resume" in done.stderr
     exported = subprocess.run([sys.executable, "-m", "rtcal.cli", "export", str(tmp_path / "run")], capture_output=True,

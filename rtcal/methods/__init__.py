@@ -11,8 +11,8 @@ from rtcal.methods.abbe import AbbeMethod
 from rtcal.methods.multistation import MultistationMethod
 from rtcal.methods.protocol import Method
 from rtcal.procedure.models import EncoderAbbeError, LaserTracerMultistation
-from rtcal.sequencer.abbe import AbbeInstrumentSet
-from rtcal.sequencer.multistation import MultistationInstrumentSet
+from rtcal.plans.abbe import AbbeInstrumentSet
+from rtcal.plans.multistation import MultistationInstrumentSet
 
 # the type checker checks here that each class has the protocol's shape for its procedure and instruments
 MULTISTATION: Method[LaserTracerMultistation, MultistationInstrumentSet] = MultistationMethod()

@@ -13,14 +13,13 @@ from typing import Callable
 import numpy as np
 
 from drivers import factory
-from rtcal.clock import Clock
 from rtcal.run.dataset import abbe_conditions, abbe_visits
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.methods.estimates import choose_recommended, deviation_block, finite_or_none, run_estimators
-from rtcal.methods.protocol import PreparationError, Progress, address_of
+from rtcal.methods.protocol import PreparationError, address_of
 from rtcal.results import model as rm
-from rtcal.sequencer.abbe import AbbeInstrumentSet, planned_visits, run_abbe
+from rtcal.plans.abbe import AbbeInstrumentSet, AbbePlan, planned_visits
 from rtcal.sequencer.operator import Operator
 from rtcal.solvers.abbe import (
     AbbeEstimate,
@@ -200,9 +199,8 @@ class AbbeMethod:
         """Before any motion: fix the polygon certificate; the store records it for the analysis."""
         return {"polygon_certificate_arcsec": json.dumps(resolve_certificate(proc, operator))}
 
-    def measure(self, proc: EncoderAbbeError, inst: AbbeInstrumentSet, store: RunStore, clock: Clock, operator: Operator,
-                progress: Progress, generation: int = 0) -> None:
-        run_abbe(proc, inst, store, clock, operator, progress, generation)
+    def plan(self, proc: EncoderAbbeError, done: set[int], generation: int = 0, stage_step_deg: float = 0.0) -> AbbePlan:
+        return AbbePlan(proc, done, generation, stage_step_deg)
 
     def analyse(self, proc: EncoderAbbeError, store: RunStore, bench: Bench | None,
                 estimate_noise: bool = True) -> rm.AbbeAnalysis:

@@ -13,20 +13,16 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from drivers import factory
-from rtcal.clock import Clock
 from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
 from rtcal.run.dataset import multistation_data
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.methods.estimates import choose_recommended, deviation_block, run_estimators
-from rtcal.methods.protocol import Progress, address_of
+from rtcal.engine.walk import Timing, walk
+from rtcal.methods.protocol import address_of
 from rtcal.results import model as rm
 from rtcal.sequencer.operator import Operator
-from rtcal.sequencer.multistation import (
-    MultistationInstrumentSet,
-    planned_readings,
-    run_multistation,
-)
+from rtcal.plans.multistation import MultistationInstrumentSet, MultistationPlan, planned_readings
 from rtcal.solvers.air import correct_lengths
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
@@ -280,9 +276,9 @@ class MultistationMethod:
         """Nothing to fix before the first motion."""
         return {}
 
-    def measure(self, proc: LaserTracerMultistation, inst: MultistationInstrumentSet, store: RunStore, clock: Clock,
-                operator: Operator, progress: Progress, generation: int = 0) -> None:
-        run_multistation(proc, inst, store, clock, progress, operator)
+    def plan(self, proc: LaserTracerMultistation, done: set[int], generation: int = 0,
+             stage_step_deg: float = 0.0) -> MultistationPlan:
+        return MultistationPlan(proc, stage_step_deg)
 
     def analyse(self, proc: LaserTracerMultistation, store: RunStore, bench: Bench | None,
                 estimate_noise: bool = True) -> rm.MultistationAnalysis:
@@ -365,29 +361,5 @@ class MultistationMethod:
         return env.model_copy(update=update)
 
     def planned_duration_s(self, proc: LaserTracerMultistation, scenario: Scenario) -> float:
-        """How long the plan takes on this bench (a dry run on its noise-free copy, virtual clock),
-        remembered per procedure and bench."""
-        key = (proc.model_dump_json(), scenario.without_noise().model_dump_json())
-        cache = self.__dict__.setdefault("_durations", {})
-        if key not in cache:
-            import shutil
-            import tempfile
-            from pathlib import Path
-
-            from rtcal.clock import VirtualClock
-            from rtcal.sequencer.operator import BenchOperator
-
-            bench = Bench(scenario.without_noise(), VirtualClock(), 0)
-            tmp = Path(tempfile.mkdtemp(prefix="duration-"))
-            try:
-                store = RunStore.create(tmp, {"method": self.name})
-                inst = self.sim_instruments(proc, bench)
-                try:
-                    run_multistation(proc, inst, store, bench.clock, operator=BenchOperator(bench))
-                finally:
-                    inst.close()
-                    store.close()
-            finally:
-                shutil.rmtree(tmp, ignore_errors=True)
-            cache[key] = float(bench.clock.now_s())
-        return cache[key]
+        """How long the plan takes on this bench: the plan walked with the bench's speeds (no instrument, no store)."""
+        return walk(self.plan(proc, set()), Timing.of_scenario(scenario)).duration_s

@@ -2,7 +2,7 @@
 
 A method is an object with the :class:`Method` protocol's members: the plan's size, its
 instruments (simulated on the bench, or over their transports), what to fix before the first
-motion, the measurement, the analysis of the logged readings into a typed
+motion, its plan of steps (which the one engine, :mod:`rtcal.engine`, executes), the analysis of the logged readings into a typed
 :class:`~rtcal.results.model.Analysis`, and the Monte Carlo's draws of the stated systematic
 errors. Figures, reports and console text are the output layer's (:mod:`rtcal.deliverables`);
 they read only the typed results. A new method is a class with these members, registered in
@@ -11,12 +11,12 @@ they read only the typed results. A new method is a class with these members, re
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 if TYPE_CHECKING:
     import numpy as np
 
-    from rtcal.clock import Clock
+    from rtcal.engine.plan import Plan
     from rtcal.results.model import Analysis
     from rtcal.run.store import RunStore
     from rtcal.sequencer.operator import Operator
@@ -30,15 +30,16 @@ class PreparationError(Exception):
 
 
 class InstrumentSet(Protocol):
-    """The instruments a method measures with, opened together and closed together."""
+    """The instruments a method measures with, opened together and closed together; ``devices()``
+    names each for the plan's steps."""
+
+    def devices(self) -> dict[str, Any]: ...
 
     def close(self) -> None: ...
 
 
 ProcedureT = TypeVar("ProcedureT", contravariant=True)
-InstrumentsT = TypeVar("InstrumentsT", bound=InstrumentSet)
-Progress = Callable[[Iterator[Any]], Iterator[Any]]
-"""Wraps the iteration over the pending planned readings (a progress bar)."""
+InstrumentsT = TypeVar("InstrumentsT", bound=InstrumentSet, covariant=True)
 
 
 class Addressed(Protocol):
@@ -80,9 +81,9 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
         :class:`PreparationError` when it cannot be."""
         ...
 
-    def measure(self, proc: ProcedureT, inst: InstrumentsT, store: RunStore, clock: Clock, operator: Operator,
-                progress: Progress, generation: int = 0) -> None:
-        """Take every planned reading not yet in ``store``, each stored before the next motion."""
+    def plan(self, proc: ProcedureT, done: set[int], generation: int = 0, stage_step_deg: float = 0.0) -> Plan:
+        """The order of work as steps for the engine, given the planned readings already stored
+        (``done``) and the run's start number; ``stage_step_deg`` bounds the stage's feedback check."""
         ...
 
     def analyse(self, proc: ProcedureT, store: RunStore, bench: Bench | None, estimate_noise: bool = True) -> Analysis:

@@ -570,6 +570,8 @@ class LaserTracerMultistation(_Procedure):
         "point_major", description="point_major (the paper's): for each point every station; station_major: the other way")
     samples_per_reading: int = Field(1, ge=1, le=1000, description="tracer samples averaged per planned reading")
     settle_time_s: float = Field(2.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
+    concurrent_motions: bool = Field(False, description="start the table and the CMM together where both move to the next "
+                                                        "reading (they are independent; `rtcal plan` prints the time it saves)")
     on_fault: MultistationOnFault = Field(MultistationOnFault(), description="what to do when an instrument fails (docs/faults.md)")
     verification: MultistationVerification = Field(MultistationVerification(), description="what every motion and reading is "
                                                    "checked against (docs/faults.md)")

@@ -12,11 +12,11 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 import yaml
 from pydantic import ValidationError
-from tqdm import tqdm
 
 from rtcal import __version__
 from rtcal.deliverables.report import report_model, write_html, write_pdf
@@ -34,7 +34,9 @@ from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230
 from rtcal.deliverables.conformity import assess
 from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
-from rtcal.sequencer.faults import RunAborted
+from rtcal.engine.engine import Engine
+from rtcal.engine.faults import RunAborted
+from rtcal.engine.subscribers import ConsoleProgress, StoreWriter
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.run.store import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
@@ -167,6 +169,7 @@ def run_procedure(
     large: bool = False,
     outputs: bool = True,
     estimate_noise: bool = True,
+    on_engine: Callable[[Engine], None] | None = None,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
     results.json, figures or report — for Monte Carlo trials).
@@ -205,7 +208,7 @@ def run_procedure(
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
-                                  estimate_noise)
+                                  estimate_noise, on_engine)
     finally:
         lock.release()
 
@@ -215,6 +218,7 @@ def resume_run(
     addresses: dict[str, str] | None = None,
     virtual_clock: bool = False,
     show_progress: bool | None = None,
+    on_engine: Callable[[Engine], None] | None = None,
 ) -> RunOutcome:
     """Continue an interrupted run from its store: every planned reading not yet stored, once.
 
@@ -281,7 +285,8 @@ def resume_run(
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
-        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation)
+        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation,
+                                  on_engine=on_engine)
     finally:
         lock.release()
 
@@ -336,7 +341,7 @@ def conformity_of(proc: Procedure, analysis: Analysis, evaluation: Evaluation | 
 
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
-                       estimate_noise: bool = True) -> RunOutcome:
+                       estimate_noise: bool = True, on_engine: Callable[[Engine], None] | None = None) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs."""
     method = METHODS[proc.method]
     simulated = bench is not None
@@ -347,17 +352,19 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     except BaseException as exc:
         _stop(store, "not started", exc)
         raise
-    disable = (not sys.stderr.isatty()) if show_progress is None else not show_progress
-    already = len(store.done_plan_indices())  # the sequencers pass only pending readings through progress()
-
-    def progress(it):
-        return tqdm(it, total=method.plan_length(proc), initial=already, desc="readings", unit="rd", disable=disable,
-                    file=sys.stderr)
-
+    done = store.done_plan_indices()
+    devices = inst.devices()
+    plan = method.plan(proc, done, generation, float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0))
+    subscribers: list = [StoreWriter(store)]
+    if show_progress is not False:
+        subscribers.append(ConsoleProgress())
+    engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1)
+    if on_engine is not None:
+        on_engine(engine)
     try:
         store.set_meta({"status": "running"})
-        method.measure(proc, inst, store, clock, operator, progress, generation)
-    except BaseException as exc:
+        engine.run(plan, done)
+    except BaseException as exc:  # the engine has stopped every machine it moved
         _stop(store, "aborted" if isinstance(exc, RunAborted) else "interrupted", exc)
         raise
     finally:

@@ -184,6 +184,7 @@ class RunStore:
         self._db = connection
         self.path = path
         self._extra_meta: Callable[[], dict[str, str]] | None = None
+        self._more_meta: list[Callable[[], dict[str, str]]] = []
         self._reserve: Path | None = None
         row = self._db.execute("SELECT MAX(attempt) FROM readings").fetchone()
         self._next_attempt = 0 if row[0] is None else int(row[0]) + 1
@@ -297,6 +298,10 @@ class RunStore:
         store (e.g. a simulated bench's fault-request counters) is as durable as the readings."""
         self._extra_meta = provider
 
+    def keep_meta_also(self, provider: Callable[[], dict[str, str]]) -> None:
+        """Another provider for :meth:`keep_meta`'s purpose (e.g. where the engine is: the live view's `current`)."""
+        self._more_meta.append(provider)
+
     def new_attempt(self) -> int:
         """The number of a new attempt at a planned reading (one writer: the run directory is locked)."""
         self._next_attempt += 1
@@ -331,6 +336,8 @@ class RunStore:
     def _keep(self) -> None:
         if self._extra_meta is not None:
             self._upsert_meta(self._extra_meta())
+        for provider in self._more_meta:
+            self._upsert_meta(provider())
 
     def readings(self, instrument: str | None = None, quantity: str | None = None) -> Iterator[Reading]:
         sql = f"SELECT {', '.join(READING_COLUMNS)} FROM readings"

@@ -1,1 +1,2 @@
-"""The order of work: motions, settle times, readings written to the store before the next motion."""
+"""What every plan shares about the machines: the checks of each motion and reading against the
+command (:mod:`.checks`), the ISO 230-2 approach (:mod:`.motion`) and the operator's steps (:mod:`.operator`)."""

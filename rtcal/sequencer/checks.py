@@ -40,8 +40,8 @@ def _arcsec(deg: float) -> str:
 class MotionChecks:
     """The stage's and the CMM's positions against their commands and against themselves."""
 
-    def __init__(self, stage: RotaryStage, stage_tolerance_deg: float | None, cmm_tolerance_mm: float | None = None):
-        self.stage_tolerance_deg = stage_tolerance_deg or max(2 * stage.step_deg, FLOOR_DEG)
+    def __init__(self, stage_step_deg: float, stage_tolerance_deg: float | None, cmm_tolerance_mm: float | None = None):
+        self.stage_tolerance_deg = stage_tolerance_deg or max(2 * stage_step_deg, FLOOR_DEG)
         self.stated = stage_tolerance_deg is not None
         self.cmm_tolerance_mm = cmm_tolerance_mm
 

@@ -1,4 +1,4 @@
-"""Fault policies: every instrument call of a sequencer goes through :class:`FaultHandler`.
+"""Fault policies: every instrument call the engine makes goes through :class:`FaultHandler`.
 
 A typed instrument error is recorded as a ``fault`` event; the call is retried with doubling
 backoff (a drive alarm is reset first; a lost tracker is re-acquired at once when its policy
@@ -13,18 +13,26 @@ An operator who cannot be reached (no terminal) is a fault too: the run stops sa
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Protocol
 
 from drivers.errors import InstrumentError, TrackingLost
 from rtcal.clock import Clock
 from rtcal.procedure.models import FaultPolicy
-from rtcal.run.store import REJECTED, Reading, RunStore
-from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
 from rtcal.sequencer.checks import Contradiction, UncommandedMotion
 
 SKIPPED = object()
 RETAKE = object()
+
+
+class Skip:
+    """What :meth:`FaultHandler.call` answers when the policy skipped the call: the error that made it."""
+
+    def __init__(self, error: InstrumentError | None):
+        self.error = error
+
+
+class EventSink(Protocol):
+    def __call__(self, kind: str, instrument: str | None, message: str) -> None: ...
 
 
 class RunAborted(InstrumentError):
@@ -34,22 +42,21 @@ class RunAborted(InstrumentError):
 
 
 class FaultHandler:
-    def __init__(self, policies: dict[str, FaultPolicy], store: RunStore, clock: Clock, operator,
+    def __init__(self, policies: dict[str, FaultPolicy], events: EventSink, clock: Clock, operator,
                  safe_state: Callable[[], None]):
         self.policies = policies
-        self.store = store
+        self.events = events
         self.clock = clock
         self.operator = operator
         self.safe_state = safe_state
-        self.last_error: InstrumentError | None = None  # of the last call that failed
         self.skips_in_a_row: dict[str, int] = {}
 
-    def event(self, kind: str, instrument: str, message: str) -> None:
-        self.store.add_event(self.clock.now_s(), kind, message, instrument)
+    def event(self, kind: str, instrument: str | None, message: str) -> None:
+        self.events(kind, instrument, message)
 
     def call(self, instrument: str, action: Callable[[], Any], *, recover: Callable[[], None] | None = None,
              reacquire: Callable[[], None] | None = None, what: str = "") -> Any:
-        """``action()``'s result, or SKIPPED; raises RunAborted when the policy gives up."""
+        """``action()``'s result, or a :class:`Skip`; raises RunAborted when the policy gives up."""
         policy = self.policies[instrument]
         rounds = 2 if policy.then in ("pause", "reacquire") else 1
         last: InstrumentError | None = None
@@ -58,7 +65,7 @@ class FaultHandler:
                 try:
                     result = action()
                 except InstrumentError as exc:
-                    last = self.last_error = exc
+                    last = exc
                     self.event("fault", instrument, f"{what}: {exc}" if what else str(exc))
                     if isinstance(exc, UncommandedMotion):  # no retry gives rtcal its machine back
                         self.abort(exc.instrument, exc, "the machine moved while nothing was commanded")
@@ -79,7 +86,7 @@ class FaultHandler:
                 if self.skips_in_a_row[instrument] >= policy.max_skips_in_a_row:
                     self.abort(instrument, last, f"{self.skips_in_a_row[instrument]} planned readings skipped in a row: "
                                                  "the fault persists")
-                return SKIPPED
+                return Skip(last)
             if round_ == 0 and policy.then == "pause":
                 self.event("pause", instrument, "waiting for the operator")
                 try:
@@ -102,7 +109,6 @@ class FaultHandler:
         RETAKE it (the policy's retries, after its backoff), or SKIPPED (skip, pause and reacquire:
         retaken after the pass and on resume), or abort; the policy of the instrument named decides."""
         policy = self.policies[exc.instrument]
-        self.last_error = exc
         self.event("fault", exc.instrument, f"{what}: {exc}" if what else str(exc))
         if tries < policy.retries:
             self.clock.sleep(policy.backoff_s * 2**tries)
@@ -123,18 +129,6 @@ class FaultHandler:
             self.abort(exc.instrument, exc, f"{self.skips_in_a_row[exc.instrument]} planned readings rejected in a row: "
                                             "the contradiction persists")
         return SKIPPED
-
-    @contextmanager
-    def keeping(self, readings: list[Reading], state: dict[str, Any]) -> Iterator[None]:
-        """Around one attempt at a planned reading: a safe stop inside stores what the attempt took
-        (``readings``, filled as it goes) with the mark of the instrument that stopped it, so no
-        reading is lost and a resume takes the planned reading again."""
-        try:
-            yield
-        except RunAborted as exc:
-            marker = REJECTED if isinstance(exc.cause, Contradiction) else SKIPPED_QUANTITY
-            self.store.add_readings(readings + [Reading(self.clock.now_s(), exc.instrument, marker, 0.0, "", **state)])
-            raise
 
     def _recover(self, instrument: str, recover: Callable[[], None] | None) -> None:
         """Reset what the machine latched (a drive alarm); a failure is a fault event, and the next

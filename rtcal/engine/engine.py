@@ -1,0 +1,412 @@
+"""One engine executes any plan: it moves, reads, applies the fault policies, records, pauses and
+stops safely. Everything else subscribes to the documents it publishes.
+
+Written once here, for every method:
+
+- **attempts** — each attempt at a planned reading has its own number; its readings are
+  committed together (the checkpoint) before the next motion. An attempt whose step was skipped
+  is committed with a skip mark and stays pending; one the method's checks contradict is
+  committed with a rejected mark and taken again as the policy of the instrument named says;
+  one interrupted (a safe stop, Ctrl-C, a remote abort) keeps what it took, marked.
+- **the retake pass** — where the plan asks for it, what this start skipped is taken once more
+  after the pass and before the run leaves a group (a tracer mount).
+- **tracking segments** — a tracking instrument (the laser tracer) is referenced when it has no
+  segment; a new group, a lost beam or a pause leaves it without one.
+- **pause, resume, abort** — requested from any thread (the control socket, the live view): a
+  pause takes effect at the next checkpoint, with the reading in hand committed and the machines
+  still; resume approaches anew; abort stops like Ctrl-C.
+- **one safe-state path** — however a run ends early (a fault abort, a remote abort, Ctrl-C,
+  SIGTERM, an unexpected error) every device the engine moved is stopped before the exception
+  goes on to the caller, which records the status and closes the connections.
+
+Documents (``subscriber(name, doc)``, called in the engine's thread, in order): ``start``,
+``state``, ``attempt``, ``readings``, ``event``, ``done``, ``stop``. The store writer, the console
+progress and the live view are subscribers (:mod:`rtcal.engine.subscribers`).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from drivers.errors import InstrumentError, TrackingLost
+from rtcal.clock import Clock, VirtualClock
+from rtcal.engine.faults import RETAKE, FaultHandler, RunAborted, Skip
+from rtcal.engine.plan import Attempt, Entry, Plan
+from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Samples, Settle,
+                                Skipped, Step, Validate)
+from rtcal.run.store import REJECTED, SKIPPED, Reading
+from rtcal.sequencer.checks import Contradiction
+from rtcal.sequencer.motion import approach
+
+Subscriber = Callable[[str, dict[str, Any]], None]
+
+STATES = ("starting", "running", "paused", "stopping", "finished", "failed", "aborted")
+
+
+class AbortRequested(KeyboardInterrupt):
+    """A remote abort: the run stops as Ctrl-C stops it (safe state, status recorded, resumable)."""
+
+
+class Engine:
+    """Executes plans against ``devices`` (name → driver) on ``clock``; see the module docstring."""
+
+    def __init__(self, devices: Mapping[str, Any], clock: Clock, operator: Any, subscribers: Sequence[Subscriber] = (),
+                 new_attempt: Callable[[], int] | None = None, next_segment: int = 0):
+        self.devices = dict(devices)
+        self.clock = clock
+        self.operator = operator
+        self.subscribers = list(subscribers)
+        self._attempts = new_attempt or _counter()
+        self._next_segment = next_segment
+        self.segment: int | None = None  # the tracking instrument's current segment; None: reference first
+        self.state = "starting"
+        self.faults_seen = 0
+        self._moved: list[str] = []  # devices this engine has commanded, in order: what a safe stop stops
+        self._safe = False
+        self._pause = threading.Event()
+        self._abort = threading.Event()
+        self._wake = threading.Event()
+        self._plan: Plan | None = None
+        self._faults: FaultHandler | None = None
+
+    # ---- control, from any thread -------------------------------------------------------------
+    def request_pause(self) -> None:
+        self._pause.set()
+        self._wake.set()
+
+    def request_resume(self) -> None:
+        self._pause.clear()
+        self._wake.set()
+
+    def request_abort(self) -> None:
+        self._abort.set()
+        self._wake.set()
+
+    # ---- documents ----------------------------------------------------------------------------
+    def emit(self, name: str, **doc: Any) -> None:
+        for subscriber in self.subscribers:
+            subscriber(name, doc)
+
+    def _event(self, kind: str, instrument: str | None, message: str) -> None:
+        if kind == "fault":
+            self.faults_seen += 1
+        self.emit("event", t_s=self.clock.now_s(), kind=kind, instrument=instrument, message=message)
+
+    def _set_state(self, state: str) -> None:
+        self.state = state
+        self.emit("state", state=state, t_s=self.clock.now_s())
+
+    # ---- the run -------------------------------------------------------------------------------
+    def run(self, plan: Plan, done: Iterable[int] = ()) -> int:
+        """Take every entry of ``plan`` not in ``done``; returns how many were stored whole.
+        Raises RunAborted (a policy gave up), AbortRequested or KeyboardInterrupt after the safe stop."""
+        done = set(done)
+        self._plan = plan
+        self._faults = FaultHandler(dict(plan.policies), self._event, self.clock, self.operator, self._safe_state)
+        pending = [e for e in plan.entries if e.index not in done]
+        self.emit("start", method=plan.method, planned=len(plan.entries), done=len(done), t_s=self.clock.now_s())
+        self._set_state("running")
+        try:
+            for step in plan.prologue():
+                self._execute(step, {}, [])
+            stored = self._pass(plan, pending, len(done))
+        except BaseException as exc:
+            if not self._safe:
+                self._safe_state()
+            self._set_state("failed" if isinstance(exc, RunAborted) or not isinstance(exc, KeyboardInterrupt) else "aborted")
+            self.emit("stop", state=self.state, reason=str(exc) or type(exc).__name__, t_s=self.clock.now_s())
+            raise
+        self.emit("stop", state="measured", reason="", t_s=self.clock.now_s())
+        return stored
+
+    def _pass(self, plan: Plan, pending: list[Entry], done_count: int) -> int:
+        stored, skipped = 0, []  # type: tuple[int, list[Entry]]
+        group: int | None = None
+        first = True
+        for entry in pending:
+            if entry.group != group:
+                if plan.retake_skipped and skipped:  # before the set-up they were planned on changes
+                    stored += self._retake(skipped, done_count + stored)
+                for step in plan.enter_group(entry, first):
+                    self._execute(step, {}, [])
+                group, first, self.segment = entry.group, False, None  # a new set-up: reference anew
+            if self._take(entry, done_count + stored):
+                stored += 1
+            else:
+                skipped.append(entry)
+            self._checkpoint()
+        if plan.retake_skipped:
+            stored += self._retake(skipped, done_count + stored)
+        return stored
+
+    def _retake(self, skipped: list[Entry], done_count: int) -> int:
+        """Once more, now that the fault may have passed."""
+        stored = 0
+        for entry in list(skipped):
+            stored += self._take(entry, done_count + stored)
+            self._checkpoint()
+        skipped.clear()
+        return stored
+
+    def _checkpoint(self) -> None:
+        """Between attempts: honour a pause (machines still, state `paused`) or an abort."""
+        if self._abort.is_set():
+            raise AbortRequested("aborted by a remote request")
+        if not self._pause.is_set():
+            return
+        self._set_state("paused")
+        self._event("pause", None, "paused by a remote request: the machines hold still")
+        while self._pause.is_set() and not self._abort.is_set():
+            self._wake.wait(0.2)
+            self._wake.clear()
+        if self._abort.is_set():
+            raise AbortRequested("aborted by a remote request while paused")
+        self._event("resume", None, "resumed by a remote request: the next reading approaches its targets anew")
+        assert self._plan is not None
+        self._plan.positions_unknown()
+        self._set_state("running")
+
+    def _take(self, entry: Entry, done_count: int) -> bool:
+        """Attempts at ``entry`` until one is stored whole (True), or the policy skips it (False)."""
+        assert self._plan is not None and self._faults is not None
+        tries = 0
+        while True:
+            context = {**entry.context, "attempt": self._attempts()}
+            self.emit("attempt", index=entry.index, label=dict(entry.label), attempt=context["attempt"], t_s=self.clock.now_s())
+            readings: list[Reading] = []
+            try:
+                whole = self._drive(self._plan.attempt(entry), context, readings)
+            except Contradiction as exc:  # kept, marked, never used; the policy of the instrument named decides
+                self._commit(readings + [Reading(self.clock.now_s(), exc.instrument, REJECTED, 0.0, "", **context)])
+                if self._faults.rejected(exc, tries, entry.what) is not RETAKE:
+                    self._done(entry, False, done_count)
+                    return False
+                tries += 1
+                continue
+            except RunAborted as exc:  # a safe stop keeps what the attempt took, marked by the instrument that stopped it
+                marker = REJECTED if isinstance(exc.cause, Contradiction) else SKIPPED
+                self._commit(readings + [Reading(self.clock.now_s(), exc.instrument, marker, 0.0, "", **context)])
+                raise
+            except BaseException:  # Ctrl-C, a remote abort mid-attempt, an unexpected error: keep what it took
+                if readings:
+                    self._safe_commit(readings + [Reading(self.clock.now_s(), "run", SKIPPED, 0.0, "", **context)])
+                raise
+            self._commit(readings)
+            self._done(entry, whole, done_count)
+            return whole
+
+    def _done(self, entry: Entry, whole: bool, done_count: int) -> None:
+        self.emit("done", index=entry.index, whole=whole, done=done_count + (1 if whole else 0), label=dict(entry.label),
+                  faults=self.faults_seen, t_s=self.clock.now_s())
+
+    def _commit(self, readings: list[Reading]) -> None:
+        if readings:
+            self.emit("readings", readings=readings)
+
+    def _safe_commit(self, readings: list[Reading]) -> None:
+        try:
+            self._commit(readings)
+        except Exception:  # the store itself failed: the error that stopped the run is the one to report
+            pass
+
+    def _drive(self, attempt: Attempt, context: dict[str, Any], readings: list[Reading]) -> bool:
+        """Run one attempt's steps; True if it took everything (no skip mark)."""
+        answer: Any = None
+        thrown: BaseException | None = None
+        while True:
+            try:
+                step = attempt.throw(thrown) if thrown is not None else attempt.send(answer)
+            except StopIteration:
+                break
+            except Skipped:
+                return False
+            if self._abort.is_set():
+                attempt.close()
+                raise AbortRequested("aborted by a remote request")
+            answer, thrown = None, None
+            try:
+                answer = self._execute(step, context, readings)
+            except Skipped as exc:
+                thrown = exc
+        return all(r.quantity != SKIPPED for r in readings)
+
+    # ---- steps ---------------------------------------------------------------------------------
+    def _execute(self, step: Step, context: dict[str, Any], readings: list[Reading]) -> Any:
+        if isinstance(step, Validate):
+            for target in step.targets:
+                self.devices[step.instrument].check_target(target)
+            return None
+        if isinstance(step, Settle):
+            self.clock.sleep(step.seconds)
+            return None
+        if isinstance(step, Recover):
+            self.devices[step.instrument].recover()
+            return None
+        if isinstance(step, Move):
+            return self._policy(step.instrument, lambda: self._move(step), step.what, context, readings,
+                                recover=self.devices[step.instrument].recover)
+        if isinstance(step, Parallel):
+            return self._parallel(step, context, readings)
+        if isinstance(step, Read):
+            return self._read(step, context, readings)
+        if isinstance(step, ReadSamples):
+            return self._samples(step, context, readings)
+        if isinstance(step, Reference):
+            if self.segment is not None:
+                return False
+            self._policy(step.instrument, lambda: self._reference(step.instrument, step.where, step.why), step.why,
+                         context, readings)
+            return True
+        if isinstance(step, OperatorStep):
+            self._event("operator", step.instrument, step.message)
+            getattr(self.operator, step.action)(*step.args)
+            return None
+        raise TypeError(f"not a step: {step!r}")
+
+    def _policy(self, instrument: str, action: Callable[[], Any], what: str, context: dict[str, Any],
+                readings: list[Reading], recover: Callable[[], None] | None = None,
+                reacquire: Callable[[], None] | None = None, optional: bool = False, sample: int | None = None) -> Any:
+        """``action()`` under the instrument's policy; a skip is marked in the attempt and thrown into the plan."""
+        assert self._faults is not None
+        result = self._faults.call(instrument, action, recover=recover, reacquire=reacquire, what=what)
+        if isinstance(result, Skip):
+            if isinstance(result.error, TrackingLost):
+                self.segment = None  # the count is lost: the next reading references the tracer first
+            if optional:
+                return None
+            readings.append(Reading(self.clock.now_s(), instrument, SKIPPED, 0.0, "", sample=sample, **context))
+            raise Skipped(instrument, result.error)
+        return result
+
+    def _move(self, step: Move) -> None:
+        device = self.devices[step.instrument]
+        if step.instrument not in self._moved:
+            self._moved.append(step.instrument)
+        if step.direction:
+            approach(device, float(step.target), step.direction, step.overshoot_deg)
+        else:
+            device.move_to(step.target)
+
+    def _parallel(self, step: Parallel, context: dict[str, Any], readings: list[Reading]) -> None:
+        """Start the motions together; each that faulted is then ridden out under its own policy."""
+        failed: list[Move] = []
+        if isinstance(self.clock, VirtualClock):  # simulated: each motion from the same instant, the clock at the last to end
+            start, ends = self.clock.now_s(), []
+            for move in step.moves:
+                self.clock._t = start
+                try:
+                    self._move(move)
+                except InstrumentError:
+                    failed.append(move)
+                ends.append(self.clock.now_s())
+            self.clock._t = max(ends)
+        else:
+            errors: dict[int, BaseException] = {}
+
+            def run(k: int, move: Move) -> None:
+                try:
+                    self._move(move)
+                except BaseException as exc:  # re-raised below, in the engine's thread
+                    errors[k] = exc
+
+            threads = [threading.Thread(target=run, args=(k, m), daemon=True) for k, m in enumerate(step.moves)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            for k, exc in sorted(errors.items()):
+                if not isinstance(exc, InstrumentError):
+                    raise exc
+                failed.append(step.moves[k])
+        for move in failed:  # the fault is recorded and retried as a motion of its own
+            self._execute(move, context, readings)
+
+    def _read(self, step: Read, context: dict[str, Any], readings: list[Reading]) -> Any:
+        device = self.devices.get(step.instrument)
+        if device is None:
+            return None
+        redo = (lambda: self._raw_all(step.redo)) if step.redo else None
+        value = self._policy(step.instrument, lambda: step.measure(device), step.what, context, readings,
+                             recover=redo, optional=step.optional, sample=step.sample)
+        if value is None:
+            return None
+        t = self.clock.now_s()
+        values = _as_values(value, len(step.quantities))
+        readings.extend(Reading(t, step.instrument, q, v, unit, sample=step.sample, **context)
+                        for (q, unit), v in zip(step.quantities, values) if math.isfinite(v))
+        return value
+
+    def _samples(self, step: ReadSamples, context: dict[str, Any], readings: list[Reading]) -> Samples:
+        device = self.devices[step.instrument]
+        reacquired = [False]
+
+        def reacquire() -> None:
+            self._reference(step.instrument, step.where, "reacquire")
+            reacquired[0] = True
+
+        taken: list[Reading] = []
+        any_reacquired = False
+        while len(taken) < step.count:
+            value = self._policy(step.instrument, lambda: step.measure(device), step.what, context, readings,
+                                 reacquire=reacquire)
+            if reacquired[0]:  # a reading never mixes two tracking segments
+                taken, reacquired[0], any_reacquired = [], False, True
+            taken.append(Reading(self.clock.now_s(), step.instrument, step.quantity, float(value), step.unit,
+                                 sample=len(taken), segment=self.segment, **context))
+        readings.extend(taken)
+        return Samples(tuple(r.value for r in taken), any_reacquired)
+
+    def _raw_all(self, steps: Sequence[Step]) -> None:
+        for step in steps:
+            self._raw(step)
+
+    def _raw(self, step: Step) -> None:
+        """A step of a recovery, outside the policies (the call it precedes is under its policy)."""
+        if isinstance(step, Move):
+            self._move(step)
+        elif isinstance(step, Settle):
+            self.clock.sleep(step.seconds)
+        elif isinstance(step, Recover):
+            self.devices[step.instrument].recover()
+        else:
+            raise TypeError(f"not a recovery step: {step!r}")
+
+    def _reference(self, instrument: str, where: str, why: str) -> None:
+        self.devices[instrument].reference()
+        self.segment, self._next_segment = self._next_segment, self._next_segment + 1
+        self._event(why, instrument, f"tracking segment {self.segment} referenced at {where}")
+
+    def _safe_state(self) -> None:
+        """Stop every device this engine moved; a device that cannot be stopped is an event, and the
+        others are still stopped."""
+        self._safe = True
+        self._set_state("stopping")
+        for name in self._moved:
+            try:
+                self.devices[name].stop()
+            except Exception as exc:  # noqa: BLE001 — a half-dead transport must not keep the others moving
+                try:
+                    self._event("fault", name, f"while stopping: {exc}")
+                except Exception:  # the store is gone too: nothing more to record
+                    pass
+
+
+def _as_values(value: Any, n: int) -> list[float]:
+    if n == 1 and np.ndim(value) == 0:
+        return [float(value)]
+    return [float(v) for v in value]
+
+
+def _counter() -> Callable[[], int]:
+    n = [0]
+
+    def next_value() -> int:
+        n[0] += 1
+        return n[0] - 1
+
+    return next_value
+

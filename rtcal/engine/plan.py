@@ -1,0 +1,61 @@
+"""What the engine needs of a plan: its planned readings in order and, for each, the steps of one attempt.
+
+A method (:mod:`rtcal.methods`) turns its procedure and what the store already holds into a
+:class:`Plan`. The engine walks :attr:`Plan.entries` (skipping those already stored), enters each
+entry's ``group`` (a polygon seating, a tracer mount: an operator's set-up) when it changes, and
+runs :meth:`Plan.attempt` for each pending entry until it is stored whole, rejected or skipped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Generator, Iterable, Mapping, Protocol
+
+from rtcal.engine.steps import Step
+from rtcal.procedure.models import FaultPolicy
+
+Attempt = Generator[Step, Any, None]
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One planned reading. ``context`` lands in the store's columns of every reading the attempt takes
+    (plan_index included); ``label`` says where the run is, for people (progress, live view)."""
+
+    index: int
+    group: int
+    context: Mapping[str, Any]
+    label: Mapping[str, Any] = field(default_factory=dict)
+    what: str = ""
+
+
+class Plan(Protocol):
+    @property
+    def method(self) -> str: ...
+
+    @property
+    def entries(self) -> list[Entry]: ...
+
+    @property
+    def policies(self) -> Mapping[str, FaultPolicy]: ...
+
+    @property
+    def retake_skipped(self) -> bool:
+        """After the pass (and before the group changes), take once more what this start skipped."""
+        ...
+
+    def prologue(self) -> Iterable[Step]:
+        """Steps before any motion (every target checked against the device's limits)."""
+        ...
+
+    def enter_group(self, entry: Entry, first: bool) -> Iterable[Step]:
+        """The operator's steps when the run reaches ``entry.group`` (``first``: the first group of this start)."""
+        ...
+
+    def attempt(self, entry: Entry) -> Attempt:
+        """The steps of one attempt at ``entry``; raises Contradiction where the method's checks fail."""
+        ...
+
+    def positions_unknown(self) -> None:
+        """The machines may have moved (a pause, an operator): the next attempt approaches anew."""
+        ...

@@ -1,0 +1,139 @@
+"""The vocabulary a plan speaks: small frozen steps the engine executes, and what it answers.
+
+A plan (:mod:`rtcal.plans`) is data and order: which device moves where, what is read and how
+it is checked. It does no I/O itself. The engine (:mod:`rtcal.engine.engine`) executes every
+step under the procedure's fault policies and records what it reads; walking a plan with a
+timing model (:mod:`rtcal.engine.walk`) gives its duration without any instrument.
+
+A step that reads or moves names its instrument; the device is looked up by that name in the
+run's instruments. Where a reading must be checked against the command, the step carries the
+method's own check (``measure``): a plan knows what to expect, the engine knows how to ride out
+a fault. Each reading step also carries ``nominal``, what an ideal bench would give, which the
+walker answers in its place.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Union
+
+from drivers.errors import InstrumentError
+
+Target = Union[float, tuple[float, float, float]]
+
+
+class Skipped(Exception):
+    """Thrown into a plan where an instrument's ``on_fault`` policy skipped a step: the attempt
+    ends as not whole (resume and the retake pass take it again) unless the plan catches it."""
+
+    def __init__(self, instrument: str, error: InstrumentError | None):
+        super().__init__(f"{instrument}: {error}")
+        self.instrument = instrument
+        self.error = error
+
+
+@dataclass(frozen=True)
+class Validate:
+    """Before anything moves: every target the plan will command is within the device's limits."""
+
+    instrument: str
+    targets: tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class Move:
+    """Move one device. A stage with ``direction`` ±1 arrives at ``target`` moving that way (ISO 230-2),
+    passing it by ``overshoot_deg`` first where it would arrive the other way."""
+
+    instrument: str
+    target: Any
+    direction: int = 0
+    overshoot_deg: float = 0.0
+    what: str = ""
+
+
+@dataclass(frozen=True)
+class Parallel:
+    """Motions the plan declares independent (the table indexing while the CMM travels): the engine
+    starts them together; a motion that faults is then ridden out under its policy alone."""
+
+    moves: tuple[Move, ...]
+
+
+@dataclass(frozen=True)
+class Settle:
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Recover:
+    """Reset what a device latched (a drive alarm, a CMM's error state)."""
+
+    instrument: str
+
+
+@dataclass(frozen=True)
+class Read:
+    """One reading: ``measure(device)`` gives a value (a number, or a sequence of numbers, one per
+    quantity) and raises :class:`~rtcal.sequencer.checks.Contradiction` where the method's check
+    fails. Each value is stored as a reading of its (quantity, unit); non-finite values are not
+    stored (a sensor's "not measured"). ``redo`` runs before a retry (e.g. approach and settle
+    again); ``optional`` readings (conditions) never hold up the attempt they accompany."""
+
+    instrument: str
+    quantities: tuple[tuple[str, str], ...]
+    measure: Callable[[Any], Any] = field(compare=False)
+    nominal: Any = field(default=None, compare=False)
+    what: str = ""
+    redo: tuple[Any, ...] = ()
+    sample: int | None = None
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class ReadSamples:
+    """``count`` samples of a tracking instrument (a laser tracer), stamped with its tracking segment.
+    A lost beam is re-acquired where the policy says so, and the samples start again: an attempt
+    never mixes two tracking segments."""
+
+    instrument: str
+    quantity: str
+    unit: str
+    count: int
+    measure: Callable[[Any], float] = field(compare=False)
+    nominal: float = field(default=0.0, compare=False)
+    where: str = ""
+    what: str = ""
+
+
+@dataclass(frozen=True)
+class Samples:
+    """What :class:`ReadSamples` answers: the values, and whether the beam was re-acquired on the way."""
+
+    values: tuple[float, ...]
+    reacquired: bool
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Reference a tracking instrument (a new tracking segment) when it has none; the engine answers
+    True if it referenced, False if it was tracking already."""
+
+    instrument: str
+    where: str
+    why: str = "reference"
+
+
+@dataclass(frozen=True)
+class OperatorStep:
+    """A person's step (re-seat the polygon, move the tracer): an ``operator`` event, then the
+    operator's ``action(*args)``. ``seconds`` is what the timing model counts for it."""
+
+    action: str
+    args: tuple[Any, ...]
+    message: str
+    instrument: str | None = None
+    seconds: float = 0.0
+
+
+Step = Union[Validate, Move, Parallel, Settle, Recover, Read, ReadSamples, Reference, OperatorStep]

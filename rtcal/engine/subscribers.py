@@ -1,0 +1,134 @@
+"""What listens to the engine: the store writer (every reading and event, committed as published),
+and the console's progress (a bar on a terminal, a line every 10 % or 60 s in a log).
+
+The live view does not subscribe: it reads the run's store from its own thread or process
+(:mod:`rtcal.live`), so a viewer can never hold up or crash the measurement. What it needs beyond
+the readings — the engine's state, the planned count, where the run is — the store writer keeps in
+the store's metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from typing import Any, Callable, TextIO
+
+from rtcal.run.store import RunStore
+
+
+class StoreWriter:
+    """Commits each ``readings`` and ``event`` document to the run's store before the engine goes on,
+    and keeps ``engine_state``, ``planned_readings`` and ``current`` in its metadata."""
+
+    def __init__(self, store: RunStore):
+        self.store = store
+        self.current: dict[str, Any] = {}
+        store.keep_meta_also(lambda: {"current": json.dumps(self.current, sort_keys=True)})
+
+    def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        if name == "readings":
+            self.store.add_readings(doc["readings"])
+        elif name == "event":
+            self.store.add_event(doc["t_s"], doc["kind"], doc["message"], doc["instrument"])
+        elif name == "start":
+            self.store.set_meta({"planned_readings": str(doc["planned"])})
+        elif name == "state":
+            self.store.set_meta({"engine_state": doc["state"]})
+        elif name == "attempt":
+            self.current = {**doc["label"], "plan_index": doc["index"]}
+
+
+def _hms(seconds: float) -> str:
+    seconds = max(0, int(round(seconds)))
+    h, rem = divmod(seconds, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+def describe(label: dict[str, Any]) -> str:
+    """Where the run is, in words: target, run and direction (or point and station, mount)."""
+    parts = []
+    if "target_deg" in label:
+        parts.append(f"target {label['target_deg']:g}°")
+    if "run" in label:
+        parts.append(f"run {label['run']}")
+    if "direction" in label:
+        parts.append(f"direction {label['direction']}")
+    if "point" in label:
+        parts.append(f"point {label['point']}")
+    if "station" in label:
+        parts.append(f"station {label['station']}")
+    if "mount" in label:
+        parts.append(f"mount {label['mount']}")
+    if "seating" in label:
+        parts.append(f"seating {label['seating']}")
+    return ", ".join(parts)
+
+
+class ConsoleProgress:
+    """Done / planned, where the run is, the time left and the faults so far. On a terminal a bar
+    that redraws; otherwise (a log, a service) one line whenever another 10 % is done or 60 s of wall
+    time have passed, and one at the end."""
+
+    def __init__(self, stream: TextIO | None = None, bar: bool | None = None, every_s: float = 60.0,
+                 now: Callable[[], float] = time.monotonic):
+        self.stream = stream if stream is not None else sys.stderr
+        self.bar = self.stream.isatty() if bar is None else bar
+        self.every_s = every_s
+        self.now = now
+        self.planned = 0
+        self.done = 0
+        self._first_done = 0
+        self._t0_s: float | None = None
+        self._last_line_s = 0.0
+        self._last_decile = -1
+        self.faults = 0
+        self.where = ""
+        self.clock_s = 0.0
+
+    def eta_s(self) -> float | None:
+        """Time left at the rate of this start (the run's own clock: virtual for a simulated run)."""
+        taken = self.done - self._first_done
+        if self._t0_s is None or taken <= 0:
+            return None
+        rate = (self.clock_s - self._t0_s) / taken
+        return rate * max(0, self.planned - self.done)
+
+    def line(self) -> str:
+        pct = 100.0 * self.done / self.planned if self.planned else 100.0
+        eta = self.eta_s()
+        return (f"readings {self.done}/{self.planned} ({pct:.0f} %)" + (f" · {self.where}" if self.where else "")
+                + (f" · about {_hms(eta)} left" if eta is not None else "")
+                + f" · {self.faults} fault{'' if self.faults == 1 else 's'}")
+
+    def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        if name == "start":
+            self.planned, self.done = doc["planned"], doc["done"]
+            self._first_done, self._t0_s = doc["done"], doc["t_s"]
+            self._last_line_s = self.now()
+            self._last_decile = int(10 * self.done / self.planned) if self.planned else 10
+        elif name == "attempt":
+            self.where = describe(doc["label"])
+        elif name == "done":
+            self.done, self.faults, self.clock_s = doc["done"], doc["faults"], doc["t_s"]
+            self._show()
+        elif name == "stop":
+            if self.bar:
+                self.stream.write("\r" + self.line() + "\n")
+            elif self.done != self._shown_done:
+                self.stream.write("rtcal: " + self.line() + "\n")
+            self.stream.flush()
+
+    _shown_done = -1
+
+    def _show(self) -> None:
+        if self.bar:
+            self.stream.write("\r\033[K" + self.line())
+            self.stream.flush()
+            return
+        decile = int(10 * self.done / self.planned) if self.planned else 10
+        if decile > self._last_decile or self.now() - self._last_line_s >= self.every_s:
+            self._last_decile, self._last_line_s, self._shown_done = decile, self.now(), self.done
+            self.stream.write("rtcal: " + self.line() + "\n")  # a log's line says whose it is
+            self.stream.flush()

@@ -1,0 +1,151 @@
+"""Walking a plan without instruments: its duration and reading count from a timing model.
+
+The walker answers each step as an ideal bench would (a reading step's ``nominal``) and counts the
+time each takes: a table turning at its speed (through the overshoot where the ISO approach needs
+it), the CMM travelling at its speed, settle times, operator steps. This is what the simulated
+bench's clock counts too, so the planner, `rtcal plan` and the Monte Carlo's drift draws need no
+dry run into a temporary store.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+import numpy as np
+
+from rtcal.engine.plan import Plan
+from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Samples, Settle,
+                                Step, Validate)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """How fast the machines move (from the bench a procedure runs on, or the lab's own figures)."""
+
+    stage_speed_deg_per_s: float
+    cmm_speed_mm_per_s: float = 50.0
+    stage_start_deg: float = 0.0
+    cmm_start_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def of_scenario(cls, scenario: Any) -> "Timing":
+        return cls(scenario.stage.speed_deg_per_s, scenario.cmm.speed_mm_per_s)
+
+
+@dataclass
+class PlanWalk:
+    """What walking a plan found: its duration, its planned and instrument readings, its steps by kind."""
+
+    duration_s: float = 0.0
+    planned_readings: int = 0
+    instrument_readings: int = 0
+    motion_s: float = 0.0
+    settle_s: float = 0.0
+    operator_s: float = 0.0
+    steps: dict[str, int] = field(default_factory=dict)
+    listing: list[Step] | None = None
+    """Every step in order, when the walk was asked to keep them (`walk(..., listing=True)`)."""
+
+
+class _Walker:
+    def __init__(self, timing: Timing):
+        self.timing = timing
+        self.stage_deg = timing.stage_start_deg
+        self.cmm_mm = np.asarray(timing.cmm_start_mm, float)
+        self.tracking = False
+        self.walk = PlanWalk()
+
+    def _stage_time(self, move: Move) -> float:
+        """The table's travel: through the overshoot when it would arrive the other way (as
+        :func:`rtcal.sequencer.motion.approach`), at the stage's speed."""
+        target = float(move.target)
+        legs = []
+        if move.direction:
+            arriving = 1 if target > self.stage_deg else -1 if target < self.stage_deg else 0
+            if arriving != move.direction and move.overshoot_deg > 0:
+                legs.append(target - move.direction * move.overshoot_deg)
+        legs.append(target)
+        travel = 0.0
+        for leg in legs:
+            travel += abs(leg - self.stage_deg)
+            self.stage_deg = leg
+        return travel / self.timing.stage_speed_deg_per_s
+
+    def _move_time(self, move: Move) -> float:
+        if move.instrument == "stage":
+            return self._stage_time(move)
+        target = np.asarray(move.target, float)
+        seconds = float(np.linalg.norm(target - self.cmm_mm)) / self.timing.cmm_speed_mm_per_s
+        self.cmm_mm = target
+        return seconds
+
+    def step(self, step: Step) -> Any:
+        w = self.walk
+        if w.listing is not None:
+            w.listing.append(step)
+        kind = type(step).__name__
+        w.steps[kind] = w.steps.get(kind, 0) + 1
+        if isinstance(step, Move):
+            seconds = self._move_time(step)
+            w.motion_s += seconds
+            w.duration_s += seconds
+            return None
+        if isinstance(step, Parallel):
+            seconds = max(self._move_time(m) for m in step.moves)
+            w.motion_s += seconds
+            w.duration_s += seconds
+            return None
+        if isinstance(step, Settle):
+            w.settle_s += step.seconds
+            w.duration_s += step.seconds
+            return None
+        if isinstance(step, Read):
+            if not step.optional:
+                w.instrument_readings += len(step.quantities)
+            return step.nominal
+        if isinstance(step, ReadSamples):
+            w.instrument_readings += step.count
+            return Samples((step.nominal,) * step.count, False)
+        if isinstance(step, Reference):
+            referenced, self.tracking = not self.tracking, True
+            return referenced
+        if isinstance(step, OperatorStep):
+            w.operator_s += step.seconds
+            w.duration_s += step.seconds
+            self.tracking = False
+            return None
+        if isinstance(step, (Validate, Recover)):
+            return None
+        raise TypeError(f"not a step: {step!r}")
+
+    def run(self, steps: Iterable[Step]) -> None:
+        for step in steps:
+            self.step(step)
+
+
+def walk(plan: Plan, timing: Timing, done: Iterable[int] = (), listing: bool = False) -> PlanWalk:
+    """Walk ``plan`` (the entries not in ``done``) as an ideal bench would answer it; ``listing`` keeps every step."""
+    done = set(done)
+    walker = _Walker(timing)
+    if listing:
+        walker.walk.listing = []
+    walker.run(plan.prologue())
+    group: int | None = None
+    first = True
+    for entry in plan.entries:
+        if entry.index in done:
+            continue
+        if entry.group != group:
+            walker.run(plan.enter_group(entry, first))
+            group, first, walker.tracking = entry.group, False, False
+        attempt = plan.attempt(entry)
+        answer: Any = None
+        while True:
+            try:
+                step = attempt.send(answer)
+            except StopIteration:
+                break
+            answer = walker.step(step)
+        walker.walk.planned_readings += 1
+    return walker.walk

@@ -1,0 +1,145 @@
+"""The plan of the encoder Abbe-error procedure (seed 001) and of the ISO 230-2 test.
+
+For each polygon seating (an operator step), each run and each direction: a full turn in
+steps; at each step the encoder, both dial indicators and — where a polygon face is in front —
+the autocollimator are read, and committed before the next motion.
+
+Every visit is checked (:mod:`rtcal.sequencer.checks`): the stage's feedback against the
+command before the readings and unchanged after them, the encoder's motion against the
+commanded motion, the face in view seen near square. A visit that skipped a reading stays
+pending (a resume takes it again whole); its readings are kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator
+
+from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage
+from rtcal.engine.plan import Attempt, Entry
+from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
+from rtcal.plans.multistation import environment_read
+from rtcal.procedure.models import EncoderAbbeError
+from rtcal.sequencer.checks import EncoderCheck, MotionChecks, check_face
+
+
+@dataclass(frozen=True)
+class AbbeInstrumentSet:
+    stage: RotaryStage
+    encoder: Encoder
+    autocollimator: Autocollimator
+    indicators: tuple[DialIndicator, DialIndicator]
+    environment: EnvironmentSensor | None = None
+
+    def devices(self) -> dict[str, Any]:
+        found = {"stage": self.stage, "encoder": self.encoder, "autocollimator": self.autocollimator,
+                 "dial_indicator_1": self.indicators[0], "dial_indicator_2": self.indicators[1]}
+        return found if self.environment is None else {**found, "environment": self.environment}
+
+    def close(self) -> None:
+        for i in (self.stage, self.encoder, self.autocollimator, *self.indicators, self.environment):
+            if i is not None:
+                i.close()
+
+
+@dataclass(frozen=True)
+class Visit:
+    seating: int
+    run: int
+    direction: int
+    step: int
+    angle_deg: float
+    face_in_front: bool
+
+
+def planned_visits(proc: EncoderAbbeError) -> list[Visit]:
+    """Every visit in measuring order: per seating, the linear cycle (each run ↑ through all targets,
+    then ↓) or the pilgrim cycle (each target visited every run from each side before the next)."""
+    visits = []
+    dirs = [1 if d == "positive" else -1 for d in proc.steps.directions]
+    for j, seating in enumerate(proc.polygon.seatings_deg):
+        angles = proc.pass_angles_deg(seating)
+
+        def visit(r: int, direction: int, i: int) -> Visit:
+            return Visit(j, r, direction, i, float(angles[i]), proc.face_in_front(float(angles[i]), seating))
+
+        if proc.steps.cycle == "pilgrim":
+            visits += [visit(r, d, i) for i in range(len(angles)) for r in range(proc.steps.runs) for d in dirs]
+            continue
+        for r in range(proc.steps.runs):
+            for d in dirs:
+                order = range(len(angles)) if d > 0 else range(len(angles) - 1, -1, -1)
+                visits += [visit(r, d, i) for i in order]
+    return visits
+
+
+class AbbePlan:
+    """Seed 001's order of work. Readings carry the run's ``generation`` (0, +1 per resume) as their
+    segment, for the record. A resumed run asks the operator to confirm the polygon's seating where
+    it goes on (it stays where it was unless someone moved it), and to seat it anew for a seating it
+    left earlier."""
+
+    method = "encoder_abbe_error"
+    retake_skipped = False  # a skipped visit is taken again by a resume, whole
+
+    def __init__(self, proc: EncoderAbbeError, done: set[int] | frozenset[int] = frozenset(), generation: int = 0,
+                 stage_step_deg: float = 0.0):
+        self.proc = proc
+        self.visits = planned_visits(proc)
+        self.policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
+        self.checks = MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
+        self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
+        self.last_seating = self.visits[max(done)].seating if done else None  # where the polygon was left
+        self.entries = [
+            Entry(k, v.seating, {"station": v.step, "seating": v.seating, "run": v.run, "direction": v.direction,
+                                 "commanded_angle_deg": v.angle_deg, "plan_index": k, "segment": generation},
+                  {"target_deg": v.angle_deg, "run": v.run + 1, "direction": "↑" if v.direction > 0 else "↓",
+                   "seating": v.seating + 1},
+                  f"visit at {v.angle_deg:g}°")
+            for k, v in enumerate(self.visits)]
+
+    def prologue(self) -> Iterator[Step]:
+        overshoot = self.proc.steps.overshoot_deg
+        yield Validate("stage", tuple(x for v in self.visits for x in (v.angle_deg, v.angle_deg - v.direction * overshoot)))
+
+    def enter_group(self, entry: Entry, first: bool) -> Iterator[Step]:
+        seating = entry.group
+        offset = self.proc.polygon.seatings_deg[seating]
+        resumed = first and seating == self.last_seating
+        yield OperatorStep("reseat_polygon", (offset, self.proc.polygon.pitch_deg, resumed),
+                           f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {seating + 1})")
+
+    def positions_unknown(self) -> None:
+        """Nothing to forget: every visit approaches its target."""
+
+    def attempt(self, entry: Entry) -> Attempt:
+        """Move, settle, check the feedback, read every instrument, check the readings and that the table stood still."""
+        proc, v = self.proc, self.visits[entry.index]
+        angle = v.angle_deg
+        to_target = Move("stage", angle, v.direction, proc.steps.overshoot_deg, what=f"move to {angle:g}°")
+        yield to_target
+        yield Settle(proc.settle_time_s)
+        feedback = yield Read("stage", (("feedback_deg", "deg"),), lambda stage: self.checks.stage_at(stage, angle), angle,
+                              f"position at {angle:g}°", redo=(Recover("stage"), to_target, Settle(proc.settle_time_s)))
+        if proc.instruments.environment is not None:
+            yield environment_read(f"environment at {angle:g}°")
+        taken: list[tuple[str, str, str, Callable[[Any], float], float]] = [
+            ("encoder", "angle_deg", "deg", lambda encoder: encoder.read_angle_deg(), angle)]
+        if v.face_in_front:
+            taken.append(("autocollimator", "x_arcsec", "arcsec", lambda ac: ac.read_arcsec()[0], 0.0))
+        taken += [(f"dial_indicator_{n + 1}", "y_um", "um", lambda indicator: indicator.read_um(), 0.0) for n in range(2)]
+        values: list[tuple[str, float]] = []
+        for s in range(proc.samples_per_reading):
+            for instrument, quantity, unit, measure, nominal in taken:
+                try:
+                    value = yield Read(instrument, ((quantity, unit),), measure, nominal, f"reading at {angle:g}°", sample=s)
+                except Skipped:
+                    continue  # marked in the visit; the other instruments are still read
+                values.append((quantity, float(value)))
+        for quantity, value in values:
+            if quantity == "angle_deg":
+                self.encoder_moves.check(value, angle)
+            elif quantity == "x_arcsec":
+                check_face(value, proc.verification.autocollimator_tolerance_arcsec, angle)
+        yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: self.checks.stage_still(stage, feedback), angle,
+                   f"position at {angle:g}°")

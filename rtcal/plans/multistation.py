@@ -1,0 +1,185 @@
+"""The plan of the laser-tracer multi-station procedure (seed 000).
+
+Point-major (the paper): for each CMM point, the table indexes through every station.
+Station-major: for each station, the CMM visits every point. Either way each reading — the
+CMM's reported position at each visit, every tracer sample — is committed before the next motion.
+
+Every reading is checked (:mod:`rtcal.sequencer.checks`): the stage's feedback and the CMM's
+reported position against the commands before the tracer is read and unchanged after it, the
+lengths against the nominal geometry. A moved tracer (a second mount) is referenced again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterator
+
+import numpy as np
+
+from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
+from rtcal.engine.plan import Attempt, Entry
+from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Settle, Skipped,
+                                Step, Validate)
+from rtcal.procedure.models import LaserTracerMultistation
+from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck
+
+ENVIRONMENT_QUANTITIES = (("air_temperature_c", "degC"), ("air_pressure_pa", "Pa"), ("humidity_pct", "%"),
+                          ("material_temperature_c", "degC"))
+
+
+def environment_read(what: str) -> Read:
+    """The conditions beside a reading (every method): never holds up the reading it accompanies."""
+    return Read("environment", ENVIRONMENT_QUANTITIES, _environment_values, None, what, optional=True)
+
+
+def _environment_values(sensor: EnvironmentSensor) -> list[float]:
+    env = sensor.read()
+    return [float(getattr(env, q)) for q, _ in ENVIRONMENT_QUANTITIES]  # NaN: not measured, not stored
+
+
+@dataclass(frozen=True)
+class MultistationInstrumentSet:
+    stage: RotaryStage
+    cmm: Cmm
+    laser_tracer: LaserTracer
+    environment: EnvironmentSensor | None = None
+
+    def devices(self) -> dict[str, Any]:
+        found = {"stage": self.stage, "cmm": self.cmm, "laser_tracer": self.laser_tracer}
+        return found if self.environment is None else {**found, "environment": self.environment}
+
+    def close(self) -> None:
+        for i in (self.stage, self.cmm, self.laser_tracer, self.environment):
+            if i is not None:
+                i.close()
+
+
+def planned_readings(proc: LaserTracerMultistation) -> list[tuple[int, int, int]]:
+    """(mount, point, station) in measuring order; each is one planned tracer reading. With a
+    second mount the whole plan is measured again after the tracer is moved."""
+    n, m = len(proc.points_array()), proc.stations.count
+    if proc.order == "point_major":
+        one = [(i, j) for i in range(n) for j in range(m)]
+    else:
+        one = [(i, j) for j in range(m) for i in range(n)]
+    return [(k, i, j) for k in range(proc.mounts) for i, j in one]
+
+
+class MultistationPlan:
+    """Seed 000's order of work. Both machines move only when the next reading needs them elsewhere;
+    ``concurrent`` starts the table and the CMM together where both move."""
+
+    method = "laser_tracer_multistation"
+    retake_skipped = True
+
+    def __init__(self, proc: LaserTracerMultistation, stage_step_deg: float = 0.0, concurrent: bool | None = None):
+        self.proc = proc
+        self.points = proc.points_array()
+        self.angles = proc.stations.angles_deg()
+        self.direction = 1 if proc.stations.approach == "positive" else -1
+        self.concurrent = proc.concurrent_motions if concurrent is None else concurrent
+        self.policies = {"stage": proc.on_fault.stage, "cmm": proc.on_fault.cmm, "laser_tracer": proc.on_fault.laser_tracer,
+                         "environment": proc.on_fault.environment}
+        v = proc.verification
+        self.checks = MotionChecks(stage_step_deg, v.stage_tolerance_deg, v.cmm_tolerance_mm)
+        guesses = [np.array(proc.solver.first_station_guess_mm)]
+        if proc.second_mount is not None:
+            guesses.append(np.array(proc.second_mount.first_station_guess_mm))
+        self.lengths = TracerCheck(guesses, np.array(proc.solver.axis_point_mm), self.angles, self.points,
+                                   v.tracer_tolerance_mm)
+        self.entries = [
+            Entry(k, mk, {"point": i, "station": j, "plan_index": k, "commanded_angle_deg": float(self.angles[j]),
+                          "seating": mk, "commanded_x_mm": float(self.points[i][0]),
+                          "commanded_y_mm": float(self.points[i][1]), "commanded_z_mm": float(self.points[i][2])},
+                  {"point": i + 1, "station": j + 1, "target_deg": float(self.angles[j]), "mount": mk + 1},
+                  f"reading at point {i + 1}, station {j + 1}")
+            for k, (mk, i, j) in enumerate(planned_readings(proc))]
+        self.at_point: int | None = None
+        self.at_station: int | None = None
+
+    def prologue(self) -> Iterator[Step]:
+        overshoot = self.proc.stations.overshoot_deg
+        yield Validate("cmm", tuple(self.points))
+        yield Validate("stage", tuple(x for a in self.angles for x in (a, a - self.direction * overshoot)))
+
+    def enter_group(self, entry: Entry, first: bool) -> Iterator[Step]:
+        """The operator moves the tracer to mount ``entry.group`` (or confirms where it is on a resumed run)."""
+        mk = entry.group
+        resumed = first and entry.index > 0
+        second = self.proc.second_mount
+        if second is not None and (mk > 0 or resumed):
+            where = ("its first mount" if mk == 0 else
+                     f"the second mount: centre near {list(second.first_station_guess_mm)} mm at station 1")
+            yield OperatorStep("move_tracer", (mk, where, resumed),
+                               f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}", "laser_tracer")
+
+    def positions_unknown(self) -> None:
+        self.at_point = self.at_station = None
+
+    def expected_length_mm(self, mount: int, point: int, station: int) -> float:
+        """What the nominal geometry expects the tracer to count here (the walker's answer)."""
+        ref = self.lengths.reference
+        if ref is None:
+            return 0.0
+        k, i, j = ref
+        return float(self.lengths.distance_mm[mount][point, station] - self.lengths.distance_mm[k][i, j])
+
+    def attempt(self, entry: Entry) -> Attempt:
+        try:
+            yield from self._attempt(entry)
+        except Skipped as exc:  # where the skipped machine is, is not known: the next attempt moves it again
+            if exc.instrument == "stage":
+                self.at_station = None
+            elif exc.instrument == "cmm":
+                self.at_point = None
+            raise
+        except Contradiction:
+            self.at_point = self.at_station = None  # the next attempt moves both again and reads where they are
+            raise
+
+    def _attempt(self, entry: Entry) -> Attempt:
+        mk, i, j = entry.group, entry.context["point"], entry.context["station"]
+        proc, checks = self.proc, self.checks
+        angle, point = float(self.angles[j]), self.points[i]
+        overshoot = proc.stations.overshoot_deg
+        stage_moved, cmm_moved = self.at_station != j, self.at_point != i
+        to_station = Move("stage", angle, self.direction, overshoot, what=f"move to station {j + 1}")
+        to_point = Move("cmm", point, what=f"move to point {i + 1}")
+        if stage_moved and cmm_moved and self.concurrent:
+            self.at_station = self.at_point = None
+            yield Parallel((to_station, to_point))
+            self.at_station, self.at_point = j, i
+        else:
+            if stage_moved:
+                self.at_station = None
+                yield to_station
+                self.at_station = j
+            if cmm_moved:
+                self.at_point = None
+                yield to_point
+                self.at_point = i
+        if stage_moved or cmm_moved:
+            yield Settle(proc.settle_time_s)
+        settle = Settle(proc.settle_time_s)
+        feedback = yield Read("stage", (("feedback_deg", "deg"),), lambda stage: checks.stage_at(stage, angle), angle,
+                              f"position at station {j + 1}", redo=(Recover("stage"), to_station, settle))
+        kind = "position" if cmm_moved else "check_position"  # the solvers average one position per visit of the point
+        xyz = yield Read("cmm", tuple((f"{kind}_{axis}_mm", "mm") for axis in "xyz"), lambda cmm: checks.cmm_at(cmm, point),
+                         point, f"position at point {i + 1}", redo=(Recover("cmm"), to_point, settle))
+        if proc.instruments.environment is not None:  # the air the lengths are counted in, with every reading
+            yield environment_read(f"environment at point {i + 1}, station {j + 1}")
+        where = f"point {i + 1}, station {j + 1}"
+        if (yield Reference("laser_tracer", where)):
+            self.lengths.referenced(mk, i, j)
+        samples = yield ReadSamples("laser_tracer", "length_mm", "mm", proc.samples_per_reading,
+                                    lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(mk, i, j),
+                                    where, f"length at {where}")
+        if samples.reacquired:
+            self.lengths.referenced(mk, i, j)
+        for value in samples.values:
+            self.lengths.check(value, mk, i, j)
+        # the table and the probe stood still while the tracer counted: read both again
+        yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: checks.stage_still(stage, feedback), angle,
+                   f"position at station {j + 1}")
+        yield Read("cmm", tuple((f"after_position_{axis}_mm", "mm") for axis in "xyz"),
+                   lambda cmm: checks.cmm_still(cmm, xyz), point, f"position at point {i + 1}", redo=(Recover("cmm"),))
