@@ -247,6 +247,7 @@ class LiveServer:
         while not self._server.started and self._thread.is_alive() and time.monotonic() < deadline:
             time.sleep(0.02)
         self._sock = sock
+        threading.Thread(target=self.view.state, name="rtcal-live-warm", daemon=True).start()  # first reads import the methods
         shown = f"[{self.host}]" if ":" in self.host else self.host
         self.port = port
         self.url = f"http://{shown}:{port}/"

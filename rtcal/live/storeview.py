@@ -92,6 +92,7 @@ class StoreView:
         self._state_at = 0.0
         self._planned_cache: tuple[str, int | None] | None = None
         self._result_cache: tuple[tuple[int, int], dict[str, Any] | None] | None = None
+        self._result_stamp: tuple[int, int] | None = None
 
     # -- connections ------------------------------------------------------------------------
     def _connect(self) -> sqlite3.Connection | None:
@@ -272,9 +273,17 @@ class StoreView:
         except OSError:
             return None
         stamp = (st.st_mtime_ns, st.st_size)
-        if self._result_cache is None or self._result_cache[0] != stamp:
-            self._result_cache = (stamp, result_brief(self.run_dir))
-        return self._result_cache[1]
+        cached = self._result_cache
+        if (cached is None or cached[0] != stamp) and self._result_stamp != stamp:
+            self._result_stamp = stamp  # solved once per version of the file, aside: it takes seconds
+
+            def solve() -> None:
+                brief = result_brief(self.run_dir)
+                self._result_cache = (stamp, brief)
+                self._state_at = 0.0  # the next poll shows it
+
+            threading.Thread(target=solve, name="rtcal-live-result", daemon=True).start()
+        return cached[1] if cached is not None else None
 
     # -- what the event stream sends -------------------------------------------------------------
     def readings_after(self, last_id: int, limit: int = 2000) -> list[dict[str, Any]]:

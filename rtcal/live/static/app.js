@@ -412,6 +412,7 @@ function tick() {
 
 document.addEventListener("DOMContentLoaded", () => {
   readFragment();
+  $("control-form").addEventListener("submit", (ev) => ev.preventDefault());
   $("btn-pause").addEventListener("click", () => control("pause"));
   $("btn-resume").addEventListener("click", () => control("resume"));
   $("btn-abort").addEventListener("click", armAbort);
