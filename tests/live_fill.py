@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 from pathlib import Path
@@ -45,16 +46,18 @@ def visit_readings(store: RunStore, k: int, v, t_s: float) -> list[Reading]:
 class StoreWriter(threading.Thread):
     """Writes visits into a store like a running sequencer: one visit every ``interval_s`` (3 s of
     run clock each), a rejected attempt and a fault event at visit ``reject_at``; stops at
-    ``stop_after`` visits (None: all) or when ``halt`` is set; ``hold`` pauses it."""
+    ``stop_after`` visits (None: all) or when ``halt`` is set; ``hold`` pauses it (with ``engine``
+    it says so in the meta as the engine does)."""
 
     def __init__(self, run_dir: Path, interval_s: float = 0.05, stop_after: int | None = None, reject_at: int = 3,
-                 finish: bool = False):
+                 finish: bool = False, engine: bool = False):
         super().__init__(daemon=True)
         self.run_dir = run_dir
         self.interval_s = interval_s
         self.stop_after = stop_after
         self.reject_at = reject_at
         self.finish = finish
+        self.engine = engine  # also write what the engine writes: engine_state, planned_readings, current
         self.halt = threading.Event()
         self.hold = threading.Event()
         self.written = 0
@@ -69,8 +72,14 @@ class StoreWriter(threading.Thread):
             for k, v in enumerate(self.visits):
                 if self.stop_after is not None and k >= self.stop_after:
                     break
+                if self.hold.is_set() and self.engine:
+                    self.store.set_meta({"engine_state": "paused"})
                 while self.hold.is_set() and not self.halt.is_set():
                     self.halt.wait(0.02)
+                if self.engine:
+                    self.store.set_meta({"engine_state": "running", "planned_readings": str(len(self.visits)),
+                                         "current": json.dumps({"plan_index": k, "target_deg": v.angle_deg,
+                                                                "run": v.run + 1, "direction": "+" if v.direction > 0 else "-"})})
                 if self.halt.wait(self.interval_s):
                     break
                 if k == self.reject_at:
@@ -85,6 +94,8 @@ class StoreWriter(threading.Thread):
                 self.written += 1
                 t += 3.0
             if self.finish:
-                self.store.set_meta({"status": "solved"})
+                self.store.set_meta({"status": "solved", **({"engine_state": "finished"} if self.engine else {})})
+            elif self.engine:
+                self.store.set_meta({"engine_state": "aborted" if self.halt.is_set() else "finished"})
         finally:
             self.store.close()
