@@ -8,7 +8,7 @@ import threading
 from pathlib import Path
 
 from rtcal.procedure.loader import load_procedure
-from rtcal.run.store import REJECTED, Reading, RunStore
+from rtcal.run.store import REJECTED, SKIPPED, Reading, RunStore
 from rtcal.sequencer.abbe import planned_visits
 
 PROCEDURE = Path(__file__).resolve().parents[1] / "procedures" / "iso230_2_polygon.yaml"
@@ -45,17 +45,19 @@ def visit_readings(store: RunStore, k: int, v, t_s: float) -> list[Reading]:
 
 class StoreWriter(threading.Thread):
     """Writes visits into a store like a running sequencer: one visit every ``interval_s`` (3 s of
-    run clock each), a rejected attempt and a fault event at visit ``reject_at``; stops at
+    run clock each), a rejected attempt and a fault event at visit ``reject_at`` (taken again), a
+    skipped one at ``skip_at`` (left for a resume: ``written`` counts the visits done); stops at
     ``stop_after`` visits (None: all) or when ``halt`` is set; ``hold`` pauses it (with ``engine``
     it says so in the meta as the engine does)."""
 
     def __init__(self, run_dir: Path, interval_s: float = 0.05, stop_after: int | None = None, reject_at: int = 3,
-                 finish: bool = False, engine: bool = False):
+                 finish: bool = False, engine: bool = False, skip_at: int | None = 5):
         super().__init__(daemon=True)
         self.run_dir = run_dir
         self.interval_s = interval_s
         self.stop_after = stop_after
         self.reject_at = reject_at
+        self.skip_at = skip_at
         self.finish = finish
         self.engine = engine  # also write what the engine writes: engine_state, planned_readings, current
         self.halt = threading.Event()
@@ -90,8 +92,15 @@ class StoreWriter(threading.Thread):
                                                             attempt=rows[0].attempt, run=v.run, direction=v.direction,
                                                             commanded_angle_deg=v.angle_deg)])
                     t += 3.0
-                self.store.add_readings(visit_readings(self.store, k, v, t))
-                self.written += 1
+                rows = visit_readings(self.store, k, v, t)
+                if k == self.skip_at:  # the encoder's policy skipped its reading: the visit stays to do
+                    rows[2] = Reading(t, "encoder", SKIPPED, 0.0, "", **{f: getattr(rows[2], f) for f in (
+                        "sample", "station", "seating", "run", "direction", "commanded_angle_deg", "plan_index",
+                        "segment", "attempt")})
+                    self.store.add_readings(rows)
+                else:
+                    self.store.add_readings(rows)
+                    self.written += 1
                 t += 3.0
             if self.finish:
                 self.store.set_meta({"status": "solved", **({"engine_state": "finished"} if self.engine else {})})

@@ -10,7 +10,7 @@ import os
 import shutil
 import signal
 import socket
-import sqlite3
+from contextlib import closing
 import stat
 import subprocess
 import sys
@@ -26,6 +26,7 @@ from live_fill import PROCEDURE, StoreWriter  # noqa: E402
 
 from rtcal.live.control import (SOCKET_NAME, ControlServer, NoEngine, new_token, send_control)  # noqa: E402
 from rtcal.live.server import LiveServer, LiveSpecError, parse_live_spec  # noqa: E402
+from rtcal.live.storeview import open_read_only  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CONTRACT_KEYS = {"state", "method", "planned_readings", "done_readings", "eta_s", "faults", "current"}
@@ -92,7 +93,7 @@ def planned_of_procedure() -> int:
 
 
 def store_ids(run_dir: Path) -> list[int]:
-    with sqlite3.connect(f"file:{run_dir / 'run.sqlite'}?mode=ro", uri=True) as db:
+    with closing(open_read_only(run_dir / "run.sqlite")) as db:  # `mode=ro` alone would create -wal and -shm
         return [r[0] for r in db.execute("SELECT id FROM readings ORDER BY id")]
 
 
@@ -158,14 +159,15 @@ def test_state_follows_the_store_being_written(writing):
     assert state["faults"] == 1  # the rejected attempt's fault event; the rejected attempt is not counted done
     remaining = state["planned_readings"] - written
     assert 2.9 * remaining <= state["eta_s"] <= 3.6 * remaining  # 3 s of run clock per visit
-    last = writer.visits[written - 1]
+    last = writer.visits[written]  # written counts the visits done: one more (5) was skipped
     assert state["current"]["target_deg"] == last.angle_deg and state["current"]["run"] == last.run + 1
     latest = {(r["instrument"], r["quantity"]): r for r in state["latest"]}
     assert latest[("autocollimator", "x_arcsec")]["age_s"] == pytest.approx(0.1)
     assert latest[("environment", "air_temperature_c")]["value"] == 20.1
     rows = state["progress"]["rows"]
-    assert rows[0]["label"] == "run 1 ↑" and rows[0]["done"] == 12 and sum(r["done"] for r in rows) == written
-    assert "rejected" not in rows[0]["cells"]  # its plan index was taken again and is done
+    assert rows[0]["label"] == "run 1 ↑" and sum(r["done"] for r in rows) == written
+    # visit 3 was rejected and taken again (done), visit 5 skipped (to do on resume)
+    assert rows[0]["cells"][3] == "done" and rows[0]["cells"][5] == "skipped" and rows[0]["done"] == 11
 
 
 def test_engine_meta_is_preferred(tmp_path):
@@ -176,7 +178,7 @@ def test_engine_meta_is_preferred(tmp_path):
     writer.join(20)
     with LiveServer(run_dir, port=0) as server:
         state = get_json(server.url + "api/state")
-    assert state["state"] == "finished" and state["done_readings"] == 8 and state["eta_s"] == 0.0
+    assert state["state"] == "finished" and state["done_readings"] == writer.written == 7 and state["eta_s"] == 0.0
     assert state["current"] == {"plan_index": 7, "target_deg": writer.visits[7].angle_deg, "run": 1, "direction": "+"}
 
 
@@ -200,6 +202,7 @@ def test_control_needs_the_token_and_a_view_has_none(writing):
 def test_events_carry_reading_ids_and_resume_after_last_event_id(writing):
     run_dir, writer, engine, token, server, url = writing
     writer.stop_after = 20
+    writer.skip_at = None
     writer.start()
     writer.join(20)
     ids = store_ids(run_dir)
@@ -225,8 +228,8 @@ def test_a_finished_run_is_read_without_touching_a_byte(tmp_path):
     before = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in run_dir.iterdir()}
     with LiveServer(run_dir, port=0) as server:
         state = get_json(server.url + "api/state")
-        read_sse("127.0.0.1", server.port, 15 * 7)
-    assert state["state"] == "finished" and state["done_readings"] == 15
+        assert len(read_sse("127.0.0.1", server.port, len(store_ids(run_dir)))) > len(store_ids(run_dir))
+    assert state["state"] == "finished" and state["done_readings"] == writer.written == 14
     assert {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in run_dir.iterdir()} == before  # no -wal, no -shm
 
 
@@ -280,32 +283,57 @@ def test_tokens_are_long_random_and_url_safe():
         assert len(t) >= 22 and all(c.isalnum() or c in "-_" for c in t)  # ≥ 128 bits in base64url
 
 
-def rtcal(*args: str, env: dict | None = None, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "rtcal.cli", *args], capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})}, cwd=REPO)
+def rtcal_started(*args: str, env: dict | None = None) -> subprocess.Popen:
+    """`rtcal ARGS` started as a process of its own (its exit code is what the contract names)."""
+    return subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})}, cwd=REPO)
 
 
-def test_control_socket_and_rtcal_control(tmp_path):
+def finished(proc: subprocess.Popen, timeout: float = 60) -> subprocess.CompletedProcess:
+    out, err = proc.communicate(timeout=timeout)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def rtcal_here(capsys, *args: str) -> tuple[int, str]:
+    """`rtcal` in this process (its exit code and stderr): the subprocess costs seconds of imports."""
+    from rtcal.cli import main
+
+    capsys.readouterr()
+    try:
+        code = main(list(args))
+    except SystemExit as exc:  # argparse's own refusals
+        code = int(exc.code or 0)
+    return code, capsys.readouterr().err
+
+
+def test_control_socket_and_rtcal_control(tmp_path, capsys, monkeypatch):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     engine, token = FakeEngine(), new_token()
-    assert rtcal("control", str(run_dir), "pause", "--token", token).returncode == 1  # no engine yet
+    assert rtcal_here(capsys, "control", str(run_dir), "pause", "--token", token)[0] == 1  # no engine yet
     with ControlServer(run_dir, token, engine):
         st = os.lstat(run_dir / SOCKET_NAME)
         assert stat.S_ISSOCK(st.st_mode) and stat.S_IMODE(st.st_mode) == 0o600
-        wrong = rtcal("control", str(run_dir), "pause", "--token", "x" + token[1:])
+        (tmp_path / "idle").mkdir()
+        # the three exit codes from processes of their own, started together (each spends seconds importing)
+        started = [rtcal_started("control", str(run_dir), "pause", "--token", "x" + token[1:]),
+                   rtcal_started("control", str(run_dir), "pause", env={"RTCAL_CONTROL_TOKEN": token}),
+                   rtcal_started("control", str(tmp_path / "idle"), "abort", "--token", token)]
+        wrong, ok, gone = (finished(p) for p in started)
         assert wrong.returncode == 2 and wrong.stderr.count("\n") == 1 and "Traceback" not in wrong.stderr
         assert token[1:] not in wrong.stderr
-        assert engine.calls == []
-        ok = rtcal("control", str(run_dir), "pause", "--token", token)
         assert ok.returncode == 0, ok.stderr
-        assert rtcal("control", str(run_dir), "resume", env={"RTCAL_CONTROL_TOKEN": token}).returncode == 0
+        assert gone.returncode == 1 and "no engine" in gone.stderr and "Traceback" not in gone.stderr
+        assert engine.calls == ["pause"]  # the wrong token changed nothing
+        assert rtcal_here(capsys, "control", str(run_dir), "resume", "--token", token)[0] == 0
         assert engine.calls == ["pause", "resume"]
-        assert rtcal("control", str(run_dir), "jump", "--token", token).returncode == 2
-        assert rtcal("control", str(run_dir), "abort").returncode == 2  # no token given
+        assert rtcal_here(capsys, "control", str(run_dir), "jump", "--token", token)[0] == 2
+        monkeypatch.delenv("RTCAL_CONTROL_TOKEN", raising=False)
+        code, err = rtcal_here(capsys, "control", str(run_dir), "abort")  # no token given
+        assert code == 2 and "token" in err
         with pytest.raises(RuntimeError):  # a second engine on the same directory
             ControlServer(run_dir, new_token(), FakeEngine()).start()
-        # raw requests: an over-long line and a wrong token get an answer, change nothing
+        # raw requests: an over-long line and a token that is no string get an answer, change nothing
         for request in (b"x" * 10000 + b"\n", json.dumps({"token": 5, "command": "abort"}).encode() + b"\n"):
             with socket.socket(socket.AF_UNIX) as s:
                 s.connect(str(run_dir / SOCKET_NAME))
@@ -313,15 +341,14 @@ def test_control_socket_and_rtcal_control(tmp_path):
                 assert json.loads(s.makefile().readline())["ok"] is False
         assert engine.calls == ["pause", "resume"]
     assert not os.path.lexists(run_dir / SOCKET_NAME)
-    gone = rtcal("control", str(run_dir), "abort", "--token", token)
-    assert gone.returncode == 1 and "no engine" in gone.stderr
+    assert rtcal_here(capsys, "control", str(run_dir), "abort", "--token", token)[0] == 1
     stale = socket.socket(socket.AF_UNIX)  # a killed engine leaves its socket behind
     stale.bind(str(run_dir / SOCKET_NAME))
     stale.close()
     with pytest.raises(NoEngine):
         send_control(run_dir, token, "pause")
-    assert rtcal("control", str(run_dir), "pause", "--token", token).returncode == 1
-    assert rtcal("control", str(tmp_path / "missing"), "pause", "--token", token).returncode == 2
+    assert rtcal_here(capsys, "control", str(run_dir), "pause", "--token", token)[0] == 1
+    assert rtcal_here(capsys, "control", str(tmp_path / "missing"), "pause", "--token", token)[0] == 2
     with ControlServer(run_dir, token, engine):  # a stale socket is replaced
         send_control(run_dir, token, "abort")
     assert engine.calls == ["pause", "resume", "abort"]
@@ -365,15 +392,25 @@ def test_rtcal_view_serves_until_interrupted(tmp_path):
         line = proc.stderr.readline()
         assert line.startswith("live view: http://127.0.0.1:") and line.endswith("/\n"), line
         url = line.split(": ", 1)[1].strip()
-        assert get_json(url + "api/state")["done_readings"] == 6
+        assert get_json(url + "api/state")["done_readings"] == writer.written == 5
         assert post(url + "api/pause", "anything") == 409
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(20) in (0, 130)
     assert "Traceback" not in proc.stderr.read()
-    missing = rtcal("view", str(tmp_path / "nothing"))
-    assert missing.returncode == 2 and missing.stderr.count("\n") == 1
-    assert rtcal("view", str(run_dir), "--live", "nohost:port").returncode == 2
+
+def test_rtcal_view_refuses_bad_arguments(tmp_path, capsys):
+    code, err = rtcal_here(capsys, "view", str(tmp_path / "nothing"))
+    assert code == 2 and err.count("\n") == 1
+    assert rtcal_here(capsys, "view", str(tmp_path), "--live", "0")[0] == 2  # no run.sqlite in it
+    (tmp_path / "run.sqlite").write_bytes(b"")
+    code, err = rtcal_here(capsys, "view", str(tmp_path), "--live", "nohost:port")
+    assert code == 2 and err.count("\n") == 1
+    with socket.socket() as busy:  # a port that is taken
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        code, err = rtcal_here(capsys, "view", str(tmp_path), "--live", str(busy.getsockname()[1]))
+    assert code == 2 and "cannot listen" in err
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium installed (Debian: apt-get install chromium)")
