@@ -381,23 +381,29 @@ def test_token_is_written_nowhere(writing):
 
 
 def test_rtcal_view_serves_until_interrupted(tmp_path):
+    """`rtcal view` in a process of its own follows a run being written until it is finished."""
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    writer = StoreWriter(run_dir, interval_s=0.0, stop_after=6)
-    writer.start()
-    writer.join(20)
+    writer = StoreWriter(run_dir, interval_s=0.04, finish=True)
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "view", str(run_dir), "--live", "0"], cwd=REPO,
                             env={**os.environ, "PYTHONPATH": str(REPO)}, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stderr.readline()
         assert line.startswith("live view: http://127.0.0.1:") and line.endswith("/\n"), line
         url = line.split(": ", 1)[1].strip()
-        assert get_json(url + "api/state")["done_readings"] == writer.written == 5
+        writer.start()
+        first = wait_for(lambda: get_json(url + "api/state")["done_readings"] or None)
+        wait_for(lambda: get_json(url + "api/state")["done_readings"] > first)  # in progress, rising
         assert post(url + "api/pause", "anything") == 409
+        writer.join(60)
+        final = wait_for(lambda: (s := get_json(url + "api/state"))["state"] == "finished" and s)
+        assert final["done_readings"] == writer.written == len(writer.visits) - 1  # one visit was skipped
     finally:
+        writer.halt.set()
         proc.send_signal(signal.SIGINT)
         assert proc.wait(20) in (0, 130)
     assert "Traceback" not in proc.stderr.read()
+
 
 def test_rtcal_view_refuses_bad_arguments(tmp_path, capsys):
     code, err = rtcal_here(capsys, "view", str(tmp_path / "nothing"))
