@@ -467,3 +467,23 @@ def test_the_page_in_headless_chromium(tmp_path):
             writer.join(10)
     assert errors == []
     assert (tmp_path / "live_view.png").stat().st_size > 10000
+
+
+def test_a_viewer_far_behind_catches_up_from_the_store(writing, monkeypatch):
+    """A long run: the shared feed keeps only the newest readings; a browser from the start reads
+    the older ones from the store in batches and then joins the feed, missing none."""
+    import rtcal.live.server as live_server
+
+    monkeypatch.setattr(live_server, "FEED_WINDOW", 10)
+    monkeypatch.setattr(live_server, "CATCH_UP_BATCH", 7)
+    run_dir, writer, engine, token, server, url = writing
+    writer.stop_after = 12
+    writer.start()
+    writer.join(20)
+    ids = store_ids(run_dir)
+    with LiveServer(run_dir, port=0) as late:  # its feed starts near the store's end
+        got = [int(e["id"]) for e in read_sse("127.0.0.1", late.port, len(ids)) if e.get("event") == "reading"]
+        assert got == ids
+        again = [int(e["id"]) for e in read_sse("127.0.0.1", late.port, 5, last_event_id=ids[-6])
+                 if e.get("event") == "reading"]
+        assert again == ids[-5:]

@@ -16,6 +16,7 @@ browser reconnecting with ``Last-Event-ID`` carries on; ``state`` and ``log`` ev
 
 from __future__ import annotations
 
+import bisect
 import ipaddress
 import json
 import socket
@@ -24,7 +25,7 @@ import threading
 import time
 from importlib import resources
 from pathlib import Path
-from typing import Any, AsyncIterator
+from typing import Any, AsyncIterator, Callable
 
 import anyio
 import uvicorn
@@ -49,6 +50,9 @@ SECURITY_HEADERS = {
     "Content-Security-Policy": ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
                                 "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'none'"),
 }
+# the report is rtcal's own HTML with its inline style and figures as data: URIs; it runs no script
+REPORT_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": ("default-src 'none'; style-src 'unsafe-inline'; "
+                                                                 "img-src data:; frame-ancestors 'none'; base-uri 'none'")}
 MAX_LAST_EVENT_ID = 2**63 - 1
 
 
@@ -111,6 +115,65 @@ def _last_event_id(request: Request) -> int:
     return 0
 
 
+CATCH_UP_BATCH = 2000  # readings per read of a viewer behind the feed
+FEED_WINDOW = 20000  # encoded readings the feed keeps for every viewer (a few MB)
+
+
+class _Feed:
+    """What every event stream sends, read from the store once per poll for all viewers and
+    encoded once: the newest FEED_WINDOW readings, the events, the state."""
+
+    def __init__(self, view: StoreView, poll_s: float, control: Callable[[], bool]):
+        self.view = view
+        self.poll_s = poll_s
+        self.control = control
+        self._lock = threading.Lock()
+        self._ids: list[int] = []
+        self._texts: list[str] = []
+        self._events: list[tuple[int, str]] = []
+        self.last_id: int | None = None  # None: not yet placed at the store's end
+        self.state_text: str | None = None
+        self._at = -1e9
+
+    def refresh(self) -> None:
+        """Read what the store added since the last refresh (at most once per poll, whoever asks)."""
+        with self._lock:
+            if time.monotonic() - self._at < 0.8 * self.poll_s:
+                return
+            state = self.view.state()
+            if self.last_id is None:  # a long run's older readings are read by each viewer that wants them
+                self.last_id = max(0, int(state.get("last_reading_id") or 0) - FEED_WINDOW)
+            while True:
+                rows = self.view.readings_after(self.last_id, CATCH_UP_BATCH)
+                for r in rows:
+                    self._ids.append(r["id"])
+                    self._texts.append(_sse("reading", r, r["id"]))
+                if rows:
+                    self.last_id = rows[-1]["id"]
+                if len(rows) < CATCH_UP_BATCH:
+                    break
+            if len(self._ids) > 2 * FEED_WINDOW:
+                del self._ids[:-FEED_WINDOW], self._texts[:-FEED_WINDOW]
+            after = self._events[-1][0] if self._events else 0
+            self._events += [(e["id"], _sse("log", e)) for e in self.view.events_after(after)]
+            self.state_text = json.dumps({**state, "control": self.control()}, allow_nan=False, ensure_ascii=False)
+            self._at = time.monotonic()
+
+    def readings_since(self, after: int) -> list[tuple[int, str]] | None:
+        """The encoded readings after ``after``; None if they begin before the feed's window."""
+        with self._lock:
+            first = self._ids[0] if self._ids else (self.last_id or 0) + 1
+            if after + 1 < first and after < (self.last_id or 0):
+                return None
+            k = bisect.bisect_right(self._ids, after)
+            return list(zip(self._ids[k:], self._texts[k:]))
+
+    def events_since(self, after: int) -> list[tuple[int, str]]:
+        with self._lock:
+            k = bisect.bisect_right([i for i, _ in self._events], after)
+            return self._events[k:]
+
+
 class LiveServer:
     """The live view of one run directory, served by uvicorn in a background thread.
 
@@ -128,6 +191,7 @@ class LiveServer:
         self._token = token
         self.poll_s = poll_s
         self.view = StoreView(self.run_dir)
+        self._feed = _Feed(self.view, poll_s, lambda: self.control is not None)
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
@@ -168,23 +232,28 @@ class LiveServer:
 
     async def _stream(self, request: Request, after: int) -> AsyncIterator[str]:
         """Readings after ``after`` (each with its store id), the events table, and the state
-        whenever it changes; a comment every 15 s keeps proxies from closing a quiet stream."""
+        whenever it changes; a comment every 15 s keeps proxies from closing a quiet stream.
+        Every viewer takes the same encoded events from one shared :class:`_Feed`; one that is
+        further behind than the feed keeps reads its own way up from the store first."""
         yield "retry: 2000\n\n"
+        feed = self._feed
         last_event = 0
         last_state: str | None = None
         quiet_since = time.monotonic()
-        batch = 2000
         while not self._stopping.is_set():
-            readings = await anyio.to_thread.run_sync(self.view.readings_after, after, batch)
-            events = await anyio.to_thread.run_sync(self.view.events_after, last_event)
-            state = json.dumps(await anyio.to_thread.run_sync(self._state_now), allow_nan=False, ensure_ascii=False)
-            chunk = "".join(_sse("reading", r, r["id"]) for r in readings)
-            chunk += "".join(_sse("log", e) for e in events)
-            if readings:
-                after = readings[-1]["id"]
+            await anyio.to_thread.run_sync(feed.refresh)
+            parts = feed.readings_since(after)
+            if parts is None:  # behind the feed's window: catch up from the store in batches
+                rows = await anyio.to_thread.run_sync(self.view.readings_after, after, CATCH_UP_BATCH)
+                parts = [(r["id"], _sse("reading", r, r["id"])) for r in rows]
+            if parts:
+                after = parts[-1][0]
+            events = feed.events_since(last_event)
             if events:
-                last_event = events[-1]["id"]
-            if state != last_state:
+                last_event = events[-1][0]
+            chunk = "".join(text for _, text in parts) + "".join(text for _, text in events)
+            state = feed.state_text
+            if state is not None and state != last_state:
                 chunk += f"event: state\ndata: {state}\n\n"
                 last_state = state
             if chunk:
@@ -193,7 +262,7 @@ class LiveServer:
             elif time.monotonic() - quiet_since > 15:
                 quiet_since = time.monotonic()
                 yield ": still here\n\n"
-            if len(readings) < batch:
+            if len(parts) < CATCH_UP_BATCH:
                 await anyio.sleep(self.poll_s)
 
     async def _control(self, request: Request) -> Response:
@@ -218,7 +287,7 @@ class LiveServer:
         path = self.run_dir / name
         if name not in REPORT_FILES or path.is_symlink() or not path.is_file():
             return _json({"error": "not found"}, 404)
-        return FileResponse(path, headers=SECURITY_HEADERS)
+        return FileResponse(path, headers=REPORT_HEADERS)
 
     # -- serving ----------------------------------------------------------------------------
     def start(self) -> str:
