@@ -652,6 +652,15 @@ def read_stations_csv(path: Path) -> np.ndarray:
     return np.array(rows)
 
 
+def _cmd_live(args: argparse.Namespace) -> int:
+    """`rtcal view` and `rtcal control` (rtcal.live.commands)."""
+    from rtcal.live import commands
+
+    if args.command == "view":
+        return commands.view(args.run_dir, args.live)
+    return commands.control(args.run_dir, args.action, args.token)
+
+
 def _cmd_solve_stations(args: argparse.Namespace) -> int:
     from rtcal.solvers.paper000 import PAPER_NOTES, chain_from_stations
 
@@ -853,6 +862,19 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--step-deg", type=float, required=True, help="nominal angle between adjacent stations")
     st.add_argument("--first-deg", type=float, default=0.0, help="nominal angle of the first station")
     st.set_defaults(func=_cmd_solve_stations)
+
+    view = sub.add_parser("view", help="serve a run's live view read-only (in progress or finished) until Ctrl-C")
+    view.add_argument("run_dir", help="the run directory (what `run --out` wrote)")
+    view.add_argument("--live", metavar="[HOST:]PORT", help="where to serve (default 127.0.0.1:8765, or any free port; "
+                                                           "PORT 0: any free port; another host than 127.0.0.1 is warned of)")
+    view.set_defaults(func=_cmd_live)
+    ctl = sub.add_parser("control", help="pause, resume or abort the run in progress in a run directory (needs its "
+                                         "control token)")
+    ctl.add_argument("run_dir", help="the run directory of a run in progress")
+    ctl.add_argument("action", choices=["pause", "resume", "abort"], help="what to ask of the run's engine")
+    ctl.add_argument("--token", help="the control token the run printed (or the environment variable "
+                                     "RTCAL_CONTROL_TOKEN, which other users cannot see in the process list)")
+    ctl.set_defaults(func=_cmd_live)
     return parser
 
 

@@ -1,0 +1,366 @@
+"""The live view's web server: the page, its state, a stream of server-sent events, control.
+
+Starlette on uvicorn, in a background thread of whatever process serves it: the running engine
+(`rtcal run --live`, with its :class:`~rtcal.live.control.Controllable` and token) or another
+process reading a run directory (`rtcal view`, read-only). Everything it shows comes from the
+run's store, read read-only by :class:`~rtcal.live.storeview.StoreView`; every asset ships in
+this package (labs are often offline), and the only files of the run directory it serves are
+the report's.
+
+Routes (the contract of issue 24): ``GET /`` the page; ``GET /api/state`` the state JSON;
+``GET /api/events`` ``text/event-stream`` (each reading an event whose ``id`` is its store id, so a
+browser reconnecting with ``Last-Event-ID`` carries on; ``state`` and ``log`` events carry no id);
+``POST /api/pause|resume|abort`` with ``Authorization: Bearer TOKEN`` → 202, no or a wrong token
+→ 401, a read-only view → 409 whatever the token.
+"""
+
+from __future__ import annotations
+
+import bisect
+import ipaddress
+import json
+import socket
+import sys
+import threading
+import time
+from importlib import resources
+from pathlib import Path
+from typing import Any, AsyncIterator, Callable
+
+import anyio
+import uvicorn
+from starlette.applications import Starlette
+from starlette.middleware import Middleware
+from starlette.middleware.trustedhost import TrustedHostMiddleware
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from starlette.routing import Route
+
+from rtcal.live.control import COMMANDS, Controllable, dispatch, token_matches
+from rtcal.live.storeview import REPORT_FILES, StoreView
+
+DEFAULT_PORT = 8765
+LOOPBACK = "127.0.0.1"
+STATIC_FILES = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; charset=utf-8",
+                "index.html": "text/html; charset=utf-8"}
+SECURITY_HEADERS = {
+    "Cache-Control": "no-store",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "Content-Security-Policy": ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+                                "connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'none'"),
+}
+# the report is rtcal's own HTML with its inline style and figures as data: URIs; it runs no script
+REPORT_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": ("default-src 'none'; style-src 'unsafe-inline'; "
+                                                                 "img-src data:; frame-ancestors 'none'; base-uri 'none'")}
+MAX_LAST_EVENT_ID = 2**63 - 1
+
+
+class LiveSpecError(ValueError):
+    """A ``[HOST:]PORT`` the user wrote that is not one (the CLI prints it, exit 2)."""
+
+
+def parse_live_spec(spec: str) -> tuple[str, int]:
+    """``PORT``, ``HOST:PORT`` or ``[IPv6]:PORT`` → (host, port); PORT 0 asks for any free port."""
+    text = spec.strip()
+    host = LOOPBACK
+    if text.startswith("["):
+        end = text.find("]")
+        if end < 0 or text[end + 1:end + 2] != ":":
+            raise LiveSpecError(f"--live {spec!r}: write [IPv6]:PORT, HOST:PORT or PORT")
+        host, port_text = text[1:end], text[end + 2:]
+    elif ":" in text:
+        host, _, port_text = text.rpartition(":")
+        if ":" in host:
+            raise LiveSpecError(f"--live {spec!r}: an IPv6 address goes in brackets, e.g. [::1]:8765")
+    else:
+        port_text = text
+    if not host or any(c.isspace() or c in "/?#@" for c in host):
+        raise LiveSpecError(f"--live {spec!r}: no host name before the port")
+    if not (port_text.isascii() and port_text.isdigit()) or len(port_text) > 5 or int(port_text) > 65535:
+        raise LiveSpecError(f"--live {spec!r}: the port must be a number 0 … 65535 (0: any free port)")
+    return host, int(port_text)
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _json(data: Any, status: int = 200, headers: dict[str, str] | None = None) -> Response:
+    return Response(json.dumps(data, allow_nan=False, ensure_ascii=False), status_code=status,
+                    media_type="application/json", headers={**SECURITY_HEADERS, **(headers or {})})
+
+
+def _sse(event: str, data: Any, event_id: int | None = None) -> str:
+    head = f"event: {event}\n" + (f"id: {event_id}\n" if event_id is not None else "")
+    return head + f"data: {json.dumps(data, allow_nan=False, ensure_ascii=False)}\n\n"
+
+
+def _asset(name: str) -> bytes:
+    return resources.files("rtcal.live").joinpath("static", name).read_bytes()
+
+
+def _last_event_id(request: Request) -> int:
+    """Where a reconnecting browser was (``Last-Event-ID``), or ``?after=`` for a first
+    connection; anything not a whole number ≥ 0 counts as nothing seen."""
+    text = request.headers.get("last-event-id") or request.query_params.get("after") or "0"
+    text = text.strip()
+    if text.isascii() and text.isdigit() and len(text) <= 19 and int(text) <= MAX_LAST_EVENT_ID:
+        return int(text)
+    return 0
+
+
+CATCH_UP_BATCH = 2000  # readings per read of a viewer behind the feed
+FEED_WINDOW = 20000  # encoded readings the feed keeps for every viewer (a few MB)
+
+
+class _Feed:
+    """What every event stream sends, read from the store once per poll for all viewers and
+    encoded once: the newest FEED_WINDOW readings, the events, the state."""
+
+    def __init__(self, view: StoreView, poll_s: float, control: Callable[[], bool]):
+        self.view = view
+        self.poll_s = poll_s
+        self.control = control
+        self._lock = threading.Lock()
+        self._ids: list[int] = []
+        self._texts: list[str] = []
+        self._events: list[tuple[int, str]] = []
+        self.last_id: int | None = None  # None: not yet placed at the store's end
+        self.state_text: str | None = None
+        self._at = -1e9
+
+    def refresh(self) -> None:
+        """Read what the store added since the last refresh (at most once per poll, whoever asks)."""
+        with self._lock:
+            if time.monotonic() - self._at < 0.8 * self.poll_s:
+                return
+            state = self.view.state()
+            if self.last_id is None:  # a long run's older readings are read by each viewer that wants them
+                self.last_id = max(0, int(state.get("last_reading_id") or 0) - FEED_WINDOW)
+            while True:
+                rows = self.view.readings_after(self.last_id, CATCH_UP_BATCH)
+                for r in rows:
+                    self._ids.append(r["id"])
+                    self._texts.append(_sse("reading", r, r["id"]))
+                if rows:
+                    self.last_id = rows[-1]["id"]
+                if len(rows) < CATCH_UP_BATCH:
+                    break
+            if len(self._ids) > 2 * FEED_WINDOW:
+                del self._ids[:-FEED_WINDOW], self._texts[:-FEED_WINDOW]
+            after = self._events[-1][0] if self._events else 0
+            self._events += [(e["id"], _sse("log", e)) for e in self.view.events_after(after)]
+            self.state_text = json.dumps({**state, "control": self.control()}, allow_nan=False, ensure_ascii=False)
+            self._at = time.monotonic()
+
+    def readings_since(self, after: int) -> list[tuple[int, str]] | None:
+        """The encoded readings after ``after``; None if they begin before the feed's window."""
+        with self._lock:
+            first = self._ids[0] if self._ids else (self.last_id or 0) + 1
+            if after + 1 < first and after < (self.last_id or 0):
+                return None
+            k = bisect.bisect_right(self._ids, after)
+            return list(zip(self._ids[k:], self._texts[k:]))
+
+    def events_since(self, after: int) -> list[tuple[int, str]]:
+        with self._lock:
+            k = bisect.bisect_right([i for i, _ in self._events], after)
+            return self._events[k:]
+
+
+class LiveServer:
+    """The live view of one run directory, served by uvicorn in a background thread.
+
+    ``control`` None (`rtcal view`) makes the view read-only: its control endpoints answer 409.
+    """
+
+    def __init__(self, run_dir: Path, host: str = LOOPBACK, port: int = DEFAULT_PORT,
+                 control: Controllable | None = None, token: str | None = None, poll_s: float = 0.5):
+        if control is not None and not token:
+            raise ValueError("a live view with control needs the run's control token")
+        self.run_dir = Path(run_dir)
+        self.host = host
+        self.port = port
+        self.control = control
+        self._token = token
+        self.poll_s = poll_s
+        self.view = StoreView(self.run_dir)
+        self._feed = _Feed(self.view, poll_s, lambda: self.control is not None)
+        self._server: uvicorn.Server | None = None
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+        self.url: str | None = None
+
+    # -- the application ----------------------------------------------------------------------
+    def app(self) -> Starlette:
+        routes = [
+            Route("/", self._index),
+            Route("/static/{name}", self._static),
+            Route("/api/state", self._state),
+            Route("/api/events", self._events),
+            Route("/api/{command}", self._control, methods=["POST"]),
+            Route("/files/{name}", self._file),
+        ]
+        allowed = ["*"] if not is_loopback(self.host) else sorted({"127.0.0.1", "localhost", "[::1]", "::1", self.host})
+        return Starlette(routes=routes, middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed)])
+
+    async def _index(self, request: Request) -> Response:
+        return Response(_asset("index.html"), media_type=STATIC_FILES["index.html"], headers=SECURITY_HEADERS)
+
+    async def _static(self, request: Request) -> Response:
+        name = request.path_params["name"]
+        if name not in STATIC_FILES or name == "index.html":
+            return _json({"error": "not found"}, 404)
+        return Response(_asset(name), media_type=STATIC_FILES[name], headers=SECURITY_HEADERS)
+
+    def _state_now(self) -> dict[str, Any]:
+        return {**self.view.state(), "control": self.control is not None}
+
+    async def _state(self, request: Request) -> Response:
+        return _json(await anyio.to_thread.run_sync(self._state_now))
+
+    async def _events(self, request: Request) -> Response:
+        after = _last_event_id(request)
+        return StreamingResponse(self._stream(request, after), media_type="text/event-stream",
+                                 headers={**SECURITY_HEADERS, "X-Accel-Buffering": "no"})
+
+    async def _stream(self, request: Request, after: int) -> AsyncIterator[str]:
+        """Readings after ``after`` (each with its store id), the events table, and the state
+        whenever it changes; a comment every 15 s keeps proxies from closing a quiet stream.
+        Every viewer takes the same encoded events from one shared :class:`_Feed`; one that is
+        further behind than the feed keeps reads its own way up from the store first."""
+        yield "retry: 2000\n\n"
+        feed = self._feed
+        last_event = 0
+        last_state: str | None = None
+        quiet_since = time.monotonic()
+        while not self._stopping.is_set():
+            await anyio.to_thread.run_sync(feed.refresh)
+            parts = feed.readings_since(after)
+            if parts is None:  # behind the feed's window: catch up from the store in batches
+                rows = await anyio.to_thread.run_sync(self.view.readings_after, after, CATCH_UP_BATCH)
+                parts = [(r["id"], _sse("reading", r, r["id"])) for r in rows]
+            if parts:
+                after = parts[-1][0]
+            events = feed.events_since(last_event)
+            if events:
+                last_event = events[-1][0]
+            chunk = "".join(text for _, text in parts) + "".join(text for _, text in events)
+            state = feed.state_text
+            if state is not None and state != last_state:
+                chunk += f"event: state\ndata: {state}\n\n"
+                last_state = state
+            if chunk:
+                quiet_since = time.monotonic()
+                yield chunk
+            elif time.monotonic() - quiet_since > 15:
+                quiet_since = time.monotonic()
+                yield ": still here\n\n"
+            if len(parts) < CATCH_UP_BATCH:
+                await anyio.sleep(self.poll_s)
+
+    async def _control(self, request: Request) -> Response:
+        command = request.path_params["command"]
+        if command not in COMMANDS:
+            return _json({"error": f"no such command: one of {', '.join(COMMANDS)}"}, 404)
+        if self.control is None:
+            return _json({"error": "read-only view: `rtcal view` serves no control; use the run's own --live page "
+                                   "or `rtcal control`"}, 409)
+        scheme, _, given = request.headers.get("authorization", "").partition(" ")
+        if scheme.lower() != "bearer" or not token_matches(given.strip(), self._token or ""):
+            return _json({"error": "the run's control token is needed (Authorization: Bearer TOKEN)"}, 401,
+                         {"WWW-Authenticate": 'Bearer realm="rtcal"'})
+        try:
+            await anyio.to_thread.run_sync(dispatch, self.control, command)
+        except Exception as exc:  # the engine refused (e.g. already finished): nothing changed
+            return _json({"error": f"the engine could not {command}: {exc}"[:300]}, 409)
+        return _json({"accepted": command}, 202)
+
+    async def _file(self, request: Request) -> Response:
+        name = request.path_params["name"]
+        path = self.run_dir / name
+        if name not in REPORT_FILES or path.is_symlink() or not path.is_file():
+            return _json({"error": "not found"}, 404)
+        return FileResponse(path, headers=REPORT_HEADERS)
+
+    # -- serving ----------------------------------------------------------------------------
+    def start(self) -> str:
+        """Bind (OSError if the port is taken), serve in a background thread and return the URL
+        with the real port. A host other than loopback gets a warning on stderr."""
+        if not is_loopback(self.host):
+            print(f"rtcal: warning: the live view listens on {self.host}, not only this computer: anyone who reaches "
+                  "it sees the run (control still needs the token, sent unencrypted)", file=sys.stderr)
+        family, _, _, _, address = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)[0]
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind(address)
+            sock.listen(64)
+        except OSError:
+            sock.close()
+            raise
+        port = sock.getsockname()[1]
+        config = uvicorn.Config(self.app(), log_level="warning", access_log=False, lifespan="off",
+                                timeout_graceful_shutdown=2, server_header=False)
+        self._server = uvicorn.Server(config)
+        self._thread = threading.Thread(target=self._server.run, kwargs={"sockets": [sock]}, name="rtcal-live",
+                                        daemon=True)
+        self._thread.start()
+        deadline = time.monotonic() + 10
+        while not self._server.started and self._thread.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        self._sock = sock
+        threading.Thread(target=self.view.state, name="rtcal-live-warm", daemon=True).start()  # first reads import the methods
+        shown = f"[{self.host}]" if ":" in self.host else self.host
+        self.port = port
+        self.url = f"http://{shown}:{port}/"
+        return self.url
+
+    def stop(self) -> None:
+        """End every stream and shut the server down (within a few seconds)."""
+        self._stopping.set()
+        if self._server is not None:
+            self._server.should_exit = True
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+            self._thread = None
+        sock = getattr(self, "_sock", None)
+        if sock is not None:
+            sock.close()
+            self._sock = None
+        self._server = None
+
+    def __enter__(self) -> "LiveServer":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def serve_view(run_dir: Path, host: str = LOOPBACK, port: int | None = None) -> int:
+    """`rtcal view`: serve a run directory read-only until interrupted; returns the exit code.
+    ``port`` None: 8765, or any free port if that one is taken."""
+    server = LiveServer(run_dir, host, DEFAULT_PORT if port is None else port)
+    try:
+        url = server.start()
+    except OSError:
+        if port is not None:
+            raise
+        server = LiveServer(run_dir, host, 0)
+        url = server.start()
+    print(f"live view: {url}", file=sys.stderr, flush=True)
+    try:
+        while server._thread is not None and server._thread.is_alive():
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        server.stop()
+    return 1  # the server ended by itself

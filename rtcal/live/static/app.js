@@ -1,0 +1,423 @@
+// rtcal live view: reads /api/events (server-sent events) and draws the run. No external asset.
+// The control token lives in this page's memory only (typed in, or given as #token=... in the URL).
+"use strict";
+
+const MARKERS = new Set(["skipped", "rejected"]);
+const COLORS = ["#1b63c6", "#d1495b", "#2e933c", "#8e44ad", "#e07a00", "#00838f", "#6d4c41", "#c2185b", "#546e7a", "#7cb342"];
+const S = {
+  token: null,
+  state: null,
+  attempts: new Map(),   // "plan_index:attempt" -> {rows: [], marked: false}
+  quantities: new Map(), // "instrument.quantity" -> unit
+  events: [],
+  seenEvents: new Set(),
+  lastId: 0,
+  lastData: 0,
+  source: null,
+  dirty: false,
+};
+
+const $ = (id) => document.getElementById(id);
+const SVGNS = "http://www.w3.org/2000/svg";
+
+function readFragment() {
+  const m = location.hash.match(/(?:^#|&)token=([^&]+)/);
+  if (m) {
+    S.token = decodeURIComponent(m[1]);
+    $("token").value = S.token;
+    history.replaceState(null, "", location.pathname + location.search); // not left in the address bar
+  }
+}
+
+// ---- the stream ------------------------------------------------------------------------------
+function connect() {
+  const url = "api/events" + (S.lastId ? "?after=" + S.lastId : "");
+  const es = new EventSource(url);
+  S.source = es;
+  es.addEventListener("open", () => setConn("live"));
+  es.addEventListener("error", () => {
+    if (es.readyState === EventSource.CLOSED) { // the browser gave up: start again from the last reading seen
+      setConn("reconnecting…");
+      setTimeout(connect, 2000);
+    } else {
+      setConn("reconnecting…");
+    }
+  });
+  es.addEventListener("reading", (ev) => {
+    const r = JSON.parse(ev.data);
+    if (r.id <= S.lastId) return;
+    S.lastId = r.id;
+    addReading(r);
+    touched();
+  });
+  es.addEventListener("log", (ev) => {
+    const e = JSON.parse(ev.data);
+    if (S.seenEvents.has(e.id)) return;
+    S.seenEvents.add(e.id);
+    S.events.push(e);
+    touched();
+  });
+  es.addEventListener("state", (ev) => {
+    S.state = JSON.parse(ev.data);
+    touched();
+  });
+}
+
+function setConn(text) { $("conn").textContent = text; }
+
+function touched() {
+  S.lastData = Date.now();
+  if (!S.dirty) {
+    S.dirty = true;
+    setTimeout(() => { S.dirty = false; render(); }, 150);
+  }
+}
+
+function addReading(r) {
+  if (r.plan_index === null || r.plan_index === undefined) return;
+  const key = r.plan_index + ":" + r.attempt;
+  let a = S.attempts.get(key);
+  if (!a) { a = { rows: [], marked: false }; S.attempts.set(key, a); }
+  if (MARKERS.has(r.quantity)) { a.marked = true; return; }
+  a.rows.push(r);
+  const q = r.instrument + "." + r.quantity;
+  if (!S.quantities.has(q)) {
+    S.quantities.set(q, r.unit);
+    const opt = document.createElement("option");
+    opt.value = q;
+    opt.textContent = plotLabel(q, r.unit);
+    $("plot-select").appendChild(opt);
+    const preferred = ["autocollimator.x_arcsec", "encoder.angle_deg", "stage.feedback_deg"];
+    const sel = $("plot-select");
+    const current = preferred.indexOf(sel.value);
+    const candidate = preferred.indexOf(q);
+    if (sel.dataset.chosen !== "1" && candidate >= 0 && (current < 0 || candidate < current)) sel.value = q;
+  }
+}
+
+function plotLabel(q, unit) {
+  return q.endsWith("_deg") ? q + " − command (arcsec)" : q + " (" + unit + ")";
+}
+
+// ---- formatting ------------------------------------------------------------------------------
+function fmtDuration(s) {
+  if (s === null || s === undefined) return "–";
+  s = Math.round(s);
+  const h = Math.floor(s / 3600), m = Math.floor((s % 3600) / 60), sec = s % 60;
+  return (h ? h + " h " : "") + (h || m ? m + " min " : "") + sec + " s";
+}
+function fmtNum(v, digits) {
+  if (v === null || v === undefined || !isFinite(v)) return "–";
+  const a = Math.abs(v);
+  if (a !== 0 && (a >= 1e6 || a < 1e-3)) return v.toExponential(3);
+  return v.toFixed(digits === undefined ? (a >= 100 ? 3 : 4) : digits);
+}
+function fmtCurrent(c) {
+  if (!c || !Object.keys(c).length) return "–";
+  const parts = [];
+  if (c.target_deg !== undefined && c.target_deg !== null) parts.push("target " + (+c.target_deg).toFixed(3).replace(/\.?0+$/, "") + "°");
+  if (c.run !== undefined) parts.push("run " + c.run);
+  if (c.direction !== undefined) parts.push(c.direction === "+" ? "↑" : c.direction === "-" ? "↓" : c.direction);
+  if (c.point !== undefined) parts.push("point " + c.point);
+  if (c.station !== undefined && c.target_deg === undefined) parts.push("station " + c.station);
+  if (c.mount !== undefined) parts.push("mount " + c.mount);
+  if (c.seating !== undefined && c.seating > 1) parts.push("seating " + c.seating);
+  return parts.join(" · ") || JSON.stringify(c);
+}
+
+// ---- rendering -------------------------------------------------------------------------------
+function render() {
+  const st = S.state;
+  if (st) renderState(st);
+  renderPlot();
+  renderEvents();
+}
+
+function renderState(st) {
+  const badge = $("state");
+  badge.textContent = st.state;
+  badge.className = "badge " + st.state;
+  document.body.className = st.state;
+  $("title").textContent = st.name || "rtcal live view";
+  $("subtitle").textContent = st.method ? "method " + st.method : "";
+  $("method").textContent = st.method || "–";
+  $("done").textContent = st.done_readings;
+  $("planned").textContent = st.planned_readings === null ? "?" : st.planned_readings;
+  const pct = st.planned_readings ? Math.min(100, 100 * st.done_readings / st.planned_readings) : 0;
+  $("bar-fill").style.width = pct.toFixed(1) + "%";
+  $("bar").setAttribute("aria-valuenow", pct.toFixed(0));
+  $("percent").textContent = st.planned_readings ? pct.toFixed(0) + " %" : "";
+  $("eta").textContent = st.state === "finished" ? "done" : st.eta_s === null ? "– (no rate yet)" : fmtDuration(st.eta_s);
+  $("current").textContent = fmtCurrent(st.current);
+  $("faults").textContent = st.faults;
+  $("faults").className = st.faults ? "has" : "";
+  $("control-live").hidden = !st.control;
+  $("control-readonly").hidden = !!st.control;
+  if (st.control) {
+    $("btn-pause").disabled = !["running", "starting"].includes(st.state);
+    $("btn-resume").disabled = st.state !== "paused";
+    $("btn-abort").disabled = ["finished", "failed", "aborted"].includes(st.state);
+  }
+  renderGrid(st);
+  renderLatest(st.latest || []);
+  renderResult(st.result);
+  $("events-count").textContent = st.events_count ? "(" + st.events_count + ")" : "";
+}
+
+function renderGrid(st) {
+  const p = st.progress;
+  const box = $("grid");
+  if (!p) return;
+  $("grid-axis").textContent = p.axis === "target" ? "target, run and direction" : "point and station";
+  const cur = st.current || {};
+  const table = document.createElement("table");
+  table.className = "grid";
+  const head = table.createTHead().insertRow();
+  head.appendChild(document.createElement("th"));
+  for (const c of p.columns) { const th = document.createElement("th"); th.textContent = c; head.appendChild(th); }
+  const done = document.createElement("th"); done.textContent = "done"; head.appendChild(done);
+  const body = table.createTBody();
+  for (const row of p.rows) {
+    const tr = body.insertRow();
+    const th = document.createElement("th"); th.textContent = row.label; tr.appendChild(th);
+    row.cells.forEach((status, i) => {
+      const td = tr.insertCell();
+      const span = document.createElement("span");
+      const isCurrent = status !== "done" && isCurrentCell(cur, row.label, p.columns[i], p.axis);
+      span.className = "cell " + (isCurrent ? "current" : status);
+      span.title = row.label + ", " + p.columns[i] + ": " + (isCurrent ? "now" : status);
+      td.appendChild(span);
+    });
+    const n = tr.insertCell(); n.textContent = row.done; n.className = "num";
+  }
+  box.replaceChildren(table);
+}
+
+function isCurrentCell(cur, rowLabel, column, axis) {
+  if (axis !== "target" || cur.target_deg === undefined || cur.run === undefined) return false;
+  const arrow = cur.direction === "+" ? "↑" : "↓";
+  return rowLabel.endsWith("run " + cur.run + " " + arrow) && column === (+cur.target_deg).toString() + "°";
+}
+
+function renderLatest(latest) {
+  const body = $("latest").tBodies[0];
+  const env = $("environment").tBodies[0];
+  const rows = [], envRows = [];
+  for (const r of latest) {
+    const tr = document.createElement("tr");
+    const cells = r.instrument === "environment"
+      ? [r.quantity, fmtNum(r.value, 2) + " " + r.unit, r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"]
+      : [r.instrument, r.quantity, fmtNum(r.value) + " " + r.unit, r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"];
+    cells.forEach((text, i) => {
+      const td = tr.insertCell();
+      td.textContent = text;
+      if (i >= cells.length - 2) td.className = "num";
+    });
+    (r.instrument === "environment" ? envRows : rows).push(tr);
+  }
+  body.replaceChildren(...rows);
+  if (envRows.length) env.replaceChildren(...envRows);
+}
+
+function renderEvents() {
+  const list = $("events");
+  const shown = S.events.slice(-300).reverse();
+  list.replaceChildren(...shown.map((e) => {
+    const li = document.createElement("li");
+    const t = document.createElement("span"); t.className = "t"; t.textContent = fmtNum(e.t_s, 1) + " s";
+    const k = document.createElement("span"); k.className = "kind " + e.kind; k.textContent = e.kind;
+    const i = document.createElement("span"); i.className = "muted"; i.textContent = e.instrument || "";
+    const m = document.createElement("span"); m.textContent = e.message;
+    li.append(t, k, i, m);
+    return li;
+  }));
+  if (!shown.length) {
+    const li = document.createElement("li"); li.className = "muted"; li.textContent = "no event yet"; list.replaceChildren(li);
+  }
+}
+
+function renderResult(result) {
+  const card = $("result-card");
+  if (!result) { card.hidden = true; return; }
+  card.hidden = false;
+  const links = $("result-links");
+  links.replaceChildren(...(result.files || []).map((f) => {
+    const a = document.createElement("a"); a.href = "files/" + f; a.textContent = f; a.target = "_blank"; a.rel = "noopener";
+    const span = document.createElement("span"); span.append(a, "  "); return span;
+  }));
+  $("result-lines").textContent = result.error ? result.error : (result.lines || []).join("\n");
+  const d = result.deviations;
+  if (!d) { $("result-plot").replaceChildren(); return; }
+  const series = new Map();
+  d.target_deg.forEach((x, i) => {
+    const y = d.deviation_arcsec[i];
+    if (y === null) return;
+    const key = "run " + d.run[i] + " " + (d.direction[i] > 0 ? "↑" : "↓");
+    if (!series.has(key)) series.set(key, { label: key, run: d.run[i], dir: d.direction[i], points: [] });
+    series.get(key).points.push({ x: x, y: y, err: d.U_arcsec[i] });
+  });
+  drawPlot($("result-plot"), $("result-legend"), [...series.values()], "target (°)", "deviation (arcsec), bars: U (k = 2)");
+  $("result-note").textContent = "positioning deviations of the recommended estimate (" + d.estimator +
+    "), relative to the first target of the first direction; bars ± U (k = 2)";
+}
+
+// ---- the plot of readings per target ------------------------------------------------------------
+function renderPlot() {
+  const q = $("plot-select").value;
+  if (!q) return;
+  const deg = q.endsWith("_deg");
+  const series = new Map();
+  const perPlan = new Map(); // plan_index -> accepted attempt's mean (a plan is done once)
+  for (const a of S.attempts.values()) {
+    if (a.marked) continue;
+    const rows = a.rows.filter((r) => r.instrument + "." + r.quantity === q && r.value !== null);
+    if (!rows.length) continue;
+    const r0 = rows[0];
+    let y = rows.reduce((s, r) => s + r.value, 0) / rows.length;
+    const x = r0.commanded_angle_deg;
+    if (x === null || x === undefined) continue;
+    if (deg) y = wrap180(y - x) * 3600;
+    perPlan.set(r0.plan_index, { r: r0, x: x, y: y });
+  }
+  for (const { r, x, y } of perPlan.values()) {
+    let key, run = 0, dir = 1;
+    if (r.run !== null && r.direction !== null) {
+      run = r.run + 1; dir = r.direction;
+      key = (r.seating ? "seating " + (r.seating + 1) + " · " : "") + "run " + run + " " + (dir > 0 ? "↑" : "↓");
+    } else if (r.point !== null) {
+      run = r.point + 1;
+      key = (r.seating ? "mount " + (r.seating + 1) + " · " : "") + "point " + run;
+    } else key = "readings";
+    if (!series.has(key)) series.set(key, { label: key, run: run, dir: dir, points: [] });
+    series.get(key).points.push({ x: x, y: y });
+  }
+  const unit = S.quantities.get(q);
+  drawPlot($("plot"), $("legend"), [...series.values()], "commanded angle (°)",
+    deg ? q + " − command (arcsec)" : q + " (" + unit + ")");
+  $("plot-note").textContent = (q === "autocollimator.x_arcsec"
+    ? "The autocollimator's reading of the polygon face in front: the table's deviation plus that face's error and a constant per seating. "
+    : "") + "One point per planned reading (mean of its samples); rejected and skipped attempts are left out.";
+}
+
+function wrap180(d) { return ((d + 180) % 360 + 360) % 360 - 180; }
+
+function niceTicks(lo, hi, n) {
+  if (!(hi > lo)) { hi = lo + 1; lo = lo - 1; }
+  const raw = (hi - lo) / n, mag = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 2.5, 5, 10].map((f) => f * mag).find((s) => s >= raw) || raw;
+  const ticks = [];
+  for (let t = Math.ceil(lo / step) * step; t <= hi + step * 1e-9; t += step) ticks.push(+t.toPrecision(12));
+  return ticks;
+}
+
+function el(name, attrs, text) {
+  const e = document.createElementNS(SVGNS, name);
+  for (const k in attrs) e.setAttribute(k, attrs[k]);
+  if (text !== undefined) e.textContent = text;
+  return e;
+}
+
+function marker(x, y, dir, color) {
+  const s = 5;
+  if (dir > 0) return el("path", { d: `M${x},${y - s}L${x + s},${y + s * 0.8}L${x - s},${y + s * 0.8}Z`, fill: color });
+  if (dir < 0) return el("path", { d: `M${x},${y + s}L${x + s},${y - s * 0.8}L${x - s},${y - s * 0.8}Z`, fill: "#fff", stroke: color, "stroke-width": 1.6 });
+  return el("circle", { cx: x, cy: y, r: 4, fill: color });
+}
+
+function drawPlot(svg, legend, series, xLabel, yLabel) {
+  const vb = svg.viewBox.baseVal, W = vb.width, H = vb.height;
+  const m = { l: 70, r: 16, t: 14, b: 46 };
+  const pts = series.flatMap((s) => s.points);
+  svg.replaceChildren();
+  if (!pts.length) {
+    svg.appendChild(el("text", { x: W / 2, y: H / 2, "text-anchor": "middle" }, "no reading of this quantity yet"));
+    legend.replaceChildren();
+    return;
+  }
+  let x0 = Math.min(...pts.map((p) => p.x)), x1 = Math.max(...pts.map((p) => p.x));
+  if (x0 >= 0 && x1 <= 360 && x1 - x0 > 45) { x0 = 0; x1 = 360; }
+  if (x1 === x0) { x0 -= 1; x1 += 1; }
+  let y0 = Math.min(...pts.map((p) => p.y - (p.err || 0))), y1 = Math.max(...pts.map((p) => p.y + (p.err || 0)));
+  const pad = (y1 - y0) * 0.08 || Math.max(Math.abs(y0) * 0.05, 1e-3);
+  y0 -= pad; y1 += pad;
+  const X = (x) => m.l + (x - x0) / (x1 - x0) * (W - m.l - m.r);
+  const Y = (y) => H - m.b - (y - y0) / (y1 - y0) * (H - m.t - m.b);
+  for (const t of niceTicks(y0, y1, 6)) {
+    svg.appendChild(el("line", { x1: m.l, x2: W - m.r, y1: Y(t), y2: Y(t), class: "gridline" }));
+    svg.appendChild(el("text", { x: m.l - 6, y: Y(t) + 4, "text-anchor": "end" }, +t.toPrecision(6)));
+  }
+  const xt = (x0 === 0 && x1 === 360) ? [0, 45, 90, 135, 180, 225, 270, 315, 360] : niceTicks(x0, x1, 8);
+  for (const t of xt) {
+    svg.appendChild(el("line", { x1: X(t), x2: X(t), y1: m.t, y2: H - m.b, class: "gridline" }));
+    svg.appendChild(el("text", { x: X(t), y: H - m.b + 16, "text-anchor": "middle" }, +t.toPrecision(6)));
+  }
+  if (y0 < 0 && y1 > 0) svg.appendChild(el("line", { x1: m.l, x2: W - m.r, y1: Y(0), y2: Y(0), class: "zero" }));
+  svg.appendChild(el("line", { x1: m.l, x2: m.l, y1: m.t, y2: H - m.b, class: "axis" }));
+  svg.appendChild(el("line", { x1: m.l, x2: W - m.r, y1: H - m.b, y2: H - m.b, class: "axis" }));
+  svg.appendChild(el("text", { x: (m.l + W - m.r) / 2, y: H - 8, "text-anchor": "middle", class: "label" }, xLabel));
+  svg.appendChild(el("text", { x: 14, y: (m.t + H - m.b) / 2, "text-anchor": "middle", class: "label",
+    transform: `rotate(-90 14 ${(m.t + H - m.b) / 2})` }, yLabel));
+  series.sort((a, b) => a.run - b.run || b.dir - a.dir);
+  const items = [];
+  series.forEach((s) => {
+    const color = COLORS[(Math.max(s.run, 1) - 1) % COLORS.length];
+    const p = s.points.slice().sort((a, b) => a.x - b.x);
+    svg.appendChild(el("polyline", { points: p.map((q) => X(q.x) + "," + Y(q.y)).join(" "), fill: "none", stroke: color,
+      "stroke-width": 1.4, "stroke-dasharray": s.dir < 0 ? "5 3" : "none", opacity: 0.8 }));
+    for (const q of p) {
+      if (q.err) svg.appendChild(el("line", { x1: X(q.x), x2: X(q.x), y1: Y(q.y - q.err), y2: Y(q.y + q.err), stroke: color, "stroke-width": 1.2, opacity: 0.7 }));
+      const mk = marker(X(q.x), Y(q.y), s.dir, color);
+      mk.appendChild(el("title", {}, s.label + ": " + q.x + "°, " + fmtNum(q.y, 3) + (q.err ? " ± " + fmtNum(q.err, 3) : "")));
+      svg.appendChild(mk);
+    }
+    const span = document.createElement("span");
+    const i = document.createElement("i");
+    i.style.background = s.dir < 0 ? `repeating-linear-gradient(90deg, ${color} 0 5px, transparent 5px 8px)` : color;
+    span.append(i, s.label + (s.dir > 0 ? " ▲" : s.dir < 0 ? " ▽" : ""));
+    items.push(span);
+  });
+  legend.replaceChildren(...items);
+}
+
+// ---- control -----------------------------------------------------------------------------------
+async function control(command) {
+  const typed = $("token").value.trim();
+  if (typed) S.token = typed;
+  const msg = $("control-msg");
+  if (!S.token) { msg.textContent = "enter the run's control token first"; msg.className = "bad"; $("token").focus(); return; }
+  msg.textContent = command + "…"; msg.className = "";
+  try {
+    const res = await fetch("api/" + command, { method: "POST", headers: { Authorization: "Bearer " + S.token }, cache: "no-store" });
+    if (res.status === 202) { msg.textContent = command + " requested: it takes effect at the next checkpoint"; msg.className = "ok"; }
+    else if (res.status === 401) { msg.textContent = "refused: wrong control token"; msg.className = "bad"; S.token = null; }
+    else { const body = await res.json().catch(() => ({})); msg.textContent = "refused (" + res.status + "): " + (body.error || ""); msg.className = "bad"; }
+  } catch (e) {
+    msg.textContent = "cannot reach the run: " + e; msg.className = "bad";
+  }
+}
+
+function armAbort() {
+  const b = $("btn-abort");
+  if (b.classList.contains("armed")) { b.classList.remove("armed"); b.textContent = "Abort"; control("abort"); return; }
+  b.classList.add("armed"); b.textContent = "Confirm abort";
+  setTimeout(() => { b.classList.remove("armed"); b.textContent = "Abort"; }, 5000);
+}
+
+function tick() {
+  if (S.lastData) {
+    const s = Math.round((Date.now() - S.lastData) / 1000);
+    if (S.source && S.source.readyState === EventSource.OPEN) setConn("live · last update " + s + " s ago");
+  }
+}
+
+document.addEventListener("DOMContentLoaded", () => {
+  readFragment();
+  $("control-form").addEventListener("submit", (ev) => ev.preventDefault());
+  $("btn-pause").addEventListener("click", () => control("pause"));
+  $("btn-resume").addEventListener("click", () => control("resume"));
+  $("btn-abort").addEventListener("click", armAbort);
+  $("plot-select").addEventListener("change", () => { $("plot-select").dataset.chosen = "1"; renderPlot(); });
+  $("run-dir").textContent = location.host;
+  connect();
+  setInterval(tick, 1000);
+});

@@ -1,0 +1,400 @@
+"""A run as the live view sees it, read from its SQLite store read-only.
+
+Every poll opens a fresh read-only connection (``mode=ro``) and reads one snapshot in one read
+transaction: in WAL mode a reader never blocks the engine's writes, and nothing here writes, so
+`rtcal view` can watch a run of another process, in progress or finished, without touching it.
+What only grows (the planned readings done, the latest value of each instrument, completion
+times for the rate) is accumulated from the readings added since the last poll, so a poll costs
+the new rows, not the whole store.
+
+The engine writes its state into the store's meta (``engine_state``, ``planned_readings``,
+``current``); a store written before it knew them is read from ``status``, the stored procedure
+and the last reading instead.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sqlite3
+import threading
+import time
+from collections import deque
+from contextlib import closing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+from rtcal.run.store import MARKERS, REJECTED, RunStore
+
+STATES = ("starting", "running", "paused", "stopping", "finished", "failed", "aborted")
+FINAL_STATES = ("finished", "failed", "aborted")
+# the runner's `status` before the engine wrote `engine_state`
+STATUS_STATES = {"running": "running", "solved": "finished", "measured": "finished", "aborted": "aborted",
+                 "interrupted": "aborted"}
+REPORT_FILES = ("report.pdf", "report.html")  # the only files of the run directory the view serves
+READING_FIELDS = ("id", "t_s", "instrument", "quantity", "value", "unit", "plan_index", "attempt", "run", "direction",
+                  "commanded_angle_deg", "station", "point", "seating", "sample")
+EVENT_FIELDS = ("id", "t_s", "kind", "instrument", "message")
+RATE_WINDOW = 50  # completions the rate (and so the ETA) is taken from
+_MARKS = ", ".join(f"'{m}'" for m in MARKERS)
+
+
+def open_read_only(path: Path) -> sqlite3.Connection:
+    """A read-only connection that never creates a file, blocks the writer or changes a byte.
+
+    While a writer has the store open (its -wal and -shm beside it) ``mode=ro`` reads through
+    them; without them ``mode=ro`` would create both, so a closed store is read as ``immutable``
+    (as :func:`rtcal.run.store.check_store` does). A poll that races a writer opening the store
+    reads a moment's old snapshot; the next poll opens afresh."""
+    live = os.path.lexists(f"{path}-wal") and os.path.lexists(f"{path}-shm")
+    mode = "mode=ro" if live else "immutable=1"
+    db = sqlite3.connect(f"file:{quote(str(path.absolute()))}?{mode}", uri=True, timeout=2.0, isolation_level=None,
+                         check_same_thread=False)
+    db.execute("PRAGMA query_only=1")
+    return db
+
+
+@dataclass
+class _Plan:
+    """What is known of one planned reading: its labels and whether an attempt stored it whole."""
+
+    run: int | None
+    direction: int | None
+    target_deg: float | None
+    point: int | None
+    station: int | None
+    seating: int | None
+    status: str = "pending"  # done | rejected | skipped (the last attempt's fate until one is done)
+
+
+@dataclass
+class _Accumulated:
+    last_id: int = 0
+    plans: dict[int, _Plan] = field(default_factory=dict)
+    completions: deque = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))  # (reading id, t_s)
+    latest: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
+    newest_t_s: float | None = None
+
+
+class StoreView:
+    """The live view's reader of one run directory; thread-safe, shared by every connection."""
+
+    def __init__(self, run_dir: Path, min_interval_s: float = 0.25):
+        self.run_dir = Path(run_dir)
+        self.path = self.run_dir / RunStore.FILENAME
+        self.min_interval_s = min_interval_s
+        self._lock = threading.Lock()
+        self._acc = _Accumulated()
+        self._state: dict[str, Any] | None = None
+        self._state_at = 0.0
+        self._planned_cache: tuple[str, int | None] | None = None
+        self._result_cache: tuple[tuple[int, int], dict[str, Any] | None] | None = None
+        self._result_stamp: tuple[int, int] | None = None
+
+    # -- connections ------------------------------------------------------------------------
+    def _connect(self) -> sqlite3.Connection | None:
+        if not self.path.is_file():
+            return None
+        try:
+            return open_read_only(self.path)
+        except sqlite3.Error:
+            return None
+
+    # -- the state ----------------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        """``/api/state``: recomputed at most every ``min_interval_s`` whoever asks."""
+        with self._lock:
+            now = time.monotonic()
+            if self._state is None or now - self._state_at >= self.min_interval_s:
+                try:
+                    self._state = self._read_state()
+                except sqlite3.Error as exc:  # a store being created or checkpointed: the last state stands
+                    if self._state is None:
+                        self._state = self._empty_state(f"the store cannot be read yet ({exc})")
+                self._state_at = now
+            return self._state
+
+    def _empty_state(self, note: str) -> dict[str, Any]:
+        return {"state": "starting", "method": None, "planned_readings": None, "done_readings": 0, "eta_s": None,
+                "faults": 0, "current": {}, "name": None, "last_reading_id": 0, "latest": [], "progress": None,
+                "events_count": 0, "result": None, "note": note}
+
+    def _read_state(self) -> dict[str, Any]:
+        db = self._connect()
+        if db is None:
+            return self._empty_state("no run store yet")
+        with closing(db):
+            db.execute("BEGIN")  # one snapshot for every query below
+            meta = dict(db.execute("SELECT key, value FROM meta"))
+            hi = int(db.execute("SELECT COALESCE(MAX(id), 0) FROM readings").fetchone()[0])
+            self._accumulate(db, hi)
+            faults = int(db.execute("SELECT COUNT(*) FROM events WHERE kind = 'fault'").fetchone()[0])
+            n_events = int(db.execute("SELECT COUNT(*) FROM events").fetchone()[0])
+            last = db.execute("SELECT plan_index, commanded_angle_deg, run, direction, point, station, seating "
+                              "FROM readings WHERE plan_index IS NOT NULL AND id <= ? ORDER BY id DESC LIMIT 1",
+                              (hi,)).fetchone()
+            db.execute("COMMIT")
+        acc = self._acc
+        state = engine_state(meta)
+        planned = self._planned(meta)
+        done = sum(1 for p in acc.plans.values() if p.status == "done")
+        return {
+            "state": state,
+            "method": meta.get("method"),
+            "planned_readings": planned,
+            "done_readings": done,
+            "eta_s": self._eta_s(state, planned, done),
+            "faults": faults,
+            "current": current_of(meta, last),
+            "name": _procedure_name(meta),
+            "last_reading_id": hi,
+            "latest": self._latest(),
+            "progress": self._progress(),
+            "events_count": n_events,
+            "result": self._result() if state == "finished" else None,
+            "note": None,
+        }
+
+    def _accumulate(self, db: sqlite3.Connection, hi: int) -> None:
+        """Take in the readings stored since the last poll (ids last_id+1 … hi, whole attempts:
+        the engine commits each attempt in one transaction)."""
+        acc = self._acc
+        if hi < acc.last_id:  # the store was replaced: start again
+            self._acc = acc = _Accumulated()
+        if hi == acc.last_id:
+            return
+        rows = db.execute(
+            "SELECT plan_index, attempt, SUM(quantity IN (" + _MARKS + ")), SUM(quantity = ?), MAX(id), MAX(t_s), "
+            "MIN(run), MIN(direction), MIN(commanded_angle_deg), MIN(point), MIN(station), MIN(seating) "
+            "FROM readings WHERE id > ? AND id <= ? AND plan_index IS NOT NULL GROUP BY plan_index, attempt "
+            "ORDER BY MAX(id)", (REJECTED, acc.last_id, hi))
+        for k, _attempt, markers, rejected, max_id, max_t, run, direction, target, point, station, seating in rows:
+            plan = acc.plans.get(k)
+            if plan is None:
+                plan = acc.plans[k] = _Plan(run, direction, target, point, station, seating)
+            if plan.status == "done":
+                continue
+            if not markers:
+                plan.status = "done"
+                acc.completions.append((int(max_id), float(max_t)))
+            else:
+                plan.status = "rejected" if rejected else "skipped"
+        for instrument, quantity, value, unit, t_s, rid in db.execute(
+                "SELECT instrument, quantity, value, unit, t_s, MAX(id) FROM readings WHERE id > ? AND id <= ? "
+                "AND quantity NOT IN (" + _MARKS + ") GROUP BY instrument, quantity", (acc.last_id, hi)):
+            acc.latest[(instrument, quantity)] = {"instrument": instrument, "quantity": quantity, "value": value,
+                                                  "unit": unit, "t_s": t_s, "id": rid}
+        newest = db.execute("SELECT MAX(t_s) FROM readings WHERE id > ? AND id <= ?", (acc.last_id, hi)).fetchone()[0]
+        if newest is not None:
+            acc.newest_t_s = float(newest)
+        acc.last_id = hi
+
+    def _eta_s(self, state: str, planned: int | None, done: int) -> float | None:
+        """Time left at the rate of the last completions (s per planned reading, on the run's
+        clock); null until two completions on one clock give a rate."""
+        if state == "finished":
+            return 0.0
+        if state in ("failed", "aborted") or planned is None:
+            return None
+        tail = list(self._acc.completions)
+        start = len(tail) - 1
+        while start > 0 and tail[start - 1][1] <= tail[start][1]:  # a resumed run's clock may start again at 0
+            start -= 1
+        tail = tail[start:]
+        if len(tail) < 2 or tail[-1][1] <= tail[0][1]:
+            return None
+        rate_s = (tail[-1][1] - tail[0][1]) / (len(tail) - 1)
+        return round(rate_s * max(planned - done, 0), 1)
+
+    def _latest(self) -> list[dict[str, Any]]:
+        """The newest value of each instrument and quantity, with its age behind the newest
+        reading of the run (run clock, s)."""
+        newest = self._acc.newest_t_s
+        out = []
+        for (instrument, quantity), r in sorted(self._acc.latest.items()):
+            age = None if newest is None else round(max(newest - r["t_s"], 0.0), 3)
+            value = r["value"] if isinstance(r["value"], (int, float)) and math.isfinite(r["value"]) else None
+            out.append({**r, "value": value, "age_s": age})
+        return out
+
+    def _progress(self) -> dict[str, Any] | None:
+        """Planned readings by row (run and direction, or CMM point) and column (target angle, or
+        station), as far as the store shows them: pending cells appear once a row has begun."""
+        plans = self._acc.plans
+        if not plans:
+            return None
+        by_run = any(p.run is not None and p.direction is not None for p in plans.values())
+        rows: dict[str, dict[str, str]] = {}
+        columns: dict[str, float] = {}
+        order: dict[str, tuple] = {}
+        for k, p in sorted(plans.items()):
+            if by_run:
+                arrow = "↑" if (p.direction or 0) > 0 else "↓"
+                row = (f"seating {p.seating + 1} · " if p.seating else "") + f"run {(p.run or 0) + 1} {arrow}"
+                order.setdefault(row, (p.seating or 0, p.run or 0, -(p.direction or 0)))
+                col_key = p.target_deg if p.target_deg is not None else float(p.station or 0)
+                col = f"{col_key:g}°"
+            else:
+                row = (f"mount {p.seating + 1} · " if p.seating else "") + f"point {(p.point or 0) + 1}"
+                order.setdefault(row, (p.seating or 0, p.point or 0))
+                col_key = float(p.station or 0)
+                col = f"station {(p.station or 0) + 1}"
+            columns.setdefault(col, col_key)
+            cells = rows.setdefault(row, {})
+            if cells.get(col) != "done":
+                cells[col] = p.status
+        cols = sorted(columns, key=lambda c: columns[c])
+        return {"axis": "target" if by_run else "station", "columns": cols,
+                "rows": [{"label": r, "cells": [rows[r].get(c, "pending") for c in cols],
+                          "done": sum(1 for v in rows[r].values() if v == "done")}
+                         for r in sorted(rows, key=lambda r: order[r])]}
+
+    def _planned(self, meta: dict[str, str]) -> int | None:
+        """Planned readings: the engine's count, else the stored procedure's plan length."""
+        text = meta.get("planned_readings")
+        if text is not None:
+            try:
+                return int(text)
+            except ValueError:
+                return None
+        key = f"{meta.get('method')}\0{meta.get('large')}\0{meta.get('procedure_yaml')}"
+        if self._planned_cache is None or self._planned_cache[0] != key:
+            self._planned_cache = (key, planned_from_procedure(meta))
+        return self._planned_cache[1]
+
+    def _result(self) -> dict[str, Any] | None:
+        """The finished run's result in brief, from its results.json (validated; cached by mtime)."""
+        path = self.run_dir / "results.json"
+        try:
+            st = path.stat()
+        except OSError:
+            return None
+        stamp = (st.st_mtime_ns, st.st_size)
+        cached = self._result_cache
+        if (cached is None or cached[0] != stamp) and self._result_stamp != stamp:
+            self._result_stamp = stamp  # solved once per version of the file, aside: it takes seconds
+
+            def solve() -> None:
+                brief = result_brief(self.run_dir)
+                self._result_cache = (stamp, brief)
+                self._state_at = 0.0  # the next poll shows it
+
+            threading.Thread(target=solve, name="rtcal-live-result", daemon=True).start()
+        return cached[1] if cached is not None else None
+
+    # -- what the event stream sends -------------------------------------------------------------
+    def readings_after(self, last_id: int, limit: int = 2000) -> list[dict[str, Any]]:
+        """Readings with an id above ``last_id``, oldest first (marker rows included: the page
+        leaves a rejected or skipped attempt out of its plot)."""
+        db = self._connect()
+        if db is None:
+            return []
+        with closing(db):
+            cur = db.execute(f"SELECT {', '.join(READING_FIELDS)} FROM readings WHERE id > ? ORDER BY id LIMIT ?",
+                             (int(last_id), int(limit)))
+            return [_finite(dict(zip(READING_FIELDS, row))) for row in cur]
+
+    def events_after(self, last_id: int, limit: int = 500) -> list[dict[str, Any]]:
+        db = self._connect()
+        if db is None:
+            return []
+        with closing(db):
+            cur = db.execute(f"SELECT {', '.join(EVENT_FIELDS)} FROM events WHERE id > ? ORDER BY id LIMIT ?",
+                             (int(last_id), int(limit)))
+            return [dict(zip(EVENT_FIELDS, row)) for row in cur]
+
+
+def _finite(row: dict[str, Any]) -> dict[str, Any]:
+    """JSON has no NaN or infinity: such a value goes as null."""
+    v = row.get("value")
+    if isinstance(v, float) and not math.isfinite(v):
+        row["value"] = None
+    return row
+
+
+def engine_state(meta: dict[str, str]) -> str:
+    """The engine's state, or the runner's status mapped onto the engine's states."""
+    state = meta.get("engine_state")
+    if state in STATES:
+        return state
+    status = meta.get("status", "")
+    if status in STATUS_STATES:
+        return STATUS_STATES[status]
+    if status == "not started" and meta.get("error"):
+        return "failed"
+    return "starting"
+
+
+def current_of(meta: dict[str, str], last: tuple | None) -> dict[str, Any]:
+    """Where the run is: the engine's ``current`` object, else what the last reading says."""
+    text = meta.get("current")
+    if text:
+        try:
+            value = json.loads(text)
+            if isinstance(value, dict):
+                return value
+        except ValueError:
+            pass
+    if last is None:
+        return {}
+    plan_index, target, run, direction, point, station, seating = last
+    found = {"plan_index": plan_index, "target_deg": target,
+             "run": None if run is None else run + 1,
+             "direction": None if direction is None else ("+" if direction > 0 else "-"),
+             "point": None if point is None else point + 1,
+             "station": None if station is None else station + 1,
+             "seating": None if seating is None else seating + 1}
+    return {k: v for k, v in found.items() if v is not None}
+
+
+def _procedure_name(meta: dict[str, str]) -> str | None:
+    import yaml
+
+    try:
+        data = yaml.safe_load(meta.get("procedure_yaml") or "")
+    except yaml.YAMLError:
+        return None
+    name = data.get("name") if isinstance(data, dict) else None
+    return str(name)[:200] if name is not None else None
+
+
+def planned_from_procedure(meta: dict[str, str]) -> int | None:
+    """The stored procedure's plan length, read as `rtcal resume` reads it (None if it cannot be)."""
+    from rtcal.methods import METHODS
+    from rtcal.procedure.models import PROCEDURE_MODELS
+    from rtcal.procedure.yamlfile import FileProblems, validate_text
+
+    method = meta.get("method")
+    if method not in PROCEDURE_MODELS or method not in METHODS or not meta.get("procedure_yaml"):
+        return None
+    try:
+        proc = validate_text(meta["procedure_yaml"], PROCEDURE_MODELS[method], "stored procedure",
+                             context={"large": bool(meta.get("large"))})
+        return int(METHODS[method].plan_length(proc))
+    except (FileProblems, ValueError, TypeError):
+        return None
+
+
+def result_brief(run_dir: Path) -> dict[str, Any] | None:
+    """The lines `rtcal run` prints at the end, the deviation table with U (k = 2) and the report
+    files present, from the run's validated results.json."""
+    from rtcal.deliverables.method_outputs import outputs_for
+    from rtcal.deliverables.report import console_lines
+    from rtcal.results import ResultsError, read_results
+
+    try:
+        results = read_results(run_dir)
+        lines = outputs_for(results).summary() + console_lines(results)
+    except (ResultsError, ValueError, KeyError, OSError) as exc:
+        return {"error": f"results.json cannot be read: {exc}"[:300], "lines": [], "deviations": None, "files": []}
+    table = results.positioning_deviations
+    deviations = None
+    if table is not None:
+        deviations = {"estimator": table.estimator, "target_deg": table.target_deg, "direction": table.direction,
+                      "run": table.run, "deviation_arcsec": table.deviation_arcsec,
+                      "U_arcsec": [None if u is None else 2.0 * u for u in table.uncertainty_arcsec]}
+    files = [f for f in REPORT_FILES if os.path.isfile(run_dir / f) and not os.path.islink(run_dir / f)]
+    return {"error": None, "lines": lines, "deviations": deviations, "files": files}
