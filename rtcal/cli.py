@@ -99,20 +99,34 @@ def _execute(start, run_dir: str) -> int:
     return EXIT_OK
 
 
+def _run_control(live: str | None):
+    """Every run's control socket and token, and with --live its web page (rtcal.live.attach)."""
+    from rtcal.live.attach import RunControl
+    from rtcal.live.server import LiveSpecError
+
+    try:
+        return RunControl(live)
+    except LiveSpecError as exc:
+        raise UserError(str(exc)) from None
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from rtcal.run.runner import default_run_dir, run_procedure
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
+    control = _run_control(args.live)
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
-                                          virtual_clock=args.virtual_clock, large=args.large), out)
+                                          virtual_clock=args.virtual_clock, large=args.large, on_engine=control), out)
 
 
 def _cmd_resume(args: argparse.Namespace) -> int:
     from rtcal.run.runner import resume_run
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
-    return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock), args.run_dir)
+    control = _run_control(args.live)
+    return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
+                                       on_engine=control), args.run_dir)
 
 
 def parse_instruments_option(text: str) -> dict[str, str]:
@@ -721,12 +735,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="do not wait settle times in real time (for protocol simulators, never for hardware)")
     run.add_argument("--large", action="store_true",
                      help="accept a plan beyond 100 000 readings (up to 2 000 000; takes hours and GBs)")
+    run.add_argument("--live", metavar="[HOST:]PORT", help="serve the run's live view from this process (PORT 0: any free "
+                                                          "port; 127.0.0.1 unless HOST is given)")
     run.set_defaults(func=_cmd_run)
 
     resume = sub.add_parser("resume", help="continue an interrupted run: every planned reading not yet stored, once")
     resume.add_argument("run_dir", help="the directory of an interrupted run (what `run --out` wrote)")
     resume.add_argument("--instruments", help="new instrument addresses (JSON object or file), e.g. of a restarted simulator")
     resume.add_argument("--virtual-clock", action="store_true", help="as for `run`")
+    resume.add_argument("--live", metavar="[HOST:]PORT", help="as for `run`")
     resume.set_defaults(func=_cmd_resume)
 
     unc = sub.add_parser("uncertainty", help="Monte Carlo: run a procedure N times on the simulated bench and set the "

@@ -35,6 +35,7 @@ class AzDriveModel:
         self.alarm = az.ALARM_NONE
         self.free = False
         self.homed = False
+        self.stops = 0  # STOP inputs received
         self.command_steps = round(stage.position_deg() * steps_per_deg)
         self.feedback_steps = self.command_steps
         self.reply_fault: str | None = None  # "no_reply" or "crc_error" for the next reply frame
@@ -114,6 +115,7 @@ class AzDriveModel:
         if rising & az.IN_FREE:
             self.free = True
         if rising & az.IN_STOP:
+            self.stops += 1  # counted: the tests check that every way a run ends stops the drive
             return None
         if rising & az.IN_ZHOME:
             return self._move_to_steps(0, homing=True)

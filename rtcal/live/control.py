@@ -32,8 +32,12 @@ _SUN_PATH_MAX = 100  # sockaddr_un holds 108 bytes with its NUL; longer paths go
 
 
 def new_token() -> str:
-    """A control token: 192 random bits, URL-safe (printed once by the run, written nowhere)."""
-    return secrets.token_urlsafe(24)
+    """A control token: 192 random bits, URL-safe (printed once by the run, written nowhere). It never
+    starts with "-", which `rtcal control --token` would take for an option."""
+    while True:
+        token = secrets.token_urlsafe(24)
+        if not token.startswith("-"):
+            return token
 
 
 @runtime_checkable

@@ -43,6 +43,10 @@ from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_tex
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
+OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
+"""Called with the engine and the run directory before the first motion (remote control, the live
+view); what it returns is called when the run ends, however it ends."""
+
 __all__ = ["METHODS", "AnalysisFailed", "RunOutcome", "resume_run", "run_procedure"]
 
 
@@ -169,7 +173,7 @@ def run_procedure(
     large: bool = False,
     outputs: bool = True,
     estimate_noise: bool = True,
-    on_engine: Callable[[Engine], None] | None = None,
+    on_engine: OnEngine | None = None,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
     results.json, figures or report — for Monte Carlo trials).
@@ -218,7 +222,7 @@ def resume_run(
     addresses: dict[str, str] | None = None,
     virtual_clock: bool = False,
     show_progress: bool | None = None,
-    on_engine: Callable[[Engine], None] | None = None,
+    on_engine: OnEngine | None = None,
 ) -> RunOutcome:
     """Continue an interrupted run from its store: every planned reading not yet stored, once.
 
@@ -341,7 +345,7 @@ def conformity_of(proc: Procedure, analysis: Analysis, evaluation: Evaluation | 
 
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
-                       estimate_noise: bool = True, on_engine: Callable[[Engine], None] | None = None) -> RunOutcome:
+                       estimate_noise: bool = True, on_engine: OnEngine | None = None) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs."""
     method = METHODS[proc.method]
     simulated = bench is not None
@@ -359,16 +363,30 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     if show_progress is not False:
         subscribers.append(ConsoleProgress())
     engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1)
-    if on_engine is not None:
-        on_engine(engine)
+    detach = None
     try:
-        store.set_meta({"status": "running"})
-        engine.run(plan, done)
-    except BaseException as exc:  # the engine has stopped every machine it moved
-        _stop(store, "aborted" if isinstance(exc, RunAborted) else "interrupted", exc)
-        raise
+        try:
+            if on_engine is not None:  # remote control (and the live view): before the first motion
+                detach = on_engine(engine, run_dir)
+            store.set_meta({"status": "running"})
+            engine.run(plan, done)
+        except BaseException as exc:  # the engine has stopped every machine it moved
+            _stop(store, "aborted" if isinstance(exc, RunAborted) else "interrupted", exc)
+            raise
+        finally:
+            inst.close()
+        outcome = _solve_and_write(proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
+        return outcome
     finally:
-        inst.close()
+        if detach is not None:  # the live view showed the run to its end
+            detach()
+
+
+def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, clock: Any, generation: int,
+                     outputs: bool, estimate_noise: bool) -> RunOutcome:
+    """The measured run's analysis, its typed results and every output file."""
+    method = METHODS[proc.method]
+    simulated = bench is not None
     store.set_meta({"status": "measured", "finished_utc": _now()})
     meta = store.meta()
     try:
@@ -432,7 +450,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
         _stop(store, "measured", exc)
         raise
-    store.set_meta({"status": "solved"})  # only now: `resume` of a solved run changes nothing
+    store.set_meta({"status": "solved", "engine_state": "finished"})  # only now: `resume` of a solved run changes nothing
     store.close()
     return RunOutcome(run_dir, results, counted)
 

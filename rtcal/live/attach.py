@@ -1,0 +1,49 @@
+"""Every run's remote control, and with ``--live`` its web page, attached to the run's engine.
+
+Every run (in process or wired) gets a control token, printed once on the console before the
+first motion and written nowhere else, and serves its control socket in the run directory, so
+`rtcal control` reaches it whether or not it was started with ``--live``. With ``--live`` the same
+process serves the live view, whose Pause / Resume / Abort buttons need that token.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Callable, TextIO
+
+from rtcal.live.control import ControlServer, Controllable, new_token
+from rtcal.live.server import LiveServer, parse_live_spec
+
+
+class RunControl:
+    """``on_engine`` for :func:`rtcal.run.runner.run_procedure` / ``resume_run``: starts the control socket
+    (and the live view) when the engine exists, before anything moves; the closer it returns stops both."""
+
+    def __init__(self, live: str | None = None, stream: TextIO | None = None):
+        self.live = parse_live_spec(live) if live is not None else None  # LiveSpecError before anything starts
+        self.stream = stream if stream is not None else sys.stderr
+        self.url: str | None = None
+
+    def __call__(self, engine: Controllable, run_dir: Path) -> Callable[[], None]:
+        token = new_token()
+        control = ControlServer(run_dir, token, engine)
+        control.start()
+        server = None
+        try:
+            if self.live is not None:
+                host, port = self.live
+                server = LiveServer(run_dir, host, port, control=engine, token=token)
+                self.url = server.start()
+                print(f"live view: {self.url}", file=self.stream, flush=True)
+        except BaseException:
+            control.close()
+            raise
+        print(f"control token: {token}", file=self.stream, flush=True)
+
+        def close() -> None:
+            if server is not None:
+                server.stop()
+            control.close()
+
+        return close

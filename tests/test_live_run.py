@@ -1,0 +1,205 @@
+"""A wired ISO 230-2 run in real time, watched and controlled as a user would: `rtcal run --live` over the
+protocols of `rtcal sim serve`, the page in headless Chromium (progress rising, Pause holding the run, Resume
+finishing it with the results of an uninterrupted run), a request without the token changing nothing, a
+remote abort ending like Ctrl-C (exit 130, `rtcal resume` finishes), and every way a run ends early
+stopping the drive (Ctrl-C, SIGTERM, a remote abort, a fault abort)."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from rtcal.results import read_results
+from rtcal.run.runner import run_procedure
+from simulators.servers.hub import SimulatorHub
+from tests.test_transport_end_to_end import sim_serve
+
+REPO = Path(__file__).resolve().parents[1]
+ISO = REPO / "procedures" / "iso230_2_polygon.yaml"
+BENCH = REPO / "procedures" / "scenarios" / "abbe_bench.yaml"
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+pytestmark = pytest.mark.slow
+
+
+def fast_iso(tmp_path: Path, settle_s: float = 0.05, runs: int = 5) -> Path:
+    """The shipped ISO test with short settle times (a real-time run of a few seconds per run)."""
+    data = yaml.safe_load(ISO.read_text(encoding="utf-8"))
+    data.pop("bench", None)
+    data["settle_time_s"] = settle_s
+    data["steps"]["runs"] = runs
+    path = tmp_path / "iso_fast.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    return path
+
+
+def start_run(*args: str) -> tuple[subprocess.Popen, dict[str, str]]:
+    """`rtcal ...` in a process; waits for its `live view:` (if any) and `control token:` lines."""
+    proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    seen: dict[str, str] = {}
+    deadline = time.monotonic() + 60
+    while "control token" not in seen:
+        ready, _, _ = select.select([proc.stderr], [], [], max(0.0, deadline - time.monotonic()))
+        line = proc.stderr.readline() if ready else ""
+        assert line, f"no control token printed; exit {proc.poll()}"
+        key, _, value = line.strip().partition(": ")
+        if key in ("live view", "control token"):
+            seen[key] = value
+    return proc, seen
+
+
+def state(url: str) -> dict:
+    with urllib.request.urlopen(url + "api/state", timeout=10) as r:
+        return json.loads(r.read())
+
+
+def post(url: str, command: str, token: str | None) -> int:
+    request = urllib.request.Request(url + f"api/{command}", method="POST", data=b"",
+                                     headers={"Authorization": f"Bearer {token}"} if token else {})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as r:
+            return r.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
+
+
+def wait_for(predicate, timeout_s: float = 60.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError("timed out")
+
+
+def finish(proc: subprocess.Popen, timeout_s: float = 180) -> tuple[int, str]:
+    _, err = proc.communicate(timeout=timeout_s)
+    return proc.returncode, err
+
+
+def deviations(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    r = read_results(run_dir).positioning_deviations
+    return np.array(r.deviation_arcsec, float), np.array(r.uncertainty_arcsec, float)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no chromium installed (Debian: apt-get install chromium)")
+def test_wired_iso_run_watched_paused_and_resumed_in_chromium(tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    procedure = fast_iso(tmp_path)
+    local = run_procedure(procedure, BENCH, out_dir=tmp_path / "local", show_progress=False)  # uninterrupted, in process
+    with sim_serve(BENCH) as addresses:
+        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out",
+                               str(tmp_path / "run"), "--live", "127.0.0.1:0")
+        url, token = seen["live view"], seen["control token"]
+        try:
+            with sync_api.sync_playwright() as p:
+                browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+                try:
+                    page = browser.new_page(viewport={"width": 1400, "height": 1300})
+                    page.goto(url)
+
+                    def done() -> int:
+                        text = page.inner_text("#done")
+                        return int(text) if text.isdigit() else -1
+
+                    first = wait_for(lambda: (d := done()) >= 3 and d)
+                    wait_for(lambda: done() >= first + 3)  # progress rises on the page
+                    assert page.inner_text("#planned") == str(state(url)["planned_readings"])
+                    assert post(url, "pause", None) == 401 and post(url, "pause", "x" + token) == 401
+                    assert state(url)["state"] == "running"  # a request without the token changed nothing
+                    page.fill("#token", token)
+                    page.click("#btn-pause")
+                    wait_for(lambda: state(url)["state"] == "paused")
+                    held = state(url)["done_readings"]
+                    time.sleep(2.0)
+                    assert state(url)["done_readings"] == held and done() == held  # nothing taken while paused
+                    page.screenshot(path=str(tmp_path / "live_paused.png"), full_page=True)
+                    page.click("#btn-resume")
+                    wait_for(lambda: state(url)["state"] != "paused")
+                finally:
+                    browser.close()
+            code, err = finish(proc)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    assert code == 0, err
+    assert token not in err  # printed once (start_run read that line)
+    for f in (tmp_path / "run").iterdir():  # and written nowhere
+        if f.is_file():
+            assert token.encode() not in f.read_bytes(), f.name
+    remote, u = deviations(tmp_path / "run")
+    ref, u_ref = deviations(tmp_path / "local")
+    apart = np.abs(remote - ref)
+    assert np.all(apart <= 4 * np.hypot(u, u_ref))  # the same results, within their noise (120 rows: 4σ)
+    assert np.sqrt(np.mean(apart**2)) <= np.sqrt(np.mean(u**2 + u_ref**2))
+    assert (tmp_path / "live_paused.png").stat().st_size > 10_000
+
+
+def test_remote_abort_exits_130_and_resume_finishes(tmp_path):
+    procedure = fast_iso(tmp_path, settle_s=0.25, runs=2)
+    with sim_serve(BENCH) as addresses:
+        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(tmp_path / "run"))
+        assert "live view" not in seen  # every run has its control socket, --live or not
+        time.sleep(1.0)
+        control = subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(tmp_path / "run"), "abort", "--token",
+                                  seen["control token"]], cwd=REPO, capture_output=True, text=True, timeout=30)
+        assert control.returncode == 0, control.stderr
+        code, err = finish(proc)
+        assert code == 130, err
+        assert f"rtcal resume {tmp_path / 'run'}" in err
+        resumed = subprocess.run([sys.executable, "-m", "rtcal.cli", "resume", str(tmp_path / "run"), "--instruments",
+                                  json.dumps(addresses)], cwd=REPO, capture_output=True, text=True, timeout=180)
+    assert resumed.returncode == 0, resumed.stderr
+    assert (tmp_path / "run" / "results.json").is_file()
+    gone = subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(tmp_path / "run"), "pause", "--token",
+                           seen["control token"]], cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert gone.returncode == 1  # no engine runs for that directory any more
+
+
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])
+def test_every_early_end_stops_the_drive(tmp_path, how):
+    """The drive (Modbus, the simulated AZ) receives STOP however the run ends early."""
+    procedure = fast_iso(tmp_path, settle_s=0.25, runs=2)
+    with SimulatorHub(_scenario(tmp_path, how), seed=1) as hub:
+        addresses = {k: v for k, v in hub.addresses.items()}
+        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(tmp_path / "run"))
+        if how == "fault":
+            code, err = finish(proc)
+            assert code == 1, err
+        else:
+            wait_for(lambda: hub.drive.command_steps != 0, 30)  # it has moved
+            if how == "abort":
+                subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(tmp_path / "run"), "abort", "--token",
+                                seen["control token"]], cwd=REPO, check=True, capture_output=True, timeout=30)
+            else:
+                os.kill(proc.pid, getattr(signal, how))
+            code, err = finish(proc)
+            assert code == 130, err
+        assert hub.drive.stops >= 1, err
+        assert "rtcal resume" in err
+
+
+def _scenario(tmp_path: Path, how: str):
+    from rtcal.procedure.loader import load_scenario
+
+    data = yaml.safe_load(BENCH.read_text(encoding="utf-8"))
+    if how == "fault":  # the autocollimator fails for good after a few readings: its policy aborts
+        data["faults"] = [{"instrument": "autocollimator", "kind": "no_reply", "at_request": list(range(6, 40))}]
+    path = tmp_path / "bench.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return load_scenario(path, path.read_text(encoding="utf-8"))
