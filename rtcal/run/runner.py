@@ -460,5 +460,6 @@ def _stop(store: RunStore, status: str, exc: BaseException) -> None:
     space the store reserved; if even that is refused the stored status stays as it was (a
     resume treats every run that is not solved alike) and the error says so."""
     if not store.set_final_meta({"status": status, "error": repr(exc)}):
-        exc.add_note(f"(the status `{status}` could not be recorded in {store.path}: the disk refused it)")
+        note = f"(the status `{status}` could not be recorded in {store.path}: the disk refused it)"
+        exc.__notes__ = [*getattr(exc, "__notes__", []), note]  # BaseException.add_note is Python 3.11's; pyproject says 3.10
     store.close()
