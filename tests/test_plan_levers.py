@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rtcal.procedure.models import MultistationDurations
+
 from rtcal.cli import main
 from rtcal.planning import levers as lv
 from rtcal.procedure.loader import load_procedure
@@ -62,7 +64,9 @@ def test_plan_json_names_the_dominant_sources_and_every_lever(proposal):
     two = rows["a second tracer mount opposite the first"]
     assert two["recommended"] == "network" and _error_motions(two["sources_rms_arcsec"]) == 0
     assert two["expanded_uncertainty_max_arcsec"] < plan["expanded_uncertainty_max_arcsec"] / 3
-    assert two["duration_s"] == pytest.approx(2 * plan["duration_s"], rel=0.05)
+    moving = MultistationDurations()  # the operator moves the tracer and references it again: honest machine time
+    assert two["duration_s"] == pytest.approx(2 * plan["duration_s"] + moving.move_tracer_s, rel=0.05)
+    assert two["duration_s"] > 2 * plan["duration_s"] + 0.9 * moving.move_tracer_s
     fewer = [r for k, r in rows.items() if "CMM points (2 layers" in k]
     assert fewer and fewer[0]["duration_s"] < 0.6 * plan["duration_s"]
 

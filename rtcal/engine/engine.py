@@ -258,12 +258,13 @@ class Engine:
         if isinstance(step, Reference):
             if self.segment is not None:
                 return False
-            self._policy(step.instrument, lambda: self._reference(step.instrument, step.where, step.why), step.why,
-                         context, readings)
+            self._policy(step.instrument, lambda: self._reference(step.instrument, step.where, step.why, step.seconds),
+                         step.why, context, readings)
             return True
         if isinstance(step, OperatorStep):
             self._event("operator", step.instrument, step.message)
             getattr(self.operator, step.action)(*step.args)
+            self._spend(step.seconds)
             return None
         raise TypeError(f"not a step: {step!r}")
 
@@ -345,7 +346,7 @@ class Engine:
         reacquired = [False]
 
         def reacquire() -> None:
-            self._reference(step.instrument, step.where, "reacquire")
+            self._reference(step.instrument, step.where, "reacquire", step.reference_s)
             reacquired[0] = True
 
         taken: list[Reading] = []
@@ -353,6 +354,7 @@ class Engine:
         while len(taken) < step.count:
             value = self._policy(step.instrument, lambda: step.measure(device), step.what, context, readings,
                                  reacquire=reacquire)
+            self._spend(step.sample_s)
             if reacquired[0]:  # a reading never mixes two tracking segments
                 taken, reacquired[0], any_reacquired = [], False, True
             taken.append(Reading(self.clock.now_s(), step.instrument, step.quantity, float(value), step.unit,
@@ -375,8 +377,15 @@ class Engine:
         else:
             raise TypeError(f"not a recovery step: {step!r}")
 
-    def _reference(self, instrument: str, where: str, why: str) -> None:
+    def _spend(self, seconds: float) -> None:
+        """Time a step takes beyond the devices' own (an operator, a tracer's integration): a simulated run's
+        clock counts it as the walker does; on hardware it passes by itself."""
+        if seconds > 0 and isinstance(self.clock, VirtualClock):
+            self.clock.sleep(seconds)
+
+    def _reference(self, instrument: str, where: str, why: str, seconds: float = 0.0) -> None:
         self.devices[instrument].reference()
+        self._spend(seconds)
         self.segment, self._next_segment = self._next_segment, self._next_segment + 1
         self._event(why, instrument, f"tracking segment {self.segment} referenced at {where}")
 

@@ -104,6 +104,10 @@ class ReadSamples:
     nominal: float = field(default=0.0, compare=False)
     where: str = ""
     what: str = ""
+    sample_s: float = 0.0
+    """What one sample takes (integration, transfer): counted by the walker and by a simulated run's clock."""
+    reference_s: float = 0.0
+    """What re-acquiring the beam takes."""
 
 
 @dataclass(frozen=True)
@@ -122,12 +126,14 @@ class Reference:
     instrument: str
     where: str
     why: str = "reference"
+    seconds: float = 0.0
 
 
 @dataclass(frozen=True)
 class OperatorStep:
     """A person's step (re-seat the polygon, move the tracer): an ``operator`` event, then the
-    operator's ``action(*args)``. ``seconds`` is what the timing model counts for it."""
+    operator's ``action(*args)``. ``seconds`` is what it takes: the walker counts it, and so does a
+    simulated run's clock (on hardware it takes what it takes)."""
 
     action: str
     args: tuple[Any, ...]

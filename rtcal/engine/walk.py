@@ -106,9 +106,13 @@ class _Walker:
             return step.nominal
         if isinstance(step, ReadSamples):
             w.instrument_readings += step.count
+            w.duration_s += step.count * step.sample_s
             return Samples((step.nominal,) * step.count, False)
         if isinstance(step, Reference):
             referenced, self.tracking = not self.tracking, True
+            if referenced:
+                w.operator_s += step.seconds
+                w.duration_s += step.seconds
             return referenced
         if isinstance(step, OperatorStep):
             w.operator_s += step.seconds

@@ -107,7 +107,8 @@ class AbbePlan:
         offset = self.proc.polygon.seatings_deg[seating]
         resumed = first and seating == self.last_seating
         yield OperatorStep("reseat_polygon", (offset, self.proc.polygon.pitch_deg, resumed),
-                           f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {seating + 1})")
+                           f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {seating + 1})",
+                           seconds=0.0 if resumed or (first and self.last_seating is None) else self.proc.durations.reseat_polygon_s)
 
     def positions_unknown(self) -> None:
         """Nothing to forget: every visit approaches its target."""

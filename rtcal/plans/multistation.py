@@ -111,7 +111,8 @@ class MultistationPlan:
             where = ("its first mount" if mk == 0 else
                      f"the second mount: centre near {list(second.first_station_guess_mm)} mm at station 1")
             yield OperatorStep("move_tracer", (mk, where, resumed),
-                               f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}", "laser_tracer")
+                               f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}", "laser_tracer",
+                               seconds=0.0 if resumed else self.proc.durations.move_tracer_s)
 
     def positions_unknown(self) -> None:
         self.at_point = self.at_station = None
@@ -169,11 +170,12 @@ class MultistationPlan:
         if proc.instruments.environment is not None:  # the air the lengths are counted in, with every reading
             yield environment_read(f"environment at point {i + 1}, station {j + 1}")
         where = f"point {i + 1}, station {j + 1}"
-        if (yield Reference("laser_tracer", where)):
+        durations = proc.durations
+        if (yield Reference("laser_tracer", where, seconds=durations.reference_tracer_s)):
             self.lengths.referenced(mk, i, j)
         samples = yield ReadSamples("laser_tracer", "length_mm", "mm", proc.samples_per_reading,
                                     lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(mk, i, j),
-                                    where, f"length at {where}")
+                                    where, f"length at {where}", durations.tracer_sample_s, durations.reference_tracer_s)
         if samples.reacquired:
             self.lengths.referenced(mk, i, j)
         for value in samples.values:

@@ -447,6 +447,24 @@ class AbbeVerification(_Verification):
                                               "puts in view may be, arcsec (e.g. 600)")
 
 
+class MultistationDurations(_Strict):
+    """What takes time besides the motions and settling: the planned and the simulated clock count it
+    (a run on hardware takes what it takes)."""
+
+    tracer_sample_s: float = Field(0.1, ge=0.0, le=600.0, description="time one laser-tracer sample takes (its "
+                                                                       "integration and transfer), s")
+    reference_tracer_s: float = Field(30.0, ge=0.0, le=3600.0, description="time to (re-)reference the tracer's beam, s")
+    move_tracer_s: float = Field(900.0, ge=0.0, le=86400.0, description="time the operator takes to move the tracer to "
+                                                                        "another mount and fix it, s")
+
+
+class AbbeDurations(_Strict):
+    """What takes time besides the motions and settling (see MultistationDurations)."""
+
+    reseat_polygon_s: float = Field(600.0, ge=0.0, le=86400.0, description="time the operator takes to seat the polygon "
+                                                                           "anew and align it to the autocollimator, s")
+
+
 class SecondMount(_Strict):
     """Measure the whole plan again with the tracer moved to a second place on the table: the
     network estimator then separates the table's error motions from its rotation (one mount
@@ -572,6 +590,8 @@ class LaserTracerMultistation(_Procedure):
     settle_time_s: float = Field(2.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
     concurrent_motions: bool = Field(False, description="start the table and the CMM together where both move to the next "
                                                         "reading (they are independent; `rtcal plan` prints the time it saves)")
+    durations: MultistationDurations = Field(MultistationDurations(), description="time the tracer's samples and the "
+                                                                                  "operator's steps take")
     on_fault: MultistationOnFault = Field(MultistationOnFault(), description="what to do when an instrument fails (docs/faults.md)")
     verification: MultistationVerification = Field(MultistationVerification(), description="what every motion and reading is "
                                                    "checked against (docs/faults.md)")
@@ -773,6 +793,7 @@ class EncoderAbbeError(_Procedure):
     geometry: AbbeGeometry = Field(AbbeGeometry(), description="design sizes of the stage, mm")
     samples_per_reading: int = Field(1, ge=1, le=1000, description="samples of every instrument per step")
     settle_time_s: float = Field(1.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
+    durations: AbbeDurations = Field(AbbeDurations(), description="time the operator's steps take")
     on_fault: AbbeOnFault = Field(AbbeOnFault(), description="what to do when an instrument fails (docs/faults.md)")
     verification: AbbeVerification = Field(AbbeVerification(), description="what every motion and reading is checked against "
                                            "(docs/faults.md)")
