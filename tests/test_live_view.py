@@ -487,3 +487,11 @@ def test_a_viewer_far_behind_catches_up_from_the_store(writing, monkeypatch):
         again = [int(e["id"]) for e in read_sse("127.0.0.1", late.port, 5, last_event_id=ids[-6])
                  if e.get("event") == "reading"]
         assert again == ids[-5:]
+
+
+def test_another_host_than_loopback_is_warned_of(tmp_path, capsys):
+    with LiveServer(tmp_path, "0.0.0.0", 0) as server:
+        assert server.url.startswith("http://0.0.0.0:")
+        assert get_json(f"http://127.0.0.1:{server.port}/api/state")["state"] == "starting"  # no store yet
+    err = capsys.readouterr().err
+    assert err.startswith("rtcal: warning:") and err.count("\n") == 1

@@ -103,7 +103,7 @@ def _sse(event: str, data: Any, event_id: int | None = None) -> str:
 
 
 def _asset(name: str) -> bytes:
-    return resources.files("rtcal.live").joinpath("static", name).read_bytes()
+    return resources.files("rtcal.live").joinpath("static").joinpath(name).read_bytes()
 
 
 def _last_event_id(request: Request) -> int:
@@ -202,6 +202,7 @@ class LiveServer:
         self._feed = _Feed(self.view, poll_s, lambda: self.control is not None)
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
+        self._sock: socket.socket | None = None
         self._stopping = threading.Event()
         self.url: str | None = None
 
@@ -338,9 +339,8 @@ class LiveServer:
         if self._thread is not None:
             self._thread.join(timeout=10)
             self._thread = None
-        sock = getattr(self, "_sock", None)
-        if sock is not None:
-            sock.close()
+        if self._sock is not None:
+            self._sock.close()
             self._sock = None
         self._server = None
 
