@@ -384,7 +384,7 @@ def test_rtcal_view_serves_until_interrupted(tmp_path):
     """`rtcal view` in a process of its own follows a run being written until it is finished."""
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    writer = StoreWriter(run_dir, interval_s=0.04, finish=True)
+    writer = StoreWriter(run_dir, interval_s=0.02, finish=True)
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "view", str(run_dir), "--live", "0"], cwd=REPO,
                             env={**os.environ, "PYTHONPATH": str(REPO)}, stderr=subprocess.PIPE, text=True)
     try:
@@ -460,6 +460,9 @@ def test_the_page_in_headless_chromium(tmp_path):
             wait_for(lambda: engine.calls == ["pause", "resume"])
             wait_for(lambda: done() > held)
             assert page.inner_text("#state").lower() == "running"
+            other = browser.new_page()  # the token given in the URL's fragment: kept in the page, gone from the URL
+            other.goto(server.url + "#token=" + token)
+            assert other.input_value("#token") == token and "token" not in other.url
         finally:
             browser.close()
             writer.halt.set()
