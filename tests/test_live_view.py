@@ -498,3 +498,31 @@ def test_another_host_than_loopback_is_warned_of(tmp_path, capsys):
         assert get_json(f"http://127.0.0.1:{server.port}/api/state")["state"] == "starting"  # no store yet
     err = capsys.readouterr().err
     assert err.startswith("rtcal: warning:") and err.count("\n") == 1
+
+
+def test_a_session_prints_the_two_lines_and_serves_both_ways(tmp_path):
+    """What `rtcal run --live` starts: the socket always, the page with control, the lines on stderr."""
+    import io
+
+    from rtcal.live.session import start_session
+
+    engine, out = FakeEngine(), io.StringIO()
+    with start_session(tmp_path, engine, ("127.0.0.1", 0), out) as session:
+        lines = out.getvalue().splitlines()
+        assert lines == [f"live view: {session.url}", f"control token: {session.token}"]
+        assert session.url.startswith("http://127.0.0.1:") and len(session.token) >= 22
+        send_control(tmp_path, session.token, "pause")
+        assert post(session.url + "api/resume", session.token) == 202
+        assert post(session.url + "api/abort") == 401
+    assert engine.calls == ["pause", "resume"]
+    assert not os.path.lexists(tmp_path / SOCKET_NAME)
+    out = io.StringIO()
+    with start_session(tmp_path, engine, None, out) as session:  # without --live: the token all the same
+        assert out.getvalue() == f"control token: {session.token}\n" and session.url is None
+        send_control(tmp_path, session.token, "abort")
+    assert engine.calls == ["pause", "resume", "abort"]
+    with socket.socket() as busy, pytest.raises(OSError):
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        start_session(tmp_path, engine, ("127.0.0.1", busy.getsockname()[1]), io.StringIO())
+    assert not os.path.lexists(tmp_path / SOCKET_NAME)  # nothing left behind
