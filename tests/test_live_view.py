@@ -526,3 +526,25 @@ def test_a_session_prints_the_two_lines_and_serves_both_ways(tmp_path):
         busy.listen(1)
         start_session(tmp_path, engine, ("127.0.0.1", busy.getsockname()[1]), io.StringIO())
     assert not os.path.lexists(tmp_path / SOCKET_NAME)  # nothing left behind
+
+
+def test_a_store_from_before_attempts_is_read_as_it_is(tmp_path):
+    """No `attempt` column (rtcal before attempts): each planned reading was attempted once; the
+    view reads it without adding the column as `rtcal resume` would."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    writer = StoreWriter(run_dir, interval_s=0.0, stop_after=4, reject_at=-1, skip_at=None, finish=True)
+    writer.start()
+    writer.join(20)
+    import sqlite3
+
+    with closing(sqlite3.connect(run_dir / "run.sqlite", isolation_level=None)) as db:
+        db.execute("DROP INDEX readings_by_plan")
+        db.execute("ALTER TABLE readings DROP COLUMN attempt")
+    before = (run_dir / "run.sqlite").read_bytes()
+    with LiveServer(run_dir, port=0) as server:
+        state = get_json(server.url + "api/state")
+        readings = [e for e in read_sse("127.0.0.1", server.port, 4 * 7) if e.get("event") == "reading"]
+    assert state["state"] == "finished" and state["done_readings"] == 4 and len(readings) == 28
+    assert json.loads(readings[0]["data"])["attempt"] is None
+    assert (run_dir / "run.sqlite").read_bytes() == before
