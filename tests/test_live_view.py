@@ -306,6 +306,7 @@ def rtcal_here(capsys, *args: str) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_control_socket_and_rtcal_control(tmp_path, capsys, monkeypatch):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
@@ -380,6 +381,7 @@ def test_token_is_written_nowhere(writing):
         assert token.encode() not in p.read_bytes(), p
 
 
+@pytest.mark.slow
 def test_rtcal_view_serves_until_interrupted(tmp_path):
     """`rtcal view` in a process of its own follows a run being written until it is finished."""
     run_dir = tmp_path / "run"
@@ -419,6 +421,7 @@ def test_rtcal_view_refuses_bad_arguments(tmp_path, capsys):
     assert code == 2 and "cannot listen" in err
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium installed (Debian: apt-get install chromium)")
 def test_the_page_in_headless_chromium(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api")
