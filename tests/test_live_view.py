@@ -306,6 +306,7 @@ def rtcal_here(capsys, *args: str) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_control_socket_and_rtcal_control(tmp_path, capsys, monkeypatch):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
@@ -380,11 +381,12 @@ def test_token_is_written_nowhere(writing):
         assert token.encode() not in p.read_bytes(), p
 
 
+@pytest.mark.slow
 def test_rtcal_view_serves_until_interrupted(tmp_path):
     """`rtcal view` in a process of its own follows a run being written until it is finished."""
     run_dir = tmp_path / "run"
     run_dir.mkdir()
-    writer = StoreWriter(run_dir, interval_s=0.04, finish=True)
+    writer = StoreWriter(run_dir, interval_s=0.02, finish=True)
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "view", str(run_dir), "--live", "0"], cwd=REPO,
                             env={**os.environ, "PYTHONPATH": str(REPO)}, stderr=subprocess.PIPE, text=True)
     try:
@@ -419,6 +421,7 @@ def test_rtcal_view_refuses_bad_arguments(tmp_path, capsys):
     assert code == 2 and "cannot listen" in err
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium installed (Debian: apt-get install chromium)")
 def test_the_page_in_headless_chromium(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api")
@@ -460,6 +463,9 @@ def test_the_page_in_headless_chromium(tmp_path):
             wait_for(lambda: engine.calls == ["pause", "resume"])
             wait_for(lambda: done() > held)
             assert page.inner_text("#state").lower() == "running"
+            other = browser.new_page()  # the token given in the URL's fragment: kept in the page, gone from the URL
+            other.goto(server.url + "#token=" + token)
+            assert other.input_value("#token") == token and "token" not in other.url
         finally:
             browser.close()
             writer.halt.set()
@@ -487,3 +493,61 @@ def test_a_viewer_far_behind_catches_up_from_the_store(writing, monkeypatch):
         again = [int(e["id"]) for e in read_sse("127.0.0.1", late.port, 5, last_event_id=ids[-6])
                  if e.get("event") == "reading"]
         assert again == ids[-5:]
+
+
+def test_another_host_than_loopback_is_warned_of(tmp_path, capsys):
+    with LiveServer(tmp_path, "0.0.0.0", 0) as server:
+        assert server.url.startswith("http://0.0.0.0:")
+        assert get_json(f"http://127.0.0.1:{server.port}/api/state")["state"] == "starting"  # no store yet
+    err = capsys.readouterr().err
+    assert err.startswith("rtcal: warning:") and err.count("\n") == 1
+
+
+def test_a_session_prints_the_two_lines_and_serves_both_ways(tmp_path):
+    """What `rtcal run --live` starts: the socket always, the page with control, the lines on stderr."""
+    import io
+
+    from rtcal.live.session import start_session
+
+    engine, out = FakeEngine(), io.StringIO()
+    with start_session(tmp_path, engine, ("127.0.0.1", 0), out) as session:
+        lines = out.getvalue().splitlines()
+        assert lines == [f"live view: {session.url}", f"control token: {session.token}"]
+        assert session.url.startswith("http://127.0.0.1:") and len(session.token) >= 22
+        send_control(tmp_path, session.token, "pause")
+        assert post(session.url + "api/resume", session.token) == 202
+        assert post(session.url + "api/abort") == 401
+    assert engine.calls == ["pause", "resume"]
+    assert not os.path.lexists(tmp_path / SOCKET_NAME)
+    out = io.StringIO()
+    with start_session(tmp_path, engine, None, out) as session:  # without --live: the token all the same
+        assert out.getvalue() == f"control token: {session.token}\n" and session.url is None
+        send_control(tmp_path, session.token, "abort")
+    assert engine.calls == ["pause", "resume", "abort"]
+    with socket.socket() as busy, pytest.raises(OSError):
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        start_session(tmp_path, engine, ("127.0.0.1", busy.getsockname()[1]), io.StringIO())
+    assert not os.path.lexists(tmp_path / SOCKET_NAME)  # nothing left behind
+
+
+def test_a_store_from_before_attempts_is_read_as_it_is(tmp_path):
+    """No `attempt` column (rtcal before attempts): each planned reading was attempted once; the
+    view reads it without adding the column as `rtcal resume` would."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    writer = StoreWriter(run_dir, interval_s=0.0, stop_after=4, reject_at=-1, skip_at=None, finish=True)
+    writer.start()
+    writer.join(20)
+    import sqlite3
+
+    with closing(sqlite3.connect(run_dir / "run.sqlite", isolation_level=None)) as db:
+        db.execute("DROP INDEX readings_by_plan")
+        db.execute("ALTER TABLE readings DROP COLUMN attempt")
+    before = (run_dir / "run.sqlite").read_bytes()
+    with LiveServer(run_dir, port=0) as server:
+        state = get_json(server.url + "api/state")
+        readings = [e for e in read_sse("127.0.0.1", server.port, 4 * 7) if e.get("event") == "reading"]
+    assert state["state"] == "finished" and state["done_readings"] == 4 and len(readings) == 28
+    assert json.loads(readings[0]["data"])["attempt"] is None
+    assert (run_dir / "run.sqlite").read_bytes() == before

@@ -20,6 +20,7 @@ import bisect
 import ipaddress
 import json
 import socket
+import sqlite3
 import sys
 import threading
 import time
@@ -102,7 +103,7 @@ def _sse(event: str, data: Any, event_id: int | None = None) -> str:
 
 
 def _asset(name: str) -> bytes:
-    return resources.files("rtcal.live").joinpath("static", name).read_bytes()
+    return resources.files("rtcal.live").joinpath("static").joinpath(name).read_bytes()
 
 
 def _last_event_id(request: Request) -> int:
@@ -140,24 +141,31 @@ class _Feed:
         with self._lock:
             if time.monotonic() - self._at < 0.8 * self.poll_s:
                 return
-            state = self.view.state()
-            if self.last_id is None:  # a long run's older readings are read by each viewer that wants them
-                self.last_id = max(0, int(state.get("last_reading_id") or 0) - FEED_WINDOW)
-            while True:
-                rows = self.view.readings_after(self.last_id, CATCH_UP_BATCH)
-                for r in rows:
-                    self._ids.append(r["id"])
-                    self._texts.append(_sse("reading", r, r["id"]))
-                if rows:
-                    self.last_id = rows[-1]["id"]
-                if len(rows) < CATCH_UP_BATCH:
-                    break
-            if len(self._ids) > 2 * FEED_WINDOW:
-                del self._ids[:-FEED_WINDOW], self._texts[:-FEED_WINDOW]
-            after = self._events[-1][0] if self._events else 0
-            self._events += [(e["id"], _sse("log", e)) for e in self.view.events_after(after)]
-            self.state_text = json.dumps({**state, "control": self.control()}, allow_nan=False, ensure_ascii=False)
+            try:
+                self._read()
+            except sqlite3.Error:  # a store being created or checkpointed: the next poll reads it
+                pass
             self._at = time.monotonic()
+
+    def _read(self) -> None:
+        """Called with the lock held: the new readings and events, encoded, and the state."""
+        state = self.view.state()
+        if self.last_id is None:  # a long run's older readings are read by each viewer that wants them
+            self.last_id = max(0, int(state.get("last_reading_id") or 0) - FEED_WINDOW)
+        while True:
+            rows = self.view.readings_after(self.last_id, CATCH_UP_BATCH)
+            for r in rows:
+                self._ids.append(r["id"])
+                self._texts.append(_sse("reading", r, r["id"]))
+            if rows:
+                self.last_id = rows[-1]["id"]
+            if len(rows) < CATCH_UP_BATCH:
+                break
+        if len(self._ids) > 2 * FEED_WINDOW:
+            del self._ids[:-FEED_WINDOW], self._texts[:-FEED_WINDOW]
+        after = self._events[-1][0] if self._events else 0
+        self._events += [(e["id"], _sse("log", e)) for e in self.view.events_after(after)]
+        self.state_text = json.dumps({**state, "control": self.control()}, allow_nan=False, ensure_ascii=False)
 
     def readings_since(self, after: int) -> list[tuple[int, str]] | None:
         """The encoded readings after ``after``; None if they begin before the feed's window."""
@@ -194,6 +202,7 @@ class LiveServer:
         self._feed = _Feed(self.view, poll_s, lambda: self.control is not None)
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
+        self._sock: socket.socket | None = None
         self._stopping = threading.Event()
         self.url: str | None = None
 
@@ -330,9 +339,8 @@ class LiveServer:
         if self._thread is not None:
             self._thread.join(timeout=10)
             self._thread = None
-        sock = getattr(self, "_sock", None)
-        if sock is not None:
-            sock.close()
+        if self._sock is not None:
+            self._sock.close()
             self._sock = None
         self._server = None
 

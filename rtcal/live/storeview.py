@@ -53,6 +53,9 @@ def open_read_only(path: Path) -> sqlite3.Connection:
     mode = "mode=ro" if live else "immutable=1"
     db = sqlite3.connect(f"file:{quote(str(path.absolute()))}?{mode}", uri=True, timeout=2.0, isolation_level=None,
                          check_same_thread=False)
+    columns = {row[1] for row in db.execute("PRAGMA main.table_info(readings)")}
+    if columns and "attempt" not in columns:  # a store from before attempts: each planned reading attempted once
+        db.execute("CREATE TEMP VIEW readings AS SELECT *, NULL AS attempt FROM main.readings")  # in memory only
     db.execute("PRAGMA query_only=1")
     return db
 

@@ -1,0 +1,62 @@
+"""What a run starts for remote control and, with ``--live``, for its live view — in one call, so
+that every run keeps the contract of issue 24 the same way: a new token, the control socket in
+the run directory, the web server if asked for, and the two lines on stderr before the first
+motion (``live view: URL`` and ``control token: TOKEN``, printed once and written nowhere)."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+from rtcal.live.control import ControlServer, Controllable, new_token
+from rtcal.live.server import LiveServer
+
+
+@dataclass
+class LiveSession:
+    """The control socket (always) and the live server (with ``--live``) of one running engine."""
+
+    token: str
+    control: ControlServer
+    server: LiveServer | None = None
+
+    @property
+    def url(self) -> str | None:
+        return self.server.url if self.server is not None else None
+
+    def close(self) -> None:
+        """Stop the web server and remove the control socket (call it however the run ends)."""
+        try:
+            if self.server is not None:
+                self.server.stop()
+        finally:
+            self.control.close()
+
+    def __enter__(self) -> "LiveSession":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def start_session(run_dir: Path, engine: Controllable, live: tuple[str, int] | None = None,
+                  stream: TextIO | None = None) -> LiveSession:
+    """Serve ``engine``'s control socket in ``run_dir`` and, if ``live`` (host, port) is given, the
+    live view with control; print the lines the contract names on ``stream`` (stderr). Raises
+    OSError if the port cannot be had (nothing is left running then)."""
+    out = stream if stream is not None else sys.stderr
+    token = new_token()
+    control = ControlServer(Path(run_dir), token, engine)
+    control.start()
+    server = None
+    try:
+        if live is not None:
+            server = LiveServer(Path(run_dir), live[0], live[1], engine, token)
+            print(f"live view: {server.start()}", file=out, flush=True)
+    except BaseException:
+        control.close()
+        raise
+    print(f"control token: {token}", file=out, flush=True)
+    return LiveSession(token, control, server)
