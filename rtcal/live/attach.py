@@ -12,8 +12,9 @@ import sys
 from pathlib import Path
 from typing import Callable, TextIO
 
-from rtcal.live.control import ControlServer, Controllable, new_token
-from rtcal.live.server import LiveServer, parse_live_spec
+from rtcal.live.control import Controllable
+from rtcal.live.server import parse_live_spec
+from rtcal.live.session import start_session
 
 
 class RunControl:
@@ -26,24 +27,6 @@ class RunControl:
         self.url: str | None = None
 
     def __call__(self, engine: Controllable, run_dir: Path) -> Callable[[], None]:
-        token = new_token()
-        control = ControlServer(run_dir, token, engine)
-        control.start()
-        server = None
-        try:
-            if self.live is not None:
-                host, port = self.live
-                server = LiveServer(run_dir, host, port, control=engine, token=token)
-                self.url = server.start()
-                print(f"live view: {self.url}", file=self.stream, flush=True)
-        except BaseException:
-            control.close()
-            raise
-        print(f"control token: {token}", file=self.stream, flush=True)
-
-        def close() -> None:
-            if server is not None:
-                server.stop()
-            control.close()
-
-        return close
+        session = start_session(run_dir, engine, self.live, self.stream)
+        self.url = session.url
+        return session.close
