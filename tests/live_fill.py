@@ -9,7 +9,7 @@ from pathlib import Path
 
 from rtcal.procedure.loader import load_procedure
 from rtcal.run.store import REJECTED, SKIPPED, Reading, RunStore
-from rtcal.sequencer.abbe import planned_visits
+from rtcal.plans.abbe import planned_visits
 
 PROCEDURE = Path(__file__).resolve().parents[1] / "procedures" / "iso230_2_polygon.yaml"
 
@@ -29,7 +29,7 @@ def deviation_arcsec(angle_deg: float, run: int) -> float:
 
 
 def visit_readings(store: RunStore, k: int, v, t_s: float) -> list[Reading]:
-    """One visit's rows as rtcal/sequencer/abbe.py stores them (one sample, an environment sensor)."""
+    """One visit's rows as the Abbe plan (rtcal/plans/abbe.py) stores them (one sample, an environment sensor)."""
     state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg,
                  plan_index=k, segment=0, attempt=store.new_attempt())
     dev = deviation_arcsec(v.angle_deg, v.run)
