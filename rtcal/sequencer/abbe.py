@@ -15,7 +15,7 @@ from rtcal.clock import Clock
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.run.store import REJECTED, Reading, RunStore
 from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
-from rtcal.sequencer.checks import Contradiction, EncoderCheck, MotionChecks, check_face
+from rtcal.sequencer.checks import Contradiction, EncoderCheck, MotionChecks, abbe_cross_checks, check_abbe_visit, check_face
 from rtcal.sequencer.conditions import read_environment
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
@@ -101,6 +101,7 @@ def run_abbe(
     faults = FaultHandler(policies, store, clock, operator, safe_state)
     checks = MotionChecks(inst.stage, proc.verification.stage_tolerance_deg)
     encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
+    cross = abbe_cross_checks(proc)  # instruments against each other (issue 26): autocollimator vs encoder, indicators
     done = store.done_plan_indices()
     last_seating = plan[max(done)].seating if done else None  # where the polygon was left
     seating = None
@@ -142,6 +143,7 @@ def run_abbe(
                 encoder_moves.check(r.value, v.angle_deg)
             elif r.quantity == "x_arcsec":
                 check_face(r.value, proc.verification.autocollimator_tolerance_arcsec, v.angle_deg)
+        check_abbe_visit(*cross, readings, v.angle_deg, v.seating, v.run, v.direction, state["plan_index"])  # issue 26
         after = faults.call("stage", lambda: checks.stage_still(inst.stage, feedback), what=f"position at {v.angle_deg:g}°")
         if after is SKIPPED:
             readings.append(Reading(clock.now_s(), "stage", SKIPPED_QUANTITY, 0.0, "", **state))
