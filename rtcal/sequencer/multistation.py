@@ -12,13 +12,13 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from drivers.errors import TrackingLost
+from drivers.errors import InstrumentError, TrackingLost
 from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.clock import Clock
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.run.store import REJECTED, Reading, RunStore
 from rtcal.run.store import SKIPPED as SKIPPED_QUANTITY
-from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck
+from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck, TracerReturnCheck
 from rtcal.sequencer.conditions import read_environment
 from rtcal.sequencer.faults import SKIPPED, FaultHandler
 from rtcal.sequencer.motion import approach
@@ -95,6 +95,13 @@ def run_multistation(
     if proc.second_mount is not None:
         guesses.append(np.array(proc.second_mount.first_station_guess_mm))
     lengths = TracerCheck(guesses, np.array(proc.solver.axis_point_mm), angles, points, v.tracer_tolerance_mm)
+    # issue 26: the tracer measured again where its segment was referenced, at the end of each pass (creep, drift)
+    u = proc.uncertainty
+    radius_mm = max(float(np.linalg.norm(g[:2] - np.array(proc.solver.axis_point_mm)[:2])) for g in guesses)
+    returns = TracerReturnCheck(u.laser_tracer_noise_um, u.laser_tracer_noise_ppm, u.cmm_point_noise_um,
+                                u.stage_repeatability_arcsec, radius_mm, v.tracer_drift_um)
+    segment_ref: dict[int, tuple[int, int]] = {}  # segment → (point, station) it was referenced at
+    taken_in_segment: dict[int, list[dict]] = {}  # segment → states of the readings stored whole in it
     done = store.done_plan_indices()
     next_segment = store.max_segment() + 1
     at_point: int | None = None
@@ -107,6 +114,7 @@ def run_multistation(
         inst.laser_tracer.reference()
         lengths.referenced(mount or 0, i, j)
         segment, next_segment = next_segment, next_segment + 1
+        segment_ref[segment] = (i, j)  # issue 26
         store.add_event(clock.now_s(), why, f"tracking segment {segment} referenced at point {i + 1}, station {j + 1}", "laser_tracer")
 
     def to_mount(k: int, mk: int) -> None:
@@ -232,7 +240,43 @@ def run_multistation(
         t = clock.now_s()
         readings += [Reading(t, "cmm", f"after_position_{axis}_mm", float(value), "mm", **state) for axis, value in zip("xyz", xyz_after)]
         store.add_readings(readings)
+        if segment_ref.get(segment) == (i, j):  # issue 26: the segment's first reading at its reference point
+            returns.referenced(segment, [r.value for r in samples])
+        taken_in_segment.setdefault(segment, []).append(state)
         return True
+
+    def return_to_reference() -> None:
+        """Issue 26: the tracer measured again at its segment's reference point (not a planned reading: no
+        plan index). A length away from the first one there beyond the noise marks every reading of the
+        segment rejected (kept; a resume takes them again) and stops the run. A fault on the way only
+        leaves the check undone (an event says so)."""
+        nonlocal at_point, at_station
+        if segment is None or segment not in returns.first:
+            return
+        i, j = segment_ref[segment]
+        state = dict(point=i, station=j, commanded_angle_deg=float(angles[j]), seating=mount or 0,
+                     commanded_x_mm=float(points[i][0]), commanded_y_mm=float(points[i][1]), commanded_z_mm=float(points[i][2]))
+        try:
+            at_point = at_station = None
+            approach(inst.stage, float(angles[j]), direction, proc.stations.overshoot_deg)
+            inst.cmm.move_to(points[i])
+            at_point, at_station = i, j
+            clock.sleep(proc.settle_time_s)
+            values = [inst.laser_tracer.read_length() for _ in range(proc.samples_per_reading)]
+        except InstrumentError as exc:
+            store.add_event(clock.now_s(), "check", f"return to the reference point not measured: {exc}", "laser_tracer")
+            return
+        if any(r.segment != values[0].segment for r in values):
+            return  # the tracer re-referenced itself: another segment
+        store.add_readings([Reading(clock.now_s(), "laser_tracer", "return_length_mm", r.length_mm, "mm", sample=s,
+                                    segment=segment, **state) for s, r in enumerate(values)])
+        try:
+            returns.check(segment, [r.length_mm for r in values], float(lengths.distance_mm[mount or 0][i, j]),
+                          f"point {i + 1}, station {j + 1}")
+        except Contradiction as exc:
+            store.add_readings([Reading(clock.now_s(), "laser_tracer", REJECTED, 0.0, "", **taken)
+                                for taken in taken_in_segment.get(segment, [])])
+            faults.abort("laser_tracer", exc, "every reading of the segment is marked rejected: a resume takes them again")
 
     stored = 0
     skipped: list[int] = []
@@ -247,10 +291,13 @@ def run_multistation(
     for k, (mk, i, j) in progress(iter([(k, entry) for k, entry in enumerate(plan) if k not in done])):
         if mk != mount and skipped:  # before the tracer leaves the mount they were planned on
             retake_skipped()
+        if mount is not None and mk != mount:
+            return_to_reference()  # issue 26: before the tracer leaves its mount
         to_mount(k, mk)
         if take(k, mk, i, j):
             stored += 1
         else:
             skipped.append(k)
     retake_skipped()
+    return_to_reference()  # issue 26: at the end of the pass
     return stored
