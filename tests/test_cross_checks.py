@@ -19,8 +19,8 @@ import yaml
 
 from rtcal.run.runner import resume_run, run_procedure
 from rtcal.run.store import RunStore
-from rtcal.sequencer.checks import (AutocollimatorEncoderCheck, Contradiction, IndicatorCheck, TracerReturnCheck,
-                                    combined_sigma)
+from rtcal.sequencer.checks import (AutocollimatorEncoderCheck, Contradiction, EncoderCheck, IndicatorCheck,
+                                    TracerReturnCheck, combined_sigma)
 from rtcal.sequencer.faults import RunAborted
 from simulators.bench import Bench
 from simulators.instruments import SimAutocollimator, SimDialIndicator, SimLaserTracer
@@ -168,6 +168,28 @@ def test_along_a_pass_a_jump_beyond_the_stated_bounds_is_caught():
         check.check(60.0, 30.0, 30.0, 0, 0, 1, 2)  # 40″ more: beyond
 
 
+@pytest.mark.parametrize("reading_deg, words", [(10.0 + 15.0 + 3e-4, "one request behind"),  # where 15° was
+                                                 (10.0 + 15.0 + 2e-4, "repeats")])  # the same value again
+def test_an_encoder_stale_or_frozen_is_named_when_the_autocollimator_saw_the_table_turn(reading_deg, words):
+    check = EncoderCheck(600.0)
+    check.check(10.0, 0.0, table_seen=True)
+    check.check(10.0 + 15.0 + 2e-4, 15.0, table_seen=True)
+    with pytest.raises(Contradiction, match=words) as exc:
+        check.check(reading_deg, 45.0, table_seen=True)
+    assert exc.value.instrument == "encoder"
+    with pytest.raises(Contradiction, match="encoder"):  # stays suspect: a retake cannot hide it
+        check.check(10.0 + 45.0, 45.0, table_seen=True)
+
+
+def test_an_encoder_that_disagrees_without_the_autocollimator_names_the_stage():
+    check = EncoderCheck(600.0)  # a table that did not turn and an encoder that did not count look the same
+    check.check(10.0, 0.0)
+    check.check(10.0 + 15.0, 15.0)
+    with pytest.raises(Contradiction) as exc:
+        check.check(10.0 + 15.0 + 1e-4, 45.0)
+    assert exc.value.instrument == "stage"
+
+
 # -- the indicators and the tracer, as classes
 
 def test_indicator_range_and_unit():
@@ -250,23 +272,25 @@ def _no_certificate(out: Path) -> None:
     assert not (out / "results.json").exists() and not (out / "report.pdf").exists() and not (out / "report.md").exists()
 
 
-@pytest.mark.parametrize("kind", ["stale", "frozen"])
-def test_a_run_with_a_stale_or_frozen_autocollimator_stops_with_exit_1_naming_it(tmp_path, kind):
-    scenario = _scenario_file(tmp_path, [{"instrument": "autocollimator", "kind": kind, "at_request": [30]}])
+@pytest.mark.parametrize("instrument, kind", [("autocollimator", "stale"), ("autocollimator", "frozen"), ("encoder", "stale"),
+                                              ("dial_indicator_2", "inch")])
+def test_a_run_with_a_stale_or_frozen_instrument_stops_with_exit_1_naming_it(tmp_path, instrument, kind):
+    scenario = _scenario_file(tmp_path, [{"instrument": instrument, "kind": kind, "at_request": [30]}])
     out = tmp_path / "run"
     done = subprocess.run([sys.executable, "-m", "rtcal.cli", "run", str(ISO), "--scenario", str(scenario), "--out", str(out)],
                           capture_output=True, text=True, timeout=120, cwd=REPO)
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
     first = done.stderr.strip().splitlines()[0]
-    assert first.startswith("rtcal: instrument error: autocollimator: run aborted after autocollimator:"), first
+    assert first.startswith(f"rtcal: instrument error: {instrument}: run aborted after {instrument}:"), first
+    assert "inches" in first if kind == "inch" else True
     _no_certificate(out)
     store = RunStore.open(out)
     try:
         rejected = [r for r in store.readings() if r.quantity == "rejected"]
     finally:
         store.close()
-    assert rejected and all(r.instrument == "autocollimator" for r in rejected)
+    assert rejected and all(r.instrument == instrument for r in rejected)
 
 
 @pytest.mark.parametrize("kind, at", [("stale", 1), ("frozen", 1)])

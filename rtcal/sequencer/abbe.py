@@ -138,9 +138,11 @@ def run_abbe(
                     readings.append(Reading(clock.now_s(), instrument, SKIPPED_QUANTITY, 0.0, "", sample=s, **state))
                 else:
                     readings.append(Reading(clock.now_s(), instrument, quantity, float(value), unit, sample=s, **state))
+        seen = any(r.quantity == "x_arcsec" and abs(r.value) <= proc.verification.autocollimator_tolerance_arcsec
+                   for r in readings)  # issue 26: the table turned, so an encoder that disagrees misreads
         for r in readings:
             if r.quantity == "angle_deg":
-                encoder_moves.check(r.value, v.angle_deg)
+                encoder_moves.check(r.value, v.angle_deg, table_seen=seen)
             elif r.quantity == "x_arcsec":
                 check_face(r.value, proc.verification.autocollimator_tolerance_arcsec, v.angle_deg)
         check_abbe_visit(*cross, readings, v.angle_deg, v.seating, v.run, v.direction, state["plan_index"])  # issue 26

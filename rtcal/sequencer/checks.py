@@ -96,13 +96,34 @@ class EncoderCheck:
         self.tolerance_arcsec = tolerance_arcsec
         self.offset_deg: float | None = None
         self.first_command_deg = 0.0
+        self.previous: tuple[float, float] | None = None  # the last request's (encoder, command)
+        self.suspect: str | None = None  # stale or frozen, found once (issue 26)
 
-    def check(self, encoder_deg: float, command_deg: float) -> None:
+    def check(self, encoder_deg: float, command_deg: float, table_seen: bool = False) -> None:
+        """``table_seen``: the autocollimator saw the face the command puts in view square, so the
+        table did turn; an encoder that disagrees is then the encoder's fault, and one that fits
+        the previous request (stale) or repeats itself (frozen) stays suspect for the run."""
         offset = encoder_deg - command_deg
+        previous, self.previous = self.previous, (encoder_deg, command_deg)
+        if self.suspect is not None:
+            raise Contradiction("encoder", f"at {command_deg:g}°: {self.suspect}")
         if self.offset_deg is None:
             self.offset_deg, self.first_command_deg = offset, command_deg
             return
         apart_deg = (offset - self.offset_deg + 180.0) % 360.0 - 180.0
+        if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec and table_seen and previous is not None:
+            lag_deg = (encoder_deg - previous[1] - self.offset_deg + 180.0) % 360.0 - 180.0
+            if encoder_deg == previous[0]:
+                self.suspect = (f"the encoder repeats {encoder_deg:.6f}° while the table turned (the autocollimator sees the "
+                                "commanded face square): a frozen counter or buffer")
+            elif abs(lag_deg) * 3600.0 <= self.tolerance_arcsec:
+                self.suspect = (f"the encoder reads where the previous request was ({lag_deg * 3600:+.0f}″ from it) while the "
+                                "autocollimator sees the commanded face square: its replies are one request behind (stale)")
+            if self.suspect is not None:
+                raise Contradiction("encoder", f"at {command_deg:g}°: {self.suspect}")
+            raise Contradiction("encoder", f"the encoder is {apart_deg * 3600:+.0f}″ from the commanded motion while the "
+                                           "autocollimator sees the commanded face square (tolerance "
+                                           f"{self.tolerance_arcsec:g}″, verification.encoder_tolerance_arcsec): it misreads")
         if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec:
             commanded = command_deg - self.first_command_deg
             raise Contradiction("stage", f"the encoder turned {commanded + apart_deg:.4f}° where {commanded:.4f}° was "
