@@ -194,13 +194,23 @@ def test_an_encoder_that_disagrees_without_the_autocollimator_names_the_stage():
 
 def test_indicator_range_and_unit():
     check = IndicatorCheck(range_um=50.0, digit_um=1.0)
+    assert check.inch_grid_um == pytest.approx(0.05)  # 1 µm digit → 0.00005 in → 0.05 as mm µm
     check.check("dial_indicator_1", 3.0000000000000004)  # whole µm, as a driver computes them from mm
     check.check("dial_indicator_1", -12.0)
-    with pytest.raises(Contradiction, match="inches") as exc:
-        check.check("dial_indicator_2", 0.1)  # 0.0001 in read as mm
-    assert exc.value.instrument == "dial_indicator_2"
     with pytest.raises(Contradiction, match="beyond"):
         check.check("dial_indicator_1", 51.0)
+    inch = [0.1, 0.15, 0.0, -0.05, 0.1]  # 0.0001 in, 0.00015 in, … read as mm; a zero says nothing
+    for y in inch[:-1]:
+        check.check("dial_indicator_2", y)
+    with pytest.raises(Contradiction, match="inches") as exc:
+        check.check("dial_indicator_2", inch[-1])
+    assert exc.value.instrument == "dial_indicator_2"
+    check = IndicatorCheck(range_um=50.0, digit_um=1.0)
+    for y in (0.1, 0.15, 2.0, 0.1, 0.05, 0.1):  # a whole-digit reading between: no four in a row
+        check.check("dial_indicator_1", y)
+    rng = np.random.default_rng(0)
+    for y in 3.0 * rng.standard_normal(2000):  # a bench without quantisation: any value, never four in a row
+        check.check("dial_indicator_1", float(y))
     IndicatorCheck(range_um=50.0, digit_um=0.0).check("dial_indicator_1", 0.1)  # no stated digit: no unit check
 
 

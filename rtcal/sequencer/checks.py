@@ -17,10 +17,16 @@ and the run stops at once (no retry can give rtcal its machine back).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from drivers.errors import InstrumentFault
 from drivers.interfaces import Cmm, RotaryStage
+
+if TYPE_CHECKING:
+    from rtcal.procedure.models import EncoderAbbeError
+    from rtcal.run.store import Reading
 
 FLOOR_DEG = 1e-6  # a drive without steps still reports its position in floating point
 
@@ -273,25 +279,50 @@ class AutocollimatorEncoderCheck:
         self.last_in_pass[pass_key] = (command_deg, d)
 
 
+def inch_digit_um(digit_um: float) -> float:
+    """What one digit of the same indicator set to inches reads as when its number is taken for mm,
+    µm: its inch digit is the 1-2-5 step at or above the mm digit / 25.4 (1 µm → 0.00005 in → 0.05)."""
+    inches = digit_um * 1e-3 / 25.4
+    decade = 10.0 ** np.floor(np.log10(inches))
+    step = next(k for k in (1.0, 2.0, 5.0, 10.0) if k * decade >= inches * (1 - 1e-9))
+    return float(step * decade * 1e3)
+
+
 class IndicatorCheck:
-    """A dial indicator's reading within its stated range, and in whole digits of its stated
-    display digit: an indicator set to inches whose reply a driver reads as mm shows 1/25.4 of the
-    displacement, in digits of 0.00005 in (0.05 µm as read), never whole µm."""
+    """A dial indicator's reading within its stated range; and, when its display digit is stated,
+    not an inch display read as mm: ``UNIT_EVIDENCE`` nonzero readings in a row off its digit and
+    each on the grid an inch display's digits make when read as mm (1/25.4 of the displacement).
+    One reading off the digit is not enough: a simulated bench without quantisation shows any
+    value; four in a row on that grid happen by chance to about 1 in 10⁶."""
+
+    UNIT_EVIDENCE = 4
+    GRID_TOLERANCE = 0.02  # of the grid step
 
     def __init__(self, range_um: float, digit_um: float):
         self.range_um = range_um
         self.digit_um = digit_um
+        self.inch_grid_um = inch_digit_um(digit_um) if digit_um > 0 else 0.0
+        self.in_a_row: dict[str, int] = {}
+
+    @staticmethod
+    def _on_grid(value: float, step: float, tolerance: float) -> bool:
+        k = value / step
+        return abs(k - round(k)) <= tolerance
 
     def check(self, instrument: str, y_um: float) -> None:
         if not abs(y_um) <= self.range_um:
             raise Contradiction(instrument, f"reads {y_um:+.1f} µm, beyond the ±{self.range_um:g} µm the shaft may move "
                                             "(verification.indicator_range_um): misread, or not touching the shaft")
-        if self.digit_um > 0:
-            digits = y_um / self.digit_um
-            if not abs(digits - round(digits)) <= 0.05:
-                raise Contradiction(instrument, f"reads {y_um:+.4g} µm, not a whole number of its {self.digit_um:g} µm digits "
-                                                "(uncertainty.indicator_resolution_um): its display is in another unit — "
-                                                "set to inches, its number read as mm is 25.4× too small; set it to mm")
+        if self.digit_um <= 0 or y_um == 0.0:
+            return
+        inch_like = (not self._on_grid(y_um, self.digit_um, self.GRID_TOLERANCE)
+                     and self._on_grid(y_um, self.inch_grid_um, self.GRID_TOLERANCE))
+        self.in_a_row[instrument] = self.in_a_row.get(instrument, 0) + 1 if inch_like else 0
+        if self.in_a_row[instrument] >= self.UNIT_EVIDENCE:
+            raise Contradiction(instrument, f"reads {y_um:+.4g} µm: {self.UNIT_EVIDENCE} readings in a row not in its "
+                                            f"{self.digit_um:g} µm digits (uncertainty.indicator_resolution_um) but in steps "
+                                            f"of {self.inch_grid_um:g}: its display is in inches, its number read as mm "
+                                            "(25.4× too small); set it to mm")
 
 
 class TracerReturnCheck:
@@ -330,7 +361,7 @@ class TracerReturnCheck:
                                                 "count drifts or creeps; every length of the segment is suspect")
 
 
-def abbe_cross_checks(proc) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck]:
+def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck]:
     """The cross-checks of an encoder Abbe-error (or ISO 230-2) procedure, with its stated figures."""
     v, u = proc.verification, proc.uncertainty
     sigma = v.cross_check_noise_arcsec or combined_sigma((u.autocollimator_noise_arcsec, u.autocollimator_resolution_arcsec),
@@ -339,7 +370,7 @@ def abbe_cross_checks(proc) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck]
             IndicatorCheck(v.indicator_range_um, u.indicator_resolution_um))
 
 
-def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, readings: list, command_deg: float,
+def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, readings: list[Reading], command_deg: float,
                      seating: int, run: int, direction: int, visit: int) -> None:
     """One visit's readings (the store's Reading objects) through the cross-checks."""
     for r in readings:
