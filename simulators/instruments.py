@@ -30,7 +30,7 @@ from rtcal.solvers.air import standard_air_n
 from rtcal.units import rad_to_arcsec, um_to_mm
 from simulators.bench import Bench
 from simulators.faults import ALARM_CODES
-from simulators.scenario import FaultSpec
+from simulators.scenario import STATE_KINDS, FaultSpec
 
 
 def _quantise(value: float, step: float) -> float:
@@ -54,15 +54,38 @@ class _Injecting:
     bench: Bench
     inject: bool = True
     name: str
+    state_fault: FaultSpec | None = None  # a fault inside the instrument that stays (stale, frozen, creep, inch)
+    _last_reply: float | None = None  # what the instrument answered last
+    _buffer: float | None = None  # a stale instrument's reading of the previous request
 
     def _fault(self) -> FaultSpec | None:
         return self.bench.faults.draw(self.name) if self.inject else None
 
+    def afflict(self, fault: FaultSpec) -> None:
+        """From now on the instrument suffers ``fault`` (one of the scenario's STATE_KINDS); the
+        protocol simulators call it when their injector draws one."""
+        if self.state_fault is None:
+            self.state_fault = fault
+
     def _request(self) -> None:
-        """One request of an instrument whose only faults are on the wire: raise as a driver would."""
+        """One request: raise a fault on the wire as a driver would, or take on a lasting fault."""
         fault = self._fault()
-        if fault is not None:
+        if fault is not None and fault.kind in STATE_KINDS:
+            self.afflict(fault)
+        elif fault is not None:
             raise communication_fault(self.name, fault.kind)
+
+    def _reply(self, fresh: float) -> float:
+        """What the instrument answers for a fresh reading: stale, the previous request's reading;
+        frozen, the last answer again."""
+        kind = self.state_fault.kind if self.state_fault is not None else None
+        reply = fresh
+        if kind == "stale":
+            reply = self._buffer if self._buffer is not None else fresh
+        elif kind == "frozen" and self._last_reply is not None:
+            reply = self._last_reply
+        self._buffer, self._last_reply = fresh, reply
+        return reply
 
 
 class SimStage(_Injecting, RotaryStage):
@@ -177,6 +200,7 @@ class SimLaserTracer(_Injecting, LaserTracer):
         self._reference_mm: float | None = None  # optical path at the reference, in standard-air mm
         self._segment = -1
         self._n_std = standard_air_n()
+        self._creep_readings = 0
 
     def _optical_mm(self) -> float:
         return self.bench.tracer_length_mm() * self.bench.air_index() / self._n_std
@@ -191,6 +215,8 @@ class SimLaserTracer(_Injecting, LaserTracer):
         fault = self._fault()
         if fault is not None and fault.kind == "beam_break":
             self.bench.beam_broken = True
+        elif fault is not None and fault.kind in STATE_KINDS:
+            self.afflict(fault)
         elif fault is not None:
             raise communication_fault(self.name, fault.kind)
         if self.bench.beam_broken:
@@ -200,7 +226,12 @@ class SimLaserTracer(_Injecting, LaserTracer):
         length = self.bench.tracer_length_mm()
         lt = self.bench.scenario.laser_tracer
         sigma_mm = um_to_mm(lt.length_noise_um + lt.length_noise_ppm * length * 1e-3)
-        return LengthReading(self._optical_mm() - self._reference_mm + sigma_mm * self._rng.standard_normal(), self._segment)
+        creep_mm = 0.0
+        if self.state_fault is not None and self.state_fault.kind == "creep":  # every reading adds to the count
+            self._creep_readings += 1
+            creep_mm = um_to_mm(self.state_fault.creep_um_per_reading) * self._creep_readings
+        return LengthReading(self._optical_mm() - self._reference_mm + creep_mm + sigma_mm * self._rng.standard_normal(),
+                             self._segment)
 
 
 class SimEncoder(_Injecting, Encoder):
@@ -217,7 +248,7 @@ class SimEncoder(_Injecting, Encoder):
         self._request()
         enc = self.bench.scenario.encoder
         value = rad_to_arcsec(self.bench.encoder_true_rad()) + enc.noise_arcsec * self._rng.standard_normal()
-        return _quantise(value, enc.resolution_arcsec) / 3600.0
+        return self._reply(_quantise(value, enc.resolution_arcsec) / 3600.0)
 
 
 class SimAutocollimator(_Injecting, Autocollimator):
@@ -237,11 +268,17 @@ class SimAutocollimator(_Injecting, Autocollimator):
         x = rad_to_arcsec(x_rad) + ac.noise_arcsec * self._rng.standard_normal()
         if abs(x) > ac.range_arcsec:
             raise InstrumentFault(self.name, f"no polygon face within ±{ac.range_arcsec:g}″ (deflection {x:.0f}″)")
-        return float(_quantise(x, ac.resolution_arcsec)), 0.0
+        return float(self._reply(_quantise(x, ac.resolution_arcsec))), 0.0
 
 
 class SimDialIndicator(_Injecting, DialIndicator):
-    """Y displacement of the shaft at a height below the tilt centre, µm."""
+    """Y displacement of the shaft at a height below the tilt centre, µm.
+
+    Set to inches (fault ``inch``), it displays inches to 0.00005 in; over the wire the Sylvac
+    reply says ``in`` (:meth:`display`); in process it stands for a reply without a unit that a
+    driver reads as mm, so :meth:`read_um` returns the inch number as if it were mm (25.4× small)."""
+
+    INCH_DIGIT = 0.00005
 
     def __init__(self, bench: Bench, index: int, inject: bool = True):
         self.bench = bench
@@ -250,11 +287,17 @@ class SimDialIndicator(_Injecting, DialIndicator):
         self.name = f"dial_indicator_{index + 1}"
         self._rng = bench.rng(self.name)
 
-    def read_um(self) -> float:
-        self._request()
+    def display(self) -> tuple[float, str]:
+        """The display: (value, "mm") or, set to inches, (value, "in")."""
         di = self.bench.scenario.dial_indicators
         y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + di.noise_um * self._rng.standard_normal()
-        return _quantise(y_um, di.resolution_um)
+        if self.state_fault is not None and self.state_fault.kind == "inch":
+            return _quantise(y_um / 25400.0, self.INCH_DIGIT), "in"
+        return _quantise(y_um, di.resolution_um) / 1000.0, "mm"
+
+    def read_um(self) -> float:
+        self._request()
+        return self.display()[0] * 1000.0  # in process: the number as mm, whatever the display's unit
 
 
 class SimEnvironmentSensor(_Injecting, EnvironmentSensor):

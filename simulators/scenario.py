@@ -236,9 +236,12 @@ class EnvironmentScenario(_Strict):
 InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2",
                          "environment"]
 FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_exception", "crc_error", "alarm", "emergency_stop",
-                    "stuck", "short", "moved"]
+                    "stuck", "short", "moved", "stale", "frozen", "creep", "inch"]
 STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop", "stuck", "short"}
 POSITION_READ_KINDS = {"moved"}  # counted on the instrument's position reads, not on its other requests
+# what goes wrong inside an instrument and stays wrong: from the request it is drawn at, every reading after
+STATE_KINDS = {"stale": ("autocollimator", "encoder"), "frozen": ("autocollimator", "encoder"), "creep": ("laser_tracer",),
+               "inch": ("dial_indicator_1", "dial_indicator_2")}
 
 
 class FaultSpec(_Strict):
@@ -255,6 +258,13 @@ class FaultSpec(_Strict):
     feedback position shows where it stopped.
     moved (stage, cmm): another client moves it — the table by ``offset_deg``, the probe by
     ``offset_mm`` — at its k-th position read (position reads are counted on their own).
+    stale, frozen, creep, inch: from the request drawn on, for the rest of the run (a restart of the
+    instrument — a resume — clears it). stale (autocollimator, encoder): each reply is the reading
+    taken at the previous request (a buffer one step behind); frozen: every reply repeats the last
+    reply before it (a frozen display); creep (laser_tracer): each length reads
+    ``creep_um_per_reading`` more than the one before (a slowly creeping count); inch (dial
+    indicator): the display shows inches — over the wire the Sylvac reply says ``in``; in process
+    the simulated instrument stands for a reply without a unit, read as mm (25.4× too small).
     """
 
     instrument: InstrumentName = Field(description="which instrument suffers it")
@@ -264,6 +274,8 @@ class FaultSpec(_Strict):
     offset_deg: float = Field(0.003, ge=-90.0, le=90.0, description="for kind `moved` on the stage: how far the other client "
                                                                    "turns the table, deg (e.g. 0.003: three steps)")
     offset_mm: Vec3 = Field((0.5, 0.0, 0.0), description="for kind `moved` on the CMM: how far the other client moves the probe, mm")
+    creep_um_per_reading: float = Field(0.5, gt=0.0, le=1000.0, description="for kind `creep`: how much each tracer length "
+                                                                         "adds to the one before, µm (e.g. 0.5)")
     probability: float = Field(0.0, ge=0.0, le=1.0, description="chance per request, 0..1 (e.g. 0.02)")
     at_request: list[Annotated[int, Field(le=1_000_000_000)]] = Field(
         [], max_length=10_000, description="the instrument's requests that fail, counted from 1 over the whole run (resumes go on counting)")
@@ -276,6 +288,8 @@ class FaultSpec(_Strict):
             raise ValueError(f"kind: {self.kind} happens to the stage drive only")
         if self.kind == "moved" and self.instrument not in ("stage", "cmm"):
             raise ValueError("kind: only the stage or the CMM can be moved by another client")
+        if self.kind in STATE_KINDS and self.instrument not in STATE_KINDS[self.kind]:
+            raise ValueError(f"kind: {self.kind} happens to the {' or the '.join(STATE_KINDS[self.kind])} only")
         if self.instrument == "stage" and self.kind in ("garbled", "truncated"):
             raise ValueError("kind: a Modbus reply cannot be garbled or truncated undetected; use crc_error")
         if not self.probability and not self.at_request:

@@ -50,8 +50,10 @@ def test_noise_free_run_recovers_injected_deviations(noise_free_run, estimator):
 
 def test_store_keeps_every_raw_reading_with_its_state(noise_free_run):
     db = sqlite3.connect(noise_free_run / "run.sqlite")
-    n_len = db.execute("SELECT COUNT(*) FROM readings WHERE instrument='laser_tracer'").fetchone()[0]
+    n_len = db.execute("SELECT COUNT(*) FROM readings WHERE instrument='laser_tracer' AND plan_index IS NOT NULL").fetchone()[0]
     assert n_len == 704
+    # and the tracer measured again at its reference point at the end of the pass (no plan index: not planned)
+    assert db.execute("SELECT COUNT(*) FROM readings WHERE quantity='return_length_mm' AND plan_index IS NULL").fetchone()[0] == 1
     pairs = db.execute("SELECT COUNT(DISTINCT point || ',' || station) FROM readings WHERE instrument='laser_tracer'").fetchone()[0]
     assert pairs == 704  # each planned reading exactly once
     assert db.execute("SELECT COUNT(*) FROM readings WHERE instrument='cmm' AND quantity LIKE 'position%'").fetchone()[0] == 64 * 3

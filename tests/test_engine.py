@@ -97,6 +97,9 @@ class TwoDevicePlan:
     def positions_unknown(self):
         self.forgot += 1
 
+    def leave_group(self, group, segment):
+        return None
+
     def attempt(self, entry):
         target = self.targets[entry.index]
         yield Move("stage", target, what=f"move to {target}")

@@ -188,7 +188,7 @@ def test_the_command_line_says_exit_1_and_names_the_instrument(tmp_path):
                            str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
-    first = next(line for line in done.stderr.splitlines() if line.startswith("rtcal:"))  # after the progress lines
+    first = next(line for line in done.stderr.splitlines() if line.startswith("rtcal:") and not line.startswith("rtcal: readings "))  # not the token or progress lines
     assert first.startswith("rtcal: instrument error: stage: run aborted after stage: the laser tracer's length"), first
     assert "rtcal resume" in done.stderr
     exported = subprocess.run([sys.executable, "-m", "rtcal.cli", "export", str(tmp_path / "run")], capture_output=True,

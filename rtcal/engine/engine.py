@@ -72,6 +72,8 @@ class Engine:
         self._wake = threading.Event()
         self._plan: Plan | None = None
         self._faults: FaultHandler | None = None
+        self._in_segment: dict[int, list[dict[str, Any]]] = {}  # tracking segment → contexts of the whole attempts in it
+        self._tracking: set[str] = set()  # instruments read in tracking segments (ReadSamples)
 
     # ---- control, from any thread -------------------------------------------------------------
     def request_pause(self) -> None:
@@ -131,6 +133,8 @@ class Engine:
             if entry.group != group:
                 if plan.retake_skipped and skipped:  # before the set-up they were planned on changes
                     stored += self._retake(skipped, done_count + stored)
+                if group is not None:
+                    self._leave(plan, group)
                 for step in plan.enter_group(entry, first):
                     self._execute(step, {}, [])
                 group, first, self.segment = entry.group, False, None  # a new set-up: reference anew
@@ -141,7 +145,56 @@ class Engine:
             self._checkpoint()
         if plan.retake_skipped:
             stored += self._retake(skipped, done_count + stored)
+        if group is not None:
+            self._leave(plan, group)
         return stored
+
+    def _leave(self, plan: Plan, group: int) -> None:
+        """The plan's check before leaving a group (see :meth:`Plan.leave_group`)."""
+        found = plan.leave_group(group, self.segment)
+        if found is None:
+            return
+        context, steps = dict(found[0]), found[1]
+        readings: list[Reading] = []
+        answer: Any = None
+        try:
+            while True:
+                try:
+                    step = steps.send(answer)
+                except StopIteration:
+                    break
+                answer = self._unchecked(step, context, readings)
+        except Contradiction as exc:
+            self._commit(readings)
+            segment = self.segment
+            condemned = self._in_segment.pop(segment, []) if segment is not None else []
+            self._commit([Reading(self.clock.now_s(), exc.instrument, REJECTED, 0.0, "", **c) for c in condemned])
+            assert self._faults is not None
+            self._faults.abort(exc.instrument, exc, "every reading of the segment is marked rejected: a resume takes them again")
+        except InstrumentError as exc:
+            self._commit(readings)
+            self._event("check", exc.instrument, f"the check before leaving was not made: {exc}")
+            return
+        self._commit(readings)
+
+    def _unchecked(self, step: Step, context: dict[str, Any], readings: list[Reading]) -> Any:
+        """A step of a check outside the policies: motions and readings as they come."""
+        if isinstance(step, Move):
+            self._move(step)
+            return None
+        if isinstance(step, (Settle, Recover)):
+            self._raw(step)
+            return None
+        if isinstance(step, ReadSamples):
+            device = self.devices[step.instrument]
+            values = []
+            for n in range(step.count):
+                values.append(float(step.measure(device)))
+                self._spend(step.sample_s)
+                readings.append(Reading(self.clock.now_s(), step.instrument, step.quantity, values[-1], step.unit, sample=n,
+                                        segment=self.segment, **context))
+            return Samples(tuple(values), False, self.segment)
+        raise TypeError(f"not a step a check may take: {step!r}")
 
     def _retake(self, skipped: list[Entry], done_count: int) -> int:
         """Once more, now that the fault may have passed."""
@@ -196,6 +249,9 @@ class Engine:
                     self._safe_commit(readings + [Reading(self.clock.now_s(), "run", SKIPPED, 0.0, "", **context)])
                 raise
             self._commit(readings)
+            if whole:
+                for segment in {r.segment for r in readings if r.segment is not None and r.instrument in self._tracking}:
+                    self._in_segment.setdefault(segment, []).append(context)
             self._done(entry, whole, done_count)
             return whole
 
@@ -343,6 +399,7 @@ class Engine:
 
     def _samples(self, step: ReadSamples, context: dict[str, Any], readings: list[Reading]) -> Samples:
         device = self.devices[step.instrument]
+        self._tracking.add(step.instrument)
         reacquired = [False]
 
         def reacquire() -> None:
@@ -360,7 +417,7 @@ class Engine:
             taken.append(Reading(self.clock.now_s(), step.instrument, step.quantity, float(value), step.unit,
                                  sample=len(taken), segment=self.segment, **context))
         readings.extend(taken)
-        return Samples(tuple(r.value for r in taken), any_reacquired)
+        return Samples(tuple(r.value for r in taken), any_reacquired, self.segment)
 
     def _raw_all(self, steps: Sequence[Step]) -> None:
         for step in steps:

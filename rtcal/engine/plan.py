@@ -56,6 +56,14 @@ class Plan(Protocol):
         """The steps of one attempt at ``entry``; raises Contradiction where the method's checks fail."""
         ...
 
+    def leave_group(self, group: int, segment: int | None) -> "tuple[Mapping[str, Any], Attempt] | None":
+        """A check before the run leaves ``group`` and at the end of the pass (the tracer measured again
+        where its tracking ``segment`` was referenced), as the store columns of its readings and its
+        steps; None: nothing to check. Its steps run outside the fault policies: an instrument error
+        leaves the check undone (an event says so); a Contradiction condemns the tracking segment —
+        every attempt stored in it is marked rejected and the run stops safely."""
+        ...
+
     def positions_unknown(self) -> None:
         """The machines may have moved (a pause, an operator): the next attempt approaches anew."""
         ...

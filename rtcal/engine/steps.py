@@ -116,6 +116,7 @@ class Samples:
 
     values: tuple[float, ...]
     reacquired: bool
+    segment: int | None = None
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,7 @@ class _Walker:
         self.stage_deg = timing.stage_start_deg
         self.cmm_mm = np.asarray(timing.cmm_start_mm, float)
         self.tracking = False
+        self.segment = -1
         self.walk = PlanWalk()
 
     def _stage_time(self, move: Move) -> float:
@@ -107,10 +108,11 @@ class _Walker:
         if isinstance(step, ReadSamples):
             w.instrument_readings += step.count
             w.duration_s += step.count * step.sample_s
-            return Samples((step.nominal,) * step.count, False)
+            return Samples((step.nominal,) * step.count, False, self.segment)
         if isinstance(step, Reference):
             referenced, self.tracking = not self.tracking, True
             if referenced:
+                self.segment += 1
                 w.operator_s += step.seconds
                 w.duration_s += step.seconds
             return referenced
@@ -122,6 +124,20 @@ class _Walker:
         if isinstance(step, (Validate, Recover)):
             return None
         raise TypeError(f"not a step: {step!r}")
+
+    def drive(self, attempt: Any) -> None:
+        answer: Any = None
+        while True:
+            try:
+                step = attempt.send(answer)
+            except StopIteration:
+                return
+            answer = self.step(step)
+
+    def leave(self, plan: Plan, group: int) -> None:
+        found = plan.leave_group(group, self.segment if self.tracking else None)
+        if found is not None:
+            self.drive(found[1])
 
     def run(self, steps: Iterable[Step]) -> None:
         for step in steps:
@@ -141,15 +157,12 @@ def walk(plan: Plan, timing: Timing, done: Iterable[int] = (), listing: bool = F
         if entry.index in done:
             continue
         if entry.group != group:
+            if group is not None:
+                walker.leave(plan, group)
             walker.run(plan.enter_group(entry, first))
             group, first, walker.tracking = entry.group, False, False
-        attempt = plan.attempt(entry)
-        answer: Any = None
-        while True:
-            try:
-                step = attempt.send(answer)
-            except StopIteration:
-                break
-            answer = walker.step(step)
+        walker.drive(plan.attempt(entry))
         walker.walk.planned_readings += 1
+    if group is not None:
+        walker.leave(plan, group)
     return walker.walk

@@ -20,7 +20,8 @@ from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
 from rtcal.plans.multistation import environment_read
 from rtcal.procedure.models import EncoderAbbeError
-from rtcal.sequencer.checks import EncoderCheck, MotionChecks, check_face
+from rtcal.run.store import Reading
+from rtcal.sequencer.checks import EncoderCheck, MotionChecks, abbe_cross_checks, check_abbe_visit, check_face
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,7 @@ class AbbePlan:
         self.policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
         self.checks = MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
         self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
+        self.cross = abbe_cross_checks(proc)  # instruments against each other: autocollimator vs encoder, indicators
         self.last_seating = self.visits[max(done)].seating if done else None  # where the polygon was left
         self.entries = [
             Entry(k, v.seating, {"station": v.step, "seating": v.seating, "run": v.run, "direction": v.direction,
@@ -113,6 +115,10 @@ class AbbePlan:
     def positions_unknown(self) -> None:
         """Nothing to forget: every visit approaches its target."""
 
+    def leave_group(self, group: int, segment: int | None) -> "tuple[dict[str, Any], Attempt] | None":
+        """Nothing to check before the polygon is seated anew."""
+        return None
+
     def attempt(self, entry: Entry) -> Attempt:
         """Move, settle, check the feedback, read every instrument, check the readings and that the table stood still."""
         proc, v = self.proc, self.visits[entry.index]
@@ -129,18 +135,22 @@ class AbbePlan:
         if v.face_in_front:
             taken.append(("autocollimator", "x_arcsec", "arcsec", lambda ac: ac.read_arcsec()[0], 0.0))
         taken += [(f"dial_indicator_{n + 1}", "y_um", "um", lambda indicator: indicator.read_um(), 0.0) for n in range(2)]
-        values: list[tuple[str, float]] = []
+        values: list[tuple[str, str, float]] = []
         for s in range(proc.samples_per_reading):
             for instrument, quantity, unit, measure, nominal in taken:
                 try:
                     value = yield Read(instrument, ((quantity, unit),), measure, nominal, f"reading at {angle:g}°", sample=s)
                 except Skipped:
                     continue  # marked in the visit; the other instruments are still read
-                values.append((quantity, float(value)))
-        for quantity, value in values:
+                values.append((instrument, quantity, float(value)))
+        tolerance = proc.verification.autocollimator_tolerance_arcsec
+        seen = any(q == "x_arcsec" and abs(x) <= tolerance for _, q, x in values)  # the table turned: an encoder that disagrees misreads
+        for _, quantity, value in values:
             if quantity == "angle_deg":
-                self.encoder_moves.check(value, angle)
+                self.encoder_moves.check(value, angle, table_seen=seen)
             elif quantity == "x_arcsec":
-                check_face(value, proc.verification.autocollimator_tolerance_arcsec, angle)
+                check_face(value, tolerance, angle)
+        check_abbe_visit(*self.cross, [Reading(0.0, i, q, x, "") for i, q, x in values], angle, v.seating, v.run,
+                         v.direction, entry.index)
         yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: self.checks.stage_still(stage, feedback), angle,
                    f"position at {angle:g}°")

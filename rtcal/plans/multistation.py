@@ -21,7 +21,7 @@ from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Settle, Skipped,
                                 Step, Validate)
 from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck
+from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck, TracerReturnCheck
 
 ENVIRONMENT_QUANTITIES = (("air_temperature_c", "degC"), ("air_pressure_pa", "Pa"), ("humidity_pct", "%"),
                           ("material_temperature_c", "degC"))
@@ -94,6 +94,12 @@ class MultistationPlan:
                   {"point": i + 1, "station": j + 1, "target_deg": float(self.angles[j]), "mount": mk + 1},
                   f"reading at point {i + 1}, station {j + 1}")
             for k, (mk, i, j) in enumerate(planned_readings(proc))]
+        # the tracer measured again where its segment was referenced, before it leaves a mount and at the end (creep, drift)
+        u = proc.uncertainty
+        radius_mm = max(float(np.linalg.norm(g[:2] - np.array(proc.solver.axis_point_mm)[:2])) for g in guesses)
+        self.returns = TracerReturnCheck(u.laser_tracer_noise_um, u.laser_tracer_noise_ppm, u.cmm_point_noise_um,
+                                         u.stage_repeatability_arcsec, radius_mm, v.tracer_drift_um)
+        self.segment_ref: dict[int, tuple[int, int]] = {}  # tracking segment → (point, station) it was referenced at
         self.at_point: int | None = None
         self.at_station: int | None = None
 
@@ -116,6 +122,30 @@ class MultistationPlan:
 
     def positions_unknown(self) -> None:
         self.at_point = self.at_station = None
+
+    def leave_group(self, group: int, segment: int | None) -> tuple[dict[str, Any], Attempt] | None:
+        """Back to the point and station where the tracer's segment was referenced, its length read again
+        (not a planned reading: no plan index); a length away from the first one there is a drift."""
+        if segment is None or segment not in self.returns.first:
+            return None
+        i, j = self.segment_ref[segment]
+        angle, point = float(self.angles[j]), self.points[i]
+        context = {"point": i, "station": j, "commanded_angle_deg": angle, "seating": group,
+                   "commanded_x_mm": float(point[0]), "commanded_y_mm": float(point[1]), "commanded_z_mm": float(point[2])}
+        where = f"point {i + 1}, station {j + 1}"
+
+        def steps() -> Attempt:
+            self.at_point = self.at_station = None
+            yield Move("stage", angle, self.direction, self.proc.stations.overshoot_deg, what=f"move to station {j + 1}")
+            yield Move("cmm", point, what=f"move to point {i + 1}")
+            self.at_point, self.at_station = i, j
+            yield Settle(self.proc.settle_time_s)
+            samples = yield ReadSamples("laser_tracer", "return_length_mm", "mm", self.proc.samples_per_reading,
+                                        lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(group, i, j),
+                                        where, f"length back at {where}", self.proc.durations.tracer_sample_s)
+            self.returns.check(segment, list(samples.values), float(self.lengths.distance_mm[group][i, j]), where)
+
+        return context, steps()
 
     def expected_length_mm(self, mount: int, point: int, station: int) -> float:
         """What the nominal geometry expects the tracer to count here (the walker's answer)."""
@@ -171,13 +201,16 @@ class MultistationPlan:
             yield environment_read(f"environment at point {i + 1}, station {j + 1}")
         where = f"point {i + 1}, station {j + 1}"
         durations = proc.durations
-        if (yield Reference("laser_tracer", where, seconds=durations.reference_tracer_s)):
+        referenced_here = yield Reference("laser_tracer", where, seconds=durations.reference_tracer_s)
+        if referenced_here:
             self.lengths.referenced(mk, i, j)
         samples = yield ReadSamples("laser_tracer", "length_mm", "mm", proc.samples_per_reading,
                                     lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(mk, i, j),
                                     where, f"length at {where}", durations.tracer_sample_s, durations.reference_tracer_s)
         if samples.reacquired:
             self.lengths.referenced(mk, i, j)
+        if (referenced_here or samples.reacquired) and samples.segment is not None:
+            self.segment_ref[samples.segment] = (i, j)
         for value in samples.values:
             self.lengths.check(value, mk, i, j)
         # the table and the probe stood still while the tracer counted: read both again
@@ -185,3 +218,5 @@ class MultistationPlan:
                    f"position at station {j + 1}")
         yield Read("cmm", tuple((f"after_position_{axis}_mm", "mm") for axis in "xyz"),
                    lambda cmm: checks.cmm_still(cmm, xyz), point, f"position at point {i + 1}", redo=(Recover("cmm"),))
+        if samples.segment is not None and self.segment_ref.get(samples.segment) == (i, j):  # the segment's first reading
+            self.returns.referenced(samples.segment, list(samples.values))                 # at its reference point

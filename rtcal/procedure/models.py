@@ -434,6 +434,11 @@ class MultistationVerification(_Verification):
         20.0, gt=0.0, le=100_000.0, description="how far a tracer length may be from what the nominal geometry expects "
                                                 "(solver.first_station_guess_mm turned to each station), mm; the guess's error "
                                                 "must fit inside it (e.g. 20)")
+    tracer_drift_um: float = Field(
+        2.0, ge=0.0, le=100_000.0, description="how far the tracer's length back at its tracking segment's reference point "
+                                               "(measured again at the end of each pass) may differ from its first reading "
+                                               "there beyond 5σ of the stated noise, µm (the air between the two, thermal "
+                                               "drift; e.g. 2)")
 
 
 class AbbeVerification(_Verification):
@@ -445,6 +450,22 @@ class AbbeVerification(_Verification):
     autocollimator_tolerance_arcsec: float = Field(
         600.0, gt=0.0, le=3600.0, description="how far from zero the autocollimator's reading of the face the commanded angle "
                                               "puts in view may be, arcsec (e.g. 600)")
+    cross_check_noise_arcsec: float | None = Field(
+        None, gt=0.0, le=3600.0, description="1σ of the autocollimator − encoder difference at one visit, arcsec (default: "
+                                             "from the uncertainty section's noise and digits of both, 0.3 where it states "
+                                             "none; e.g. 0.25)")
+    cross_check_drift_arcsec: float = Field(
+        0.5, ge=0.0, le=3600.0, description="how far the autocollimator − encoder difference at one target may drift during "
+                                            "the run beyond 5σ of its noise (either instrument's thermal drift), arcsec (e.g. 0.5)")
+    encoder_error_bound_arcsec: float = Field(
+        30.0, ge=0.0, le=3600.0, description="bound of the encoder's error against the table's true angle (the Abbe shift, "
+                                             "eccentricity and graduation the method measures), arcsec; the autocollimator − "
+                                             "encoder difference changes along a pass by at most twice it (e.g. 30)")
+    face_error_bound_arcsec: float = Field(
+        5.0, ge=0.0, le=3600.0, description="bound of the polygon's face errors, arcsec (e.g. 5)")
+    indicator_range_um: float = Field(
+        1000.0, gt=0.0, le=100_000.0, description="how far the dial indicators may read from zero: the shaft's radial and "
+                                                  "tilt motion at them, µm (e.g. 1000)")
 
 
 class MultistationDurations(_Strict):

@@ -12,6 +12,7 @@ from typing import Protocol
 
 from drivers.errors import InstrumentFault, TrackingLost
 from drivers.interfaces import EnvironmentReading
+from simulators.scenario import STATE_KINDS
 from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimEnvironmentSensor, SimLaserTracer
 
 
@@ -40,6 +41,9 @@ class FaultyLine:
     def handle(self, request: bytes) -> bytes:
         fault = self.bench.faults.draw(self.name) if self.handler.counted(request) else None
         if fault is None:
+            return self.handler.handle(request)
+        if fault.kind in STATE_KINDS:  # inside the instrument, and it stays: stale, frozen, creep, inch
+            self.handler.instrument.afflict(fault)
             return self.handler.handle(request)
         if fault.kind == "beam_break":
             self.bench.beam_broken = True
@@ -95,7 +99,8 @@ class SylvacHandler:
             return b"BAT1\r\n"
         if command not in (b"?", b"PRI?"):
             return b""  # the reply to other commands is not published: nothing
-        return f"{self.instrument.read_um() / 1000.0:+.6f}\r\n".encode()
+        value, unit = self.instrument.display()
+        return (f"{value:+.6f}" + (" in" if unit == "in" else "") + "\r\n").encode()
 
 
 class QsbHandler:
