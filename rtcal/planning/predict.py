@@ -4,7 +4,7 @@ The procedure is run on its bench with every random error removed (its geometry 
 errors kept), and each estimator's budget is formed from the noise the procedure states instead
 of the noise the readings show: the linearised uncertainty of the plan — for the least-squares
 estimators their Cramér–Rao bound under the stated noise. The simulated run's clock gives the
-duration (motions, settling, readings; operator steps take no time).
+duration (motions, settling, the tracer's samples, and the operator's steps as the procedure's `durations:` states them).
 """
 
 from __future__ import annotations
