@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from drivers.addresses import AddressError
+from drivers.addresses import AddressError, redact_tokens
 from drivers.errors import InstrumentError
 from rtcal import __version__
 from rtcal.outputs import OutputRefused, is_disk_failure, output_file, write_output
@@ -82,8 +82,13 @@ def _execute(start, run_dir: str) -> int:
         print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     results = outcome.results
-    print(f"run complete: {results.raw_readings} planned readings taken, {outcome.instrument_readings} instrument "
-          "readings stored")
+    if outcome.finished:
+        print(f"run already finished: {run_dir} was measured and solved ({results.raw_readings} planned readings, "
+              f"{outcome.instrument_readings} instrument readings stored); nothing was taken or written "
+              f"(`rtcal verify {run_dir}` recomputes its results from its readings)")
+    else:
+        print(f"run complete: {results.raw_readings} planned readings taken, {outcome.instrument_readings} instrument "
+              "readings stored")
     if results.bench == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
     for line in outputs_for(results).summary() + console_lines(results):
@@ -371,8 +376,12 @@ def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResu
         if path.is_dir():
             if not (path / "results.json").exists():
                 raise UserError(f"{path}: not a run directory with a readable results.json (a run that was not solved?)")
+            from rtcal.run.integrity import check_run
+
             try:
                 results = read_results(path)
+                for warning in check_run(path, results):  # refused if it does not match its store
+                    print(f"rtcal: warning: {warning}", file=sys.stderr)
             except ResultsError as exc:
                 raise UserError(str(exc)) from None
             if results.positioning_deviations is None:
@@ -460,6 +469,39 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     result["plot"] = str(out / "compare.png")
     print(json_text(result))
     return EXIT_OK
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    """Recompute a run's results from its store and say whether results.json agrees (exit 0 / 1)."""
+    from rtcal.results import ResultsError
+    from rtcal.run.rundir import RunDirError
+    from rtcal.run.verify import verify
+
+    run = Path(args.run_dir)
+    if not run.is_dir():
+        raise UserError(f"{run}: not a run directory")
+    try:
+        found = verify(run)
+    except (ResultsError, RunDirError) as exc:
+        raise UserError(str(exc)) from None
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        print(f"rtcal: {run}: the solvers could not recompute the results from the readings: {_one_line(exc)[:300]}",
+              file=sys.stderr)
+        return EXIT_FAILED
+    for warning in found.warnings:
+        print(f"rtcal: warning: {warning}", file=sys.stderr)
+    for problem in found.integrity:
+        print(f"rtcal: {problem}", file=sys.stderr)
+    for where, stored, recomputed in found.differences[:10]:
+        print(f"rtcal: {run / 'results.json'}: {where}: stored {str(stored)[:60]}, recomputed from the readings "
+              f"{str(recomputed)[:60]}", file=sys.stderr)
+    if len(found.differences) > 10:
+        print(f"rtcal: … and {len(found.differences) - 10} more differences", file=sys.stderr)
+    verdict = "agrees" if found.agrees else "does NOT agree"
+    print(f"{run / 'results.json'} {verdict} with the results recomputed from {found.readings} readings in "
+          f"{run / 'run.sqlite'} ({found.compared} values compared to the digits stored, "
+          f"{len(found.differences)} differ; digests {'match' if not found.integrity else 'do not match'})")
+    return EXIT_OK if found.agrees else EXIT_FAILED
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -780,6 +822,11 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--out", help="directory for the CSV files (default: the run directory)")
     exp.set_defaults(func=_cmd_export)
 
+    ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json and the "
+                                        "store's digests against them (exit 0: they agree, 1: they do not)")
+    ver.add_argument("run_dir", help="a run directory (its results.json and run.sqlite)")
+    ver.set_defaults(func=_cmd_verify)
+
     plan = sub.add_parser("plan", help="predict each estimator's 1σ per target and the run's duration before measuring")
     plan.add_argument("procedure", help="procedure YAML file")
     plan.add_argument("--scenario", help="bench scenario YAML for the geometry (replaces the procedure's `bench`)")
@@ -865,10 +912,10 @@ def main(argv: list[str] | None = None) -> int:
             print(p, file=sys.stderr)
         return EXIT_USAGE
     except (UserError, AddressError, OutputRefused) as exc:
-        print(f"rtcal: {exc}", file=sys.stderr)
+        print(f"rtcal: {redact_tokens(str(exc))}", file=sys.stderr)
         return EXIT_USAGE
     except InstrumentError as exc:
-        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
         return EXIT_FAILED
     except BrokenPipeError:  # the reader of our output went away (| head): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
