@@ -386,8 +386,12 @@ def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResu
                 raise UserError(str(exc)) from None
             if results.positioning_deviations is None:
                 raise UserError(f"{path / 'results.json'}: no positioning_deviations (the run has no recommended estimate)")
-            return PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json")), results
-        return PositioningDeviations.read_csv(path), None
+            table = PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json"))
+            table.check_plausible(str(path / "results.json"))
+            return table, results
+        table = PositioningDeviations.read_csv(path)
+        table.check_plausible(str(path))
+        return table, None
     except DeviationTableError as exc:
         raise UserError(str(exc)) from None
 
