@@ -568,8 +568,10 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"rtcal: warning: serving on {args.host}, not only on this machine", file=sys.stderr)
+    if not 0.1 <= args.ipp_idle_timeout_s <= 86400:
+        raise UserError(f"--ipp-idle-timeout-s {args.ipp_idle_timeout_s:g}: must lie in 0.1 … 86400 s")
     hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
-                       environment=args.environment)
+                       environment=args.environment, ipp_idle_timeout_s=args.ipp_idle_timeout_s)
     try:
         addresses = hub.start()
     except (RuntimeError, OSError) as exc:
@@ -864,6 +866,9 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
     serve.add_argument("--environment", choices=["vaisala-ptu300", "vaisala-ptb330"], default="vaisala-ptu300",
                        help="the environment sensor's model (with an OMEGA iTHX thermometer on its thermometer=)")
+    serve.add_argument("--ipp-idle-timeout-s", type=float, default=600.0,
+                       help="release an I++ session whose client sends nothing for this long, and close its connection "
+                            "(default 600 s; docs/faults.md)")
     serve.set_defaults(func=_cmd_sim_serve)
 
     from drivers.models import KINDS
