@@ -48,21 +48,12 @@ class _Fenced:
 
     def __init__(self, inner: Instrument, kind: str, model: str, plugin: str):
         self._inner, self._kind, self._model_name, self._plugin = inner, kind, model, plugin
-
-    # the base class's attributes are the driver's (a class attribute would hide __getattr__)
-    @property
-    def name(self) -> str:  # type: ignore[override]
-        name = getattr(self._inner, "name", self._kind)
-        return name if isinstance(name, str) and 0 < len(name) <= 64 else self._kind
-
-    @property
-    def model(self) -> str:  # type: ignore[override]
-        return getattr(self._inner, "model", self._model_name)
-
-    @property
-    def exclusive_access(self) -> str:  # type: ignore[override]
-        how = getattr(self._inner, "exclusive_access", "")
-        return shown_identity(how) if how else ""
+        # the base class's attributes are the driver's (a class attribute would hide __getattr__)
+        name = getattr(inner, "name", kind)
+        self.name: str = name if isinstance(name, str) and 0 < len(name) <= 64 else kind
+        self.model: str = shown_identity(getattr(inner, "model", model) or model)
+        how = getattr(inner, "exclusive_access", "")
+        self.exclusive_access: str = shown_identity(how) if how else ""
 
     def __getattr__(self, attr: str) -> Any:  # what only this driver has (its line, its client)
         return getattr(self._inner, attr)
@@ -106,13 +97,11 @@ def what_plugin(model: str, plugin: str) -> str:
 
 
 class FencedStage(_Fenced, RotaryStage):
-    @property
-    def limits_deg(self) -> tuple[float, float]:  # type: ignore[override]
-        return tuple(self._inner.limits_deg)  # type: ignore[return-value]
-
-    @property
-    def step_deg(self) -> float:  # type: ignore[override]
-        return float(getattr(self._inner, "step_deg", 0.0))
+    def __init__(self, inner: RotaryStage, kind: str, model: str, plugin: str):
+        super().__init__(inner, kind, model, plugin)
+        lo, hi = inner.limits_deg
+        self.limits_deg = (float(lo), float(hi))
+        self.step_deg = float(getattr(inner, "step_deg", 0.0))
 
     def _range(self) -> tuple[float, float]:
         lo, hi = self.limits_deg
@@ -140,13 +129,9 @@ class FencedStage(_Fenced, RotaryStage):
 
 
 class FencedCmm(_Fenced, Cmm):
-    @property
-    def volume_min_mm(self) -> tuple[float, float, float]:  # type: ignore[override]
-        return self._inner.volume_min_mm
-
-    @property
-    def volume_max_mm(self) -> tuple[float, float, float]:  # type: ignore[override]
-        return self._inner.volume_max_mm
+    def __init__(self, inner: Cmm, kind: str, model: str, plugin: str):
+        super().__init__(inner, kind, model, plugin)
+        self.volume_min_mm, self.volume_max_mm = inner.volume_min_mm, inner.volume_max_mm
 
     def home(self) -> None:
         self._call("home")
@@ -216,7 +201,7 @@ class FencedEnvironmentSensor(_Fenced, EnvironmentSensor):
         return EnvironmentReading(**values)
 
 
-FENCES: dict[str, Callable[..., _Fenced]] = {
+FENCES: dict[str, Callable[..., Instrument]] = {
     "stage": FencedStage, "cmm": FencedCmm, "laser_tracer": FencedLaserTracer, "encoder": FencedEncoder,
     "autocollimator": FencedAutocollimator, "dial_indicator": FencedDialIndicator, "environment": FencedEnvironmentSensor}
 

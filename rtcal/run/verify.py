@@ -108,7 +108,7 @@ def recompute(run_dir: Path) -> tuple[RunResults, dict[str, Any], int]:
         method = meta.get("method", "")
         if method not in PROCEDURE_MODELS:
             raise RunDirError(f"{path}: its `method` is {method[:40]!r}, not one rtcal knows: the store was edited")
-        proc = validate_text(meta.get("procedure_yaml", ""), PROCEDURE_MODELS[method], where,
+        proc: Any = validate_text(meta.get("procedure_yaml", ""), PROCEDURE_MODELS[method], where,
                              context={"large": bool(meta.get("large"))})
         try:
             proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta.get("instruments", ""))})
