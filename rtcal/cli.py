@@ -64,10 +64,10 @@ def _execute(start, run_dir: str) -> int:
     except (FileExistsError, PreparationError, RunDirError, ResultsError, OutputRefused) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
-        print(f"rtcal: {exc}", file=sys.stderr)
+        print(f"rtcal: {redact_tokens(str(exc))}", file=sys.stderr)
         return EXIT_FAILED
     except InstrumentError as exc:
-        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
         print(f"rtcal: {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
