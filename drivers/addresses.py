@@ -169,9 +169,12 @@ def _split(text: str):
     """urlsplit, with its refusals (a bracket left open, a bad port) as AddressError; credentials refused."""
     try:
         parts = urlsplit(text)
-        parts.port  # noqa: B018 — raises ValueError for a port that is no number or beyond 65535
     except ValueError as exc:
         raise AddressError(f"{_shown(text)}: malformed address ({exc}); e.g. modbus-tcp://HOST:PORT") from None
+    try:
+        parts.port  # noqa: B018 — raises ValueError for a port that is no number or beyond 65535
+    except ValueError:
+        raise AddressError(f"{_shown(text)}: bad port (1 to 65535)") from None
     if "@" in parts.netloc:
         raise AddressError(f"{_shown(text)}: credentials (user:password@) in an address are refused: rtcal would store "
                            "them with the run; an instrument's password is not part of its address")

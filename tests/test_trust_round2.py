@@ -242,7 +242,7 @@ def test_a_drive_feedback_of_int_min_is_a_fault(capsys):
     ("modbus-tcp://ｃｍｍ.example:502", "not a printable ASCII character"),
     ("socket://[fe80::1:4001?model=sylvac", "malformed address"),
     ("modbus-tcp://10.0.0.5:502/extra", "nothing may follow HOST:PORT"),
-    ("modbus-tcp://10.0.0.5:99999", "malformed address"),
+    ("modbus-tcp://10.0.0.5:99999", "bad port (1 to 65535)"),
 ])
 def test_a_malformed_address_is_one_line_exit_2(capsys, address, expect):
     kind = "dial_indicator" if address.startswith("socket") else "stage" if address.startswith("modbus") else "cmm"
