@@ -484,10 +484,14 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     run = Path(args.run_dir)
     if not run.is_dir():
         raise UserError(f"{run}: not a run directory")
+    import sqlite3
+
     try:
         found = verify(run)
     except (ResultsError, RunDirError) as exc:
         raise UserError(str(exc)) from None
+    except sqlite3.DatabaseError as exc:
+        raise UserError(f"{run / 'run.sqlite'}: cannot be read whole ({exc}); `rtcal export {run}` salvages its readings") from None
     except (ValueError, np.linalg.LinAlgError) as exc:
         print(f"rtcal: {run}: the solvers could not recompute the results from the readings: {_one_line(exc)[:300]}",
               file=sys.stderr)

@@ -396,3 +396,14 @@ def test_frames_for_other_units_on_one_connection_leave_another_clients_replies_
             thread.join(5)
             stage.close()
     assert sent[0] > 300 and readings == [pytest.approx(12.5)] * 300
+
+
+def test_resuming_a_wired_run_without_the_operators_token_says_where_to_give_it(solved, tmp_path, capsys, monkeypatch):
+    run = _copy(solved, tmp_path)
+    with sqlite3.connect(run / "run.sqlite") as db:
+        db.execute("UPDATE meta SET value = 'interrupted' WHERE key = 'status'")
+        db.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('operator_address', 'sim-operator://127.0.0.1:9?token=…')")
+        db.execute("DELETE FROM readings WHERE plan_index = (SELECT MAX(plan_index) FROM readings)")
+    monkeypatch.delenv("RTCAL_OPERATOR_TOKEN", raising=False)
+    err = _one_line(capsys, 2, ["resume", str(run)])
+    assert "token is not stored" in err and "--instruments" in err and "RTCAL_OPERATOR_TOKEN" in err
