@@ -103,10 +103,10 @@ def _options(query: str) -> dict[str, str]:
     try:
         pairs = parse_qsl(query, strict_parsing=bool(query), max_num_fields=32)
     except ValueError as exc:
-        raise AddressError(f"options {query[:80]!r}: {exc}") from None
+        raise AddressError(f"options {redact_tokens(query[:80])!r}: {exc}") from None
     options = dict(pairs)
     if len(options) != len(pairs):
-        raise AddressError(f"options {query[:80]!r}: an option given twice")
+        raise AddressError(f"options {redact_tokens(query[:80])!r}: an option given twice")
     if "model" in options:
         from drivers.models import find_model
 
@@ -135,32 +135,83 @@ def check_text(name: str, text: str) -> str:
     """A text option's value, or AddressError saying what it must be."""
     pattern, what = TEXT_OPTIONS[name]
     if not re.fullmatch(pattern, text):
-        raise AddressError(f"option {name}={text[:40]!r}: must be {what}")
+        shown = REDACTED if name == "token" else repr(text[:40])  # a token is never echoed, not even a wrong one
+        raise AddressError(f"option {name}={shown}: must be {what}")
     return text
+
+
+REDACTED = "…"  # what a stored address carries in place of a token's value
+_TOKEN_VALUE = re.compile(r"(token=)[^&\s\"'#\\]*")
+MAX_ADDRESS_CHARS = 2000
+
+
+def redact_tokens(text: str) -> str:
+    """``text`` with the value of every ``token=`` replaced by ``…``: what the store, results, report
+    and logs hold of an address, so a copy of a run directory commands nothing."""
+    return _TOKEN_VALUE.sub(lambda m: m.group(1) + REDACTED, text)
+
+
+def _shown(text: str) -> str:
+    """An address as a message shows it: tokens redacted, bounded."""
+    text = redact_tokens(text)
+    return repr(text if len(text) <= 120 else text[:120] + "…")
+
+
+def _check_characters(text: str) -> None:
+    """ASCII only, no control characters: a full-width digit or a look-alike host is no address."""
+    for i, c in enumerate(text):
+        if not c.isascii() or not c.isprintable():
+            raise AddressError(f"{_shown(text)}: character {i + 1} (U+{ord(c):04X}) is not a printable ASCII character; "
+                               "addresses are written in ASCII")
+
+
+def _split(text: str):
+    """urlsplit, with its refusals (a bracket left open, a bad port) as AddressError; credentials refused."""
+    try:
+        parts = urlsplit(text)
+    except ValueError as exc:
+        raise AddressError(f"{_shown(text)}: malformed address ({exc}); e.g. modbus-tcp://HOST:PORT") from None
+    try:
+        parts.port  # noqa: B018 — raises ValueError for a port that is no number or beyond 65535
+    except ValueError:
+        raise AddressError(f"{_shown(text)}: bad port (1 to 65535)") from None
+    if "@" in parts.netloc:
+        raise AddressError(f"{_shown(text)}: credentials (user:password@) in an address are refused: rtcal would store "
+                           "them with the run; an instrument's password is not part of its address")
+    return parts
 
 
 def parse_address(text: str) -> Address:
     text = text.strip()
     if not text:
         raise AddressError("empty address")
+    if len(text) > MAX_ADDRESS_CHARS:
+        raise AddressError(f"{_shown(text)}: an address of {len(text)} characters; at most {MAX_ADDRESS_CHARS}")
+    _check_characters(text)
     if text.startswith(("/", "socket://", "rfc2217://", "loop://")):
         url, _, query = text.partition("?")
+        if url.startswith(("socket://", "rfc2217://")):
+            net = _split(url)
+            if not net.hostname or net.port is None or net.path not in ("", "/"):
+                raise AddressError(f"{_shown(text)}: needs HOST:PORT (e.g. socket://10.0.0.5:4001)")
         return Address("serial", path=url, options=_options(query))
-    parts = urlsplit(text)
+    parts = _split(text)
     options = _options(parts.query)
     if parts.scheme in ("modbus-tcp", "ipp", "sim-operator"):
         default_port = {"modbus-tcp": 502, "ipp": 1294, "sim-operator": 0}[parts.scheme]
         try:
             port = default_port if parts.port is None else parts.port
         except ValueError:
-            raise AddressError(f"{text!r}: bad port (1 to 65535)") from None
+            raise AddressError(f"{_shown(text)}: bad port (1 to 65535)") from None
         if parts.port == 0:
-            raise AddressError(f"{text!r}: port 0 is no port (1 to 65535)")
+            raise AddressError(f"{_shown(text)}: port 0 is no port (1 to 65535)")
         if not parts.hostname or not port:
-            raise AddressError(f"{text!r}: needs HOST:PORT")
+            raise AddressError(f"{_shown(text)}: needs HOST:PORT")
+        if parts.path not in ("", "/") or parts.fragment:
+            raise AddressError(f"{_shown(text)}: nothing may follow HOST:PORT but ?options")
         return Address(parts.scheme, host=parts.hostname, port=port, options=options)
     if parts.scheme == "modbus-rtu":
         if not parts.path:
-            raise AddressError(f"{text!r}: needs a device path, e.g. modbus-rtu:///dev/ttyUSB0")
+            raise AddressError(f"{_shown(text)}: needs a device path, e.g. modbus-rtu:///dev/ttyUSB0")
         return Address("modbus-rtu", path=parts.path, options=options)
-    raise AddressError(f"{text!r}: unknown kind of address (modbus-tcp://, modbus-rtu://, ipp://, /dev/..., socket://)")
+    raise AddressError(f"{_shown(text)}: unknown kind of address (modbus-tcp://, modbus-rtu://, ipp://, /dev/..., socket://)")

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from drivers.addresses import Address, AddressError, parse_address
+from drivers.addresses import Address, AddressError, parse_address, redact_tokens
 from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer, RotaryStage
+from drivers.fence import fenced
 from drivers.models import DEFAULT_MODEL, BUILTIN, Model, model_for
 
 # a procedure's instruments and the kind of each
@@ -35,7 +36,7 @@ def resolve(kind: str, address: str) -> tuple[Address, Model]:
     model = model_for(kind, parsed.options)
     if parsed.scheme not in model.schemes:
         what = kind.replace("_", " ")
-        raise SchemeMismatch(f"{what}: {address[:200]!r} is a {parsed.scheme} address; a {what} of model {model.name} "
+        raise SchemeMismatch(f"{what}: {redact_tokens(address[:200])!r} is a {parsed.scheme} address; a {what} of model {model.name} "
                              f"needs {' or '.join(model.schemes)}", parsed.scheme, model.schemes)
     return parsed, model
 
@@ -46,8 +47,10 @@ def check_address(name: str, address: str) -> None:
 
 
 def open_instrument(kind: str, address: str, timeout_s: float, **context: Any) -> Instrument:
+    """The driver the address names, inside the fence every reading passes (drivers/fence.py)."""
     parsed, model = resolve(kind, address)
-    return model.driver_class()(parsed, timeout_s, **context)
+    cls = model.driver_class()
+    return fenced(kind, model.name, model.plugin, lambda: cls(parsed, timeout_s, **context))
 
 
 def open_stage(address: str, limits_deg: tuple[float, float], timeout_s: float) -> RotaryStage:

@@ -121,7 +121,10 @@ class ModbusStage(RotaryStage):
 
     def position_deg(self) -> float:
         """The drive's feedback (detection) position: the one monitor the vendor's sample reads."""
-        return self._read32(az.FEEDBACK_POSITION)[0] / self.steps_per_deg
+        steps = self._read32(az.FEEDBACK_POSITION)[0]
+        if steps == -(1 << 31):  # INT_MIN: the register's "no value", not a position the table can be at
+            raise InstrumentFault(self.name, "the drive's feedback position register holds −2³¹ (INT_MIN): no position")
+        return steps / self.steps_per_deg
 
     feedback_deg = position_deg
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from drivers.addresses import AddressError
+from drivers.addresses import AddressError, redact_tokens
 from drivers.errors import InstrumentError
 from rtcal import __version__
 from rtcal.outputs import OutputRefused, is_disk_failure, output_file, write_output
@@ -64,10 +64,10 @@ def _execute(start, run_dir: str) -> int:
     except (FileExistsError, PreparationError, RunDirError, ResultsError, OutputRefused) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
-        print(f"rtcal: {exc}", file=sys.stderr)
+        print(f"rtcal: {redact_tokens(str(exc))}", file=sys.stderr)
         return EXIT_FAILED
     except InstrumentError as exc:
-        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
         print(f"rtcal: {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
@@ -82,8 +82,13 @@ def _execute(start, run_dir: str) -> int:
         print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     results = outcome.results
-    print(f"run complete: {results.raw_readings} planned readings taken, {outcome.instrument_readings} instrument "
-          "readings stored")
+    if outcome.finished:
+        print(f"run already finished: {run_dir} was measured and solved ({results.raw_readings} planned readings, "
+              f"{outcome.instrument_readings} instrument readings stored); nothing was taken or written "
+              f"(`rtcal verify {run_dir}` recomputes its results from its readings)")
+    else:
+        print(f"run complete: {results.raw_readings} planned readings taken, {outcome.instrument_readings} instrument "
+              "readings stored")
     if results.bench == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
     for line in outputs_for(results).summary() + console_lines(results):
@@ -385,14 +390,22 @@ def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResu
         if path.is_dir():
             if not (path / "results.json").exists():
                 raise UserError(f"{path}: not a run directory with a readable results.json (a run that was not solved?)")
+            from rtcal.run.integrity import check_run
+
             try:
                 results = read_results(path)
+                for warning in check_run(path, results):  # refused if it does not match its store
+                    print(f"rtcal: warning: {warning}", file=sys.stderr)
             except ResultsError as exc:
                 raise UserError(str(exc)) from None
             if results.positioning_deviations is None:
                 raise UserError(f"{path / 'results.json'}: no positioning_deviations (the run has no recommended estimate)")
-            return PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json")), results
-        return PositioningDeviations.read_csv(path), None
+            table = PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json"))
+            table.check_plausible(str(path / "results.json"))
+            return table, results
+        table = PositioningDeviations.read_csv(path)
+        table.check_plausible(str(path))
+        return table, None
     except DeviationTableError as exc:
         raise UserError(str(exc)) from None
 
@@ -476,6 +489,43 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_verify(args: argparse.Namespace) -> int:
+    """Recompute a run's results from its store and say whether results.json agrees (exit 0 / 1)."""
+    from rtcal.results import ResultsError
+    from rtcal.run.rundir import RunDirError
+    from rtcal.run.verify import verify
+
+    run = Path(args.run_dir)
+    if not run.is_dir():
+        raise UserError(f"{run}: not a run directory")
+    import sqlite3
+
+    try:
+        found = verify(run)
+    except (ResultsError, RunDirError) as exc:
+        raise UserError(str(exc)) from None
+    except sqlite3.DatabaseError as exc:
+        raise UserError(f"{run / 'run.sqlite'}: cannot be read whole ({exc}); `rtcal export {run}` salvages its readings") from None
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        print(f"rtcal: {run}: the solvers could not recompute the results from the readings: {_one_line(exc)[:300]}",
+              file=sys.stderr)
+        return EXIT_FAILED
+    for warning in found.warnings:
+        print(f"rtcal: warning: {warning}", file=sys.stderr)
+    for problem in found.integrity:
+        print(f"rtcal: {problem}", file=sys.stderr)
+    for where, stored, recomputed in found.differences[:10]:
+        print(f"rtcal: {run / 'results.json'}: {where}: stored {str(stored)[:60]}, recomputed from the readings "
+              f"{str(recomputed)[:60]}", file=sys.stderr)
+    if len(found.differences) > 10:
+        print(f"rtcal: … and {len(found.differences) - 10} more differences", file=sys.stderr)
+    verdict = "agrees" if found.agrees else "does NOT agree"
+    print(f"{run / 'results.json'} {verdict} with the results recomputed from {found.readings} readings in "
+          f"{run / 'run.sqlite'} ({found.compared} values compared to the digits stored, "
+          f"{len(found.differences)} differ; digests {'match' if not found.integrity else 'do not match'})")
+    return EXIT_OK if found.agrees else EXIT_FAILED
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     """Every raw reading and event of a run as CSV, for spreadsheets; from a damaged store, every
     one that can still be read (exit 1: the store is damaged, and the count of what is lost)."""
@@ -536,8 +586,10 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"rtcal: warning: serving on {args.host}, not only on this machine", file=sys.stderr)
+    if not 0.1 <= args.ipp_idle_timeout_s <= 86400:
+        raise UserError(f"--ipp-idle-timeout-s {args.ipp_idle_timeout_s:g}: must lie in 0.1 … 86400 s")
     hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
-                       environment=args.environment)
+                       environment=args.environment, ipp_idle_timeout_s=args.ipp_idle_timeout_s)
     try:
         addresses = hub.start()
     except (RuntimeError, OSError) as exc:
@@ -806,6 +858,11 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--out", help="directory for the CSV files (default: the run directory)")
     exp.set_defaults(func=_cmd_export)
 
+    ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json and the "
+                                        "store's digests against them (exit 0: they agree, 1: they do not)")
+    ver.add_argument("run_dir", help="a run directory (its results.json and run.sqlite)")
+    ver.set_defaults(func=_cmd_verify)
+
     plan = sub.add_parser("plan", help="predict each estimator's 1σ per target and the run's duration before measuring")
     plan.add_argument("procedure", help="procedure YAML file")
     plan.add_argument("--scenario", help="bench scenario YAML for the geometry (replaces the procedure's `bench`)")
@@ -839,6 +896,9 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
     serve.add_argument("--environment", choices=["vaisala-ptu300", "vaisala-ptb330"], default="vaisala-ptu300",
                        help="the environment sensor's model (with an OMEGA iTHX thermometer on its thermometer=)")
+    serve.add_argument("--ipp-idle-timeout-s", type=float, default=600.0,
+                       help="release an I++ session whose client sends nothing for this long, and close its connection "
+                            "(default 600 s; docs/faults.md)")
     serve.set_defaults(func=_cmd_sim_serve)
 
     from drivers.models import KINDS
@@ -904,10 +964,10 @@ def main(argv: list[str] | None = None) -> int:
             print(p, file=sys.stderr)
         return EXIT_USAGE
     except (UserError, AddressError, OutputRefused) as exc:
-        print(f"rtcal: {exc}", file=sys.stderr)
+        print(f"rtcal: {redact_tokens(str(exc))}", file=sys.stderr)
         return EXIT_USAGE
     except InstrumentError as exc:
-        print(f"rtcal: instrument error: {exc}", file=sys.stderr)
+        print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
         return EXIT_FAILED
     except BrokenPipeError:  # the reader of our output went away (| head): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -38,6 +38,26 @@ def _noise(default: float, unit: str, what: str, high: float) -> float:
     return Field(default, ge=0.0, le=high, description=f"{what}, {unit} (0: none)")
 
 
+# What no real bench exceeds (issue 26): a simulated bench beyond them would certify a physics no table
+# has. Noise bounds are a hundred times the worst instruments of each kind; an error motion's harmonics
+# together stay within what a worn table shows; speeds between a crawl and a direct drive's rapid.
+MAX_STAGE_SPEED_DEG_PER_S, MIN_STAGE_SPEED_DEG_PER_S = 3600.0, 1e-3  # 10 turns/s … 3.6°/h
+MAX_CMM_SPEED_MM_PER_S, MIN_CMM_SPEED_MM_PER_S = 10_000.0, 0.01
+MAX_ANGLE_NOISE_ARCSEC = 360.0  # 1σ of a table's repeatability, an encoder's or autocollimator's noise
+MAX_LENGTH_NOISE_UM = 1000.0  # 1σ of a CMM point, a tracer's length, a dial indicator
+MAX_LENGTH_NOISE_PPM = 1000.0
+MAX_ANGULAR_MOTION_ARCSEC = 3600.0  # Σ|amplitude| of one angular error motion's harmonics (1°)
+MAX_LINEAR_MOTION_UM = 1000.0  # Σ|amplitude| of one linear error motion's harmonics (1 mm)
+
+
+def _bounded_sum(field: str, harmonics: list, unit: str, limit: float) -> None:
+    """A harmonic series whose amplitudes together exceed what any table shows (ValueError naming it)."""
+    total = sum(abs(h.amplitude_arcsec if isinstance(h, AngularHarmonic) else h.amplitude_um) for h in harmonics)
+    if total > limit:
+        raise ValueError(f"{field}: its amplitudes add up to {total:g} {unit}; no real bench's error motion exceeds "
+                         f"{limit:g} {unit}")
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -88,7 +108,7 @@ class StageScenario(_Strict):
     axis_tilt_x_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness of the axis to the CMM table, about X, arcsec")
     axis_tilt_y_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness of the axis to the CMM table, about Y, arcsec")
     positioning_error: list[AngularHarmonic] = Field([], max_length=1000, description="εz(θ): actual − commanded angle, harmonics")
-    repeatability_arcsec: float = _noise(0.0, "arcsec", "1σ of the random positioning error per move", 3600.0)
+    repeatability_arcsec: float = _noise(0.0, "arcsec", "1σ of the random positioning error per move", MAX_ANGLE_NOISE_ARCSEC)
     reversal_arcsec: ErrorAngle_arcsec = Field(0.0, description="how much lower a negative approach ends than a positive one, arcsec")
     radial_motion_x: list[LinearHarmonic] = Field([], max_length=1000, description="δx(θ) at the tilt centre, harmonics")
     radial_motion_y: list[LinearHarmonic] = Field([], max_length=1000, description="δy(θ) at the tilt centre, harmonics")
@@ -97,7 +117,8 @@ class StageScenario(_Strict):
     tilt_motion_y: list[AngularHarmonic] = Field([], max_length=1000, description="εy(θ), harmonics")
     tilt_center_height_mm: Size_mm = Field(0.0, description="tilt centre along the axis above axis_point_mm, mm")
     soft_limits_deg: tuple[Limit_deg, Limit_deg] = Field((-360.0, 360.0), description="[lowest, highest] angle the drive accepts, deg")
-    speed_deg_per_s: float = Field(10.0, gt=0.0, le=1e4, description="table speed, deg/s (motions take virtual time)")
+    speed_deg_per_s: float = Field(10.0, ge=MIN_STAGE_SPEED_DEG_PER_S, le=MAX_STAGE_SPEED_DEG_PER_S,
+                                   description="table speed, deg/s (motions take virtual time; 0.001 … 3600)")
     compensation: CompensationScenario | None = Field(None, description="a compensation table the simulated controller "
                                                                         "applies (calibrate → compensate → verify)")
 
@@ -105,6 +126,10 @@ class StageScenario(_Strict):
     def _ordered_limits(self) -> "StageScenario":
         if self.soft_limits_deg[0] >= self.soft_limits_deg[1]:
             raise ValueError("soft_limits_deg: the lower limit must be below the upper one")
+        for name in ("positioning_error", "tilt_motion_x", "tilt_motion_y"):
+            _bounded_sum(name, getattr(self, name), "arcsec", MAX_ANGULAR_MOTION_ARCSEC)
+        for name in ("radial_motion_x", "radial_motion_y", "axial_motion"):
+            _bounded_sum(name, getattr(self, name), "µm", MAX_LINEAR_MOTION_UM)
         return self
 
 
@@ -117,10 +142,11 @@ class CmmScenario(_Strict):
     squareness_xy_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between X and Y, arcsec")
     squareness_xz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between X and Z, arcsec")
     squareness_yz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between Y and Z, arcsec")
-    point_noise_um: float = _noise(0.0, "µm", "1σ per coordinate of the reported position", 1e4)
+    point_noise_um: float = _noise(0.0, "µm", "1σ per coordinate of the reported position", MAX_LENGTH_NOISE_UM)
     volume_min_mm: Vec3 = Field((-300.0, -600.0, -100.0), description="lowest X, Y, Z the CMM reaches, mm")
     volume_max_mm: Vec3 = Field((1200.0, 600.0, 800.0), description="highest X, Y, Z the CMM reaches, mm")
-    speed_mm_per_s: float = Field(100.0, gt=0.0, le=1e5, description="probe speed, mm/s (motions take virtual time)")
+    speed_mm_per_s: float = Field(100.0, ge=MIN_CMM_SPEED_MM_PER_S, le=MAX_CMM_SPEED_MM_PER_S,
+                                  description="probe speed, mm/s (motions take virtual time; 0.01 … 10000)")
 
     @model_validator(mode="after")
     def _ordered_volume(self) -> "CmmScenario":
@@ -144,8 +170,9 @@ class LaserTracerScenario(_Strict):
     mount: TracerMount = Field(TracerMount(), description="where the tracer sits on the table")
     second_mount: TracerMount = Field(TracerMount(radius_mm=130.0, azimuth_deg=80.0, height_mm=122.5),
                                       description="where the operator moves it for a procedure's second_mount")
-    length_noise_um: float = _noise(0.0, "µm", "1σ of every length, constant part a", 1e4)
-    length_noise_ppm: float = _noise(0.0, "µm per m", "1σ of every length, part b proportional to the length", 1e4)
+    length_noise_um: float = _noise(0.0, "µm", "1σ of every length, constant part a", MAX_LENGTH_NOISE_UM)
+    length_noise_ppm: float = _noise(0.0, "µm per m", "1σ of every length, part b proportional to the length",
+                                     MAX_LENGTH_NOISE_PPM)
 
 
 class StepperScenario(_Strict):
@@ -173,19 +200,24 @@ class EncoderScenario(_Strict):
 
     radius_mm: float = Field(32.0, gt=0.0, le=1e4, description="rE: radius of the read head, mm")
     grating_offset_mm: Size_mm = Field(0.0, description="Zs: grating plane below the tilt centre, mm")
-    eccentricity_um: float = Field(0.0, ge=0.0, le=1e4, description="eccentricity of the grating, µm")
+    eccentricity_um: float = Field(0.0, ge=0.0, le=MAX_LINEAR_MOTION_UM, description="eccentricity of the grating, µm")
     eccentricity_phase_deg: Phase_deg = Field(0.0, description="its phase, deg")
     graduation_error: list[AngularHarmonic] = Field([], max_length=1000, description="errors of the grating angle, harmonics")
     resolution_arcsec: float = _noise(0.0, "arcsec", "one count", 3600.0)
-    noise_arcsec: float = _noise(0.0, "arcsec", "1σ of each reading", 3600.0)
+    noise_arcsec: float = _noise(0.0, "arcsec", "1σ of each reading", MAX_ANGLE_NOISE_ARCSEC)
+
+    @model_validator(mode="after")
+    def _real_grating(self) -> "EncoderScenario":
+        _bounded_sum("graduation_error", self.graduation_error, "arcsec", MAX_ANGULAR_MOTION_ARCSEC)
+        return self
 
 
 class AutocollimatorScenario(_Strict):
     """Reads the polygon face in front of it; ``range_arcsec`` either side of its axis."""
 
-    noise_arcsec: float = _noise(0.0, "arcsec", "1σ of each reading", 3600.0)
-    resolution_arcsec: float = _noise(0.0, "arcsec", "display resolution", 3600.0)
-    range_arcsec: float = Field(150.0, gt=0.0, le=36_000.0, description="measuring range either side of the axis, arcsec")
+    noise_arcsec: float = _noise(0.0, "arcsec", "1σ of each reading", MAX_ANGLE_NOISE_ARCSEC)
+    resolution_arcsec: float = _noise(0.0, "arcsec", "display resolution", MAX_ANGLE_NOISE_ARCSEC)
+    range_arcsec: float = Field(150.0, gt=0.0, le=3600.0, description="measuring range either side of the axis, arcsec")
 
 
 class PolygonScenario(_Strict):
@@ -197,7 +229,7 @@ class PolygonScenario(_Strict):
 
     faces: int = Field(24, ge=3, le=360, description="faces of the polygon")
     face_errors_arcsec: list[ErrorAngle_arcsec] = Field([], max_length=360, description="each face normal's error, arcsec (none: perfect)")
-    certificate_uncertainty_arcsec: float = _noise(0.0, "arcsec", "1σ of the certificate's values", 3600.0)
+    certificate_uncertainty_arcsec: float = _noise(0.0, "arcsec", "1σ of the certificate's values", MAX_ANGLE_NOISE_ARCSEC)
     seating_error_arcsec: float = _noise(0.0, "arcsec", "1σ of each re-seating about its nominal offset", 3600.0)
 
     @model_validator(mode="after")
@@ -211,8 +243,8 @@ class DialIndicatorScenario(_Strict):
     """Two indicators touching the shaft in Y (the grating's tangential direction at the head)."""
 
     heights_mm: tuple[Size_mm, Size_mm] = Field((50.0, 70.0), description="L1, L2: heights below the tilt centre, mm")
-    resolution_um: float = _noise(0.0, "µm", "display resolution", 1e4)
-    noise_um: float = _noise(0.0, "µm", "1σ of each reading", 1e4)
+    resolution_um: float = _noise(0.0, "µm", "display resolution", MAX_LENGTH_NOISE_UM)
+    noise_um: float = _noise(0.0, "µm", "1σ of each reading", MAX_LENGTH_NOISE_UM)
 
 
 class EnvironmentScenario(_Strict):

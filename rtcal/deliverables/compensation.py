@@ -728,10 +728,29 @@ FLAGS = {"range_deg": "--range-deg", "axis": "--axis", "unit_deg": "--detection-
 AXIS_NAMES = {"siemens-lec": r"[A-Z][A-Z0-9_]{0,15}", "siemens-cec": r"[A-Z][A-Z0-9_]{0,15}", "heidenhain": r"[A-Z]"}
 
 
+# the largest trim each format is written with, arcsec. None of the five formats' public references
+# states a limit of the value itself (FANUC's increment per point is checked where it is written):
+# rtcal's bound is the deviation a rotary table has at most (deviations.PLAUSIBLE_DEVIATION_ARCSEC);
+# a trim beyond it would move the axis by what no calibration measured
+MAX_TRIM_ARCSEC = {"linuxcnc": 3600.0, "siemens-lec": 3600.0, "siemens-cec": 3600.0, "fanuc": 3600.0, "heidenhain": 3600.0}
+
+
+def check_trims(fmt: str, table: CompensationTable) -> None:
+    """Every trim within what ``fmt`` is written with (MAX_TRIM_ARCSEC); CompensationError naming the worst."""
+    for name in ("trim_up_deg", "trim_down_deg"):
+        trims = np.asarray(getattr(table, name), float) * 3600.0
+        if len(trims) and not (np.all(np.isfinite(trims)) and np.max(np.abs(trims)) <= MAX_TRIM_ARCSEC[fmt]):
+            i = int(np.nanargmax(np.where(np.isfinite(trims), np.abs(trims), np.inf)))
+            raise CompensationError(f"{fmt}: a trim of {trims[i]:.6g}″ at {float(table.positions_deg[i]):g}° "
+                                    f"({name.removeprefix('trim_').removesuffix('_deg')}) lies beyond ±{MAX_TRIM_ARCSEC[fmt]:g}″: "
+                                    "no table is written that would move the axis by more than any calibration measures")
+
+
 def write_table(fmt: str, table: CompensationTable, **options) -> str:
     """The ``fmt`` file's text; an option the format does not take (or a bad axis name) is an error."""
     if fmt not in WRITERS:
         raise CompensationError(f"unknown format {fmt!r}; one of {', '.join(FORMATS)}")
+    check_trims(fmt, table)
     extra = sorted(set(options) - set(OPTIONS[fmt]))
     if extra:
         raise CompensationError(f"{fmt} takes no {', '.join(FLAGS[o] for o in extra)} "

@@ -26,6 +26,10 @@ CSV_OPTIONAL = ("uncertainty_arcsec",)
 MAX_CSV_BYTES = 200_000_000  # a million rows with room to spare; read whole, so bounded
 MAX_TARGET_DEG = 36_000.0  # a hundred turns either way: beyond it a target is a mistake, not a table
 MAX_DEVIATION_ARCSEC = 1_296_000.0  # one turn: no positioning deviation or uncertainty is larger
+# what a rotary table in service deviates at most: 1° (the worst tables measured deviate some tens of
+# arcseconds; a stepper that lost steps, a few hundred). Beyond it a table is an edit or a mix-up, and
+# evaluate, compensate and compare refuse it rather than certify or compensate it (docs/faults.md)
+PLAUSIBLE_DEVIATION_ARCSEC = 3600.0
 
 
 class DeviationTableError(ValueError):
@@ -186,6 +190,27 @@ class PositioningDeviations:
         table = cls(a[:, 0], a[:, 1].astype(int), a[:, 2].astype(int), a[:, 3], a[:, 4], estimator="", notes=())
         table.check(where)
         return table
+
+    def check_plausible(self, where: str, bound_arcsec: float = PLAUSIBLE_DEVIATION_ARCSEC) -> None:
+        """Values a rotary table has: every deviation within ±``bound_arcsec``, and an uncertainty,
+        where one is given, above 0 at every measured row (0 only at the reference row, whose
+        deviation is 0 by definition). DeviationTableError naming the row otherwise."""
+        x, u = np.asarray(self.deviation_arcsec, float), np.asarray(self.uncertainty_arcsec, float)
+
+        def row(i: int) -> str:
+            return (f"{where}: row {i + 1} (target {float(self.target_deg[i]):g}°, direction {int(self.direction[i]):+d}, "
+                    f"run {int(self.run[i])})")
+
+        beyond = np.nonzero(np.isfinite(x) & (np.abs(x) > bound_arcsec))[0]
+        if len(beyond):
+            i = int(beyond[0])
+            raise DeviationTableError(f"{row(i)}: deviation {x[i]:.6g}″ lies beyond ±{bound_arcsec:g}″, more than any "
+                                      "rotary table deviates: refused (an edited or mixed-up table?)")
+        zero = np.nonzero(np.isfinite(x) & (x != 0) & np.isfinite(u) & (u <= 0))[0]
+        if len(zero):
+            i = int(zero[0])
+            raise DeviationTableError(f"{row(i)}: uncertainty {u[i]:g}″ for a measured deviation of {x[i]:g}″: every "
+                                      "measurement has an uncertainty above 0: refused (an edited table?)")
 
     def check(self, where: str) -> None:
         """Targets within ±100 turns, deviations and uncertainties within one turn (and so every sum

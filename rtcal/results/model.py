@@ -18,7 +18,7 @@ from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar, Union
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 
 # -- bounded numbers ------------------------------------------------------------------------------
 Arcsec = Annotated[float, Field(ge=-1e7, le=1e7)]
@@ -724,10 +724,27 @@ class Control(ResultsModel):
     rejected_attempts: Count = Field(description="readings the checks contradicted: kept, marked rejected, never used")
 
 
+class Digests(ResultsModel):
+    """What binds results.json to its run's store (rtcal/run/integrity.py): digests of the store's
+    readings and events and of the procedure, bench and seed the results were computed from. The
+    store in turn records the digest of this file; neither covers a path (a copied run stays valid)."""
+
+    algorithm: Literal["sha256"] = Field(description="the digest algorithm (1.2)")
+    readings_sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")] = Field(
+        description="of every row of the store's readings table, in order, as JSON lines (1.2)")
+    readings: Count = Field(description="how many rows of readings the digest covers (1.2)")
+    events_sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")] = Field(
+        description="of every row of the store's events table, in order, as JSON lines (1.2)")
+    events: Count = Field(description="how many events the digest covers (1.2)")
+    procedure_sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")] = Field(
+        description="of the stored method, procedure text, instrument section (tokens redacted), bench scenario and "
+                    "seed (1.2)")
+
+
 class RunLog(ResultsModel):
     """What the runner adds after the analysis: the evaluation and the run's log."""
 
-    OPTIONAL_KEYS = frozenset({"conformity", "control"})
+    OPTIONAL_KEYS = frozenset({"conformity", "control", "digests"})
 
     evaluation: Evaluation | None = Field(description="ISO 230-2 and VDI 3441 parameters (null: no positioning deviations)")
     skipped_readings: Count = Field(description="planned readings a fault policy skipped and no start took again")
@@ -737,6 +754,9 @@ class RunLog(ResultsModel):
         None, description="the verdict against the procedure's `acceptance:` limits (absent: no limits) (1.1)")
     control: Control | None = Field(
         None, description="exclusive control of the machine and the checks of every motion and reading (1.1)")
+    digests: Digests | None = Field(
+        None, description="digests of the store's readings, events and procedure these results were computed from; "
+                          "every command that reads the run checks them (1.2)")
 
 
 class RunResults(RunLog, Analysis, RunInfo):

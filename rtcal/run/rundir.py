@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from rtcal.outputs import STAGING_PREFIX, remove_stale_staging, staged_outputs  # noqa: F401 — staged_outputs: the runner's
+from drivers.addresses import redact_tokens
 from rtcal.results import RunResults, read_results
 from rtcal.run.store import RunStore, check_store
 
@@ -72,7 +73,7 @@ class RunLock:
                 raise RunDirError(f"{self.run_dir}: cannot lock the run directory ({exc.strerror or exc})") from None
         command = " ".join(["rtcal", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith(("rtcal", "cli.py")) else "rtcal"
         stamp = _dt.datetime.now().isoformat(timespec="seconds")
-        holder = f"process {os.getpid()} on {socket.gethostname()} (`{command}`, since {stamp})"
+        holder = redact_tokens(f"process {os.getpid()} on {socket.gethostname()} (`{command}`, since {stamp})")
         os.ftruncate(fd, 0)
         os.pwrite(fd, holder.encode("utf-8", errors="replace")[:900], 0)
         self._fd = fd

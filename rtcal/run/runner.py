@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +43,8 @@ from rtcal.run.store import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
+from drivers.addresses import REDACTED, redact_tokens
+from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, digests_of, results_digest
 
 OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
 """Called with the engine and the run directory before the first motion (remote control, the live
@@ -59,6 +62,7 @@ class RunOutcome:
     run_dir: Path
     results: RunResults
     instrument_readings: int | None = None  # raw values stored (results' raw_readings counts planned readings)
+    finished: bool = False  # a resume found the run finished: nothing was taken, nothing written
 
 
 def default_run_dir(method: str) -> Path:
@@ -264,17 +268,19 @@ def resume_run(
         if finished is not None:  # nothing to take, nothing to count: the run stays as it is
             counted = store.instrument_readings()
             store.close()
-            return RunOutcome(run_dir, finished, counted)
+            check_run(run_dir, finished)  # its results still match its readings
+            return RunOutcome(run_dir, finished, counted, finished=True)
         # a run solved with readings its skip policy left out goes on too: it retakes them and solves again
         if addresses:
             proc = with_addresses(proc, addresses)
-            if "operator" in addresses:
-                store.set_meta({"operator_address": addresses["operator"]})
-        elif meta.get("operator_address"):  # a wired run goes on with the simulated operator it had
-            addresses = {"operator": meta["operator_address"]}
         simulated = proc.instruments.all_sim()
         done = len(store.done_plan_indices())
         planned = METHODS[proc.method].plan_length(proc)
+        operator_address = (addresses or {}).get("operator") or (
+            _stored_operator(meta, run_dir) if done < planned else "")
+        if operator_address:  # a wired run goes on with the simulated operator it had
+            addresses = {**(addresses or {}), "operator": operator_address}
+            store.set_meta({"operator_address": operator_address})  # stored with its token redacted
         generation = previous_generation + (1 if done < planned else 0)
         bench = None
         if simulated:
@@ -293,6 +299,23 @@ def resume_run(
                                   on_engine=on_engine)
     finally:
         lock.release()
+
+
+OPERATOR_TOKEN_ENV = "RTCAL_OPERATOR_TOKEN"
+
+
+def _stored_operator(meta: dict[str, str], run_dir: Path) -> str:
+    """The simulated operator's address a wired run had, its token from the environment (the store
+    keeps it redacted: whoever copies a run directory must not command the operator)."""
+    stored = meta.get("operator_address", "")
+    if not stored or f"token={REDACTED}" not in stored:
+        return stored
+    token = os.environ.get(OPERATOR_TOKEN_ENV, "")
+    if not token:
+        raise RunDirError(f"cannot resume: {run_dir} was run with the simulated operator at {stored}, whose token is "
+                          "not stored with the run: give its address again with --instruments '{\"operator\": "
+                          f"\"sim-operator://…?token=…\"}}' (as `rtcal sim serve` printed it), or set {OPERATOR_TOKEN_ENV}")
+    return stored.replace(f"token={REDACTED}", f"token={token}")
 
 
 def _stored(meta: dict[str, str], key: str, parse, run_dir: Path, expected: str, default: str | None = None) -> Any:
@@ -411,7 +434,7 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
             metadata=RunMetadata.model_validate(proc.metadata.model_dump()),
             seed=int(meta["seed"]) if simulated else None,
             instruments="simulated in process" if simulated else {
-                f: getattr(proc.instruments, f).address for f in proc.instruments.present()},
+                f: redact_tokens(getattr(proc.instruments, f).address) for f in proc.instruments.present()},
             bench=(meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
             started_utc=meta.get("started_utc"),
             finished_utc=meta.get("finished_utc"),
@@ -423,7 +446,8 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
         log = RunLog(evaluation=evaluation, skipped_readings=len(store.skipped_plan_indices()),
                      faults=sum(1 for e in events if e.kind == "fault"), events=events,
                      conformity=conformity_of(proc, analysis, evaluation),
-                     control=control_record(proc, simulated, meta.get("operator_address", ""), len(store.rejected_attempts())))
+                     control=control_record(proc, simulated, meta.get("operator_address", ""), len(store.rejected_attempts())),
+                     digests=digests_of(store))
         results = assemble(info, analysis, log)
     except ValidationError as exc:  # a value beyond what results.json admits: the readings stay, the file is not written
         store.close()
@@ -450,7 +474,8 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
         _stop(store, "measured", exc)
         raise
-    store.set_meta({"status": "solved", "engine_state": "finished"})  # only now: `resume` of a solved run changes nothing
+    # only now: `resume` of a solved run changes nothing; the store records which results.json it has
+    store.set_meta({"status": "solved", "engine_state": "finished", RESULTS_DIGEST_KEY: results_digest(results)})
     store.close()
     return RunOutcome(run_dir, results, counted)
 

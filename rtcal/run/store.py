@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 from urllib.parse import quote
 
+from drivers.addresses import redact_tokens
+
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS readings (
@@ -206,7 +208,7 @@ class RunStore:
                 for statement in SCHEMA.split(";"):
                     if statement.strip():
                         db.execute(statement)
-                db.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", [(k, str(v)) for k, v in meta.items()])
+                db.executemany("INSERT INTO meta(key, value) VALUES (?, ?)", [(k, redact_tokens(str(v))) for k, v in meta.items()])
                 db.execute("COMMIT")
         except sqlite3.Error as exc:
             os.unlink(partial)
@@ -312,7 +314,9 @@ class RunStore:
             self._upsert_meta(meta)
 
     def _upsert_meta(self, meta: dict[str, str]) -> None:
-        self._db.executemany("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)", [(k, str(v)) for k, v in meta.items()])
+        # no token of any kind is stored (an address's token=… is redacted): a copied run commands nothing
+        self._db.executemany("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
+                             [(k, redact_tokens(str(v))) for k, v in meta.items()])
 
     def meta(self) -> dict[str, str]:
         return dict(self._db.execute("SELECT key, value FROM meta"))
@@ -330,7 +334,8 @@ class RunStore:
 
     def add_event(self, t_s: float, kind: str, message: str, instrument: str | None = None) -> None:
         with self._transaction():
-            self._db.execute("INSERT INTO events(t_s, kind, instrument, message) VALUES (?, ?, ?, ?)", (t_s, kind, instrument, message))
+            self._db.execute("INSERT INTO events(t_s, kind, instrument, message) VALUES (?, ?, ?, ?)",
+                             (t_s, kind, instrument, redact_tokens(message)))
             self._keep()
 
     def _keep(self) -> None:

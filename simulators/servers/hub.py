@@ -40,7 +40,7 @@ from simulators.instruments import (
 )
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
-from simulators.servers.ipp_server import serve_ipp
+from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, serve_ipp
 from simulators.servers.serial_protocols import (
     ElcomatHandler,
     EnvironmentNow,
@@ -111,6 +111,7 @@ class SimulatorHub:
     modbus: Literal["tcp", "rtu"] = "tcp"
     environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
     addresses: dict[str, str] = field(default_factory=dict)
+    ipp_idle_timeout_s: float = IPP_IDLE_TIMEOUT_S  # an I++ session silent this long is released
 
     def __post_init__(self) -> None:
         self.bench = Bench(self.scenario, VirtualClock(), self.seed)
@@ -245,7 +246,7 @@ class SimulatorHub:
         else:
             client_path = await self._start_rtu()
             self.addresses["stage"] = f"modbus-rtu://{client_path}?{stage_query}&baud=115200&parity=N"  # a pty line: 8N1
-        cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults)
+        cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults, self.ipp_idle_timeout_s)
         self._servers.append(cmm_server)
         self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
         for name, handler in self.handlers.items():

@@ -28,6 +28,10 @@ DME_VERSION = "1.4"
 TOOLS = ("Probe", "CatEye", "RefTool")  # what ChangeTool/SetTool find
 SEARCH_MM = 5.0  # PtMeas looks for the surface this far either side of the nominal point
 HOLDER_GRACE_S = 0.5  # a StartSession waits this long for a holder whose connection is closing
+# a session whose client sends nothing for this long is released and its connection closed, so a client
+# that opens a session and falls silent cannot hold the simulated CMM forever (`rtcal sim serve
+# --ipp-idle-timeout-s`; docs/faults.md says what that means for a run)
+IDLE_TIMEOUT_S = 600.0
 
 
 class SessionLock:
@@ -176,14 +180,26 @@ class IppSession:
         return nominal - t * normal if abs(t) <= SEARCH_MM else None
 
 
-async def serve_ipp(cmm: SimCmm, host: str, port: int, faults=None) -> asyncio.base_events.Server:
-    """Start an I++ server: one session at a time, held until EndSession or the connection closes."""
+async def serve_ipp(cmm: SimCmm, host: str, port: int, faults=None,
+                    idle_timeout_s: float = IDLE_TIMEOUT_S) -> asyncio.base_events.Server:
+    """Start an I++ server: one session at a time, held until EndSession, the connection closes, or
+    its client stays silent for ``idle_timeout_s`` (then the session is released and the
+    connection closed)."""
     lock = SessionLock()
+
+    async def next_line(reader: asyncio.StreamReader, session: IppSession) -> bytes:
+        while True:
+            try:
+                return await asyncio.wait_for(reader.readline(), idle_timeout_s)
+            except asyncio.TimeoutError:
+                if lock.holder is session:
+                    return b""  # idle while holding the session: let it go
+                # no session held: an idle connection costs nobody anything
 
     async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         session = IppSession(cmm, faults, lock)
         try:
-            while line := await reader.readline():
+            while line := await next_line(reader, session):
                 text = line.decode("ascii", errors="replace")
                 if text[6:].startswith("StartSession("):
                     await lock.wait_for(session, HOLDER_GRACE_S)

@@ -8,10 +8,12 @@ TCP and RTU clients see the same drive.
 from __future__ import annotations
 
 import logging
+from typing import Callable
 
 from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers import az_registers as az
@@ -50,7 +52,8 @@ def crc16(frame: bytes) -> bytes:
 
 
 def frame_hook(model: AzDriveModel, rtu: bool, unit: int = 1):
-    """pymodbus ``trace_packet`` hook: what a real drive does on the wire that pymodbus does not.
+    """pymodbus ``trace_packet`` hook of one connection (its own request state): what a real drive
+    does on the wire that pymodbus does not.
 
     - A request to another unit id, or broadcast (0), gets no reply, as on a bus.
     - An exception reply carries the request's function code | 0x80 (pymodbus sends a bare 0x80
@@ -83,9 +86,23 @@ def frame_hook(model: AzDriveModel, rtu: bool, unit: int = 1):
     return trace
 
 
+class PerConnectionTcpServer(ModbusTcpServer):
+    """A Modbus TCP server that gives each connection its own frame hook: what one client sends
+    (a frame for unit 0 or 255, say) decides nothing about another's replies — a real gateway
+    answers each connection for itself. (pymodbus hands every connection the server's one hook.)"""
+
+    def __init__(self, *args, hook_factory: Callable[[], Callable[[bool, bytes], bytes]], **kwargs):
+        super().__init__(*args, trace_packet=hook_factory(), **kwargs)
+        self._hook_factory = hook_factory
+
+    def callback_new_connection(self) -> ServerRequestHandler:
+        return ServerRequestHandler(self, self._hook_factory(), self.trace_pdu, self.trace_connect)
+
+
 def tcp_server(model: AzDriveModel, host: str, port: int, unit: int = 1) -> ModbusTcpServer:
-    return ModbusTcpServer(drive_device(model, unit), address=(host, port), trace_packet=frame_hook(model, rtu=False, unit=unit),
-                           ignore_missing_devices=True)  # another unit id: no reply, as on a bus
+    return PerConnectionTcpServer(drive_device(model, unit), address=(host, port),
+                                  hook_factory=lambda: frame_hook(model, rtu=False, unit=unit),
+                                  ignore_missing_devices=True)  # another unit id: no reply, as on a bus
 
 
 def rtu_server(model: AzDriveModel, device_path: str, unit: int = 1, baudrate: int = 115200) -> ModbusSerialServer:
