@@ -44,11 +44,11 @@ def test_probe_cmm_clears_the_i_plus_plus_error_state(capsys):
     clears the state and reads."""
     with Emulator(emu.ipp_answer(), b"\r\n") as cmm:
         r = probe_json(capsys, "cmm", cmm.url("ipp"))
-    assert r["model"] == "ipp" and r["identity"] == "I++ DME server, DMEVersion 1.4"
+    assert r["model"] == "ipp" and r["identity"] == "I++ DME server, DMEVersion 1.4, coordinate system MachineCsy"
     assert r["reading"] == {"x_mm": 1.0, "y_mm": 2.0, "z_mm": 3.0}
     commands = [line[6:].decode() for line in cmm.requests]
-    assert commands == ["StartSession()", "GetDMEVersion()", "Get(X(), Y(), Z())", "ClearAllErrors()", "Get(X(), Y(), Z())",
-                        "EndSession()"]
+    assert commands == ["StartSession()", "GetDMEVersion()", "SetCoordSystem(MachineCsy)", "IsHomed()", "Get(X(), Y(), Z())",
+                        "ClearAllErrors()", "Get(X(), Y(), Z())", "EndSession()"]
 
 
 @pytest.mark.parametrize("kind,answer,terminator,options,model,identity,reading", [

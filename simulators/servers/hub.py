@@ -40,7 +40,7 @@ from simulators.instruments import (
 )
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
-from simulators.servers.ipp_server import serve_ipp
+from simulators.servers.ipp_server import IppMachine, serve_ipp
 from simulators.servers.serial_protocols import (
     ElcomatHandler,
     EnvironmentNow,
@@ -110,6 +110,7 @@ class SimulatorHub:
     serial: Literal["pty", "tcp"] = "pty"
     modbus: Literal["tcp", "rtu"] = "tcp"
     environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
+    cmm_homed: bool = True  # the I++ server starts homed (a run against an unhomed one needs `home: true`)
     addresses: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -121,6 +122,7 @@ class SimulatorHub:
         # the instruments inject no faults themselves: the protocol ends do, on the wire
         self.drive = AzDriveModel(SimStage(b, inject=False), steps_per_degree(self.steps_per_rev, self.gear))
         self.cmm = SimCmm(b, inject=False)
+        self.ipp_machine = IppMachine(homed=self.cmm_homed)
         res = self.scenario.encoder.resolution_arcsec
         self.counts_per_rev = round(1296000 / res) if res > 0 else 2**30
         lines = {
@@ -245,7 +247,7 @@ class SimulatorHub:
         else:
             client_path = await self._start_rtu()
             self.addresses["stage"] = f"modbus-rtu://{client_path}?{stage_query}&baud=115200&parity=N"  # a pty line: 8N1
-        cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults)
+        cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults, self.ipp_machine)
         self._servers.append(cmm_server)
         self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
         for name, handler in self.handlers.items():

@@ -109,26 +109,75 @@ class AzDriveEmulator(Emulator):
 
 # -- I++ DME: tagged lines, & # % !, the error state ----------------------------------------------------
 
-def ipp_answer(first_get_fails: bool = True) -> Callable[[bytes, dict], bytes]:
-    """StartSession, GetDMEVersion, ChangeTool, ClearAllErrors, EndSession; the first Get is answered
-    with a severity-2 error, every command after it with 0514 until ClearAllErrors()."""
+def ipp_answer(first_get_fails: bool = True, homed: bool = True, coordinate_system: str = "MachineCsy",
+               part_origin_mm: tuple[float, float, float] = (100.0, 0.0, 0.0), bare_cause: bool = False,
+               warnings: bool = False, emergency_at_goto: bool = False) -> Callable[[bytes, dict], bytes]:
+    """An I++ DME server from the specification 1.4.3 and NIST's server: StartSession (0008 if the
+    session is already started, §6.3.1), GetDMEVersion, SetCoordSystem (the active system outlives the
+    session, §6.3.1.1; PartCsy is the machine's shifted by ``part_origin_mm``), IsHomed / Home (an
+    unhomed GoTo is 0507, §6.3.2.1), GoTo, Get, ClearAllErrors, EndSession, AbortE (E-tagged,
+    §6.3.1.5). The first Get may be answered with a severity-2 error, every command after it with
+    0514 until ClearAllErrors(). Error lines with F3 quoted (NIST) or bare (§8.1); severity-1
+    warnings before ``%`` (§8.1); an emergency stop during a GoTo as an ``E0000`` event (§6.2.4.1).
+    ``machine`` (the returned function's attribute) is what outlives a connection."""
+    machine = {"homed": homed, "csy": coordinate_system, "xyz": [1.0, 2.0, 3.0], "emergency": False}
+
+    def error(tag: str, severity: int, code: str, method: str, text: str) -> str:
+        cause = method if bare_cause else f'"{method}"'
+        return f'{tag} ! Error({severity}, {code}, {cause}, "{text}")\r\n'
 
     def answer(line: bytes, state: dict) -> bytes:
         text = line.decode()
         tag, command = text[:5], text[6:]
-        name = command.split("(")[0]
+        name, _, args = command.partition("(")
+        args = args.rstrip(")")
         ack, done = f"{tag} &\r\n", f"{tag} %\r\n"
+        offset = part_origin_mm if machine["csy"] == "PartCsy" else (0.0, 0.0, 0.0)
+        if tag.startswith("E"):
+            return (ack + done).encode()
+        if name == "StartSession":
+            if state.get("session"):
+                return (ack + error(tag, 3, "0008", name, "Protocol error") + done).encode()
+            state["session"] = True
+            return (ack + done).encode()
         if name == "ClearAllErrors":
             state["error"] = False
             return (ack + done).encode()
         if state.get("error"):
-            return (ack + f'{tag} ! Error(2,0514,"{name}","Use ClearAllErrors to continue")\r\n' + done).encode()
+            return (ack + error(tag, 2, "0514", name, "Use ClearAllErrors to continue") + done).encode()
         if name == "Get" and first_get_fails and not state.get("failed_once"):
             state["failed_once"] = state["error"] = True
-            return (ack + f'{tag} ! Error(2, 2001, "Get", "Head error excessive force")\r\n' + done).encode()
-        data = {"GetDMEVersion": 'DMEVersion("1.4")', "Get": "X(1), Y(2), Z(3)"}.get(name)
+            return (ack + error(tag, 2, "2001", name, "Head error excessive force") + done).encode()
+        warning = error(tag, 1, "0504", name, "Argument out of range") if warnings else ""
+        if name == "SetCoordSystem":
+            machine["csy"] = args
+        elif name == "IsHomed":
+            return (ack + f"{tag} # IsHomed({int(machine['homed'])})\r\n" + done).encode()
+        elif name == "Home":
+            machine["homed"] = True
+        elif name == "GoTo":
+            if not machine["homed"]:
+                state["error"] = True
+                return (ack + error(tag, 3, "0507", name, "Illegal command") + done).encode()
+            values = [float(v.split("(")[1]) for v in args.replace(" ", "").split("),") if "(" in v]
+            if abs(values[0] - offset[0]) > 5000:
+                state["error"] = True
+                return (ack + error(tag, 3, "2500", name, "Machine limit encountered [Move Out Of Limits]") + done).encode()
+            if emergency_at_goto:
+                machine["emergency"] = state["error"] = True
+                event = f'E0000 ! Error(3, 0500, {"GoTo" if bare_cause else chr(34) + "GoTo" + chr(34)}, "Emergency stop")\r\n'
+                return (ack + event + error(tag, 2, "0006", name, "Transaction aborted") + done).encode()
+            machine["xyz"] = [v + o for v, o in zip(values, offset)]
+            return (ack + warning + done).encode()
+        elif name == "Get":
+            x, y, z = (v - o for v, o in zip(machine["xyz"], offset))
+            return (ack + warning + f"{tag} # X({x:g}), Y({y:g}), Z({z:g})\r\n" + done).encode()
+        elif name == "EndSession":
+            state["session"] = False
+        data = {"GetDMEVersion": 'DMEVersion("1.4")'}.get(name)
         return (ack + (f"{tag} # {data}\r\n" if data else "") + done).encode()
 
+    answer.machine = machine  # type: ignore[attr-defined]
     return answer
 
 
