@@ -71,7 +71,7 @@ def test_probe_vaisala_ptu300_with_the_thermometer(capsys):
     assert r["identity"] == "PTU300 / 1.12, serial number P4040154"
     assert r["reading"] == pytest.approx({"air_temperature_c": 17.7, "air_pressure_pa": 100380.0, "humidity_pct": 40.9,
                                           "material_temperature_c": 25.1})
-    assert ptu.requests[:2] == [b"?", b'FORM "P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n']
+    assert ptu.requests[:4] == [b"S", b"ECHO OFF", b"?", b'FORM "P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n']
     assert thermometer.requests == [b"*SRTC2"]
 
 

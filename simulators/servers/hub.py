@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV  # a scenario without a stepper serves the driver's default
+from drivers.models import BUILTIN
 from rtcal.clock import VirtualClock
 from simulators.az_drive import AzDriveModel, steps_per_degree
 from simulators.bench import Bench
@@ -89,6 +90,38 @@ class PtyWriter:
         self.dropped_bytes += len(data) - written
 
 
+class PacedSender:
+    """Hands reply bytes on at a serial line's speed: one character every (start + data + parity +
+    stop bits) / baud seconds, so a client sees a 15-line listing take the second it takes on the
+    product's line. Bytes queue in order; ``send`` is called from the server's loop only."""
+
+    CHUNK = 8  # characters handed on together (8 characters at 4800 baud: 17 ms)
+
+    def __init__(self, send, framing, loop: asyncio.AbstractEventLoop):
+        bits = 1 + framing.bytesize + (framing.parity != "N") + framing.stopbits
+        self.char_s = bits / framing.baud
+        self.send, self.loop = send, loop
+        self.queue = bytearray()
+        self.busy = False
+
+    def __call__(self, data: bytes) -> None:
+        self.queue += data
+        if not self.busy:
+            self.busy = True
+            self.loop.call_later(self.char_s * min(self.CHUNK, len(self.queue)), self._tick)
+
+    def _tick(self) -> None:
+        chunk, self.queue = bytes(self.queue[:self.CHUNK]), self.queue[self.CHUNK:]
+        try:
+            self.send(chunk)
+        except (ConnectionError, RuntimeError, OSError):
+            self.queue.clear()
+        if self.queue:
+            self.loop.call_later(self.char_s * min(self.CHUNK, len(self.queue)), self._tick)
+        else:
+            self.busy = False
+
+
 def free_port(host: str) -> int:
     with socket.socket() as s:
         s.bind((host, 0))
@@ -111,6 +144,8 @@ class SimulatorHub:
     modbus: Literal["tcp", "rtu"] = "tcp"
     environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
     cmm_homed: bool = True  # the I++ server starts homed (a run against an unhomed one needs `home: true`)
+    pace_serial: bool = False  # serial replies at the product's baud rate (4800 baud: ~2 ms a character)
+    echo: bool = True  # serial products whose factory default is to echo commands do (the Vaisala)
     addresses: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -133,7 +168,8 @@ class SimulatorHub:
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False)),
         }
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
-        lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper())
+        lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper(),
+                                              echo=self.echo)
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
         self.operator_token = secrets.token_urlsafe(18)  # only the run given the operator's address may use it
         self._fds: list[int] = []
@@ -252,7 +288,7 @@ class SimulatorHub:
         self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
         for name, handler in self.handlers.items():
             model = self.environment if name == "environment" else LINE_MODELS[name]
-            where = await self._serve_line(name, handler)
+            where = await self._serve_line(name, handler, model=model)
             self.addresses[name] = f"{where}?model={model}" + ("" if where.startswith("socket://") else f"&{PTY_FRAMING}")
         self.addresses["encoder"] += f"&counts_per_rev={self.counts_per_rev}"
         thermometer = await self._serve_line("thermometer", IthxHandler(self.environment_now), tcp=True)  # an iServer
@@ -294,13 +330,21 @@ class SimulatorHub:
         await asyncio.sleep(0.2)
         return p2
 
-    async def _serve_line(self, name: str, handler: LineHandler, tcp: bool = False) -> str:
+    def _paced(self, send, model: str):
+        """``send``, at the model's baud rate when the hub paces its serial lines."""
+        framing = BUILTIN[model].framing if model in BUILTIN else None
+        if not self.pace_serial or framing is None:
+            return send
+        return PacedSender(send, framing, self._loop)
+
+    async def _serve_line(self, name: str, handler: LineHandler, tcp: bool = False, model: str = "") -> str:
         if self.serial == "tcp" or tcp:
             async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
                 buffer = b""
+                send = self._paced(writer.write, model)
                 try:
                     while chunk := await reader.read(4096):
-                        buffer = self._answer(handler, buffer + chunk, writer.write)
+                        buffer = self._answer(handler, buffer + chunk, send)
                         await writer.drain()
                 except (ConnectionError, asyncio.CancelledError):
                     pass
@@ -316,13 +360,14 @@ class SimulatorHub:
         state = {"buffer": b""}
         writer = PtyWriter(master)
         self._pty_writers.append(writer)
+        send = self._paced(writer.write, model)
 
         def readable() -> None:
             try:
                 data = os.read(master, 4096)
             except (BlockingIOError, OSError):
                 return
-            state["buffer"] = self._answer(handler, state["buffer"] + data, writer.write)
+            state["buffer"] = self._answer(handler, state["buffer"] + data, send)
 
         self._loop.add_reader(master, readable)
         return path

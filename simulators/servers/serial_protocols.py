@@ -185,23 +185,42 @@ FORM_TOKEN = re.compile(r'\s*(?:"([^"]*)"|(\d+)\.(\d+)\s+([A-Za-z][A-Za-z0-9]*)|
 
 
 class VaisalaHandler:
-    """Vaisala PTU300 or PTB330: ``?`` (identity), ``FORM <format>``, ``FORM ?``, ``SEND``, ``ERRS``.
-    ``SEND`` prints the quantities as the FORM says: ``"text"``, ``x.y Q`` (x digits, y decimals
-    of P in hPa, T in 'C, RH in %RH), ``Un`` the unit of the quantity before, ``#r #n #t``."""
+    """Vaisala PTU300 or PTB330: ``?`` (the full listing), ``FORM <format>``, ``FORM ?``, ``SEND``,
+    ``ERRS``, ``ECHO ON|OFF``, ``S`` (stop), ``R`` (run). ``SEND`` prints the quantities as the FORM
+    says: ``"text"``, ``x.y Q`` (x digits, y decimals of P in hPa, T in 'C, RH in %RH), ``Un`` the
+    unit of the quantity before, ``#r #n #t``. ECHO is ON as from the factory (PTB330 manual): the
+    command comes back first, and a ``>`` prompt follows every answer; ``ECHO OFF`` ends both. In
+    RUN mode (``run=True``) the unit sends a reading before answering anything but ``S`` — what a
+    client sees that talks to a streaming unit (the hub has no clock of its own to stream with)."""
 
     reply_terminator = b"\r\n"
     terminator = b"\r"
     UNITS = {"P": "hPa", "T": "'C", "RH": "%RH"}
     DEFAULT_FORM = {"PTU300": '"P=" 6.1 P " " U3 "   T=" 4.1 T " " U2 " RH=" 4.1 RH " " U3 #r #n',
                     "PTB330": '"P=" 6.1 P " " U3 #r #n'}
+    MODULES = {"PTU300": ("BARO-1", "EMPTY"), "PTB330": ("BARO-1", "EMPTY", "EMPTY", "EMPTY")}
 
-    def __init__(self, now: EnvironmentNow, model: str = "PTU300"):
+    def __init__(self, now: EnvironmentNow, model: str = "PTU300", echo: bool = True, run: bool = False):
         self.now, self.model = now, model
         self.quantities = ("P", "T", "RH") if model == "PTU300" else ("P",)
         self.form = self.DEFAULT_FORM[model]
+        self.echo, self.run = echo, run
 
     def counted(self, request: bytes) -> bool:
         return request.strip().upper() == b"SEND"
+
+    def listing(self) -> str:
+        """The ``?`` listing: model / version, then Key : value lines ending with the module lines
+        (the layout of the PTB330 manual's p. 83 as the references describe it; msl-equipment reads
+        to "Module 2" on a PTU300 and "Module 4" on a PTB330)."""
+        lines = [f"{self.model} / 1.12", f"Serial number  : SIM{self.model[-3:]}01", "Batch number   : SIM-BATCH",
+                 "Adjust. date   : 2026-01-15", "Adjust. info   : VAISALA/HEL", "Date           : 2026-11-27",
+                 "Time           : 12:00:00", f"Start mode     : {'RUN' if self.run else 'STOP'}",
+                 f"Output format  : {self.form.replace('#', chr(92))}", "Pressure unit  : hPa",
+                 f"Serial mode    : {'RUN' if self.run else 'STOP'}", "Baud P D S     : 4800 E 7 1",
+                 "Output interval: 1 s", f"Echo           : {'ON' if self.echo else 'OFF'}", "Address        : 0"]
+        lines += [f"Module {i + 1}       : {m}" for i, m in enumerate(self.MODULES[self.model])]
+        return "".join(line + "\r\n" for line in lines)
 
     def _format(self, form: str, reading: EnvironmentReading | None) -> str | None:
         """The SEND line for ``form``, or None if the format is not understood (checked with no reading)."""
@@ -225,15 +244,35 @@ class VaisalaHandler:
         return "".join(out)
 
     def handle(self, request: bytes) -> bytes:
+        echo = request.strip() + b"\r\n" if self.echo else b""
+        streamed = b""
+        if self.run and request.strip().upper() != b"S":
+            streamed = self._format(self.form, self.now.fresh()).encode()
+        reply = self._answer(request)
+        return streamed + echo + reply + (b">" if self.echo else b"")
+
+    def _answer(self, request: bytes) -> bytes:
         text = request.decode("ascii", errors="replace").strip()
         command = text.split(" ", 1)[0].upper()
         if command == "?":
-            return (f"{self.model} / 1.12\r\nSerial number  : SIM{self.model[-3:]}01\r\n"
-                    f"Batch number   : SIM-BATCH\r\nOutput units   : metric\r\n").encode()
+            return self.listing().encode()
         if command == "SEND":
             return self._format(self.form, self.now.fresh()).encode()
         if command == "ERRS":
             return b"No errors\r\n"
+        if command == "S":
+            self.run = False
+            return b""
+        if command == "R":
+            self.run = True
+            return b""
+        if command == "ECHO":
+            setting = text[4:].strip().upper()
+            if setting in ("ON", "OFF"):
+                self.echo = setting == "ON"
+            elif setting:
+                return b"Unknown command\r\n"
+            return f"Echo           : {'ON' if self.echo else 'OFF'}\r\n".encode()
         if command == "FORM":
             form = text[4:].strip()
             if form == "?":

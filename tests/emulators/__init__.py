@@ -12,6 +12,7 @@ from __future__ import annotations
 import socket
 import struct
 import threading
+import time
 from typing import Callable
 
 
@@ -205,7 +206,8 @@ def qsb(line: bytes, state: dict) -> bytes:
 
 def vaisala(model: str) -> Callable[[bytes, dict], bytes]:
     """``?`` → model / version and Key : value lines; FORM is acknowledged; SEND keeps the unit's own
-    labelled layout (the PTU300 line quoted in open code), whatever FORM asked."""
+    labelled layout (the PTU300 line quoted in open code), whatever FORM asked. No echo (see
+    :class:`VaisalaEmulator` for the factory defaults)."""
 
     def answer(line: bytes, state: dict) -> bytes:
         text = line.decode()
@@ -217,9 +219,93 @@ def vaisala(model: str) -> Callable[[bytes, dict], bytes]:
             if model == "PTB330":
                 return b"P=  1003.8 hPa\r\n"
             return b"P=  1003.8 hPa   T= 17.7 'C RH= 40.9 %RH TD=  4.3 'C\r\n"
+        if text in ("S", "ECHO OFF"):
+            return b""
         return b"Unknown command\r\n"
 
     return answer
+
+
+class VaisalaEmulator(Emulator):
+    """A PTU300 / PTB330 as its manuals describe it from the factory (PTB330 M210855EN, PTU300
+    M210796EN, PTB200/PTU200/HMT310 on ECHO): replies paced at 4800 baud 7E1 (10 bits a character),
+    ECHO ON (the command comes back, a ``>`` prompt follows each answer), the full ``?`` listing
+    ending with the module lines (msl-equipment reads to "Module 2" / "Module 4"), CR in and CR LF
+    out, optionally in RUN mode (a reading every ``interval_s`` until ``S``)."""
+
+    LISTING = {
+        "PTU300": ["PTU300 / 1.12", "Serial number  : P4040154", "Batch number   : 4030010", "Adjust. date   : 2024-03-11",
+                   "Adjust. info   : VAISALA/HEL", "Date           : 2026-11-27", "Time           : 12:00:00",
+                   "Serial mode    : {mode}", "Baud P D S     : 4800 E 7 1", "Output interval: 1 s",
+                   "Serial delay   : 0", "Address        : 0", "Echo           : {echo}", "Module 1       : BARO-1",
+                   "Module 2       : EMPTY"],
+        "PTB330": ["PTB330 / 1.12", "Serial number  : G1234567", "Batch number   : G1230010", "Output format  : \\P \\U #r#n",
+                   "Adjust. date   : 2024-03-11", "Adjust. info   : VAISALA/HEL", "Date           : 2026-11-27",
+                   "Time           : 12:00:00", "Start mode     : {mode}", "Pressure unit  : hPa", "Serial mode    : {mode}",
+                   "Baud P D S     : 4800 E 7 1", "Output interval: 1 s", "Echo           : {echo}", "Address        : 0",
+                   "Module 1       : BARO-1", "Module 2       : EMPTY", "Module 3       : EMPTY", "Module 4       : EMPTY"],
+    }
+    READING = {"PTU300": b"P=  1003.8 hPa   T= 17.7 'C RH= 40.9 %RH TD=  4.3 'C\r\n", "PTB330": b"P=  1003.8 hPa\r\n"}
+
+    def __init__(self, model: str, echo: bool = True, run: bool = False, baud: int = 4800, interval_s: float = 0.3):
+        self.model, self.echo, self.run = model, echo, run
+        self.char_s = 10.0 / baud if baud else 0.0
+        self.interval_s = interval_s
+        super().__init__(lambda *_: b"")
+
+    def _send(self, conn: socket.socket, data: bytes) -> None:
+        for i in range(0, len(data), 4):
+            conn.sendall(data[i:i + 4])
+            if self.char_s:
+                time.sleep(4 * self.char_s)
+
+    def _serve(self) -> None:
+        while True:
+            try:
+                conn, _ = self.listener.accept()
+            except OSError:
+                return
+            with conn:
+                conn.settimeout(self.interval_s)
+                buffer = b""
+                while True:
+                    try:
+                        chunk = conn.recv(4096)
+                    except socket.timeout:
+                        if self.run:
+                            self._send(conn, self.READING[self.model])
+                        continue
+                    except OSError:
+                        break
+                    if not chunk:
+                        break
+                    buffer += chunk
+                    while b"\r" in buffer:
+                        line, buffer = buffer.split(b"\r", 1)
+                        line = line.strip(b"\n")
+                        if line:
+                            self.requests.append(line)
+                            self._send(conn, self._answer(line.decode()))
+
+    def _answer(self, text: str) -> bytes:
+        echo = (text + "\r\n").encode() if self.echo else b""
+        command = text.split(" ")[0].upper()
+        if command == "S":
+            self.run = False
+            reply = b""
+        elif command == "ECHO":
+            self.echo = text.upper().endswith("ON")
+            reply = f"Echo           : {'ON' if self.echo else 'OFF'}\r\n".encode()
+        elif command == "?":
+            mode, echo_text = ("RUN" if self.run else "STOP"), ("ON" if self.echo else "OFF")
+            reply = "".join(line.format(mode=mode, echo=echo_text) + "\r\n" for line in self.LISTING[self.model]).encode()
+        elif command == "FORM":
+            reply = b"OK\r\n"
+        elif command == "SEND":
+            reply = self.READING[self.model]
+        else:
+            reply = b"Unknown command\r\n"
+        return echo + reply + (b">" if self.echo else b"")
 
 
 def ithx(line: bytes, state: dict) -> bytes:
