@@ -52,7 +52,8 @@ def test_probe_cmm_clears_the_i_plus_plus_error_state(capsys):
 
 
 @pytest.mark.parametrize("kind,answer,terminator,options,model,identity,reading", [
-    ("autocollimator", emu.elcomat, b"\n", "", "elcomat", "", {"x_arcsec": 12.34, "y_arcsec": -5.67}),
+    ("autocollimator", emu.elcomat, b"\n", "", "elcomat",
+     "Möller-Wedel ELCOMAT, serial number 30123, focal length 300 mm, date 15.01.2026", {"x_arcsec": 12.34, "y_arcsec": -5.67}),
     ("dial_indicator", emu.sylvac, b"\r", "", "sylvac", "", {"displacement_mm": -0.0123}),
     ("encoder", emu.qsb, b"\n", "&counts_per_rev=3600000", "qsb", "US Digital QSB, VERSION register 0x00020304",
      {"angle_deg": 128162 * 360 / 3600000}),

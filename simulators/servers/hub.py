@@ -145,7 +145,8 @@ class SimulatorHub:
     environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
     cmm_homed: bool = True  # the I++ server starts homed (a run against an unhomed one needs `home: true`)
     pace_serial: bool = False  # serial replies at the product's baud rate (4800 baud: ~2 ms a character)
-    echo: bool = True  # serial products whose factory default is to echo commands do (the Vaisala)
+    echo: bool = True  # serial products that echo commands do (the Vaisala from the factory, a Sylvac on UniCal)
+    sylvac_inch: bool = True  # the indicators start with an inch display: the driver must switch them to mm
     addresses: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -164,8 +165,8 @@ class SimulatorHub:
             "laser_tracer": TracerHandler(SimLaserTracer(b, inject=False)),
             "encoder": QsbHandler(SimEncoder(b, inject=False), self.counts_per_rev),
             "autocollimator": ElcomatHandler(SimAutocollimator(b, inject=False)),
-            "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False)),
-            "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False)),
+            "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False), echo=self.echo, inch=self.sylvac_inch),
+            "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False), echo=self.echo, inch=self.sylvac_inch),
         }
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
         lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper(),

@@ -53,23 +53,28 @@ class FaultyLine:
 
 class ElcomatHandler:
     """Möller-Wedel ELCOMAT: ``a`` → ``4 003 <x> <y>\\r`` (absolute), ``r`` → ``2 103 <x> <y>\\r``
-    (relative; the simulated unit's zero is its absolute zero), arcsec. No face in range: the
-    second field 000 (rtcal's reading of 003 as "X and Y valid"; the real code is unconfirmed)."""
+    (relative; the simulated unit's zero is its absolute zero), arcsec; the status's last digit
+    says which axes are valid (dls-controls/elcomat3000: 3 both, 1 X, 2 Y, 0 none — no face in
+    range). ``d`` → ``8 <serial> <day> <month> <year> <focal length>``. ``valid_axes`` "x" or "y"
+    makes a unit that validates only that axis."""
 
     reply_terminator = b"\r"
     terminator = b"\n"
 
-    def __init__(self, instrument: SimAutocollimator):
+    def __init__(self, instrument: SimAutocollimator, valid_axes: str = "xy"):
         self.instrument = instrument
+        self.valid_digit = {"xy": b"3", "x": b"1", "y": b"2"}[valid_axes]
 
     def counted(self, request: bytes) -> bool:
         return request.strip() in (b"a", b"r")
 
     def handle(self, request: bytes) -> bytes:
         command = request.strip()
+        if command == b"d":
+            return b"8 SIM3000 15 01 2026 300\r"
         if command not in (b"a", b"r"):
             return b""  # what a unit answers to other commands is not published: nothing
-        mode, valid = (b"4", b"003") if command == b"a" else (b"2", b"103")
+        mode, valid = (b"4", b"00" + self.valid_digit) if command == b"a" else (b"2", b"10" + self.valid_digit)
         try:
             x, y = self.instrument.read_arcsec()
         except InstrumentFault:
@@ -78,24 +83,39 @@ class ElcomatHandler:
 
 
 class SylvacHandler:
-    """Sylvac indicator: ``?`` (or ``PRI?``) → the displacement in mm, signed, CR LF."""
+    """Sylvac indicator on its Opto-RS cable (OPTO-RS manual): ``?`` (or ``PRI?``) → the displacement
+    in the display unit, ``[sign or space][digits].[decimals]`` and CR, no unit; ``MM`` / ``IN`` set
+    the unit, ``UNI?`` answers it; ``BAT?`` → ``BAT1``. ``echo=True`` sends the command back first
+    (the UniCal manual: "the instrument echoes the command"); ``inch=True`` starts with an inch
+    display; ``accepts_mm=False`` is a unit that stays in inches. Another command: ``ERR1``."""
 
-    reply_terminator = b"\r\n"
+    reply_terminator = b"\r"
     terminator = b"\r"
 
-    def __init__(self, instrument: SimDialIndicator):
+    def __init__(self, instrument: SimDialIndicator, echo: bool = False, inch: bool = False, accepts_mm: bool = True):
         self.instrument = instrument
+        self.echo, self.inch, self.accepts_mm = echo, inch, accepts_mm
 
     def counted(self, request: bytes) -> bool:
         return request.strip() in (b"?", b"PRI?")
 
     def handle(self, request: bytes) -> bytes:
         command = request.strip()
+        return (command + b"\r" if self.echo else b"") + self._answer(command)
+
+    def _answer(self, command: bytes) -> bytes:
         if command == b"BAT?":
-            return b"BAT1\r\n"
+            return b"BAT1\r"
+        if command in (b"MM", b"IN"):
+            self.inch = command == b"IN" or not self.accepts_mm
+            return b""
+        if command == b"UNI?":
+            return b"IN\r" if self.inch else b"MM\r"
         if command not in (b"?", b"PRI?"):
-            return b""  # the reply to other commands is not published: nothing
-        return f"{self.instrument.read_um() / 1000.0:+.6f}\r\n".encode()
+            return b"ERR1\r"
+        mm = self.instrument.read_um() / 1000.0
+        text = f"{mm / 25.4:.5f}" if self.inch else f"{mm:.4f}"
+        return (text if text.startswith("-") else " " + text).encode() + b"\r"
 
 
 class QsbHandler:

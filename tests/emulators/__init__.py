@@ -185,11 +185,43 @@ def ipp_answer(first_get_fails: bool = True, homed: bool = True, coordinate_syst
 # -- serial products -----------------------------------------------------------------------------------
 
 def elcomat(line: bytes, state: dict) -> bytes:
-    return {b"a": b"4 003 12.34 -5.67\r", b"r": b"2 103 0.50 0.25\r"}.get(line, b"")
+    """dls-controls/elcomat3000: ``d`` → ``8 <serial> <day> <month> <year> <focal length>``."""
+    return {b"a": b"4 003 12.34 -5.67\r", b"r": b"2 103 0.50 0.25\r", b"d": b"8 30123 15 01 2026 300\r"}.get(line, b"")
+
+
+def elcomat_one_axis(valid_digit: str) -> Callable[[bytes, dict], bytes]:
+    """An absolute reading whose status says only X (1) or only Y (2) is valid (dls-controls/elcomat3000)."""
+    return lambda line, state: f"4 00{valid_digit} 12.34 -5.67\r".encode() if line == b"a" else elcomat(line, state)
 
 
 def sylvac(line: bytes, state: dict) -> bytes:
-    return {b"?": b"-0.0123\r\n", b"PRI?": b"-0.0123\r\n", b"BAT?": b"BAT1\r\n"}.get(line, b"")
+    return sylvac_opto_rs()(line, state)
+
+
+def sylvac_opto_rs(inch: bool = False, echo: bool = False, accepts_mm: bool = True,
+                   displacement_mm: float = -0.0123) -> Callable[[bytes, dict], bytes]:
+    """A Sylvac indicator as the OPTO-RS cable manual describes it: the value as ``[sign or
+    space][digits].[decimals]`` and CR with **no unit** (the display's unit: inches show 5
+    decimals), ``MM`` / ``IN`` set the unit, ``UNI?`` answers it, ``ERRn`` an error; ``echo``: the
+    command comes back first (UniCal manual). The unit outlives a connection."""
+    unit = {"inch": inch}
+
+    def answer(line: bytes, state: dict) -> bytes:
+        out = line + b"\r" if echo else b""
+        if line in (b"MM", b"IN"):
+            unit["inch"] = line == b"IN" or not accepts_mm
+            return out
+        if line == b"UNI?":
+            return out + (b"IN\r" if unit["inch"] else b"MM\r")
+        if line == b"BAT?":
+            return out + b"BAT1\r"
+        if line in (b"?", b"PRI?"):
+            value = displacement_mm / 25.4 if unit["inch"] else displacement_mm
+            text = f"{value:.5f}" if unit["inch"] else f"{value:.4f}"
+            return out + (text if text.startswith("-") else " " + text).encode() + b"\r"
+        return out + b"ERR1\r"
+
+    return answer
 
 
 def qsb(line: bytes, state: dict) -> bytes:
