@@ -146,6 +146,7 @@ class SimulatorHub:
     cmm_homed: bool = True  # the I++ server starts homed (a run against an unhomed one needs `home: true`)
     pace_serial: bool = False  # serial replies at the product's baud rate (4800 baud: ~2 ms a character)
     echo: bool = True  # serial products that echo commands do (the Vaisala from the factory, a Sylvac on UniCal)
+    stage_start_latency_s: float = 0.005  # the drive starts a motion this long after the trigger
     sylvac_inch: bool = True  # the indicators start with an inch display: the driver must switch them to mm
     addresses: dict[str, str] = field(default_factory=dict)
 
@@ -156,7 +157,8 @@ class SimulatorHub:
         self.steps_per_rev = stepper.steps_per_revolution or DEFAULT_STEPS_PER_REV
         self.gear = stepper.worm_ratio if stepper.steps_per_revolution else DEFAULT_GEAR
         # the instruments inject no faults themselves: the protocol ends do, on the wire
-        self.drive = AzDriveModel(SimStage(b, inject=False), steps_per_degree(self.steps_per_rev, self.gear))
+        self.drive = AzDriveModel(SimStage(b, inject=False), steps_per_degree(self.steps_per_rev, self.gear),
+                                  self.stage_start_latency_s)
         self.cmm = SimCmm(b, inject=False)
         self.ipp_machine = IppMachine(homed=self.cmm_homed)
         res = self.scenario.encoder.resolution_arcsec

@@ -73,15 +73,46 @@ class Emulator:
 # -- Oriental Motor AZ over Modbus TCP: holding registers, 32-bit values upper word first ---------------
 
 class AzDriveEmulator(Emulator):
-    """FC03 and FC16 over Modbus TCP (MBAP header: transaction, protocol 0, length, unit)."""
+    """FC03 and FC16 over Modbus TCP (MBAP header: transaction, protocol 0, length, unit).
 
-    def __init__(self, registers32: dict[int, int], unit: int = 1):
+    With ``latency_s`` it moves as the samples and the reference describe a drive doing: a write of
+    1 to the trigger (0x0066) starts the direct-data motion to the position at 0x005C that long
+    after the trigger — until then the output status (0x007E) still shows the previous IN-POS
+    (bit 14) — then MOVE (bit 13) for ``motion_s``, then IN-POS with the feedback (0x00CC) at the
+    target."""
+
+    IN_POS, MOVE, READY = 1 << 14, 1 << 13, 1 << 5
+
+    def __init__(self, registers32: dict[int, int], unit: int = 1, latency_s: float | None = None, motion_s: float = 0.03):
         self.words: dict[int, int] = {}
         for address, value in registers32.items():
-            v = value & 0xFFFFFFFF
-            self.words[address], self.words[address + 1] = v >> 16, v & 0xFFFF
+            self.set32(address, value)
         self.unit = unit
+        self.latency_s, self.motion_s = latency_s, motion_s
+        self.motion: tuple[float, int] | None = None  # (trigger time, target)
         super().__init__(lambda *_: b"")
+
+    def set32(self, address: int, value: int) -> None:
+        v = value & 0xFFFFFFFF
+        self.words[address], self.words[address + 1] = v >> 16, v & 0xFFFF
+
+    def get32(self, address: int) -> int:
+        v = (self.words[address] << 16) | self.words[address + 1]
+        return v - (1 << 32) if v & 0x80000000 else v
+
+    def _drive(self) -> None:
+        """The motion's state now: not started (previous IN-POS), moving, or done at the target."""
+        if self.latency_s is None or self.motion is None:
+            return
+        elapsed = time.monotonic() - self.motion[0]
+        if elapsed < self.latency_s:
+            return
+        if elapsed < self.latency_s + self.motion_s:
+            self.set32(0x007E, self.MOVE | self.READY)
+            return
+        self.set32(0x00CC, self.motion[1])
+        self.set32(0x007E, self.IN_POS | self.READY)
+        self.motion = None
 
     def _feed(self, conn: socket.socket, buffer: bytes, state: dict) -> bytes:
         while len(buffer) >= 7 and len(buffer) >= 6 + struct.unpack(">H", buffer[4:6])[0]:
@@ -91,6 +122,7 @@ class AzDriveEmulator(Emulator):
             tid, unit, pdu = frame[:2], frame[6], frame[7:]
             if unit != self.unit:
                 continue  # another drive on the bus: silence
+            self._drive()
             if pdu[0] == 3:
                 start, count = struct.unpack(">HH", pdu[1:5])
                 if any(a not in self.words for a in range(start, start + count)):
@@ -101,6 +133,8 @@ class AzDriveEmulator(Emulator):
                 start, count = struct.unpack(">HH", pdu[1:5])
                 for k in range(count):
                     self.words[start + k] = struct.unpack(">H", pdu[6 + 2 * k: 8 + 2 * k])[0]
+                if self.latency_s is not None and start <= 0x0066 < start + count and self.get32(0x0066) == 1:
+                    self.motion = (time.monotonic(), self.get32(0x005C))
                 reply = pdu[:5]
             else:
                 reply = bytes([pdu[0] | 0x80, 1])
