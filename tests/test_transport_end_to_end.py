@@ -28,6 +28,8 @@ TOLERANCE_ARCSEC = 0.01
 
 @contextmanager
 def sim_serve(scenario: Path, *options: str):
+    options = options if "--pace" in options else ("--no-pacing", *options)  # pacing: in the dedicated tests only
+    options = tuple(o for o in options if o != "--pace")
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "sim", "serve", "--scenario", str(scenario), *options],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -48,6 +48,7 @@ from simulators.servers.serial_protocols import (
     FaultyLine,
     IthxHandler,
     LineHandler,
+    PiGcsHandler,
     QsbHandler,
     SylvacHandler,
     TracerHandler,
@@ -143,6 +144,7 @@ class SimulatorHub:
     serial: Literal["pty", "tcp"] = "pty"
     modbus: Literal["tcp", "rtu"] = "tcp"
     environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
+    stage_model: Literal["oriental-az", "pi-gcs"] = "oriental-az"  # the stage's protocol: Modbus drive or PI GCS line
     cmm_homed: bool = True  # the I++ server starts homed (a run against an unhomed one needs `home: true`)
     pace_serial: bool = False  # serial replies at the product's baud rate (4800 baud: ~2 ms a character)
     echo: bool = True  # serial products that echo commands do (the Vaisala from the factory, a Sylvac on UniCal)
@@ -170,6 +172,7 @@ class SimulatorHub:
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False), echo=self.echo, inch=self.sylvac_inch),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False), echo=self.echo, inch=self.sylvac_inch),
         }
+        self.pi_gcs = PiGcsHandler(SimStage(b, inject=False)) if self.stage_model == "pi-gcs" else None
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
         lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper(),
                                               echo=self.echo)
@@ -277,7 +280,11 @@ class SimulatorHub:
     async def _start_all(self) -> None:
         h = self.host
         stage_query = f"unit=1&steps_per_rev={self.steps_per_rev}&gear={self.gear:g}"
-        if self.modbus == "tcp":
+        if self.pi_gcs is not None:  # unreferenced at power-on: the address lets the run reference it (FRF)
+            where = await self._serve_line("stage", self.pi_gcs, model="pi-gcs")
+            self.addresses["stage"] = f"{where}?model=pi-gcs&axis=1&home=1" + (
+                "" if where.startswith("socket://") else f"&{PTY_FRAMING}")
+        elif self.modbus == "tcp":
             port = free_port(h)
             server = modbus_stage.tcp_server(self.drive, h, port)
             self._servers.append(asyncio.ensure_future(server.serve_forever()))

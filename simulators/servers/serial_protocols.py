@@ -10,9 +10,16 @@ from __future__ import annotations
 import re
 from typing import Protocol
 
-from drivers.errors import InstrumentFault, TrackingLost
+from drivers.errors import InstrumentFault, OutOfLimits, TrackingLost
 from drivers.interfaces import EnvironmentReading
-from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimEnvironmentSensor, SimLaserTracer
+from simulators.instruments import (
+    SimAutocollimator,
+    SimDialIndicator,
+    SimEncoder,
+    SimEnvironmentSensor,
+    SimLaserTracer,
+    SimStage,
+)
 
 
 class LineHandler(Protocol):
@@ -327,3 +334,99 @@ class IthxHandler:
         celsius = r.material_temperature_c if m.group(2) else r.air_temperature_c
         value = {"TC": celsius, "TF": celsius * 9.0 / 5.0 + 32.0, "H": r.humidity_pct}[m.group(1)]
         return f"{value:.1f}\r".encode()
+
+
+class PiGcsHandler:
+    """A PI controller with one rotation axis (``1``), GCS as pipython speaks it (docs/protocols/pi_gcs.md):
+    ``*IDN?``, ``SVO``/``SVO?``, ``FRF``/``FRF?``, ``MOV``/``MOV?``, ``POS?``, ``ONT?``, ``ERR?``
+    (answers the last error and clears it), ``STP``/``HLT`` (error 10). Requests and answers end in
+    LF; a query answers ``1=<value>``; other commands answer nothing. A move needs the servo on and
+    the axis referenced (else error 5) and a target inside the travel range (else 7); it is done
+    in virtual time, but ``ONT?`` answers 0 once after each move, as a stage still settling would."""
+
+    reply_terminator = b"\n"
+    terminator = b"\n"
+    IDN = "(c)2026 Physik Instrumente (PI) GmbH & Co. KG, C-863.11, SIM0000001, 01.00.00"
+    AXIS = "1"
+
+    def __init__(self, stage: SimStage, referenced: bool = False):
+        self.stage = stage
+        self.servo = False
+        self.referenced = referenced
+        self.error = 0
+        self.target_deg = stage.position_deg()
+        self.settling = 0
+
+    def counted(self, request: bytes) -> bool:
+        return False  # the stage's faults are the drive model's; this line carries none
+
+    def _fail(self, code: int) -> bytes:
+        self.error = self.error or code  # the first error stays until ERR? reads it
+        return b""
+
+    def handle(self, request: bytes) -> bytes:
+        words = request.decode("ascii", errors="replace").split()
+        if not words:
+            return b""
+        command, args = words[0].upper(), words[1:]
+        if command == "*IDN?":
+            return (self.IDN + "\n").encode()
+        if command == "ERR?":
+            code, self.error = self.error, 0
+            return f"{code}\n".encode()
+        if command in ("STP", "HLT"):
+            if command == "HLT" and args and args[0] != self.AXIS:
+                return self._fail(15)
+            self.settling = 0
+            return self._fail(10)
+        queries = {"SVO?": lambda: int(self.servo), "FRF?": lambda: int(self.referenced),
+                   "POS?": lambda: f"{self.stage.position_deg():.9f}", "MOV?": lambda: f"{self.target_deg:.9f}",
+                   "ONT?": self._on_target}
+        if command in queries:
+            if args and args != [self.AXIS]:
+                return self._fail(15) or b""
+            return f"{self.AXIS}={queries[command]()}\n".encode()
+        if command in ("SVO", "MOV"):
+            if len(args) != 2:
+                return self._fail(1)
+            if args[0] != self.AXIS:
+                return self._fail(15)
+            try:
+                value = float(args[1])
+            except ValueError:
+                return self._fail(1)
+            if command == "SVO":
+                self.servo = value == 1
+                return b""
+            return self._move(value)
+        if command == "FRF":
+            if args and args != [self.AXIS]:
+                return self._fail(15)
+            if not self.servo:
+                return self._fail(5)
+            self._move(0.0, referencing=True)
+            self.referenced = True
+            return b""
+        return self._fail(2)
+
+    def _on_target(self) -> int:
+        if self.settling:
+            self.settling -= 1
+            return 0
+        return 1
+
+    def _move(self, target_deg: float, referencing: bool = False) -> bytes:
+        if not self.servo or not (self.referenced or referencing):
+            return self._fail(5)
+        lo, hi = self.stage.limits_deg
+        if not (lo <= target_deg <= hi and target_deg == target_deg):
+            return self._fail(7)
+        try:
+            self.stage.move_to(target_deg)
+        except OutOfLimits:
+            return self._fail(7)
+        except InstrumentFault:
+            return self._fail(5)
+        self.target_deg = target_deg
+        self.settling = 1
+        return b""

@@ -216,6 +216,61 @@ def ipp_answer(first_get_fails: bool = True, homed: bool = True, coordinate_syst
     return answer
 
 
+# -- PI GCS: one axis, LF-ended lines, queries answer "1=<value>", ERR? after commands --------------
+
+def pi_gcs(position_deg: float = 0.0, referenced: bool = True, travel_deg: float = 180.0) -> Callable[[bytes, dict], bytes]:
+    """A PI controller with rotation axis 1 as pipython talks to it (gcsbasecommands.py, gcsmessages.py,
+    gcserror.py): ``*IDN?``; ``SVO 1 1``; ``FRF 1`` / ``FRF? 1``; ``MOV 1 <deg>`` (error 5 without servo
+    or reference, 7 outside the travel range); ``POS? 1``, ``ONT? 1`` (0 for two polls after a move);
+    ``ERR?`` answers the error code and clears it; ``HLT 1`` / ``STP`` set error 10. Commands answer
+    nothing. ``state`` (the returned function's attribute) outlives a connection."""
+    state = {"pos": position_deg, "servo": False, "referenced": referenced, "error": 0, "settle": 0, "ont_polls": 0}
+
+    def fail(code: int) -> bytes:
+        state["error"] = state["error"] or code
+        return b""
+
+    def answer(line: bytes, _: dict) -> bytes:
+        words = line.decode().split()
+        cmd, args = words[0], words[1:]
+        if cmd == "*IDN?":
+            return b"(c)2019 Physik Instrumente (PI) GmbH & Co. KG, C-884.4DC, 119012345, 2.0.1\n"
+        if cmd == "ERR?":
+            code, state["error"] = state["error"], 0
+            return f"{code}\n".encode()
+        if cmd in ("HLT", "STP"):
+            return fail(10)
+        if cmd == "SVO" and args[:1] == ["1"]:
+            state["servo"] = args[1] == "1"
+            return b""
+        if cmd == "FRF" and args[:1] == ["1"]:
+            if not state["servo"]:
+                return fail(5)
+            state["pos"], state["referenced"], state["settle"] = 0.0, True, 2
+            return b""
+        if cmd == "MOV" and args[:1] == ["1"]:
+            if not (state["servo"] and state["referenced"]):
+                return fail(5)
+            target = float(args[1])
+            if abs(target) > travel_deg:
+                return fail(7)
+            state["pos"], state["settle"] = target, 2
+            return b""
+        if cmd.endswith("?") and args == ["1"]:
+            if cmd == "ONT?":
+                state["ont_polls"] += 1
+                on = state["settle"] == 0
+                state["settle"] = max(0, state["settle"] - 1)
+                return f"1={int(on)}\n".encode()
+            value = {"POS?": f"{state['pos']:.6f}", "FRF?": str(int(state["referenced"])), "SVO?": str(int(state["servo"]))}.get(cmd)
+            if value is not None:
+                return f"1={value.rstrip('0').rstrip('.') if '.' in value else value}\n".encode()
+        return fail(2)
+
+    answer.state = state  # type: ignore[attr-defined]
+    return answer
+
+
 # -- serial products -----------------------------------------------------------------------------------
 
 def elcomat(line: bytes, state: dict) -> bytes:

@@ -1,0 +1,64 @@
+"""PI GCS stage (`model=pi-gcs`, issue 27): the driver against an emulator written from pipython's
+command syntax (tests/emulators.pi_gcs), `rtcal probe stage` reading it without moving it, and
+the hub's simulator behind the simulated bench."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from drivers.addresses import parse_address
+from drivers.errors import InstrumentFault, OutOfLimits
+from drivers.pi_gcs import PiGcsStage
+from rtcal.cli import main
+from simulators.scenario import Scenario
+from simulators.servers.hub import SimulatorHub
+from tests import emulators as emu
+from tests.emulators import Emulator
+
+
+def test_probe_reads_the_position_and_moves_nothing(capsys):
+    answer = emu.pi_gcs(position_deg=12.5, referenced=False)
+    with Emulator(answer, b"\n") as controller:
+        code = main(["probe", "stage", f"{controller.url()}?model=pi-gcs&axis=1", "--json", "--timeout-s", "1"])
+        out, err = capsys.readouterr()
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["model"] == "pi-gcs" and r["identity"].startswith("(c)2019 Physik Instrumente (PI)")
+    assert r["reading"] == {"position_deg": 12.5}
+    assert [line.split()[0] for line in controller.requests] == [b"*IDN?", b"ERR?", b"POS?"]  # no SVO, FRF or MOV
+
+
+def test_driver_references_only_when_allowed_moves_and_stops():
+    answer = emu.pi_gcs(position_deg=3.0, referenced=False)
+    with Emulator(answer, b"\n") as controller:
+        with pytest.raises(InstrumentFault, match="not referenced.*home=1"):
+            PiGcsStage(parse_address(f"{controller.url()}?model=pi-gcs&axis=1"), 1.0)
+        stage = PiGcsStage(parse_address(f"{controller.url()}?model=pi-gcs&axis=1&home=1"), 1.0)
+        try:
+            assert answer.state["referenced"] and stage.position_deg() == 0.0  # FRF: the reference switch at 0
+            stage.move_to(45.25)
+            assert stage.position_deg() == 45.25
+            assert answer.state["ont_polls"] >= 2  # waited for ONT? = 1
+            with pytest.raises(OutOfLimits, match="GCS error 7"):
+                stage.move_to(350.0)  # the controller's travel range is ±180° here, rtcal's limits ±360°
+            stage.stop()
+            assert stage.position_deg() == 45.25
+        finally:
+            stage.close()
+    sent = [line.decode() for line in controller.requests]
+    assert "SVO 1 1" in sent and "FRF 1" in sent and "MOV 1 45.25" in sent and "HLT 1" in sent
+
+
+def test_hub_serves_a_pi_stage_that_a_run_can_drive():
+    with SimulatorHub(Scenario(), seed=1, serial="tcp", stage_model="pi-gcs") as hub:
+        address = hub.addresses["stage"]
+        assert "model=pi-gcs" in address and "axis=1" in address
+        stage = PiGcsStage(parse_address(address), 1.0)
+        try:
+            stage.move_to(30.0)
+            assert stage.position_deg() == pytest.approx(30.0, abs=1e-6)
+            assert hub.bench.target_rad == pytest.approx(0.5235987755982988, abs=1e-8)
+        finally:
+            stage.close()
