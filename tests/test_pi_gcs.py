@@ -62,3 +62,26 @@ def test_hub_serves_a_pi_stage_that_a_run_can_drive():
             assert hub.bench.target_rad == pytest.approx(0.5235987755982988, abs=1e-8)
         finally:
             stage.close()
+
+
+def test_a_wired_iso_230_2_run_on_the_pi_simulator(tmp_path):
+    """`rtcal sim serve --stage-model pi-gcs`: the ISO 230-2 procedure (two runs each way) drives the PI
+    stage over its GCS line; its estimates agree with the in-process run of the same bench."""
+    import numpy as np
+
+    from rtcal.run.runner import run_procedure
+    from tests.test_transport_end_to_end import PROC, _values, sim_serve
+
+    procedure = tmp_path / "iso.yaml"
+    procedure.write_text((PROC / "iso230_2_polygon.yaml").read_text().replace("runs: 5", "runs: 2")
+                         .replace("bench: scenarios/", f"bench: {PROC / 'scenarios'}/"))
+    scenario = PROC / "scenarios" / "abbe_bench.yaml"
+    local = run_procedure(procedure, scenario, out_dir=tmp_path / "local", show_progress=False).results
+    with sim_serve(scenario, "--stage-model", "pi-gcs", "--serial", "tcp") as addresses:
+        assert "model=pi-gcs" in addresses["stage"]
+        remote = run_procedure(procedure, out_dir=tmp_path / "remote", show_progress=False, addresses=addresses,
+                               virtual_clock=True).results
+    assert remote.instruments["stage"].startswith("socket://127.0.0.1:")
+    for key in ("measured_encoder_error_arcsec", "positioning_error_arcsec"):
+        a, b = _values(local, "abbe", key), _values(remote, "abbe", key)
+        assert np.array_equal(np.isnan(a), np.isnan(b)) and np.nanmax(np.abs(a - b)) < 0.01, key
