@@ -409,7 +409,7 @@ class SimulatorHub:
         (the token of the address ``rtcal sim serve`` printed); without it, ``ERR AUTH`` and nothing
         done. ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>`` moves the laser
         tracer to its first or second mount; ``CERT?`` hands over the polygon's calibration
-        certificate (face errors, arcsec); ``CLEAR`` releases an emergency stop."""
+        certificate (face errors, arcsec); ``CLEAR`` releases an emergency stop (the drive's and the CMM's)."""
         try:
             while line := await reader.readline():
                 words = line.decode(errors="replace").split()
@@ -434,6 +434,7 @@ class SimulatorHub:
                     writer.write(b"OK\n")
                 elif words == ["CLEAR"]:
                     self.bench.emergency_stop = False
+                    self.ipp_machine.release_emergency_stop()
                     writer.write(b"OK\n")
                 elif words == ["CERT?"]:
                     values = " ".join(f"{v:.6f}" for v in self.bench.face_certificate_arcsec)
