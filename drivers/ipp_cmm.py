@@ -53,6 +53,9 @@ class IppCmm(Cmm):
     _error_state = False  # the server answers 0514 until ClearAllErrors()
     version = ""
     tool: str | None = None
+    emergency = ""  # the E0000 event's text once the server reported an emergency stop
+    warnings: tuple[str, ...] = ()  # severity 0–1 replies, as the server worded them
+    _event_tag = 0
 
     def __init__(self, address: Address, timeout_s: float = 5.0,
                  volume_min_mm=(-np.inf,) * 3, volume_max_mm=(np.inf,) * 3, tool: str | None = None,
@@ -63,8 +66,8 @@ class IppCmm(Cmm):
         self.address, self.timeout_s, self.tool = address, timeout_s, tool
         self.may_home = may_move and (bool(home) or address.option("home", 0) == 1)
         self.may_move = may_move
-        self.emergency: str = ""  # the E0000 event's text once the server reported an emergency stop
-        self.warnings: list[str] = []  # severity 0–1 replies, as the server worded them
+        self.emergency = ""
+        self.warnings = ()
         self.homed_by_rtcal = False
         self._tag = 0
         self._event_tag = 0
@@ -216,7 +219,7 @@ class IppCmm(Cmm):
                 severity, code, message = (err[0], err[1], err[3]) if err else (3, "?", rest[:200])
                 if severity <= ipp.WARNING_SEVERITY and code != ipp.USE_CLEAR_ALL_ERRORS:
                     warning = f"{method}: {message} (I++ warning {code}, severity {severity})"
-                    self.warnings.append(warning)
+                    self.warnings = (*self.warnings[-99:], warning)
                     log.warning("%s: %s", self.name, warning)
                     continue  # §8.1: a warning does not end the transaction
                 self._error_state = True
@@ -234,7 +237,7 @@ class IppCmm(Cmm):
         err = ipp.parse_error(rest)
         severity, code, message = (err[0], err[1], err[3]) if err else (3, "?", rest[:200])
         if severity <= ipp.WARNING_SEVERITY and code != ipp.EMERGENCY_STOP:
-            self.warnings.append(f"event: {message} (I++ warning {code})")
+            self.warnings = (*self.warnings[-99:], f"event: {message} (I++ warning {code})")
             log.warning("%s: event %s (I++ warning %s)", self.name, message, code)
             return
         self.emergency = f"I++ event {ipp.EVENT_TAG} error {code}: {message}"[:200]

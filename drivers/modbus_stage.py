@@ -42,6 +42,7 @@ class ModbusStage(RotaryStage):
     framing = BUILTIN["oriental-az"].framing
 
     SETTLE_S = 0.3  # after IN-POS: how long the feedback may take to come within tolerance of the target
+    tolerance_steps = 2.0  # how far the feedback may end from the target (set from tolerance_deg at open)
 
     def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),
                  tolerance_deg: float | None = None, **_: object):
