@@ -161,3 +161,19 @@ def test_simulator_second_start_session_is_a_protocol_error(hub):
         replies = [f.readline().decode().strip() for _ in range(5)]
     assert replies[:2] == ["00001 &", "00001 %"]
     assert replies[3].startswith('00002 ! Error(3, 0008, "StartSession"')
+
+
+def test_a_run_opens_the_cmm_with_the_procedures_home_option(hub):
+    """`cmm: {home: true}` in a procedure reaches the driver through the factory; false refuses."""
+    from drivers import factory
+    from rtcal.procedure.models import CmmChoice
+
+    assert CmmChoice.model_validate({"address": hub.addresses["cmm"], "home": True}).home is True
+    assert CmmChoice.model_validate({"address": hub.addresses["cmm"]}).home is False
+    with pytest.raises(InstrumentFault, match="not homed"):
+        factory.open_cmm(hub.addresses["cmm"], (0, 0, 0), (1000, 800, 600), 1.0)
+    cmm = factory.open_cmm(hub.addresses["cmm"], (0, 0, 0), (1000, 800, 600), 1.0, home=True)
+    try:
+        assert hub.ipp_machine.homed and "homed by rtcal" in cmm.identity()
+    finally:
+        cmm.close()
