@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import math
+import select
 import socket
 import time
 
@@ -177,7 +178,29 @@ class IppCmm(Cmm):
             self.command("ClearAllErrors()")
         return self._transaction(text)
 
+    def _read_unsolicited(self) -> None:
+        """Lines that arrived while no command ran: an ``E0000`` event (an emergency stop pressed
+        between commands) latches before the next command is sent; other stale lines are dropped."""
+        try:
+            while select.select([self.sock], [], [], 0)[0]:
+                chunk = self.sock.recv(4096)
+                if not chunk:
+                    return  # closed: the send or the read that follows reports it
+                self._buffer += chunk
+                if len(self._buffer) > MAX_LINE_BYTES:
+                    break
+        except (OSError, ValueError, TypeError):  # TypeError: a transport without a descriptor (a test's fake)
+            return
+        *lines, self._buffer = self._buffer.split(b"\r\n")
+        for raw in lines:
+            m = ipp.LINE.fullmatch(raw.decode("ascii", errors="replace"))
+            if m is not None and m.group(1) == ipp.EVENT_TAG:
+                self._server_event(m.group(2), m.group(3) or "")
+
     def _transaction(self, text: str, event: bool = False) -> list[str]:
+        self._read_unsolicited()
+        if not event:
+            self._check_emergency()
         if event:  # an event command (AbortE): tags E0001…E9999, served ahead of the queue (§6.2.4)
             self._event_tag = self._event_tag % 9999 + 1
             tag = f"E{self._event_tag:04d}"

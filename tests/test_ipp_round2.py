@@ -177,3 +177,21 @@ def test_a_run_opens_the_cmm_with_the_procedures_home_option(hub):
         assert hub.ipp_machine.homed and "homed by rtcal" in cmm.identity()
     finally:
         cmm.close()
+
+
+def test_an_emergency_stop_pressed_between_commands_stops_the_next_one_before_it_is_sent(hub):
+    hub.ipp_machine.homed = True
+    cmm = IppCmm(parse_address(hub.addresses["cmm"]), 1.0)
+    try:
+        cmm.move_to(np.array([10.0, 20.0, 30.0]))
+        hub.ipp_machine.press_emergency_stop()  # the server's unsolicited E0000 line
+        import time
+
+        time.sleep(0.2)
+        with pytest.raises(EmergencyStop, match="0500"):
+            cmm.move_to(np.array([50.0, 60.0, 70.0]))
+        assert np.allclose(hub.cmm.bench.probe_target_mm, [10, 20, 30])
+        assert hub.ipp_machine.motions == 1  # the second GoTo never reached the server
+    finally:
+        cmm.close()
+        hub.ipp_machine.release_emergency_stop()
