@@ -5,7 +5,7 @@ writes the direct-data block (type, position, speed, rates, current, trigger) in
 then waits for the motion to **start** (MOVE set, or the feedback position leaving where it was:
 a drive starts some milliseconds after the trigger, and until then still shows the previous
 IN-POS) and to end in position with the feedback within the tolerance of the target, raising on
-alarms and timeouts. The identity is what the drive's own registers say at open (status and
+alarms and timeouts. The identity is what the drive's own registers say when asked (status and
 present alarm): no product-identity register of the AZ is confirmed in public sources.
 """
 
@@ -52,7 +52,6 @@ class ModbusStage(RotaryStage):
         self.steps_per_deg = address.option("steps_per_rev", DEFAULT_STEPS_PER_REV) * address.option("gear", DEFAULT_GEAR) / 360.0
         self.step_deg = 1.0 / self.steps_per_deg
         self.tolerance_steps = max((tolerance_deg or 2 * self.step_deg) * self.steps_per_deg, 1.0)
-        self._identity = ""
         self.speed_hz = max(1, round(address.option("speed_deg_per_s", 10.0) * self.steps_per_deg))
         self.limits_deg = limits_deg
         self.timeout_s = timeout_s
@@ -70,16 +69,12 @@ class ModbusStage(RotaryStage):
             raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}: {exc!r}") from None
         if not connected:
             raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}")
-        try:
-            status, alarm = self._read32(az.OUTPUT_STATUS, 2)
-        except BaseException:
-            self.close()
-            raise
-        state = "alarm 0x%02X" % alarm if status & az.OUT_ALM_A else "READY" if status & az.OUT_READY else "not ready"
-        self._identity = f"Oriental Motor AZ drive (Modbus unit {self.unit}, direct data operation), {state}"
 
     def identity(self) -> str:
-        return self._identity
+        """What the drive's registers say now (status, present alarm): no identity register is confirmed."""
+        status, alarm = self._read32(az.OUTPUT_STATUS, 2)
+        state = f"alarm 0x{alarm:02X}" if status & az.OUT_ALM_A else "READY" if status & az.OUT_READY else "not ready"
+        return f"Oriental Motor AZ drive (Modbus unit {self.unit}, direct data operation), {state}"
 
     # -- register access with typed errors: nothing but an InstrumentError leaves this driver
     def _call(self, what: str, fn, *args, **kwargs):
