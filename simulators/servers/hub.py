@@ -172,7 +172,8 @@ class SimulatorHub:
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False), echo=self.echo, inch=self.sylvac_inch),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False), echo=self.echo, inch=self.sylvac_inch),
         }
-        self.pi_gcs = PiGcsHandler(SimStage(b, inject=False)) if self.stage_model == "pi-gcs" else None
+        # referenced, as a lab leaves its controller (an extra reference move would draw the table's noise anew)
+        self.pi_gcs = PiGcsHandler(SimStage(b, inject=False), referenced=True) if self.stage_model == "pi-gcs" else None
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
         lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper(),
                                               echo=self.echo)
@@ -280,9 +281,9 @@ class SimulatorHub:
     async def _start_all(self) -> None:
         h = self.host
         stage_query = f"unit=1&steps_per_rev={self.steps_per_rev}&gear={self.gear:g}"
-        if self.pi_gcs is not None:  # unreferenced at power-on: the address lets the run reference it (FRF)
+        if self.pi_gcs is not None:
             where = await self._serve_line("stage", self.pi_gcs, model="pi-gcs")
-            self.addresses["stage"] = f"{where}?model=pi-gcs&axis=1&home=1" + (
+            self.addresses["stage"] = f"{where}?model=pi-gcs&axis=1" + (
                 "" if where.startswith("socket://") else f"&{PTY_FRAMING}")
         elif self.modbus == "tcp":
             port = free_port(h)
