@@ -2,7 +2,7 @@
 
 - ``modbus-tcp://HOST:PORT?unit=1&steps_per_rev=10000&gear=36`` — a stepper drive over Modbus TCP
 - ``modbus-rtu:///dev/ttyUSB0?unit=1&baud=115200&steps_per_rev=...`` — the same over RS-485
-- ``ipp://HOST:PORT`` — a CMM speaking I++ DME (default port 1294)
+- ``ipp://HOST:PORT`` — a CMM speaking I++ DME (default port 1294); ``?home=1`` lets a run home it
 - ``/dev/ttyUSB0`` or ``socket://HOST:PORT`` (``?model=sylvac&baud=4800&bytesize=7&parity=E&stopbits=2``) — a
   serial instrument; framing options the address leaves out are the model's defaults
 - ``sim-operator://HOST:PORT?token=…`` — the simulated operator of a protocol-simulator bench
@@ -34,6 +34,8 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "counts_per_rev": (1, 2**40, True),
     "bytesize": (7, 8, True),  # serial framing: data bits
     "stopbits": (1, 2, True),
+    "home": (0, 1, True),  # a CMM (I++): 1 lets a run home an unhomed machine
+    "axis": (1, 64, True),  # a multi-axis controller (PI GCS): the axis that turns the table
 }
 # options whose value is text: a pattern it must match and what to call it in a message
 TEXT_OPTIONS: dict[str, tuple[str, str]] = {

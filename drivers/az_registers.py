@@ -3,7 +3,7 @@
 32-bit values span two registers, upper word first (the vendor's default word order).
 The feedback position is read at 0x00CC, as Oriental Motor's own published sample reads it
 (om_modbus_master sample/python/AZ/sample3.py: address 204, "FeedbackPosition"); the command
-position at 0x00C6 is unconfirmed (docs/protocols/modbus_stage.md gives each source).
+position at 0x00C6 is from a second-generation register map (docs/protocols/modbus_stage.md gives each source).
 Everything address-shaped lives here, so a correction is one line.
 """
 
@@ -20,7 +20,7 @@ TRIGGER = 0x0066  # write 1: start with all direct data
 INPUT_COMMAND = 0x007C  # driver input command (NET-IN), lower word holds the bits
 OUTPUT_STATUS = 0x007E  # driver output status (NET-OUT), read-only
 PRESENT_ALARM = 0x0080  # read-only
-COMMAND_POSITION = 0x00C6  # steps, read-only (unconfirmed: the monitor block beside the feedback position)
+COMMAND_POSITION = 0x00C6  # steps, read-only (an Oriental CVD register map in open code; the driver does not read it)
 FEEDBACK_POSITION = 0x00CC  # steps, read-only: the detection position, confirmed by the vendor's sample
 
 WRITABLE_32 = (OPERATION_DATA_NUMBER, OPERATION_TYPE, POSITION, SPEED, ACCELERATION, DECELERATION, CURRENT, TRIGGER, INPUT_COMMAND)
@@ -34,9 +34,9 @@ OUT_HOME_END, OUT_READY, OUT_ALM_A, OUT_SYS_BSY, OUT_MOVE, OUT_IN_POS = 1 << 4, 
 # present-alarm codes (docs/protocols/modbus_stage.md: which are confirmed by open code, which are not)
 ALARM_NONE = 0x00
 ALARM_EXCESSIVE_POSITION_DEVIATION = 0x10  # following error
-ALARM_OVERLOAD = 0x30  # stall (unconfirmed)
-ALARM_HARDWARE_OVERTRAVEL = 0x66  # limit switch (unconfirmed)
-ALARM_SOFTWARE_OVERTRAVEL = 0x67  # target beyond the drive's soft limits (unconfirmed)
+ALARM_OVERLOAD = 0x30  # stall (AZD alarm tables in independent open code)
+ALARM_HARDWARE_OVERTRAVEL = 0x66  # limit switch (same)
+ALARM_SOFTWARE_OVERTRAVEL = 0x67  # target beyond the drive's soft limits (same)
 ALARM_HWTO = 0x68  # HWTO input detection: the safe-torque-off input opened (an emergency-stop circuit)
 
 ALARM_TEXT = {

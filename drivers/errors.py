@@ -25,3 +25,8 @@ class OutOfLimits(InstrumentError):
 
 class TrackingLost(InstrumentFault):
     """The laser tracer lost the reflector: its count is invalid until it is re-referenced."""
+
+
+class EmergencyStop(InstrumentFault):
+    """The instrument reported an emergency stop: latched until a person releases it at the machine
+    and rtcal is started again; no retry or recovery clears it."""

@@ -57,8 +57,10 @@ def open_stage(address: str, limits_deg: tuple[float, float], timeout_s: float) 
     return open_instrument("stage", address, timeout_s, limits_deg=limits_deg)
 
 
-def open_cmm(address: str, volume_min_mm, volume_max_mm, timeout_s: float, tool: str | None = None) -> Cmm:
-    return open_instrument("cmm", address, timeout_s, volume_min_mm=volume_min_mm, volume_max_mm=volume_max_mm, tool=tool)
+def open_cmm(address: str, volume_min_mm, volume_max_mm, timeout_s: float, tool: str | None = None,
+             home: bool = False) -> Cmm:
+    return open_instrument("cmm", address, timeout_s, volume_min_mm=volume_min_mm, volume_max_mm=volume_max_mm, tool=tool,
+                           home=home)
 
 
 def open_laser_tracer(address: str, timeout_s: float) -> LaserTracer:

@@ -128,6 +128,11 @@ class Autocollimator(Instrument):
     def read_arcsec(self) -> tuple[float, float]:
         """(x, y) deflection of the reflected beam, arcsec; x is the angle about the table axis."""
 
+    def read_axes_arcsec(self) -> tuple[float, float]:
+        """(x, y) as the instrument validates each axis: NaN for an axis it reports invalid while the
+        other is good (what `rtcal probe` shows as null); ``read_arcsec`` is what a run uses."""
+        return self.read_arcsec()
+
 
 class DialIndicator(Instrument):
     @abstractmethod

@@ -1,10 +1,20 @@
 """A CMM over I++ DME (TCP, default port 1294).
 
-A session starts with ``StartSession()``, asks ``GetDMEVersion()`` (the identity) and, when
-the procedure names a tool, ``ChangeTool("name")``. An error of severity 2 or more leaves the
-server in its error state (every command answered 0514): the driver raises the error, and
-clears the state with ``ClearAllErrors()`` before its next command — the retry of the fault
-policy, or ``recover()`` — so one refused move does not fail every retry.
+A session starts with ``StartSession()``, asks ``GetDMEVersion()`` (the identity), selects the
+machine coordinate system with ``SetCoordSystem(MachineCsy)`` (a session re-activates the
+previous session's system, §6.3.1.1: a part system left by another program would shift every
+position), asks ``IsHomed()`` and, if the machine is not homed, sends ``Home()`` only when the
+procedure allows it (``home: true`` in its CMM section, or ``home=1`` in the address) — else it
+refuses, naming homing; a probe never homes. When the procedure names a tool it sends
+``ChangeTool("name")``.
+
+An error of severity 2 or more leaves the server in its error state (every command answered
+0514): the driver raises the error, and clears the state with ``ClearAllErrors()`` before its
+next command — the retry of the fault policy, or ``recover()`` — so one refused move does not
+fail every retry. A warning (severity 0 or 1) is logged and the reply read on to ``%``. An
+``E0000`` error event (the server's emergency stop, §6.2.4.1) latches: every later command
+raises :class:`EmergencyStop` without being sent, and nothing clears it automatically.
+``stop()`` sends the event command ``AbortE()`` (§6.3.1.5).
 
 Every command has a deadline (the timeout; ten times it for a motion) however the server
 dribbles its bytes, a reply line is at most 64 KiB, and coordinates must be finite and within
@@ -14,7 +24,9 @@ again, with a new session, by the next command.
 
 from __future__ import annotations
 
+import logging
 import math
+import select
 import socket
 import time
 
@@ -22,28 +34,44 @@ import numpy as np
 
 from drivers import ipp
 from drivers.addresses import Address
-from drivers.errors import InstrumentFault, InstrumentTimeout, OutOfLimits
+from drivers.errors import EmergencyStop, InstrumentFault, InstrumentTimeout, OutOfLimits
 from drivers.interfaces import Cmm
 
 MAX_LINE_BYTES = 64 * 1024
 MAX_COORDINATE_MM = 1e6
 MOTIONS = ("GoTo", "PtMeas", "Home")
+COORDINATE_SYSTEM = "MachineCsy"  # §6.3.3.1: the machine's own axes, whatever a previous session left active
+log = logging.getLogger(__name__)
 
 
 class IppCmm(Cmm):
     name = "cmm"
-    model, kind, schemes, options, framing = "ipp", "cmm", ("ipp",), {}, None
-    exclusive_access = ("an I++ DME server serves one session at a time, and rtcal held it while measuring (a second "
-                        "client's StartSession() is refused; docs/protocols/ipp_dme.md: not confirmed for every real server)")
+    model, kind, schemes, framing = "ipp", "cmm", ("ipp",), None
+    options: dict = {}  # home=1 (drivers/addresses.py): the run may home an unhomed machine
+    exclusive_access = ("an I++ DME server serves one session at a time, and rtcal held it while measuring (NIST's "
+                        "reference server stops serving a second connection; docs/protocols/ipp_dme.md: not confirmed "
+                        "for every real server)")
     _error_state = False  # the server answers 0514 until ClearAllErrors()
     version = ""
     tool: str | None = None
+    emergency = ""  # the E0000 event's text once the server reported an emergency stop
+    warnings: tuple[str, ...] = ()  # severity 0–1 replies, as the server worded them
+    _event_tag = 0
 
     def __init__(self, address: Address, timeout_s: float = 5.0,
-                 volume_min_mm=(-np.inf,) * 3, volume_max_mm=(np.inf,) * 3, tool: str | None = None, **_: object):
+                 volume_min_mm=(-np.inf,) * 3, volume_max_mm=(np.inf,) * 3, tool: str | None = None,
+                 home: bool = False, may_move: bool = True, **_: object):
+        """``home``: the procedure allows homing an unhomed machine (as ``home=1`` in the address does);
+        ``may_move=False`` (a probe) never homes, whatever the address says."""
         self.volume_min_mm, self.volume_max_mm = tuple(volume_min_mm), tuple(volume_max_mm)
         self.address, self.timeout_s, self.tool = address, timeout_s, tool
+        self.may_home = may_move and (bool(home) or address.option("home", 0) == 1)
+        self.may_move = may_move
+        self.emergency = ""
+        self.warnings = ()
+        self.homed_by_rtcal = False
         self._tag = 0
+        self._event_tag = 0
         self._buffer = b""
         self._error_state = False  # the server answers 0514 until ClearAllErrors()
         self.version = ""
@@ -71,17 +99,43 @@ class IppCmm(Cmm):
             if self.sock is None:  # … but a connection that died is no session
                 raise
             self.version = ""
+        self.command(f"SetCoordSystem({COORDINATE_SYSTEM})")
+        self._ensure_homed()
         if self.tool:
             self.command(f'ChangeTool("{self.tool}")')
 
+    def _ensure_homed(self) -> None:
+        """``IsHomed()``; an unhomed machine is homed only when allowed (§6.3.2.1: it refuses motion until homed)."""
+        data = self.command("IsHomed()")
+        m = ipp.IS_HOMED.search(data[0]) if data else None
+        if m is None:
+            raise InstrumentFault(self.name, f"IsHomed() gave {data[:1]!r:.200}, not IsHomed(0) or IsHomed(1)")
+        if m.group(1) == "1":
+            return
+        if not self.may_home:
+            why = ("a probe never moves a machine" if not self.may_move else
+                   "rtcal homes it only when the procedure allows it (cmm: home: true, or home=1 in the address)")
+            raise InstrumentFault(self.name, f"the CMM is not homed (IsHomed() = 0): home it at the machine first; {why}")
+        log.info("%s: not homed; sending Home() as the procedure allows", self.name)
+        self.command("Home()")
+        self.homed_by_rtcal = True
+
     def identity(self) -> str:
-        return f"I++ DME server, DMEVersion {self.version}" if self.version else "I++ DME server"
+        text = f"I++ DME server, DMEVersion {self.version}" if self.version else "I++ DME server"
+        return f"{text}, coordinate system {COORDINATE_SYSTEM}" + (", homed by rtcal" if self.homed_by_rtcal else "")
 
     def recover(self) -> None:
-        """Leave the error state: ``ClearAllErrors()`` (a new session if the connection died)."""
+        """Leave the error state: ``ClearAllErrors()`` (a new session if the connection died); never an
+        emergency stop, which a person releases at the machine."""
+        self._check_emergency()
         if self.sock is None:
             self._connect()
         self.command("ClearAllErrors()")
+
+    def _check_emergency(self) -> None:
+        if self.emergency:
+            raise EmergencyStop(self.name, f"emergency stop reported by the CMM ({self.emergency}); nothing is sent "
+                                           "until it is released at the machine and the run is started again")
 
     def _drop(self, error: Exception | None) -> Exception | None:
         """Close a connection that can no longer be trusted; the next command opens a new one."""
@@ -117,46 +171,100 @@ class IppCmm(Cmm):
 
     def command(self, text: str) -> list[str]:
         """Send one command; return its data lines; raise on an error reply."""
+        self._check_emergency()
         if self.sock is None:
             self._connect()
         if self._error_state and not text.startswith(("ClearAllErrors(", "StartSession(")):
             self.command("ClearAllErrors()")
         return self._transaction(text)
 
-    def _transaction(self, text: str) -> list[str]:
-        self._tag = self._tag % 99999 + 1
-        tag = f"{self._tag:05d}"
+    def _read_unsolicited(self) -> None:
+        """Lines that arrived while no command ran: an ``E0000`` event (an emergency stop pressed
+        between commands) latches before the next command is sent; other stale lines are dropped."""
+        try:
+            while select.select([self.sock], [], [], 0)[0]:
+                chunk = self.sock.recv(4096)
+                if not chunk:
+                    return  # closed: the send or the read that follows reports it
+                self._buffer += chunk
+                if len(self._buffer) > MAX_LINE_BYTES:
+                    break
+        except (OSError, ValueError, TypeError):  # TypeError: a transport without a descriptor (a test's fake)
+            return
+        *lines, self._buffer = self._buffer.split(b"\r\n")
+        for raw in lines:
+            m = ipp.LINE.fullmatch(raw.decode("ascii", errors="replace"))
+            if m is not None and m.group(1) == ipp.EVENT_TAG:
+                self._server_event(m.group(2), m.group(3) or "")
+
+    def _transaction(self, text: str, event: bool = False) -> list[str]:
+        self._read_unsolicited()
+        if not event:
+            self._check_emergency()
+        if event:  # an event command (AbortE): tags E0001…E9999, served ahead of the queue (§6.2.4)
+            self._event_tag = self._event_tag % 9999 + 1
+            tag = f"E{self._event_tag:04d}"
+        else:
+            self._tag = self._tag % 99999 + 1
+            tag = f"{self._tag:05d}"
         deadline = time.monotonic() + self.timeout_s * (10 if text.startswith(MOTIONS) else 1)
         try:
             self.sock.sendall(f"{tag} {text}\r\n".encode("ascii"))
         except OSError as exc:
             raise self._drop(InstrumentFault(self.name, f"send failed: {exc}")) from None
         data: list[str] = []
+        failure: Exception | None = None
+        method = text.split("(")[0]
         while True:
             line = self._readline(deadline)
             m = ipp.LINE.fullmatch(line)
             if m is None:
                 self._buffer = b""
                 raise InstrumentFault(self.name, f"malformed reply {line[:80]!r}")
-            if m.group(1) != tag:
-                continue  # events and other tags are not ours
             kind, rest = m.group(2), m.group(3) or ""
+            if m.group(1) == ipp.EVENT_TAG:
+                self._server_event(kind, rest)
+                continue
+            if m.group(1) != tag:
+                continue  # other tags are not ours
             if kind == ipp.DATA:
                 data.append(rest)
             elif kind == ipp.DONE:
-                if text.startswith("ClearAllErrors("):
+                if failure is None and text.startswith("ClearAllErrors("):
                     self._error_state = False
+                if not event:
+                    self._check_emergency()  # an emergency stop during the command fails it, whatever else it says
+                if failure is not None:
+                    raise failure
                 return data
             elif kind == ipp.ERROR:
-                err = ipp.ERROR_ARGS.search(rest)
-                severity, code, message = (int(err.group(1)), err.group(2), err.group(4)) if err else (3, "?", rest[:200])
-                if severity >= 2 or code == ipp.USE_CLEAR_ALL_ERRORS:
-                    self._error_state = True
+                err = ipp.parse_error(rest)
+                severity, code, message = (err[0], err[1], err[3]) if err else (3, "?", rest[:200])
+                if severity <= ipp.WARNING_SEVERITY and code != ipp.USE_CLEAR_ALL_ERRORS:
+                    warning = f"{method}: {message} (I++ warning {code}, severity {severity})"
+                    self.warnings = (*self.warnings[-99:], warning)
+                    log.warning("%s: %s", self.name, warning)
+                    continue  # §8.1: a warning does not end the transaction
+                self._error_state = True
                 if text.startswith("ClearAllErrors("):
                     self._error_state = False  # it was refused: the next attempt starts a clean session
                     raise self._drop(InstrumentFault(self.name, f"{text}: {message} (I++ error {code})"))
                 error = OutOfLimits if code in (ipp.OUT_OF_VOLUME, ipp.MACHINE_LIMIT) else InstrumentFault
-                raise error(self.name, f"{text.split('(')[0]}: {message} (I++ error {code}, severity {severity})")
+                if failure is None:  # the first error names the cause; read on to % so the next reply is not this one's
+                    failure = error(self.name, f"{method}: {message} (I++ error {code}, severity {severity})")
+
+    def _server_event(self, kind: str, rest: str) -> None:
+        """An ``E0000`` line: an error event of severity 2 or more (an emergency stop) latches."""
+        if kind != ipp.ERROR:
+            return
+        err = ipp.parse_error(rest)
+        severity, code, message = (err[0], err[1], err[3]) if err else (3, "?", rest[:200])
+        if severity <= ipp.WARNING_SEVERITY and code != ipp.EMERGENCY_STOP:
+            self.warnings = (*self.warnings[-99:], f"event: {message} (I++ warning {code})")
+            log.warning("%s: event %s (I++ warning %s)", self.name, message, code)
+            return
+        self.emergency = f"I++ event {ipp.EVENT_TAG} error {code}: {message}"[:200]
+        log.error("%s: %s", self.name, self.emergency)
 
     def home(self) -> None:
         self.command("Home()")
@@ -176,13 +284,23 @@ class IppCmm(Cmm):
         return np.array(xyz)
 
     def stop(self) -> None:
-        self.command("ClearAllErrors()")
+        """``AbortE()`` (§6.3.1.5): the server aborts whatever it executes. It is an event command, so
+        it is sent even in the error state, and after an emergency stop too (stopping is always safe)."""
+        if self.sock is None:
+            return
+        try:
+            self._transaction("AbortE()", event=True)
+        except InstrumentFault:
+            if self.sock is None or self.emergency:
+                return
+            raise
 
     def close(self) -> None:
         if self.sock is None:
             return
         try:
-            self.command("EndSession()")
+            if not self.emergency:
+                self.command("EndSession()")
         except (InstrumentFault, InstrumentTimeout):
             pass
         if self.sock is not None:

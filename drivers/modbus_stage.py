@@ -1,8 +1,12 @@
 """A rotary stage driven by an AZ-series stepper drive over Modbus (TCP or RTU), with pymodbus.
 
 Degrees ↔ steps: steps per motor revolution × gear (worm) ratio per table revolution. A move
-writes the direct-data block (type, position, speed, rates, current, trigger) in one request and
-polls the output status until IN-POS, raising on alarms and timeouts.
+writes the direct-data block (type, position, speed, rates, current, trigger) in one request,
+then waits for the motion to **start** (MOVE set, or the feedback position leaving where it was:
+a drive starts some milliseconds after the trigger, and until then still shows the previous
+IN-POS) and to end in position with the feedback within the tolerance of the target, raising on
+alarms and timeouts. The identity is what the drive's own registers say when asked (status and
+present alarm): no product-identity register of the AZ is confirmed in public sources.
 """
 
 from __future__ import annotations
@@ -37,11 +41,17 @@ class ModbusStage(RotaryStage):
     model, kind, schemes, options = "oriental-az", "stage", ("modbus-tcp", "modbus-rtu"), {}
     framing = BUILTIN["oriental-az"].framing
 
+    SETTLE_S = 0.3  # after IN-POS: how long the feedback may take to come within tolerance of the target
+    tolerance_steps = 2.0  # how far the feedback may end from the target (set from tolerance_deg at open)
+
     def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),
-                 **_: object):
+                 tolerance_deg: float | None = None, **_: object):
+        """``tolerance_deg``: how far the feedback may end from the target (the procedure's
+        verification.stage_tolerance_deg; default two steps, as the verification's default)."""
         self.unit = int(address.option("unit", 1))
         self.steps_per_deg = address.option("steps_per_rev", DEFAULT_STEPS_PER_REV) * address.option("gear", DEFAULT_GEAR) / 360.0
         self.step_deg = 1.0 / self.steps_per_deg
+        self.tolerance_steps = max((tolerance_deg or 2 * self.step_deg) * self.steps_per_deg, 1.0)
         self.speed_hz = max(1, round(address.option("speed_deg_per_s", 10.0) * self.steps_per_deg))
         self.limits_deg = limits_deg
         self.timeout_s = timeout_s
@@ -59,6 +69,12 @@ class ModbusStage(RotaryStage):
             raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}: {exc!r}") from None
         if not connected:
             raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}")
+
+    def identity(self) -> str:
+        """What the drive's registers say now (status, present alarm): no identity register is confirmed."""
+        status, alarm = self._read32(az.OUTPUT_STATUS, 2)
+        state = f"alarm 0x{alarm:02X}" if status & az.OUT_ALM_A else "READY" if status & az.OUT_READY else "not ready"
+        return f"Oriental Motor AZ drive (Modbus unit {self.unit}, direct data operation), {state}"
 
     # -- register access with typed errors: nothing but an InstrumentError leaves this driver
     def _call(self, what: str, fn, *args, **kwargs):
@@ -89,25 +105,48 @@ class ModbusStage(RotaryStage):
         self._write32(az.INPUT_COMMAND, [bit])
         self._write32(az.INPUT_COMMAND, [0])
 
-    def _wait_in_position(self, what: str) -> None:
+    def _wait_in_position(self, what: str, target_steps: int | None = None, before_steps: int | None = None) -> None:
+        """Poll until the motion started and ended in position (and, for a move, the feedback reached
+        the target within the tolerance or stopped settling); alarms raise at once."""
         deadline = time.monotonic() + max(self.timeout_s, 1.0) * 10
+        start_deadline = time.monotonic() + max(self.timeout_s, 0.5)  # a drive starts within milliseconds
+        started = before_steps is None
+        settle_until = None
         while True:
             status, alarm = self._read32(az.OUTPUT_STATUS, 2)
             if status & az.OUT_ALM_A:
                 raise InstrumentFault(self.name, f"{what}: drive alarm 0x{alarm:02X} ({az.ALARM_TEXT.get(alarm, 'see the drive manual')})")
-            if status & az.OUT_IN_POS and not status & az.OUT_MOVE:
-                return
-            if time.monotonic() > deadline:
+            feedback = None
+            if status & az.OUT_MOVE:
+                started = True
+            elif not started:  # IN-POS of the previous position until the drive starts: look at the feedback
+                feedback = self._read32(az.FEEDBACK_POSITION)[0]
+                started = feedback != before_steps or abs(feedback - target_steps) <= self.tolerance_steps
+            if started and status & az.OUT_IN_POS and not status & az.OUT_MOVE:
+                if target_steps is None:
+                    return
+                if feedback is None:
+                    feedback = self._read32(az.FEEDBACK_POSITION)[0]
+                if abs(feedback - target_steps) <= self.tolerance_steps:
+                    return
+                settle_until = settle_until or time.monotonic() + self.SETTLE_S
+                if time.monotonic() > settle_until:
+                    return  # in position somewhere else: the motion checks name it, with the feedback
+            if time.monotonic() > (deadline if started else start_deadline):
+                if not started:
+                    raise InstrumentTimeout(self.name, f"{what}: the drive never started the motion (feedback still "
+                                                       f"{before_steps / self.steps_per_deg:.6f}°)")
                 raise InstrumentTimeout(self.name, f"{what}: not in position in time")
-            time.sleep(0.01)
+            time.sleep(0.005)
 
     # -- the interface
     def move_to(self, angle_deg: float) -> None:
         self.check_target(angle_deg)
         steps = round(angle_deg * self.steps_per_deg)
+        before = self._read32(az.FEEDBACK_POSITION)[0]
         # operation type, position, speed, acceleration, deceleration, current, trigger: one request
         self._write32(az.OPERATION_TYPE, [1, steps, self.speed_hz, self.speed_hz, self.speed_hz, 1000, 1])
-        self._wait_in_position(f"move to {angle_deg:.6f}°")
+        self._wait_in_position(f"move to {angle_deg:.6f}°", steps, before)
 
     def home(self) -> None:
         self._input_pulse(az.IN_ZHOME)

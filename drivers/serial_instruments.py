@@ -1,7 +1,8 @@
 """Serial instruments, one class per product (docs/protocols/serial.md gives each fact's public source).
 
 - autocollimator, Möller-Wedel ELCOMAT (``elcomat``): ``a\\r\\n`` → ``4 003 <x> <y>\\r`` (arcsec)
-- dial indicator, Sylvac (``sylvac``): ``?\\r`` → the displacement in mm, one line; 4800 7E2
+- dial indicator, Sylvac (``sylvac``): ``MM\\r`` and ``UNI?\\r`` at open (the reply carries no unit),
+  then ``?\\r`` → the displacement, one line; ``ERRn`` the instrument's error; echo tolerated; 4800 7E2
 - encoder counter, US Digital QSB (``qsb``): ``R0E\\r\\n`` → ``r0E<8 hex>[<8 hex timestamp>][!]\\r\\n``;
   end of response, mode and counter mode written at open, version read as identity
 - laser tracer, rtcal's adapter protocol (``rtcal-line``): ``REF`` → ``OK REF <segment>``;
@@ -15,7 +16,7 @@ from __future__ import annotations
 import re
 
 from drivers.addresses import Address
-from drivers.errors import InstrumentFault, TrackingLost
+from drivers.errors import InstrumentError, InstrumentFault, TrackingLost
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, LaserTracer, LengthReading
 from drivers.models import BUILTIN, Framing
 from drivers.serial_line import SerialLine
@@ -55,47 +56,113 @@ class SerialInstrument:
 
 
 class ElcomatAutocollimator(SerialInstrument, Autocollimator):
-    """An absolute measurement: the reply's first two fields must be ``4 003`` (the only pair a
-    public driver accepts for it); any other pair is no valid reading."""
+    """An absolute measurement ``a`` → ``4 <status> <x> <y>``: the status's last digit says which axes
+    are valid (dls-controls/elcomat3000: 1 X, 2 Y, 3 both, 0 none). ``read_arcsec`` needs X, the
+    angle about the table axis every run measures: X invalid is a fault, Y invalid is NaN.
+    ``d`` → ``8 <serial> <day> <month> <year> <focal length>`` is the identity."""
 
     name = "autocollimator"
     model, kind, framing = "elcomat", "autocollimator", BUILTIN["elcomat"].framing
     REQUEST = b"a\r\n"
     REPLY = re.compile(rf"(\d+) (\d+) ({NUMBER}) ({NUMBER})")
+    IDENTITY = re.compile(r"8 (\S+) (\d+) (\d+) (\d+) (\d+(?:\.\d+)?)")
+    VALID = {"0": (False, False), "1": (True, False), "2": (False, True), "3": (True, True)}
     RANGE_ARCSEC = 3600.0  # an ELCOMAT's field is some ±1000″; beyond a degree is no autocollimator reading
 
     def __init__(self, address: Address, timeout_s: float = 1.0, **_: object):
         self.open_line(self.name, address, timeout_s)
+        self._identity = ""
+        try:
+            m = self.IDENTITY.fullmatch(self.line.query(b"d\r\n").strip())
+        except InstrumentError:
+            m = None  # a unit that does not answer d still measures: no identity
+        if m is not None:
+            self._identity = (f"Möller-Wedel ELCOMAT, serial number {m.group(1)}, focal length {m.group(5)} mm, "
+                              f"date {m.group(2)}.{m.group(3)}.{m.group(4)}")
 
-    def read_arcsec(self) -> tuple[float, float]:
+    def identity(self) -> str:
+        return self._identity
+
+    def read_axes_arcsec(self) -> tuple[float, float]:
         m = match_reply(self.name, self.REPLY, self.line.query(self.REQUEST).strip())
-        if (m.group(1), m.group(2)) != ("4", "003"):
-            raise InstrumentFault(self.name, f"no valid absolute measurement (codes {m.group(1)} {m.group(2)}; "
+        status = m.group(2)
+        valid = self.VALID.get(status[-1:]) if m.group(1) == "4" else None
+        if valid is None or not any(valid):
+            raise InstrumentFault(self.name, f"no valid absolute measurement (codes {m.group(1)} {status}; "
                                              "no reflection in range?)")
         r = self.RANGE_ARCSEC
-        return (within(self.name, "X angle ″", float(m.group(3)), -r, r),
-                within(self.name, "Y angle ″", float(m.group(4)), -r, r))
+        x = within(self.name, "X angle ″", float(m.group(3)), -r, r) if valid[0] else float("nan")
+        y = within(self.name, "Y angle ″", float(m.group(4)), -r, r) if valid[1] else float("nan")
+        return x, y
+
+    def read_arcsec(self) -> tuple[float, float]:
+        x, y = self.read_axes_arcsec()
+        if x != x:
+            raise InstrumentFault(self.name, "X axis not valid (status: Y only): no reading about the table axis")
+        return x, y
 
 
 class SylvacIndicator(SerialInstrument, DialIndicator):
-    """The reading in the display unit: mm, or inches when the reply says ``in``. The digit layout
-    is not published: any signed decimal, spaces between sign and digits allowed."""
+    """A Sylvac indicator on its Opto-RS cable. The reply ``[sign or space][digits].[decimals]CR``
+    carries no unit (OPTO-RS manual): at open the driver sends ``MM`` and asks ``UNI?``, and refuses
+    an indicator that does not confirm mm — an inch display would read 25.4 times too small. A unit
+    that echoes commands (UniCal manual) is tolerated: a line that repeats the request is skipped.
+    ``ERRn`` is the instrument's own error."""
 
     model, kind, framing = "sylvac", "dial_indicator", BUILTIN["sylvac"].framing
     REQUEST = b"?\r"
-    REPLY = re.compile(r"\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)\s*(mm|in|inch)?\s*", re.IGNORECASE)
+    REPLY = re.compile(r"\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)\s*(mm)?\s*", re.IGNORECASE)
+    ERROR = re.compile(r"\s*ERR\s*(\d)\s*", re.IGNORECASE)
+    ERRORS = {"0": "sensor error", "3": "measuring range exceeded"}  # OPTO-RS manual; 1 and 2: see the instrument's manual
     RANGE_MM = 100.0  # the longest Sylvac stroke
+    QUIET_S = 0.15  # after MM: whatever the indicator sends back (an echo) arrives within this
 
     def __init__(self, address: Address, timeout_s: float = 1.0, name: str = "dial_indicator", **_: object):
         self.name = name
         self.open_line(name, address, timeout_s)
+        try:
+            self._set_mm(timeout_s)
+        except BaseException:
+            self.line.close()
+            raise
+
+    def _set_mm(self, timeout_s: float) -> None:
+        """``MM``, then ``UNI?`` must answer mm (the reply to a reading has no unit to check later)."""
+        self.line.write(b"MM\r")
+        port = self.line.port
+        try:
+            port.timeout = self.QUIET_S
+            while port.read_until(b"\r", 64):  # an echo of MM, or an acknowledgement: not needed
+                pass
+        finally:
+            port.timeout = timeout_s
+        unit = self._reply(b"UNI?\r").strip().upper()
+        if "MM" in unit:
+            return
+        said = f"UNI? answered {unit[:20]!r}"
+        if "IN" in unit:
+            raise InstrumentFault(self.name, f"the indicator stays in inches after MM ({said}): set its unit to mm "
+                                             "at the instrument; readings would be 25.4 times too small")
+        raise InstrumentFault(self.name, f"the indicator did not confirm its unit is mm ({said}); its replies carry "
+                                         "no unit, so rtcal does not read it")
+
+    def _reply(self, request: bytes) -> str:
+        """The reply line, past an echo of the request; ``ERRn`` raised with its meaning."""
+        line = self.line.query(request)
+        if line.strip() == request.decode("ascii").strip():
+            line = self.line.read_line(request)
+        m = self.ERROR.fullmatch(line)
+        if m is not None:
+            meaning = self.ERRORS.get(m.group(1), "see the instrument's manual")
+            raise InstrumentFault(self.name, f"indicator error ERR{m.group(1)} ({meaning}) in reply to {request.strip()!r}")
+        return line
 
     def read_um(self) -> float:
-        reply = self.line.query(self.REQUEST)
+        reply = self._reply(self.REQUEST)
         if not reply.strip():
             raise InstrumentFault(self.name, "empty reply: the indicator is initialising (or asleep)")
         m = match_reply(self.name, self.REPLY, reply)
-        value = float(m.group(1) + m.group(2)) * (25.4 if (m.group(3) or "").lower().startswith("in") else 1.0)
+        value = float(m.group(1) + m.group(2))
         return within(self.name, "displacement mm", value, -self.RANGE_MM, self.RANGE_MM) * 1000.0
 
 

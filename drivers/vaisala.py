@@ -2,16 +2,21 @@
 barometer), with the table's temperature from an OMEGA iTHX thermometer on the address's
 ``thermometer=`` (docs/protocols/environment.md gives each fact's public source).
 
-At open the driver asks ``?`` (the first line is ``<model> / <version>``; a ``Serial number``
-line follows) and sets ``FORM`` so that ``SEND`` answers with labelled fields and their units.
-Whatever layout a unit keeps, the reply is read as labelled fields (``P= 1003.8 hPa``), each
-number converted from the unit printed after it; a field without a unit is refused.
+At open the driver stops RUN mode (``S``) and turns the factory-default echo off
+(``ECHO OFF``, which also ends the ``>`` prompts), each time reading what the unit sends until the
+line falls quiet; it then reads the whole ``?`` listing (the first line ``<model> / <version>``,
+then ``Key : value`` lines to the last module line, about a second at 4800 baud) and sets
+``FORM`` so that ``SEND`` answers with labelled fields and their units. Whatever layout a unit
+keeps, the reply is read as labelled fields (``P= 1003.8 hPa``), each number converted from the
+unit printed after it; a field without a unit is refused. An echoed command or a ``>`` prompt is
+never taken for a reply, should a unit keep echoing.
 """
 
 from __future__ import annotations
 
 import math
 import re
+import time
 
 from drivers.addresses import Address, AddressError, parse_address
 from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout
@@ -22,6 +27,8 @@ from drivers.serial_line import SerialLine
 FIELD = re.compile(r"([A-Za-z][A-Za-z0-9]*)\s*=\s*([+-]?\d+(?:\.\d+)?)\s*([^\s=]+(?=\s|$))?")
 PRESSURE_PA = {"pa": 1.0, "hpa": 100.0, "mbar": 100.0, "kpa": 1000.0, "bar": 1e5, "bara": 1e5, "psi": 6894.757,
                "psia": 6894.757, "inhg": 3386.389, "mmhg": 133.3224, "torr": 133.3224}
+QUIET_S = 0.25  # the line is done talking after this long without a byte (≈ 120 characters at 4800 baud)
+MAX_LISTING_LINES = 40  # the `?` listing is about 15 lines
 RANGES = {"air_temperature_c": (-40.0, 80.0, "air temperature °C"), "air_pressure_pa": (50000.0, 150000.0, "pressure Pa"),
           "humidity_pct": (0.0, 100.0, "humidity %"), "material_temperature_c": (-40.0, 150.0, "material temperature °C")}
 
@@ -87,11 +94,15 @@ class VaisalaPtu300(EnvironmentSensor):
             raise AddressError(f"model {self.model} measures pressure only: give the air and table thermometer as "
                                "thermometer=socket://HOST:PORT (an OMEGA iTHX)")
         self.line = SerialLine(self.name, address, self.framing, timeout_s, b"\n")
+        self.timeout_s = timeout_s
         self.thermometer: IthxThermometer | None = None
+        self.listing: dict[str, str] = {}
         try:
+            self._command_until_quiet(b"S\r")  # RUN mode streams readings: stop it
+            self._command_until_quiet(b"ECHO OFF\r")  # factory default ON: echoed commands and > prompts
             self._identity = self._ask_identity()
-            self.line.write(f"FORM {self.FORM}\r".encode())
-            answer = self.line.read_line(b"FORM")
+            answer = self._reply_to(f"FORM {self.FORM}\r".encode())
+            self._until_quiet()  # a unit that answers FORM with more than one line
             if "error" in answer.lower() or "unknown" in answer.lower():
                 raise InstrumentFault(self.name, f"FORM refused: {answer[:80]!r}")
             if thermometer:
@@ -100,27 +111,72 @@ class VaisalaPtu300(EnvironmentSensor):
             self.close()
             raise
 
-    def _ask_identity(self) -> str:
-        """``?``: the first line is ``<model> / <version>``; read on to the serial number."""
-        self.line.write(b"?\r")
-        first = self.line.read_line(b"?").strip()
-        serial = ""
-        for _ in range(40):
+    def _until_quiet(self, first_wait_s: float | None = None) -> list[str]:
+        """Every line the unit sends until it stays silent for QUIET_S (or never starts within ``first_wait_s``)."""
+        lines: list[str] = []
+        port = self.line.port
+        deadline = time.monotonic() + max(10 * self.timeout_s, 5.0)  # a unit that never stops talking
+        try:
+            port.timeout = QUIET_S if first_wait_s is None else first_wait_s
+            pending = b""
+            while time.monotonic() < deadline:
+                chunk = port.read_until(b"\n", 256)
+                if not chunk:
+                    break
+                port.timeout = QUIET_S
+                pending += chunk
+                if pending.endswith(b"\n") or len(pending) >= 256:
+                    lines.append(pending.decode("ascii", errors="replace").strip("\r\n"))
+                    pending = b""
+            else:
+                raise InstrumentFault(self.name, "the unit does not stop sending (RUN mode that S does not stop?)")
+        except (OSError, ValueError) as exc:
+            raise InstrumentFault(self.name, f"serial line failed: {exc}") from None
+        finally:
             try:
-                line = self.line.read_line(b"?")
-            except InstrumentTimeout:
-                break
-            key, _, value = line.partition(":")
-            if key.strip().lower() == "serial number":
-                serial = value.strip()
-                break
+                port.timeout = self.timeout_s
+            except (OSError, ValueError):
+                pass
+        return lines
+
+    def _command_until_quiet(self, request: bytes) -> list[str]:
+        self.line.write(request)
+        return self._until_quiet(first_wait_s=QUIET_S)
+
+    def _is_echo_or_prompt(self, line: str, request: bytes) -> bool:
+        text = line.strip().lstrip(">").strip()
+        return not text or text.upper() == request.decode("ascii", errors="replace").strip().upper()
+
+    def _reply_to(self, request: bytes) -> str:
+        """The first line that is neither the echoed command nor a prompt (a unit left echoing)."""
+        self.line.write(request)
+        for _ in range(4):
+            line = self.line.read_line(request)
+            if not self._is_echo_or_prompt(line, request):
+                return line.strip().lstrip(">").strip()
+        raise InstrumentFault(self.name, f"no reply to {request!r} but echoes and prompts")
+
+    def _ask_identity(self) -> str:
+        """The whole ``?`` listing: ``<model> / <version>`` then ``Key : value`` lines (PTB330 manual p. 83),
+        read until the unit falls silent so that none of it is taken for a later reply."""
+        first = self._reply_to(b"?\r")
+        for line in self._until_quiet()[:MAX_LISTING_LINES]:
+            key, colon, value = line.lstrip(">").partition(":")
+            if colon:
+                self.listing[" ".join(key.split()).lower()] = value.strip()
+        model = first.split("/")[0].strip()
+        family = self.model.removeprefix("vaisala-").upper()[:5]  # PTU30, PTB33
+        if not model.upper().startswith(family):
+            raise InstrumentFault(self.name, f"the unit says it is {first[:60]!r}, not a {self.model.removeprefix('vaisala-').upper()} "
+                                             f"(model={self.model} in the address)")
+        serial = self.listing.get("serial number", "")
         return f"{first}, serial number {serial}" if serial else first
 
     def identity(self) -> str:
         return self._identity
 
     def _send(self) -> dict[str, tuple[float, str]]:
-        return labelled_fields(self.name, self.line.query(b"SEND\r"))
+        return labelled_fields(self.name, self._reply_to(b"SEND\r"))
 
     def _pressure_pa(self, fields: dict[str, tuple[float, str]]) -> float:
         if "P" not in fields:

@@ -589,7 +589,8 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
     if not 0.1 <= args.ipp_idle_timeout_s <= 86400:
         raise UserError(f"--ipp-idle-timeout-s {args.ipp_idle_timeout_s:g}: must lie in 0.1 … 86400 s")
     hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
-                       environment=args.environment, ipp_idle_timeout_s=args.ipp_idle_timeout_s)
+                       environment=args.environment, ipp_idle_timeout_s=args.ipp_idle_timeout_s,
+                       stage_model=args.stage_model, pace_serial=not args.no_pacing)
     try:
         addresses = hub.start()
     except (RuntimeError, OSError) as exc:
@@ -894,6 +895,10 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--serial", choices=["pty", "tcp"], default="pty",
                        help="serial instruments on pseudo-terminals (default) or TCP sockets (socket:// addresses)")
     serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
+    serve.add_argument("--stage-model", choices=["oriental-az", "pi-gcs"], default="oriental-az",
+                       help="the stage's product: an Oriental AZ drive (Modbus) or a PI controller (GCS on a serial line)")
+    serve.add_argument("--no-pacing", action="store_true",
+                       help="serial replies at once instead of at each product's baud rate (faster tests)")
     serve.add_argument("--environment", choices=["vaisala-ptu300", "vaisala-ptb330"], default="vaisala-ptu300",
                        help="the environment sensor's model (with an OMEGA iTHX thermometer on its thermometer=)")
     serve.add_argument("--ipp-idle-timeout-s", type=float, default=600.0,

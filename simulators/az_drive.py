@@ -12,9 +12,15 @@ exception reply, and a lost or corrupted reply, which the server adapter applies
 (``reply_fault``) after the drive has acted; a drive that is stuck (accepts, says "in position",
 echoes the command as its feedback, and does not turn) or stops short (its feedback shows
 where). A read of the feedback position draws the faults of another client moving the table.
+
+A real drive starts a motion some milliseconds after the trigger, and until it does its status
+still shows the previous position's IN-POS: ``start_latency_s`` (wall-clock) holds a triggered
+motion back that long — it happens at the first register access after it.
 """
 
 from __future__ import annotations
+
+import time
 
 from drivers import az_registers as az
 from simulators.faults import ALARM_CODES
@@ -26,9 +32,11 @@ ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE = 2, 3, 4  # Modbus exception cod
 class AzDriveModel:
     """Registers and state of one drive; ``steps_per_deg`` converts for the bench stage."""
 
-    def __init__(self, stage: SimStage, steps_per_deg: float):
+    def __init__(self, stage: SimStage, steps_per_deg: float, start_latency_s: float = 0.0):
         self.stage = stage
         self.steps_per_deg = steps_per_deg
+        self.start_latency_s = start_latency_s
+        self._pending: tuple[float, int] | None = None  # (when, target steps) of a triggered motion not started yet
         self.direct = {az.OPERATION_DATA_NUMBER: 0, az.OPERATION_TYPE: 1, az.POSITION: 0, az.SPEED: 1000,
                        az.ACCELERATION: 1000, az.DECELERATION: 1000, az.CURRENT: 1000, az.TRIGGER: 0}
         self.input_command = 0
@@ -63,8 +71,16 @@ class AzDriveModel:
         if fault is not None and fault.kind == "moved":
             self._move_to_steps(self.command_steps + round(fault.offset_deg * self.steps_per_deg))
 
+    def _advance(self) -> None:
+        """Start (and, in virtual time, finish) a triggered motion whose latency has passed."""
+        if self._pending is not None and time.monotonic() >= self._pending[0]:
+            target = self._pending[1]
+            self._pending = None
+            self._move_to_steps(target)
+
     def read(self, address: int, count: int) -> list[int] | int:
         """Registers [address, address + count) or an exception code."""
+        self._advance()
         if address <= az.FEEDBACK_POSITION < address + count:  # one position read, however many registers
             self._another_client()
         out = []
@@ -78,6 +94,7 @@ class AzDriveModel:
     # -- writes
     def write(self, address: int, values: list[int]) -> int | None:
         """Apply a write of whole 32-bit values; None or an exception code."""
+        self._advance()
         if (address - az.OPERATION_DATA_NUMBER) % 2 or len(values) % 2:
             return ILLEGAL_VALUE  # half of a 32-bit value
         for k in range(0, len(values), 2):
@@ -149,7 +166,11 @@ class AzDriveModel:
             code = self._move_to_steps(target - way * short)
             self.command_steps = int(target)  # the drive was told the target; its feedback says where it stopped
             return code
-        code = self._move_to_steps(target)
+        if self.start_latency_s > 0 and not self.alarm:
+            self._pending = (time.monotonic() + self.start_latency_s, int(target))  # IN-POS of where it was, for now
+            code = None
+        else:
+            code = self._move_to_steps(target)
         if fault is not None and fault.kind in ("no_reply", "crc_error"):
             self.reply_fault = fault.kind
         return code

@@ -26,7 +26,8 @@ PROCEDURE = REPO / "procedures" / "laser_tracer_multistation.yaml"
 
 
 FORM = b'FORM "P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n\r'
-OPENING = [(b"?\r", b"PTU300 / 1.12\r\nSerial number  : P4040154\r\n"), (FORM, b"OK\r\n")]
+OPENING = [(b"S\r", None), (b"ECHO OFF\r", b"Echo           : OFF\r\n"),
+           (b"?\r", b"PTU300 / 1.12\r\nSerial number  : P4040154\r\n"), (FORM, b"OK\r\n")]
 
 
 def _read(reply: bytes | None):
@@ -59,6 +60,8 @@ def test_simulator_end_answers_as_documented():
     bench = Bench(Scenario.model_validate({"environment": {"air_temperature_c": 21.5, "humidity_pct": 40}}))
     now = EnvironmentNow(SimEnvironmentSensor(bench))
     h = VaisalaHandler(now)
+    assert h.handle(b"SEND") == b"SEND\r\nP=  1013.2 hPa   T=  21.5 'C RH=  40.0 %RH\r\n>"  # ECHO ON: the factory default
+    assert h.handle(b"ECHO OFF") == b"ECHO OFF\r\nEcho           : OFF\r\n"
     assert h.handle(b"SEND") == b"P=  1013.2 hPa   T=  21.5 'C RH=  40.0 %RH\r\n"  # the unit's own labelled layout
     assert h.handle(FORM) == b"OK\r\n"
     assert h.handle(b"SEND") == b"P=1013.2500 hPa  T= 21.5000 'C  RH= 40.000 %RH\r\n"

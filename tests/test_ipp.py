@@ -107,7 +107,7 @@ def test_ptmeas_probes_the_table_top_and_can_miss_it(hub, command, reply):
 def test_driver(hub):
     cmm = IppCmm(parse_address(hub.addresses["cmm"]), tool="CatEye")
     try:
-        assert cmm.identity() == "I++ DME server, DMEVersion 1.4"
+        assert cmm.identity() == "I++ DME server, DMEVersion 1.4, coordinate system MachineCsy"
         cmm.home()
         cmm.move_to(np.array([10.0, 20.0, 30.0]))
         assert np.allclose(cmm.position_mm(), [10, 20, 30])

@@ -27,7 +27,7 @@ PLUGIN = REPO / "tests" / "plugins" / "acme_bridge"
 
 
 def test_replay_checks_every_byte_and_feeds_the_replies():
-    with replay([(b"a\r\n", b"4 003 12.34 -5.67\r")]) as line:
+    with replay([(b"d\r\n", b"8 30123 15 01 2026 300\r"), (b"a\r\n", b"4 003 12.34 -5.67\r")]) as line:
         autocollimator = factory.open_instrument("autocollimator", "socket://device:1?model=elcomat", 1.0)
         assert autocollimator.read_arcsec() == (12.34, -5.67)
     line.assert_done()
@@ -41,11 +41,11 @@ def test_replay_names_the_byte_that_differed():
 
 
 def test_replay_silence_and_an_unfinished_exchange():
-    with replay([(b"?\r", None), (b"?\r", b"+1.0\r")]) as line:
+    with replay([(b"MM\r", None), (b"UNI?\r", b"MM\r"), (b"?\r", None), (b"?\r", b"+1.0\r")]) as line:
         indicator = factory.open_instrument("dial_indicator", "socket://device:1", 1.0, name="dial_indicator_1")
         with pytest.raises(InstrumentTimeout, match="no reply"):
             indicator.read_um()
-    with pytest.raises(ExchangeMismatch, match=r"stopped after request 1 of 2; request 2 \(b'\?\\r'\) never came"):
+    with pytest.raises(ExchangeMismatch, match=r"stopped after request 3 of 4; request 4 \(b'\?\\r'\) never came"):
         line.assert_done()
 
 

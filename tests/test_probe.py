@@ -44,15 +44,16 @@ def test_probe_cmm_clears_the_i_plus_plus_error_state(capsys):
     clears the state and reads."""
     with Emulator(emu.ipp_answer(), b"\r\n") as cmm:
         r = probe_json(capsys, "cmm", cmm.url("ipp"))
-    assert r["model"] == "ipp" and r["identity"] == "I++ DME server, DMEVersion 1.4"
+    assert r["model"] == "ipp" and r["identity"] == "I++ DME server, DMEVersion 1.4, coordinate system MachineCsy"
     assert r["reading"] == {"x_mm": 1.0, "y_mm": 2.0, "z_mm": 3.0}
     commands = [line[6:].decode() for line in cmm.requests]
-    assert commands == ["StartSession()", "GetDMEVersion()", "Get(X(), Y(), Z())", "ClearAllErrors()", "Get(X(), Y(), Z())",
-                        "EndSession()"]
+    assert commands == ["StartSession()", "GetDMEVersion()", "SetCoordSystem(MachineCsy)", "IsHomed()", "Get(X(), Y(), Z())",
+                        "ClearAllErrors()", "Get(X(), Y(), Z())", "EndSession()"]
 
 
 @pytest.mark.parametrize("kind,answer,terminator,options,model,identity,reading", [
-    ("autocollimator", emu.elcomat, b"\n", "", "elcomat", "", {"x_arcsec": 12.34, "y_arcsec": -5.67}),
+    ("autocollimator", emu.elcomat, b"\n", "", "elcomat",
+     "Möller-Wedel ELCOMAT, serial number 30123, focal length 300 mm, date 15.01.2026", {"x_arcsec": 12.34, "y_arcsec": -5.67}),
     ("dial_indicator", emu.sylvac, b"\r", "", "sylvac", "", {"displacement_mm": -0.0123}),
     ("encoder", emu.qsb, b"\n", "&counts_per_rev=3600000", "qsb", "US Digital QSB, VERSION register 0x00020304",
      {"angle_deg": 128162 * 360 / 3600000}),
@@ -71,7 +72,7 @@ def test_probe_vaisala_ptu300_with_the_thermometer(capsys):
     assert r["identity"] == "PTU300 / 1.12, serial number P4040154"
     assert r["reading"] == pytest.approx({"air_temperature_c": 17.7, "air_pressure_pa": 100380.0, "humidity_pct": 40.9,
                                           "material_temperature_c": 25.1})
-    assert ptu.requests[:2] == [b"?", b'FORM "P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n']
+    assert ptu.requests[:4] == [b"S", b"ECHO OFF", b"?", b'FORM "P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n']
     assert thermometer.requests == [b"*SRTC2"]
 
 

@@ -28,7 +28,7 @@ from simulators.bench import Bench
 from simulators.instruments import SimAutocollimator, SimCmm, SimDialIndicator, SimEncoder, SimLaserTracer, SimStage
 from simulators.scenario import Scenario
 from simulators.servers.ipp_server import IppSession
-from simulators.servers.serial_protocols import ElcomatHandler, QsbHandler, SylvacHandler, TracerHandler
+from simulators.servers.serial_protocols import ElcomatHandler, PiGcsHandler, QsbHandler, SylvacHandler, TracerHandler
 
 REPO = Path(__file__).resolve().parents[1]
 GOOD = (REPO / "procedures" / "laser_tracer_multistation.yaml").read_text()
@@ -187,7 +187,8 @@ def test_ipp_client_on_arbitrary_replies(lines):
 def test_serial_simulators_on_arbitrary_requests(request):
     bench = Bench(Scenario())
     for handler in (ElcomatHandler(SimAutocollimator(bench)), SylvacHandler(SimDialIndicator(bench, 0)),
-                    QsbHandler(SimEncoder(bench), 2**20), TracerHandler(SimLaserTracer(bench))):
+                    QsbHandler(SimEncoder(bench), 2**20), TracerHandler(SimLaserTracer(bench)),
+                    PiGcsHandler(SimStage(bench), referenced=True)):
         assert isinstance(handler.handle(request), bytes)
 
 
@@ -217,15 +218,21 @@ def test_32bit_words_round_trip(value):
 # -- safety: nothing outside the soft limits reaches a transport --------------------------------
 
 class RecordingClient:
+    """A drive that is at once where it was sent: feedback (0x00CC) = the last target written."""
+
     def __init__(self):
         self.writes = []
+        self.target = 0
 
     def write_registers(self, address, values, device_id):
         self.writes.append((address, values))
+        if address == az.OPERATION_TYPE:
+            self.target = az.join32(*values[2:4])
         return type("Ok", (), {"isError": lambda self: False})()
 
     def read_holding_registers(self, address, count, device_id):
-        regs = az.split32(az.OUT_IN_POS | az.OUT_READY) + az.split32(0)
+        regs = (az.split32(self.target) if address == az.FEEDBACK_POSITION
+                else az.split32(az.OUT_IN_POS | az.OUT_READY) + az.split32(0))
         return type("R", (), {"isError": lambda self: False, "registers": regs[:count]})()
 
 

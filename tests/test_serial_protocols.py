@@ -26,8 +26,12 @@ QSB_OPEN = [(b"W1503\r\n", b"w1500000003!\r\n"), (b"W0000\r\n", b"w0000000000!\r
             (b"R14\r\n", b"r1400000100!\r\n")]
 
 
+ELCOMAT_OPEN = [(b"d\r\n", b"8 30123 15 01 2026 300\r")]  # dls-controls/elcomat3000: serial, date, focal length
+SYLVAC_OPEN = [(b"MM\r", None), (b"UNI?\r", b"MM\r")]  # the reply carries no unit: mm set and confirmed at open
+
+
 def _read(make, request: bytes, reply: bytes | None, call: str):
-    opening = QSB_OPEN if make is ENCODER else []
+    opening = {ENCODER: QSB_OPEN, INDICATOR: SYLVAC_OPEN, AUTOCOLLIMATOR: ELCOMAT_OPEN}.get(make, [])
     with ScriptedDevice(opening + [(request, reply)]) as dev:
         driver = make(dev.path)
         try:
@@ -45,10 +49,12 @@ TRACER = lambda path: LineLaserTracer(parse_address(path + PTY), TIMEOUT)  # noq
 GOOD = [
     (AUTOCOLLIMATOR, b"a\r\n", b"4 003 12.34 -5.67\r", "read_arcsec", (12.34, -5.67)),  # the reference's example
     (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.3450 -3.2100\r", "read_arcsec", (12.345, -3.21)),
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 001 12.34 -5.67\r", "read_arcsec", (12.34, float("nan"))),  # X valid, Y not
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 002 12.34 -5.67\r", "read_axes_arcsec", (float("nan"), -5.67)),  # Y only
     (INDICATOR, b"?\r", b"+0.001230\r", "read_um", 1.23),
     (INDICATOR, b"?\r", b"-0.250000\r\n", "read_um", -250.0),  # CR LF as well as CR
     (INDICATOR, b"?\r", b"- 0.2500 mm\r", "read_um", -250.0),  # a sign apart and a unit: tolerated
-    (INDICATOR, b"?\r", b"+0.0100 in\r", "read_um", 254.0),  # inches, when the display is switched
+    (INDICATOR, b"?\r", b" 0.0100\r", "read_um", 10.0),  # the OPTO-RS manual's form: a space for +, CR
     (ENCODER, b"R0E\r\n", b"r0E0001F4A2!\r\n", "read_angle_deg", 128162 * 360 / 3600000),  # the reference's example
     (ENCODER, b"R0E\r\n", b"r0E0000A000\r\n", "read_angle_deg", 40960 * 360 / 3600000),  # older firmware: no "!"
     (ENCODER, b"R0E\r\n", b"r0EFFFFFFFF0000ABCD!\r\n", "read_angle_deg", -360 / 3600000),  # with a timestamp
@@ -59,12 +65,15 @@ GOOD = [
 BAD = [
     (AUTOCOLLIMATOR, b"a\r\n", b"4 000 0.00 0.00\r", InstrumentFault, "no valid absolute measurement"),
     (AUTOCOLLIMATOR, b"a\r\n", b"2 103 1.00 2.00\r", InstrumentFault, "no valid absolute measurement"),
+    (AUTOCOLLIMATOR, b"a\r\n", b"4 002 1.00 2.00\r", InstrumentFault, "X axis not valid"),  # what a run needs
     (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.3x -3\r", InstrumentFault, "unexpected reply"),
     (AUTOCOLLIMATOR, b"a\r\n", b"0 +12.3450 -3.2100\r", InstrumentFault, "unexpected reply"),  # three fields
     (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.34", InstrumentTimeout, "truncated"),
     (AUTOCOLLIMATOR, b"a\r\n", None, InstrumentTimeout, "no reply"),
     (INDICATOR, b"?\r", b"\r", InstrumentFault, "initialising"),
-    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "unexpected reply"),
+    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "indicator error ERR1"),
+    (INDICATOR, b"?\r", b"ERR3\r", InstrumentFault, "ERR3 .measuring range exceeded"),
+    (INDICATOR, b"?\r", b"+0.0100 in\r", InstrumentFault, "unexpected reply"),  # no unit but mm is ever right
     (INDICATOR, b"?\r", b"\xff\xfe\r", InstrumentFault, "not ASCII"),
     (INDICATOR, b"?\r", b"+0.00", InstrumentTimeout, "truncated"),
     (INDICATOR, b"?\r", None, InstrumentTimeout, "no reply"),
@@ -86,7 +95,7 @@ BAD = [
 
 @pytest.mark.parametrize("make,request_,reply,call,expected", GOOD)
 def test_driver_reads(make, request_, reply, call, expected):
-    assert _read(make, request_, reply, call) == pytest.approx(expected)
+    assert _read(make, request_, reply, call) == pytest.approx(expected, nan_ok=True)
 
 
 @pytest.mark.parametrize("make,request_,reply,error,text", BAD)
@@ -140,7 +149,11 @@ def test_simulator_ends_answer_as_documented():
     assert elcomat.handle(b"a\r") == b"4 003 0.0000 0.0000\r"
     assert elcomat.handle(b"r\r") == b"2 103 0.0000 0.0000\r"
     assert elcomat.handle(b"X\r") == b""
-    assert SylvacHandler(SimDialIndicator(bench, 0)).handle(b"?") == b"+0.000000\r\n"
+    assert elcomat.handle(b"d\r") == b"8 SIM3000 15 01 2026 300\r"
+    assert SylvacHandler(SimDialIndicator(bench, 0)).handle(b"?") == b" 0.0000\r"  # OPTO-RS: space for +, CR
+    inch = SylvacHandler(SimDialIndicator(bench, 0), echo=True, inch=True)
+    assert (inch.handle(b"UNI?"), inch.handle(b"MM"), inch.handle(b"UNI?")) == (b"UNI?\rIN\r", b"MM\r", b"UNI?\rMM\r")
+    assert inch.handle(b"FOO") == b"FOO\rERR1\r"
     bench.move_stage(0.5, +1)  # rad: no polygon face in front of the autocollimator
     assert elcomat.handle(b"a\r") == b"4 000 0.0000 0.0000\r"
     qsb = QsbHandler(SimEncoder(bench), 2**20)

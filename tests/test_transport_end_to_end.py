@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rtcal.run.runner import run_procedure
 
@@ -28,6 +29,8 @@ TOLERANCE_ARCSEC = 0.01
 
 @contextmanager
 def sim_serve(scenario: Path, *options: str):
+    options = options if "--pace" in options else ("--no-pacing", *options)  # pacing: in the dedicated tests only
+    options = tuple(o for o in options if o != "--pace")
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "sim", "serve", "--scenario", str(scenario), *options],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -124,3 +127,12 @@ def test_two_mounts_and_the_environment_sensor_over_the_wires(tmp_path):
     remote = _compare(procedure, scenario, tmp_path, {"network": ["cumulative_deviation_arcsec"]})
     assert "environment" in remote.instruments and remote.environment.air_temperature_c.max > 20.0
     assert any("moved on mount 2" in e.message for e in remote.events)
+
+
+@pytest.mark.campaign
+def test_seed001_over_paced_echoing_lines(tmp_path):
+    """The Abbe method over `rtcal sim serve` as strict as the products: serial replies paced at each
+    product's baud rate (Sylvac 4800 7E2), the Sylvacs echoing and starting in inches, the Vaisala
+    echoing; the same raw readings as in process. Slow (minutes): under `pytest -m campaign`."""
+    _compare(PROC / "encoder_abbe_error.yaml", PROC / "scenarios" / "abbe_bench.yaml", tmp_path,
+             {"abbe": ["measured_encoder_error_arcsec", "positioning_error_arcsec"]}, "--serial", "tcp", "--pace")

@@ -79,8 +79,9 @@ def read_request_then_reset(conn: socket.socket) -> None:
 
 
 def start_session(conn: socket.socket) -> None:
-    """Answer what the driver sends when it opens a session: StartSession() and GetDMEVersion()."""
-    for data in (b"", b'# DMEVersion("1.4")\r\n'):
+    """Answer what the driver sends when it opens a session: StartSession(), GetDMEVersion(),
+    SetCoordSystem(MachineCsy) and IsHomed() (a homed machine)."""
+    for data in (b"", b'# DMEVersion("1.4")\r\n', b"", b"# IsHomed(1)\r\n"):
         buffer = b""
         while not buffer.endswith(b"\r\n"):
             buffer += conn.recv(4096)

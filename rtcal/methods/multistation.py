@@ -267,7 +267,8 @@ class MultistationMethod:
     def transport_instruments(self, proc: LaserTracerMultistation) -> MultistationInstrumentSet:
         i = proc.instruments
         stage = factory.open_stage(address_of(i.stage), i.stage.soft_limits_deg, i.stage.timeout_s)
-        cmm = factory.open_cmm(address_of(i.cmm), i.cmm.volume_min_mm, i.cmm.volume_max_mm, i.cmm.timeout_s, i.cmm.tool)
+        cmm = factory.open_cmm(address_of(i.cmm), i.cmm.volume_min_mm, i.cmm.volume_max_mm, i.cmm.timeout_s, i.cmm.tool,
+                               i.cmm.home)
         tracer = factory.open_laser_tracer(address_of(i.laser_tracer), i.laser_tracer.timeout_s)
         env = factory.open_environment(address_of(i.environment), i.environment.timeout_s) if i.environment is not None else None
         return MultistationInstrumentSet(stage=stage, cmm=cmm, laser_tracer=tracer, environment=env)

@@ -170,6 +170,8 @@ class CmmChoice(InstrumentChoice):
     tool: str | None = Field(None, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$",
                              description="the CMM tool that carries the reflector, selected at session start "
                                          "(I++ ChangeTool), e.g. CatEye; none: the CMM's active tool")
+    home: bool = Field(False, description="true: a run may home an unhomed CMM at session start (I++ Home()); "
+                                          "false: an unhomed CMM is refused and a person homes it")
 
     @model_validator(mode="after")
     def _ordered_volume(self) -> "CmmChoice":

@@ -64,7 +64,7 @@ def _tracer_length(tracer) -> float:
         return tracer.read_length().length_mm
 
 
-def read_once(kind: str, instrument: Instrument) -> dict[str, float]:
+def read_once(kind: str, instrument: Instrument) -> dict[str, float | None]:
     """One reading, under the keys ``rtcal probe`` documents for the kind."""
     if kind == "stage":
         return {"position_deg": float(instrument.position_deg())}
@@ -75,9 +75,9 @@ def read_once(kind: str, instrument: Instrument) -> dict[str, float]:
         return {"length_mm": float(_tracer_length(instrument))}
     if kind == "encoder":
         return {"angle_deg": float(instrument.read_angle_deg())}
-    if kind == "autocollimator":
-        x, y = instrument.read_arcsec()
-        return {"x_arcsec": float(x), "y_arcsec": float(y)}
+    if kind == "autocollimator":  # an axis the instrument reports invalid is None (null in --json)
+        x, y = instrument.read_axes_arcsec()
+        return {"x_arcsec": float(x) if math.isfinite(x) else None, "y_arcsec": float(y) if math.isfinite(y) else None}
     if kind == "dial_indicator":
         return {"displacement_mm": float(instrument.read_um()) / 1000.0}
     r = instrument.read()
@@ -94,6 +94,8 @@ def probe(kind: str, address: str, timeout_s: float = 2.0, **context: Any) -> Pr
     _, model = factory.resolve(kind, address)
     if kind == "dial_indicator":
         context.setdefault("name", "dial_indicator")
+    if kind in ("cmm", "stage"):
+        context["may_move"] = False  # a probe never moves a machine: an unhomed CMM is refused, never homed
     instrument = factory.open_instrument(kind, address, timeout_s, **context)
     try:
         identity = instrument.identity()
@@ -110,7 +112,7 @@ def format_probe(result: ProbeResult, as_json: bool) -> str:
     if as_json:
         return json.dumps(result.as_dict())
     lines = [f"{result.kind} ({result.model}) at {result.address}", f"  identity: {result.identity or '(the protocol has no identity query)'}"]
-    lines += [f"  {key}: {value:.9g}" for key, value in result.reading.items()]
+    lines += [f"  {key}: {'not valid' if value is None else format(value, '.9g')}" for key, value in result.reading.items()]
     return "\n".join(lines)
 
 
@@ -141,6 +143,8 @@ def _in_range(name: str, choice, reading: dict[str, float]) -> str:
         lo, hi = choice.soft_limits_deg
         if not lo <= reading["position_deg"] <= hi:
             return f"position {reading['position_deg']:.4f}° outside the procedure's soft limits [{lo:g}, {hi:g}]°"
+    if name == "autocollimator" and reading["x_arcsec"] is None:
+        return "X axis not valid (the autocollimator sees no face about the table axis): a run needs it"
     if name == "cmm":
         xyz = np.array([reading["x_mm"], reading["y_mm"], reading["z_mm"]])
         if np.any(xyz < choice.volume_min_mm) or np.any(xyz > choice.volume_max_mm):
@@ -149,8 +153,8 @@ def _in_range(name: str, choice, reading: dict[str, float]) -> str:
     return ""
 
 
-def _summary(reading: dict[str, float]) -> str:
-    return ", ".join(f"{k} {v:.6g}" for k, v in reading.items())
+def _summary(reading: dict[str, float | None]) -> str:
+    return ", ".join(f"{k} {'not valid' if v is None else format(v, '.6g')}" for k, v in reading.items())
 
 
 def check(proc, addresses: dict[str, str] | None = None, operator_address: str = "") -> list[CheckRow]:

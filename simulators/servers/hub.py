@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV  # a scenario without a stepper serves the driver's default
+from drivers.models import BUILTIN
 from rtcal.clock import VirtualClock
 from simulators.az_drive import AzDriveModel, steps_per_degree
 from simulators.bench import Bench
@@ -40,13 +41,14 @@ from simulators.instruments import (
 )
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
-from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, serve_ipp
+from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, IppMachine, serve_ipp
 from simulators.servers.serial_protocols import (
     ElcomatHandler,
     EnvironmentNow,
     FaultyLine,
     IthxHandler,
     LineHandler,
+    PiGcsHandler,
     QsbHandler,
     SylvacHandler,
     TracerHandler,
@@ -89,6 +91,38 @@ class PtyWriter:
         self.dropped_bytes += len(data) - written
 
 
+class PacedSender:
+    """Hands reply bytes on at a serial line's speed: one character every (start + data + parity +
+    stop bits) / baud seconds, so a client sees a 15-line listing take the second it takes on the
+    product's line. Bytes queue in order; ``send`` is called from the server's loop only."""
+
+    CHUNK = 8  # characters handed on together (8 characters at 4800 baud: 17 ms)
+
+    def __init__(self, send, framing, loop: asyncio.AbstractEventLoop):
+        bits = 1 + framing.bytesize + (framing.parity != "N") + framing.stopbits
+        self.char_s = bits / framing.baud
+        self.send, self.loop = send, loop
+        self.queue = bytearray()
+        self.busy = False
+
+    def __call__(self, data: bytes) -> None:
+        self.queue += data
+        if not self.busy:
+            self.busy = True
+            self.loop.call_later(self.char_s * min(self.CHUNK, len(self.queue)), self._tick)
+
+    def _tick(self) -> None:
+        chunk, self.queue = bytes(self.queue[:self.CHUNK]), self.queue[self.CHUNK:]
+        try:
+            self.send(chunk)
+        except (ConnectionError, RuntimeError, OSError):
+            self.queue.clear()
+        if self.queue:
+            self.loop.call_later(self.char_s * min(self.CHUNK, len(self.queue)), self._tick)
+        else:
+            self.busy = False
+
+
 def free_port(host: str) -> int:
     with socket.socket() as s:
         s.bind((host, 0))
@@ -110,6 +144,12 @@ class SimulatorHub:
     serial: Literal["pty", "tcp"] = "pty"
     modbus: Literal["tcp", "rtu"] = "tcp"
     environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
+    stage_model: Literal["oriental-az", "pi-gcs"] = "oriental-az"  # the stage's protocol: Modbus drive or PI GCS line
+    cmm_homed: bool = True  # the I++ server starts homed (a run against an unhomed one needs `home: true`)
+    pace_serial: bool = False  # serial replies at the product's baud rate (4800 baud: ~2 ms a character)
+    echo: bool = True  # serial products that echo commands do (the Vaisala from the factory, a Sylvac on UniCal)
+    stage_start_latency_s: float = 0.005  # the drive starts a motion this long after the trigger
+    sylvac_inch: bool = True  # the indicators start with an inch display: the driver must switch them to mm
     addresses: dict[str, str] = field(default_factory=dict)
     ipp_idle_timeout_s: float = IPP_IDLE_TIMEOUT_S  # an I++ session silent this long is released
 
@@ -120,19 +160,24 @@ class SimulatorHub:
         self.steps_per_rev = stepper.steps_per_revolution or DEFAULT_STEPS_PER_REV
         self.gear = stepper.worm_ratio if stepper.steps_per_revolution else DEFAULT_GEAR
         # the instruments inject no faults themselves: the protocol ends do, on the wire
-        self.drive = AzDriveModel(SimStage(b, inject=False), steps_per_degree(self.steps_per_rev, self.gear))
+        self.drive = AzDriveModel(SimStage(b, inject=False), steps_per_degree(self.steps_per_rev, self.gear),
+                                  self.stage_start_latency_s)
         self.cmm = SimCmm(b, inject=False)
+        self.ipp_machine = IppMachine(homed=self.cmm_homed)
         res = self.scenario.encoder.resolution_arcsec
         self.counts_per_rev = round(1296000 / res) if res > 0 else 2**30
         lines = {
             "laser_tracer": TracerHandler(SimLaserTracer(b, inject=False)),
             "encoder": QsbHandler(SimEncoder(b, inject=False), self.counts_per_rev),
             "autocollimator": ElcomatHandler(SimAutocollimator(b, inject=False)),
-            "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False)),
-            "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False)),
+            "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False), echo=self.echo, inch=self.sylvac_inch),
+            "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False), echo=self.echo, inch=self.sylvac_inch),
         }
+        # referenced, as a lab leaves its controller (an extra reference move would draw the table's noise anew)
+        self.pi_gcs = PiGcsHandler(SimStage(b, inject=False), referenced=True) if self.stage_model == "pi-gcs" else None
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
-        lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper())
+        lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper(),
+                                              echo=self.echo)
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
         self.operator_token = secrets.token_urlsafe(18)  # only the run given the operator's address may use it
         self._fds: list[int] = []
@@ -237,7 +282,11 @@ class SimulatorHub:
     async def _start_all(self) -> None:
         h = self.host
         stage_query = f"unit=1&steps_per_rev={self.steps_per_rev}&gear={self.gear:g}"
-        if self.modbus == "tcp":
+        if self.pi_gcs is not None:
+            where = await self._serve_line("stage", self.pi_gcs, model="pi-gcs")
+            self.addresses["stage"] = f"{where}?model=pi-gcs&axis=1" + (
+                "" if where.startswith("socket://") else f"&{PTY_FRAMING}")
+        elif self.modbus == "tcp":
             port = free_port(h)
             server = modbus_stage.tcp_server(self.drive, h, port)
             self._servers.append(asyncio.ensure_future(server.serve_forever()))
@@ -246,12 +295,12 @@ class SimulatorHub:
         else:
             client_path = await self._start_rtu()
             self.addresses["stage"] = f"modbus-rtu://{client_path}?{stage_query}&baud=115200&parity=N"  # a pty line: 8N1
-        cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults, self.ipp_idle_timeout_s)
+        cmm_server = await serve_ipp(self.cmm, h, 0, self.bench.faults, self.ipp_machine, self.ipp_idle_timeout_s)
         self._servers.append(cmm_server)
         self.addresses["cmm"] = f"ipp://{h}:{cmm_server.sockets[0].getsockname()[1]}"
         for name, handler in self.handlers.items():
             model = self.environment if name == "environment" else LINE_MODELS[name]
-            where = await self._serve_line(name, handler)
+            where = await self._serve_line(name, handler, model=model)
             self.addresses[name] = f"{where}?model={model}" + ("" if where.startswith("socket://") else f"&{PTY_FRAMING}")
         self.addresses["encoder"] += f"&counts_per_rev={self.counts_per_rev}"
         thermometer = await self._serve_line("thermometer", IthxHandler(self.environment_now), tcp=True)  # an iServer
@@ -293,13 +342,21 @@ class SimulatorHub:
         await asyncio.sleep(0.2)
         return p2
 
-    async def _serve_line(self, name: str, handler: LineHandler, tcp: bool = False) -> str:
+    def _paced(self, send, model: str):
+        """``send``, at the model's baud rate when the hub paces its serial lines."""
+        framing = BUILTIN[model].framing if model in BUILTIN else None
+        if not self.pace_serial or framing is None:
+            return send
+        return PacedSender(send, framing, self._loop)
+
+    async def _serve_line(self, name: str, handler: LineHandler, tcp: bool = False, model: str = "") -> str:
         if self.serial == "tcp" or tcp:
             async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
                 buffer = b""
+                send = self._paced(writer.write, model)
                 try:
                     while chunk := await reader.read(4096):
-                        buffer = self._answer(handler, buffer + chunk, writer.write)
+                        buffer = self._answer(handler, buffer + chunk, send)
                         await writer.drain()
                 except (ConnectionError, asyncio.CancelledError):
                     pass
@@ -315,13 +372,14 @@ class SimulatorHub:
         state = {"buffer": b""}
         writer = PtyWriter(master)
         self._pty_writers.append(writer)
+        send = self._paced(writer.write, model)
 
         def readable() -> None:
             try:
                 data = os.read(master, 4096)
             except (BlockingIOError, OSError):
                 return
-            state["buffer"] = self._answer(handler, state["buffer"] + data, writer.write)
+            state["buffer"] = self._answer(handler, state["buffer"] + data, send)
 
         self._loop.add_reader(master, readable)
         return path
@@ -353,7 +411,7 @@ class SimulatorHub:
         (the token of the address ``rtcal sim serve`` printed); without it, ``ERR AUTH`` and nothing
         done. ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>`` moves the laser
         tracer to its first or second mount; ``CERT?`` hands over the polygon's calibration
-        certificate (face errors, arcsec); ``CLEAR`` releases an emergency stop."""
+        certificate (face errors, arcsec); ``CLEAR`` releases an emergency stop (the drive's and the CMM's)."""
         try:
             while line := await reader.readline():
                 words = line.decode(errors="replace").split()
@@ -378,6 +436,7 @@ class SimulatorHub:
                     writer.write(b"OK\n")
                 elif words == ["CLEAR"]:
                     self.bench.emergency_stop = False
+                    self.ipp_machine.release_emergency_stop()
                     writer.write(b"OK\n")
                 elif words == ["CERT?"]:
                     values = " ".join(f"{v:.6f}" for v in self.bench.face_certificate_arcsec)

@@ -10,10 +10,17 @@ from __future__ import annotations
 import re
 from typing import Protocol
 
-from drivers.errors import InstrumentFault, TrackingLost
+from drivers.errors import InstrumentFault, OutOfLimits, TrackingLost
 from drivers.interfaces import EnvironmentReading
 from simulators.scenario import STATE_KINDS
-from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimEnvironmentSensor, SimLaserTracer
+from simulators.instruments import (
+    SimAutocollimator,
+    SimDialIndicator,
+    SimEncoder,
+    SimEnvironmentSensor,
+    SimLaserTracer,
+    SimStage,
+)
 
 
 class LineHandler(Protocol):
@@ -57,23 +64,28 @@ class FaultyLine:
 
 class ElcomatHandler:
     """Möller-Wedel ELCOMAT: ``a`` → ``4 003 <x> <y>\\r`` (absolute), ``r`` → ``2 103 <x> <y>\\r``
-    (relative; the simulated unit's zero is its absolute zero), arcsec. No face in range: the
-    second field 000 (rtcal's reading of 003 as "X and Y valid"; the real code is unconfirmed)."""
+    (relative; the simulated unit's zero is its absolute zero), arcsec; the status's last digit
+    says which axes are valid (dls-controls/elcomat3000: 3 both, 1 X, 2 Y, 0 none — no face in
+    range). ``d`` → ``8 <serial> <day> <month> <year> <focal length>``. ``valid_axes`` "x" or "y"
+    makes a unit that validates only that axis."""
 
     reply_terminator = b"\r"
     terminator = b"\n"
 
-    def __init__(self, instrument: SimAutocollimator):
+    def __init__(self, instrument: SimAutocollimator, valid_axes: str = "xy"):
         self.instrument = instrument
+        self.valid_digit = {"xy": b"3", "x": b"1", "y": b"2"}[valid_axes]
 
     def counted(self, request: bytes) -> bool:
         return request.strip() in (b"a", b"r")
 
     def handle(self, request: bytes) -> bytes:
         command = request.strip()
+        if command == b"d":
+            return b"8 SIM3000 15 01 2026 300\r"
         if command not in (b"a", b"r"):
             return b""  # what a unit answers to other commands is not published: nothing
-        mode, valid = (b"4", b"003") if command == b"a" else (b"2", b"103")
+        mode, valid = (b"4", b"00" + self.valid_digit) if command == b"a" else (b"2", b"10" + self.valid_digit)
         try:
             x, y = self.instrument.read_arcsec()
         except InstrumentFault:
@@ -82,25 +94,41 @@ class ElcomatHandler:
 
 
 class SylvacHandler:
-    """Sylvac indicator: ``?`` (or ``PRI?``) → the displacement in mm, signed, CR LF."""
+    """Sylvac indicator on its Opto-RS cable (OPTO-RS manual): ``?`` (or ``PRI?``) → the displacement
+    in the display unit, ``[sign or space][digits].[decimals]`` and CR, no unit; ``MM`` / ``IN`` set
+    the unit, ``UNI?`` answers it; ``BAT?`` → ``BAT1``. ``echo=True`` sends the command back first
+    (the UniCal manual: "the instrument echoes the command"); ``inch=True`` starts with an inch
+    display; ``accepts_mm=False`` is a unit that stays in inches. Another command: ``ERR1``."""
 
-    reply_terminator = b"\r\n"
+    reply_terminator = b"\r"
     terminator = b"\r"
 
-    def __init__(self, instrument: SimDialIndicator):
+    def __init__(self, instrument: SimDialIndicator, echo: bool = False, inch: bool = False, accepts_mm: bool = True):
         self.instrument = instrument
+        self.echo, self.inch, self.accepts_mm = echo, inch, accepts_mm
 
     def counted(self, request: bytes) -> bool:
         return request.strip() in (b"?", b"PRI?")
 
     def handle(self, request: bytes) -> bytes:
         command = request.strip()
+        return (command + b"\r" if self.echo else b"") + self._answer(command)
+
+    def _answer(self, command: bytes) -> bytes:
         if command == b"BAT?":
-            return b"BAT1\r\n"
+            return b"BAT1\r"
+        if command in (b"MM", b"IN"):
+            self.inch = command == b"IN" or not self.accepts_mm
+            return b""
+        if command == b"UNI?":
+            return b"IN\r" if self.inch else b"MM\r"
         if command not in (b"?", b"PRI?"):
-            return b""  # the reply to other commands is not published: nothing
-        value, unit = self.instrument.display()
-        return (f"{value:+.6f}" + (" in" if unit == "in" else "") + "\r\n").encode()
+            return b"ERR1\r"
+        number = self.instrument.read_um() / 1000.0  # the display's number: inches when it is stuck in inches (fault `inch`)
+        fault = self.instrument.state_fault
+        stuck_in_inches = fault is not None and fault.kind == "inch"
+        text = f"{number:.5f}" if stuck_in_inches else f"{number / 25.4:.5f}" if self.inch else f"{number:.4f}"
+        return (text if text.startswith("-") else " " + text).encode() + b"\r"
 
 
 class QsbHandler:
@@ -190,23 +218,42 @@ FORM_TOKEN = re.compile(r'\s*(?:"([^"]*)"|(\d+)\.(\d+)\s+([A-Za-z][A-Za-z0-9]*)|
 
 
 class VaisalaHandler:
-    """Vaisala PTU300 or PTB330: ``?`` (identity), ``FORM <format>``, ``FORM ?``, ``SEND``, ``ERRS``.
-    ``SEND`` prints the quantities as the FORM says: ``"text"``, ``x.y Q`` (x digits, y decimals
-    of P in hPa, T in 'C, RH in %RH), ``Un`` the unit of the quantity before, ``#r #n #t``."""
+    """Vaisala PTU300 or PTB330: ``?`` (the full listing), ``FORM <format>``, ``FORM ?``, ``SEND``,
+    ``ERRS``, ``ECHO ON|OFF``, ``S`` (stop), ``R`` (run). ``SEND`` prints the quantities as the FORM
+    says: ``"text"``, ``x.y Q`` (x digits, y decimals of P in hPa, T in 'C, RH in %RH), ``Un`` the
+    unit of the quantity before, ``#r #n #t``. ECHO is ON as from the factory (PTB330 manual): the
+    command comes back first, and a ``>`` prompt follows every answer; ``ECHO OFF`` ends both. In
+    RUN mode (``run=True``) the unit sends a reading before answering anything but ``S`` — what a
+    client sees that talks to a streaming unit (the hub has no clock of its own to stream with)."""
 
     reply_terminator = b"\r\n"
     terminator = b"\r"
     UNITS = {"P": "hPa", "T": "'C", "RH": "%RH"}
     DEFAULT_FORM = {"PTU300": '"P=" 6.1 P " " U3 "   T=" 4.1 T " " U2 " RH=" 4.1 RH " " U3 #r #n',
                     "PTB330": '"P=" 6.1 P " " U3 #r #n'}
+    MODULES = {"PTU300": ("BARO-1", "EMPTY"), "PTB330": ("BARO-1", "EMPTY", "EMPTY", "EMPTY")}
 
-    def __init__(self, now: EnvironmentNow, model: str = "PTU300"):
+    def __init__(self, now: EnvironmentNow, model: str = "PTU300", echo: bool = True, run: bool = False):
         self.now, self.model = now, model
         self.quantities = ("P", "T", "RH") if model == "PTU300" else ("P",)
         self.form = self.DEFAULT_FORM[model]
+        self.echo, self.run = echo, run
 
     def counted(self, request: bytes) -> bool:
         return request.strip().upper() == b"SEND"
+
+    def listing(self) -> str:
+        """The ``?`` listing: model / version, then Key : value lines ending with the module lines
+        (the layout of the PTB330 manual's p. 83 as the references describe it; msl-equipment reads
+        to "Module 2" on a PTU300 and "Module 4" on a PTB330)."""
+        lines = [f"{self.model} / 1.12", f"Serial number  : SIM{self.model[-3:]}01", "Batch number   : SIM-BATCH",
+                 "Adjust. date   : 2026-01-15", "Adjust. info   : VAISALA/HEL", "Date           : 2026-11-27",
+                 "Time           : 12:00:00", f"Start mode     : {'RUN' if self.run else 'STOP'}",
+                 f"Output format  : {self.form.replace('#', chr(92))}", "Pressure unit  : hPa",
+                 f"Serial mode    : {'RUN' if self.run else 'STOP'}", "Baud P D S     : 4800 E 7 1",
+                 "Output interval: 1 s", f"Echo           : {'ON' if self.echo else 'OFF'}", "Address        : 0"]
+        lines += [f"Module {i + 1}       : {m}" for i, m in enumerate(self.MODULES[self.model])]
+        return "".join(line + "\r\n" for line in lines)
 
     def _format(self, form: str, reading: EnvironmentReading | None) -> str | None:
         """The SEND line for ``form``, or None if the format is not understood (checked with no reading)."""
@@ -230,15 +277,35 @@ class VaisalaHandler:
         return "".join(out)
 
     def handle(self, request: bytes) -> bytes:
+        echo = request.strip() + b"\r\n" if self.echo else b""
+        streamed = b""
+        if self.run and request.strip().upper() != b"S":
+            streamed = self._format(self.form, self.now.fresh()).encode()
+        reply = self._answer(request)
+        return streamed + echo + reply + (b">" if self.echo else b"")
+
+    def _answer(self, request: bytes) -> bytes:
         text = request.decode("ascii", errors="replace").strip()
         command = text.split(" ", 1)[0].upper()
         if command == "?":
-            return (f"{self.model} / 1.12\r\nSerial number  : SIM{self.model[-3:]}01\r\n"
-                    f"Batch number   : SIM-BATCH\r\nOutput units   : metric\r\n").encode()
+            return self.listing().encode()
         if command == "SEND":
             return self._format(self.form, self.now.fresh()).encode()
         if command == "ERRS":
             return b"No errors\r\n"
+        if command == "S":
+            self.run = False
+            return b""
+        if command == "R":
+            self.run = True
+            return b""
+        if command == "ECHO":
+            setting = text[4:].strip().upper()
+            if setting in ("ON", "OFF"):
+                self.echo = setting == "ON"
+            elif setting:
+                return b"Unknown command\r\n"
+            return f"Echo           : {'ON' if self.echo else 'OFF'}\r\n".encode()
         if command == "FORM":
             form = text[4:].strip()
             if form == "?":
@@ -273,3 +340,99 @@ class IthxHandler:
         celsius = r.material_temperature_c if m.group(2) else r.air_temperature_c
         value = {"TC": celsius, "TF": celsius * 9.0 / 5.0 + 32.0, "H": r.humidity_pct}[m.group(1)]
         return f"{value:.1f}\r".encode()
+
+
+class PiGcsHandler:
+    """A PI controller with one rotation axis (``1``), GCS as pipython speaks it (docs/protocols/pi_gcs.md):
+    ``*IDN?``, ``SVO``/``SVO?``, ``FRF``/``FRF?``, ``MOV``/``MOV?``, ``POS?``, ``ONT?``, ``ERR?``
+    (answers the last error and clears it), ``STP``/``HLT`` (error 10). Requests and answers end in
+    LF; a query answers ``1=<value>``; other commands answer nothing. A move needs the servo on and
+    the axis referenced (else error 5) and a target inside the travel range (else 7); it is done
+    in virtual time, but ``ONT?`` answers 0 once after each move, as a stage still settling would."""
+
+    reply_terminator = b"\n"
+    terminator = b"\n"
+    IDN = "(c)2026 Physik Instrumente (PI) GmbH & Co. KG, C-863.11, SIM0000001, 01.00.00"
+    AXIS = "1"
+
+    def __init__(self, stage: SimStage, referenced: bool = False):
+        self.stage = stage
+        self.servo = False
+        self.referenced = referenced
+        self.error = 0
+        self.target_deg = stage.position_deg()
+        self.settling = 0
+
+    def counted(self, request: bytes) -> bool:
+        return False  # the stage's faults are the drive model's; this line carries none
+
+    def _fail(self, code: int) -> bytes:
+        self.error = self.error or code  # the first error stays until ERR? reads it
+        return b""
+
+    def handle(self, request: bytes) -> bytes:
+        words = request.decode("ascii", errors="replace").split()
+        if not words:
+            return b""
+        command, args = words[0].upper(), words[1:]
+        if command == "*IDN?":
+            return (self.IDN + "\n").encode()
+        if command == "ERR?":
+            code, self.error = self.error, 0
+            return f"{code}\n".encode()
+        if command in ("STP", "HLT"):
+            if command == "HLT" and args and args[0] != self.AXIS:
+                return self._fail(15)
+            self.settling = 0
+            return self._fail(10)
+        queries = {"SVO?": lambda: int(self.servo), "FRF?": lambda: int(self.referenced),
+                   "POS?": lambda: f"{self.stage.position_deg():.9f}", "MOV?": lambda: f"{self.target_deg:.9f}",
+                   "ONT?": self._on_target}
+        if command in queries:
+            if args and args != [self.AXIS]:
+                return self._fail(15) or b""
+            return f"{self.AXIS}={queries[command]()}\n".encode()
+        if command in ("SVO", "MOV"):
+            if len(args) != 2:
+                return self._fail(1)
+            if args[0] != self.AXIS:
+                return self._fail(15)
+            try:
+                value = float(args[1])
+            except ValueError:
+                return self._fail(1)
+            if command == "SVO":
+                self.servo = value == 1
+                return b""
+            return self._move(value)
+        if command == "FRF":
+            if args and args != [self.AXIS]:
+                return self._fail(15)
+            if not self.servo:
+                return self._fail(5)
+            self._move(0.0, referencing=True)
+            self.referenced = True
+            return b""
+        return self._fail(2)
+
+    def _on_target(self) -> int:
+        if self.settling:
+            self.settling -= 1
+            return 0
+        return 1
+
+    def _move(self, target_deg: float, referencing: bool = False) -> bytes:
+        if not self.servo or not (self.referenced or referencing):
+            return self._fail(5)
+        lo, hi = self.stage.limits_deg
+        if not (lo <= target_deg <= hi and target_deg == target_deg):
+            return self._fail(7)
+        try:
+            self.stage.move_to(target_deg)
+        except OutOfLimits:
+            return self._fail(7)
+        except InstrumentFault:
+            return self._fail(5)
+        self.target_deg = target_deg
+        self.settling = 1
+        return b""
