@@ -89,6 +89,28 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat()
 
 
+class CalibrationExpired(RunDirError):
+    """A reference standard or instrument past its calibration due date: a lab may not issue a
+    certificate from it (ISO/IEC 17025 6.4.7), so the run does not start (exit 2)."""
+
+
+def expired_instruments(proc: Procedure, on: _dt.date) -> list[tuple[str, str]]:
+    """(name, calibration_due) of every instrument or standard in the metadata whose due date lies before ``on``."""
+    return [(name, rec.calibration_due) for name, rec in proc.metadata.instruments.items()
+            if rec.calibration_due and _dt.date.fromisoformat(rec.calibration_due) < on]
+
+
+def check_calibration_due(proc: Procedure, on: _dt.date | None = None) -> None:
+    """Refuse a measurement on a day when a reference standard or instrument is past its due date."""
+    on = on or _dt.datetime.now(_dt.timezone.utc).date()
+    expired = expired_instruments(proc, on)
+    if expired:
+        which = "; ".join(f"{name} {proc.metadata.instruments[name].id or ''} calibration_due {due}".replace("  ", " ")
+                          for name, due in expired)
+        raise CalibrationExpired(f"refused: past its calibration due date on the measurement date {on.isoformat()}: "
+                                 f"{which} (metadata.instruments): recalibrate it, or use one in calibration")
+
+
 NON_INSTRUMENT_ADDRESSES = ("operator",)  # what `rtcal sim serve` prints besides the instruments
 
 
@@ -182,6 +204,7 @@ def run_procedure(
     proc = load_procedure(procedure_path, large, procedure_yaml)
     if addresses:
         proc = with_addresses(proc, addresses)
+    check_calibration_due(proc)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
     bench, scenario_text = None, ""
@@ -278,6 +301,11 @@ def resume_run(
             bench = Bench(scenario, VirtualClock(store.last_time_s()), seed, generation)
             _keep_fault_counters(store, bench)
         if done < planned:
+            try:
+                check_calibration_due(proc)
+            except CalibrationExpired:
+                store.close()
+                raise
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
