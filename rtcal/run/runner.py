@@ -362,6 +362,17 @@ def conformity_of(proc: Procedure, analysis: Analysis, evaluation: Evaluation | 
                   PositioningDeviations.from_model(analysis.positioning_deviations))
 
 
+def _virtual_end(started_utc: str | None, elapsed_s: float) -> str | None:
+    """A simulated run's end: its start plus the virtual clock's elapsed time (the wall clock would
+    say the few seconds the simulation took, not the hours the measurement stands for)."""
+    if not started_utc:
+        return None
+    try:
+        return (_dt.datetime.fromisoformat(started_utc) + _dt.timedelta(seconds=elapsed_s)).isoformat()
+    except ValueError:
+        return None
+
+
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True) -> RunOutcome:
@@ -417,7 +428,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
                 f: getattr(proc.instruments, f).address for f in proc.instruments.present()},
             bench=(meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
             started_utc=meta.get("started_utc"),
-            finished_utc=meta.get("finished_utc"),
+            finished_utc=_virtual_end(meta.get("started_utc"), clock.now_s()) if virtual else meta.get("finished_utc"),
             starts=generation + 1,
             measurement_duration_s=round(clock.now_s(), 1),
             clock="virtual" if virtual else "real",
