@@ -167,10 +167,10 @@ class AbbeOutputs:
     def _plot_closure(self, run_dir: Path, c: ClosureEstimate) -> Path:
         fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6.4), layout="constrained")
         faces = np.array(c.face_error_arcsec, float)
-        ax1.errorbar(range(len(faces)), faces - faces[0], yerr=2 * np.array(c.face_uncertainty_arcsec, float), marker="o",
+        ax1.errorbar(range(len(faces)), faces, yerr=2 * np.array(c.face_uncertainty_arcsec, float), marker="o",
                      capsize=3, label="polygon face error, ±U (k = 2)")
         ax1.set_xlabel("polygon face")
-        ax1.set_ylabel("face error / ″\n(relative to face 0)")
+        ax1.set_ylabel("face error / ″\n(closure: their sum is 0)")
         ax1.set_xticks(range(len(faces)))
         zero = c.table_error_arcsec[0]  # the first target of the first direction: the zero of the positioning figure
         for d in sorted(set(c.direction), reverse=True):

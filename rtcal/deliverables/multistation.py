@@ -14,9 +14,9 @@ from rtcal.deliverables.rounding import u_text
 from rtcal.results.model import Estimate, MultistationResults, NetworkEstimate, PaperEstimate, StationChainEstimate
 
 ESTIMATOR_LABELS = {
-    "paper": "paper (as printed: one dead path per station)",
-    "shared_dead_path": "shared dead path (one per tracking segment)",
-    "network": "network (one circle, CMM solved)",
+    "paper": "each station alone (as first published)",
+    "shared_dead_path": "stations together (one dead path per tracking segment)",
+    "network": "whole network (one circle, CMM solved)",
 }
 
 

@@ -22,6 +22,7 @@ from typing import Any
 from rtcal.deliverables.comparison import mean_curve
 from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.deliverables.evaluation import UNCONFIRMED
 from rtcal.deliverables.rounding import u_text, value_text
 from rtcal.results.model import (AbbeResults, EnvironmentSummary, Event, InstrumentRecord, MultistationResults, RunResults)
 
@@ -184,7 +185,7 @@ def connections(results: RunResults) -> str:
     """Where the instruments were reached."""
     if isinstance(results.instruments, dict):
         return "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in results.instruments.items())
-    return f"every instrument simulated in process (bench {results.bench}, seed {results.seed})"
+    return f"every instrument simulated in process (bench {Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed})"
 
 
 def traceability(results: RunResults) -> str:
@@ -366,12 +367,13 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
         "instruments": instrument_rows(results), "connections": connections(results),
         "rows": rows, "recommended": estimate_name(results),
         "iso_title": ("ISO 230-2:2014 parameters" if not departed else
-                      "Positioning parameters computed as ISO 230-2 defines them (the test departs from it: "
-                      + "; ".join(departed) + ")"),
+                      "Positioning parameters computed as ISO 230-2 defines them (not ISO 230-2 results: the test departs "
+                      "from it, see page 1)"),
         "iso": [(sym, desc, value_text(getattr(iso, key), uncertainties.get(key)), u_text(uncertainties.get(key)))
-                for key, sym, desc in ISO_KEYS] if iso else [],
+                for key, sym, desc in ISO_KEYS if getattr(iso, key) is not None] if iso else [],
         "vdi": [(sym, desc, _fmt(getattr(vdi, key))) for key, sym, desc in VDI_KEYS] if vdi else [],
-        "evaluation_notes": iso_notes + [n for n in (vdi.notes if vdi else []) if n not in iso_notes],
+        "evaluation_notes": [n for n in iso_notes + [n for n in (vdi.notes if vdi else []) if n not in iso_notes]
+                             if n not in UNCONFIRMED.values()],  # what is not confirmed: docs/evaluation.md, not the customer's
         "figures": [(run_dir / f, f"Figure {n}: {caption}") for n, (f, caption) in
                     enumerate([(f, c) for f, c in figures if (run_dir / f).exists()], start=1)],
         "budget": budget_rows,
