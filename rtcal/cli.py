@@ -194,13 +194,11 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     for name, e in summary["estimators"].items():
         rec = " (recommended)" if name == summary["recommended"] else ""
         o = e["overall"]
-        print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″, "
-              f"ratio per target {o['ratio_min']}–{o['ratio_max']} (each ± about {1 / np.sqrt(2 * e['trials']):.0%} from "
+        print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″,\n"
+              f"  ratio per target {o['ratio_min']}–{o['ratio_max']} (each ± about {1 / np.sqrt(2 * e['trials']):.0%} from "
               f"{e['trials']} trials)")
-        print("  target      " + " ".join(f"{t:>8}" for t in summary["targets"][1:]))
-        print("  RMS error   " + " ".join(f"{v:8.3f}" for v in e["rms_error_arcsec"][1:]))
-        print("  reported 1σ " + " ".join(f"{v:8.3f}" for v in e["rms_reported_sigma_arcsec"][1:]))
-        print("  ratio       " + " ".join(f"{v:8.2f}" for v in e["ratio"][1:]))
+        for line in montecarlo.table_lines(summary["targets"], e):  # a row per target: any number of targets fits
+            print(line)
     print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
     return EXIT_OK
 
@@ -441,7 +439,7 @@ def run_label(path_text: str) -> str:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     """Two runs side by side: the change per target against the combined uncertainty, and a plot."""
-    from rtcal.deliverables.comparison import compare, plot_comparison
+    from rtcal.deliverables.comparison import compare, comparison_lines, plot_comparison
 
     a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
     methods = [r.method if r else None for _, r in (a, b)]
@@ -452,13 +450,12 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
-    run_b = Path(args.run_b)
-    out = Path(args.out) if args.out else (run_b if run_b.is_dir() else run_b.parent)
+    out = Path(args.out) if args.out else Path(".")  # the current directory: never inside either run
     _make_folder(out, "--out")
     with output_file(out / "compare.png") as png:
         plot_comparison(result, a, b, png)
     result["plot"] = str(out / "compare.png")
-    print(json_text(result))
+    print(json_text(result) if args.json else "\n".join(comparison_lines(result) + [f"written: {result['plot']}"]))
     return EXIT_OK
 
 
@@ -772,7 +769,8 @@ def build_parser() -> argparse.ArgumentParser:
                                           "uncertainty, ISO 230-2 parameters of both, compare.png")
     cmp_.add_argument("run_a", help="the earlier run (directory or deviation CSV)")
     cmp_.add_argument("run_b", help="the later run (directory or deviation CSV)")
-    cmp_.add_argument("--out", help="where compare.png goes (default: RUN_B)")
+    cmp_.add_argument("--out", help="where compare.png goes (default: the current directory)")
+    cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     cmp_.set_defaults(func=_cmd_compare)
 
     exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv)")
