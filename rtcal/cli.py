@@ -484,14 +484,19 @@ def _cmd_export(args: argparse.Namespace) -> int:
             rows, events = store.export_csv(out)
         finally:
             store.close()
-        markers = f" and {rows - instrument} skip markers" if rows > instrument else ""
-        print(f"{instrument} instrument readings{markers} ({planned} planned readings taken) → {readings_csv}, "
-              f"{events} events → {events_csv}")
+        from rtcal.deliverables.report import plural
+
+        markers = f" and {plural(rows - instrument, 'skip marker')}" if rows > instrument else ""
+        print(f"{plural(instrument, 'instrument reading')}{markers} ({plural(planned, 'planned reading')} taken) → "
+              f"{readings_csv}, {plural(events, 'event')} → {events_csv}")
         return EXIT_OK
     saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
     write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
     write_csv(events_csv, ("id",) + EVENT_COLUMNS, ((i, *saved.events[i]) for i in sorted(saved.events)))
-    print(f"{len(saved.readings)} salvaged readings → {readings_csv}, {len(saved.events)} salvaged events → {events_csv}")
+    from rtcal.deliverables.report import plural
+
+    print(f"{plural(len(saved.readings), 'salvaged reading')} → {readings_csv}, {plural(len(saved.events), 'salvaged event')} "
+          f"→ {events_csv}")
     print(f"rtcal: {path} {found.detail}; salvaged page by page: {saved.summary()}", file=sys.stderr)
     return EXIT_FAILED if found.kind == "damaged" or saved.unreadable_readings else EXIT_OK
 
