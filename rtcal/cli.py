@@ -578,7 +578,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     failed = [r for r in rows if r.status == "FAILED"]
     for r in failed:
         print(f"rtcal: {r.instrument}: {_one_line(r.detail)}", file=sys.stderr)
-    print(f"{len(rows) - len(failed)} of {len(rows)} ready" + ("" if failed else ": the rig can run this procedure"))
+    counted = [r for r in rows if r.status != "standard"]  # a reference standard in calibration is not probed
+    print(f"{len(counted) - len(failed)} of {len(counted)} ready" + ("" if failed else ": the rig can run this procedure"))
     return EXIT_FAILED if failed else EXIT_OK
 
 

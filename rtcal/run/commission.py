@@ -165,7 +165,7 @@ def check(proc, addresses: dict[str, str] | None = None, operator_address: str =
         choice = getattr(instruments, name)
         kind = factory.KIND_OF[name]
         if choice.is_sim:
-            rows.append(CheckRow(name, "sim", "simulated", "in-process, on the simulated bench"))
+            rows.append(CheckRow(name, "sim", "simulated", "in process, on the bench"))
             continue
         model = factory.resolve(kind, choice.address)[1].name
         try:
@@ -204,12 +204,12 @@ def with_due_dates(rows: list[CheckRow], proc, today: _dt.date | None = None) ->
     return out
 
 
-WRAP_COLUMNS = {4: 44, 5: 24}  # the reading and the identity wrap at a word (never cut) within these widths
+WRAP_COLUMNS = {4: 30, 5: 16}  # the reading and the identity wrap at a word (never cut): the table fits 100 columns
 
 
 def format_table(rows: list[CheckRow]) -> str:
     """One table, its long cells wrapped at word boundaries onto continuation lines: nothing is cut."""
-    header = ("instrument", "model", "status", "calibration due", "reading or problem", "identity")
+    header = ("instrument", "model", "status", "due", "reading or problem", "identity")  # due: of its calibration
     cells = [header] + [(r.instrument, r.model, r.status, r.calibration_due, r.detail, r.identity) for r in rows]
     wrapped = [[textwrap.wrap(c, WRAP_COLUMNS[i], break_long_words=False, break_on_hyphens=False) or [""]
                 if i in WRAP_COLUMNS else [c] for i, c in enumerate(row)] for row in cells]
