@@ -152,7 +152,7 @@ class AbbeOutputs:
             ax.bar(xs, [t.amplitude for t in terms], width, yerr=[2 * t.amplitude_sigma for t in terms], capsize=2,
                    label=f"{label}, ±U (k = 2)")
             ax.hlines([t.threshold for t in terms], [x - width / 2 for x in xs], [x + width / 2 for x in xs], colors="k",
-                      lw=1.2, label="significance threshold (family-wise 1 %)" if k == 0 else None)
+                      lw=1.2, label="significance threshold (family-wise 1 %)" if k == 0 else "_nolegend_")
             orders |= {t.order for t in terms}
         ax.set_xticks(sorted(orders), [str(o) for o in sorted(orders)])
         ax.set_xlabel("harmonic order (per revolution)")
@@ -172,11 +172,12 @@ class AbbeOutputs:
         ax1.set_xlabel("polygon face")
         ax1.set_ylabel("face error / ″\n(closure: their sum is 0)")
         ax1.set_xticks(range(len(faces)))
-        zero = c.table_error_arcsec[0]  # the first target of the first direction: the zero of the positioning figure
+        table = np.array([np.nan if v is None else v for v in c.table_error_arcsec], float)
+        table_u = np.array([np.nan if v is None else v for v in c.table_uncertainty_arcsec], float)
+        table = table - table[0]  # the first target of the first direction: the zero of the positioning figure
         for d in sorted(set(c.direction), reverse=True):
             sel = [i for i, x in enumerate(c.direction) if x == d]
-            ax2.errorbar([c.table_angle_deg[i] for i in sel], [c.table_error_arcsec[i] - zero for i in sel],
-                         yerr=[2 * c.table_uncertainty_arcsec[i] for i in sel], marker="o", capsize=3,
+            ax2.errorbar([c.table_angle_deg[i] for i in sel], table[sel], yerr=2 * table_u[sel], marker="o", capsize=3,
                          label=f"table error {ARROW[d]}, ±U (k = 2)")
         ax2.set_xlabel("table angle / °")
         ax2.set_ylabel("table error εz / ″\n(relative to the first target)")
