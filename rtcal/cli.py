@@ -455,8 +455,27 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     with output_file(out / "compare.png") as png:
         plot_comparison(result, a, b, png)
     result["plot"] = str(out / "compare.png")
-    print(json_text(result) if args.json else "\n".join(comparison_lines(result) + [f"written: {result['plot']}"]))
+    if args.certificate:
+        result["certificate"] = _as_found_certificate(args, a[1], b[1], result, out)
+    written = [result["plot"]] + ([f"{result['certificate']}.pdf", f"{result['certificate']}.html"] if args.certificate else [])
+    print(json_text(result) if args.json else "\n".join(comparison_lines(result) + ["written: " + ", ".join(written)]))
     return EXIT_OK
+
+
+def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,
+                          result: dict[str, Any], out: Path) -> str:
+    """``compare --certificate``: the as-found / as-left certificate of two run directories."""
+    from rtcal.deliverables.as_found import as_found_as_left_model
+    from rtcal.deliverables.report import write_html, write_pdf
+
+    if found is None or left is None:
+        raise UserError("--certificate: give two run directories (a certificate needs their results.json, not a CSV)")
+    model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]))
+    with output_file(out / "as_found_as_left.pdf") as pdf:
+        write_pdf(model, pdf)
+    with output_file(out / "as_found_as_left.html") as html:
+        write_html(model, html)
+    return str(out / "as_found_as_left")
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -777,6 +796,8 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("run_b", help="the later run (directory or deviation CSV)")
     cmp_.add_argument("--out", help="where compare.png goes (default: the current directory)")
     cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    cmp_.add_argument("--certificate", action="store_true", help="also write the as-found (RUN_A) / as-left (RUN_B) "
+                                                                 "certificate: as_found_as_left.pdf and .html under --out")
     cmp_.set_defaults(func=_cmd_compare)
 
     exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv)")

@@ -190,3 +190,17 @@ def test_compare_prints_a_table(iso_run, tmp_path, monkeypatch):
     assert "0 of 24 target values changed by more than U_c" in printed
     code, printed, _ = _run(["compare", str(out), str(out), "--json", "--out", str(tmp_path / "o")])
     assert code == 0 and json.loads(printed)["targets_compared"] == 24 and (tmp_path / "o" / "compare.png").exists()
+
+
+def test_as_found_as_left_certificate(iso_run, tmp_path):
+    """Two runs of one item as one certificate: both measurements on page 1, the change per target against U_c."""
+    out, _ = iso_run
+    code, printed, _ = _run(["compare", str(out), str(out), "--certificate", "--out", str(tmp_path)])
+    assert code == 0 and "as_found_as_left.pdf" in printed
+    pages = [_flat(p.get_text()) for p in pymupdf.open(tmp_path / "as_found_as_left.pdf")]
+    assert "As found (before adjustment)" in pages[0] and "As left (after adjustment)" in pages[0]
+    assert "0 of 24 beyond U_c" in pages[0] and "Approved by" in pages[0]
+    text = " ".join(pages)
+    assert "U_c (k = 2) / ″" in text and "End of certificate." in text
+    for n, page in enumerate(pages, start=1):
+        assert page.rstrip().endswith(f"page {n} of {len(pages)}")

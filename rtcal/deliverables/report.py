@@ -366,6 +366,11 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
                        ("Date of issue", issued)],
         "instruments": instrument_rows(results), "connections": connections(results),
         "rows": rows, "recommended": estimate_name(results),
+        "rows_title": "Result: positioning deviation per target and direction",
+        "rows_header": ["target / °", "direction", "deviation / ″", "u / ″", "U (k = 2) / ″", "runs"],
+        "rows_note": ("Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction; "
+                      "u standard uncertainty, U = 2u expanded uncertainty (k = 2, about 95 %). Estimate: "
+                      f"{estimate_name(results)}."),
         "iso_title": ("ISO 230-2:2014 parameters" if not departed else
                       "Positioning parameters computed as ISO 230-2 defines them (not ISO 230-2 results: the test departs "
                       "from it, see page 1)"),
@@ -466,11 +471,8 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
     story += [Paragraph("Traceability", h2), Paragraph(esc(m["traceability"]), body), Spacer(1, 1.5 * mm),
               Paragraph(esc(m["statement"]), body)]
 
-    story += [CondPageBreak(60 * mm), Paragraph("Result: positioning deviation per target and direction", h2),
-              Paragraph(f"Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction; "
-                        f"u standard uncertainty, U = 2u expanded uncertainty (k = 2, about 95 %). Estimate: {esc(m['recommended'])}.",
-                        small), Spacer(1, 1.5 * mm),
-              table(m["rows"], ["target / °", "direction", "deviation / ″", "u / ″", "U (k = 2) / ″", "runs"])]
+    story += [CondPageBreak(60 * mm), Paragraph(esc(m["rows_title"]), h2), Paragraph(esc(m["rows_note"]), small),
+              Spacer(1, 1.5 * mm), table(m["rows"], m["rows_header"])]
     if m["iso"]:
         story += [KeepTogether([Paragraph(esc(m["iso_title"]), h2),
                                 table(m["iso"], ["symbol", "meaning", "value / ″", "U (k = 2) / ″"],
