@@ -213,7 +213,7 @@ def control_lines(results: RunResults) -> tuple[str, list[str]]:
     how = "; ".join(f"{k.replace('_', ' ')}: {v.split(':')[0]}" for k, v in c.instruments.items())
     brief = (f"{'exclusive' if c.exclusive else 'exclusive control not known from every protocol'} ({how}); every "
              f"motion and reading checked against the commands: "
-             + (f"{c.rejected_attempts} reading(s) contradicted them, rejected and taken again" if c.rejected_attempts
+             + (f"{plural(c.rejected_attempts, 'reading')} contradicted them, rejected and taken again" if c.rejected_attempts
                 else "none contradicted them"))
     details = [f"{k}: {v}" for k, v in c.instruments.items()] + [f"check — {t}" for t in c.checks]
     return brief, details
@@ -302,7 +302,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
     if results.bench is not None and results.bench.startswith("ideal bench"):
         warnings.append(results.bench)
     if results.faults or results.skipped_readings:
-        warnings.append(f"{results.faults} instrument fault(s) and {results.skipped_readings} skipped reading(s) during "
+        warnings.append(f"{plural(results.faults, 'instrument fault')} and {plural(results.skipped_readings, 'skipped reading')} during "
                         "the run (see Run).")
     rows = []
     if results.positioning_deviations is not None:
@@ -385,6 +385,8 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
         "method": method_text, "environment": conditions(results), "control": control_details,
         "events": ", ".join(f"{k}: {n}" for k, n in events.items()) or "none",
         "raw_readings": results.raw_readings, "skipped": results.skipped_readings, "faults": results.faults,
+        "run_counts": f"{plural(results.raw_readings, 'planned reading')} taken, {results.skipped_readings} skipped, "
+                      f"{plural(results.faults, 'instrument fault')}",
         "software": f"rtcal {results.rtcal_version}", "measured": measurement_dates(results),
         "footer": footer, "footer_css": "".join(ch for ch in footer if ch not in '"\\<>&\n\r'),
     }
@@ -502,8 +504,8 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
     if m["control"]:
         story += [Paragraph("Control of the machine", h2)] + [Paragraph("• " + esc(t), small) for t in m["control"]]
     story += [Paragraph("Run", h2),
-              Paragraph(f"Measured {esc(m['measured'])}; {m['raw_readings']} planned readings taken, {m['skipped']} skipped, "
-                        f"{m['faults']} instrument faults; events: {esc(m['events'])}. Software: {esc(m['software'])}.", body),
+              Paragraph(f"Measured {esc(m['measured'])}; {esc(m['run_counts'])}; events: {esc(m['events'])}. Software: "
+                        f"{esc(m['software'])}.", body),
               Spacer(1, 4 * mm), Paragraph("<b>End of certificate.</b>" if not m["not_certificate"] else "<b>End of report.</b>", body)]
 
     footer_left = m["footer"]
