@@ -204,3 +204,26 @@ def test_as_found_as_left_certificate(iso_run, tmp_path):
     assert "U_c (k = 2) / ″" in text and "End of certificate." in text
     for n, page in enumerate(pages, start=1):
         assert page.rstrip().endswith(f"page {n} of {len(pages)}")
+
+
+def _table(targets, directions=(1, -1), runs=5):
+    import numpy as np
+
+    from rtcal.deliverables.deviations import PositioningDeviations
+
+    rows = [(t, d, r) for r in range(1, runs + 1) for d in directions for t in targets]
+    t, d, r = (np.array(c, float) for c in zip(*rows))
+    return PositioningDeviations(t, d.astype(int), r.astype(int), np.zeros(len(rows)), np.full(len(rows), 0.1))
+
+
+def test_departures_from_iso_230_2():
+    from rtcal.deliverables.departures import departures, parameters_label
+
+    iso = [0, 15, 45, 90, 105, 150, 180, 210, 240, 270, 315, 330]
+    assert departures(_table(iso)) == [] and parameters_label([]) == "ISO 230-2:2014"
+    assert departures(_table(iso, directions=(1,))) == ["one direction of approach only (ISO 230-2 asks both)"]
+    assert departures(_table(iso, runs=3)) == ["3 runs per target and direction (ISO 230-2 asks 5)"]
+    assert any("equally spaced (30°" in d for d in departures(_table(list(range(0, 360, 30)))))
+    assert any("180°, 270° are not among" in d for d in departures(_table([0, 20, 50, 90, 130, 200, 290, 340])))
+    assert any(d.startswith("3 targets") for d in departures(_table([0, 10, 25])))
+    assert parameters_label(["x"]).startswith("positioning parameters computed as ISO 230-2 defines them")

@@ -67,6 +67,8 @@ def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict
     model["iso"] = table
     model["iso_title"] = "ISO 230-2 parameters: as found → as left (U as found / as left, k = 2)"
     model["vdi"] = []
+    if model["conformity"]:
+        model["conformity"] = {**model["conformity"], "title": "Conformity of the item as left"}
     model["rows_title"] = "Result: positioning deviation per target and direction, as found and as left"
     model["rows_header"] = ["target / °", "direction", "as found / ″", "as left / ″", "change / ″", "U_c (k = 2) / ″",
                             "beyond U_c"]

@@ -467,7 +467,7 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                                            colors.HexColor("#d68910"))]
     if m["conformity"]:
         c = m["conformity"]
-        story += [Paragraph(f"Conformity: {c['verdict'].upper()}", h2), Paragraph(esc(c["rule"]), small), Spacer(1, 1.5 * mm),
+        story += [Paragraph(f"{esc(c.get('title', 'Conformity'))}: {c['verdict'].upper()}", h2), Paragraph(esc(c["rule"]), small), Spacer(1, 1.5 * mm),
                   table(c["rows"], ["limit", "parameter", "limit / ″", "value / ″", "U / ″", "guard band / ″", "verdict"],
                         [12 * mm, width - 101 * mm, 16 * mm, 17 * mm, 14 * mm, 24 * mm, 18 * mm])]
     story += [Paragraph("Traceability", h2), Paragraph(esc(m["traceability"]), body), Spacer(1, 1.5 * mm),
