@@ -68,7 +68,7 @@ def main() -> None:
             times = [timed(["evaluate", str(a)], args.timeout),
                      timed(["compensate", str(a), "--format", "linuxcnc", "--step-deg", "15", "--out", str(folder / f"c{rows}.comp")],
                            args.timeout),
-                     timed(["compare", str(a), str(b), "--out", str(folder / f"cmp{rows}")], args.timeout)]
+                     timed(["compare", str(a), str(b), "--json", "--out", str(folder / f"cmp{rows}")], args.timeout)]
             print(f"{rows:>8}  " + "  ".join(f"{t:>24}" for t in times), flush=True)
 
 

@@ -213,13 +213,11 @@ def _cmd_uncertainty(args: argparse.Namespace) -> int:
     for name, e in summary["estimators"].items():
         rec = " (recommended)" if name == summary["recommended"] else ""
         o = e["overall"]
-        print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″, "
-              f"ratio per target {o['ratio_min']}–{o['ratio_max']} (each ± about {1 / np.sqrt(2 * e['trials']):.0%} from "
+        print(f"{name}{rec}: RMS error {o['rms_error_arcsec']}″, RMS reported 1σ {o['rms_reported_sigma_arcsec']}″,\n"
+              f"  ratio per target {o['ratio_min']}–{o['ratio_max']} (each ± about {1 / np.sqrt(2 * e['trials']):.0%} from "
               f"{e['trials']} trials)")
-        print("  target      " + " ".join(f"{t:>8}" for t in summary["targets"][1:]))
-        print("  RMS error   " + " ".join(f"{v:8.3f}" for v in e["rms_error_arcsec"][1:]))
-        print("  reported 1σ " + " ".join(f"{v:8.3f}" for v in e["rms_reported_sigma_arcsec"][1:]))
-        print("  ratio       " + " ".join(f"{v:8.2f}" for v in e["ratio"][1:]))
+        for line in montecarlo.table_lines(summary["targets"], e):  # a row per target: any number of targets fits
+            print(line)
     print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
     return EXIT_OK
 
@@ -468,7 +466,7 @@ def run_label(path_text: str) -> str:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     """Two runs side by side: the change per target against the combined uncertainty, and a plot."""
-    from rtcal.deliverables.comparison import compare, plot_comparison
+    from rtcal.deliverables.comparison import compare, comparison_lines, plot_comparison
 
     a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
     methods = [r.method if r else None for _, r in (a, b)]
@@ -479,13 +477,15 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
-    run_b = Path(args.run_b)
-    out = Path(args.out) if args.out else (run_b if run_b.is_dir() else run_b.parent)
+    out = Path(args.out) if args.out else Path(".")  # the current directory: never inside either run
     _make_folder(out, "--out")
     with output_file(out / "compare.png") as png:
         plot_comparison(result, a, b, png)
     result["plot"] = str(out / "compare.png")
-    print(json_text(result))
+    if args.certificate:
+        result["certificate"] = _as_found_certificate(args, a[1], b[1], result, out)
+    written = [result["plot"]] + ([f"{result['certificate']}.pdf", f"{result['certificate']}.html"] if args.certificate else [])
+    print(json_text(result) if args.json else "\n".join(comparison_lines(result) + ["written: " + ", ".join(written)]))
     return EXIT_OK
 
 
@@ -526,6 +526,22 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     return EXIT_OK if found.agrees else EXIT_FAILED
 
 
+def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,
+                          result: dict[str, Any], out: Path) -> str:
+    """``compare --certificate``: the as-found / as-left certificate of two run directories."""
+    from rtcal.deliverables.as_found import as_found_as_left_model
+    from rtcal.deliverables.report import write_html, write_pdf
+
+    if found is None or left is None:
+        raise UserError("--certificate: give two run directories (a certificate needs their results.json, not a CSV)")
+    model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]))
+    with output_file(out / "as_found_as_left.pdf") as pdf:
+        write_pdf(model, pdf)
+    with output_file(out / "as_found_as_left.html") as html:
+        write_html(model, html)
+    return str(out / "as_found_as_left")
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     """Every raw reading and event of a run as CSV, for spreadsheets; from a damaged store, every
     one that can still be read (exit 1: the store is damaged, and the count of what is lost)."""
@@ -551,14 +567,19 @@ def _cmd_export(args: argparse.Namespace) -> int:
             rows, events = store.export_csv(out)
         finally:
             store.close()
-        markers = f" and {rows - instrument} skip markers" if rows > instrument else ""
-        print(f"{instrument} instrument readings{markers} ({planned} planned readings taken) → {readings_csv}, "
-              f"{events} events → {events_csv}")
+        from rtcal.deliverables.report import plural
+
+        markers = f" and {plural(rows - instrument, 'skip marker')}" if rows > instrument else ""
+        print(f"{plural(instrument, 'instrument reading')}{markers} ({plural(planned, 'planned reading')} taken) → "
+              f"{readings_csv}, {plural(events, 'event')} → {events_csv}")
         return EXIT_OK
     saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
     write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
     write_csv(events_csv, ("id",) + EVENT_COLUMNS, ((i, *saved.events[i]) for i in sorted(saved.events)))
-    print(f"{len(saved.readings)} salvaged readings → {readings_csv}, {len(saved.events)} salvaged events → {events_csv}")
+    from rtcal.deliverables.report import plural
+
+    print(f"{plural(len(saved.readings), 'salvaged reading')} → {readings_csv}, {plural(len(saved.events), 'salvaged event')} "
+          f"→ {events_csv}")
     print(f"rtcal: {path} {found.detail}; salvaged page by page: {saved.summary()}", file=sys.stderr)
     return EXIT_FAILED if found.kind == "damaged" or saved.unreadable_readings else EXIT_OK
 
@@ -643,7 +664,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     failed = [r for r in rows if r.status == "FAILED"]
     for r in failed:
         print(f"rtcal: {r.instrument}: {_one_line(r.detail)}", file=sys.stderr)
-    print(f"{len(rows) - len(failed)} of {len(rows)} ready" + ("" if failed else ": the rig can run this procedure"))
+    counted = [r for r in rows if r.status != "standard"]  # a reference standard in calibration is not probed
+    print(f"{len(counted) - len(failed)} of {len(counted)} ready" + ("" if failed else ": the rig can run this procedure"))
     return EXIT_FAILED if failed else EXIT_OK
 
 
@@ -851,7 +873,10 @@ def build_parser() -> argparse.ArgumentParser:
                                           "uncertainty, ISO 230-2 parameters of both, compare.png")
     cmp_.add_argument("run_a", help="the earlier run (directory or deviation CSV)")
     cmp_.add_argument("run_b", help="the later run (directory or deviation CSV)")
-    cmp_.add_argument("--out", help="where compare.png goes (default: RUN_B)")
+    cmp_.add_argument("--out", help="where compare.png goes (default: the current directory)")
+    cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    cmp_.add_argument("--certificate", action="store_true", help="also write the as-found (RUN_A) / as-left (RUN_B) "
+                                                                 "certificate: as_found_as_left.pdf and .html under --out")
     cmp_.set_defaults(func=_cmd_compare)
 
     exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv)")

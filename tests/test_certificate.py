@@ -101,7 +101,7 @@ def a_report_without_the_laboratory_is_not_a_certificate(run):
     assert "Calibration report" in page1 and "Not a calibration certificate" in page1
     assert "metadata.laboratory" in page1 and "metadata.approved_by" in page1
     assert "not recorded" in page1 and results.environment is None
-    positions = [text.index(f"Fig. {n}:") for n in (9, 10, 11, 12)]
+    positions = [text.index(f"Figure {n}:") for n in (1, 2, 3, 4)]
     assert positions == sorted(positions)
     assert "End of report." in pages[-1]
 
@@ -110,9 +110,9 @@ def sections_in_order(run):
     _, results, pages, _, _ = run
     text = "\n".join(pages)
     order = [text.index(s) for s in ("Result in brief", "Traceability", "Result: positioning deviation per target and direction",
-                                     "ISO 230-2 and VDI/DGQ 3441", "Uncertainty budget")]
+                                     "VDI/DGQ 3441 parameters", "Uncertainty budget")]
     order += [text.rindex("\nMethod\n")]  # the section; page 1 names the method too
-    order += [text.index(s) for s in ("Reference standards and instruments", "range over the run", "Run\n")]
+    order += [text.index(s) for s in ("Reference standards and instruments", "min – max over the run", "Run\n")]
     assert order == sorted(order)
     rows = len(results.recommended_estimate().cumulative_deviation_arcsec)
     assert len(re.findall(r"^[↑↓]$", text, re.M)) == rows  # one row per target and direction

@@ -28,7 +28,7 @@ def test_compare_same_stage_twice(two_runs, tmp_path, capsys):
     few of the 48 target values may exceed the combined U (k = 2 covers about 95 %: 2.4 expected;
     more than 10 would mean U too small)."""
     capsys.readouterr()
-    assert main(["compare", str(two_runs[0]), str(two_runs[1]), "--out", str(tmp_path)]) == 0
+    assert main(["compare", str(two_runs[0]), str(two_runs[1]), "--out", str(tmp_path), "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
     assert r["targets_compared"] == 48 and r["targets_changed"] <= 10
     assert set(r["iso230_2"]) >= {"E", "B", "R", "A"} and (tmp_path / "compare.png").stat().st_size > 0

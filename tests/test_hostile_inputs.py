@@ -36,7 +36,7 @@ CASES = {
     "nan_settle": (_edit("settle_time_s: 2.0", "settle_time_s: .nan"), "settle_time_s: Input should be a finite number"),
     "huge_integer": (_edit("samples_per_reading: 1", "samples_per_reading: " + "9" * 5000),
                      "samples_per_reading: a number of 5000 characters"),
-    "mathtext_name": (_edit("name: Paper 000 — RT400 on a CMM, laser tracer multi-station", 'name: "$\\\\frac{"'), "name: no `$`"),
+    "mathtext_name": (_edit("name: RT400 rotary table on a CMM, laser tracer multi-station calibration", 'name: "$\\\\frac{"'), "name: no `$`"),
     "stations_beyond_limit": (_edit("  count: 11", "  count: 3000"), "stations.count: Input should be less than or equal to"),
     "misspelt_key": (_edit("  count: 11", "  cont: 11"), "stations.cont: unknown key; did you mean `count`?"),
     "misspelt_section": (_edit("settle_time_s: 2.0", "settle_time_s: 2.0\nsolvr: {}"), "solvr: unknown key; did you mean `solver`?"),

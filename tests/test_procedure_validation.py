@@ -25,7 +25,7 @@ BAD_PROCEDURES = [
     ("duplicate_key", GOOD.replace("samples_per_reading: 1", "samples_per_reading: 1\nsamples_per_reading: 2"), "samples_per_reading: 2", "samples_per_reading", "duplicate key"),
     ("syntax", GOOD.replace("  step_deg: 30", "  step_deg: [30"), "count: 11", "(syntax)", ""),
     ("unknown_method", GOOD.replace("method: laser_tracer_multistation", "method: laser_tracker"), "method: laser_tracker", "method", "unknown method"),
-    ("missing_method", GOOD.replace("method: laser_tracer_multistation\n", ""), "name: Paper", "method", "required key is missing"),
+    ("missing_method", GOOD.replace("method: laser_tracer_multistation\n", ""), "name: RT400", "method", "required key is missing"),
     ("bad_backend", GOOD.replace("cmm: {backend: sim, tool: CatEye}", "cmm: {backend: simulated, tool: CatEye}"), "backend: simulated", "instruments.cmm.backend", "'sim'"),
     ("bad_lm_beta", GOOD.replace("beta: 0.55", "beta: 1.5"), "beta: 1.5", "solver.lm.beta", "less than 1"),
     ("too_few_points", GOOD.replace("layers: 4", "layers: 1").replace("columns: 4", "columns: 3"), "points:", "points", "n ≥ 16"),

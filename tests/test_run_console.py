@@ -29,7 +29,7 @@ def test_faults_and_conditions_are_summarised(tmp_path, capsys):
     printed = capsys.readouterr().out
     r = read_results(out)
     assert r.faults == 18 and r.skipped_readings == 0
-    assert "18 instrument fault(s) (autocollimator 15, environment 3)" in printed
+    assert "18 instrument faults (autocollimator 15, environment 3)" in printed
     assert "actions taken: retry" in printed and "skip 1" in printed
     assert "ISO 230-2:2014: E " in printed
     assert r.environment is not None and r.environment.air_temperature_c is not None

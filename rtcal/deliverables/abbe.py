@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.axes import Axes
 
 from rtcal.deliverables.figures import legend_below, plt
+from rtcal.deliverables.rounding import u_text
 from rtcal.deliverables.report import fmt, largest, smallest, status_lines
 from rtcal.results.model import AbbeEstimate, AbbeResults, ClosureEstimate, Estimate, HarmonicTerm, TargetedEstimate
 
@@ -74,11 +75,14 @@ class AbbeOutputs:
         series = self._series
 
         def fig9(ax: Axes) -> None:
-            for d in dirs:
-                ax.plot(*series(a.tilt_x_arcsec, d), **MARKER[d], label=f"tilt εx / ″ {ARROW[d]}")
-                ax.plot(*series(a.radial_y_um, d), **MARKER[d], ls="--", label=f"radial δy / µm {ARROW[d]}")
-            ax.set_ylabel("tilt εx / ″ and radial δy / µm")
-            ax.set_title("Fig. 9 — tilt motion about X and radial motion in Y (from the dial indicators)")
+            right = ax.twinx()  # two quantities, two units: tilt on the left axis, radial motion on the right
+            for k, d in enumerate(dirs):
+                ax.plot(*series(a.tilt_x_arcsec, d), **MARKER[d], color=f"C{k}", label=f"tilt εx {ARROW[d]} (left axis, ″)")
+                right.plot(*series(a.radial_y_um, d), **MARKER[d], ls="--", color=f"C{k + 2}",
+                           label=f"radial δy {ARROW[d]} (right axis, µm)")
+            ax.set_ylabel("tilt εx / ″")
+            right.set_ylabel("radial δy / µm")
+            ax.set_title("Tilt motion about X and radial motion in Y (from the dial indicators)")
 
         def fig10(ax: Axes) -> None:
             enc_zero = None
@@ -97,21 +101,21 @@ class AbbeOutputs:
                         label=f"encoder − command {ARROW[d]}")
             rev = a.reversal_reference_arcsec
             ax.set_ylabel("εz (ECC) / ″, relative to the first target")
-            ax.set_title("Fig. 10 — angular positioning error" + (f"; reversal ↑ − ↓ = {rev:+.2f}″" if rev is not None else ""))
+            ax.set_title("Angular positioning error" + (f"; reversal ↑ − ↓ = {rev:+.2f}″" if rev is not None else ""))
 
         def fig11(ax: Axes) -> None:
             for k, d in enumerate(dirs):
                 x, y = series(a.predicted_encoder_error_arcsec, d)
                 _, u = series(a.predicted_encoder_error_sigma_arcsec, d)
-                ax.errorbar(x, y, yerr=u, fmt=".-", capsize=2, lw=0.8, color=f"C{2 * k}",
-                            label=f"predicted (δy + Zs·εx)/rE {ARROW[d]}, ±1σ")
+                ax.errorbar(x, y, yerr=2 * u, fmt=".-", capsize=2, lw=0.8, color=f"C{2 * k}",
+                            label=f"predicted (δy + Zs·εx)/rE {ARROW[d]}, ±U (k = 2)")
                 x, y = series(a.measured_encoder_error_arcsec, d)
                 _, u = series(a.measured_encoder_error_sigma_arcsec, d)
                 ok = np.isfinite(y)
-                ax.errorbar(x[ok], y[ok], yerr=u[ok], ls="none", **MARKER[d], capsize=2, color=f"C{2 * k + 1}",
-                            label=f"measured (encoder − reference) {ARROW[d]}, ±1σ")
+                ax.errorbar(x[ok], y[ok], yerr=2 * u[ok], ls="none", **MARKER[d], capsize=2, color=f"C{2 * k + 1}",
+                            label=f"measured (encoder − reference) {ARROW[d]}, ±U (k = 2)")
             ax.set_ylabel("encoder error / ″ (mean over the faces removed)")
-            ax.set_title("Fig. 11 — predicted and measured encoder error")
+            ax.set_title("Predicted and measured encoder error")
 
         def fig12(ax: Axes) -> None:
             for k, d in enumerate(dirs):
@@ -119,10 +123,10 @@ class AbbeOutputs:
                 _, u = series(a.residual_sigma_arcsec, d)
                 ok = np.isfinite(y)
                 ax.errorbar(x[ok], y[ok], yerr=2 * u[ok], ls="none", **MARKER[d], capsize=2, color=f"C{2 * k}",
-                            label=f"measured − predicted {ARROW[d]}, ±2σ")
+                            label=f"measured − predicted {ARROW[d]}, ±U (k = 2)")
             ax.axhline(0, color="0.6", lw=0.8)
             ax.set_ylabel("residual / ″")
-            ax.set_title(f"Fig. 12 — residual (RMS {a.residual_rms_arcsec}″)")
+            ax.set_title(f"Residual (RMS {a.residual_rms_arcsec}″)")
 
         paths = [csv_path] + [_figure(run_dir, n, f) for n, f in (
             ("fig09_tilt_radial.png", fig9), ("fig10_positioning.png", fig10),
@@ -142,9 +146,15 @@ class AbbeOutputs:
                                               ("encoder error, predicted (Abbe)", h.predicted_encoder_error_arcsec))
             if terms is not None]
         width = 0.8 / max(len(present), 1)
+        orders: set[int] = set()
         for k, (label, terms) in enumerate(present):
-            ax.bar([t.order + (k - len(present) / 2 + 0.5) * width for t in terms], [t.amplitude for t in terms],
-                   width, yerr=[t.amplitude_sigma for t in terms], label=label)
+            xs = [t.order + (k - len(present) / 2 + 0.5) * width for t in terms]
+            ax.bar(xs, [t.amplitude for t in terms], width, yerr=[2 * t.amplitude_sigma for t in terms], capsize=2,
+                   label=f"{label}, ±U (k = 2)")
+            ax.hlines([t.threshold for t in terms], [x - width / 2 for x in xs], [x + width / 2 for x in xs], colors="k",
+                      lw=1.2, label="significance threshold (family-wise 1 %)" if k == 0 else "_nolegend_")
+            orders |= {t.order for t in terms}
+        ax.set_xticks(sorted(orders), [str(o) for o in sorted(orders)])
         ax.set_xlabel("harmonic order (per revolution)")
         ax.set_ylabel("amplitude / arcsec")
         ax.set_title("Harmonic analysis")
@@ -156,17 +166,23 @@ class AbbeOutputs:
 
     def _plot_closure(self, run_dir: Path, c: ClosureEstimate) -> Path:
         fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6.4), layout="constrained")
-        ax1.errorbar(range(len(c.face_error_arcsec)), c.face_error_arcsec, yerr=c.face_uncertainty_arcsec, marker="o", capsize=3)
+        faces = np.array(c.face_error_arcsec, float)
+        ax1.errorbar(range(len(faces)), faces, yerr=2 * np.array(c.face_uncertainty_arcsec, float), marker="o",
+                     capsize=3, label="polygon face error, ±U (k = 2)")
         ax1.set_xlabel("polygon face")
-        ax1.set_ylabel("face error / ″")
+        ax1.set_ylabel("face error / ″\n(closure: their sum is 0)")
+        ax1.set_xticks(range(len(faces)))
+        table = np.array([np.nan if v is None else v for v in c.table_error_arcsec], float)
+        table_u = np.array([np.nan if v is None else v for v in c.table_uncertainty_arcsec], float)
+        table = table - table[0]  # the first target of the first direction: the zero of the positioning figure
         for d in sorted(set(c.direction), reverse=True):
             sel = [i for i, x in enumerate(c.direction) if x == d]
-            ax2.errorbar([c.table_angle_deg[i] for i in sel], [c.table_error_arcsec[i] for i in sel],
-                         yerr=[c.table_uncertainty_arcsec[i] for i in sel], marker="o", capsize=3, label=ARROW[d])
+            ax2.errorbar([c.table_angle_deg[i] for i in sel], table[sel], yerr=2 * table_u[sel], marker="o", capsize=3,
+                         label=f"table error {ARROW[d]}, ±U (k = 2)")
         ax2.set_xlabel("table angle / °")
-        ax2.set_ylabel("table error εz / ″")
+        ax2.set_ylabel("table error εz / ″\n(relative to the first target)")
         legend_below(fig)
-        ax1.set_title("Closure: polygon face errors and table errors, separated (1σ)")
+        ax1.set_title("Closure: polygon face errors and table errors, separated")
         path = run_dir / "closure.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
@@ -232,15 +248,22 @@ class AbbeOutputs:
         return lines
 
     def certificate_figures(self) -> list[tuple[str, str]]:
-        figs = [("fig09_tilt_radial.png", "Fig. 9: tilt and radial motion of the shaft from the two dial indicators."),
-                ("fig10_positioning.png", "Fig. 10: angular positioning error εz against the autocollimator and polygon for "
+        figs = [("fig10_positioning.png", "angular positioning error εz against the autocollimator and polygon for "
                                           "each approach direction, with its U band (k = 2), and the stage encoder's reading."),
-                ("fig11_encoder_error.png", "Fig. 11: encoder error, predicted from tilt and radial motion (Abbe) and "
-                                            "measured (±1σ)."),
-                ("fig12_residual.png", "Fig. 12: measured − predicted encoder error (±2σ).")]
+                ("fig09_tilt_radial.png", "tilt (left axis, ″) and radial motion (right axis, µm) of the shaft from the two "
+                                          "dial indicators."),
+                ("fig11_encoder_error.png", "encoder error, predicted from tilt and radial motion (Abbe) and "
+                                            "measured; bars ±U (k = 2)."),
+                ("fig12_residual.png", "measured − predicted encoder error; bars ±U (k = 2).")]
         if self.results.estimates.closure is not None:
-            figs.append(("closure.png", "Polygon face errors and table errors separated by closure (±1σ)."))
+            figs.append(("closure.png", "polygon face errors and table errors separated by closure, the table errors on "
+                                        "the zero of Figure 1 (the first target); bars ±U (k = 2)."))
         return figs
+
+    def estimate_words(self) -> str:
+        """The recommended estimate as the certificate names it."""
+        return ("the autocollimator on the polygon" if (self.results.recommended or "abbe") == "abbe"
+                else "the recommended estimate")
 
     def method_name(self) -> str:
         faces = len(self.abbe.face_errors_used_arcsec)
@@ -255,7 +278,7 @@ class AbbeOutputs:
             "The reference angle comes from an autocollimator on an optical polygon on the table (face errors from its "
             f"{a.polygon_source}); the positioning deviation is the autocollimator reading minus the face error, relative "
             "to the first target. Runs are kept apart; targets are approached from their own side past an overrun.",
-            "Seed 001's Abbe analysis: two dial indicators on the shaft separate tilt from radial motion, which predicts the "
+            "Abbe analysis of the encoder: two dial indicators on the shaft separate tilt from radial motion, which predicts the "
             f"encoder's misreading (Δt/rE, extrapolation factor {a.extrapolation_factor:.3f}); the measured encoder error "
             "is encoder − reference.",
             f"Uncertainty (GUM): the random error per visit from {a.random_error_from}, the certificate's uncertainty per "
@@ -273,7 +296,7 @@ class AbbeOutputs:
             over = f"{len(e.cumulative_deviation_arcsec)} targets"
         lines = [f"positioning deviation ECC ({rec}, recommended): {fmt(smallest(e.cumulative_deviation_arcsec), '+.2f')}″ … "
                  f"{fmt(largest(e.cumulative_deviation_arcsec), '+.2f')}″ over {over}, U (k = 2) up to "
-                 f"{fmt(largest(e.cumulative_expanded_uncertainty_arcsec), '.2f')}″"
+                 f"{u_text(largest(e.cumulative_expanded_uncertainty_arcsec))}″"
                  + (f"; reversal {a.reversal_reference_arcsec:+.2f}″" if a.reversal_reference_arcsec is not None else ""),
                  f"encoder error predicted from tilt and radial motion: up to ±{max(pred):.2f}″; "
                  f"measured − predicted RMS {a.residual_rms_arcsec}″ (polygon from {a.polygon_source})"]

@@ -124,3 +124,31 @@ def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, RunR
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def comparison_lines(result: dict[str, Any]) -> list[str]:
+    """The comparison as a console table (under 100 columns): per target and direction A, B, the
+    change and the combined U_c (rounded once, as on a certificate), then the ISO 230-2 parameters."""
+    from rtcal.deliverables.rounding import u_text
+
+    def num(v: float | None, sign: str = "+") -> str:
+        return "–" if v is None else format(v, f"{sign}.2f")
+
+    lines = [f"A: {result['a']}", f"B: {result['b']}", "",
+             f"{'target / °':>10}  {'dir':>3}  {'A / ″':>9}  {'B / ″':>9}  {'B − A / ″':>10}  {'U_c / ″':>8}  beyond U_c"]
+    for r in result["per_target"]:
+        lines.append(f"{r['target_deg']:>10g}  {'↑' if r['direction'] > 0 else '↓':>3}  {num(r['a_arcsec']):>9}  "
+                     f"{num(r['b_arcsec']):>9}  {num(r['change_arcsec']):>10}  {u_text(r['combined_U_arcsec']):>8}  "
+                     + ("yes" if r["exceeds_U"] else "no" if r["exceeds_U"] is not None else "–"))
+    lines += ["", f"{'ISO 230-2':>10}  {'A / ″':>9}  {'B / ″':>9}  {'B − A / ″':>10}"]
+    for k, v in result["iso230_2"].items():
+        change = None if v["a"] is None or v["b"] is None else v["b"] - v["a"]
+        lines.append(f"{k.replace('_up', '↑').replace('_down', '↓').replace('_mean', ' mean'):>10}  {num(v['a'], ''):>9}  "
+                     f"{num(v['b'], ''):>9}  {num(change):>10}")
+    changed, compared = result["targets_changed"], result["targets_compared"]
+    lines += ["", f"{changed} of {compared} target value{'s' if compared != 1 else ''} changed by more than "
+              "U_c = 2·√(u_A² + u_B²) (k = 2)"]
+    only = [f"{result[k]} only in {k[-1].upper()}" for k in ("only_in_a", "only_in_b") if result[k]]
+    if only:
+        lines.append("not compared: " + ", ".join(only))
+    return lines

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.deliverables.rounding import round_up
 from rtcal.deliverables.comparison import estimate_targets
 from rtcal.results.model import Analysis, Conformity, Iso230Evaluation, IsoTarget, LimitConformity, RunResults
 
@@ -263,12 +264,12 @@ def band_conformity(rule: str, band: float, means: Means) -> LimitConformity:
     for k in range(n):
         var = float(means.cov[k, k])
         u = math.sqrt(var) if np.isfinite(var) and var >= 0 else None
-        verdict, w = decide(rule, abs(float(means.mean[k])), band, None if u is None else K * u)
+        verdict, w = decide(rule, abs(float(means.mean[k])), band, None if u is None else round_up(K * u))
         judged.append((verdict, abs(float(means.mean[k])) + w - band, k, u, w))
     rank = {"fail": 0, "undecided": 1, "pass": 2}
     verdict, _, k, u, w = min(judged, key=lambda j: (rank[j[0]], -j[1]))
     return LimitConformity(limit_arcsec=band, value_arcsec=round(abs(float(means.mean[k])), 4),
-                           expanded_uncertainty_arcsec=None if u is None else round(K * u, 4), guard_band_arcsec=round(w, 4),
+                           expanded_uncertainty_arcsec=None if u is None else round_up(K * u), guard_band_arcsec=round(w, 4),
                            verdict=verdict, target_deg=means.keys[k][0], direction=means.keys[k][1])
 
 
@@ -281,12 +282,12 @@ def assess(decision_rule: str, limits: list[tuple[str, float]], band_arcsec: flo
     for symbol, limit in limits:
         value = getattr(evaluation, symbol)
         form = parameter_form(symbol, evaluation, means) if value is not None else None
-        U = None if form is None else form.expanded_uncertainty(means)
+        U = None if form is None else round_up(form.expanded_uncertainty(means))  # rounded once: what every page shows
         verdict, w = decide(decision_rule, value, limit, U)
         if value is None:
             notes.append(f"{symbol} is not defined by these data (see the evaluation's notes): undecided.")
         per_limit[symbol] = LimitConformity(limit_arcsec=limit, value_arcsec=value,
-                                            expanded_uncertainty_arcsec=None if U is None else round(U, 4),
+                                            expanded_uncertainty_arcsec=U,
                                             guard_band_arcsec=round(w, 4), verdict=verdict)
     if band_arcsec is not None:
         per_limit["band"] = band_conformity(decision_rule, band_arcsec, means)

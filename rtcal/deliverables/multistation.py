@@ -10,12 +10,13 @@ import numpy as np
 
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.report import fmt, largest, status_lines
+from rtcal.deliverables.rounding import u_text
 from rtcal.results.model import Estimate, MultistationResults, NetworkEstimate, PaperEstimate, StationChainEstimate
 
 ESTIMATOR_LABELS = {
-    "paper": "paper (as printed: one dead path per station)",
-    "shared_dead_path": "shared dead path (one per tracking segment)",
-    "network": "network (one circle, CMM solved)",
+    "paper": "each station alone (as first published)",
+    "shared_dead_path": "stations together (one dead path per tracking segment)",
+    "network": "whole network (one circle, CMM solved)",
 }
 
 
@@ -86,8 +87,9 @@ class MultistationOutputs:
                             label=f"ECC, {label}, bars ±U (k = 2)")
             step, su = _values(est.deviation_arcsec), _values(est.uncertainty_arcsec)
             offset = (k - (len(ordered) - 1) / 2) * 0.012 * (angles.max() - angles.min())
-            ax2.errorbar(angles[1:] + offset, step, yerr=su, fmt="o" if name == rec else "s", ms=4, capsize=3,
-                         color="C0" if name == rec else f"C{k + 1}", label=f"Δθ, {name}, bars ±1σ")
+            ax2.errorbar(angles[1:] + offset, step, yerr=2 * su, fmt="o" if name == rec else "s", ms=4, capsize=3,
+                         color="C0" if name == rec else f"C{k + 1}",
+                         label=f"Δθ, {ESTIMATOR_LABELS.get(name, name)}, bars ±U (k = 2)")
         if r.truth is not None:
             ax.plot(angles, r.truth.cumulative_deviation_arcsec, "kx:", label="ECC, truth (simulated bench)")
             ax2.plot(angles[1:], r.truth.deviation_arcsec, "kx", label="Δθ, truth (simulated bench)")
@@ -95,7 +97,7 @@ class MultistationOutputs:
             a.axhline(0.0, color="0.6", lw=0.8)
             a.grid(alpha=0.3)
         ax.set_ylabel("cumulative positioning deviation ECC / ″\n(actual − commanded, relative to the first station)")
-        ax2.set_ylabel("per-step deviation Δθ / ″\n(eq. 33: actual − nominal step)")
+        ax2.set_ylabel("per-step deviation Δθ / ″\n(actual − nominal step)")
         ax2.set_xlabel("commanded table angle / °  (" + ("positive" if angles[-1] > angles[0] else "negative") + " approach)")
         ax2.set_xticks(angles, [f"{a:g}" for a in angles], fontsize=8)
         legend_below(fig)
@@ -205,8 +207,16 @@ class MultistationOutputs:
         return lines
 
     def certificate_figures(self) -> list[tuple[str, str]]:
-        return [("deviation.png", "Cumulative positioning deviation ECC of every estimator (the recommended one with its "
-                                  "U band, k = 2) and the per-step deviation Δθ of seed 000's eq. 33 (bars ±1σ).")]
+        return [("deviation.png", "Cumulative positioning deviation ECC from each way of solving the stations (the "
+                                  "recommended one with its U band) and the deviation of each step Δθ (actual − nominal "
+                                  "step); every band and bar is ±U (k = 2).")]
+
+    def estimate_words(self) -> str:
+        """The recommended estimate as the certificate names it."""
+        return {"paper": "each station solved on its own, as the method was first published",
+                "shared_dead_path": "all stations solved together, one tracer dead path per tracking segment",
+                "network": "one adjustment of the whole network (axis, stations, CMM points and CMM geometry)"}.get(
+                    self.results.recommended or "", "the recommended estimate")
 
     def method_name(self) -> str:
         return ("Laser tracer multi-station method: a laser tracer on the table, its reflector moved through points by a "
@@ -220,10 +230,11 @@ class MultistationOutputs:
             "a set of points while the table indexes through the stations, and the tracer measures interferometric lengths. "
             "The tracer's reference centre at each station is self-calibrated from the lengths; the stations lie on a circle "
             "about the rotation axis, and the angle between them gives the positioning deviation.",
-            "Estimators: 'paper' as published (one dead path per station, plane, circle, eq. 32–33); 'shared_dead_path' "
-            "(all stations together, one dead path per tracking segment); 'network' (one adjustment of axis, radius, station "
-            "angles, CMM points as weighted observations and the CMM's scales and squarenesses). The report quotes the "
-            f"recommended one ({rec}): converged, with the smallest uncertainty.",
+            "The stations are solved in up to three ways: each station on its own as the method was first published (one "
+            "dead path per station, then a plane and a circle through the centres); all stations together with one tracer "
+            "dead path per tracking segment; and one adjustment of the whole network (axis, radius, station angles, the "
+            "CMM points as weighted observations, the CMM's scales and squarenesses). The certificate quotes the one that "
+            f"converged with the smallest uncertainty: {self.estimate_words()}.",
             "Uncertainty (GUM): the tracer's and the CMM's noise are estimated from the readings (Type A); stage "
             "repeatability, CMM geometry, error motions and the air's refractive index as the procedure states them "
             "(Type B); all propagated through the estimator with their correlations.",
@@ -237,8 +248,8 @@ class MultistationOutputs:
         if e is not None:
             cum = ", ".join(fmt(v, "+.2f") for v in e.cumulative_deviation_arcsec)
             lines.append(f"cumulative positioning deviation ECC (arcsec, {r.recommended}, recommended): {cum}")
-            lines.append(f"expanded uncertainty U (k = 2) up to {fmt(largest(e.cumulative_expanded_uncertainty_arcsec), '.2f')}″")
+            lines.append(f"expanded uncertainty U (k = 2) up to {u_text(largest(e.cumulative_expanded_uncertainty_arcsec))}″")
         for name, est in r.estimates.items():
             if name != r.recommended:
-                lines.append(f"also {name}: U (k = 2) up to {fmt(largest(est.cumulative_expanded_uncertainty_arcsec), '.2f')}″")
+                lines.append(f"also {name}: U (k = 2) up to {u_text(largest(est.cumulative_expanded_uncertainty_arcsec))}″")
         return lines + status_lines(r)

@@ -20,7 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from rtcal.deliverables.comparison import mean_curve
+from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.deliverables.evaluation import UNCONFIRMED
+from rtcal.deliverables.rounding import u_text, value_text
 from rtcal.results.model import (AbbeResults, EnvironmentSummary, Event, InstrumentRecord, MultistationResults, RunResults)
 
 ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, positive approach"),
@@ -33,13 +36,16 @@ ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, po
             ("A_down", "A↓", "unidirectional accuracy, negative"), ("A", "A", "bidirectional accuracy"))
 ISO_SYMBOL = {key: sym for key, sym, _ in ISO_KEYS} | {"band": "band"}
 ISO_MEANING = {key: desc for key, _, desc in ISO_KEYS} | {"band": "every mean deviation x̄↑, x̄↓ within ±limit"}
-VDI_KEYS = (("Pa", "Pa", "position deviation"), ("P", "P", "position uncertainty"), ("Ps_max", "Ps max", "positional scatter, max"),
-            ("Ps_mean", "Ps mean", "positional scatter, mean"), ("U_max", "U max", "reversal span, max"),
-            ("U_mean", "U mean", "reversal span, mean"))
+VDI_KEYS = (("Pa", "Pa", "position deviation"), ("P", "P", "position uncertainty (VDI's term: a span of the data, not "
+                                                               "a measurement uncertainty)"),
+            ("Ps_max", "Ps max", "positional scatter, max"),
+            ("Ps_mean", "Ps mean", "positional scatter, mean"), ("U_max", "U max", "reversal span, max (VDI's U, not an "
+                                                                                  "uncertainty)"),
+            ("U_mean", "U mean", "reversal span, mean (VDI's U)"))
 
 STANDARDS = (
     "ISO 230-2:2014 (E, M, B, R, A)",
-    "VDI/DGQ 3441:1977 (Pa, P, Ps, U: definitions as vendor software applies them, not confirmed against its text)",
+    "VDI/DGQ 3441:1977 (Pa, P, Ps, U)",
     "JCGM 100:2008 (GUM: uncertainty)",
 )
 DECISION_STANDARDS = {"simple": "ILAC-G8:09/2019 (decision rule: simple acceptance)",
@@ -49,6 +55,9 @@ UNCERTAINTY_STATEMENT = (
     "normal distribution corresponds to a coverage probability of about 95 %. The standard uncertainty was determined "
     "in accordance with the GUM (JCGM 100:2008) from the budget listed in this {doc}; rtcal's uncertainty "
     "model is validated against the errors of Monte Carlo simulations of the measurement.")
+SIGNING_STATEMENT = (
+    "This {doc} is issued in electronic form. It was approved for issue electronically by {approver} on {date} in the "
+    "laboratory's records; it carries no handwritten signature.")
 RELATES_STATEMENT = (
     "The results relate only to the item calibrated, at the time and under the conditions of the measurement stated. "
     "This {doc} shall not be reproduced except in full without the written approval of the issuing laboratory.")
@@ -103,9 +112,10 @@ def _when(stamp: str | None) -> str:
 def measurement_dates(results: RunResults) -> str:
     """From the first to the last reading, UTC (one day written once)."""
     start, end = _when(results.started_utc), _when(results.finished_utc)
+    simulated = " (simulated measurement: virtual clock)" if results.clock == "virtual" else ""
     if start[:10] == end[:10] and start != "?":
-        return f"{start} – {end[11:]} UTC"
-    return f"{start} – {end} UTC"
+        return f"{start} – {end[11:]} UTC{simulated}"
+    return f"{start} – {end} UTC{simulated}"
 
 
 def environment_of(results: RunResults) -> EnvironmentSummary | None:
@@ -130,15 +140,16 @@ def conditions(results: RunResults) -> list[tuple[str, str]]:
     return [(condition_label(name), _range(v.min, v.max) + f" (mean {v.mean:g})") for name, v in env.items()]
 
 
-def _range(lo: float, hi: float, sep: str = " … ") -> str:
-    return f"{lo:g}" if lo == hi else f"{lo:g}{sep}{hi:g}"
+def _range(lo: float, hi: float, sep: str = " – ") -> str:
+    """A condition's range as min – max, also when it did not change (20 – 20: read, and constant)."""
+    return f"{lo:g}{sep}{hi:g}"
 
 
 def conditions_in_brief(results: RunResults) -> str:
     env = environment_of(results)
     if env is None:
         return "not recorded (no environment sensor)"
-    return "; ".join(f"{condition_label(n).split(' / ')[0]} {_range(v.min, v.max, '–')} {condition_label(n).split(' / ')[-1]}"
+    return "; ".join(f"{condition_label(n).split(' / ')[0]} {_range(v.min, v.max)} {condition_label(n).split(' / ')[-1]}"
                      for n, v in env.items())
 
 
@@ -174,7 +185,7 @@ def connections(results: RunResults) -> str:
     """Where the instruments were reached."""
     if isinstance(results.instruments, dict):
         return "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in results.instruments.items())
-    return f"every instrument simulated in process (bench {results.bench}, seed {results.seed})"
+    return f"every instrument simulated in process (bench {Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed})"
 
 
 def traceability(results: RunResults) -> str:
@@ -202,14 +213,29 @@ def control_lines(results: RunResults) -> tuple[str, list[str]]:
     how = "; ".join(f"{k.replace('_', ' ')}: {v.split(':')[0]}" for k, v in c.instruments.items())
     brief = (f"{'exclusive' if c.exclusive else 'exclusive control not known from every protocol'} ({how}); every "
              f"motion and reading checked against the commands: "
-             + (f"{c.rejected_attempts} reading(s) contradicted them, rejected and taken again" if c.rejected_attempts
+             + (f"{plural(c.rejected_attempts, 'reading')} contradicted them, rejected and taken again" if c.rejected_attempts
                 else "none contradicted them"))
     details = [f"{k}: {v}" for k, v in c.instruments.items()] + [f"check — {t}" for t in c.checks]
     return brief, details
 
 
+def iso_departures(results: RunResults) -> list[str]:
+    """How the run's positioning test departs from ISO 230-2's (empty: it follows it, or there is none)."""
+    if results.positioning_deviations is None:
+        return []
+    return departures(PositioningDeviations.from_model(results.positioning_deviations))
+
+
+def estimate_name(results: RunResults) -> str:
+    """The recommended estimate in words (the method's outputs name it), never its key."""
+    from rtcal.deliverables.method_outputs import outputs_for
+
+    return getattr(outputs_for(results), "estimate_words", lambda: "the recommended estimate")()
+
+
 def key_results(results: RunResults, uncertainties: dict[str, float | None]) -> list[tuple[str, str, str]]:
-    """The result in brief: the deviation's range and U, and the main ISO 230-2 parameters with U."""
+    """The result in brief: the deviation's range and U, and the main ISO 230-2 parameters with U
+    (labelled as ISO 230-2's only when the test follows it)."""
     rows = []
     e = results.recommended_estimate()
     if e is not None:
@@ -217,18 +243,20 @@ def key_results(results: RunResults, uncertainties: dict[str, float | None]) -> 
         pd = results.positioning_deviations
         targets = len({round(t, 6) for t in pd.target_deg}) if pd else len(cum)
         dirs = len(set(pd.direction)) if pd else 1
+        U = largest(e.cumulative_expanded_uncertainty_arcsec)
         rows.append(("positioning deviation ECC (mean per target and direction)",
-                     f"{fmt(smallest(cum), '+.2f')}″ … {fmt(largest(cum), '+.2f')}″ over {targets} targets"
-                     + (" in both directions" if dirs == 2 else " in one direction"),
-                     f"U ≤ {fmt(largest(e.cumulative_expanded_uncertainty_arcsec), '.2f')}″"))
+                     f"{value_text(smallest(cum), U, '+')}″ … {value_text(largest(cum), U, '+')}″ over {targets} targets"
+                     + (" in both directions" if dirs == 2 else " in one direction"), f"U ≤ {u_text(U)}″"))
     iso = results.evaluation.iso230_2 if results.evaluation else None
     if iso is not None:
+        label = parameters_label(iso_departures(results))
+        prefix = "" if label.startswith("ISO") else "as ISO 230-2 defines it, not an ISO 230-2 result (see Departures): "
         for key in ("E", "M", "B", "R", "A", "E_up", "E_down"):
             value = getattr(iso, key)
             if value is None or (key in ("E_up", "E_down") and iso.E is not None):
                 continue
             u = uncertainties.get(key)
-            rows.append((f"{ISO_SYMBOL[key]}: {ISO_MEANING[key]}", f"{value:.2f}″", "U " + fmt(u, ".2f") + "″"))
+            rows.append((f"{ISO_SYMBOL[key]}: {prefix}{ISO_MEANING[key]}", f"{value_text(value, u)}″", "U " + u_text(u) + "″"))
     return rows
 
 
@@ -242,7 +270,10 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
     issued = meta.date_of_issue or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
     uncertainties = parameter_uncertainties(results)
     conformity = results.conformity
+    departed = iso_departures(results)
     standards = list(STANDARDS) + ([DECISION_STANDARDS[conformity.decision_rule]] if conformity else [])
+    if departed:
+        standards[0] = "ISO 230-2:2014 (its formulas for E, M, B, R, A applied to a test that departs from its test: see Departures)"
     item = ", ".join(x for x in (meta.machine, f"axis {meta.axis}" if meta.axis else "",
                                  f"serial number {meta.serial_number}" if meta.serial_number else "") if x)
     control_brief, control_details = control_lines(results)
@@ -251,23 +282,27 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
         ("Date of issue", issued),
         ("Customer", ", ".join(x for x in (meta.customer, meta.customer_address) if x) or "not given"),
         ("Item calibrated", item or "not given"),
+        ("Condition on receipt", getattr(meta, "condition_on_receipt", "") or "not recorded"),
         ("Place of calibration", meta.location or "not given"),
         ("Date of measurement", measurement_dates(results)),
         ("Method", method_name or results.method),
         ("Procedure", f"{results.procedure.name or '(untitled)'} ({Path(results.procedure.path).name})"),
         ("Standards applied", "; ".join(standards)),
+        ("Departures from the method", ("; ".join(departed) + ". The parameters are computed as ISO 230-2 defines them; "
+                                        "they are not ISO 230-2 results.") if departed else "none"),
         ("Conditions during the measurement", conditions_in_brief(results)),
         ("Control of the machine", control_brief),
     ]
     if isinstance(results.instruments, str):
-        identification.append(("Instruments", f"simulated in process: bench {Path(results.bench or '').name or 'ideal'}, "
-                                              f"seed {results.seed}"))
+        identification.append(("Instruments", "simulated: every instrument and the table are simulated on a model bench "
+                                              f"({Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed}); "
+                                              "a demonstration, not a measurement of a real item"))
     warnings = [f"Estimator {n} {st.status}: {st.message}" for n, st in results.solver_status.items()
                 if st.status != "converged"]
     if results.bench is not None and results.bench.startswith("ideal bench"):
         warnings.append(results.bench)
     if results.faults or results.skipped_readings:
-        warnings.append(f"{results.faults} instrument fault(s) and {results.skipped_readings} skipped reading(s) during "
+        warnings.append(f"{plural(results.faults, 'instrument fault')} and {plural(results.skipped_readings, 'skipped reading')} during "
                         "the run (see Run).")
     rows = []
     if results.positioning_deviations is not None:
@@ -278,7 +313,8 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
             counts[(round(float(t), 6), int(d))] = counts.get((round(float(t), 6), int(d)), 0) + 1
         for key in curve:  # in the measurement's order
             x, u = curve[key]
-            rows.append((f"{key[0]:g}", "↑" if key[1] > 0 else "↓", f"{x:+.2f}", _fmt(u), _fmt(2 * u), str(counts.get(key, ""))))
+            rows.append((f"{key[0]:g}", "↑" if key[1] > 0 else "↓", value_text(x, 2 * u, "+"), u_text(u), u_text(2 * u),
+                         str(counts.get(key, ""))))
     iso = results.evaluation.iso230_2 if results.evaluation else None
     vdi = results.evaluation.vdi3441 if results.evaluation else None
     budget_rows = []
@@ -292,7 +328,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
                                 _fmt(largest(c.contribution_arcsec), 3)))
         comb = largest(b.combined_arcsec)
         budget_rows.append(("combined standard uncertainty u", "", "", _fmt(comb, 3)))
-        budget_rows.append(("expanded uncertainty U (k = 2)", "", "", _fmt(None if comb is None else 2 * comb, 3)))
+        budget_rows.append(("expanded uncertainty U (k = 2), rounded up to two digits", "", "", u_text(None if comb is None else 2 * comb)))
         not_included = b.not_included
     events: dict[str, int] = {}
     for ev in results.events:
@@ -304,8 +340,9 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
             "verdict": conformity.verdict, "rule": conformity.rule,
             "rows": [(ISO_SYMBOL[k], ISO_MEANING[k] + (f" (decided at {c.target_deg:g}° {'↑' if c.direction == 1 else '↓'})"
                                                        if c.target_deg is not None and c.direction is not None else ""),
-                      f"{c.limit_arcsec:g}", _fmt(c.value_arcsec), _fmt(c.expanded_uncertainty_arcsec),
-                      _fmt(c.guard_band_arcsec), c.verdict) for k, c in conformity.per_limit.items()],
+                      f"{c.limit_arcsec:g}", value_text(c.value_arcsec, c.expanded_uncertainty_arcsec),
+                      u_text(c.expanded_uncertainty_arcsec), u_text(c.guard_band_arcsec) if c.guard_band_arcsec else "0",
+                      c.verdict) for k, c in conformity.per_limit.items()],
         }
     performed = meta.performed_by or meta.operator
     doc = "report" if missing else "certificate"
@@ -323,18 +360,33 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
         "key_results": key_results(results, uncertainties),
         "uncertainty_statement": UNCERTAINTY_STATEMENT.format(doc=doc), "not_included": not_included,
         "conformity": verdict, "traceability": traceability(results), "statement": RELATES_STATEMENT.format(doc=doc),
+        "signing": SIGNING_STATEMENT.format(doc=doc, approver=meta.approved_by, date=issued) if meta.approved_by else
+        f"This {doc} has not been approved for issue (the procedure's metadata names no approver).",
         "signatures": [("Performed by", performed or "not stated"), ("Approved by", meta.approved_by or "not approved"),
                        ("Date of issue", issued)],
         "instruments": instrument_rows(results), "connections": connections(results),
-        "rows": rows, "recommended": results.recommended,
-        "iso": [(sym, desc, _fmt(getattr(iso, key)), _fmt(uncertainties.get(key))) for key, sym, desc in ISO_KEYS] if iso else [],
+        "rows": rows, "recommended": estimate_name(results),
+        "rows_title": "Result: positioning deviation per target and direction",
+        "rows_header": ["target / °", "direction", "deviation / ″", "u / ″", "U (k = 2) / ″", "runs"],
+        "rows_note": ("Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction; "
+                      "u standard uncertainty, U = 2u expanded uncertainty (k = 2, about 95 %). Estimate: "
+                      f"{estimate_name(results)}."),
+        "iso_title": ("ISO 230-2:2014 parameters" if not departed else
+                      "Positioning parameters computed as ISO 230-2 defines them (not ISO 230-2 results: the test departs "
+                      "from it, see page 1)"),
+        "iso": [(sym, desc, value_text(getattr(iso, key), uncertainties.get(key)), u_text(uncertainties.get(key)))
+                for key, sym, desc in ISO_KEYS if getattr(iso, key) is not None] if iso else [],
         "vdi": [(sym, desc, _fmt(getattr(vdi, key))) for key, sym, desc in VDI_KEYS] if vdi else [],
-        "evaluation_notes": iso_notes + [n for n in (vdi.notes if vdi else []) if n not in iso_notes],
-        "figures": [(run_dir / f, caption) for f, caption in figures if (run_dir / f).exists()],
+        "evaluation_notes": [n for n in iso_notes + [n for n in (vdi.notes if vdi else []) if n not in iso_notes]
+                             if n not in UNCONFIRMED.values()],  # what is not confirmed: docs/evaluation.md, not the customer's
+        "figures": [(run_dir / f, f"Figure {n}: {caption}") for n, (f, caption) in
+                    enumerate([(f, c) for f, c in figures if (run_dir / f).exists()], start=1)],
         "budget": budget_rows,
         "method": method_text, "environment": conditions(results), "control": control_details,
         "events": ", ".join(f"{k}: {n}" for k, n in events.items()) or "none",
         "raw_readings": results.raw_readings, "skipped": results.skipped_readings, "faults": results.faults,
+        "run_counts": f"{plural(results.raw_readings, 'planned reading')} taken, {results.skipped_readings} skipped, "
+                      f"{plural(results.faults, 'instrument fault')}",
         "software": f"rtcal {results.rtcal_version}", "measured": measurement_dates(results),
         "footer": footer, "footer_css": "".join(ch for ch in footer if ch not in '"\\<>&\n\r'),
     }
@@ -365,9 +417,9 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
     font, bold = _fonts(pdfmetrics, TTFont)
     styles = getSampleStyleSheet()
     body = ParagraphStyle("body", parent=styles["BodyText"], fontName=font, fontSize=8.5, leading=11)
-    small = ParagraphStyle("small", parent=body, fontSize=7.5, leading=9.5)
+    small = ParagraphStyle("small", parent=body, fontSize=7.5, leading=8.8)
     h1 = ParagraphStyle("h1", parent=styles["Heading1"], fontName=bold, fontSize=16, spaceAfter=2, spaceBefore=0)
-    h2 = ParagraphStyle("h2", parent=styles["Heading2"], fontName=bold, fontSize=11, spaceBefore=6, spaceAfter=2, keepWithNext=1)
+    h2 = ParagraphStyle("h2", parent=styles["Heading2"], fontName=bold, fontSize=11, spaceBefore=4, spaceAfter=2, keepWithNext=1)
     lab = ParagraphStyle("lab", parent=body, fontName=bold, fontSize=10, leading=12)
     width = A4[0] - 30 * mm
 
@@ -379,8 +431,8 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
         data = head + [[Paragraph(esc(c), small) for c in r] for r in rows]
         t = Table(data, colWidths=col_widths, repeatRows=1 if header else 0)
         style = [("GRID", (0, 0), (-1, -1), 0.3, colors.grey), ("VALIGN", (0, 0), (-1, -1), "TOP"),
-                 ("FONTSIZE", (0, 0), (-1, -1), font_size), ("TOPPADDING", (0, 0), (-1, -1), 1.5),
-                 ("BOTTOMPADDING", (0, 0), (-1, -1), 1.5)]
+                 ("FONTSIZE", (0, 0), (-1, -1), font_size), ("TOPPADDING", (0, 0), (-1, -1), 1),
+                 ("BOTTOMPADDING", (0, 0), (-1, -1), 1.2)]
         if header:
             style.append(("BACKGROUND", (0, 0), (-1, 0), colors.HexColor("#e8eef5")))
         if shade_first_column:
@@ -403,7 +455,7 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
     story: list[Any] = [head, Spacer(1, 3 * mm)]
     if m["not_certificate"]:
         story += [boxed([Paragraph(f"<b>{esc(m['not_certificate'])}</b>", body)], colors.HexColor("#c0392b")), Spacer(1, 2 * mm)]
-    story.append(table(m["identification"], None, [42 * mm, width - 42 * mm], shade_first_column=True))
+    story.append(table(m["identification"], None, [50 * mm, width - 50 * mm], shade_first_column=True))
     for w in m["warnings"]:
         story += [Spacer(1, 1.5 * mm), Paragraph(f"<b>Note:</b> {esc(w)}", body)]
     story += [Paragraph("Result in brief", h2), table(m["key_results"], ["quantity", "value", "U (k = 2)"],
@@ -415,22 +467,22 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                                            colors.HexColor("#d68910"))]
     if m["conformity"]:
         c = m["conformity"]
-        story += [Paragraph(f"Conformity: {c['verdict'].upper()}", h2), Paragraph(esc(c["rule"]), small), Spacer(1, 1.5 * mm),
+        story += [Paragraph(f"{esc(c.get('title', 'Conformity'))}: {c['verdict'].upper()}", h2), Paragraph(esc(c["rule"]), small), Spacer(1, 1.5 * mm),
                   table(c["rows"], ["limit", "parameter", "limit / ″", "value / ″", "U / ″", "guard band / ″", "verdict"],
                         [12 * mm, width - 101 * mm, 16 * mm, 17 * mm, 14 * mm, 24 * mm, 18 * mm])]
     story += [Paragraph("Traceability", h2), Paragraph(esc(m["traceability"]), body), Spacer(1, 1.5 * mm),
               Paragraph(esc(m["statement"]), body)]
 
-    story += [CondPageBreak(60 * mm), Paragraph("Result: positioning deviation per target and direction", h2),
-              Paragraph(f"Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction; "
-                        f"u standard uncertainty, U = 2u expanded uncertainty (k = 2, about 95 %). Estimate: {esc(m['recommended'])}.",
-                        small), Spacer(1, 1.5 * mm),
-              table(m["rows"], ["target / °", "direction", "deviation / ″", "u / ″", "U (k = 2) / ″", "runs"])]
+    story += [CondPageBreak(60 * mm), Paragraph(esc(m["rows_title"]), h2), Paragraph(esc(m["rows_note"]), small),
+              Spacer(1, 1.5 * mm), table(m["rows"], m["rows_header"])]
     if m["iso"]:
-        params = [(a[0], a[1], a[2], a[3]) for a in m["iso"]] + [(b[0], f"VDI 3441: {b[1]}", b[2], "") for b in m["vdi"]]
-        story += [KeepTogether([Paragraph("ISO 230-2 and VDI/DGQ 3441 parameters (arcsec)", h2),
-                                table(params, ["symbol", "meaning", "value / ″", "U (k = 2) / ″"],
+        story += [KeepTogether([Paragraph(esc(m["iso_title"]), h2),
+                                table(m["iso"], ["symbol", "meaning", "value / ″", "U (k = 2) / ″"],
                                       [18 * mm, width - 62 * mm, 22 * mm, 22 * mm])])]
+        if m["vdi"]:
+            story += [KeepTogether([Paragraph("VDI/DGQ 3441 parameters (the guideline's own symbols)", h2),
+                                    table(m["vdi"], ["VDI 3441 symbol", "VDI 3441 meaning", "value / ″"],
+                                          [26 * mm, width - 48 * mm, 22 * mm])])]
         story += [Paragraph(esc(n), small) for n in m["evaluation_notes"]]
     for p, caption in m["figures"]:
         from reportlab.lib.utils import ImageReader
@@ -443,17 +495,17 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                                 table(m["budget"], ["source", "type", "input σ", "u / ″"], [70 * mm, 12 * mm, 55 * mm, 28 * mm])])]
         story += [Paragraph(f"Not included: {esc(n)}", small) for n in m["not_included"]]
     story += [Paragraph("Method", h2)] + [Paragraph(esc(t), body) for t in m["method"]]
-    story += [Paragraph("Reference standards and instruments", h2),
+    story += [KeepTogether([Paragraph("Reference standards and instruments", h2),
               table(m["instruments"], ["instrument", "role", "id", "certificate", "calibrated by", "due"],
-                    [24 * mm, 32 * mm, width - 132 * mm, 28 * mm, 28 * mm, 20 * mm]),
+                    [24 * mm, 32 * mm, width - 132 * mm, 28 * mm, 28 * mm, 20 * mm])]),
               Paragraph("Connections: " + esc(m["connections"]), small)]
-    story += [Paragraph("Conditions during the measurement", h2), table(m["environment"], ["quantity", "range over the run"],
-                                                                       [55 * mm, width - 55 * mm])]
+    story += [KeepTogether([Paragraph("Conditions during the measurement", h2),
+                            table(m["environment"], ["quantity", "min – max over the run (mean)"], [55 * mm, width - 55 * mm])])]
     if m["control"]:
         story += [Paragraph("Control of the machine", h2)] + [Paragraph("• " + esc(t), small) for t in m["control"]]
     story += [Paragraph("Run", h2),
-              Paragraph(f"Measured {esc(m['measured'])}; {m['raw_readings']} planned readings taken, {m['skipped']} skipped, "
-                        f"{m['faults']} instrument faults; events: {esc(m['events'])}. Software: {esc(m['software'])}.", body),
+              Paragraph(f"Measured {esc(m['measured'])}; {esc(m['run_counts'])}; events: {esc(m['events'])}. Software: "
+                        f"{esc(m['software'])}.", body),
               Spacer(1, 4 * mm), Paragraph("<b>End of certificate.</b>" if not m["not_certificate"] else "<b>End of report.</b>", body)]
 
     footer_left = m["footer"]
@@ -481,7 +533,8 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                 super().showPage()
             super().save()
 
-    signatures = table([[f"{k}: {v}" for k, v in m["signatures"]]], None, [width / 3] * 3)
+    signatures = table([[f"{k}: {v}" for k, v in m["signatures"]], [m["signing"], "", ""]], None, [width / 3] * 3)
+    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed, under who signed it
     sign_h = signatures.wrap(width, 40 * mm)[1] + 4 * mm
 
     def sign(canvas, doc):  # page 1's foot: who performed and approved it, whatever the page holds above
@@ -555,21 +608,27 @@ def console_lines(results: RunResults) -> list[str]:
     iso = results.evaluation.iso230_2 if results.evaluation else None
     if iso is not None:
         u = parameter_uncertainties(results)
-        shown = [f"{ISO_SYMBOL[k]} {getattr(iso, k):.2f}″ (U {fmt(u.get(k), '.2f')}″)"
+        shown = [f"{ISO_SYMBOL[k]} {value_text(getattr(iso, k), u.get(k))}″ (U {u_text(u.get(k))}″)"
                  for k in ("E", "M", "B", "R", "A", "E_up", "E_down", "R_up", "R_down") if getattr(iso, k) is not None]
         if shown:
-            lines.append("ISO 230-2:2014: " + ", ".join(shown))
+            lines.append(parameters_label(iso_departures(results)) + ": " + ", ".join(shown))
     c = results.conformity
     if c is not None:
         lines.append(f"conformity ({c.decision_rule} acceptance, "
                      f"{'ISO 14253-1' if c.decision_rule == 'guarded' else 'ILAC-G8'}): {c.verdict.upper()}")
         for k, v in c.per_limit.items():
             at = f" at {v.target_deg:g}°{'↑' if v.direction == 1 else '↓'}" if v.target_deg is not None else ""
-            lines.append(f"  {ISO_SYMBOL[k]}: {_fmt(v.value_arcsec)}″{at} against {v.limit_arcsec:g}″"
-                         + (f" ± U {_fmt(v.expanded_uncertainty_arcsec)}″" if c.decision_rule == "guarded" else "")
+            lines.append(f"  {ISO_SYMBOL[k]}: {value_text(v.value_arcsec, v.expanded_uncertainty_arcsec)}″{at} against "
+                         f"{v.limit_arcsec:g}″"
+                         + (f" ± U {u_text(v.expanded_uncertainty_arcsec)}″" if c.decision_rule == "guarded" else "")
                          + f": {v.verdict}")
     lines += fault_lines(results)
     return lines
+
+
+def plural(n: int, noun: str) -> str:
+    """"1 event", "2 events", "0 events"."""
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def fault_lines(results: RunResults) -> list[str]:
@@ -581,9 +640,9 @@ def fault_lines(results: RunResults) -> list[str]:
     rejected = results.control.rejected_attempts if results.control else 0
     if not by and not results.skipped_readings and not rejected:
         return ["no instrument fault, no reading skipped or rejected"]
-    lines = [f"{results.faults} instrument fault(s)" + (" (" + ", ".join(f"{k} {n}" for k, n in by.items()) + ")" if by else "")
-             + f"; {results.skipped_readings} planned reading(s) skipped and not retaken; {rejected} reading(s) rejected "
-               "by the checks (kept, not used)"]
+    lines = [plural(results.faults, "instrument fault") + (" (" + ", ".join(f"{k} {n}" for k, n in by.items()) + ")" if by else "")
+             + f"; {plural(results.skipped_readings, 'planned reading')} skipped and not retaken; "
+               f"{plural(rejected, 'reading')} rejected by the checks (kept, not used)"]
     actions = {k: n for k, n in ((kind, sum(1 for ev in results.events if ev.kind == kind))
                                  for kind in ("retry", "reacquire", "skip", "pause", "resume")) if n}
     if actions:

@@ -97,10 +97,13 @@ class Metadata(_Strict):
     traceability: str = Field("", max_length=2000, description="the certificate's traceability statement (empty: made from "
                                                               "the reference standards' certificates listed under "
                                                               "`instruments`)")
+    condition_on_receipt: str = Field("", max_length=500, description="the item's condition on receipt (ISO/IEC 17025 "
+                                                                     "7.8.2.1 j; e.g. clean, no visible damage, table "
+                                                                     "at room temperature overnight)")
 
     _plain = field_validator("customer", "machine", "axis", "serial_number", "location", "operator", "certificate_number",
                              "laboratory", "laboratory_address", "customer_address", "performed_by", "approved_by",
-                             "traceability")(lambda cls, text: _check_text(text))
+                             "traceability", "condition_on_receipt")(lambda cls, text: _check_text(text))
     _issued = field_validator("date_of_issue")(lambda cls, text: _check_date(text))
 
 

@@ -585,6 +585,8 @@ class RunMetadata(ResultsModel):
     approved_by: Name = Field("", description="who authorised the certificate for issue (1.1)")
     traceability: Text = Field("", description="the traceability statement (empty: made from the reference standards' "
                                                "certificates) (1.1)")
+    condition_on_receipt: Text = Field("", description="the item's condition on receipt, as the laboratory recorded it "
+                                                       "(empty: not recorded) (1.2)")
 
 
 # -- the three parts of a run's results, and the results of each method ------------------------------

@@ -8,8 +8,10 @@ would (a CMM in its error state is cleared) — and closes it again. Nothing mov
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
 import math
+import textwrap
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -125,6 +127,7 @@ class CheckRow:
     status: str  # "ready", "simulated", "FAILED"
     detail: str  # the reading, or what failed
     identity: str = ""
+    calibration_due: str = ""  # from the procedure's metadata ("" when it states none)
 
 
 def _context(name: str, choice) -> dict[str, Any]:
@@ -166,7 +169,7 @@ def check(proc, addresses: dict[str, str] | None = None, operator_address: str =
         choice = getattr(instruments, name)
         kind = factory.KIND_OF[name]
         if choice.is_sim:
-            rows.append(CheckRow(name, "sim", "simulated", "in-process, on the simulated bench"))
+            rows.append(CheckRow(name, "sim", "simulated", "in process, on the bench"))
             continue
         model = factory.resolve(kind, choice.address)[1].name
         try:
@@ -184,11 +187,39 @@ def check(proc, addresses: dict[str, str] | None = None, operator_address: str =
             rows.append(CheckRow("operator", "sim-operator", "ready", "answers, and let us in"))
         except OperatorUnavailable as exc:
             rows.append(CheckRow("operator", "sim-operator", "FAILED", str(exc).removeprefix("operator: ")))
-    return rows
+    return with_due_dates(rows, proc)
+
+
+def with_due_dates(rows: list[CheckRow], proc, today: _dt.date | None = None) -> list[CheckRow]:
+    """Every row with its instrument's calibration due date, a row per reference standard that is
+    not probed (the polygon), and FAILED for one past its due date today: a run would refuse it."""
+    today = today or _dt.datetime.now(_dt.timezone.utc).date()
+    records = proc.metadata.instruments
+    listed = {r.instrument for r in rows}
+    rows = rows + [CheckRow(name, "–", "standard", "reference standard, not probed")
+                   for name in records if name not in listed]
+    out = []
+    for r in rows:
+        due = records[r.instrument].calibration_due if r.instrument in records else ""
+        r.calibration_due = due or ("–" if r.instrument != "operator" else "")
+        if due and _dt.date.fromisoformat(due) < today:
+            r.status, r.detail = "FAILED", f"past its calibration due date {due}: a run refuses it"
+        out.append(r)
+    return out
+
+
+WRAP_COLUMNS = {4: 30, 5: 16}  # the reading and the identity wrap at a word (never cut): the table fits 100 columns
 
 
 def format_table(rows: list[CheckRow]) -> str:
-    header = ("instrument", "model", "status", "reading or problem", "identity")
-    cells = [header] + [(r.instrument, r.model, r.status, r.detail, r.identity) for r in rows]
-    widths = [min(max(len(c[i]) for c in cells), 70) for i in range(4)]
-    return "\n".join("  ".join(c[i][:70].ljust(widths[i]) for i in range(4)) + "  " + c[4] for c in cells)
+    """One table, its long cells wrapped at word boundaries onto continuation lines: nothing is cut."""
+    header = ("instrument", "model", "status", "due", "reading or problem", "identity")  # due: of its calibration
+    cells = [header] + [(r.instrument, r.model, r.status, r.calibration_due, r.detail, r.identity) for r in rows]
+    wrapped = [[textwrap.wrap(c, WRAP_COLUMNS[i], break_long_words=False, break_on_hyphens=False) or [""]
+                if i in WRAP_COLUMNS else [c] for i, c in enumerate(row)] for row in cells]
+    widths = [max(len(line) for row in wrapped for line in row[i]) for i in range(len(header))]
+    lines = []
+    for row in wrapped:
+        for k in range(max(len(col) for col in row)):
+            lines.append("  ".join((col[k] if k < len(col) else "").ljust(widths[i]) for i, col in enumerate(row)).rstrip())
+    return "\n".join(lines)

@@ -46,8 +46,8 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
 def checks_text(proc: Procedure) -> list[str]:
     """What the sequencer checked at every motion and reading, with the procedure's tolerances."""
     v = proc.verification
-    stage = (f"{v.stage_tolerance_deg * 3600:g}″ (verification.stage_tolerance_deg)" if v.stage_tolerance_deg
-             else "two steps of the drive (the default of verification.stage_tolerance_deg)")
+    stage = (f"{v.stage_tolerance_deg * 3600:g}″ (the procedure's stage tolerance)" if v.stage_tolerance_deg
+             else "two steps of the drive (the default stage tolerance)")
     out = [f"stage: the drive's feedback position read after settling and again after the readings: within {stage} "
            "of the command, and unmoved while reading"]
     if isinstance(proc, LaserTracerMultistation):

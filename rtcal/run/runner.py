@@ -99,6 +99,28 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat()
 
 
+class CalibrationExpired(RunDirError):
+    """A reference standard or instrument past its calibration due date: a lab may not issue a
+    certificate from it (ISO/IEC 17025 6.4.7), so the run does not start (exit 2)."""
+
+
+def expired_instruments(proc: Procedure, on: _dt.date) -> list[tuple[str, str]]:
+    """(name, calibration_due) of every instrument or standard in the metadata whose due date lies before ``on``."""
+    return [(name, rec.calibration_due) for name, rec in proc.metadata.instruments.items()
+            if rec.calibration_due and _dt.date.fromisoformat(rec.calibration_due) < on]
+
+
+def check_calibration_due(proc: Procedure, on: _dt.date | None = None) -> None:
+    """Refuse a measurement on a day when a reference standard or instrument is past its due date."""
+    on = on or _dt.datetime.now(_dt.timezone.utc).date()
+    expired = expired_instruments(proc, on)
+    if expired:
+        which = "; ".join(f"{name} {proc.metadata.instruments[name].id or ''} calibration_due {due}".replace("  ", " ")
+                          for name, due in expired)
+        raise CalibrationExpired(f"refused: past its calibration due date on the measurement date {on.isoformat()}: "
+                                 f"{which} (metadata.instruments): recalibrate it, or use one in calibration")
+
+
 NON_INSTRUMENT_ADDRESSES = ("operator",)  # what `rtcal sim serve` prints besides the instruments
 
 
@@ -193,6 +215,7 @@ def run_procedure(
     proc = load_procedure(procedure_path, large, procedure_yaml)
     if addresses:
         proc = with_addresses(proc, addresses)
+    check_calibration_due(proc)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
     bench, scenario_text = None, ""
@@ -292,6 +315,11 @@ def resume_run(
             bench = Bench(scenario, VirtualClock(store.last_time_s()), seed, generation)
             _keep_fault_counters(store, bench)
         if done < planned:
+            try:
+                check_calibration_due(proc)
+            except CalibrationExpired:
+                store.close()
+                raise
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
@@ -366,6 +394,17 @@ def conformity_of(proc: Procedure, analysis: Analysis, evaluation: Evaluation | 
                   PositioningDeviations.from_model(analysis.positioning_deviations))
 
 
+def _virtual_end(started_utc: str | None, elapsed_s: float) -> str | None:
+    """A simulated run's end: its start plus the virtual clock's elapsed time (the wall clock would
+    say the few seconds the simulation took, not the hours the measurement stands for)."""
+    if not started_utc:
+        return None
+    try:
+        return (_dt.datetime.fromisoformat(started_utc) + _dt.timedelta(seconds=elapsed_s)).isoformat()
+    except ValueError:
+        return None
+
+
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True, on_engine: OnEngine | None = None) -> RunOutcome:
@@ -437,7 +476,7 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
                 f: redact_tokens(getattr(proc.instruments, f).address) for f in proc.instruments.present()},
             bench=(meta.get("scenario_path") or IDEAL_BENCH) if simulated else None,
             started_utc=meta.get("started_utc"),
-            finished_utc=meta.get("finished_utc"),
+            finished_utc=_virtual_end(meta.get("started_utc"), clock.now_s()) if virtual else meta.get("finished_utc"),
             starts=generation + 1,
             measurement_duration_s=round(clock.now_s(), 1),
             clock="virtual" if virtual else "real",

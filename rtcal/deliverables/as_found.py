@@ -1,0 +1,81 @@
+"""An as-found / as-left certificate (ISO/IEC 17025 7.8.4.1 d): two runs of one item, the second
+after an adjustment or compensation, side by side, with each change against the combined U.
+
+It is the as-left run's certificate (its laboratory, customer, item, instruments, conformity and
+budget) with the results replaced by both runs': per target and direction the deviation as found
+and as left, their difference and U_c = 2·√(u_A² + u_B²) (the runs are independent
+measurements), and the ISO 230-2 parameters of both with their U. The same renderers as every
+certificate write it (:func:`rtcal.deliverables.report.write_pdf`, ``write_html``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from rtcal.deliverables.conformity import parameter_uncertainties
+from rtcal.deliverables.method_outputs import outputs_for
+from rtcal.deliverables.report import ISO_KEYS, ISO_MEANING, ISO_SYMBOL, iso_departures, measurement_dates, report_model
+from rtcal.deliverables.rounding import u_text, value_text
+from rtcal.results.model import RunResults
+
+BRIEF = ("E", "M", "B", "R", "A")
+
+
+def _value(v: float | None, u: float | None) -> str:
+    return "–" if v is None else value_text(v, u) + "″"
+
+
+def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict[str, Any], out_dir: Path,
+                           figure: str, labels: tuple[str, str]) -> dict[str, Any]:
+    """The certificate's model: the as-left run's, its results replaced by both runs' side by side."""
+    outputs = outputs_for(left)
+    caption = ("mean positioning deviation per target and direction as found (A) and as left (B), each with its U band "
+               "(k = 2).")
+    model = report_model(left, out_dir, [(figure, caption)], outputs.method_text(), outputs.method_name())
+    model["title"] = "Calibration certificate"
+    model["subtitle"] = "Angular positioning deviation of a rotary axis, as found and as left"
+    identification = []
+    for key, value in model["identification"]:
+        if key == "Date of measurement":
+            identification += [("As found (before adjustment)", f"{measurement_dates(found)}; {labels[0]}"),
+                                ("As left (after adjustment)", f"{measurement_dates(left)}; {labels[1]}")]
+            continue
+        if key == "Departures from the method":
+            both = sorted(set(iso_departures(found)) | set(iso_departures(left)))
+            value = "; ".join(both) + ". The parameters are computed as ISO 230-2 defines them." if both else "none"
+        identification.append((key, value))
+    model["identification"] = identification
+    u_found, u_left = parameter_uncertainties(found), parameter_uncertainties(left)
+    iso_found = found.evaluation.iso230_2 if found.evaluation else None
+    iso_left = left.evaluation.iso230_2 if left.evaluation else None
+    brief, table = [], []
+    for key, sym, desc in ISO_KEYS:
+        a = getattr(iso_found, key) if iso_found else None
+        b = getattr(iso_left, key) if iso_left else None
+        if a is None and b is None:
+            continue
+        row = (f"{_value(a, u_found.get(key))} → {_value(b, u_left.get(key))}",
+               f"{u_text(u_found.get(key))}″ / {u_text(u_left.get(key))}″")
+        table.append((sym, desc, *row))
+        if key in BRIEF:
+            brief.append((f"{ISO_SYMBOL[key]}: {ISO_MEANING[key]}", *row))
+    changed, compared = comparison["targets_changed"], comparison["targets_compared"]
+    model["key_results"] = [("change of the deviation per target and direction (as left − as found)",
+                             f"{changed} of {compared} beyond U_c", "U_c: page 2")] + [
+        (f"{q} (as found → as left)", v, u) for q, v, u in brief]
+    model["iso"] = table
+    model["iso_title"] = "ISO 230-2 parameters: as found → as left (U as found / as left, k = 2)"
+    model["vdi"] = []
+    if model["conformity"]:
+        model["conformity"] = {**model["conformity"], "title": "Conformity of the item as left"}
+    model["rows_title"] = "Result: positioning deviation per target and direction, as found and as left"
+    model["rows_header"] = ["target / °", "direction", "as found / ″", "as left / ″", "change / ″", "U_c (k = 2) / ″",
+                            "beyond U_c"]
+    model["rows_note"] = ("Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction. "
+                          "Change = as left − as found; U_c = 2·√(u_found² + u_left²), the expanded uncertainty of the "
+                          "change (k = 2, about 95 %; the two measurements are independent).")
+    model["rows"] = [(f"{r['target_deg']:g}", "↑" if r["direction"] > 0 else "↓", f"{r['a_arcsec']:+.2f}",
+                      f"{r['b_arcsec']:+.2f}", f"{r['change_arcsec']:+.2f}", u_text(r["combined_U_arcsec"]),
+                      "–" if r["exceeds_U"] is None else "yes" if r["exceeds_U"] else "no") for r in comparison["per_target"]]
+    return model
