@@ -36,6 +36,8 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "counts_per_rev": (1, 2**40, True),
     "bytesize": (7, 8, True),  # serial framing: data bits
     "stopbits": (1, 2, True),
+    "joint": (0, 15, True),  # LinuxCNC: the rotary axis's joint number
+    "move_timeout_s": (0.1, 3600, False),  # LinuxCNC: the longest wait for one move
 }
 # options whose value is text: a pattern it must match and what to call it in a message
 TEXT_OPTIONS: dict[str, tuple[str, str]] = {

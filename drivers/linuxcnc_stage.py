@@ -43,8 +43,7 @@ class LinuxCncStage(RotaryStage):
     the joint's rapid) and ``move_timeout_s`` (longest wait for one move, default 60)."""
 
     name = "stage"
-    model, kind, schemes, framing = "linuxcnc", "stage", ("linuxcncrsh",), None
-    options = {"joint": (0, 15, True), "move_timeout_s": (0.1, 3600, False)}
+    model, kind, schemes, framing, options = "linuxcnc", "stage", ("linuxcncrsh",), None, {}
     step_deg = 1e-6
 
     def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),

@@ -62,8 +62,7 @@ def _builtin(name: str, kind: str, target: str, schemes: tuple[str, ...] = ("ser
 BUILTIN: dict[str, Model] = {m.name: m for m in (
     _builtin("oriental-az", "stage", "drivers.modbus_stage:ModbusStage", ("modbus-tcp", "modbus-rtu"),
              Framing(115200, 8, "E", 1)),
-    Model("linuxcnc", "stage", "drivers.linuxcnc_stage:LinuxCncStage", ("linuxcncrsh",),
-          options={"joint": (0, 15, True), "move_timeout_s": (0.1, 3600, False)}),
+    _builtin("linuxcnc", "stage", "drivers.linuxcnc_stage:LinuxCncStage", ("linuxcncrsh",)),
     _builtin("ipp", "cmm", "drivers.ipp_cmm:IppCmm", ("ipp",)),
     _builtin("rtcal-line", "laser_tracer", "drivers.serial_instruments:LineLaserTracer", framing=Framing(115200, 8, "N", 1)),
     _builtin("qsb", "encoder", "drivers.serial_instruments:QsbEncoder", framing=Framing(230400, 8, "N", 1)),

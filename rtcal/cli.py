@@ -522,19 +522,48 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario) if args.scenario else Scenario()
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"rtcal: warning: serving on {args.host}, not only on this machine", file=sys.stderr)
+    if args.stage == "linuxcnc":
+        _check_linuxcnc_serve(args, scenario)
+    elif args.comp:
+        raise UserError("--comp: a table for LinuxCNC; give --stage linuxcnc (the simulated controller takes its table "
+                        "in the scenario's stage.compensation)")
     hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
-                       environment=args.environment)
+                       environment=args.environment, stage=args.stage, comp=args.comp)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):  # before LinuxCNC starts: a signal then still shuts it down
+        signal.signal(sig, lambda *_: stop.set())
     try:
         addresses = hub.start()
     except (RuntimeError, OSError) as exc:
+        if args.stage == "linuxcnc":  # the controller failed, not the user's input
+            print(f"rtcal: LinuxCNC could not start: {_one_line(exc)}", file=sys.stderr)
+            return EXIT_FAILED
         raise UserError(f"simulators could not start: {exc}") from None
-    print(json.dumps(addresses), flush=True)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    if not stop.is_set():
+        print(json.dumps(addresses), flush=True)
     stop.wait()
     hub.stop()
     return EXIT_OK
+
+
+def _check_linuxcnc_serve(args: argparse.Namespace, scenario) -> None:
+    """`sim serve --stage linuxcnc`: LinuxCNC installed, a table it would read whole, no second table."""
+    from rtcal.deliverables.compensation import CompensationError, parse_linuxcnc
+    from simulators.servers.linuxcnc import available
+
+    why = available()
+    if why:
+        raise UserError(f"--stage linuxcnc: {why}")
+    if scenario.stage.compensation is not None:
+        raise UserError("--stage linuxcnc: the scenario loads a table into the simulated controller (stage.compensation); "
+                        "LinuxCNC applies the table: give it with --comp and remove it from the scenario")
+    if args.comp:
+        try:
+            parse_linuxcnc(Path(args.comp).read_text(), args.comp)
+        except OSError as exc:
+            raise UserError(f"--comp {args.comp}: cannot read: {exc.strerror or exc}") from None
+        except (CompensationError, UnicodeDecodeError) as exc:
+            raise UserError(f"--comp {args.comp}: not a LinuxCNC table (COMP_FILE_TYPE 0): {_one_line(exc)}") from None
 
 
 def _one_line(text: str) -> str:
@@ -813,6 +842,11 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--modbus", choices=["tcp", "rtu"], default="tcp", help="stage drive over Modbus TCP or RTU")
     serve.add_argument("--environment", choices=["vaisala-ptu300", "vaisala-ptb330"], default="vaisala-ptu300",
                        help="the environment sensor's model (with an OMEGA iTHX thermometer on its thermometer=)")
+    serve.add_argument("--stage", choices=["modbus", "linuxcnc"], default="modbus",
+                       help="the stage: the simulated Modbus drive (default), or a real LinuxCNC started headless "
+                            "(linuxcnc-uspace installed) whose compensated motor position the bench's table follows")
+    serve.add_argument("--comp", help="with --stage linuxcnc: a LinuxCNC compensation table (what `rtcal compensate "
+                                      "--format linuxcnc` writes) loaded as the joint's COMP_FILE")
     serve.set_defaults(func=_cmd_sim_serve)
 
     from drivers.models import KINDS
