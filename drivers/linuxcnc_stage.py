@@ -35,6 +35,7 @@ AXES = "XYZABCUVW"  # linuxcncrsh numbers a position's axes in this order (abs_a
 CONNECT_PASSWORD, ENABLE_PASSWORD = "EMC", "EMCTOO"  # linuxcncrsh's documented defaults (no secret: see its man page)
 MAX_LINE_BYTES = 4096
 POSITION_TOLERANCE_DEG = 2e-6  # two units of the six decimals linuxcncrsh prints
+MAX_STRAY = 4  # late extra reply lines skipped before a request's own reply
 
 
 class LinuxCncStage(RotaryStage):
@@ -56,6 +57,7 @@ class LinuxCncStage(RotaryStage):
         speed = address.option("speed_deg_per_s", 0.0) if "speed_deg_per_s" in address.options else 0.0
         self.feed_deg_per_min = speed * 60.0
         self.server = ""
+        self.stray: list[str] = []
         self._buffer = b""
         try:
             self.sock = socket.create_connection((address.host, address.port), timeout=timeout_s)
@@ -99,14 +101,22 @@ class LinuxCncStage(RotaryStage):
                 raise InstrumentFault(self.name, f"{what}: LinuxCNC closed the connection (controller shut down or killed)")
             self._buffer += chunk
 
+    def _reply(self, line: str, starts: tuple[str, ...], timeout_s: float) -> str:
+        """The reply to ``line``: the next line that starts as its reply does. A line that does not is a
+        late extra reply to an earlier request (linuxcncrsh 2.9 sometimes sends one) and is skipped, at
+        most MAX_STRAY of them; ``stray`` keeps the last few for messages."""
+        for _ in range(MAX_STRAY + 1):
+            reply = self._line(line, timeout_s)
+            if reply.upper().startswith(starts) or reply.upper() in {s.strip() for s in starts}:
+                return reply
+            self.stray = (self.stray + [reply[:80]])[-MAX_STRAY:]
+        raise InstrumentFault(self.name, f"{line!r}: no reply of its kind, only {self.stray!r}")
+
     def get(self, item: str, *args: object) -> list[str]:
         """``get ITEM [ARGS]`` → the words after the echoed item name (``ABS_ACT_POS 5 30.000000`` → ['5', '30.000000'])."""
         line = " ".join(["get", item, *map(str, args)])
         self._send(line)
-        reply = self._line(line, self.timeout_s)
-        words = reply.split()
-        if not words or words[0].upper() != item.upper():
-            raise InstrumentFault(self.name, f"{line!r}: unexpected reply {reply[:120]!r}")
+        words = self._reply(line, (item.upper(),), self.timeout_s).split()
         if words[1:] == ["NAK"]:
             raise InstrumentFault(self.name, f"{line!r}: refused (NAK)")
         return words[1:]
@@ -115,7 +125,7 @@ class LinuxCncStage(RotaryStage):
         """``set ITEM ARGS``; waits for ``SET ITEM ACK`` (verbose mode), raises with LinuxCNC's reason on NAK."""
         line = " ".join(["set", item, *map(str, args)])
         self._send(line)
-        reply = self._line(line, timeout_s or self.timeout_s)
+        reply = self._reply(line, (f"SET {item.upper()} ",), timeout_s or self.timeout_s)
         if reply.upper() == f"SET {item.upper()} ACK":
             return
         if reply.upper() == f"SET {item.upper()} NAK":
@@ -180,6 +190,15 @@ class LinuxCncStage(RotaryStage):
                 time.sleep(0.05)
         self.set("mode", "mdi", timeout_s=self.move_timeout_s)
 
+    def _mdi_mode(self, what: str) -> None:
+        """MDI mode, entered and confirmed (``get mode``): LinuxCNC may leave it on its own, e.g. as homing ends."""
+        deadline = time.monotonic() + self.move_timeout_s
+        while self.get("mode")[:1] != ["MDI"]:
+            if time.monotonic() > deadline:
+                raise InstrumentFault(self.name, f"{what}: LinuxCNC does not enter MDI mode: {self._why()}")
+            self.set("mode", "mdi", timeout_s=self.move_timeout_s)
+            time.sleep(0.02)
+
     def _check_ready(self, what: str) -> None:
         """E-stop off, machine on, MDI mode, this session in control; else a fault saying which."""
         if self.get("estop")[0].upper() != "OFF":
@@ -199,6 +218,7 @@ class LinuxCncStage(RotaryStage):
         stale = self._drain_errors()
         if stale:
             raise InstrumentFault(self.name, f"{what}: LinuxCNC reported before the move: {'; '.join(stale)}")
+        self._mdi_mode(what)
         word = f"G1 {self.axis}{angle_deg:.6f} F{self.feed_deg_per_min:.3f}" if self.feed_deg_per_min else f"G0 {self.axis}{angle_deg:.6f}"
         self.set("mdi", word, timeout_s=self.move_timeout_s)
         self._check_ready(what)
