@@ -28,6 +28,7 @@ class FakeRsh:
         self.state = {"estop": "ON", "machine": "OFF", "mode": "MANUAL", "homed": "NO", "enable": "OFF"}
         self.pos = 0.0
         self.cut_short_at: float | None = None
+        self.die_on_mdi = False  # the controller is killed while a move is under way: the connection closes
         self.requests: list[str] = []
         self.errors: list[str] = []
         self.server = socket.create_server(("127.0.0.1", 0))
@@ -41,6 +42,8 @@ class FakeRsh:
             for raw in lines:
                 line = raw.decode().strip()
                 self.requests.append(line)
+                if self.die_on_mdi and line.startswith("set mdi"):
+                    return
                 reply = self._answer(line)
                 if echo:
                     conn.sendall(raw.rstrip(b"\r\n") + b"\r\n")
@@ -163,3 +166,13 @@ def test_sim_serve_comp_needs_the_linuxcnc_stage(capsys, tmp_path):
     table.write_text("0 0 0\n360 360 360\n")
     assert main(["sim", "serve", "--comp", str(table)]) == 2
     assert "--stage linuxcnc" in capsys.readouterr().err
+
+
+def test_a_controller_that_dies_mid_move_is_a_fault(rsh):
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}", (-400, 400), 2.0)
+    try:
+        rsh.die_on_mdi = True
+        with pytest.raises(InstrumentFault, match="closed the connection"):
+            stage.move_to(10.0)
+    finally:
+        stage.close()
