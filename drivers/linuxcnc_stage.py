@@ -225,11 +225,19 @@ class LinuxCncStage(RotaryStage):
         errors = self._drain_errors()
         if errors:
             raise InstrumentFault(self.name, f"{what}: LinuxCNC: {'; '.join(errors)}")
-        commanded = self._position("abs_cmd_pos")
-        actual = self._position("abs_act_pos")
-        if abs(commanded - angle_deg) > POSITION_TOLERANCE_DEG or abs(actual - angle_deg) > POSITION_TOLERANCE_DEG:
-            raise InstrumentFault(self.name, f"{what}: the axis stopped at {actual:.6f}° (commanded {commanded:.6f}°): "
-                                             "the move was cut short (abort, E-stop or a limit)")
+        # "done" is the MDI command's; the status LinuxCNC reports may lag a servo cycle or two behind
+        # (seen: 0.00005° short of the target right after the ACK, there a moment later), so the
+        # position is polled until it is the target, for at most the driver's timeout
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            commanded = self._position("abs_cmd_pos")
+            actual = self._position("abs_act_pos")
+            if abs(commanded - angle_deg) <= POSITION_TOLERANCE_DEG and abs(actual - angle_deg) <= POSITION_TOLERANCE_DEG:
+                return
+            if time.monotonic() > deadline:
+                raise InstrumentFault(self.name, f"{what}: the axis stopped at {actual:.6f}° (commanded {commanded:.6f}°): "
+                                                 "the move was cut short (abort, E-stop or a limit)")
+            time.sleep(0.01)
 
     def home(self) -> None:
         """The joint is homed in place when the session opens; homing here returns to the datum, 0°."""

@@ -75,8 +75,9 @@ def linuxcnc_bench(*options: str, scenario: Path = BENCH):
 def run_iso(procedure: Path, addresses: dict, out: Path, *options: str) -> dict:
     code, stdout, err = rtcal("run", procedure, "--instruments", json.dumps(addresses), "--out", out, *options)
     assert code == 0, err + stdout
-    assert "no instrument fault" in stdout, stdout
-    return json.loads((out / "results.json").read_text())
+    result = json.loads((out / "results.json").read_text())
+    assert "no instrument fault" in stdout, (stdout, result["faults"])
+    return result
 
 
 def means(run_dir: Path) -> dict[tuple[float, int], tuple[float, float]]:
