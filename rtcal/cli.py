@@ -99,10 +99,19 @@ def _execute(start, run_dir: str) -> int:
     return EXIT_OK
 
 
+def _real_controller_in_real_time(addresses: dict | None, virtual_clock: bool) -> None:
+    """A real controller (LinuxCNC) moves in real time: a virtual clock would read before it settles."""
+    stage = str((addresses or {}).get("stage", ""))
+    if virtual_clock and stage.startswith("linuxcncrsh://"):
+        raise UserError("--virtual-clock: the stage is a real LinuxCNC (linuxcncrsh://), which moves in real time; "
+                        "drop --virtual-clock (the procedure's settle_time_s may be short)")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from rtcal.run.runner import default_run_dir, run_procedure
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    _real_controller_in_real_time(addresses, args.virtual_clock)
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
                                           virtual_clock=args.virtual_clock, large=args.large), out)
@@ -112,6 +121,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
     from rtcal.run.runner import resume_run
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    _real_controller_in_real_time(addresses, args.virtual_clock)
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock), args.run_dir)
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import socket
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -176,3 +177,11 @@ def test_a_controller_that_dies_mid_move_is_a_fault(rsh):
             stage.move_to(10.0)
     finally:
         stage.close()
+
+
+def test_a_run_with_a_linuxcnc_stage_refuses_the_virtual_clock(capsys, tmp_path):
+    instruments = json.dumps({"stage": "linuxcncrsh://127.0.0.1:5007?axis=C"})
+    procedure = Path(__file__).resolve().parents[1] / "procedures" / "iso230_2_polygon.yaml"
+    code = main(["run", str(procedure), "--instruments", instruments, "--virtual-clock",
+                 "--out", str(tmp_path / "run")])
+    assert code == 2 and "real time" in capsys.readouterr().err and not (tmp_path / "run").exists()
