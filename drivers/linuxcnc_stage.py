@@ -54,8 +54,7 @@ class LinuxCncStage(RotaryStage):
         self.axis_index = AXES.index(self.axis)
         self.joint = int(address.option("joint", 0))
         self.move_timeout_s = address.option("move_timeout_s", 60.0)
-        speed = address.option("speed_deg_per_s", 0.0) if "speed_deg_per_s" in address.options else 0.0
-        self.feed_deg_per_min = speed * 60.0
+        self.feed_deg_per_min = 60.0 * address.option("speed_deg_per_s", 0.0)  # 0: G0, the joint's rapid
         self.server = ""
         self.stray: list[str] = []
         self._buffer = b""
