@@ -6,6 +6,8 @@
 - ``/dev/ttyUSB0`` or ``socket://HOST:PORT`` (``?model=sylvac&baud=4800&bytesize=7&parity=E&stopbits=2``) — a
   serial instrument; framing options the address leaves out are the model's defaults
 - ``sim-operator://HOST:PORT?token=…`` — the simulated operator of a protocol-simulator bench
+- ``linuxcncrsh://HOST:PORT?axis=C&joint=0`` — a LinuxCNC controller's rotary axis over its
+  linuxcncrsh text interface (default port 5007; model ``linuxcnc``)
 
 ``model=`` names the product whose protocol the driver speaks (drivers/models.py; an installed
 plugin can add one); without it each kind has its one built-in product.
@@ -35,7 +37,8 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "bytesize": (7, 8, True),  # serial framing: data bits
     "stopbits": (1, 2, True),
     "home": (0, 1, True),  # a CMM (I++): 1 lets a run home an unhomed machine
-    "axis": (1, 64, True),  # a multi-axis controller (PI GCS): the axis that turns the table
+    "joint": (0, 15, True),  # LinuxCNC: the rotary axis's joint number
+    "move_timeout_s": (0.1, 3600, False),  # LinuxCNC: the longest wait for one move
 }
 # options whose value is text: a pattern it must match and what to call it in a message
 TEXT_OPTIONS: dict[str, tuple[str, str]] = {
@@ -43,12 +46,14 @@ TEXT_OPTIONS: dict[str, tuple[str, str]] = {
     "parity": (r"[NEO]", "N, E or O"),
     "token": (r"[A-Za-z0-9_-]{8,128}", "8 to 128 letters, digits, - or _"),
     "thermometer": (r"[^\s]{1,500}", "the address of a thermometer (socket://HOST:PORT or a device path)"),
+    "axis": (r"[XYZABCUVWxyzabcuvw]|[1-9][0-9]?", "an axis letter X Y Z A B C U V W (LinuxCNC, e.g. C) or an axis "
+                                                  "number 1 … 99 (PI GCS, e.g. 1)"),
 }
 
 
 @dataclass(frozen=True)
 class Address:
-    scheme: str  # modbus-tcp, modbus-rtu, ipp, serial, sim-operator
+    scheme: str  # modbus-tcp, modbus-rtu, ipp, serial, sim-operator, linuxcncrsh
     host: str = ""
     port: int = 0
     path: str = ""  # device path for serial and modbus-rtu; the URL for socket://
@@ -199,8 +204,8 @@ def parse_address(text: str) -> Address:
         return Address("serial", path=url, options=_options(query))
     parts = _split(text)
     options = _options(parts.query)
-    if parts.scheme in ("modbus-tcp", "ipp", "sim-operator"):
-        default_port = {"modbus-tcp": 502, "ipp": 1294, "sim-operator": 0}[parts.scheme]
+    if parts.scheme in ("modbus-tcp", "ipp", "sim-operator", "linuxcncrsh"):
+        default_port = {"modbus-tcp": 502, "ipp": 1294, "sim-operator": 0, "linuxcncrsh": 5007}[parts.scheme]
         try:
             port = default_port if parts.port is None else parts.port
         except ValueError:
@@ -216,4 +221,5 @@ def parse_address(text: str) -> Address:
         if not parts.path:
             raise AddressError(f"{_shown(text)}: needs a device path, e.g. modbus-rtu:///dev/ttyUSB0")
         return Address("modbus-rtu", path=parts.path, options=options)
-    raise AddressError(f"{_shown(text)}: unknown kind of address (modbus-tcp://, modbus-rtu://, ipp://, /dev/..., socket://)")
+    raise AddressError(f"{_shown(text)}: unknown kind of address (modbus-tcp://, modbus-rtu://, ipp://, linuxcncrsh://, /dev/..., "
+                       "socket://)")

@@ -33,7 +33,7 @@ class SchemeMismatch(AddressError):
 def resolve(kind: str, address: str) -> tuple[Address, Model]:
     """The parsed address and its model; AddressError if the address is of another kind or model."""
     parsed = parse_address(address)
-    model = model_for(kind, parsed.options)
+    model = model_for(kind, parsed.options, parsed.scheme)
     if parsed.scheme not in model.schemes:
         what = kind.replace("_", " ")
         raise SchemeMismatch(f"{what}: {redact_tokens(address[:200])!r} is a {parsed.scheme} address; a {what} of model {model.name} "

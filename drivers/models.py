@@ -63,6 +63,7 @@ BUILTIN: dict[str, Model] = {m.name: m for m in (
     _builtin("oriental-az", "stage", "drivers.modbus_stage:ModbusStage", ("modbus-tcp", "modbus-rtu"),
              Framing(115200, 8, "E", 1)),
     _builtin("pi-gcs", "stage", "drivers.pi_gcs:PiGcsStage", framing=Framing(115200, 8, "N", 1)),
+    _builtin("linuxcnc", "stage", "drivers.linuxcnc_stage:LinuxCncStage", ("linuxcncrsh",)),
     _builtin("ipp", "cmm", "drivers.ipp_cmm:IppCmm", ("ipp",)),
     _builtin("rtcal-line", "laser_tracer", "drivers.serial_instruments:LineLaserTracer", framing=Framing(115200, 8, "N", 1)),
     _builtin("qsb", "encoder", "drivers.serial_instruments:QsbEncoder", framing=Framing(230400, 8, "N", 1)),
@@ -111,9 +112,14 @@ def find_model(name: str) -> Model:
     return model
 
 
-def model_for(kind: str, options: dict[str, str]) -> Model:
-    """The model an address names for an instrument of ``kind`` (its default without ``model=``)."""
-    model = find_model(options.get("model", DEFAULT_MODEL[kind]))
+def model_for(kind: str, options: dict[str, str], scheme: str = "") -> Model:
+    """The model an address names for an instrument of ``kind`` (without ``model=``: the kind's
+    default, or the one built-in model of the kind that speaks the address's ``scheme``)."""
+    name = options.get("model", DEFAULT_MODEL[kind])
+    if "model" not in options and scheme and scheme not in BUILTIN[name].schemes:
+        speaking = [m.name for m in BUILTIN.values() if m.kind == kind and scheme in m.schemes]
+        name = speaking[0] if len(speaking) == 1 else name
+    model = find_model(name)
     if model.kind != kind:
         raise AddressError(f"model {model.name!r} is a {model.kind.replace('_', ' ')}, not a {kind.replace('_', ' ')}")
     return model

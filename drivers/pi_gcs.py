@@ -24,7 +24,7 @@ import math
 import re
 import time
 
-from drivers.addresses import Address
+from drivers.addresses import Address, AddressError
 from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, OutOfLimits
 from drivers.interfaces import RotaryStage
 from drivers.models import BUILTIN, Framing
@@ -48,7 +48,10 @@ class PiGcsStage(RotaryStage):
 
     def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),
                  may_move: bool = True, **_: object):
-        self.axis = str(int(address.option("axis", 1)))
+        axis = address.text("axis", "1")  # a letter or a number (drivers/addresses.py); GCS names axes by number here
+        if not axis.isdigit():
+            raise AddressError(f"option axis={axis!r}: a PI GCS axis is a number, e.g. axis=1")
+        self.axis = axis
         self.limits_deg = limits_deg
         self.timeout_s = timeout_s
         self.may_move = may_move

@@ -115,10 +115,19 @@ def _run_control(live: str | None):
         raise UserError(str(exc)) from None
 
 
+def _real_controller_in_real_time(addresses: dict | None, virtual_clock: bool) -> None:
+    """A real controller (LinuxCNC) moves in real time: a virtual clock would read before it settles."""
+    stage = str((addresses or {}).get("stage", ""))
+    if virtual_clock and stage.startswith("linuxcncrsh://"):
+        raise UserError("--virtual-clock: the stage is a real LinuxCNC (linuxcncrsh://), which moves in real time; "
+                        "drop --virtual-clock (the procedure's settle_time_s may be short)")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from rtcal.run.runner import default_run_dir, run_procedure
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    _real_controller_in_real_time(addresses, args.virtual_clock)
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
     control = _run_control(args.live)
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
@@ -129,6 +138,7 @@ def _cmd_resume(args: argparse.Namespace) -> int:
     from rtcal.run.runner import resume_run
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    _real_controller_in_real_time(addresses, args.virtual_clock)
     control = _run_control(args.live)
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
                                        on_engine=control), args.run_dir)
@@ -609,20 +619,51 @@ def _cmd_sim_serve(args: argparse.Namespace) -> int:
         print(f"rtcal: warning: serving on {args.host}, not only on this machine", file=sys.stderr)
     if not 0.1 <= args.ipp_idle_timeout_s <= 86400:
         raise UserError(f"--ipp-idle-timeout-s {args.ipp_idle_timeout_s:g}: must lie in 0.1 … 86400 s")
+    if args.stage == "linuxcnc":
+        _check_linuxcnc_serve(args, scenario)
+        if args.stage_model != "oriental-az":
+            raise UserError("--stage-model: the stage is LinuxCNC (--stage linuxcnc); give one or the other")
+    elif args.comp:
+        raise UserError("--comp: a table for LinuxCNC; give --stage linuxcnc (the simulated controller takes its table "
+                        "in the scenario's stage.compensation)")
     hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
                        environment=args.environment, ipp_idle_timeout_s=args.ipp_idle_timeout_s,
-                       stage_model=args.stage_model, pace_serial=not args.no_pacing)
+                       stage_model=args.stage_model, pace_serial=not args.no_pacing, stage=args.stage, comp=args.comp)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):  # before LinuxCNC starts: a signal then still shuts it down
+        signal.signal(sig, lambda *_: stop.set())
     try:
         addresses = hub.start()
     except (RuntimeError, OSError) as exc:
+        if args.stage == "linuxcnc":  # the controller failed, not the user's input
+            print(f"rtcal: LinuxCNC could not start: {_one_line(exc)}", file=sys.stderr)
+            return EXIT_FAILED
         raise UserError(f"simulators could not start: {exc}") from None
-    print(json.dumps(addresses), flush=True)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    if not stop.is_set():
+        print(json.dumps(addresses), flush=True)
     stop.wait()
     hub.stop()
     return EXIT_OK
+
+
+def _check_linuxcnc_serve(args: argparse.Namespace, scenario) -> None:
+    """`sim serve --stage linuxcnc`: LinuxCNC installed, a table it would read whole, no second table."""
+    from rtcal.deliverables.compensation import CompensationError, parse_linuxcnc
+    from simulators.servers.linuxcnc import available
+
+    why = available()
+    if why:
+        raise UserError(f"--stage linuxcnc: {why}")
+    if scenario.stage.compensation is not None:
+        raise UserError("--stage linuxcnc: the scenario loads a table into the simulated controller (stage.compensation); "
+                        "LinuxCNC applies the table: give it with --comp and remove it from the scenario")
+    if args.comp:
+        try:
+            parse_linuxcnc(Path(args.comp).read_text(), args.comp)
+        except OSError as exc:
+            raise UserError(f"--comp {args.comp}: cannot read: {exc.strerror or exc}") from None
+        except (CompensationError, UnicodeDecodeError) as exc:
+            raise UserError(f"--comp {args.comp}: not a LinuxCNC table (COMP_FILE_TYPE 0): {_one_line(exc)}") from None
 
 
 def _one_line(text: str) -> str:
@@ -929,6 +970,11 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--ipp-idle-timeout-s", type=float, default=600.0,
                        help="release an I++ session whose client sends nothing for this long, and close its connection "
                             "(default 600 s; docs/faults.md)")
+    serve.add_argument("--stage", choices=["modbus", "linuxcnc"], default="modbus",
+                       help="the stage: the simulated Modbus drive (default), or a real LinuxCNC started headless "
+                            "(linuxcnc-uspace installed) whose compensated motor position the bench's table follows")
+    serve.add_argument("--comp", help="with --stage linuxcnc: a LinuxCNC compensation table (what `rtcal compensate "
+                                      "--format linuxcnc` writes) loaded as the joint's COMP_FILE")
     serve.set_defaults(func=_cmd_sim_serve)
 
     from drivers.models import KINDS

@@ -109,6 +109,7 @@ class Bench:
         self.commanded_rad = 0.0  # where the motor was sent (the user's command plus any compensation)
         self.target_rad = 0.0  # the user's command, in whole steps: what the controller shows, moves start from
         self.actual_rad = 0.0
+        self.motor_rad = 0.0  # an external controller's motor position (follow_motor), unquantised
         self.last_direction = +1
         self.probe_target_mm = np.zeros(3)
         self.beam_broken = False  # the tracer's beam was interrupted since its last reference
@@ -166,6 +167,22 @@ class Bench:
         self.actual_rad = self.systematic_actual_rad(commanded_rad, self.last_direction) + noise
         self.truth.stage_moves.append(StageMove(self.quantise_command(commanded_rad), self.actual_rad, self.last_direction))
         return self.actual_rad
+
+    def follow_motor(self, motor_deg: float, command_deg: float) -> None:
+        """The table driven by an external controller (LinuxCNC): it turns with the motor, whose
+        position is the controller's compensated motor command (``joint.N.motor-pos-cmd``), in
+        whole steps of the bench's stepper; its εz and reversal are those of the motor's angle and
+        its direction of motion (the last change of the motor position), plus the repeatability
+        drawn at every new position. ``command_deg`` (the uncompensated joint command) is what the
+        controller shows. The controller applies the compensation: the bench holds none of its own."""
+        motor = math.radians(motor_deg)
+        if motor != self.motor_rad:
+            self.last_direction = 1 if motor > self.motor_rad else -1
+        self.motor_rad = motor
+        noise = arcsec_to_rad(self.scenario.stage.repeatability_arcsec) * self.rng("stage").standard_normal()
+        self.commanded_rad = self.quantise_command(motor)
+        self.target_rad = math.radians(command_deg)
+        self.actual_rad = self.commanded_rad + float(self.positioning_error_rad(motor, self.last_direction)) + noise
 
     def error_motions(self, commanded_rad: float) -> tuple[np.ndarray, float, float]:
         """(δx, δy, δz) in mm and (εx, εy) in rad at the commanded angle."""

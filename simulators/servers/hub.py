@@ -23,6 +23,7 @@ import socket
 import threading
 import tty
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV  # a scenario without a stepper serves the driver's default
@@ -152,6 +153,10 @@ class SimulatorHub:
     sylvac_inch: bool = True  # the indicators start with an inch display: the driver must switch them to mm
     addresses: dict[str, str] = field(default_factory=dict)
     ipp_idle_timeout_s: float = IPP_IDLE_TIMEOUT_S  # an I++ session silent this long is released
+    # "linuxcnc": the stage is a real LinuxCNC started headless (simulators/servers/linuxcnc.py), the
+    # bench's table following its compensated motor command; ``comp``: its COMP_FILE (type 0)
+    stage: Literal["modbus", "linuxcnc"] = "modbus"
+    comp: str | None = None
 
     def __post_init__(self) -> None:
         self.bench = Bench(self.scenario, VirtualClock(), self.seed)
@@ -188,6 +193,9 @@ class SimulatorHub:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._servers: list = []
+        self.linuxcnc = None  # the LinuxCncProcess of a `stage="linuxcnc"` hub
+        self.feed_updates = 0  # motor positions the LinuxCNC bench feed delivered
+        self._feed_address = ""
 
     # -- life cycle
     def start(self, timeout_s: float = 10.0) -> dict[str, str]:
@@ -197,9 +205,22 @@ class SimulatorHub:
         if not self._ready.wait(timeout_s) or self._error:
             self.stop()
             raise RuntimeError(f"simulators did not start: {self._error!r}")
+        if self.stage == "linuxcnc":
+            from simulators.servers.linuxcnc import LinuxCncProcess
+
+            self.linuxcnc = LinuxCncProcess(self.host, feed=self._feed_address,
+                                            comp_file=Path(self.comp) if self.comp else None)
+            try:
+                port = self.linuxcnc.start()
+            except BaseException:
+                self.stop()
+                raise
+            self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0"
         return dict(self.addresses)
 
     def stop(self) -> None:
+        if self.linuxcnc is not None:
+            self.linuxcnc.stop()  # first: its bench feed must not outlive the bench
         if self._thread and self._thread.is_alive():
             asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop)
             self._thread.join(5)
@@ -282,7 +303,11 @@ class SimulatorHub:
     async def _start_all(self) -> None:
         h = self.host
         stage_query = f"unit=1&steps_per_rev={self.steps_per_rev}&gear={self.gear:g}"
-        if self.pi_gcs is not None:
+        if self.stage == "linuxcnc":
+            feed = await asyncio.start_server(self._motor_feed, h, 0, limit=MAX_REQUEST_BYTES)
+            self._servers.append(feed)
+            self._feed_address = f"{h}:{feed.sockets[0].getsockname()[1]}"
+        elif self.pi_gcs is not None:
             where = await self._serve_line("stage", self.pi_gcs, model="pi-gcs")
             self.addresses["stage"] = f"{where}?model=pi-gcs&axis=1" + (
                 "" if where.startswith("socket://") else f"&{PTY_FRAMING}")
@@ -308,6 +333,24 @@ class SimulatorHub:
         op = await asyncio.start_server(self._operator_client, h, 0, limit=MAX_OPERATOR_LINE)
         self._servers.append(op)
         self.addresses["operator"] = f"sim-operator://{h}:{op.sockets[0].getsockname()[1]}?token={self.operator_token}"
+
+    async def _motor_feed(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """LinuxCNC's bench feed (simulators/linuxcnc/rtcal_bench_feed.py): lines ``<motor_deg> <command_deg>``,
+        the joint's compensated motor command and its command; the bench's table follows the motor.
+        A line that is not two finite numbers is ignored."""
+        try:
+            while line := await reader.readline():
+                try:
+                    motor_deg, command_deg = (float(w) for w in line.split())
+                except ValueError:
+                    continue
+                if math.isfinite(motor_deg) and math.isfinite(command_deg) and abs(motor_deg) < 1e6:
+                    self.bench.follow_motor(motor_deg, command_deg)
+                    self.feed_updates += 1
+        except (ConnectionError, ValueError, asyncio.CancelledError):
+            pass
+        finally:
+            writer.close()
 
     async def _wait_listening(self, host: str, port: int) -> None:
         for _ in range(200):

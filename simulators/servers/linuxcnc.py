@@ -1,0 +1,206 @@
+"""LinuxCNC, started headless from the configuration rtcal ships (simulators/linuxcnc/), and stopped.
+
+``LinuxCncProcess.start()`` copies the INI, HAL and the bench-feed component into a fresh folder,
+sets linuxcncrsh's port, adds ``COMP_FILE``/``COMP_FILE_TYPE`` to the joint when a table is
+given (LinuxCNC reads it only at start), and runs ``linuxcnc`` in its own process group, with
+the bench feed's address in ``RTCAL_BENCH_FEED``. It returns once linuxcncrsh answers
+``hello``. ``stop()`` sends SIGTERM to the group (the ``linuxcnc`` script's trap then runs its
+cleanup: displays, tasks, HAL, realtime), waits, and kills what is left; it is idempotent and
+registered with atexit, so no LinuxCNC outlives its starter.
+
+As root, ``rtapi_app`` refuses to run without a fallback uid: ``RTAPI_UID`` is set to ``nobody``
+and ``RTAPI_FIFO_PATH`` to a file directly under /tmp (../shared/reference/linuxcnc_headless.md).
+Only one LinuxCNC can run on a machine (its HAL shared memory and /tmp/linuxcnc.lock are global).
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+CONFIG = Path(__file__).resolve().parents[1] / "linuxcnc"
+INI, HAL, FEED = "rtcal_c.ini", "rtcal_c.hal", "rtcal_bench_feed.py"
+SYSTEM_PYTHON = "/usr/bin/python3"  # LinuxCNC's hal module is built for it alone
+NOBODY_UID = 65534
+NML_FILE = Path("/usr/share/linuxcnc/linuxcnc.nml")  # the default NML_FILE the linuxcnc script uses
+
+
+def available() -> str:
+    """"" when LinuxCNC can be started here, else why not (for skips and for `sim serve`'s message)."""
+    if shutil.which("linuxcnc") is None or shutil.which("halcmd") is None:
+        return "LinuxCNC is not installed (apt-get install -y linuxcnc-uspace)"
+    if not Path(SYSTEM_PYTHON).exists():
+        return f"{SYSTEM_PYTHON} (the Python LinuxCNC's hal module is built for) is missing"
+    return ""
+
+
+def with_comp(ini_text: str, comp_file: Path, comp_type: int = 0, joint: int = 0) -> str:
+    """The INI with ``COMP_FILE`` and ``COMP_FILE_TYPE`` in ``[JOINT_<joint>]``."""
+    head = f"[JOINT_{joint}]\n"
+    if head not in ini_text:
+        raise ValueError(f"the INI has no {head.strip()}")
+    return ini_text.replace(head, f"{head}COMP_FILE = {comp_file}\nCOMP_FILE_TYPE = {comp_type}\n", 1)
+
+
+class LinuxCncProcess:
+    """One headless LinuxCNC: ``start()`` → linuxcncrsh's port; ``stop()`` shuts it down."""
+
+    def __init__(self, host: str = "127.0.0.1", feed: str = "", comp_file: Path | None = None, comp_type: int = 0):
+        self.host, self.feed, self.comp_file, self.comp_type = host, feed, comp_file, comp_type
+        self.proc: subprocess.Popen | None = None
+        self.marker = uuid.uuid4().hex
+        self.env: dict[str, str] = dict(os.environ)
+        self.folder: Path | None = None
+        self.fifo = Path(f"/tmp/rtcal-rtapi-{uuid.uuid4().hex[:12]}")
+        self.port = 0
+        self.log: Path | None = None
+
+    def _write_config(self) -> Path:
+        folder = Path(tempfile.mkdtemp(prefix="rtcal-linuxcnc-"))
+        folder.chmod(0o755)  # rtapi_app runs as the fallback uid
+        ini = (CONFIG / INI).read_text().replace("linuxcncrsh --port 5007", f"linuxcncrsh --port {self.port}")
+        if self.comp_file is not None:
+            table = folder / "c.comp"
+            shutil.copyfile(self.comp_file, table)
+            ini = with_comp(ini, table, self.comp_type)
+        (folder / INI).write_text(ini)
+        for name in (HAL, FEED):
+            shutil.copyfile(CONFIG / name, folder / name)
+        (folder / "rtcal_c.var").write_text("")
+        (folder / "rtcal_c.tbl").write_text("T1 P1 D0 Z0 ;rtcal: no tools\n")
+        for p in folder.iterdir():
+            p.chmod(0o644)
+        self.folder = folder
+        return folder
+
+    def start(self, timeout_s: float = 60.0) -> int:
+        """Start LinuxCNC; linuxcncrsh's port once it answers ``hello``. RuntimeError (with LinuxCNC's
+        last output) if it does not come up in time."""
+        why = available()
+        if why:
+            raise RuntimeError(why)
+        from simulators.servers.hub import free_port
+
+        self.port = free_port(self.host)
+        folder = self._write_config()
+        self.env = env = dict(os.environ, RUNTESTS="1", RTCAL_BENCH_FEED=self.feed, RTCAL_LINUXCNC_ID=self.marker)
+        env.pop("DISPLAY", None)  # headless: never an X display (the script would ask it about a stale lock)
+        if os.geteuid() == 0:
+            env.update(RTAPI_UID=str(NOBODY_UID), RTAPI_FIFO_PATH=str(self.fifo))
+        self.log = folder / "linuxcnc.log"
+        with open(self.log, "wb") as log:
+            self.proc = subprocess.Popen(["linuxcnc", str(folder / INI)], cwd=folder, env=env, stdin=subprocess.DEVNULL,
+                                         stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        atexit.register(self.stop)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                self.stop()
+                raise RuntimeError(f"LinuxCNC exited at start ({self.proc.returncode}): {self.tail()}")
+            if self._hello():
+                return self.port
+            time.sleep(0.2)
+        tail = self.tail()
+        self.stop()
+        raise RuntimeError(f"linuxcncrsh did not answer on port {self.port} in {timeout_s:g} s: {tail}")
+
+    def _hello(self) -> bool:
+        try:
+            with socket.create_connection((self.host, self.port), timeout=1.0) as s:
+                s.sendall(b"hello EMC rtcal-sim 1.0\r\n")
+                return s.recv(64).startswith(b"HELLO ACK")
+        except OSError:
+            return False
+
+    def tail(self, lines: int = 8) -> str:
+        try:
+            text = self.log.read_text(errors="replace") if self.log else ""
+        except OSError:
+            text = ""
+        return " | ".join(text.strip().splitlines()[-lines:])
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def kill(self) -> None:
+        """Kill LinuxCNC at once (SIGKILL to its process group): a controller that dies mid-run."""
+        if self.proc is not None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+    def _clean_up_after_crash(self) -> None:
+        """What the ``linuxcnc`` script's cleanup does, for a LinuxCNC killed before it could: unload
+        HAL (``halrun -U``), remove NML's shared memory (the ``B … SHMEM`` keys of its NML file),
+        remove the lock file. Without it the next LinuxCNC starts but never leaves E-stop."""
+        subprocess.run(["halrun", "-U"], env=self.env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                       stderr=subprocess.DEVNULL, timeout=30, check=False)
+        try:
+            lines = NML_FILE.read_text().splitlines()
+        except OSError:
+            lines = []
+        for line in lines:
+            words = line.split()
+            if len(words) >= 10 and words[0] == "B" and words[2] == "SHMEM":
+                subprocess.run(["ipcrm", "-M", words[9]], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+        Path("/tmp/linuxcnc.lock").unlink(missing_ok=True)
+
+    def _session(self) -> list[int]:
+        """Every process of this LinuxCNC, found by the marker in its environment (rtapi_app and
+        linuxcncsvr start sessions of their own, so no process group holds them all)."""
+        marker, pids = f"RTCAL_LINUXCNC_ID={self.marker}".encode(), []
+        for entry in Path("/proc").iterdir():
+            if entry.name.isdigit() and int(entry.name) != os.getpid():
+                try:
+                    if marker in (entry / "environ").read_bytes().split(b"\0"):
+                        pids.append(int(entry.name))
+                except OSError:
+                    continue
+        return pids
+
+    def stop(self, timeout_s: float = 20.0) -> None:
+        """Shut LinuxCNC down (SIGTERM to its group: the script's cleanup), then kill what is left of
+        its session and unload what a killed LinuxCNC left in HAL."""
+        proc, self.proc = self.proc, None
+        if proc is not None:
+            crashed = proc.poll() is not None
+            try:
+                os.killpg(proc.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+            try:
+                proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                pass
+            deadline = time.monotonic() + 10.0  # the script may exit before the processes it told to
+            while self._session() and time.monotonic() < deadline:
+                time.sleep(0.1)
+            left = self._session()
+            for pid in left:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                pass
+            if crashed or left:  # no cleanup ran: HAL, NML's shared memory and the lock are still there
+                self._clean_up_after_crash()
+        try:
+            self.fifo.unlink()
+        except OSError:
+            pass
+        if self.folder is not None and not os.environ.get("RTCAL_KEEP_LINUXCNC_FOLDER"):
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder = None
+        atexit.unregister(self.stop)

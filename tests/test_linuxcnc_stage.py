@@ -1,0 +1,187 @@
+"""The `linuxcnc` stage driver against a fake linuxcncrsh written from its man page and from what
+LinuxCNC 2.9 was seen to answer (docs/protocols/linuxcnc.md): no LinuxCNC needed. The loop with a
+real LinuxCNC is tests/test_linuxcnc_loop.py."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+from pathlib import Path
+
+import pytest
+
+from drivers.addresses import AddressError, parse_address
+from drivers.errors import InstrumentFault
+from drivers.factory import open_stage, resolve
+from rtcal.cli import main
+
+AXES = "XYZABC"
+
+
+class FakeRsh:
+    """One-session linuxcncrsh: hello, echo, verbose, enable, set_wait, estop, machine, mode, home,
+    mdi (G0/G1 C…), abort, and the gets the driver asks; ``cut_short_at`` makes the next move stop
+    there with E-stop on, yet answer ACK (as LinuxCNC 2.9 does)."""
+
+    def __init__(self, joint_type: str = "ANGULAR", stray_after_ack: bool = True):
+        self.joint_type, self.stray_after_ack = joint_type, stray_after_ack
+        self.state = {"estop": "ON", "machine": "OFF", "mode": "MANUAL", "homed": "NO", "enable": "OFF"}
+        self.pos = 0.0
+        self.cut_short_at: float | None = None
+        self.die_on_mdi = False  # the controller is killed while a move is under way: the connection closes
+        self.requests: list[str] = []
+        self.errors: list[str] = []
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self) -> None:
+        conn, _ = self.server.accept()
+        with conn, conn.makefile("rb") as lines:
+            echo = False  # observed: the hello is not echoed, the requests after it are until `set echo off`
+            for raw in lines:
+                line = raw.decode().strip()
+                self.requests.append(line)
+                if self.die_on_mdi and line.startswith("set mdi"):
+                    return
+                reply = self._answer(line)
+                if echo:
+                    conn.sendall(raw.rstrip(b"\r\n") + b"\r\n")
+                echo = line.startswith("hello") or (echo and line.lower() != "set echo off")
+                if reply:
+                    conn.sendall(reply.encode())
+
+    def _answer(self, line: str) -> str:
+        w = line.split()
+        if w[0] == "hello":
+            return "HELLO ACK EMCNETSVR 1.1\r\n" if w[1] == "EMC" else "HELLO NAK\r\n"
+        if w[:2] == ["set", "echo"]:
+            return ""
+        if w[0] == "get":
+            item = w[1].upper()
+            if item == "ERROR":
+                return f"ERROR {self.errors.pop(0) if self.errors else 'OK'}\r\n"
+            if item in ("ESTOP", "MACHINE", "MODE", "ENABLE"):
+                return f"{item} {self.state[item.lower()]}\r\n"
+            if item == "JOINT_TYPE":
+                return f"JOINT_TYPE {w[2]}  {self.joint_type}\r\n"
+            if item == "JOINT_UNITS":
+                return "JOINT_UNITS DEG MM MM MM MM MM\r\n"
+            if item == "JOINT_HOMED":
+                return f"JOINT_HOMED {w[2]} {self.state['homed']}\r\n"
+            if item in ("ABS_ACT_POS", "ABS_CMD_POS"):
+                return f"{item} {w[2]} {self.pos if w[2] == '5' else 0.0:.6f}\r\n"
+            if item == "JOINT_POS":
+                return f"JOINT_POS {w[2]} {self.pos:.6f}\r\n"
+            return f"GET {item} NAK\r\n\r\n"
+        item = w[1].upper()
+        ok = True
+        if item == "ENABLE":
+            self.state["enable"] = "ON"
+        elif item == "ESTOP":
+            self.state["estop"] = w[2].upper()
+        elif item == "MACHINE":
+            ok = self.state["estop"] == "OFF"
+            self.state["machine"] = w[2].upper() if ok else "OFF"
+        elif item == "MODE":
+            self.state["mode"] = w[2].upper()
+        elif item == "HOME":
+            self.state["homed"] = "YES"
+        elif item == "MDI":
+            ok = self.state["mode"] == "MDI" and self.state["machine"] == "ON"
+            if not ok:
+                self.errors.append("Must be in MDI mode to issue MDI command")
+            elif self.cut_short_at is not None:
+                self.pos, self.cut_short_at = self.cut_short_at, None
+                self.state.update(estop="ON", machine="OFF")
+            else:
+                self.pos = float(w[3][1:])
+        reply = f"SET {item} {'ACK' if ok else 'NAK'}"
+        return reply + ("\n\r" if self.stray_after_ack else "\r\n")
+
+
+@pytest.fixture
+def rsh():
+    fake = FakeRsh()
+    yield fake
+    fake.server.close()
+
+
+def test_linuxcncrsh_address_is_a_linuxcnc_stage_without_model():
+    parsed, model = resolve("stage", "linuxcncrsh://127.0.0.1?axis=C&joint=3")
+    assert model.name == "linuxcnc" and parsed.port == 5007 and parsed.options == {"axis": "C", "joint": "3"}
+    assert resolve("stage", "modbus-tcp://127.0.0.1:502")[1].name == "oriental-az"
+    with pytest.raises(AddressError, match="axis"):
+        parse_address("linuxcncrsh://127.0.0.1:5007?axis=Q")
+    with pytest.raises(AddressError, match="joint"):
+        parse_address("linuxcncrsh://127.0.0.1:5007?joint=99")
+
+
+def test_session_brings_the_machine_up_and_moves_by_mdi(rsh):
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}?axis=C&joint=0", (-400, 400), 2.0)
+    try:
+        assert "EMCNETSVR 1.1" in stage.identity()
+        stage.move_to(-1.25)
+        assert stage.position_deg() == pytest.approx(-1.25, abs=1e-9) and stage.feedback_deg() == pytest.approx(-1.25)
+        stage.stop()
+    finally:
+        stage.close()
+    r = rsh.requests
+    assert r[:5] == ["hello EMC rtcal 1.0", "set echo off", "set verbose on", "set enable EMCTOO", "set set_wait done"]
+    for seq in (["set estop off", "set machine on"], ["set mode manual", "set home 0"]):
+        assert r.index(seq[0]) < r.index(seq[1])
+    assert "set mdi G0 C-1.250000" in r and r[-1] == "set abort"
+
+
+def test_a_move_an_estop_cut_short_is_a_fault_though_linuxcncrsh_said_ack(rsh):
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}", (-400, 400), 2.0)
+    try:
+        rsh.cut_short_at = 48.6
+        with pytest.raises(InstrumentFault, match="E-stop"):
+            stage.move_to(300.0)
+        with pytest.raises(InstrumentFault, match="E-stop"):  # the retry's recover() never releases it
+            stage.reset_alarm()
+    finally:
+        stage.close()
+    assert "set estop off" not in rsh.requests[rsh.requests.index("set mdi G0 C300.000000"):]
+
+
+def test_a_linear_joint_is_refused(capsys):
+    fake = FakeRsh(joint_type="LINEAR")
+    code = main(["probe", "stage", f"linuxcncrsh://127.0.0.1:{fake.port}?axis=C", "--timeout-s", "2"])
+    err = capsys.readouterr().err
+    assert code == 1 and "not an angular joint" in err and len(err.strip().splitlines()) == 1
+
+
+def test_probe_reads_the_axis_position(rsh, capsys):
+    rsh.pos = 12.5
+    code = main(["probe", "stage", f"linuxcncrsh://127.0.0.1:{rsh.port}?axis=C", "--json", "--timeout-s", "2"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["model"] == "linuxcnc" and out["reading"] == {"position_deg": 12.5}
+    assert "get abs_act_pos 5" in rsh.requests
+
+
+def test_sim_serve_comp_needs_the_linuxcnc_stage(capsys, tmp_path):
+    table = tmp_path / "c.comp"
+    table.write_text("0 0 0\n360 360 360\n")
+    assert main(["sim", "serve", "--comp", str(table)]) == 2
+    assert "--stage linuxcnc" in capsys.readouterr().err
+
+
+def test_a_controller_that_dies_mid_move_is_a_fault(rsh):
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}", (-400, 400), 2.0)
+    try:
+        rsh.die_on_mdi = True
+        with pytest.raises(InstrumentFault, match="closed the connection"):
+            stage.move_to(10.0)
+    finally:
+        stage.close()
+
+
+def test_a_run_with_a_linuxcnc_stage_refuses_the_virtual_clock(capsys, tmp_path):
+    instruments = json.dumps({"stage": "linuxcncrsh://127.0.0.1:5007?axis=C"})
+    procedure = Path(__file__).resolve().parents[1] / "procedures" / "iso230_2_polygon.yaml"
+    code = main(["run", str(procedure), "--instruments", instruments, "--virtual-clock",
+                 "--out", str(tmp_path / "run")])
+    assert code == 2 and "real time" in capsys.readouterr().err and not (tmp_path / "run").exists()
