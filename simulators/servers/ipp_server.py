@@ -58,6 +58,7 @@ class IppMachine:
         self.warnings = warnings  # every Get and GoTo also answers a severity-1 warning
         self.bare_cause = bare_cause  # error lines in §8.1's form: Error(3, 1008, GoTo, "…")
         self.emergency = False
+        self.aborts = 0  # AbortE() received
         self.emergency_at_motion = 0  # > 0: that many motions from now, an emergency stop during the motion
         self.motions = 0
         self._writers: set = set()
@@ -142,6 +143,7 @@ class IppSession:
         if tag.startswith("E"):  # an event command: answered at once, in or out of the error state
             if name != "AbortE":
                 return self._error(tag, ipp.UNSUPPORTED_COMMAND, name)
+            self.machine.aborts += 1  # counted: the tests check that every way a run ends aborts the CMM
             return f"{tag} &\r\n{tag} %\r\n"  # nothing runs between two lines of this server: nothing to abort
         if name == "StartSession":
             return self._start(tag)
