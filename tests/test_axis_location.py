@@ -1,0 +1,210 @@
+"""ISO 230-7 location errors (X0C, Y0C, A0C, B0C) and error motions (EXC, EYC, EAC, EBC) from the
+network, against the truth of simulated benches: the axis offset and tilted by known amounts, the
+table wobbling (error motions drawn per trial within the stated bounds), the CMM's geometry off and
+every noise drawn. The truth comes from the bench's parameters (its axis point, its squareness
+rotation, its error-motion harmonics), never from a solver.
+
+CI runs a bounded Monte Carlo (30 trials per case); `pytest -m campaign` runs 200."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rtcal.procedure.models import GridPlan
+from rtcal.solvers.location import location_from_axis, location_jacobian
+from rtcal.solvers.network import _without_fundamental, cmm_matrix, solve_network
+from rtcal.solvers.station_budget import StationNoiseModel
+from rtcal.solvers.station_data import MountReadings, MultistationData
+from rtcal.units import ARCSEC_PER_RAD
+from simulators.bench import Bench, rot_x, rot_y
+from simulators.scenario import AngularHarmonic, LinearHarmonic, Scenario
+
+ANGLES_DEG = -145.0 + 30.0 * np.arange(11)
+MOUNTS = ({"radius_mm": 65.33, "azimuth_deg": -29.2, "height_mm": 122.5},
+          {"radius_mm": 130.0, "azimuth_deg": 80.0, "height_mm": 122.5})
+AXIS_POINT_MM = (0.8, -0.5, 40.0)  # where the bench's axis meets its housing's origin, CMM frame
+AXIS_TILT_ARCSEC = (30.0, -20.0)  # the bench's axis_tilt_x_arcsec, axis_tilt_y_arcsec
+BOUNDS = {"radial_um": 0.5, "tilt_arcsec": 1.0, "axial_um": 0.5, "max_order": 6}
+TRACER_UM, POINT_UM = 0.2, 0.3
+
+
+def _series(sigma: float, k: int, rng: np.random.Generator, cls) -> list:
+    """A random Fourier series of orders 1..k with σ at every angle (the budget's model of an error motion)."""
+    a, b = rng.normal(0.0, sigma / np.sqrt(k), (2, k))
+    key = "amplitude_um" if cls is LinearHarmonic else "amplitude_arcsec"
+    return [cls(order=j + 1, **{key: float(np.hypot(a[j], b[j]))}, phase_deg=float(np.degrees(np.arctan2(b[j], a[j]))))
+            for j in range(k)]
+
+
+def _bench(rng: np.random.Generator, wobble: bool = True) -> Bench:
+    """The axis offset and tilted as above, εz of 4″, the CMM 5/−3/2 ppm and 5/3/−4″ off, and (``wobble``)
+    error motions drawn within the stated bounds about a tilt centre 40 mm above the axis point."""
+    k, r, t = BOUNDS["max_order"], BOUNDS["radial_um"] / math.sqrt(2), BOUNDS["tilt_arcsec"] / math.sqrt(2)
+    stage = {"axis_point_mm": AXIS_POINT_MM, "axis_tilt_x_arcsec": AXIS_TILT_ARCSEC[0], "axis_tilt_y_arcsec": AXIS_TILT_ARCSEC[1],
+             "positioning_error": [AngularHarmonic(order=1, amplitude_arcsec=4.0, phase_deg=30.0)], "tilt_center_height_mm": 40.0}
+    if wobble:
+        stage.update(radial_motion_x=_series(r, k, rng, LinearHarmonic), radial_motion_y=_series(r, k, rng, LinearHarmonic),
+                     axial_motion=_series(BOUNDS["axial_um"] / math.sqrt(2), k, rng, LinearHarmonic),
+                     tilt_motion_x=_series(t, k, rng, AngularHarmonic), tilt_motion_y=_series(t, k, rng, AngularHarmonic))
+    return Bench(Scenario.model_validate({
+        "stage": stage, "cmm": {"scale_error_ppm": (5.0, -3.0, 2.0), "squareness_xy_arcsec": 5.0, "squareness_xz_arcsec": 3.0,
+                                "squareness_yz_arcsec": -4.0},
+        "laser_tracer": {"mount": MOUNTS[0], "second_mount": MOUNTS[1]}}))
+
+
+def true_location(bench: Bench) -> np.ndarray:
+    """X0C, Y0C, A0C, B0C of the bench's axis average line: through its axis point along its squareness
+    rotation's +Z (the error motions, orders ≥ 1, average to nothing over a turn)."""
+    return location_from_axis(bench.axis_point_mm, bench.axis_rotation @ np.array([0.0, 0.0, 1.0]))
+
+
+def true_motions(bench: Bench, phase_rad: np.ndarray, height_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per target (m, 2): the radial motion at the mounts' height (δ at the tilt centre plus the tilt's
+    sideways shift, µm) and the tilt (εx, εy, ″), synchronous as reported (mean and the once-per-turn part
+    that turns with the table removed, ``phase_rad`` the table's angle at each target as the estimate has it)."""
+    lever = height_mm - bench.tilt_center[2]
+    radial, tilt = [], []
+    for th in np.deg2rad(ANGLES_DEG):  # the bench's error motions are functions of the commanded angle
+        delta, ex, ey = bench.error_motions(th)
+        radial.append([delta[0] + lever * ey, delta[1] - lever * ex])
+        tilt.append([ex, ey])
+    R2 = _without_fundamental(phase_rad, rotating=True)
+    m = len(phase_rad)
+
+    def sync(v: np.ndarray) -> np.ndarray:
+        s = R2 @ np.concatenate([v[:, 0], v[:, 1]])
+        return np.column_stack([s[:m], s[m:]])
+
+    return sync(np.array(radial) * 1e3), sync(np.array(tilt) * ARCSEC_PER_RAD)
+
+
+def readings(bench: Bench, mounts: int, rng: np.random.Generator):
+    """The network's input as the bench makes it: every station's tracer centre from the bench's physics,
+    lengths with tracer noise (one tracking segment per mount), CMM points reported through its errors
+    with their noise. Returns (data, first-station centres per mount)."""
+    angles = np.deg2rad(ANGLES_DEG)
+    P = np.zeros((mounts, len(angles), 3))
+    for j, th in enumerate(angles):
+        with bench.stage_state(th, th + float(bench.positioning_error_rad(th))):
+            for k in range(mounts):
+                bench.mount_tracer(k)
+                P[k, j] = bench.tracer_center_mm()
+    pts = GridPlan().points_mm()
+    n, m = len(pts), len(angles)
+    L = []
+    for k in range(mounts):
+        x = np.linalg.norm(pts[:, None] - P[k][None], axis=2)
+        L.append(x - x[0, 0] + TRACER_UM * 1e-3 * rng.standard_normal(x.shape))
+    reported = pts @ np.linalg.inv(bench.cmm_matrix).T + POINT_UM * 1e-3 * rng.standard_normal(pts.shape)
+    visits = np.arange(n * m).reshape(n, m)
+    others = tuple(MountReadings(L[k], np.full((n, m), k), visits) for k in range(1, mounts))
+    return MultistationData(reported, L[0], np.zeros((n, m), int), ANGLES_DEG, n * m, visits, np.ones(n), others), P[:, 0]
+
+
+def noise_model() -> StationNoiseModel:
+    return StationNoiseModel(length_noise_um=TRACER_UM, length_noise_ppm=0.0, point_noise_um=POINT_UM,
+                             error_motion_radial_um=BOUNDS["radial_um"], error_motion_axial_um=BOUNDS["axial_um"],
+                             error_motion_tilt_arcsec=BOUNDS["tilt_arcsec"], error_motion_max_order=BOUNDS["max_order"],
+                             tilt_center_z_mm=AXIS_POINT_MM[2] + 40.0)
+
+
+def trial(seed: int, mounts: int):
+    """One simulated bench and its network solution: (|error|/u of the location (4,), of the radial and
+    tilt motions (m, 4) or None)."""
+    rng = np.random.default_rng([29, mounts, seed])
+    bench = _bench(rng)
+    data, first = readings(bench, mounts, rng)
+    guess = first[0] + rng.normal(0.0, 0.3, 3)  # a first guess off by a few tenths of a millimetre
+    est = solve_network(data, guess, noise=noise_model(), mount_guesses_mm=[first[1]] if mounts > 1 else None)
+    assert est.converged, est.message
+    loc = est.axis_location
+    z_loc = (loc.values - true_location(bench)) / loc.sigma
+    if mounts == 1:
+        return z_loc, None
+    em = est.error_motions
+    radial, tilt = true_motions(bench, est.angles_rad, MOUNTS[0]["height_mm"])
+    z_em = np.column_stack([(em.radial_um - radial) / em.radial_u_um, (em.tilt_xy_arcsec - tilt) / em.tilt_xy_u_arcsec])
+    return z_loc, z_em
+
+
+def test_the_convention_is_the_contracts():
+    """A0C and B0C are the right-hand rotations about X and Y that carry +Z onto n: the bench's own
+    squareness rotations (rot_x, rot_y) give them back; X0C, Y0C lie on the line at z = 0."""
+    for a, b in ((40.0, 0.0), (0.0, -25.0), (-15.0, 35.0)):
+        n = rot_y(b / ARCSEC_PER_RAD) @ rot_x(a / ARCSEC_PER_RAD) @ np.array([0.0, 0.0, 1.0])
+        loc = location_from_axis(np.array([1.0, -2.0, 50.0]), n)
+        assert abs(loc[3] - b) < 1e-9  # B0C is the rotation about Y exactly
+        assert abs(loc[2] - a) < 1e-6 * max(abs(a), 1.0) + abs(a * b) / ARCSEC_PER_RAD  # A0C to second order
+        assert abs(np.sign(loc[2]) - np.sign(a)) < 1e-12 or a == 0.0
+        t = -50.0 / n[2]
+        np.testing.assert_allclose(loc[:2], [1.0 + t * n[0], -2.0 + t * n[1]], atol=1e-12)
+    # the direction's sense does not matter; a rotation about X by +A tips +Z towards −Y
+    n = rot_x(100.0 / ARCSEC_PER_RAD) @ np.array([0.0, 0.0, 1.0])
+    assert n[1] < 0 and location_from_axis(np.zeros(3), -n)[2] == pytest.approx(100.0, abs=1e-9)
+    J = location_jacobian(np.array([0.3, 0.1, 120.0]), np.array([1e-4, -2e-4]))
+    assert J[0, 0] == pytest.approx(1.0) and J[0, 2] == pytest.approx(-1e-4, rel=1e-6)
+    assert J[3, 3] == pytest.approx(ARCSEC_PER_RAD, rel=1e-6) and J[2, 4] == pytest.approx(-ARCSEC_PER_RAD, rel=1e-6)
+
+
+@pytest.mark.parametrize("mounts", [1, 2])
+def test_exact_readings_give_the_benchs_axis(mounts):
+    """No noise, no wobble: the network puts the axis where the bench has it (0.8/−0.5/40 mm, 30″/−20″),
+    to 10 nm and 0.0001″ — not near the nominal axis it started from."""
+    rng = np.random.default_rng(5)
+    bench = _bench(rng, wobble=False)
+    global TRACER_UM, POINT_UM
+    saved = TRACER_UM, POINT_UM
+    TRACER_UM, POINT_UM = 0.0, 0.0
+    try:
+        data, first = readings(bench, mounts, rng)
+    finally:
+        TRACER_UM, POINT_UM = saved
+    est = solve_network(data, first[0] + [0.3, -0.2, 0.1], mount_guesses_mm=[first[1]] if mounts > 1 else None)
+    truth = true_location(bench)
+    assert abs(truth[0] - 0.8) > 0.003 and abs(truth[2] - 30.0) < 0.01  # the crossing at z = 0 is not the axis point
+    assert np.all(np.abs(est.axis_location.values - truth) < [1e-5, 1e-5, 1e-4, 1e-4]), est.axis_location.values - truth
+    assert np.all(est.axis_location.sigma > 0)
+
+
+def coverage(trials: int, mounts: int) -> tuple[np.ndarray, np.ndarray | None]:
+    z = [trial(seed, mounts) for seed in range(trials)]
+    loc = np.array([zl for zl, _ in z])
+    em = None if mounts == 1 else np.array([ze for _, ze in z])
+    return loc, em
+
+
+def _check(z: np.ndarray, name: str, least: float) -> None:
+    """Within U (k = 2) at least ``least`` of the time, and U not grossly too large either: the RMS of the
+    error over u between 0.6 and 1.4 (1 for a u that is right)."""
+    covered = float(np.mean(np.abs(z) <= 2.0))
+    rms = float(np.sqrt(np.mean(z**2)))
+    assert covered >= least, f"{name}: U covers {covered:.1%}, RMS error/u {rms:.2f}"
+    assert 0.6 < rms < 1.4, f"{name}: RMS error/u {rms:.2f}, covered {covered:.1%}"
+
+
+@pytest.mark.parametrize("mounts", [1, 2])
+def test_monte_carlo_location_within_u(mounts):
+    """30 benches (the axis offset and tilted, wobbling, the CMM off, every noise drawn): X0C, Y0C, A0C,
+    B0C within U (k = 2) of the truth at ≥ 93 % of the 120 checks (a U that covers 95 % leaves 1.9 %
+    of sampling room at 1σ), and their error over u at an RMS near 1."""
+    loc, em = coverage(30, mounts)
+    _check(loc, f"location, {mounts} mount(s)", 0.93)
+    if em is not None:
+        _check(em[:, :, :2], "radial motions EXC, EYC", 0.93)
+        _check(em[:, :, 2:], "tilt motions EAC, EBC", 0.93)
+
+
+@pytest.mark.campaign
+@pytest.mark.parametrize("mounts", [1, 2])
+def test_campaign_location_within_u(mounts):
+    """200 benches per case: coverage ≥ 95 % per quantity; RMS error/u within 0.8–1.25."""
+    loc, em = coverage(200, mounts)
+    for k, name in enumerate(("X0C", "Y0C", "A0C", "B0C")):
+        _check(loc[:, k], name, 0.95)
+        assert 0.8 < float(np.sqrt(np.mean(loc[:, k] ** 2))) < 1.25, name
+    if em is not None:
+        for k, name in enumerate(("EXC", "EYC", "EAC", "EBC")):
+            _check(em[:, :, k], name, 0.95)
