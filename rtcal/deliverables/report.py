@@ -236,6 +236,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
                  method_name: str = "") -> dict[str, Any]:
     """Everything the certificate shows, as strings and rows, from the run's results."""
     from rtcal.deliverables.conformity import parameter_uncertainties
+    from rtcal.deliverables.multistation import location_tables
 
     meta = results.metadata
     missing = [what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)]
@@ -332,6 +333,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
         "evaluation_notes": iso_notes + [n for n in (vdi.notes if vdi else []) if n not in iso_notes],
         "figures": [(run_dir / f, caption) for f, caption in figures if (run_dir / f).exists()],
         "budget": budget_rows,
+        "tables": location_tables(results),  # the axis's location errors and error motions (ISO 230-7)
         "method": method_text, "environment": conditions(results), "control": control_details,
         "events": ", ".join(f"{k}: {n}" for k, n in events.items()) or "none",
         "raw_readings": results.raw_readings, "skipped": results.skipped_readings, "faults": results.faults,
@@ -432,6 +434,9 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                                 table(params, ["symbol", "meaning", "value / ″", "U (k = 2) / ″"],
                                       [18 * mm, width - 62 * mm, 22 * mm, 22 * mm])])]
         story += [Paragraph(esc(n), small) for n in m["evaluation_notes"]]
+    for t in m.get("tables", []):
+        story += [KeepTogether([Paragraph(esc(t["heading"]), h2), Paragraph(esc(t["note"]), small), Spacer(1, 1.5 * mm),
+                                table(t["rows"], t["header"])])]
     for p, caption in m["figures"]:
         from reportlab.lib.utils import ImageReader
 
