@@ -436,7 +436,8 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
         story += [Paragraph(esc(n), small) for n in m["evaluation_notes"]]
     for t in m.get("tables", []):
         story += [KeepTogether([Paragraph(esc(t["heading"]), h2), Paragraph(esc(t["note"]), small), Spacer(1, 1.5 * mm),
-                                table(t["rows"], t["header"])])]
+                                table(t["rows"], t["header"], [18 * mm, width - 74 * mm, 28 * mm, 28 * mm]
+                                      if len(t["header"]) == 4 else None)])]
     for p, caption in m["figures"]:
         from reportlab.lib.utils import ImageReader
 
