@@ -251,7 +251,7 @@ def axis_location(est: NetworkEstimate) -> rm.AxisLocation | None:
                            b0c_arcsec=round(float(v[3]), 4), b0c_arcsec_u=round(float(u[3]), 4))
 
 
-def error_motion_targets(est: NetworkEstimate, angles_deg: Sequence[float]) -> list[rm.ErrorMotionTarget] | None:
+def error_motion_targets(est: NetworkEstimate, angles_deg: Sequence[float] | np.ndarray) -> list[rm.ErrorMotionTarget] | None:
     """``error_motions``: per target EXC, EYC (µm) and EAC, EBC (″) with u; None with one mount."""
     em = est.error_motions
     if em is None or em.tilt_xy_arcsec is None or em.radial_u_um is None or em.tilt_xy_u_arcsec is None:
