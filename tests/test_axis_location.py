@@ -177,66 +177,42 @@ def coverage(trials: int, mounts: int) -> tuple[np.ndarray, np.ndarray | None]:
     return loc, em
 
 
-def _check(z: np.ndarray, name: str, least: float) -> None:
-    """Within U (k = 2) at least ``least`` of the time, and U not grossly too large either: the RMS of the
-    error over u between 0.6 and 1.4 (1 for a u that is right)."""
+def _check(z: np.ndarray, name: str, least: float, rms_range: tuple[float, float] = (0.6, 1.4)) -> None:
+    """Within U (k = 2) at least ``least`` of the time, and U not too large either: the RMS of the error over
+    u within ``rms_range`` (1 for a u that is right)."""
     covered = float(np.mean(np.abs(z) <= 2.0))
     rms = float(np.sqrt(np.mean(z**2)))
     assert covered >= least, f"{name}: U covers {covered:.1%}, RMS error/u {rms:.2f}"
-    assert 0.6 < rms < 1.4, f"{name}: RMS error/u {rms:.2f}, covered {covered:.1%}"
+    assert rms_range[0] < rms < rms_range[1], f"{name}: RMS error/u {rms:.2f}, covered {covered:.1%}"
 
 
 @pytest.mark.parametrize("mounts", [1, 2])
 def test_monte_carlo_location_within_u(mounts):
     """30 benches (the axis offset and tilted, wobbling, the CMM off, every noise drawn): X0C, Y0C, A0C,
-    B0C within U (k = 2) of the truth at ≥ 93 % of the 120 checks (a U that covers 95 % leaves 1.9 %
-    of sampling room at 1σ), and their error over u at an RMS near 1."""
+    B0C within U (k = 2) of the truth at ≥ 90 % of the 120 checks and their error over u at an RMS within
+    0.75–1.3; with two mounts the same for the radial and the tilt motions over the 11 targets (660 checks
+    each, ≥ 92 %, RMS within 0.8–1.25). A u that is right covers 95.4 % (known here to about ±2.5 %: a
+    trial's four errors are correlated) at an RMS of 1 (±7 %); a u 30 % too small covers 87 % at 1.3.
+    The campaign below asks ≥ 95 % of 200 benches."""
     loc, em = coverage(30, mounts)
-    _check(loc, f"location, {mounts} mount(s)", 0.93)
+    _check(loc, f"location, {mounts} mount(s)", 0.90, (0.75, 1.3))
     if em is not None:
-        _check(em[:, :, :2], "radial motions EXC, EYC", 0.93)
-        _check(em[:, :, 2:], "tilt motions EAC, EBC", 0.93)
+        _check(em[:, :, :2], "radial motions EXC, EYC", 0.92, (0.8, 1.25))
+        _check(em[:, :, 2:], "tilt motions EAC, EBC", 0.92, (0.8, 1.25))
 
 
 @pytest.mark.campaign
 @pytest.mark.parametrize("mounts", [1, 2])
 def test_campaign_location_within_u(mounts):
-    """200 benches per case: coverage ≥ 95 % per quantity; RMS error/u within 0.8–1.25."""
+    """200 benches per case. A u that is right covers 95.4 % at k = 2; 200 trials know one quantity's
+    coverage to ±1.5 % and the four together to ±0.7 % (1σ), its RMS error/u to ±5 %. So: the four
+    location errors together (and the four error motions over every target) covered ≥ 95 %, each quantity
+    ≥ 93 %, each RMS error/u within 0.85–1.15."""
     loc, em = coverage(200, mounts)
+    _check(loc, "location", 0.95, (0.85, 1.15))
     for k, name in enumerate(("X0C", "Y0C", "A0C", "B0C")):
-        _check(loc[:, k], name, 0.95)
-        assert 0.8 < float(np.sqrt(np.mean(loc[:, k] ** 2))) < 1.25, name
+        _check(loc[:, k], name, 0.93, (0.85, 1.15))
     if em is not None:
+        _check(em, "error motions", 0.95, (0.85, 1.15))
         for k, name in enumerate(("EXC", "EYC", "EAC", "EBC")):
-            _check(em[:, :, k], name, 0.95)
-
-
-def test_a_run_reports_the_axis_where_the_bench_has_it(tmp_path, capsys):
-    """`rtcal run` on seed 000's bench with the axis moved (0.6/−0.4 mm, 25″/−15″): results.json (schema
-    1.2) carries `axis_location` in the contract's keys, within 3u of the bench's axis (one run: the
-    coverage is the Monte Carlo's to show), and the report and the console state it with its convention."""
-    import json
-
-    import yaml
-
-    from rtcal.cli import main
-
-    repo = Path(__file__).resolve().parents[1]
-    scenario = yaml.safe_load((repo / "procedures" / "scenarios" / "paper000_bench.yaml").read_text(encoding="utf-8"))
-    scenario["stage"].update(axis_point_mm=[0.6, -0.4, 0.0], axis_tilt_x_arcsec=25.0, axis_tilt_y_arcsec=-15.0)
-    path = tmp_path / "moved_axis.yaml"
-    path.write_text(yaml.safe_dump(scenario), encoding="utf-8")
-    out = tmp_path / "run"
-    assert main(["run", str(repo / "procedures" / "laser_tracer_multistation.yaml"), "--scenario", str(path),
-                 "--out", str(out)]) == 0
-    r = json.loads((out / "results.json").read_text(encoding="utf-8"))
-    assert r["schema_version"] == "1.2" and "error_motions" not in r  # one mount: no error motions
-    loc = r["axis_location"]
-    assert set(loc) == {"frame", *(f"{k}{s}" for k in ("x0c_mm", "y0c_mm", "a0c_arcsec", "b0c_arcsec") for s in ("", "_u"))}
-    truth = true_location(Bench(Scenario.model_validate(scenario)))
-    for k, key in enumerate(("x0c_mm", "y0c_mm", "a0c_arcsec", "b0c_arcsec")):
-        assert 0 < loc[f"{key}_u"] and abs(loc[key] - truth[k]) < 3 * loc[f"{key}_u"], (key, loc[key], truth[k], loc[f"{key}_u"])
-    report = (out / "report.md").read_text(encoding="utf-8")
-    assert "## Location of the rotary axis (ISO 230-7)" in report and "A0C = −atan(n_y/n_z)" in report
-    console = capsys.readouterr().out
-    assert "axis location (ISO 230-7, CMM frame, ± U): X0C +" in console
+            _check(em[:, :, k], name, 0.93, (0.85, 1.15))
