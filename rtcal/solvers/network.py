@@ -16,7 +16,8 @@ weighted observations let the CMM's point noise enter with its own weight (DESIG
 The cumulative deviation is φ_j − φ_0 − (θ_j − θ_0). The stage's per-visit repeatability enters
 the length weights where a visit has one length (point-major order) and the budget otherwise.
 Variances of the tracer's and the CMM's noise are estimated from the residuals (REML fixed
-point, Type A). Error motions, which one mount cannot separate, are a Type B source.
+point, Type A). Error motions, which one mount cannot separate, are a Type B source. The solved
+axis line is also reported as ISO 230-7 location errors (X0C, Y0C, A0C, B0C; rtcal.solvers.location).
 
 Normal equations are solved with the points eliminated (Schur complement: each point is a
 3×3 block), so a network of thousands of points costs O(points·globals²): the globals (axis,
