@@ -213,3 +213,36 @@ def test_campaign_location_within_u(mounts):
         _check(em, "error motions", 0.935, (0.85, 1.15))
         for k, name in enumerate(("EXC", "EYC", "EAC", "EBC")):
             _check(em[:, :, k], name, 0.92, (0.85, 1.15))
+
+
+def test_a_run_reports_the_axis_where_the_bench_has_it(tmp_path, capsys):
+    """`rtcal run` on seed 000's bench with the axis moved (0.6/−0.4 mm, 25″/−15″): results.json (schema
+    1.2) carries `axis_location` in the contract's keys, within 3u of the bench's axis (one run: the
+    coverage is the Monte Carlo's to show), and the report and the console state it with its convention."""
+    import json
+
+    import yaml
+
+    from rtcal.cli import main
+
+    repo = Path(__file__).resolve().parents[1]
+    scenario = yaml.safe_load((repo / "procedures" / "scenarios" / "paper000_bench.yaml").read_text(encoding="utf-8"))
+    scenario["stage"].update(axis_point_mm=[0.6, -0.4, 0.0], axis_tilt_x_arcsec=25.0, axis_tilt_y_arcsec=-15.0)
+    path = tmp_path / "moved_axis.yaml"
+    path.write_text(yaml.safe_dump(scenario), encoding="utf-8")
+    out = tmp_path / "run"
+    assert main(["run", str(repo / "procedures" / "laser_tracer_multistation.yaml"), "--scenario", str(path),
+                 "--out", str(out)]) == 0
+    r = json.loads((out / "results.json").read_text(encoding="utf-8"))
+    assert r["schema_version"] == "1.2" and "error_motions" not in r  # one mount: no error motions
+    loc = r["axis_location"]
+    assert set(loc) == {"frame", *(f"{k}{s}" for k in ("x0c_mm", "y0c_mm", "a0c_arcsec", "b0c_arcsec") for s in ("", "_u"))}
+    truth = true_location(Bench(Scenario.model_validate(scenario)))
+    for k, key in enumerate(("x0c_mm", "y0c_mm", "a0c_arcsec", "b0c_arcsec")):
+        assert 0 < loc[f"{key}_u"] and abs(loc[key] - truth[k]) < 3 * loc[f"{key}_u"], (key, loc[key], truth[k], loc[f"{key}_u"])
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert "## Location of the rotary axis (ISO 230-7)" in report and "A0C = −atan(n_y/n_z)" in report
+    certificate = (out / "report.html").read_text(encoding="utf-8")
+    assert "<h2>Location of the rotary axis (ISO 230-7)</h2>" in certificate and "carry +Z onto n" in certificate
+    console = capsys.readouterr().out
+    assert "axis location (ISO 230-7, CMM frame, ± U): X0C +" in console
