@@ -4,14 +4,24 @@ sections and console summary, all from the typed results."""
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.report import fmt, largest, status_lines
 from rtcal.deliverables.rounding import u_text
-from rtcal.results.model import Estimate, MultistationResults, NetworkEstimate, PaperEstimate, StationChainEstimate
+from rtcal.results.model import (
+    AXIS_CONVENTION,
+    Estimate,
+    MultistationResults,
+    NetworkEstimate,
+    PaperEstimate,
+    RunResults,
+    StationChainEstimate,
+)
 
 ESTIMATOR_LABELS = {
     "paper": "each station alone (as first published)",
@@ -27,6 +37,60 @@ def _values(values: list[float | None]) -> np.ndarray:
 def _mathtext_safe(text: str) -> str:
     """A title exactly as the user wrote it: matplotlib would read ``$…$`` as mathtext."""
     return text.replace("$", r"\$")
+
+
+def expanded(u: float, scale: float = 1.0) -> tuple[str, int]:
+    """U = 2u (times ``scale``) rounded up to two significant digits (GUM 7.2.6), and the decimals it has,
+    to which the value is then rounded."""
+    U = 2.0 * u * scale
+    if not U > 0 or not math.isfinite(U):
+        return "0", 0
+    decimals = max(0, 1 - math.floor(math.log10(U)))
+    step = 10.0 ** -decimals
+    return f"{math.ceil(U / step - 1e-9) * step:.{decimals}f}", decimals
+
+
+def _with_u(value: float, u: float, scale: float = 1.0) -> tuple[str, str]:
+    U, decimals = expanded(u, scale)
+    return f"{value * scale:+.{decimals}f}", U
+
+
+LOCATION_NOTE = ("ISO 230-7 location errors of the rotary axis from the network adjustment, " + AXIS_CONVENTION
+                 + ". U expanded uncertainty (k = 2).")
+MOTIONS_NOTE = ("Synchronous error motions per target from the second tracer mount (ISO 230-7): their mean and the "
+                "once-per-turn part that turns with the table removed; EXC, EYC radial at the mounts' plane; EAC, EBC tilt "
+                "about X and Y (right-hand). The tilt about the line joining the two mounts is not seen: its part of EAC, "
+                "EBC is the procedure's stated bound, and so is its part of U. U expanded uncertainty (k = 2).")
+
+
+def location_tables(results: RunResults) -> list[dict[str, Any]]:
+    """The certificate's tables of the axis's location errors and (two mounts) error motions: each a
+    heading, a note stating the convention, a header and rows (empty: no network estimate)."""
+    if not isinstance(results, MultistationResults) or results.axis_location is None:
+        return []
+    loc = results.axis_location
+    rows = []
+    for symbol, meaning, v, u, unit, scale in (
+            ("X0C", "X of the axis average line at z = 0", loc.x0c_mm, loc.x0c_mm_u, " µm", 1e3),
+            ("Y0C", "Y of the axis average line at z = 0", loc.y0c_mm, loc.y0c_mm_u, " µm", 1e3),
+            ("A0C", "squareness of the axis about X", loc.a0c_arcsec, loc.a0c_arcsec_u, "″", 1.0),
+            ("B0C", "squareness of the axis about Y", loc.b0c_arcsec, loc.b0c_arcsec_u, "″", 1.0)):
+        value, U = _with_u(v, u, scale)
+        rows.append((symbol, meaning, f"{value}{unit}", f"{U}{unit}"))
+    tables = [{"heading": "Location of the rotary axis (ISO 230-7)", "note": LOCATION_NOTE,
+               "header": ["symbol", "meaning", "value", "U (k = 2)"], "rows": rows}]
+    if results.error_motions:
+        motion_rows = []
+        for t in results.error_motions:
+            cells = [f"{t.target_deg:g}"]
+            for v, u in ((t.exc_um, t.exc_um_u), (t.eyc_um, t.eyc_um_u), (t.eac_arcsec, t.eac_arcsec_u),
+                         (t.ebc_arcsec, t.ebc_arcsec_u)):
+                cells.append(" ± ".join(_with_u(v, u)))
+            motion_rows.append(tuple(cells))
+        tables.append({"heading": "Error motions of the rotary axis per target (ISO 230-7)", "note": MOTIONS_NOTE,
+                       "header": ["target / °", "EXC / µm ± U", "EYC / µm ± U", "EAC / ″ ± U", "EBC / ″ ± U"],
+                       "rows": motion_rows})
+    return tables
 
 
 class MultistationOutputs:
@@ -197,6 +261,9 @@ class MultistationOutputs:
                                  f"{em.tilt_arcsec[j]:+.2f} ({em.tilt_sigma_arcsec[j]:.2f}) | "
                                  f"{em.tilt_axis_deg[j]:.0f} |")
                 lines.append("")
+        for t in location_tables(r):
+            lines += [f"## {t['heading']}", "", t["note"], "", "| " + " | ".join(t["header"]) + " |",
+                      "|" + "---|" * len(t["header"])] + ["| " + " | ".join(row) + " |" for row in t["rows"]] + [""]
         if e is not None:
             lines += [f"## Uncertainty budget of the cumulative deviation ({rec}), contributions u / ″ per station", ""]
             lines += self.budget_table(e)
@@ -252,4 +319,10 @@ class MultistationOutputs:
         for name, est in r.estimates.items():
             if name != r.recommended:
                 lines.append(f"also {name}: U (k = 2) up to {u_text(largest(est.cumulative_expanded_uncertainty_arcsec))}″")
+        loc = r.axis_location
+        if loc is not None:
+            parts = [f"{sym} {' ± '.join(_with_u(v, u, scale))}{unit}" for sym, v, u, unit, scale in (
+                ("X0C", loc.x0c_mm, loc.x0c_mm_u, " µm", 1e3), ("Y0C", loc.y0c_mm, loc.y0c_mm_u, " µm", 1e3),
+                ("A0C", loc.a0c_arcsec, loc.a0c_arcsec_u, "″", 1.0), ("B0C", loc.b0c_arcsec, loc.b0c_arcsec_u, "″", 1.0))]
+            lines.append("axis location (ISO 230-7, CMM frame, ± U): " + ", ".join(parts))
         return lines + status_lines(r)

@@ -264,6 +264,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
                  method_name: str = "") -> dict[str, Any]:
     """Everything the certificate shows, as strings and rows, from the run's results."""
     from rtcal.deliverables.conformity import parameter_uncertainties
+    from rtcal.deliverables.multistation import location_tables
 
     meta = results.metadata
     missing = [what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)]
@@ -382,6 +383,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
         "figures": [(run_dir / f, f"Figure {n}: {caption}") for n, (f, caption) in
                     enumerate([(f, c) for f, c in figures if (run_dir / f).exists()], start=1)],
         "budget": budget_rows,
+        "tables": location_tables(results),  # the axis's location errors and error motions (ISO 230-7)
         "method": method_text, "environment": conditions(results), "control": control_details,
         "events": ", ".join(f"{k}: {n}" for k, n in events.items()) or "none",
         "raw_readings": results.raw_readings, "skipped": results.skipped_readings, "faults": results.faults,
@@ -484,6 +486,10 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                                     table(m["vdi"], ["VDI 3441 symbol", "VDI 3441 meaning", "value / ″"],
                                           [26 * mm, width - 48 * mm, 22 * mm])])]
         story += [Paragraph(esc(n), small) for n in m["evaluation_notes"]]
+    for t in m.get("tables", []):
+        story += [KeepTogether([Paragraph(esc(t["heading"]), h2), Paragraph(esc(t["note"]), small), Spacer(1, 1.5 * mm),
+                                table(t["rows"], t["header"], [18 * mm, width - 74 * mm, 28 * mm, 28 * mm]
+                                      if len(t["header"]) == 4 else None)])]
     for p, caption in m["figures"]:
         from reportlab.lib.utils import ImageReader
 

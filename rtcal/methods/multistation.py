@@ -235,6 +235,31 @@ def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEsti
     )
 
 
+def axis_location(est: NetworkEstimate) -> rm.AxisLocation | None:
+    """``axis_location``: the network's axis line as ISO 230-7 location errors, each with its u (None if
+    the solution has none to give: not finite)."""
+    if est.axis_location is None or not np.all(np.isfinite(est.axis_location.covariance)):
+        return None
+    v, u = est.axis_location.values, est.axis_location.sigma
+    return rm.AxisLocation(frame=rm.AXIS_CONVENTION, x0c_mm=round(float(v[0]), 6), x0c_mm_u=round(float(u[0]), 6),
+                           y0c_mm=round(float(v[1]), 6), y0c_mm_u=round(float(u[1]), 6),
+                           a0c_arcsec=round(float(v[2]), 4), a0c_arcsec_u=round(float(u[2]), 4),
+                           b0c_arcsec=round(float(v[3]), 4), b0c_arcsec_u=round(float(u[3]), 4))
+
+
+def error_motion_targets(est: NetworkEstimate, angles_deg: Sequence[float] | np.ndarray) -> list[rm.ErrorMotionTarget] | None:
+    """``error_motions``: per target EXC, EYC (µm) and EAC, EBC (″) with u; None with one mount."""
+    em = est.error_motions
+    if em is None or em.tilt_xy_arcsec is None or em.radial_u_um is None or em.tilt_xy_u_arcsec is None:
+        return None
+    r, ru, t, tu = em.radial_um, em.radial_u_um, em.tilt_xy_arcsec, em.tilt_xy_u_arcsec
+    return [rm.ErrorMotionTarget(target_deg=float(a), exc_um=round(float(r[j, 0]), 4), exc_um_u=round(float(ru[j, 0]), 4),
+                                 eyc_um=round(float(r[j, 1]), 4), eyc_um_u=round(float(ru[j, 1]), 4),
+                                 eac_arcsec=round(float(t[j, 0]), 4), eac_arcsec_u=round(float(tu[j, 0]), 4),
+                                 ebc_arcsec=round(float(t[j, 1]), 4), ebc_arcsec_u=round(float(tu[j, 1]), 4))
+            for j, a in enumerate(angles_deg)]
+
+
 def _random_series(sigma: float, max_order: int, rng: np.random.Generator, cls):
     """A random Fourier series of orders 1..K with σ at every angle: coefficients N(0, σ²/K)."""
     if sigma <= 0:
@@ -295,10 +320,16 @@ class MultistationMethod:
             "then carries one dead path per station and segment, which weakens it further; shared_dead_path does not "
             "suffer from this."]
         second = [np.array(proc.second_mount.first_station_guess_mm)] if proc.second_mount else None
+        solved: dict[str, NetworkEstimate] = {}  # the network's own solution: the axis and error motions come from it
+
+        def network() -> rm.Estimate:
+            solved["network"] = solve_network(data, guess, axis, noise, mount_guesses_mm=second)
+            return network_estimate(solved["network"], omitted)
+
         solvers: dict[str, Callable[[], rm.Estimate]] = {
             "paper": lambda: paper_estimate(solve_paper(data, guess, axis, lm_parameters(proc), noise), omitted, paper_notes),
             "shared_dead_path": lambda: shared_dead_path_estimate(solve_shared_dead_path(data, guess, axis, noise), omitted),
-            "network": lambda: network_estimate(solve_network(data, guess, axis, noise, mount_guesses_mm=second), omitted),
+            "network": network,
         }
         estimates, status = run_estimators({k: f for k, f in solvers.items() if k in proc.solver.estimators})
         recommended = choose_recommended(estimates, status)
@@ -318,6 +349,9 @@ class MultistationMethod:
             estimates=rm.MultistationEstimates(**estimates),
             positioning_deviations=table,
             truth=None if bench is None else rm.StationTruth.model_validate(station_truth(bench, angles, direction)),
+            axis_location=axis_location(solved["network"]) if "network" in estimates and "network" in solved else None,
+            error_motions=error_motion_targets(solved["network"], angles) if "network" in estimates and "network" in solved
+            else None,
         )
 
     def draw_systematics(self, proc: LaserTracerMultistation, scenario: Scenario, rng: np.random.Generator) -> Scenario:

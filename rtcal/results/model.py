@@ -270,6 +270,45 @@ class NetworkEstimate(Estimate):
         None, description="error motions separated by a second tracer mount (only with `second_mount:`)")
 
 
+SigmaMm = Annotated[float, Field(ge=0.0, le=1e7)]
+SigmaUm = Annotated[float, Field(ge=0.0, le=1e9)]
+
+AXIS_CONVENTION = (
+    "CMM frame; X0C, Y0C: where the axis average line crosses z = 0; with n the axis direction (pointing up), "
+    "A0C = −atan(n_y/n_z) and B0C = atan(n_x/n_z): the right-hand rotations about X and Y that carry +Z onto n")
+
+
+class AxisLocation(ResultsModel):
+    """The rotary axis's location errors (ISO 230-1/230-7 X0C, Y0C, A0C, B0C) from the network's axis line,
+    each with its standard uncertainty u (1σ) (1.2)."""
+
+    frame: Text = Field(description="the frame and convention of the values (" + AXIS_CONVENTION + ")")
+    x0c_mm: Mm = Field(description="X0C: X where the axis average line crosses z = 0, CMM frame, mm")
+    x0c_mm_u: SigmaMm = Field(description="standard uncertainty (1σ) of X0C, mm")
+    y0c_mm: Mm = Field(description="Y0C: Y where the axis average line crosses z = 0, CMM frame, mm")
+    y0c_mm_u: SigmaMm = Field(description="standard uncertainty (1σ) of Y0C, mm")
+    a0c_arcsec: Arcsec = Field(description="A0C = −atan(n_y/n_z): the axis's squareness about X, arcsec")
+    a0c_arcsec_u: SigmaArcsec = Field(description="standard uncertainty (1σ) of A0C, arcsec")
+    b0c_arcsec: Arcsec = Field(description="B0C = atan(n_x/n_z): the axis's squareness about Y, arcsec")
+    b0c_arcsec_u: SigmaArcsec = Field(description="standard uncertainty (1σ) of B0C, arcsec")
+
+
+class ErrorMotionTarget(ResultsModel):
+    """The table's synchronous error motions at one target (ISO 230-7), separated by a second tracer mount:
+    the mean (the location) and the once-per-turn part that turns with the table removed (1.2)."""
+
+    target_deg: Deg = Field(description="commanded angle of the target, degrees")
+    exc_um: Um = Field(description="EXC: radial error motion in X at the mounts' plane, µm")
+    exc_um_u: SigmaUm = Field(description="standard uncertainty (1σ) of EXC, µm")
+    eyc_um: Um = Field(description="EYC: radial error motion in Y at the mounts' plane, µm")
+    eyc_um_u: SigmaUm = Field(description="standard uncertainty (1σ) of EYC, µm")
+    eac_arcsec: Arcsec = Field(description="EAC: tilt error motion about X (right-hand), arcsec")
+    eac_arcsec_u: SigmaArcsec = Field(description="standard uncertainty (1σ) of EAC, arcsec (the tilt about the line "
+                                                  "joining the mounts is not seen: its part is the stated bound's)")
+    ebc_arcsec: Arcsec = Field(description="EBC: tilt error motion about Y (right-hand), arcsec")
+    ebc_arcsec_u: SigmaArcsec = Field(description="standard uncertainty (1σ) of EBC, arcsec (as EAC's)")
+
+
 class MultistationEstimates(NamedSet[Estimate]):
     """``estimates`` of the multi-station method: every estimator the procedure asked for that could run."""
 
@@ -663,6 +702,12 @@ class MultistationAnalysis(Analysis):
     truth: StationTruth | None = Field(None, description="what the simulated stations really had (absent: on instruments)")
     environment: EnvironmentSummary | None = Field(
         description="the air and table conditions recorded with the lengths (null: no environment sensor)")
+    axis_location: AxisLocation | None = Field(
+        None, description="the axis's location errors X0C, Y0C, A0C, B0C from the network (absent: no network estimate) (1.2)")
+    error_motions: list[ErrorMotionTarget] | None = Field(
+        None, description="per target EXC, EYC, EAC, EBC with u, from a second tracer mount (absent: one mount) (1.2)")
+
+    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | {"axis_location", "error_motions"}
 
 
 class AbbeAnalysis(Analysis):
@@ -778,6 +823,8 @@ class MultistationResults(MultistationAnalysis, RunResults):
     """results.json of the laser-tracer multi-station method (seed 000)."""
 
     method: Literal["laser_tracer_multistation"] = Field(description="the calibration method")
+
+    OPTIONAL_KEYS = RunResults.OPTIONAL_KEYS | MultistationAnalysis.OPTIONAL_KEYS
 
 
 class AbbeResults(AbbeAnalysis, RunResults):

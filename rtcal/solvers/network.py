@@ -16,7 +16,8 @@ weighted observations let the CMM's point noise enter with its own weight (DESIG
 The cumulative deviation is φ_j − φ_0 − (θ_j − θ_0). The stage's per-visit repeatability enters
 the length weights where a visit has one length (point-major order) and the budget otherwise.
 Variances of the tracer's and the CMM's noise are estimated from the residuals (REML fixed
-point, Type A). Error motions, which one mount cannot separate, are a Type B source.
+point, Type A). Error motions, which one mount cannot separate, are a Type B source. The solved
+axis line is also reported as ISO 230-7 location errors (X0C, Y0C, A0C, B0C; rtcal.solvers.location).
 
 Normal equations are solved with the points eliminated (Schur complement: each point is a
 3×3 block), so a network of thousands of points costs O(points·globals²): the globals (axis,
@@ -36,6 +37,7 @@ from rtcal.solvers.station_budget import (
     cmm_matrix_derivatives,
     error_motion_covariances,
 )
+from rtcal.solvers.location import location_from_axis, location_jacobian, stated_motion_covariance
 from rtcal.solvers.station_data import MultistationData
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, Source, VarianceEstimate, propagate
 from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
@@ -77,6 +79,23 @@ class NetworkEstimate:
     message: str
     mounts_mm: np.ndarray | None = None  # (mounts, 3) tracer centres in the table frame
     error_motions: "ErrorMotions | None" = None  # with a second mount
+    axis_location: "AxisLocation | None" = None  # ISO 230-7 X0C, Y0C, A0C, B0C of the solved axis
+
+
+@dataclass(frozen=True)
+class AxisLocation:
+    """The solved axis line as ISO 230-7 location errors (rtcal.solvers.location's convention), with
+    their covariance: the same sources as the deviation's budget propagated through the adjustment,
+    plus the error motions as the procedure bounds them (one mount: they move the stations; two
+    mounts: the part of them the mounts cannot tell from the axis, their mean over the stations)."""
+
+    values: np.ndarray  # X0C mm, Y0C mm, A0C ″, B0C ″
+    covariance: np.ndarray  # 4×4 in those units
+    components: list[tuple[str, np.ndarray]]  # per source: its standard uncertainty of each value
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
 
 @dataclass(frozen=True)
@@ -91,6 +110,11 @@ class ErrorMotions:
     tilt_arcsec: np.ndarray  # (m,): about the horizontal axis perpendicular to the line joining the mounts
     tilt_sigma_arcsec: np.ndarray
     tilt_axis_deg: np.ndarray  # (m,): direction of that axis in the CMM frame
+    # ISO 230-7 per target, synchronous as above, each with its standard uncertainty from the sources
+    # of the budget and the stated bounds for what the mounts cannot see (the tilt about their line)
+    radial_u_um: np.ndarray | None = None  # (m, 2): u of EXC, EYC
+    tilt_xy_arcsec: np.ndarray | None = None  # (m, 2): EAC, EBC (about X, about Y)
+    tilt_xy_u_arcsec: np.ndarray | None = None  # (m, 2)
 
 
 def _without_fundamental(angles_rad: np.ndarray, rotating: bool) -> np.ndarray:
@@ -540,6 +564,26 @@ def _variance_scales(x, lay, evaluate, weights, theta, pi, prior) -> np.ndarray:
     return new
 
 
+def _unseen_motions(S_inv: np.ndarray, lay: _Layout, prior, nominal: np.ndarray, lever_mm: float,
+                    noise: StationNoiseModel):
+    """Gx ↦ Gx·S⁻¹Λ·C·ΛS⁻¹·Gxᵀ: what the error motions the data cannot see do to outputs Gx·x. The
+    priors settle those (x̂ − x = −S⁻¹Λx to first order, Λ the priors' 1/σ²); the true motions there
+    follow the procedure's stated model C (:func:`rtcal.solvers.location.stated_motion_covariance`)."""
+    idx, sigma = prior
+    m = lay.m
+    order = np.concatenate([np.column_stack([lay.delta.start + 3 * np.arange(m) + k for k in range(3)]
+                                            + [lay.eps.start + 2 * np.arange(m) + k for k in range(2)])]).ravel()
+    weight = dict(zip(idx.tolist(), (1.0 / sigma**2).tolist()))
+    pull = S_inv[:, order] * np.array([weight[i] for i in order])[None, :]
+    C = stated_motion_covariance(nominal, lever_mm, noise)
+
+    def cov(Gx: np.ndarray) -> np.ndarray:
+        M = Gx @ pull
+        return M @ C @ M.T
+
+    return cov
+
+
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
             run_fraction):
     """The estimate, its covariance and its budget at the solution."""
@@ -594,13 +638,19 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(replace(drift, effect=np.vstack([drift.effect, np.zeros((len(zeros_pts), 2))])))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
+    G_loc = np.zeros((4, lay.g))  # X0C, Y0C, A0C, B0C ← globals (c, a)
+    J_loc = location_jacobian(x[lay.c], x[lay.a])
+    G_loc[:, lay.c], G_loc[:, lay.a] = J_loc[:, :3], J_loc[:, 3:]
+    loc_parts = [(c.name, c.covariance_arcsec2) for c in propagate(H, sources, variances, G_loc)]
     if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
         U = sp.csr_matrix((-e.ravel(), (np.repeat(np.arange(N_len), 3), (3 * st[:, None] + np.arange(3)).ravel())),
                           shape=(N_len, 3 * m))
         T = (U.T @ (G @ H_len).T).T  # cumulative ← station displacements
+        T_loc = (U.T @ (G_loc @ H_len).T).T  # location ← station displacements
         for name, bound, unit, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
+            loc_parts.append((name, T_loc @ cov @ T_loc.T))
             components.append(BudgetComponent(
                 name, "B", bound, unit, T @ cov @ T.T, False,
                 f"within ±{bound:g} {unit} (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one mount cannot "
@@ -626,9 +676,24 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         T = R1 @ Ptilt * ARCSEC_PER_RAD
         tilt = T @ x[ei]
         tilt_sd = np.sqrt(np.abs(np.diag(T @ S_inv[np.ix_(ei, ei)] @ T.T)))
+        # ISO 230-7 per target: EXC, EYC and EAC, EBC, synchronous (R2), with every source of the budget
+        # and the stated error motions for what the mounts cannot see (the prior settles it)
+        unseen = _unseen_motions(S_inv, lay, prior, nominal, x[lay.c][2] - noise.tilt_center_z_mm, noise)
+        G_rad, G_tilt = np.zeros((2 * m, lay.g)), np.zeros((2 * m, lay.g))
+        G_rad[:, xy] = R2 * 1e3
+        G_tilt[:, np.concatenate([ei[0::2], ei[1::2]])] = R2 * ARCSEC_PER_RAD
+        u_rad, u_tilt = (np.sqrt(np.clip(np.diag(sum(c.covariance_arcsec2 for c in propagate(H, sources, variances, Gx))
+                                                 + unseen(Gx)), 0.0, None)) for Gx in (G_rad, G_tilt))
+        tilt_xy = G_tilt @ x[: lay.g]
+        loc_parts.append(("error motions the mounts cannot tell from the axis (their mean over the stations)",
+                          unseen(G_loc)))
         motions = dict(mounts_mm=pm, error_motions=ErrorMotions(
             np.column_stack([radial[:m], radial[m:]]), np.column_stack([radial_sd[:m], radial_sd[m:]]),
-            tilt, tilt_sd, np.degrees(perp) % 360.0))
+            tilt, tilt_sd, np.degrees(perp) % 360.0, np.column_stack([u_rad[:m], u_rad[m:]]),
+            np.column_stack([tilt_xy[:m], tilt_xy[m:]]), np.column_stack([u_tilt[:m], u_tilt[m:]])))
+    loc_cov = sum(cov for _, cov in loc_parts)
+    motions["axis_location"] = AxisLocation(location_from_axis(x[lay.c], a), loc_cov,
+                                            [(name, np.sqrt(np.clip(np.diag(cov), 0.0, None))) for name, cov in loc_parts])
     return NetworkEstimate(
         angles_rad=phi.copy(), axis_point_mm=x[lay.c].copy(), axis_direction=a, radius_mm=float(x[lay.r]),
         dead_paths_mm=x[lay.d].copy(), segment_ids=seg_ids, cmm_errors=q.copy(), cmm_errors_sigma=q_sigma,
