@@ -12,7 +12,7 @@ import numpy as np
 
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.report import fmt, largest, status_lines
-from rtcal.deliverables.rounding import u_text
+from rtcal.deliverables.rounding import decimals, round_up, u_text
 from rtcal.results.model import (
     AXIS_CONVENTION,
     Estimate,
@@ -42,12 +42,11 @@ def _mathtext_safe(text: str) -> str:
 def expanded(u: float, scale: float = 1.0) -> tuple[str, int]:
     """U = 2u (times ``scale``) rounded up to two significant digits (GUM 7.2.6), and the decimals it has,
     to which the value is then rounded."""
-    U = 2.0 * u * scale
-    if not U > 0 or not math.isfinite(U):
+    U = round_up(2.0 * u * scale)  # the one rounding of U (rtcal/deliverables/rounding.py)
+    if U is None or not U > 0 or not math.isfinite(U):
         return "0", 0
-    decimals = max(0, 1 - math.floor(math.log10(U)))
-    step = 10.0 ** -decimals
-    return f"{math.ceil(U / step - 1e-9) * step:.{decimals}f}", decimals
+    places = decimals(U)
+    return f"{U:.{places}f}", places
 
 
 def _with_u(value: float, u: float, scale: float = 1.0) -> tuple[str, str]:
