@@ -157,6 +157,7 @@ class SimCmm(_Injecting, Cmm):
         fault = self.bench.faults.draw(self.name, position_read=True) if self.inject else None
         if fault is not None and fault.kind == "moved":  # another client moves the probe
             self.bench.move_probe(self.bench.probe_target_mm + np.asarray(fault.offset_mm, float))
+        self.bench.reading()
         return self.bench.probe_target_mm + self._reading_error_mm
 
     def stop(self) -> None:
@@ -195,6 +196,7 @@ class SimLaserTracer(_Injecting, LaserTracer):
             raise communication_fault(self.name, fault.kind)
         if self.bench.beam_broken:
             raise TrackingLost(self.name, "tracking lost: re-reference the tracer")
+        self.bench.reading()
         if self._reference_mm is None:
             self.reference()
         length = self.bench.tracer_length_mm()
@@ -215,6 +217,7 @@ class SimEncoder(_Injecting, Encoder):
 
     def read_angle_deg(self) -> float:
         self._request()
+        self.bench.reading()
         enc = self.bench.scenario.encoder
         value = rad_to_arcsec(self.bench.encoder_true_rad()) + enc.noise_arcsec * self._rng.standard_normal()
         return _quantise(value, enc.resolution_arcsec) / 3600.0
@@ -234,7 +237,8 @@ class SimAutocollimator(_Injecting, Autocollimator):
         self._request()
         ac = self.bench.scenario.autocollimator
         x_rad, _ = self.bench.autocollimator_true()
-        x = rad_to_arcsec(x_rad) + ac.noise_arcsec * self._rng.standard_normal()
+        self.bench.reading()
+        x = rad_to_arcsec(x_rad) * (1.0 + ac.scale_error_ppm * 1e-6) + ac.noise_arcsec * self._rng.standard_normal()
         if abs(x) > ac.range_arcsec:
             raise InstrumentFault(self.name, f"no polygon face within ±{ac.range_arcsec:g}″ (deflection {x:.0f}″)")
         return float(_quantise(x, ac.resolution_arcsec)), 0.0
@@ -252,6 +256,7 @@ class SimDialIndicator(_Injecting, DialIndicator):
 
     def read_um(self) -> float:
         self._request()
+        self.bench.reading()
         di = self.bench.scenario.dial_indicators
         y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + di.noise_um * self._rng.standard_normal()
         return _quantise(y_um, di.resolution_um)
@@ -269,6 +274,7 @@ class SimEnvironmentSensor(_Injecting, EnvironmentSensor):
 
     def read(self) -> EnvironmentReading:
         self._request()
+        self.bench.reading()
         e = self.bench.scenario.environment
         t, p, rh, tm = self.bench.environment()
         z = self._rng.standard_normal(4)

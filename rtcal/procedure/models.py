@@ -395,6 +395,9 @@ class EnvironmentUncertainty(_Strict):
                                    "without one the range ± the air may take during the run (e.g. 500)")
     humidity_pct: float = Field(5.0, ge=0.0, le=50.0, description="relative humidity, % RH: with a sensor its 1σ (e.g. 5); "
                                 "without one the range ± the air may take during the run (e.g. 20)")
+    material_temperature_k: float = Field(0.1, ge=0.0, le=20.0, description=(
+        "the table's (material) temperature, K: with a sensor reading it, its 1σ (e.g. 0.1); without one the range ± "
+        "about 20 °C the table may take during the run (e.g. 0.5); used with uncertainty.table_expansion_ppm_per_k"))
 
 
 class MultistationUncertainty(_Strict):
@@ -413,6 +416,11 @@ class MultistationUncertainty(_Strict):
     environment: EnvironmentUncertainty = Field(EnvironmentUncertainty(), description="the air: with an environment "
                                                 "instrument its sensor's uncertainty (1σ); without one the range the air may "
                                                 "take during the run")
+    table_expansion_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
+        "how much the table top and the tracer mounted on it grow radially about the axis per K above 20 °C, ppm/K "
+        "(e.g. 11.5 for steel; 0: not stated, named in the budget's not_included)"))
+    table_expansion_u_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
+        "standard uncertainty of that coefficient, ppm/K (e.g. 1.0)"))
 
 
 class _Verification(_Strict):

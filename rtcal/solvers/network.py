@@ -31,8 +31,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from rtcal.solvers.station_budget import (
+    AIR_DRIFT_SOURCE,
     StationNoiseModel,
     air_drift_source,
+    bounded_components,
+    radial_sensitivity_mm,
+    table_expansion_sources,
     cmm_matrix_derivatives,
     error_motion_covariances,
 )
@@ -345,6 +349,9 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     pi, st, obs = np.concatenate(pi_l), np.concatenate(st_l), np.concatenate(obs_l)
     fractions = data.run_fraction()
     run_fraction = np.concatenate([fractions[k][np.isfinite(mounts[k][0])] for k in range(len(mounts))])
+    offsets = data.material_offsets_k()
+    material_offset = None if offsets is None else np.concatenate(
+        [offsets[k][np.isfinite(mounts[k][0])] for k in range(len(mounts))])
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
     lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts))
     if len(obs) < lay.g + 1:
@@ -459,7 +466,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         if settled:
             break
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
-                   (prior_idx, prior_sigma), run_fraction)
+                   (prior_idx, prior_sigma), run_fraction, material_offset)
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -541,7 +548,7 @@ def _variance_scales(x, lay, evaluate, weights, theta, pi, prior) -> np.ndarray:
 
 
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
-            run_fraction):
+            run_fraction, material_offset=None):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
         x, lay, evaluate, weights, theta, pi, prior)
@@ -592,8 +599,21 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     if noise.air_index_bound > 0:  # no sensor: the air drifts within the stated ranges, uncorrected
         drift = air_drift_source(np.linalg.norm(A[pi] - P[st], axis=1), run_fraction, noise)
         sources.append(replace(drift, effect=np.vstack([drift.effect, np.zeros((len(zeros_pts), 2))])))
+    axis_dir, _, _ = axis_basis(*x[lay.a])
+    d_len = A[pi] - P[st]
+    L_abs = np.linalg.norm(d_len, axis=1)
+    unit = d_len / L_abs[:, None]
+    for src in table_expansion_sources(unit, P[st], x[lay.c], axis_dir, material_offset, noise):
+        sources.append(replace(src, effect=np.vstack([src.effect, np.zeros((len(zeros_pts), 1))])))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
+    if noise.air_index_bound > 0 or noise.material_temperature_bound_k > 0:
+        # the uncorrected air and table as any course within their ranges (station_budget.bounded_course_component)
+        components = [c for c in components if c.name != AIR_DRIFT_SOURCE]
+        radial = radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir)
+        pad = np.zeros(len(zeros_pts))
+        components += bounded_components(G @ H, np.concatenate([L_abs, pad]), np.concatenate([radial, pad]),
+                                         np.concatenate([np.nan_to_num(run_fraction), pad - 1.0]), noise)
     if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
