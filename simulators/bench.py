@@ -193,7 +193,13 @@ class Bench:
 
     def reflector_mm(self) -> np.ndarray:
         """Where the cat-eye really is: the commanded target through the CMM's geometric errors."""
-        return self.cmm_matrix @ self.probe_target_mm
+        actual = self.cmm_matrix @ self.probe_target_mm
+        for term in self.scenario.cmm.error_field:  # smooth errors beyond the affine model
+            d = np.asarray(term.direction, float)
+            d = d / (np.linalg.norm(d) or 1.0)
+            actual["xyz".index(term.axis)] += um_to_mm(term.amplitude_um) * math.sin(
+                2 * math.pi * float(d @ self.probe_target_mm) / term.wavelength_mm + math.radians(term.phase_deg))
+        return actual
 
     def tracer_center_mm(self) -> np.ndarray:
         return self.table_point_in_cmm(self.tracer_in_table_mm)

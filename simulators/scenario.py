@@ -113,6 +113,17 @@ class StageScenario(_Strict):
         return self
 
 
+class CmmFieldTerm(_Strict):
+    """One smooth term of the CMM's error field beyond scales and squarenesses: the probe really stands
+    ``amplitude_um``·sin(2π·(direction·p)/wavelength + phase) off along ``axis`` at commanded p."""
+
+    axis: Literal["x", "y", "z"] = Field(description="the coordinate it displaces")
+    amplitude_um: Annotated[float, Field(ge=-1e4, le=1e4)] = Field(description="amplitude, µm (e.g. 1.0)")
+    wavelength_mm: float = Field(gt=1.0, le=1e6, description="wavelength along `direction`, mm (e.g. 800)")
+    direction: Vec3 = Field((1.0, 0.0, 0.0), description="the direction the term varies along (normalised)")
+    phase_deg: Phase_deg = Field(0.0, description="phase, deg")
+
+
 class CmmScenario(_Strict):
     """The CMM: commanded → actual probe position, point noise and measuring volume."""
 
@@ -123,6 +134,8 @@ class CmmScenario(_Strict):
     squareness_xz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between X and Z, arcsec")
     squareness_yz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between Y and Z, arcsec")
     point_noise_um: float = _noise(0.0, "µm", "1σ per coordinate of the reported position", 1e4)
+    error_field: list[CmmFieldTerm] = Field([], max_length=100, description="smooth geometric errors beyond the affine "
+                                            "model (none: the scales and squarenesses only)")
     volume_min_mm: Vec3 = Field((-300.0, -600.0, -100.0), description="lowest X, Y, Z the CMM reaches, mm")
     volume_max_mm: Vec3 = Field((1200.0, 600.0, 800.0), description="highest X, Y, Z the CMM reaches, mm")
     speed_mm_per_s: float = Field(100.0, gt=0.0, le=1e5, description="probe speed, mm/s (motions take virtual time)")

@@ -84,7 +84,8 @@ def noise_model(proc: EncoderAbbeError, estimate: bool = True) -> AbbeNoise:
     u = proc.uncertainty
     return AbbeNoise(u.autocollimator_noise_arcsec, u.autocollimator_resolution_arcsec, u.stage_repeatability_arcsec,
                      u.encoder_noise_arcsec, u.encoder_resolution_arcsec, u.indicator_noise_um, u.indicator_resolution_um,
-                     proc.polygon.certificate_uncertainty_arcsec, estimate)
+                     proc.polygon.certificate_uncertainty_arcsec, estimate, u.autocollimator_scale_u_ppm,
+                     u.autocollimator_calibration_u_arcsec, u.indicator_scale_u_ppm)
 
 
 def not_included(proc: EncoderAbbeError) -> list[str]:
@@ -95,6 +96,10 @@ def not_included(proc: EncoderAbbeError) -> list[str]:
                        "cannot estimate them")
     if proc.polygon.certificate_arcsec != "none" and proc.polygon.certificate_uncertainty_arcsec == 0:
         out.append("polygon certificate: no uncertainty stated (polygon.certificate_uncertainty_arcsec)")
+    if u.autocollimator_scale_u_ppm == 0 and u.autocollimator_calibration_u_arcsec == 0:
+        out.append("autocollimator calibration: its certificate's scale and indication uncertainty not stated "
+                   "(uncertainty.autocollimator_scale_u_ppm, autocollimator_calibration_u_arcsec); a scale error of "
+                   "1 % is 0.5″ at a 50″ deflection")
     return out
 
 
@@ -248,6 +253,11 @@ class AbbeMethod:
         )
 
     def draw_systematics(self, proc: EncoderAbbeError, scenario: Scenario, rng: np.random.Generator) -> Scenario:
-        """Nothing systematic to draw: the polygon's certificate error is drawn afresh with each
-        trial's seed (the bench's certificate is truth plus its stated uncertainty)."""
-        return scenario
+        """The autocollimator's scale error from its certificate's stated uncertainty, N(0, u); the
+        polygon's certificate error is drawn afresh with each trial's seed (the bench's certificate is
+        truth plus its stated uncertainty)."""
+        u = proc.uncertainty.autocollimator_scale_u_ppm
+        if u <= 0:
+            return scenario
+        return scenario.model_copy(update={"autocollimator": scenario.autocollimator.model_copy(
+            update={"scale_error_ppm": float(rng.normal(0.0, u))})})

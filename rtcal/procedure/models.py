@@ -767,6 +767,13 @@ class AbbeUncertainty(_Strict):
     encoder_resolution_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="encoder resolution, arcsec (e.g. 0.05)")
     indicator_noise_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator noise per reading, µm (1σ, e.g. 0.2)")
     indicator_resolution_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator digit, µm (e.g. 1.0)")
+    autocollimator_scale_u_ppm: float = Field(0.0, ge=0.0, le=1e5, description=(
+        "standard uncertainty of the autocollimator's scale, from its calibration certificate, ppm (Type B, e.g. 2500 "
+        "for U = 0.5 % at k = 2; 0: not stated, named in not_included)"))
+    autocollimator_calibration_u_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description=(
+        "expanded uncertainty (k = 2) of an indication from the autocollimator's calibration certificate, arcsec (e.g. 0.1)"))
+    indicator_scale_u_ppm: float = Field(0.0, ge=0.0, le=1e5, description=(
+        "standard uncertainty of each dial indicator's scale, from its calibration certificate, ppm (e.g. 5000)"))
 
 
 class EncoderAbbeError(_Procedure):

@@ -101,6 +101,9 @@ class AbbeNoise:
     indicator_resolution_um: float = 0.0
     certificate_uncertainty_arcsec: float = 0.0
     estimate: bool = True  # random parts from runs or closure residuals where possible; False: as stated
+    autocollimator_scale_u_ppm: float = 0.0  # its scale's standard uncertainty, from its calibration certificate
+    autocollimator_calibration_u_arcsec: float = 0.0  # its certificate's expanded uncertainty (k = 2) of an indication
+    indicator_scale_u_ppm: float = 0.0  # each dial indicator's scale, standard uncertainty, from its certificate
 
 
 @dataclass(frozen=True)
@@ -331,6 +334,18 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         components.append(BudgetComponent("polygon certificate", "B", noise.certificate_uncertainty_arcsec, "″",
                                           _cov(T_f, noise.certificate_uncertainty_arcsec**2), False,
                                           "per face, common to every visit of that face"))
+    if noise.autocollimator_scale_u_ppm > 0:  # a scale error s reads s·y too: ε̂ moves by T·(s·y)
+        g = (T_y @ np.nan_to_num(y))[face_steps] * noise.autocollimator_scale_u_ppm * 1e-6
+        components.append(BudgetComponent("autocollimator calibration (scale)", "B", noise.autocollimator_scale_u_ppm, "ppm",
+                                          np.outer(g, g), False, "its scale's standard uncertainty from its calibration "
+                                          "certificate, times each reading (one error for every reading)"))
+    if noise.autocollimator_calibration_u_arcsec > 0:
+        E_cal = _per_key(seating[ac] * n_s + step_idx[ac])  # the same indication error at a target in every run
+        components.append(BudgetComponent("autocollimator calibration (certificate U)", "B",
+                                          noise.autocollimator_calibration_u_arcsec / 2, "″",
+                                          _cov((T_y @ E_cal)[face_steps], (noise.autocollimator_calibration_u_arcsec / 2) ** 2),
+                                          False, "its certificate's expanded uncertainty of an indication (k = 2), "
+                                          "the same at a target in every run"))
     if not components:
         components.append(BudgetComponent("none stated", "B", 0.0, "″", np.zeros((len(face_steps), len(face_steps))), False,
                                           "no noise stated for the instruments and only one run"))
@@ -382,6 +397,10 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
     noise_p = pooled_p[0] ** 2 if pooled_p else through * noise.indicator_noise_um**2
     pred_cov = (_cov(T_pred, noise_p)
                 + _cov(T_pred @ _per_key((seating * n_s + step_idx)[fp]), through * noise.indicator_resolution_um**2 / 12))
+    if noise.indicator_scale_u_ppm > 0:  # each indicator's scale error scales its share of the prediction
+        for share, reading in ((1 - a_fac, v.indicator1_um), (a_fac, v.indicator2_um)):
+            g = T_pred @ (share * reading * per_um)[fp] * noise.indicator_scale_u_ppm * 1e-6
+            pred_cov = pred_cov + np.outer(np.nan_to_num(g), np.nan_to_num(g))
     residual = meas_steps - pred_steps
     res_var = np.diag(meas_cov) + np.diag(pred_cov)
 
