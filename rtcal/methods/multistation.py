@@ -18,7 +18,7 @@ from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
 from rtcal.run.dataset import multistation_data
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.methods.estimates import choose_recommended, deviation_block, run_estimators
+from rtcal.methods.estimates import choose_recommended, deviation_block, residual_test, run_estimators, with_residual_test
 from rtcal.methods.protocol import Progress, address_of
 from rtcal.results import model as rm
 from rtcal.sequencer.operator import Operator
@@ -226,7 +226,8 @@ def paper_estimate(est: PaperEstimate, omitted: list[str], notes: list[str]) -> 
         station_rms_residual_um=_round([f.rms_residual_um for f in est.stations], 4),
         station_iterations=[f.iterations for f in est.stations],
         converged=est.converged,
-        message=est.message,
+        message=with_residual_test(est.message, est.budget.residual_check),
+        residual_test=residual_test(est.budget.residual_check),
         notes=list(PAPER_NOTES) + notes,
     )
 
@@ -243,8 +244,10 @@ def shared_dead_path_estimate(est: SharedDeadPathEstimate, omitted: list[str]) -
         dead_paths_mm=_dead_paths(est.segment_ids, est.dead_paths_mm),
         rms_residual_um=round(est.rms_residual_um, 4),
         converged=est.converged,
-        message=est.message + ("" if est.budget.variances.converged else
-                               "; the noise sizes (REML) did not converge: the uncertainty is less certain"),
+        message=with_residual_test(est.message + ("" if est.budget.variances.converged else
+                                                  "; the noise sizes (REML) did not converge: the uncertainty is less certain"),
+                                   est.budget.residual_check),
+        residual_test=residual_test(est.budget.residual_check),
     )
 
 
@@ -285,7 +288,8 @@ def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEsti
         rms_point_residual_um=round(est.rms_point_residual_um, 4),
         error_motions=motions,
         converged=est.converged,
-        message=est.message,
+        message=with_residual_test(est.message, est.residual_check),
+        residual_test=residual_test(est.residual_check),
     )
 
 
@@ -413,6 +417,10 @@ class MultistationMethod:
                 ("humidity_pct", "humidity_pct", "humidity_drift_pct_per_h", STANDARD_AIR["humidity_pct"])):
             r = ranges.get(key, 0.0)
             first, last = (float(v) for v in rng.uniform(-r, r, 2))
+            profile = {"air_temperature_k": env.air_temperature_profile, "air_pressure_pa": env.air_pressure_profile,
+                       "humidity_pct": env.humidity_profile}[key]
+            if profile:  # the bench states this quantity's course (a step, a cycle): it is the trial's air
+                continue
             update[start_field] = standard + first
             update[drift_field] = (last - first) / hours if hours > 0 else 0.0
         return env.model_copy(update=update)

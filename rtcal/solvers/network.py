@@ -41,7 +41,16 @@ from rtcal.solvers.station_budget import (
     error_motion_covariances,
 )
 from rtcal.solvers.station_data import MultistationData
-from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, Source, VarianceEstimate, propagate
+from rtcal.solvers.uncertainty import (
+    BudgetComponent,
+    DeviationBudget,
+    ResidualCheck,
+    Source,
+    VarianceEstimate,
+    propagate,
+    residual_check,
+    stated_covariance,
+)
 from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
 
 CMM_NAMES = ("scale_x_ppm", "scale_y_ppm", "scale_z_ppm", "squareness_xy_arcsec", "squareness_xz_arcsec", "squareness_yz_arcsec")
@@ -79,6 +88,7 @@ class NetworkEstimate:
     iterations: int
     converged: bool
     message: str
+    residual_check: ResidualCheck | None = None  # the residuals against the stated noise model
     mounts_mm: np.ndarray | None = None  # (mounts, 3) tracer centres in the table frame
     error_motions: "ErrorMotions | None" = None  # with a second mount
 
@@ -625,6 +635,19 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
                 name, "B", bound, unit, T @ cov @ T.T, False,
                 f"within ±{bound:g} {unit} (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one mount cannot "
                 "separate them from the rotation"))
+    check = None
+    if noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
+        # the residuals (lengths, then the points' coordinates) against the noise as stated: θ = 1, the Type B
+        # sources acting on them, and the error motions the stated bounds allow where the model has none
+        stated = [replace(src, effect=src.effect / np.sqrt(theta[0])) if src.name == "tracer length noise" else
+                  replace(src, effect=src.effect / np.sqrt(theta[1])) if src.name == "CMM point noise" else src
+                  for src in sources if src.name != AIR_DRIFT_SOURCE or noise.air_index_bound > 0]
+        V0 = stated_covariance(stated, len(f_len) + len(f_pts))
+        if not lay.error_motions:
+            Ud = U.toarray()
+            for *_, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
+                V0[:N_len, :N_len] += Ud @ cov @ Ud.T
+        check = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     q_sigma = np.sqrt(np.clip(np.diag(S_inv)[lay.q], 0.0, None)) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])
@@ -659,5 +682,5 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sigma_point_um=max(noise.point_noise_um, 1e-3) * float(np.sqrt(theta[1])),
         rms_length_residual_um=float(np.sqrt(np.mean(f_len**2))) * 1e3,
         rms_point_residual_um=float(np.sqrt(np.mean(f_pts**2))) * 1e3 if lay.free_points else 0.0,
-        iterations=iterations, converged=converged, message=message, **motions)
+        iterations=iterations, converged=converged, message=message, residual_check=check, **motions)
 

@@ -40,8 +40,11 @@ from rtcal.solvers.uncertainty import (
     BudgetComponent,
     DeviationBudget,
     Source,
+    ResidualCheck,
     VarianceEstimate,
     difference_matrix,
+    residual_check,
+    stated_covariance,
     propagate,
     reml_scales,
 )
@@ -337,6 +340,7 @@ class StationBudget:
     cumulative: DeviationBudget
     variances: VarianceEstimate
     sources: list[Source]
+    residual_check: ResidualCheck | None = None  # the residuals against the stated noise model
 
     @property
     def step_uncertainty_arcsec(self) -> np.ndarray:
@@ -386,4 +390,9 @@ def station_budget(
         components.append(BudgetComponent(name, "B", bound, unit, G @ cov @ G.T, False,
                                           f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
                                           "mount cannot separate them from the rotation"))
-    return StationBudget(DeviationBudget(components), variances, sources)
+    check = None
+    stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
+    if not stated_zero:  # the noise as stated (Type A at θ = 1) and the Type B sources that act on the residuals
+        check = residual_check(residuals, stated_covariance(sources, len(np.asarray(residuals))),
+                               np.linalg.matrix_rank(J))
+    return StationBudget(DeviationBudget(components), variances, sources, check)
