@@ -183,6 +183,16 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
     if max(u.error_motions.radial_um, u.error_motions.axial_um, u.error_motions.tilt_arcsec) == 0:
         out.append("error motions: no bounds stated (uncertainty.error_motions); one tracer mount cannot separate "
                    "them from the rotation, so a table with error motions is off by more than this budget says")
+    else:
+        em = u.error_motions
+        unstated = [name for name, bound in (("radial (EXC, EYC)", em.radial_um), ("axial (EZC)", em.axial_um),
+                                             ("tilt (EAC, EBC)", em.tilt_arcsec)) if bound == 0]
+        if unstated:
+            out.append(f"error motions {', '.join(unstated)}: no bound stated while the others are "
+                       "(uncertainty.error_motions); taken as zero, which a table rarely is")
+    out.append("CMM geometry beyond its three scales and three squarenesses (a smooth error field): not modelled and "
+               "not excluded; each estimate's residual test (Birge ratio against the stated noise) shows a field only "
+               "where it exceeds the point noise")
     if u.cmm_scale_ppm == 0 and u.cmm_squareness_arcsec == 0:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
