@@ -17,7 +17,14 @@ from rtcal.clock import Clock
 from rtcal.run.dataset import abbe_conditions, abbe_visits
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import EncoderAbbeError
-from rtcal.methods.estimates import choose_recommended, deviation_block, finite_or_none, run_estimators
+from rtcal.methods.estimates import (
+    choose_recommended,
+    deviation_block,
+    finite_or_none,
+    residual_test,
+    run_estimators,
+    with_residual_test,
+)
 from rtcal.methods.protocol import PreparationError, Progress, address_of
 from rtcal.results import model as rm
 from rtcal.sequencer.abbe import AbbeInstrumentSet, planned_visits, run_abbe
@@ -117,7 +124,8 @@ def abbe_estimate(est: AbbeEstimate, source: str, omitted: list[str]) -> rm.Abbe
         **dict(deviation_block(ref.cumulative_arcsec, ref.budget, ref.steps, omitted)),
         random_error_from=ref.random_source,
         converged=True,  # a linear estimate: nothing to iterate
-        message="linear least squares",
+        message=with_residual_test("linear least squares", est.residual_check),
+        residual_test=residual_test(est.residual_check),
         angle_deg=[round(float(a), 6) for a in est.angle_deg],
         direction=[int(d) for d in est.direction],
         tilt_x_arcsec=finite_or_none(est.tilt_x_arcsec),
@@ -165,7 +173,8 @@ def closure_estimate(est: AbbeEstimate) -> rm.ClosureEstimate:
         target_direction=[int(d) for d in dirs],
         **dict(deviation_block(R @ c.table_error, budget, steps_within_directions(dirs))),
         converged=True,
-        message="linear least squares with closure constraints",
+        message=with_residual_test("linear least squares with closure constraints", est.residual_check),
+        residual_test=residual_test(est.residual_check),
         table_angle_deg=[round(float(a), 6) for a in angles],
         direction=[int(d) for d in dirs],
         table_error_arcsec=finite_or_none(c.table_error),

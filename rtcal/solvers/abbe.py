@@ -47,7 +47,7 @@ from rtcal.solvers.harmonics import (
     resolvable_orders,
     smooth_values,
 )
-from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
+from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, ResidualCheck
 from rtcal.units import ARCSEC_PER_RAD
 
 
@@ -162,6 +162,7 @@ class AbbeEstimate:
     reference: ReferenceDeviation
     random_sigma_arcsec: float  # the per-visit random error of the reference as used (estimated or stated)
     random_sigma_type: str = "B"  # "A": estimated from closure residuals or runs; "B": as stated
+    residual_check: ResidualCheck | None = None  # the repeated readings (runs or closure) against the stated noise
 
 
 SMOOTH_MOTION_ORDERS = 4  # the shaft motion whose rounding is simulated: orders 1..4 of the indicator readings
@@ -226,6 +227,26 @@ def _pooled_sigma(values: np.ndarray, groups: np.ndarray) -> tuple[float, int] |
 
 def _cov(T: np.ndarray, variance: float) -> np.ndarray:
     return variance * (T @ T.T)
+
+
+def _residual_check(noise: AbbeNoise, pooled: tuple[float, int] | None, closure, n_closure: int) -> ResidualCheck | None:
+    """The scatter the data show — over repeated runs, or the closure fit's residuals — against the
+    stated per-visit random error (autocollimator noise and digit, stage repeatability): χ² = ν·s²/s₀²."""
+    from scipy.stats import chi2 as chi2_dist
+
+    s0 = float(np.sqrt(noise.autocollimator_noise_arcsec**2 + noise.autocollimator_resolution_arcsec**2 / 12
+                       + noise.stage_repeatability_arcsec**2))
+    if s0 <= 0:
+        return None
+    if closure is not None and closure.sigma > 0:
+        dof = max(int(round(n_closure * closure.residual_rms**2 / closure.sigma**2)), 1)
+        sigma = closure.sigma
+    elif pooled is not None:
+        sigma, dof = pooled
+    else:
+        return None
+    chi2 = dof * (sigma / s0) ** 2
+    return ResidualCheck(float(chi2), int(dof), float(sigma / s0), float(chi2_dist.sf(chi2, dof)))
 
 
 def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
@@ -486,4 +507,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         repeatability_arcsec=None if pooled is None else pooled[0], harmonics=harmonics,
         extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
         random_sigma_type=random_parts[0][1],
+        residual_check=_residual_check(noise, pooled, closure, len(whole) if closure is not None else 0),
     )
