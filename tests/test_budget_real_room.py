@@ -172,3 +172,17 @@ def test_the_autocollimator_calibration_enters_the_iso_budget():
     assert scale.input_sigma == 5000
     assert max(v for v in scale.contribution_arcsec if v is not None) > 0.05  # 0.5 % of deflections of tens of ″
     assert "autocollimator calibration (certificate U)" in names
+
+
+def test_an_estimator_whose_residuals_the_stated_noise_cannot_explain_says_so():
+    """A strong smooth CMM field (about 3.5 µm): every seed-000 estimator fails its residual test, says
+    so in its status message and residual_test; on the 1 µm bench (same geometry) they pass."""
+    from rtcal.run.runner import run_procedure
+
+    out = run_procedure(str(DATA / "cmm_field.yaml"), DATA / "cmm_field_strong_bench.yaml", 5,
+                        Path(__import__("tempfile").mkdtemp()) / "run", show_progress=False, outputs=False)
+    r = out.results
+    for name in ("paper", "shared_dead_path", "network"):
+        test = getattr(r.estimates, name).residual_test
+        assert test is not None and not test.passed and test.birge_ratio > 1.5
+        assert "FAILS its residual test" in r.solver_status[name].message

@@ -15,7 +15,7 @@ from typing import Callable, Iterable, TypeVar
 import numpy as np
 
 from rtcal.results.model import BudgetComponent, DeviationBlock, Estimate, ResidualTest, SolverStatus, UncertaintyBudget
-from rtcal.solvers.uncertainty import DeviationBudget, difference_matrix
+from rtcal.solvers.uncertainty import DeviationBudget, ResidualCheck, difference_matrix
 
 COVERAGE_FACTOR = 2.0
 
@@ -64,7 +64,7 @@ def deviation_block(cumulative_arcsec: np.ndarray, budget: DeviationBudget, step
 E = TypeVar("E", bound=Estimate)
 
 
-def residual_test(check) -> ResidualTest | None:
+def residual_test(check: ResidualCheck | None) -> ResidualTest | None:
     """A solver's :class:`rtcal.solvers.uncertainty.ResidualCheck` as results (None: nothing tested)."""
     if check is None:
         return None
@@ -72,7 +72,7 @@ def residual_test(check) -> ResidualTest | None:
                         p_value=float(check.p_value), passed=check.passed)
 
 
-def with_residual_test(message: str, check) -> str:
+def with_residual_test(message: str, check: ResidualCheck | None) -> str:
     """The solver's message and, where its residuals were tested, the verdict in words."""
     return message if check is None else f"{message}; {check.words()}"
 
