@@ -108,12 +108,12 @@ def test_the_residual_test_passes_noise_as_stated_and_fails_a_model_error():
     assert "FAILS" in bad.words() and "passes" in ok.words()
 
 
-def _coverage(case: str, trials: int, seed: int = 2800, fixed: bool = False) -> dict:
+def _coverage(case: str, trials: int, seed: int = 2800, fixed: bool = False, balanced: bool = False) -> dict:
     proc_path = DATA / f"{case}.yaml"
     proc = load_procedure(proc_path)
     bench = _scenario(DATA / f"{case}_bench.yaml")
     tmp = Path(__import__("tempfile").mkdtemp(prefix=f"mc-{case}-"))
-    specs = plan_trials(proc_path, proc, bench, trials, seed, tmp, vary_systematics=not fixed)
+    specs = plan_trials(proc_path, proc, bench, trials, seed, tmp, vary_systematics=not fixed, balanced=balanced)
     results = [run_trial(s) for s in specs]
     return summarize(results, results[0]["labels"])
 
@@ -137,7 +137,8 @@ def test_a_real_room_is_covered_in_a_few_trials(case):
 @pytest.mark.campaign
 @pytest.mark.parametrize("case", CASES)
 def test_a_real_room_is_covered_campaign(case):
-    summary = _coverage(case, 40)
+    """The systematic draws in moment-matched antithetic pairs (`--balanced`): their sampling does not decide."""
+    summary = _coverage(case, 40, balanced=True)
     assert _recommended_coverage(summary) >= 0.95
 
 

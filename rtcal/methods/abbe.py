@@ -104,9 +104,7 @@ def not_included(proc: EncoderAbbeError) -> list[str]:
     if proc.polygon.certificate_arcsec != "none" and proc.polygon.certificate_uncertainty_arcsec == 0:
         out.append("polygon certificate: no uncertainty stated (polygon.certificate_uncertainty_arcsec)")
     if u.autocollimator_scale_u_ppm == 0 and u.autocollimator_calibration_u_arcsec == 0:
-        out.append("autocollimator calibration: its certificate's scale and indication uncertainty not stated "
-                   "(uncertainty.autocollimator_scale_u_ppm, autocollimator_calibration_u_arcsec); a scale error of "
-                   "1 % is 0.5″ at a 50″ deflection")
+        out.append("autocollimator calibration (its certificate's scale): not stated (uncertainty.autocollimator_scale_u_ppm)")
     return out
 
 
