@@ -112,6 +112,7 @@ class Bench:
         self.motor_rad = 0.0  # an external controller's motor position (follow_motor), unquantised
         self.last_direction = +1
         self.probe_target_mm = np.zeros(3)
+        self.first_reading_s: float | None = None  # when the run's first reading was taken (the profiles' time 0)
         self.beam_broken = False  # the tracer's beam was interrupted since its last reference
         self.emergency_stop = False  # pressed: no motion until an operator releases it
         self.truth = Truth()
@@ -193,7 +194,11 @@ class Bench:
         """A table point in the housing frame (origin at the axis point, z along the axis)."""
         delta, ex, ey = self.error_motions(self.commanded_rad)
         c = self.tilt_center
-        rotated = rot_z(self.actual_rad) @ np.asarray(p_table_mm, dtype=float)
+        p = np.asarray(p_table_mm, dtype=float)
+        growth = self.table_growth()
+        if growth:  # the table top and what is mounted on it grow radially about the axis
+            p = np.array([p[0] * (1.0 + growth), p[1] * (1.0 + growth), p[2]])
+        rotated = rot_z(self.actual_rad) @ p
         return c + delta + rot_y(ey) @ rot_x(ex) @ (rotated - c)
 
     def table_point_in_cmm(self, p_table_mm: np.ndarray) -> np.ndarray:
@@ -205,7 +210,13 @@ class Bench:
 
     def reflector_mm(self) -> np.ndarray:
         """Where the cat-eye really is: the commanded target through the CMM's geometric errors."""
-        return self.cmm_matrix @ self.probe_target_mm
+        actual = self.cmm_matrix @ self.probe_target_mm
+        for term in self.scenario.cmm.error_field:  # smooth errors beyond the affine model
+            d = np.asarray(term.direction, float)
+            d = d / (np.linalg.norm(d) or 1.0)
+            actual["xyz".index(term.axis)] += um_to_mm(term.amplitude_um) * math.sin(
+                2 * math.pi * float(d @ self.probe_target_mm) / term.wavelength_mm + math.radians(term.phase_deg))
+        return actual
 
     def tracer_center_mm(self) -> np.ndarray:
         return self.table_point_in_cmm(self.tracer_in_table_mm)
@@ -229,13 +240,26 @@ class Bench:
             self.beam_broken = True
 
     # -- air and material
+    def reading(self) -> None:
+        """An instrument takes a reading now: the first one starts the profiles' time."""
+        if self.first_reading_s is None:
+            self.first_reading_s = self.clock.now_s()
+
     def environment(self) -> tuple[float, float, float, float]:
-        """(air °C, air Pa, % RH, material °C) at the clock's present time."""
+        """(air °C, air Pa, % RH, material °C) at the clock's present time: start + drift + profile."""
         e = self.scenario.environment
-        h = self.clock.now_s() / 3600.0
-        return (e.air_temperature_c + e.air_temperature_drift_k_per_h * h, e.air_pressure_pa + e.air_pressure_drift_pa_per_h * h,
-                min(max(e.humidity_pct + e.humidity_drift_pct_per_h * h, 0.0), 100.0),
-                e.material_temperature_c + e.material_temperature_drift_k_per_h * h)
+        now = self.clock.now_s()
+        h = now / 3600.0
+        dt, dp, dh, dm = e.offsets(None if self.first_reading_s is None else now - self.first_reading_s)
+        return (e.air_temperature_c + e.air_temperature_drift_k_per_h * h + dt,
+                e.air_pressure_pa + e.air_pressure_drift_pa_per_h * h + dp,
+                min(max(e.humidity_pct + e.humidity_drift_pct_per_h * h + dh, 0.0), 100.0),
+                e.material_temperature_c + e.material_temperature_drift_k_per_h * h + dm)
+
+    def table_growth(self) -> float:
+        """The table's relative radial growth about the axis now: α·(material temperature − 20 °C)."""
+        alpha = self.scenario.stage.thermal_expansion_ppm_per_k
+        return alpha * 1e-6 * (self.environment()[3] - 20.0) if alpha else 0.0
 
     def air_index(self) -> float:
         """The refractive index of the air the tracer's beam runs through, now (Ciddor, He-Ne)."""

@@ -180,6 +180,7 @@ class SimCmm(_Injecting, Cmm):
         fault = self.bench.faults.draw(self.name, position_read=True) if self.inject else None
         if fault is not None and fault.kind == "moved":  # another client moves the probe
             self.bench.move_probe(self.bench.probe_target_mm + np.asarray(fault.offset_mm, float))
+        self.bench.reading()
         return self.bench.probe_target_mm + self._reading_error_mm
 
     def stop(self) -> None:
@@ -221,6 +222,7 @@ class SimLaserTracer(_Injecting, LaserTracer):
             raise communication_fault(self.name, fault.kind)
         if self.bench.beam_broken:
             raise TrackingLost(self.name, "tracking lost: re-reference the tracer")
+        self.bench.reading()
         if self._reference_mm is None:
             self.reference()
         length = self.bench.tracer_length_mm()
@@ -246,6 +248,7 @@ class SimEncoder(_Injecting, Encoder):
 
     def read_angle_deg(self) -> float:
         self._request()
+        self.bench.reading()
         enc = self.bench.scenario.encoder
         value = rad_to_arcsec(self.bench.encoder_true_rad()) + enc.noise_arcsec * self._rng.standard_normal()
         return self._reply(_quantise(value, enc.resolution_arcsec) / 3600.0)
@@ -265,7 +268,8 @@ class SimAutocollimator(_Injecting, Autocollimator):
         self._request()
         ac = self.bench.scenario.autocollimator
         x_rad, _ = self.bench.autocollimator_true()
-        x = rad_to_arcsec(x_rad) + ac.noise_arcsec * self._rng.standard_normal()
+        self.bench.reading()
+        x = rad_to_arcsec(x_rad) * (1.0 + ac.scale_error_ppm * 1e-6) + ac.noise_arcsec * self._rng.standard_normal()
         if abs(x) > ac.range_arcsec:
             raise InstrumentFault(self.name, f"no polygon face within ±{ac.range_arcsec:g}″ (deflection {x:.0f}″)")
         return float(self._reply(_quantise(x, ac.resolution_arcsec))), 0.0
@@ -297,6 +301,7 @@ class SimDialIndicator(_Injecting, DialIndicator):
 
     def read_um(self) -> float:
         self._request()
+        self.bench.reading()
         return self.display()[0] * 1000.0  # in process: the number as mm, whatever the display's unit
 
 
@@ -312,6 +317,7 @@ class SimEnvironmentSensor(_Injecting, EnvironmentSensor):
 
     def read(self) -> EnvironmentReading:
         self._request()
+        self.bench.reading()
         e = self.bench.scenario.environment
         t, p, rh, tm = self.bench.environment()
         z = self._rng.standard_normal(4)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -121,6 +123,9 @@ class StageScenario(_Strict):
                                    description="table speed, deg/s (motions take virtual time; 0.001 … 3600)")
     compensation: CompensationScenario | None = Field(None, description="a compensation table the simulated controller "
                                                                         "applies (calibrate → compensate → verify)")
+    thermal_expansion_ppm_per_k: float = Field(0.0, ge=-100.0, le=100.0, description=(
+        "the table top and what is mounted on it (the tracer) grow radially about the axis by this much per K of the "
+        "material temperature above 20 °C, ppm/K (e.g. 11.5 for steel; 0: none)"))
 
     @model_validator(mode="after")
     def _ordered_limits(self) -> "StageScenario":
@@ -133,6 +138,17 @@ class StageScenario(_Strict):
         return self
 
 
+class CmmFieldTerm(_Strict):
+    """One smooth term of the CMM's error field beyond scales and squarenesses: the probe really stands
+    ``amplitude_um``·sin(2π·(direction·p)/wavelength + phase) off along ``axis`` at commanded p."""
+
+    axis: Literal["x", "y", "z"] = Field(description="the coordinate it displaces")
+    amplitude_um: Annotated[float, Field(ge=-1e4, le=1e4)] = Field(description="amplitude, µm (e.g. 1.0)")
+    wavelength_mm: float = Field(gt=1.0, le=1e6, description="wavelength along `direction`, mm (e.g. 800)")
+    direction: Vec3 = Field((1.0, 0.0, 0.0), description="the direction the term varies along (normalised)")
+    phase_deg: Phase_deg = Field(0.0, description="phase, deg")
+
+
 class CmmScenario(_Strict):
     """The CMM: commanded → actual probe position, point noise and measuring volume."""
 
@@ -143,6 +159,8 @@ class CmmScenario(_Strict):
     squareness_xz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between X and Z, arcsec")
     squareness_yz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness error between Y and Z, arcsec")
     point_noise_um: float = _noise(0.0, "µm", "1σ per coordinate of the reported position", MAX_LENGTH_NOISE_UM)
+    error_field: list[CmmFieldTerm] = Field([], max_length=100, description="smooth geometric errors beyond the affine "
+                                            "model (none: the scales and squarenesses only)")
     volume_min_mm: Vec3 = Field((-300.0, -600.0, -100.0), description="lowest X, Y, Z the CMM reaches, mm")
     volume_max_mm: Vec3 = Field((1200.0, 600.0, 800.0), description="highest X, Y, Z the CMM reaches, mm")
     speed_mm_per_s: float = Field(100.0, ge=MIN_CMM_SPEED_MM_PER_S, le=MAX_CMM_SPEED_MM_PER_S,
@@ -218,6 +236,8 @@ class AutocollimatorScenario(_Strict):
     noise_arcsec: float = _noise(0.0, "arcsec", "1σ of each reading", MAX_ANGLE_NOISE_ARCSEC)
     resolution_arcsec: float = _noise(0.0, "arcsec", "display resolution", MAX_ANGLE_NOISE_ARCSEC)
     range_arcsec: float = Field(150.0, gt=0.0, le=3600.0, description="measuring range either side of the axis, arcsec")
+    scale_error_ppm: float = Field(0.0, ge=-1e5, le=1e5, description="its scale error: it reads (1 + this·1e-6) times the "
+                                                                    "true deflection, ppm (e.g. 5000 for 0.5 %)")
 
 
 class PolygonScenario(_Strict):
@@ -247,10 +267,21 @@ class DialIndicatorScenario(_Strict):
     noise_um: float = _noise(0.0, "µm", "1σ of each reading", MAX_LENGTH_NOISE_UM)
 
 
+Profile = list[tuple[Annotated[float, Field(ge=0.0, le=1e7)], Annotated[float, Field(ge=-1e5, le=1e5)]]]
+
+
+def _profile(what: str, unit: str) -> Profile:
+    return Field([], max_length=10_000, description=(
+        f"{what}: [[t_s, offset {unit}], …] added to the start value and the drift, piecewise linear in seconds from the "
+        "run's first reading; the first offset holds before the first point, the last after the last (e.g. a step: "
+        "[[3000, 0], [3060, 1.8]])"))
+
+
 class EnvironmentScenario(_Strict):
-    """The air around the bench and the table's temperature, drifting linearly with the run's time
-    (the clock starts at 0), and the environment sensor's noise. Unnamed: standard air (20 °C,
-    1013.25 hPa, 50 % RH), steady — the simulated tracer then reads as if in vacuum-corrected air."""
+    """The air around the bench and the table's temperature: a start value, a linear drift with the
+    clock (it starts at 0) and a piecewise-linear profile in the time since the run's first reading
+    (a step, a cycle), and the environment sensor's noise. Unnamed: standard air (20 °C, 1013.25 hPa,
+    50 % RH), steady — the simulated tracer then reads as if in vacuum-corrected air."""
 
     air_temperature_c: float = Field(20.0, ge=-10.0, le=50.0, description="air temperature at the start, °C (e.g. 20.3)")
     air_temperature_drift_k_per_h: float = Field(0.0, ge=-20.0, le=20.0, description="its drift, K per hour (e.g. 0.5)")
@@ -263,6 +294,31 @@ class EnvironmentScenario(_Strict):
     temperature_noise_k: float = Field(0.0, ge=0.0, le=10.0, description="the sensor's temperature noise, K (1σ, e.g. 0.01)")
     pressure_noise_pa: float = Field(0.0, ge=0.0, le=1000.0, description="the sensor's pressure noise, Pa (1σ, e.g. 2)")
     humidity_noise_pct: float = Field(0.0, ge=0.0, le=50.0, description="the sensor's humidity noise, % (1σ, e.g. 0.5)")
+    air_temperature_profile: Profile = _profile("the air temperature's course", "K")
+    air_pressure_profile: Profile = _profile("the air pressure's course", "Pa")
+    humidity_profile: Profile = _profile("the humidity's course", "% RH")
+    material_temperature_profile: Profile = _profile("the table's temperature's course", "K")
+
+    @model_validator(mode="after")
+    def _profiles_in_time_order(self) -> "EnvironmentScenario":
+        for name in ("air_temperature_profile", "air_pressure_profile", "humidity_profile", "material_temperature_profile"):
+            times = [t for t, _ in getattr(self, name)]
+            if any(b < a for a, b in zip(times, times[1:])):
+                raise ValueError(f"{name}: the times must not decrease")
+        return self
+
+    def offsets(self, since_first_reading_s: float | None) -> tuple[float, float, float, float]:
+        """The profiles' offsets (air K, air Pa, % RH, material K) at a time since the run's first
+        reading (None: before it, the first offsets)."""
+        out = []
+        for profile in (self.air_temperature_profile, self.air_pressure_profile, self.humidity_profile,
+                        self.material_temperature_profile):
+            if not profile:
+                out.append(0.0)
+                continue
+            t, v = zip(*profile)
+            out.append(float(np.interp(-math.inf if since_first_reading_s is None else since_first_reading_s, t, v)))
+        return out[0], out[1], out[2], out[3]
 
 
 InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2",

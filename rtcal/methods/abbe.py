@@ -16,7 +16,14 @@ from drivers import factory
 from rtcal.run.dataset import abbe_conditions, abbe_visits
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import EncoderAbbeError
-from rtcal.methods.estimates import choose_recommended, deviation_block, finite_or_none, run_estimators
+from rtcal.methods.estimates import (
+    choose_recommended,
+    deviation_block,
+    finite_or_none,
+    residual_test,
+    run_estimators,
+    with_residual_test,
+)
 from rtcal.methods.protocol import PreparationError, address_of
 from rtcal.results import model as rm
 from rtcal.plans.abbe import AbbeInstrumentSet, AbbePlan, planned_visits
@@ -83,7 +90,8 @@ def noise_model(proc: EncoderAbbeError, estimate: bool = True) -> AbbeNoise:
     u = proc.uncertainty
     return AbbeNoise(u.autocollimator_noise_arcsec, u.autocollimator_resolution_arcsec, u.stage_repeatability_arcsec,
                      u.encoder_noise_arcsec, u.encoder_resolution_arcsec, u.indicator_noise_um, u.indicator_resolution_um,
-                     proc.polygon.certificate_uncertainty_arcsec, estimate)
+                     proc.polygon.certificate_uncertainty_arcsec, estimate, u.autocollimator_scale_u_ppm,
+                     u.autocollimator_calibration_u_arcsec, u.indicator_scale_u_ppm)
 
 
 def not_included(proc: EncoderAbbeError) -> list[str]:
@@ -94,6 +102,8 @@ def not_included(proc: EncoderAbbeError) -> list[str]:
                        "cannot estimate them")
     if proc.polygon.certificate_arcsec != "none" and proc.polygon.certificate_uncertainty_arcsec == 0:
         out.append("polygon certificate: no uncertainty stated (polygon.certificate_uncertainty_arcsec)")
+    if u.autocollimator_scale_u_ppm == 0 and u.autocollimator_calibration_u_arcsec == 0:
+        out.append("autocollimator calibration (its certificate's scale): not stated (uncertainty.autocollimator_scale_u_ppm)")
     return out
 
 
@@ -111,7 +121,8 @@ def abbe_estimate(est: AbbeEstimate, source: str, omitted: list[str]) -> rm.Abbe
         **dict(deviation_block(ref.cumulative_arcsec, ref.budget, ref.steps, omitted)),
         random_error_from=ref.random_source,
         converged=True,  # a linear estimate: nothing to iterate
-        message="linear least squares",
+        message=with_residual_test("linear least squares", est.residual_check),
+        residual_test=residual_test(est.residual_check),
         angle_deg=[round(float(a), 6) for a in est.angle_deg],
         direction=[int(d) for d in est.direction],
         tilt_x_arcsec=finite_or_none(est.tilt_x_arcsec),
@@ -159,7 +170,8 @@ def closure_estimate(est: AbbeEstimate) -> rm.ClosureEstimate:
         target_direction=[int(d) for d in dirs],
         **dict(deviation_block(R @ c.table_error, budget, steps_within_directions(dirs))),
         converged=True,
-        message="linear least squares with closure constraints",
+        message=with_residual_test("linear least squares with closure constraints", est.residual_check),
+        residual_test=residual_test(est.residual_check),
         table_angle_deg=[round(float(a), 6) for a in angles],
         direction=[int(d) for d in dirs],
         table_error_arcsec=finite_or_none(c.table_error),
@@ -246,6 +258,11 @@ class AbbeMethod:
         )
 
     def draw_systematics(self, proc: EncoderAbbeError, scenario: Scenario, rng: np.random.Generator) -> Scenario:
-        """Nothing systematic to draw: the polygon's certificate error is drawn afresh with each
-        trial's seed (the bench's certificate is truth plus its stated uncertainty)."""
-        return scenario
+        """The autocollimator's scale error from its certificate's stated uncertainty, N(0, u); the
+        polygon's certificate error is drawn afresh with each trial's seed (the bench's certificate is
+        truth plus its stated uncertainty)."""
+        u = proc.uncertainty.autocollimator_scale_u_ppm
+        if u <= 0:
+            return scenario
+        return scenario.model_copy(update={"autocollimator": scenario.autocollimator.model_copy(
+            update={"scale_error_ppm": float(rng.normal(0.0, u))})})

@@ -14,8 +14,8 @@ from typing import Callable, Iterable, TypeVar
 
 import numpy as np
 
-from rtcal.results.model import BudgetComponent, DeviationBlock, Estimate, SolverStatus, UncertaintyBudget
-from rtcal.solvers.uncertainty import DeviationBudget, difference_matrix
+from rtcal.results.model import BudgetComponent, DeviationBlock, Estimate, ResidualTest, SolverStatus, UncertaintyBudget
+from rtcal.solvers.uncertainty import DeviationBudget, ResidualCheck, difference_matrix
 
 COVERAGE_FACTOR = 2.0
 
@@ -64,12 +64,28 @@ def deviation_block(cumulative_arcsec: np.ndarray, budget: DeviationBudget, step
 E = TypeVar("E", bound=Estimate)
 
 
+def residual_test(check: ResidualCheck | None) -> ResidualTest | None:
+    """A solver's :class:`rtcal.solvers.uncertainty.ResidualCheck` as results (None: nothing tested)."""
+    if check is None:
+        return None
+    return ResidualTest(chi2=round(check.chi2, 3), dof=check.dof, birge_ratio=round(check.birge_ratio, 4),
+                        p_value=float(check.p_value), passed=check.passed)
+
+
+def with_residual_test(message: str, check: ResidualCheck | None) -> str:
+    """The solver's message and, where its residuals were tested, the verdict in words."""
+    return message if check is None else f"{message}; {check.words()}"
+
+
 def choose_recommended(estimates: dict[str, E], status: dict[str, SolverStatus]) -> str | None:
-    """The estimate a certificate should quote: converged first, then the smallest RMS uncertainty."""
-    def key(name: str) -> tuple[bool, float]:
+    """The estimate a certificate should quote: converged first, then one whose residuals pass its own
+    noise model's test (one that fails it never, while another passes), then the smallest RMS uncertainty."""
+    def key(name: str) -> tuple[bool, bool, float]:
         u = np.array([v for v in estimates[name].cumulative_uncertainty_arcsec[1:] if v is not None], float)
         st = status.get(name)
-        return (st is None or st.status != "converged", float(np.sqrt(np.mean(u**2))) if u.size else np.inf)
+        test = getattr(estimates[name], "residual_test", None)
+        return (st is None or st.status != "converged", test is not None and not test.passed,
+                float(np.sqrt(np.mean(u**2))) if u.size else np.inf)
 
     names = sorted(estimates, key=key)
     return names[0] if names else None

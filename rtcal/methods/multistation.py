@@ -17,8 +17,8 @@ from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
 from rtcal.run.dataset import multistation_data
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.methods.estimates import choose_recommended, deviation_block, run_estimators
 from rtcal.engine.walk import Timing, walk
+from rtcal.methods.estimates import choose_recommended, deviation_block, residual_test, run_estimators, with_residual_test
 from rtcal.methods.protocol import address_of
 from rtcal.results import model as rm
 from rtcal.sequencer.operator import Operator
@@ -64,7 +64,49 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         cmm_scale_ppm=u.cmm_scale_ppm, cmm_squareness_arcsec=u.cmm_squareness_arcsec,
         error_motion_radial_um=em.radial_um, error_motion_axial_um=em.axial_um, error_motion_tilt_arcsec=em.tilt_arcsec,
         error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm, estimate=estimate,
-        air_index_sigma=air_index_sigma(proc), air_index_bound=air_index_bound(proc)[0], air_note=air_index_bound(proc)[1])
+        air_index_sigma=air_index_sigma(proc), air_index_bound=air_index_bound(proc)[0], air_note=air_index_bound(proc)[1],
+        table_expansion_ppm_per_k=u.table_expansion_ppm_per_k, table_expansion_u_ppm_per_k=u.table_expansion_u_ppm_per_k,
+        material_temperature_sigma_k=u.environment.material_temperature_k if table_sensor(proc) else 0.0,
+        material_temperature_bound_k=stated_table_range(proc))
+
+
+def table_sensor(proc: LaserTracerMultistation) -> bool:
+    """Whether an environment sensor reads the table's temperature with the lengths (the simulated one
+    does; a real one whose readings carry no material temperature is treated as without, at analysis)."""
+    return proc.instruments.environment is not None
+
+
+def stated_table_range(proc: LaserTracerMultistation) -> float:
+    """Without a sensor: the table's temperature range ± about 20 °C the procedure states (0: none stated)."""
+    u = proc.uncertainty
+    if table_sensor(proc) or "environment" not in u.model_fields_set or \
+            "material_temperature_k" not in u.environment.model_fields_set:
+        return 0.0
+    return float(u.environment.material_temperature_k)
+
+
+def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
+    """The lengths as if the table were at 20 °C: each station, grown by g = α·(T − 20 °C) about the
+    axis when its length was read (T the sensor's table temperature then), moved the length by
+    −g·u·ρ (u from station to point, ρ the station's distance vector from the axis), which is added back."""
+    alpha = proc.uncertainty.table_expansion_ppm_per_k * 1e-6
+    offsets = data.material_offsets_k()
+    if alpha == 0 or offsets is None:
+        return data
+    nominal = np.deg2rad(data.nominal_angles_deg)
+    axis = np.array(proc.solver.axis_point_mm, float)
+
+    def fix(lengths: np.ndarray, offset: np.ndarray, guess: Sequence[float]) -> np.ndarray:
+        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
+        diff = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
+        unit = diff / np.linalg.norm(diff, axis=2)[..., None]
+        rho = stations - axis
+        rho[:, 2] = 0.0
+        return lengths + alpha * offset * np.einsum("ijk,jk->ij", unit, rho)
+
+    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
+    others = tuple(replace(o, lengths_mm=fix(o.lengths_mm, off, second)) for o, off in zip(data.other_mounts, offsets[1:]))
+    return replace(data, lengths_mm=fix(data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm), other_mounts=others)
 
 
 def air_index_sigma(proc: LaserTracerMultistation) -> float:
@@ -122,13 +164,31 @@ def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> 
                    other_mounts=others)
 
 
-def not_included(proc: LaserTracerMultistation) -> list[str]:
+def not_included(proc: LaserTracerMultistation, data: MultistationData | None = None) -> list[str]:
     """Type B sources the procedure did not state: the budget is silent on them, and says so."""
     u = proc.uncertainty
     out = []
+    measured = table_sensor(proc) and (data is None or data.material_offsets_k() is not None)
+    if u.table_expansion_ppm_per_k == 0:
+        out.append("thermal expansion of the table: no coefficient stated (uncertainty.table_expansion_ppm_per_k); the table "
+                   "and the tracer on it grow about the axis with its temperature (steel: 11.5 ppm/K), which moves the "
+                   "stations between readings")
+    elif not measured and stated_table_range(proc) == 0:
+        out.append("thermal expansion of the table: no sensor reads the table's temperature and no range is stated "
+                   "(uncertainty.environment.material_temperature_k)")
     if max(u.error_motions.radial_um, u.error_motions.axial_um, u.error_motions.tilt_arcsec) == 0:
         out.append("error motions: no bounds stated (uncertainty.error_motions); one tracer mount cannot separate "
                    "them from the rotation, so a table with error motions is off by more than this budget says")
+    else:
+        em = u.error_motions
+        unstated = [name for name, bound in (("radial (EXC, EYC)", em.radial_um), ("axial (EZC)", em.axial_um),
+                                             ("tilt (EAC, EBC)", em.tilt_arcsec)) if bound == 0]
+        if unstated:
+            out.append(f"error motions {', '.join(unstated)}: no bound stated while the others are "
+                       "(uncertainty.error_motions); taken as zero, which a table rarely is")
+    out.append("CMM geometry beyond its three scales and three squarenesses (a smooth error field): not modelled and "
+               "not excluded; each estimate's residual test (Birge ratio against the stated noise) shows a field only "
+               "where it exceeds the point noise")
     if u.cmm_scale_ppm == 0 and u.cmm_squareness_arcsec == 0:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
@@ -172,7 +232,8 @@ def paper_estimate(est: PaperEstimate, omitted: list[str], notes: list[str]) -> 
         station_rms_residual_um=_round([f.rms_residual_um for f in est.stations], 4),
         station_iterations=[f.iterations for f in est.stations],
         converged=est.converged,
-        message=est.message,
+        message=with_residual_test(est.message, est.budget.residual_check),
+        residual_test=residual_test(est.budget.residual_check),
         notes=list(PAPER_NOTES) + notes,
     )
 
@@ -189,8 +250,10 @@ def shared_dead_path_estimate(est: SharedDeadPathEstimate, omitted: list[str]) -
         dead_paths_mm=_dead_paths(est.segment_ids, est.dead_paths_mm),
         rms_residual_um=round(est.rms_residual_um, 4),
         converged=est.converged,
-        message=est.message + ("" if est.budget.variances.converged else
-                               "; the noise sizes (REML) did not converge: the uncertainty is less certain"),
+        message=with_residual_test(est.message + ("" if est.budget.variances.converged else
+                                                  "; the noise sizes (REML) did not converge: the uncertainty is less certain"),
+                                   est.budget.residual_check),
+        residual_test=residual_test(est.budget.residual_check),
     )
 
 
@@ -231,7 +294,8 @@ def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEsti
         rms_point_residual_um=round(est.rms_point_residual_um, 4),
         error_motions=motions,
         converged=est.converged,
-        message=est.message,
+        message=with_residual_test(est.message, est.residual_check),
+        residual_test=residual_test(est.residual_check),
     )
 
 
@@ -312,8 +376,11 @@ class MultistationMethod:
         recommended one, its positioning-deviation table, and the truth of a simulated run."""
         angles = proc.stations.angles_deg()
         data = corrected_for_air(multistation_data(store, angles, len(proc.points_array()), proc.mounts), proc)
+        data = corrected_for_expansion(data, proc)
         guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
-        noise, omitted = noise_model(proc, estimate_noise), not_included(proc)
+        noise, omitted = noise_model(proc, estimate_noise), not_included(proc, data)
+        if table_sensor(proc) and data.material_offsets_k() is None:  # the sensor read no table temperature
+            noise = replace(noise, material_temperature_sigma_k=0.0)
         segments = len(set(data.segments[np.isfinite(data.lengths_mm)].tolist()))
         paper_notes = [] if segments <= 1 else [
             f"The tracer was referenced {segments} times (re-acquisitions or resumed starts): the per-station model "
@@ -391,6 +458,10 @@ class MultistationMethod:
                 ("humidity_pct", "humidity_pct", "humidity_drift_pct_per_h", STANDARD_AIR["humidity_pct"])):
             r = ranges.get(key, 0.0)
             first, last = (float(v) for v in rng.uniform(-r, r, 2))
+            profile = {"air_temperature_k": env.air_temperature_profile, "air_pressure_pa": env.air_pressure_profile,
+                       "humidity_pct": env.humidity_profile}[key]
+            if profile:  # the bench states this quantity's course (a step, a cycle): it is the trial's air
+                continue
             update[start_field] = standard + first
             update[drift_field] = (last - first) / hours if hours > 0 else 0.0
         return env.model_copy(update=update)

@@ -190,6 +190,9 @@ def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[st
         with np.errstate(invalid="ignore", divide="ignore"):
             ratio = rms_u / rms_err
         inner = slice(1, None)  # the first target is the reference: 0 ± 0 by definition
+        with np.errstate(invalid="ignore"):
+            covered = np.abs(err[:, inner]) <= 2.0 * u[:, inner]  # U (k = 2) covers the error
+        counted = np.isfinite(err[:, inner]) & np.isfinite(u[:, inner])
         out["estimators"][name] = {
             "trials": len(rows),
             "not_converged": sum(r["status"] != "converged" for r in rows),
@@ -200,7 +203,9 @@ def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[st
             "overall": {"rms_error_arcsec": round(float(np.sqrt(np.nanmean(err[:, inner] ** 2))), 4),
                         "rms_reported_sigma_arcsec": round(float(np.sqrt(np.nanmean(u[:, inner] ** 2))), 4),
                         "ratio_min": round(float(np.nanmin(ratio[inner])), 3) if np.any(np.isfinite(ratio[inner])) else None,
-                        "ratio_max": round(float(np.nanmax(ratio[inner])), 3) if np.any(np.isfinite(ratio[inner])) else None},
+                        "ratio_max": round(float(np.nanmax(ratio[inner])), 3) if np.any(np.isfinite(ratio[inner])) else None,
+                        # the share of (trial, target) pairs whose error the reported U (k = 2) covers
+                        "coverage_k2": round(float(np.sum(covered & counted) / max(int(np.sum(counted)), 1)), 4)},
         }
     return out
 

@@ -400,6 +400,9 @@ class EnvironmentUncertainty(_Strict):
                                    "without one the range ± the air may take during the run (e.g. 500)")
     humidity_pct: float = Field(5.0, ge=0.0, le=50.0, description="relative humidity, % RH: with a sensor its 1σ (e.g. 5); "
                                 "without one the range ± the air may take during the run (e.g. 20)")
+    material_temperature_k: float = Field(0.1, ge=0.0, le=20.0, description=(
+        "the table's (material) temperature, K: with a sensor reading it, its 1σ (e.g. 0.1); without one the range ± "
+        "about 20 °C the table may take during the run (e.g. 0.5); used with uncertainty.table_expansion_ppm_per_k"))
 
 
 class MultistationUncertainty(_Strict):
@@ -418,6 +421,11 @@ class MultistationUncertainty(_Strict):
     environment: EnvironmentUncertainty = Field(EnvironmentUncertainty(), description="the air: with an environment "
                                                 "instrument its sensor's uncertainty (1σ); without one the range the air may "
                                                 "take during the run")
+    table_expansion_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
+        "how much the table top and the tracer mounted on it grow radially about the axis per K above 20 °C, ppm/K "
+        "(e.g. 11.5 for steel; 0: not stated, named in the budget's not_included)"))
+    table_expansion_u_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
+        "standard uncertainty of that coefficient, ppm/K (e.g. 1.0)"))
 
 
 class _Verification(_Strict):
@@ -807,6 +815,13 @@ class AbbeUncertainty(_Strict):
     encoder_resolution_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description="encoder resolution, arcsec (e.g. 0.05)")
     indicator_noise_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator noise per reading, µm (1σ, e.g. 0.2)")
     indicator_resolution_um: float = Field(0.0, ge=0.0, le=1000.0, description="dial indicator digit, µm (e.g. 1.0)")
+    autocollimator_scale_u_ppm: float = Field(0.0, ge=0.0, le=1e5, description=(
+        "standard uncertainty of the autocollimator's scale, from its calibration certificate, ppm (Type B, e.g. 2500 "
+        "for U = 0.5 % at k = 2; 0: not stated, named in not_included)"))
+    autocollimator_calibration_u_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description=(
+        "expanded uncertainty (k = 2) of an indication from the autocollimator's calibration certificate, arcsec (e.g. 0.1)"))
+    indicator_scale_u_ppm: float = Field(0.0, ge=0.0, le=1e5, description=(
+        "standard uncertainty of each dial indicator's scale, from its calibration certificate, ppm (e.g. 5000)"))
 
 
 class EncoderAbbeError(_Procedure):

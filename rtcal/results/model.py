@@ -150,11 +150,23 @@ class DeviationBlock(ResultsModel):
         return self
 
 
+class ResidualTest(ResultsModel):
+    """The estimator's residuals against its own stated noise model (1.2)."""
+
+    chi2: Annotated[float, Field(ge=0.0)] = Field(description="χ² of the residuals under the stated noise")
+    dof: Annotated[int, Field(ge=1)] = Field(description="its degrees of freedom")
+    birge_ratio: Annotated[float, Field(ge=0.0)] = Field(description="√(χ²/dof): 1 when the noise is as stated")
+    p_value: Annotated[float, Field(ge=0.0, le=1.0)] = Field(description="probability of a χ² this large under the model")
+    passed: bool = Field(description="false: residuals the model cannot explain (Birge > 1.5 and p < 0.001); never recommended")
+
+
 class Estimate(DeviationBlock):
     """An estimator's result: the deviation block and how the solver ended."""
 
     converged: bool = Field(description="whether the solver converged (a linear estimate always does)")
     message: Text = Field(description="how the solver ended, in words")
+    residual_test: ResidualTest | None = Field(None, description="its residuals against its stated noise model (1.2; "
+                                                                 "none where it has nothing to test)")
 
 
 class TargetedEstimate(Estimate):

@@ -54,18 +54,25 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
         times = np.where(len_count > 0, time_sum / np.maximum(len_count, 1), np.nan)
-    index = summary = None
+    index = summary = material = None
     if env:
         index = np.full((mounts, n_points, m), np.nan)
+        material = np.full((mounts, n_points, m), np.nan)
         for (k, i, j), q in env.items():
             if all(name in q for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct")):
                 index[k, i, j] = ciddor_n(np.mean(q["air_temperature_c"]), np.mean(q["air_pressure_pa"]), np.mean(q["humidity_pct"]))
+            if "material_temperature_c" in q:
+                material[k, i, j] = np.mean(q["material_temperature_c"])
         summary = summarise_conditions(env.values())
-    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k], times[k])
+        if not np.isfinite(material).any():  # a sensor without a table thermometer
+            material = None
+    others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k], times[k],
+                                 None if material is None else material[k])
                    for k in range(1, mounts))
     return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
                             int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others,
-                            None if index is None else index[0], summary, times[0])
+                            None if index is None else index[0], summary, times[0],
+                            None if material is None else material[0])
 
 
 CONDITIONS = ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")

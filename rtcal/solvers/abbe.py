@@ -47,7 +47,7 @@ from rtcal.solvers.harmonics import (
     resolvable_orders,
     smooth_values,
 )
-from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
+from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, ResidualCheck
 from rtcal.units import ARCSEC_PER_RAD
 
 
@@ -101,6 +101,9 @@ class AbbeNoise:
     indicator_resolution_um: float = 0.0
     certificate_uncertainty_arcsec: float = 0.0
     estimate: bool = True  # random parts from runs or closure residuals where possible; False: as stated
+    autocollimator_scale_u_ppm: float = 0.0  # its scale's standard uncertainty, from its calibration certificate
+    autocollimator_calibration_u_arcsec: float = 0.0  # its certificate's expanded uncertainty (k = 2) of an indication
+    indicator_scale_u_ppm: float = 0.0  # each dial indicator's scale, standard uncertainty, from its certificate
 
 
 @dataclass(frozen=True)
@@ -159,6 +162,7 @@ class AbbeEstimate:
     reference: ReferenceDeviation
     random_sigma_arcsec: float  # the per-visit random error of the reference as used (estimated or stated)
     random_sigma_type: str = "B"  # "A": estimated from closure residuals or runs; "B": as stated
+    residual_check: ResidualCheck | None = None  # the repeated readings (runs or closure) against the stated noise
 
 
 SMOOTH_MOTION_ORDERS = 4  # the shaft motion whose rounding is simulated: orders 1..4 of the indicator readings
@@ -223,6 +227,26 @@ def _pooled_sigma(values: np.ndarray, groups: np.ndarray) -> tuple[float, int] |
 
 def _cov(T: np.ndarray, variance: float) -> np.ndarray:
     return variance * (T @ T.T)
+
+
+def _residual_check(noise: AbbeNoise, pooled: tuple[float, int] | None, closure, n_closure: int) -> ResidualCheck | None:
+    """The scatter the data show — over repeated runs, or the closure fit's residuals — against the
+    stated per-visit random error (autocollimator noise and digit, stage repeatability): χ² = ν·s²/s₀²."""
+    from scipy.stats import chi2 as chi2_dist
+
+    s0 = float(np.sqrt(noise.autocollimator_noise_arcsec**2 + noise.autocollimator_resolution_arcsec**2 / 12
+                       + noise.stage_repeatability_arcsec**2))
+    if s0 <= 0:
+        return None
+    if closure is not None and closure.sigma > 0:
+        dof = max(int(round(n_closure * closure.residual_rms**2 / closure.sigma**2)), 1)
+        sigma = closure.sigma
+    elif pooled is not None:
+        sigma, dof = pooled
+    else:
+        return None
+    chi2 = dof * (sigma / s0) ** 2
+    return ResidualCheck(float(chi2), int(dof), float(sigma / s0), float(chi2_dist.sf(chi2, dof)))
 
 
 def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
@@ -331,6 +355,18 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         components.append(BudgetComponent("polygon certificate", "B", noise.certificate_uncertainty_arcsec, "″",
                                           _cov(T_f, noise.certificate_uncertainty_arcsec**2), False,
                                           "per face, common to every visit of that face"))
+    if noise.autocollimator_scale_u_ppm > 0:  # a scale error s reads s·y too: ε̂ moves by T·(s·y)
+        g = (T_y @ np.nan_to_num(y))[face_steps] * noise.autocollimator_scale_u_ppm * 1e-6
+        components.append(BudgetComponent("autocollimator calibration (scale)", "B", noise.autocollimator_scale_u_ppm, "ppm",
+                                          np.outer(g, g), False, "its scale's standard uncertainty from its calibration "
+                                          "certificate, times each reading (one error for every reading)"))
+    if noise.autocollimator_calibration_u_arcsec > 0:
+        E_cal = _per_key(seating[ac] * n_s + step_idx[ac])  # the same indication error at a target in every run
+        components.append(BudgetComponent("autocollimator calibration (certificate U)", "B",
+                                          noise.autocollimator_calibration_u_arcsec / 2, "″",
+                                          _cov((T_y @ E_cal)[face_steps], (noise.autocollimator_calibration_u_arcsec / 2) ** 2),
+                                          False, "its certificate's expanded uncertainty of an indication (k = 2), "
+                                          "the same at a target in every run"))
     if not components:
         components.append(BudgetComponent("none stated", "B", 0.0, "″", np.zeros((len(face_steps), len(face_steps))), False,
                                           "no noise stated for the instruments and only one run"))
@@ -382,6 +418,10 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
     noise_p = pooled_p[0] ** 2 if pooled_p else through * noise.indicator_noise_um**2
     pred_cov = (_cov(T_pred, noise_p)
                 + _cov(T_pred @ _per_key((seating * n_s + step_idx)[fp]), through * noise.indicator_resolution_um**2 / 12))
+    if noise.indicator_scale_u_ppm > 0:  # each indicator's scale error scales its share of the prediction
+        for share, reading in ((1 - a_fac, v.indicator1_um), (a_fac, v.indicator2_um)):
+            g = T_pred @ (share * reading * per_um)[fp] * noise.indicator_scale_u_ppm * 1e-6
+            pred_cov = pred_cov + np.outer(np.nan_to_num(g), np.nan_to_num(g))
     residual = meas_steps - pred_steps
     res_var = np.diag(meas_cov) + np.diag(pred_cov)
 
@@ -467,4 +507,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         repeatability_arcsec=None if pooled is None else pooled[0], harmonics=harmonics,
         extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
         random_sigma_type=random_parts[0][1],
+        residual_check=_residual_check(noise, pooled, closure, len(whole) if closure is not None else 0),
     )

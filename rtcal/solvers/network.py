@@ -32,14 +32,27 @@ import numpy as np
 import scipy.sparse as sp
 
 from rtcal.solvers.station_budget import (
+    AIR_DRIFT_SOURCE,
     StationNoiseModel,
     air_drift_source,
+    bounded_components,
+    radial_sensitivity_mm,
+    table_expansion_sources,
     cmm_matrix_derivatives,
     error_motion_covariances,
 )
 from rtcal.solvers.location import location_from_axis, location_jacobian, stated_motion_covariance
 from rtcal.solvers.station_data import MultistationData
-from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, Source, VarianceEstimate, propagate
+from rtcal.solvers.uncertainty import (
+    BudgetComponent,
+    DeviationBudget,
+    ResidualCheck,
+    Source,
+    VarianceEstimate,
+    propagate,
+    residual_check,
+    stated_covariance,
+)
 from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
 
 CMM_NAMES = ("scale_x_ppm", "scale_y_ppm", "scale_z_ppm", "squareness_xy_arcsec", "squareness_xz_arcsec", "squareness_yz_arcsec")
@@ -77,6 +90,7 @@ class NetworkEstimate:
     iterations: int
     converged: bool
     message: str
+    residual_check: ResidualCheck | None = None  # the residuals against the stated noise model
     mounts_mm: np.ndarray | None = None  # (mounts, 3) tracer centres in the table frame
     error_motions: "ErrorMotions | None" = None  # with a second mount
     axis_location: "AxisLocation | None" = None  # ISO 230-7 X0C, Y0C, A0C, B0C of the solved axis
@@ -369,6 +383,9 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     pi, st, obs = np.concatenate(pi_l), np.concatenate(st_l), np.concatenate(obs_l)
     fractions = data.run_fraction()
     run_fraction = np.concatenate([fractions[k][np.isfinite(mounts[k][0])] for k in range(len(mounts))])
+    offsets = data.material_offsets_k()
+    material_offset = None if offsets is None else np.concatenate(
+        [offsets[k][np.isfinite(mounts[k][0])] for k in range(len(mounts))])
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
     lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts))
     if len(obs) < lay.g + 1:
@@ -483,7 +500,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         if settled:
             break
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
-                   (prior_idx, prior_sigma), run_fraction)
+                   (prior_idx, prior_sigma), run_fraction, material_offset)
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -585,7 +602,7 @@ def _unseen_motions(S_inv: np.ndarray, lay: _Layout, prior, nominal: np.ndarray,
 
 
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
-            run_fraction):
+            run_fraction, material_offset=None):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
         x, lay, evaluate, weights, theta, pi, prior)
@@ -636,12 +653,25 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     if noise.air_index_bound > 0:  # no sensor: the air drifts within the stated ranges, uncorrected
         drift = air_drift_source(np.linalg.norm(A[pi] - P[st], axis=1), run_fraction, noise)
         sources.append(replace(drift, effect=np.vstack([drift.effect, np.zeros((len(zeros_pts), 2))])))
+    axis_dir, _, _ = axis_basis(*x[lay.a])
+    d_len = A[pi] - P[st]
+    L_abs = np.linalg.norm(d_len, axis=1)
+    unit = d_len / L_abs[:, None]
+    for src in table_expansion_sources(unit, P[st], x[lay.c], axis_dir, material_offset, noise):
+        sources.append(replace(src, effect=np.vstack([src.effect, np.zeros((len(zeros_pts), 1))])))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
     G_loc = np.zeros((4, lay.g))  # X0C, Y0C, A0C, B0C ← globals (c, a)
     J_loc = location_jacobian(x[lay.c], x[lay.a])
     G_loc[:, lay.c], G_loc[:, lay.a] = J_loc[:, :3], J_loc[:, 3:]
     loc_parts = [(c.name, c.covariance_arcsec2) for c in propagate(H, sources, variances, G_loc)]
+    if noise.air_index_bound > 0 or noise.material_temperature_bound_k > 0:
+        # the uncorrected air and table as any course within their ranges (station_budget.bounded_course_component)
+        components = [c for c in components if c.name != AIR_DRIFT_SOURCE]
+        radial = radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir)
+        pad = np.zeros(len(zeros_pts))
+        components += bounded_components(G @ H, np.concatenate([L_abs, pad]), np.concatenate([radial, pad]),
+                                         np.concatenate([np.nan_to_num(run_fraction), pad - 1.0]), noise)
     if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
@@ -655,6 +685,19 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
                 name, "B", bound, unit, T @ cov @ T.T, False,
                 f"within ±{bound:g} {unit} (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one mount cannot "
                 "separate them from the rotation"))
+    check = None
+    if noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
+        # the residuals (lengths, then the points' coordinates) against the noise as stated: θ = 1, the Type B
+        # sources acting on them, and the error motions the stated bounds allow where the model has none
+        stated = [replace(src, effect=src.effect / np.sqrt(theta[0])) if src.name == "tracer length noise" else
+                  replace(src, effect=src.effect / np.sqrt(theta[1])) if src.name == "CMM point noise" else src
+                  for src in sources if src.name != AIR_DRIFT_SOURCE or noise.air_index_bound > 0]
+        V0 = stated_covariance(stated, len(f_len) + len(f_pts))
+        if not lay.error_motions:
+            Ud = U.toarray()
+            for *_, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
+                V0[:N_len, :N_len] += Ud @ cov @ Ud.T
+        check = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     q_sigma = np.sqrt(np.clip(np.diag(S_inv)[lay.q], 0.0, None)) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])
@@ -704,5 +747,5 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sigma_point_um=max(noise.point_noise_um, 1e-3) * float(np.sqrt(theta[1])),
         rms_length_residual_um=float(np.sqrt(np.mean(f_len**2))) * 1e3,
         rms_point_residual_um=float(np.sqrt(np.mean(f_pts**2))) * 1e3 if lay.free_points else 0.0,
-        iterations=iterations, converged=converged, message=message, **motions)
+        iterations=iterations, converged=converged, message=message, residual_check=check, **motions)
 

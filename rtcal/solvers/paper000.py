@@ -161,7 +161,8 @@ def solve_paper(
     obs_point = np.concatenate(rows)
     obs_station = np.concatenate([np.full(len(r), j) for j, r in enumerate(rows)])
     obs = StationObservations(obs_point, obs_station, data.stage_visits[obs_point, obs_station], points_mm,
-                              data.point_visit_counts, data.run_fraction()[0][obs_point, obs_station])
+                              data.point_visit_counts, data.run_fraction()[0][obs_point, obs_station],
+                              None if (mo := data.material_offsets_k()) is None else mo[0][obs_point, obs_station])
     budget = station_budget(J, np.concatenate([f.residuals for f in fits]),
                             offsets[:-1, None] + np.arange(3), obs, centers, nominal_angles_rad, chain.center_mm,
                             chain.plane.normal, cumulative_function(nominal_angles_rad), noise)

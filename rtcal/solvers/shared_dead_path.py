@@ -87,7 +87,8 @@ def solve_shared_dead_path(
     centers = sol.x[: 3 * m].reshape(m, 3)
     chain = chain_from_stations(centers, nominal_angles_rad)
     observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts,
-                                       data.run_fraction()[0][pi, sj])
+                                       data.run_fraction()[0][pi, sj],
+                                       None if (mo := data.material_offsets_k()) is None else mo[0][pi, sj])
     budget = station_budget(sol.jac, sol.fun, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
                             chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise)
     converged = bool(sol.success) and sol.status > 0

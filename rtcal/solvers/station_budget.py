@@ -40,8 +40,11 @@ from rtcal.solvers.uncertainty import (
     BudgetComponent,
     DeviationBudget,
     Source,
+    ResidualCheck,
     VarianceEstimate,
     difference_matrix,
+    residual_check,
+    stated_covariance,
     propagate,
     reml_scales,
 )
@@ -68,6 +71,10 @@ class StationNoiseModel:
     air_index_bound: float = 0.0  # no sensor: the index's departure from what the lengths assume, bound over the run
     #                               (the root-sum-square of independent bounds: temperature, pressure, humidity)
     air_note: str = ""  # what the bound is made of (the stated ranges), for the budget's note
+    table_expansion_ppm_per_k: float = 0.0  # the table's (and the mounted tracer's) radial growth about the axis per K
+    table_expansion_u_ppm_per_k: float = 0.0  # its standard uncertainty
+    material_temperature_sigma_k: float = 0.0  # with a sensor reading the table: its 1σ (the lengths are corrected)
+    material_temperature_bound_k: float = 0.0  # without one: the table within 20 °C ± this over the run, uncorrected
 
 
 @dataclass(frozen=True)
@@ -80,6 +87,7 @@ class StationObservations:
     points_mm: np.ndarray  # (n, 3) as the solver used them
     point_visits: np.ndarray  # (n,) how many CMM readings were averaged into each point
     run_fraction: np.ndarray | None = None  # (N,) each length's place in the run, −1 first … +1 last (air drift)
+    material_offset_k: np.ndarray | None = None  # (N,) the table's measured temperature above 20 °C at each length
 
 
 def chain_jacobian(stations_mm: np.ndarray, chain: Callable[[np.ndarray], np.ndarray], h_mm: float = 1e-4) -> np.ndarray:
@@ -212,6 +220,7 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         if obs.run_fraction is None:
             raise ValueError("the air's drift needs each length's place in the run")
         sources.append(air_drift_source(L, obs.run_fraction, noise))
+    sources += table_expansion_sources(u, P, axis_center_mm, axis_direction, obs.material_offset_k, noise)
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
         columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
@@ -219,6 +228,99 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         if sigma > 0:
             sources.append(Source(label, "B", np.column_stack(columns), sigma, unit, "each of three, as stated"))
     return sources
+
+
+def radial_sensitivity_mm(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
+                          axis_direction: np.ndarray) -> np.ndarray:
+    """(N,): how much each length shortens per unit of the table's relative radial growth g: the
+    station moves by g·ρ (ρ its distance vector from the axis, across it), the length |A − P| by −u·ρ·g."""
+    a = np.asarray(axis_direction, float) / np.linalg.norm(axis_direction)
+    rel = np.asarray(stations_mm, float) - np.asarray(axis_center_mm, float)
+    rho = rel - np.outer(rel @ a, a)
+    return np.einsum("ij,ij->i", np.asarray(unit_mm, float), rho)
+
+
+THERMAL_SOURCE = "thermal expansion of the table (coefficient)"
+THERMAL_SENSOR_SOURCE = "thermal expansion: table temperature sensor"
+THERMAL_RANGE_SOURCE = "thermal expansion of the table (no temperature sensor)"
+
+
+def table_expansion_sources(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
+                            axis_direction: np.ndarray, material_offset_k: np.ndarray | None,
+                            noise: StationNoiseModel) -> list[Source]:
+    """With the table's temperature measured at each length (the lengths corrected for the growth
+    α·ΔT of the table about the axis): what the correction leaves — the coefficient's uncertainty
+    times each length's ΔT, and the sensor's uncertainty times α, one error for the run (Type B)."""
+    if material_offset_k is None or noise.material_temperature_bound_k > 0:
+        return []
+    s = radial_sensitivity_mm(unit_mm, stations_mm, axis_center_mm, axis_direction)
+    dT = np.nan_to_num(np.asarray(material_offset_k, float))
+    out = []
+    if noise.table_expansion_u_ppm_per_k > 0 and np.any(dT != 0):
+        out.append(Source(THERMAL_SOURCE, "B", (s * dT * noise.table_expansion_u_ppm_per_k * 1e-6)[:, None],
+                          noise.table_expansion_u_ppm_per_k, "ppm/K",
+                          f"the lengths corrected for the table's growth about the axis, α = {noise.table_expansion_ppm_per_k:g} "
+                          f"ppm/K, with the measured table temperature ({float(np.min(dT)) + 20:.2f}…{float(np.max(dT)) + 20:.2f} °C);"
+                          " α's standard uncertainty as stated"))
+    if noise.table_expansion_ppm_per_k > 0 and noise.material_temperature_sigma_k > 0:
+        out.append(Source(THERMAL_SENSOR_SOURCE, "B",
+                          (s * noise.table_expansion_ppm_per_k * 1e-6 * noise.material_temperature_sigma_k)[:, None],
+                          noise.material_temperature_sigma_k, "K",
+                          "the table temperature's sensor uncertainty as stated, one error for the run, times α"))
+    return out
+
+
+def bounded_course_component(name: str, influence: np.ndarray, sensitivity: np.ndarray, run_time: np.ndarray,
+                             bound: float, unit: str, note: str, shown_bound: float | None = None) -> BudgetComponent:
+    """A quantity g(t) that takes ANY course within ±``bound`` over the run whose total variation is at
+    most 4·bound (one swing across the whole range and back: a step at any moment, a drift, a cycle),
+    uncorrected, acting on residual i as ``sensitivity[i]``·g(t_i); ``influence`` (m×N) maps residuals
+    to the output.
+
+    With the residuals grouped by time t_1 < … < t_K and S_j(t_k) = Σ_{t_i ≥ t_k} influence_ji·s_i,
+    summation by parts gives e_j = g(t_1)·S_j(t_1) + Σ_k (g(t_k) − g(t_k−1))·S_j(t_k), so
+    |e_j| ≤ bound·|S_j(t_1)| + 4·bound·max_k |S_j(t_k)| for every such course: a worst case, taken
+    as the half-width of a rectangular distribution (σ_j = bound_j/√3, U = 1.15·bound_j). Targets are
+    correlated as their S_j profiles are (the correlation a random walk of g would give). ``shown_bound``:
+    the bound in the budget's ``unit`` when that differs from g's."""
+    shown = bound if shown_bound is None else shown_bound
+    W = np.asarray(influence, float) * np.asarray(sensitivity, float)[None, :]
+    t = np.nan_to_num(np.asarray(run_time, float))
+    order = np.argsort(t, kind="stable")
+    times, first = np.unique(t[order], return_index=True)
+    per_time = np.add.reduceat(W[:, order], first, axis=1) if W.shape[1] else np.zeros((W.shape[0], 0))
+    S = np.cumsum(per_time[:, ::-1], axis=1)[:, ::-1]  # S_j(t_k): the response to a unit step at t_k
+    if S.shape[1] == 0:
+        return BudgetComponent(name, "B", shown, unit, np.zeros((W.shape[0], W.shape[0])), False, note)
+    worst = bound * (np.abs(S[:, 0]) + 4.0 * np.max(np.abs(S), axis=1))
+    sigma = worst / np.sqrt(3.0)
+    norms = np.linalg.norm(S, axis=1)
+    R = (S @ S.T) / np.maximum(np.outer(norms, norms), 1e-300)
+    np.fill_diagonal(R, 1.0)
+    return BudgetComponent(name, "B", shown, unit, np.outer(sigma, sigma) * R, False, note)
+
+
+def bounded_components(influence: np.ndarray, distances_mm: np.ndarray, radial_mm: np.ndarray, run_time: np.ndarray,
+                       noise: StationNoiseModel, arcsec_per_output: float = 1.0) -> list[BudgetComponent]:
+    """The uncorrected air (no sensor) and the uncorrected table temperature (no table sensor) as
+    :func:`bounded_course_component`s, in the output's unit."""
+    out = []
+    W = np.asarray(influence, float) * arcsec_per_output
+    if noise.air_index_bound > 0:
+        out.append(bounded_course_component(
+            AIR_DRIFT_SOURCE, W, np.asarray(distances_mm, float), run_time, noise.air_index_bound,
+            "ppm (bound)", f"no environment sensor, the lengths uncorrected: {noise.air_note or 'the air within the stated ranges'};"
+            " any course of the index within ±its bound over the run (a step at any moment, a drift, a cycle: total "
+            "variation ≤ 4·bound), worst case per target as a rectangular half-width", noise.air_index_bound * 1e6))
+    if noise.material_temperature_bound_k > 0 and noise.table_expansion_ppm_per_k > 0:
+        alpha = np.hypot(noise.table_expansion_ppm_per_k, noise.table_expansion_u_ppm_per_k) * 1e-6
+        out.append(bounded_course_component(
+            THERMAL_RANGE_SOURCE, W, alpha * np.asarray(radial_mm, float), run_time, noise.material_temperature_bound_k, "K (bound)",
+            f"the table (and the tracer on it) grows about the axis by α = {noise.table_expansion_ppm_per_k:g} ± "
+            f"{noise.table_expansion_u_ppm_per_k:g} ppm/K; no sensor reads its temperature: any course within 20 ± "
+            f"{noise.material_temperature_bound_k:g} °C over the run (total variation ≤ 4·range), worst case per target "
+            "as a rectangular half-width"))
+    return out
 
 
 def air_drift_source(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel) -> Source:
@@ -238,6 +340,7 @@ class StationBudget:
     cumulative: DeviationBudget
     variances: VarianceEstimate
     sources: list[Source]
+    residual_check: ResidualCheck | None = None  # the residuals against the stated noise model
 
     @property
     def step_uncertainty_arcsec(self) -> np.ndarray:
@@ -274,8 +377,22 @@ def station_budget(
     influence = np.linalg.pinv(J)[np.asarray(station_columns).ravel()]  # ∂(stations)/∂f, up to sign
     G = chain_jacobian(stations_mm, cumulative_of_stations)
     components = propagate(influence, sources, variances, G)
+    if noise.air_index_bound > 0 or noise.material_temperature_bound_k > 0:
+        # the uncorrected air and table as any course within their ranges, not the straight line the REML's V assumes
+        components = [c for c in components if c.name != AIR_DRIFT_SOURCE]
+        P = np.asarray(stations_mm, float)[obs.station]
+        diff = np.asarray(obs.points_mm, float)[obs.point] - P
+        L = np.linalg.norm(diff, axis=1)
+        radial = radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction)
+        components += bounded_components(G @ influence, L, radial, obs.run_fraction if obs.run_fraction is not None
+                                         else np.linspace(-1, 1, len(L)), noise)
     for name, bound, unit, cov in error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise):
         components.append(BudgetComponent(name, "B", bound, unit, G @ cov @ G.T, False,
                                           f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
                                           "mount cannot separate them from the rotation"))
-    return StationBudget(DeviationBudget(components), variances, sources)
+    check = None
+    stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
+    if not stated_zero:  # the noise as stated (Type A at θ = 1) and the Type B sources that act on the residuals
+        check = residual_check(residuals, stated_covariance(sources, len(np.asarray(residuals))),
+                               np.linalg.matrix_rank(J))
+    return StationBudget(DeviationBudget(components), variances, sources, check)

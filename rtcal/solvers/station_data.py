@@ -16,6 +16,7 @@ class MountReadings:
     visits: np.ndarray  # n×m stage visits, numbered after the first mount's
     air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
     times_s: np.ndarray | None = None  # n×m time of each length on the run's clock, s (None: not known)
+    material_temperature_c: np.ndarray | None = None  # n×m the table's temperature at each length (None: not measured)
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,7 @@ class MultistationData:
     air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
     environment: dict | None = None  # summary of the recorded air and material conditions, for the report
     times_s: np.ndarray | None = None  # n×m time of each length on the run's clock, s (None: not known)
+    material_temperature_c: np.ndarray | None = None  # n×m the table's temperature at each length (None: not measured)
 
     @classmethod
     def from_arrays(cls, points_mm, lengths_mm, nominal_angles_deg, segments=None) -> "MultistationData":
@@ -73,3 +75,12 @@ class MultistationData:
         lo, hi = float(every.min()), float(every.max())
         span = hi - lo if hi > lo else 1.0
         return [2.0 * (t - lo) / span - 1.0 for t in times]
+
+    def material_offsets_k(self) -> list[np.ndarray] | None:
+        """Per mount: the table's temperature above 20 °C at each length, n×m (a length without its own
+        reading takes the mean of the others); None when the table's temperature was not measured."""
+        temps = [self.material_temperature_c] + [o.material_temperature_c for o in self.other_mounts]
+        if any(t is None for t in temps) or not any(np.isfinite(t).any() for t in temps):
+            return None
+        mean = float(np.nanmean(np.concatenate([np.asarray(t, float).ravel() for t in temps])))
+        return [np.where(np.isfinite(t), t, mean) - 20.0 for t in temps]

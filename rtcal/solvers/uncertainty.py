@@ -216,6 +216,64 @@ def propagate(influence: np.ndarray, sources: list[Source], variances: VarianceE
     return out
 
 
+BIRGE_LIMIT = 1.5  # residuals this much larger than the noise model explains (and significant): the model fails
+P_LIMIT = 1e-3  # χ² this improbable under the noise model
+
+
+@dataclass(frozen=True)
+class ResidualCheck:
+    """The residuals against the estimator's own noise model, as stated (χ² and Birge ratio √(χ²/ν)).
+
+    The Type A sizes are estimated from these same residuals, so a test against them would always
+    pass; against the stated sizes, a model error (CMM geometry beyond the model, a warming table
+    the lengths were not corrected for) shows as residuals the stated noise cannot explain."""
+
+    chi2: float
+    dof: int
+    birge_ratio: float
+    p_value: float
+
+    @property
+    def passed(self) -> bool:
+        return not (self.p_value < P_LIMIT and self.birge_ratio > BIRGE_LIMIT)
+
+    def words(self) -> str:
+        verdict = "passes" if self.passed else "FAILS"
+        return (f"{verdict} its residual test: Birge ratio {self.birge_ratio:.2f} (χ² = {self.chi2:.0f} for {self.dof} "
+                f"degrees of freedom against the stated noise{'' if self.passed else '; the model does not explain the data — a systematic error it does not model (CMM geometry beyond scales and squarenesses, a warming table, air) — do not quote it'})")
+
+
+def residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: int) -> ResidualCheck | None:
+    """χ² = rᵀV⁻¹r of the residuals under the stated covariance V, with ν = N − parameters (None when
+    V is not positive definite or ν < 1: nothing to test against)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    r = np.asarray(residuals, float)
+    V = np.asarray(covariance, float)
+    dof = len(r) - int(parameters)
+    if dof < 1:
+        return None
+    try:
+        L = np.linalg.cholesky(V)
+    except np.linalg.LinAlgError:
+        return None
+    z = np.linalg.solve(L, r)
+    chi2 = float(z @ z)
+    return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)))
+
+
+def stated_covariance(sources: list[Source], rows: int) -> np.ndarray:
+    """V = Σ F·Fᵀ of the sources at their stated sizes (θ = 1), N×N."""
+    V = np.zeros((rows, rows))
+    for s in sources:
+        e = np.asarray(s.effect, float)[:rows]
+        if e.ndim == 1:
+            V[np.diag_indices(rows)] += e**2
+        else:
+            V += e @ e.T
+    return V
+
+
 def difference_matrix(n: int) -> np.ndarray:
     """(n−1)×n: per-step differences of an n-vector (x1 − x0, x2 − x1, …)."""
     return np.eye(n)[1:] - np.eye(n)[:-1]
