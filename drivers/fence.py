@@ -182,6 +182,19 @@ class FencedAutocollimator(_Fenced, Autocollimator):
         r = AUTOCOLLIMATOR_RANGE_ARCSEC
         return (self._number(value[0], "x", -r, r, "″"), self._number(value[1], "y", -r, r, "″"))
 
+    def read_axes_arcsec(self) -> tuple[float, float]:
+        """As the instrument validates each axis: NaN stands for an axis it reports invalid (not both);
+        each axis it gives is checked as :meth:`read_arcsec` checks it."""
+        value = self._call("read_axes_arcsec")
+        if not isinstance(value, (tuple, list)) or len(value) != 2:
+            raise InstrumentFault(self.name, f"reading: {shown_identity(repr(value))[:60]} is not (x, y) in arcsec{self._by()}")
+        r = AUTOCOLLIMATOR_RANGE_ARCSEC
+        invalid = [isinstance(v, float) and math.isnan(v) for v in value]
+        if all(invalid):
+            raise InstrumentFault(self.name, f"neither axis valid: not a reading{self._by()}")
+        x, y = (math.nan if bad else self._number(v, axis, -r, r, "″") for v, bad, axis in zip(value, invalid, "xy"))
+        return x, y
+
 
 class FencedDialIndicator(_Fenced, DialIndicator):
     def read_um(self) -> float:

@@ -197,13 +197,13 @@ class MultistationPlan:
         kind = "position" if cmm_moved else "check_position"  # the solvers average one position per visit of the point
         xyz = yield Read("cmm", tuple((f"{kind}_{axis}_mm", "mm") for axis in "xyz"), lambda cmm: checks.cmm_at(cmm, point),
                          point, f"position at point {i + 1}", redo=(Recover("cmm"), to_point, settle))
-        if proc.instruments.environment is not None:  # the air the lengths are counted in, with every reading
-            yield environment_read(f"environment at point {i + 1}, station {j + 1}")
         where = f"point {i + 1}, station {j + 1}"
         durations = proc.durations
         referenced_here = yield Reference("laser_tracer", where, seconds=durations.reference_tracer_s)
         if referenced_here:
             self.lengths.referenced(mk, i, j)
+        if proc.instruments.environment is not None:  # the air the lengths are counted in, read just before them
+            yield environment_read(f"environment at point {i + 1}, station {j + 1}")
         samples = yield ReadSamples("laser_tracer", "length_mm", "mm", proc.samples_per_reading,
                                     lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(mk, i, j),
                                     where, f"length at {where}", durations.tracer_sample_s, durations.reference_tracer_s)
