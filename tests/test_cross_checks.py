@@ -262,18 +262,20 @@ def test_simulated_stale_frozen_creep_and_inch():
         FaultSpec(instrument="laser_tracer", kind="stale", at_request=[1])
 
 
-def test_an_indicator_set_to_inches_over_the_wire_is_read_right():
-    """The Sylvac reply says `in`: the real driver converts it, to within the inch display's digit."""
+def test_an_indicator_stuck_in_inches_over_the_wire_says_so_when_asked():
+    """The Sylvac's reply carries no unit (OPTO-RS manual): an indicator stuck in inches answers the inch
+    number, and `UNI?` answers IN, which the driver asks at open and refuses (test_serial_round2); one that
+    goes to inches mid-run is caught by the indicator check above (its readings on the inch grid)."""
     b = Bench(Scenario.model_validate(_bench([])))
     b.move_stage(math.radians(90.0), 1)
-    healthy = SimDialIndicator(b, 0, inject=False)
-    truth = healthy.read_um()
+    truth = SimDialIndicator(b, 0, inject=False).read_um()
     inch = SimDialIndicator(b, 0, inject=False)
     inch.afflict(FaultSpec(instrument="dial_indicator_1", kind="inch", at_request=[1]))
-    reply = SylvacHandler(inch).handle(b"?")
-    assert reply.endswith(b" in\r\n")
-    read = _read(INDICATOR, b"?\r", reply, "read_um")
-    assert read == pytest.approx(truth, abs=25.4 * 0.00005 * 1000 / 2 + 1e-9)
+    handler = SylvacHandler(inch)
+    assert handler.handle(b"MM") == b"" and handler.handle(b"UNI?") == b"IN\r"
+    reply = handler.handle(b"?")
+    assert reply.endswith(b"\r") and b"in" not in reply
+    assert float(reply) * 25.4 * 1000 == pytest.approx(truth, abs=25.4 * 0.00005 * 1000 / 2 + 1e-9)
 
 
 # -- runs

@@ -121,7 +121,8 @@ class SylvacHandler:
             self.inch = command == b"IN" or not self.accepts_mm
             return b""
         if command == b"UNI?":
-            return b"IN\r" if self.inch else b"MM\r"
+            fault = self.instrument.state_fault
+            return b"IN\r" if self.inch or (fault is not None and fault.kind == "inch") else b"MM\r"
         if command not in (b"?", b"PRI?"):
             return b"ERR1\r"
         number = self.instrument.read_um() / 1000.0  # the display's number: inches when it is stuck in inches (fault `inch`)
