@@ -171,18 +171,9 @@ def test_remote_abort_exits_130_and_resume_finishes(tmp_path):
     assert gone.returncode == 1  # no engine runs for that directory any more
 
 
-@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])
-def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
-    """A seed-000 run over the Modbus drive and the I++ server: the drive receives STOP and the CMM `AbortE()`
-    however the run ends early."""
-    data = yaml.safe_load((REPO / "procedures" / "laser_tracer_multistation.yaml").read_text(encoding="utf-8"))
-    data.pop("bench", None)
-    data["settle_time_s"] = 0.2
-    procedure = tmp_path / "multistation.yaml"
-    procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
-    faults = [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": list(range(8, 60))}] if how == "fault" else []
-    with SimulatorHub(_scenario(tmp_path, "none", REPO / "procedures" / "scenarios" / "paper000_bench.yaml", faults),
-                      seed=1) as hub:
+def end_early(tmp_path: Path, procedure: Path, scenario, how: str):
+    """Start a wired run against an in-process hub, end it early as ``how`` says; the hub, to look at."""
+    with SimulatorHub(scenario, seed=1) as hub:
         proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(dict(hub.addresses)), "--out",
                                str(tmp_path / "run"))
         if how == "fault":
@@ -197,32 +188,31 @@ def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
                 os.kill(proc.pid, getattr(signal, how))
             code, err = finish(proc)
             assert code == 130, err
-        assert hub.drive.stops >= 1, err
-        assert hub.ipp_machine.aborts >= 1, err
         assert "rtcal resume" in err
+        return hub, err
+
+
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])
+def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
+    """A seed-000 run over the Modbus drive and the I++ server: the drive receives STOP and the CMM `AbortE()`
+    however the run ends early."""
+    data = yaml.safe_load((REPO / "procedures" / "laser_tracer_multistation.yaml").read_text(encoding="utf-8"))
+    data.pop("bench", None)
+    data["settle_time_s"] = 0.2
+    procedure = tmp_path / "multistation.yaml"
+    procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    faults = [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": list(range(8, 60))}] if how == "fault" else []
+    hub, err = end_early(tmp_path, procedure, _scenario(tmp_path, "none", REPO / "procedures" / "scenarios" /
+                                                        "paper000_bench.yaml", faults), how)
+    assert hub.drive.stops >= 1, err
+    assert hub.ipp_machine.aborts >= 1, err
 
 
 @pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])
 def test_every_early_end_stops_the_drive(tmp_path, how):
-    """The drive (Modbus, the simulated AZ) receives STOP however the run ends early."""
-    procedure = fast_iso(tmp_path, settle_s=0.25, runs=2)
-    with SimulatorHub(_scenario(tmp_path, how), seed=1) as hub:
-        addresses = {k: v for k, v in hub.addresses.items()}
-        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(tmp_path / "run"))
-        if how == "fault":
-            code, err = finish(proc)
-            assert code == 1, err
-        else:
-            wait_for(lambda: hub.drive.command_steps != 0, 30)  # it has moved
-            if how == "abort":
-                subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(tmp_path / "run"), "abort", "--token",
-                                seen["control token"]], cwd=REPO, check=True, capture_output=True, timeout=30)
-            else:
-                os.kill(proc.pid, getattr(signal, how))
-            code, err = finish(proc)
-            assert code == 130, err
-        assert hub.drive.stops >= 1, err
-        assert "rtcal resume" in err
+    """An ISO run: the drive (Modbus, the simulated AZ) receives STOP however the run ends early."""
+    hub, err = end_early(tmp_path, fast_iso(tmp_path, settle_s=0.25, runs=2), _scenario(tmp_path, how), how)
+    assert hub.drive.stops >= 1, err
 
 
 def _scenario(tmp_path: Path, how: str, bench: Path = BENCH, faults: list | None = None):

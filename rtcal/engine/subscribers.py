@@ -46,24 +46,13 @@ def _hms(seconds: float) -> str:
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
 
 
+WHERE = (("target_deg", "target {:g}°"), ("run", "run {}"), ("direction", "direction {}"), ("point", "point {}"),
+         ("station", "station {}"), ("mount", "mount {}"), ("seating", "seating {}"))
+
+
 def describe(label: dict[str, Any]) -> str:
     """Where the run is, in words: target, run and direction (or point and station, mount)."""
-    parts = []
-    if "target_deg" in label:
-        parts.append(f"target {label['target_deg']:g}°")
-    if "run" in label:
-        parts.append(f"run {label['run']}")
-    if "direction" in label:
-        parts.append(f"direction {label['direction']}")
-    if "point" in label:
-        parts.append(f"point {label['point']}")
-    if "station" in label:
-        parts.append(f"station {label['station']}")
-    if "mount" in label:
-        parts.append(f"mount {label['mount']}")
-    if "seating" in label:
-        parts.append(f"seating {label['seating']}")
-    return ", ".join(parts)
+    return ", ".join(text.format(label[key]) for key, text in WHERE if key in label)
 
 
 class ConsoleProgress:
