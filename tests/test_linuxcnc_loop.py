@@ -34,7 +34,8 @@ from simulators.servers.linuxcnc import available
 from tests.compensation_loop import AFTER_SEED, ISO, VERIFY, load_table, rtcal
 from tests.compensation_loop import run as run_simulated
 
-pytestmark = pytest.mark.skipif(bool(available()), reason=available() or "LinuxCNC present")
+pytestmark = [pytest.mark.skipif(bool(available()), reason=available() or "LinuxCNC present"),
+              pytest.mark.xdist_group("linuxcnc")]  # one LinuxCNC per machine: these run in one worker (--dist loadgroup)
 
 REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "procedures" / "scenarios" / "abbe_bench.yaml"
