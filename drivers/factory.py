@@ -12,14 +12,13 @@ from typing import Any
 from drivers.addresses import Address, AddressError, parse_address, redact_tokens
 from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer, RotaryStage
 from drivers.fence import fenced
-from drivers.models import DEFAULT_MODEL, BUILTIN, Model, model_for
+from drivers.models import Model, model_for
 
 # a procedure's instruments and the kind of each
 KIND_OF = {"stage": "stage", "cmm": "cmm", "laser_tracer": "laser_tracer", "encoder": "encoder",
            "autocollimator": "autocollimator", "dial_indicator_1": "dial_indicator", "dial_indicator_2": "dial_indicator",
            "environment": "environment"}
 # the kinds of address each instrument of a procedure speaks with its default model
-SCHEMES: dict[str, tuple[str, ...]] = {name: BUILTIN[DEFAULT_MODEL[kind]].schemes for name, kind in KIND_OF.items()}
 
 
 class SchemeMismatch(AddressError):

@@ -34,7 +34,7 @@ def test_monte_carlo_error_matches_uncertainty_and_beats_per_station():
 
     Measured: RMS error 0.32″ against 0.34″ predicted, where the per-station model gives 2.79″.
     The ratio must lie within 0.75–1.33 (400 deviations: the RMS is known to about ±5 %), and
-    the shared model must be at least 4× better than the per-station model (DESIGN.md: 5–10×).
+    the shared model must be at least 4× better than the per-station model (the design notes: 5–10×).
     """
     rng = np.random.default_rng(2024)
     err_shared, err_paper, predicted = [], [], []

@@ -51,7 +51,7 @@ def test_monte_carlo_error_matches_reported_uncertainty():
     40 noisy datasets of the paper's geometry. The linearised uncertainty each solve reports
     must predict the RMS error the trials show: 400 deviations give the RMS to about ±5 %
     (1σ, independent samples), so the ratio must lie within 0.75–1.33 (generous for the
-    correlation between deviations sharing a station). Measured: RMS error 2.79″ against 2.80″ predicted, as DESIGN.md's
+    correlation between deviations sharing a station). Measured: RMS error 2.79″ against 2.80″ predicted, as the design notes'
     ~3″ Monte Carlo for this model.
     """
     rng = np.random.default_rng(2024)

@@ -424,7 +424,7 @@ class MultistationMethod:
     def draw_systematics(self, proc: LaserTracerMultistation, scenario: Scenario, rng: np.random.Generator) -> Scenario:
         """A bench whose unknown systematic errors are drawn as the procedure's budget models them:
         CMM scales and squarenesses N(0, u), error motions as random series with σ = bound/√2
-        (for `rtcal uncertainty`; DESIGN.md: GUM Supplement 1)."""
+        (for `rtcal uncertainty`; GUM Supplement 1)."""
         u = proc.uncertainty
         em = u.error_motions
         k = em.max_order

@@ -351,11 +351,6 @@ def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: fl
     return Proposal(reached, smallest, tried, skipped)
 
 
-def dominant(outcome: Outcome, top: int = 4) -> list[tuple[str, float]]:
-    """The sources with the largest shares of the variance, largest first."""
-    return sorted(outcome.shares.items(), key=lambda kv: -kv[1])[:top]
-
-
 def format_hours(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
 

@@ -205,12 +205,6 @@ class _Instruments(_Strict):
                              "use addresses for all (e.g. from `rtcal sim serve`) or sim for all")
         return self
 
-    def with_addresses(self, addresses: dict[str, str]):
-        """A copy with the named instruments moved to the given addresses (others keep theirs)."""
-        update = {f: getattr(self, f).model_copy(update={"address": addresses[f], "backend": None})
-                  for f in self.present() if f in addresses}
-        return self.model_copy(update=update)
-
 
 class MultistationInstruments(_Instruments):
     stage: StageChoice = Field(StageChoice(), description="the rotary table's drive")

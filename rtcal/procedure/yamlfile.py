@@ -317,11 +317,6 @@ def read_text(path: str | Path) -> str:
         raise FileProblems([Problem(str(path), line, column, "(file)", "not UTF-8 text")]) from None
 
 
-def validate_file(path: str | Path, model: type[M], context: dict[str, Any] | None = None) -> M:
-    """Read and validate a YAML file."""
-    return validate_text(read_text(path), model, str(path), context)
-
-
 def problem_at(file: str | Path, field_path: tuple, message: str) -> Problem:
     """A located problem for a field of a file already known to parse (e.g. a cross-file check)."""
     try:

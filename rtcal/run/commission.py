@@ -23,7 +23,6 @@ from drivers.errors import InstrumentError, TrackingLost
 from drivers.interfaces import Instrument
 from drivers.models import KINDS
 
-PROBE_KEYS = ("kind", "address", "model", "identity", "reading")  # the JSON contract of `rtcal probe --json`
 
 
 class CheckInputError(Exception):

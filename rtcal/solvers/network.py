@@ -11,7 +11,7 @@ every CMM point A_i. Observations, each weighted by its variance:
 
 with (u, v) an orthonormal basis perpendicular to a. The tracer's length is traceable, the CMM's
 scales are not: solving q costs almost nothing in precision and removes their bias. Points as
-weighted observations let the CMM's point noise enter with its own weight (DESIGN.md).
+weighted observations let the CMM's point noise enter with its own weight (docs/paper000.md).
 
 The cumulative deviation is φ_j − φ_0 − (θ_j − θ_0). The stage's per-visit repeatability enters
 the length weights where a visit has one length (point-major order) and the budget otherwise.

@@ -7,7 +7,7 @@ dead path D_s. Solving all stations together with
 
 removes the near-degeneracy of the per-station model (a station's position along the line of
 sight against its own d): with the paper's geometry and 0.2 µm noise the deviation error drops
-from about 3″ to about 0.5″ RMS (DESIGN.md; measured in tests/test_shared_dead_path.py).
+from about 3″ to about 0.5″ RMS (docs/paper000.md; measured in tests/test_shared_dead_path.py).
 CMM points are taken as exact, as in the paper. Lengths in mm.
 """
 

@@ -1,7 +1,6 @@
 """The uncertainty budget of a seed-000 estimate: what each source does to lengths, stations, angles.
 
-Sources (the procedure's ``uncertainty`` section states them; DESIGN.md, issue "trustworthy
-results"):
+Sources (the procedure's ``uncertainty`` section states them; docs/paper000.md derives each):
 
 - **tracer length noise** (Type A): one independent error per length, shaped a + b·L as the
   tracer's specification says, its size estimated from the residuals;
