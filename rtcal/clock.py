@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from typing import Protocol
+from typing import Callable, Protocol
 
 
 class Clock(Protocol):
@@ -24,6 +24,22 @@ class VirtualClock:
         if seconds < 0:
             raise ValueError("cannot sleep a negative time")
         self._t += seconds
+
+    def concurrently(self, actions: list[Callable[[], None]]) -> list[BaseException | None]:
+        """Run ``actions`` as if they started at the same instant: each sees the clock from now, and the
+        clock ends at the latest of their ends. Returns what each raised (None: it finished)."""
+        start, ends = self._t, []
+        errors: list[BaseException | None] = []
+        for action in actions:
+            self._t = start
+            try:
+                action()
+                errors.append(None)
+            except Exception as exc:  # noqa: BLE001 — handed back to the caller, which decides
+                errors.append(exc)
+            ends.append(self._t)
+        self._t = max(ends, default=start)
+        return errors
 
 
 class RealClock:

@@ -260,13 +260,22 @@ def test_remote_abort_while_paused_stops_like_ctrl_c():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["laser_tracer_multistation.yaml", "iso230_2_polygon.yaml"])
+@pytest.mark.parametrize("name", ["laser_tracer_multistation.yaml", "iso230_2_polygon.yaml", "concurrent"])
 def test_walk_predicts_the_virtual_clock_of_the_run(name, tmp_path):
-    """The walker's duration against the simulated run's clock (the same speeds, no noise)."""
+    """The walker's duration against the simulated run's clock (the same speeds, no noise); "concurrent": seed 000
+    with the table and the CMM moving together."""
     from rtcal.procedure.loader import load_scenario
     from rtcal.run.runner import resolve_scenario, run_procedure
 
-    path = ROOT / "procedures" / name
+    path = ROOT / "procedures" / (name if name != "concurrent" else "laser_tracer_multistation.yaml")
+    if name == "concurrent":
+        text = path.read_text(encoding="utf-8")
+        assert "concurrent_motions" not in text
+        (tmp_path / "scenarios").mkdir()
+        bench = ROOT / "procedures" / "scenarios" / "paper000_bench.yaml"
+        (tmp_path / "scenarios" / bench.name).write_text(bench.read_text(encoding="utf-8"), encoding="utf-8")
+        path = tmp_path / "concurrent.yaml"
+        path.write_text(text + "\nconcurrent_motions: true\n", encoding="utf-8")
     proc = load_procedure(path)
     scenario, _ = resolve_scenario(path, proc, None)
     method = METHODS[proc.method]

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import threading
+from functools import partial
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -352,15 +353,12 @@ class Engine:
         """Start the motions together; each that faulted is then ridden out under its own policy."""
         failed: list[Move] = []
         if isinstance(self.clock, VirtualClock):  # simulated: each motion from the same instant, the clock at the last to end
-            start, ends = self.clock.now_s(), []
-            for move in step.moves:
-                self.clock._t = start
-                try:
-                    self._move(move)
-                except InstrumentError:
+            outcomes = self.clock.concurrently([partial(self._move, move) for move in step.moves])
+            for move, error in zip(step.moves, outcomes):
+                if isinstance(error, InstrumentError):
                     failed.append(move)
-                ends.append(self.clock.now_s())
-            self.clock._t = max(ends)
+                elif error is not None:
+                    raise error
         else:
             errors: dict[int, BaseException] = {}
 

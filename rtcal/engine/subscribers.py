@@ -75,6 +75,7 @@ class ConsoleProgress:
         self.faults = 0
         self.where = ""
         self.clock_s = 0.0
+        self._shown_done = -1  # the done count of the last line written (a log's last line is not repeated)
 
     def eta_s(self) -> float | None:
         """Time left at the rate of this start (the run's own clock: virtual for a simulated run)."""
@@ -108,8 +109,6 @@ class ConsoleProgress:
             elif self.done != self._shown_done:
                 self.stream.write("rtcal: " + self.line() + "\n")
             self.stream.flush()
-
-    _shown_done = -1
 
     def _show(self) -> None:
         if self.bar:

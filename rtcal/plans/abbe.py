@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterator
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
-from rtcal.plans.multistation import environment_read
+from rtcal.plans.conditions import environment_read
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.run.store import Reading
 from rtcal.sequencer.checks import EncoderCheck, MotionChecks, abbe_cross_checks, check_abbe_visit, check_face

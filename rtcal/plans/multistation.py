@@ -20,22 +20,9 @@ from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Settle, Skipped,
                                 Step, Validate)
+from rtcal.plans.conditions import environment_read
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck, TracerReturnCheck
-
-ENVIRONMENT_QUANTITIES = (("air_temperature_c", "degC"), ("air_pressure_pa", "Pa"), ("humidity_pct", "%"),
-                          ("material_temperature_c", "degC"))
-
-
-def environment_read(what: str) -> Read:
-    """The conditions beside a reading (every method): never holds up the reading it accompanies."""
-    return Read("environment", ENVIRONMENT_QUANTITIES, _environment_values, None, what, optional=True)
-
-
-def _environment_values(sensor: EnvironmentSensor) -> list[float]:
-    env = sensor.read()
-    return [float(getattr(env, q)) for q, _ in ENVIRONMENT_QUANTITIES]  # NaN: not measured, not stored
-
 
 @dataclass(frozen=True)
 class MultistationInstrumentSet:
