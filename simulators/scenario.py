@@ -19,10 +19,12 @@ import math
 
 import numpy as np
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
+from rtcal.compensation.registry import format_names
 from rtcal.solvers.harmonics import Harmonic
 from rtcal.units import arcsec_to_rad, um_to_mm
 
@@ -86,15 +88,31 @@ class LinearHarmonic(_Strict):
         return Harmonic(self.order, um_to_mm(self.amplitude_um), math.radians(self.phase_deg))
 
 
+def _format_names_schema(schema: dict[str, Any]) -> None:
+    """The JSON schema lists the registered formats (as the Literal it replaces did)."""
+    schema["enum"] = list(format_names())
+
+
 class CompensationScenario(_Strict):
     """A compensation table the simulated controller applies (as a CNC would: interpolated between
     entries, per approach direction where the format has two), read from ``file`` (relative to
     the scenario) when the scenario is loaded."""
 
-    format: Literal["linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain"] = Field(
-        description="the table's format, as `rtcal compensate --format` writes it")
+    format: str = Field(description="the table's format, as `rtcal compensate --format` writes it",
+                        json_schema_extra=_format_names_schema)
     file: str | None = Field(None, max_length=4096, description="the table file, relative to the scenario (e.g. c.comp)")
     text: str | None = Field(None, max_length=1_000_000, description="the table itself (filled from `file` when loaded)")
+
+    @field_validator("format", mode="before")
+    @classmethod
+    def _registered(cls, value: object) -> object:
+        """One of the registry's formats (built-ins and installed plugins: rtcal/compensation/),
+        refused as a Literal of them would be."""
+        names = format_names()
+        if value not in names:
+            expected = " or ".join([", ".join(repr(n) for n in names[:-1]), repr(names[-1])] if len(names) > 1 else [repr(names[0])])
+            raise PydanticCustomError("literal_error", "Input should be {expected}", {"expected": expected})
+        return value
 
     @model_validator(mode="after")
     def _one_source(self) -> "CompensationScenario":

@@ -11,7 +11,7 @@ from typing import Annotated, Union
 from pydantic import Field, TypeAdapter
 
 from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
-from rtcal.deliverables.compensation import PARSERS, CompensationError
+from rtcal.compensation import CompensationError, get_format
 from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 from simulators.scenario import Scenario
 
@@ -62,7 +62,7 @@ def load_scenario(path: str | Path, text: str | None = None) -> Scenario:
         except (OSError, UnicodeDecodeError) as exc:
             raise FileProblems([problem_at(path, where, f"cannot read {table_path}: {exc}")]) from None
     try:
-        PARSERS[comp.format](text, comp.file or "text")
+        get_format(comp.format).parse(text or "", comp.file or "text")
     except CompensationError as exc:
         raise FileProblems([problem_at(path, where, str(exc))]) from None
     return scenario.model_copy(update={"stage": scenario.stage.model_copy(update={
