@@ -65,7 +65,6 @@ def toy_registered(monkeypatch):
     yield
     sys.modules.pop("rtcal_toy_broken", None)
     sys.modules.pop("rtcal_toy_format", None)
-    registry._plugins = None
 
 
 def test_builtins_are_the_registry():
