@@ -110,7 +110,8 @@ class CompensationScenario(_Strict):
         refused as a Literal of them would be."""
         names = format_names()
         if value not in names:
-            expected = " or ".join([", ".join(repr(n) for n in names[:-1]), repr(names[-1])] if len(names) > 1 else [repr(names[0])])
+            quoted = [repr(n) for n in names]
+            expected = f"{', '.join(quoted[:-1])} or {quoted[-1]}" if len(quoted) > 1 else quoted[0]
             raise PydanticCustomError("literal_error", "Input should be {expected}", {"expected": expected})
         return value
 

@@ -142,7 +142,8 @@ def test_an_installed_format_writes_a_table_the_simulated_controller_applies(toy
     python, tmp, before = toy_venv
     with pytest.raises(CompensationError, match="unknown format 'toy-csv'"):  # this process has no such plugin
         registry.get_format("toy-csv")
-    write = ("import sys\nfrom rtcal.results import read_results\nfrom rtcal.deliverables.deviations import PositioningDeviations\n"
+    write = ("import sys\nfrom rtcal.results import read_results\n"
+             "from rtcal.deliverables.deviations import PositioningDeviations\n"
              "from rtcal.deliverables.compensation import table_from_deviations, write_table\n"
              "r = read_results(sys.argv[1]); t = PositioningDeviations.from_model(r.positioning_deviations, sys.argv[1])\n"
              "open(sys.argv[2], 'w').write(write_table('toy-csv', table_from_deviations(t)))\n")
@@ -175,4 +176,5 @@ def test_rtcal_compensate_writes_an_installed_format(toy_venv):
     assert done.returncode == 0, done.stderr
     assert "toy-csv table written to" in done.stdout
     rows = out.read_text().splitlines()
-    assert rows[0] == "position_deg,trim_up_arcsec,trim_down_arcsec" and all(len(r.split(",")[1].split(".")[1]) == 2 for r in rows[1:])
+    assert rows[0] == "position_deg,trim_up_arcsec,trim_down_arcsec"
+    assert all(len(r.split(",")[1].split(".")[1]) == 2 for r in rows[1:]), rows[:3]
