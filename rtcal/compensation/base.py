@@ -87,7 +87,8 @@ class CompensationFormat:
     wraps: ClassVar[bool] = True
 
     # ``write(table, **options) -> str``: the file's text for ``table`` (trims, deg), each of the
-    # format's ``options`` a keyword with its default (declared so a subclass names its own)
+    # format's ``options`` a keyword with its default (declared so a subclass names its own); it
+    # calls ``self.check_points(table)`` first unless, like LinuxCNC's, it checks its lines itself
     write: Callable[..., str]
 
     def parse(self, text: str, where: str = "") -> CompensationTable:
