@@ -13,9 +13,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from rtcal.deliverables.certificate import Certificate, Item, KeyResult, ParameterRow, Table, build_certificate
 from rtcal.deliverables.conformity import parameter_uncertainties
 from rtcal.deliverables.method_outputs import outputs_for
-from rtcal.deliverables.report import ISO_KEYS, ISO_MEANING, ISO_SYMBOL, iso_departures, measurement_dates, report_model
+from rtcal.deliverables.report import ISO_KEYS, ISO_MEANING, ISO_SYMBOL, iso_departures, measurement_dates
 from rtcal.deliverables.rounding import u_text, value_text
 from rtcal.results.model import RunResults
 
@@ -27,25 +28,22 @@ def _value(v: float | None, u: float | None) -> str:
 
 
 def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict[str, Any], out_dir: Path,
-                           figure: str, labels: tuple[str, str]) -> dict[str, Any]:
-    """The certificate's model: the as-left run's, its results replaced by both runs' side by side."""
-    outputs = outputs_for(left)
+                           figure: str, labels: tuple[str, str]) -> Certificate:
+    """The certificate: the as-left run's, its results replaced by both runs' side by side."""
     caption = ("mean positioning deviation per target and direction as found (A) and as left (B), each with its U band "
                "(k = 2).")
-    model = report_model(left, out_dir, [(figure, caption)], outputs.method_text(), outputs.method_name())
-    model["title"] = "Calibration certificate"
-    model["subtitle"] = "Angular positioning deviation of a rotary axis, as found and as left"
+    cert = build_certificate(left, out_dir, outputs_for(left), [(figure, caption)])
     identification = []
-    for key, value in model["identification"]:
-        if key == "Date of measurement":
-            identification += [("As found (before adjustment)", f"{measurement_dates(found)}; {labels[0]}"),
-                                ("As left (after adjustment)", f"{measurement_dates(left)}; {labels[1]}")]
+    for item in cert.identification.items:
+        if item.label == "Date of measurement":
+            identification += [Item(label="As found (before adjustment)", value=f"{measurement_dates(found)}; {labels[0]}"),
+                               Item(label="As left (after adjustment)", value=f"{measurement_dates(left)}; {labels[1]}")]
             continue
-        if key == "Departures from the method":
+        if item.label == "Departures from the method":
             both = sorted(set(iso_departures(found)) | set(iso_departures(left)))
-            value = "; ".join(both) + ". The parameters are computed as ISO 230-2 defines them." if both else "none"
-        identification.append((key, value))
-    model["identification"] = identification
+            item = Item(label=item.label, value="; ".join(both) + ". The parameters are computed as ISO 230-2 defines them."
+                        if both else "none")
+        identification.append(item)
     u_found, u_left = parameter_uncertainties(found), parameter_uncertainties(left)
     iso_found = found.evaluation.iso230_2 if found.evaluation else None
     iso_left = left.evaluation.iso230_2 if left.evaluation else None
@@ -55,27 +53,34 @@ def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict
         b = getattr(iso_left, key) if iso_left else None
         if a is None and b is None:
             continue
-        row = (f"{_value(a, u_found.get(key))} → {_value(b, u_left.get(key))}",
-               f"{u_text(u_found.get(key))}″ / {u_text(u_left.get(key))}″")
-        table.append((sym, desc, *row))
+        value, u = (f"{_value(a, u_found.get(key))} → {_value(b, u_left.get(key))}",
+                    f"{u_text(u_found.get(key))}″ / {u_text(u_left.get(key))}″")
+        table.append(ParameterRow(symbol=sym, meaning=desc, value_arcsec=value, expanded_uncertainty_arcsec=u))
         if key in BRIEF:
-            brief.append((f"{ISO_SYMBOL[key]}: {ISO_MEANING[key]}", *row))
+            brief.append(KeyResult(quantity=f"{ISO_SYMBOL[key]}: {ISO_MEANING[key]} (as found → as left)", value_arcsec=value,
+                                   expanded_uncertainty_arcsec=u))
     changed, compared = comparison["targets_changed"], comparison["targets_compared"]
-    model["key_results"] = [("change of the deviation per target and direction (as left − as found)",
-                             f"{changed} of {compared} beyond U_c", "U_c: page 2")] + [
-        (f"{q} (as found → as left)", v, u) for q, v, u in brief]
-    model["iso"] = table
-    model["iso_title"] = "ISO 230-2 parameters: as found → as left (U as found / as left, k = 2)"
-    model["vdi"] = []
-    if model["conformity"]:
-        model["conformity"] = {**model["conformity"], "title": "Conformity of the item as left"}
-    model["rows_title"] = "Result: positioning deviation per target and direction, as found and as left"
-    model["rows_header"] = ["target / °", "direction", "as found / ″", "as left / ″", "change / ″", "U_c (k = 2) / ″",
-                            "beyond U_c"]
-    model["rows_note"] = ("Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction. "
-                          "Change = as left − as found; U_c = 2·√(u_found² + u_left²), the expanded uncertainty of the "
-                          "change (k = 2, about 95 %; the two measurements are independent).")
-    model["rows"] = [(f"{r['target_deg']:g}", "↑" if r["direction"] > 0 else "↓", f"{r['a_arcsec']:+.2f}",
-                      f"{r['b_arcsec']:+.2f}", f"{r['change_arcsec']:+.2f}", u_text(r["combined_U_arcsec"]),
-                      "–" if r["exceeds_U"] is None else "yes" if r["exceeds_U"] else "no") for r in comparison["per_target"]]
-    return model
+    rows = [[f"{r['target_deg']:g}", "↑" if r["direction"] > 0 else "↓", f"{r['a_arcsec']:+.2f}", f"{r['b_arcsec']:+.2f}",
+             f"{r['change_arcsec']:+.2f}", u_text(r["combined_U_arcsec"]),
+             "–" if r["exceeds_U"] is None else "yes" if r["exceeds_U"] else "no"] for r in comparison["per_target"]]
+    parameters = cert.parameters.model_copy(update={
+        "heading": "ISO 230-2 parameters: as found → as left (U as found / as left, k = 2)", "rows": table, "vdi_rows": []}) \
+        if cert.parameters else None
+    return cert.model_copy(update={
+        "header": cert.header.model_copy(update={
+            "title": "Calibration certificate",
+            "subtitle": "Angular positioning deviation of a rotary axis, as found and as left"}),
+        "identification": cert.identification.model_copy(update={"items": identification}),
+        "result_in_brief": cert.result_in_brief.model_copy(update={"rows": [
+            KeyResult(quantity="change of the deviation per target and direction (as left − as found)",
+                      value_arcsec=f"{changed} of {compared} beyond U_c", expanded_uncertainty_arcsec="U_c: page 2")] + brief}),
+        "parameters": parameters,
+        "conformity": cert.conformity.model_copy(update={"heading": "Conformity of the item as left"})
+        if cert.conformity else None,
+        "deviations": Table(
+            heading="Result: positioning deviation per target and direction, as found and as left",
+            note=("Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction. "
+                  "Change = as left − as found; U_c = 2·√(u_found² + u_left²), the expanded uncertainty of the "
+                  "change (k = 2, about 95 %; the two measurements are independent)."),
+            header=["target / °", "direction", "as found / ″", "as left / ″", "change / ″", "U_c (k = 2) / ″", "beyond U_c"],
+            rows=rows)})

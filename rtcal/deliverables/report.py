@@ -7,9 +7,10 @@ the conformity verdict with its rule, what the uncertainty leaves out, the trace
 the results relate to the item calibrated, and who performed and approved it; then the result per
 target and direction, the ISO 230-2 and VDI 3441 parameters, the figures, the budget, the method,
 the reference standards and instruments, the conditions, the control of the machine and the
-run's events. Every page of the PDF ends with "page N of M". One model (:func:`report_model`, a
-pure function of the run's results) feeds both renderers. report.md is the Markdown frame every
-run shares around its method's body.
+run's events. Every page of the PDF ends with "page N of M". One typed document
+(:class:`rtcal.deliverables.certificate.Certificate`, built once from the run's results) feeds the
+three renderers here, which only lay it out: report.html, report.pdf, and report.md, the Markdown
+frame every run shares around its method's body.
 """
 
 from __future__ import annotations
@@ -17,14 +18,15 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from rtcal.deliverables.comparison import mean_curve
 from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.deviations import PositioningDeviations
-from rtcal.deliverables.evaluation import UNCONFIRMED
 from rtcal.deliverables.rounding import u_text, value_text
-from rtcal.results.model import (AbbeResults, EnvironmentSummary, Event, InstrumentRecord, MultistationResults, RunResults)
+from rtcal.results.model import EnvironmentSummary, InstrumentRecord, RunResults
+
+if TYPE_CHECKING:
+    from rtcal.deliverables.certificate import Certificate
 
 ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, positive approach"),
             ("E_down", "E↓", "unidirectional systematic positional deviation, negative approach"),
@@ -120,9 +122,7 @@ def measurement_dates(results: RunResults) -> str:
 
 def environment_of(results: RunResults) -> EnvironmentSummary | None:
     """The conditions the environment sensor recorded (None: no sensor)."""
-    if isinstance(results, (MultistationResults, AbbeResults)):
-        return results.environment
-    return None
+    return getattr(results, "environment", None)  # a method whose results have no sensor has no field for one
 
 
 def condition_label(name: str) -> str:
@@ -174,7 +174,8 @@ def instrument_rows(results: RunResults) -> list[tuple[str, ...]]:
     records = results.metadata.instruments
     none = InstrumentRecord(id="", calibration_due="")
     roles = dict(ROLES)
-    if isinstance(results, AbbeResults) and results.estimates.abbe is not None and results.estimates.abbe.polygon_source == "closure":
+    abbe = getattr(getattr(results, "estimates", None), "abbe", None)  # the Abbe method's estimate, if the results have one
+    if abbe is not None and abbe.polygon_source == "closure":
         roles["polygon"] = "artefact: its face errors separated from the table's by closure in this run"
     return [(name.replace("_", " "), roles.get(name, ""), records.get(name, none).id or "not recorded",
              records.get(name, none).certificate_number or "–", records.get(name, none).calibrated_by or "–",
@@ -260,156 +261,26 @@ def key_results(results: RunResults, uncertainties: dict[str, float | None]) -> 
     return rows
 
 
-def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, str]], method_text: list[str],
-                 method_name: str = "") -> dict[str, Any]:
-    """Everything the certificate shows, as strings and rows, from the run's results."""
-    from rtcal.deliverables.conformity import parameter_uncertainties
-    from rtcal.deliverables.multistation import location_tables
-
-    meta = results.metadata
-    missing = [what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)]
-    issued = meta.date_of_issue or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
-    uncertainties = parameter_uncertainties(results)
-    conformity = results.conformity
-    departed = iso_departures(results)
-    standards = list(STANDARDS) + ([DECISION_STANDARDS[conformity.decision_rule]] if conformity else [])
-    if departed:
-        standards[0] = "ISO 230-2:2014 (its formulas for E, M, B, R, A applied to a test that departs from its test: see Departures)"
-    item = ", ".join(x for x in (meta.machine, f"axis {meta.axis}" if meta.axis else "",
-                                 f"serial number {meta.serial_number}" if meta.serial_number else "") if x)
-    control_brief, control_details = control_lines(results)
-    identification = [
-        ("Certificate number", meta.certificate_number or "not given"),
-        ("Date of issue", issued),
-        ("Customer", ", ".join(x for x in (meta.customer, meta.customer_address) if x) or "not given"),
-        ("Item calibrated", item or "not given"),
-        ("Condition on receipt", getattr(meta, "condition_on_receipt", "") or "not recorded"),
-        ("Place of calibration", meta.location or "not given"),
-        ("Date of measurement", measurement_dates(results)),
-        ("Method", method_name or results.method),
-        ("Procedure", f"{results.procedure.name or '(untitled)'} ({Path(results.procedure.path).name})"),
-        ("Standards applied", "; ".join(standards)),
-        ("Departures from the method", ("; ".join(departed) + ". The parameters are computed as ISO 230-2 defines them; "
-                                        "they are not ISO 230-2 results.") if departed else "none"),
-        ("Conditions during the measurement", conditions_in_brief(results)),
-        ("Control of the machine", control_brief),
-    ]
-    if isinstance(results.instruments, str):
-        identification.append(("Instruments", "simulated: every instrument and the table are simulated on a model bench "
-                                              f"({Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed}); "
-                                              "a demonstration, not a measurement of a real item"))
-    warnings = [f"Estimator {n} {st.status}: {st.message}" for n, st in results.solver_status.items()
-                if st.status != "converged"]
-    if results.bench is not None and results.bench.startswith("ideal bench"):
-        warnings.append(results.bench)
-    if results.faults or results.skipped_readings:
-        warnings.append(f"{plural(results.faults, 'instrument fault')} and {plural(results.skipped_readings, 'skipped reading')} during "
-                        "the run (see Run).")
-    rows = []
-    if results.positioning_deviations is not None:
-        table = PositioningDeviations.from_model(results.positioning_deviations)
-        curve = mean_curve(table, results, wrap=False)
-        counts: dict[tuple[float, int], int] = {}
-        for t, d in zip(table.target_deg, table.direction):
-            counts[(round(float(t), 6), int(d))] = counts.get((round(float(t), 6), int(d)), 0) + 1
-        for key in curve:  # in the measurement's order
-            x, u = curve[key]
-            rows.append((f"{key[0]:g}", "↑" if key[1] > 0 else "↓", value_text(x, 2 * u, "+"), u_text(u), u_text(2 * u),
-                         str(counts.get(key, ""))))
-    iso = results.evaluation.iso230_2 if results.evaluation else None
-    vdi = results.evaluation.vdi3441 if results.evaluation else None
-    budget_rows = []
-    not_included: list[str] = []
-    e = results.recommended_estimate()
-    if e is not None:
-        b = e.uncertainty_budget
-        for c in b.components:
-            stated = c.note if "," in c.unit else f"{c.input_sigma:.3g} {c.unit}"  # several inputs: say them
-            budget_rows.append((c.source, c.type, stated + (" (from the data)" if c.estimated_from_data else ""),
-                                _fmt(largest(c.contribution_arcsec), 3)))
-        comb = largest(b.combined_arcsec)
-        budget_rows.append(("combined standard uncertainty u", "", "", _fmt(comb, 3)))
-        budget_rows.append(("expanded uncertainty U (k = 2), rounded up to two digits", "", "", u_text(None if comb is None else 2 * comb)))
-        not_included = b.not_included
-    events: dict[str, int] = {}
-    for ev in results.events:
-        events[ev.kind] = events.get(ev.kind, 0) + 1
-    iso_notes = iso.notes if iso else []
-    verdict = None
-    if conformity is not None:
-        verdict = {
-            "verdict": conformity.verdict, "rule": conformity.rule,
-            "rows": [(ISO_SYMBOL[k], ISO_MEANING[k] + (f" (decided at {c.target_deg:g}° {'↑' if c.direction == 1 else '↓'})"
-                                                       if c.target_deg is not None and c.direction is not None else ""),
-                      f"{c.limit_arcsec:g}", value_text(c.value_arcsec, c.expanded_uncertainty_arcsec),
-                      u_text(c.expanded_uncertainty_arcsec), u_text(c.guard_band_arcsec) if c.guard_band_arcsec else "0",
-                      c.verdict) for k, c in conformity.per_limit.items()],
-        }
-    performed = meta.performed_by or meta.operator
-    doc = "report" if missing else "certificate"
-    footer = " · ".join(x for x in (meta.laboratory or results.procedure.name or results.method,
-                                    f"Certificate {meta.certificate_number}" if meta.certificate_number else "") if x)
-    return {
-        "title": "Calibration certificate" if not missing else "Calibration report",
-        "subtitle": "Angular positioning deviation of a rotary axis",
-        "procedure_name": results.procedure.name or results.method,
-        "laboratory": meta.laboratory or "Laboratory not stated", "laboratory_address": meta.laboratory_address,
-        "certificate_number": meta.certificate_number,
-        "not_certificate": ("Not a calibration certificate: the procedure's metadata does not give " + ", ".join(missing) + "."
-                            if missing else ""),
-        "identification": identification, "warnings": warnings,
-        "key_results": key_results(results, uncertainties),
-        "uncertainty_statement": UNCERTAINTY_STATEMENT.format(doc=doc), "not_included": not_included,
-        "conformity": verdict, "traceability": traceability(results), "statement": RELATES_STATEMENT.format(doc=doc),
-        "signing": SIGNING_STATEMENT.format(doc=doc, approver=meta.approved_by, date=issued) if meta.approved_by else
-        f"This {doc} has not been approved for issue (the procedure's metadata names no approver).",
-        "signatures": [("Performed by", performed or "not stated"), ("Approved by", meta.approved_by or "not approved"),
-                       ("Date of issue", issued)],
-        "instruments": instrument_rows(results), "connections": connections(results),
-        "rows": rows, "recommended": estimate_name(results),
-        "rows_title": "Result: positioning deviation per target and direction",
-        "rows_header": ["target / °", "direction", "deviation / ″", "u / ″", "U (k = 2) / ″", "runs"],
-        "rows_note": ("Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction; "
-                      "u standard uncertainty, U = 2u expanded uncertainty (k = 2, about 95 %). Estimate: "
-                      f"{estimate_name(results)}."),
-        "iso_title": ("ISO 230-2:2014 parameters" if not departed else
-                      "Positioning parameters computed as ISO 230-2 defines them (not ISO 230-2 results: the test departs "
-                      "from it, see page 1)"),
-        "iso": [(sym, desc, value_text(getattr(iso, key), uncertainties.get(key)), u_text(uncertainties.get(key)))
-                for key, sym, desc in ISO_KEYS if getattr(iso, key) is not None] if iso else [],
-        "vdi": [(sym, desc, _fmt(getattr(vdi, key))) for key, sym, desc in VDI_KEYS] if vdi else [],
-        "evaluation_notes": [n for n in iso_notes + [n for n in (vdi.notes if vdi else []) if n not in iso_notes]
-                             if n not in UNCONFIRMED.values()],  # what is not confirmed: docs/evaluation.md, not the customer's
-        "figures": [(run_dir / f, f"Figure {n}: {caption}") for n, (f, caption) in
-                    enumerate([(f, c) for f, c in figures if (run_dir / f).exists()], start=1)],
-        "budget": budget_rows,
-        "tables": location_tables(results),  # the axis's location errors and error motions (ISO 230-7)
-        "method": method_text, "environment": conditions(results), "control": control_details,
-        "events": ", ".join(f"{k}: {n}" for k, n in events.items()) or "none",
-        "raw_readings": results.raw_readings, "skipped": results.skipped_readings, "faults": results.faults,
-        "run_counts": f"{plural(results.raw_readings, 'planned reading')} taken, {results.skipped_readings} skipped, "
-                      f"{plural(results.faults, 'instrument fault')}",
-        "software": f"rtcal {results.rtcal_version}", "measured": measurement_dates(results),
-        "footer": footer, "footer_css": "".join(ch for ch in footer if ch not in '"\\<>&\n\r'),
-    }
-
-
-def write_html(model: dict[str, Any], path: Path) -> Path:
+def write_html(certificate: Certificate, path: Path) -> Path:
+    """The certificate as one HTML page (printable to A4: the template's @page rules), its figures inlined."""
     from jinja2 import Environment, FileSystemLoader, select_autoescape
 
     env = Environment(loader=FileSystemLoader(Path(__file__).parent / "templates"), autoescape=select_autoescape(["j2"]))
-    figures = [(base64.b64encode(p.read_bytes()).decode("ascii"), caption) for p, caption in model["figures"]]
-    path.write_text(env.get_template("report.html.j2").render(m=model, figures=figures), encoding="utf-8")
+    figures = [(base64.b64encode((path.parent / f.file).read_bytes()).decode("ascii"), f.caption) for f in certificate.figures]
+    footer_css = "".join(ch for ch in certificate.header.footer if ch not in '"\\<>&\n\r')
+    path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css),
+                    encoding="utf-8")
     return path
 
 
-def write_pdf(model: dict[str, Any], path: Path) -> Path:
+def write_pdf(certificate: Certificate, path: Path) -> Path:
     """A4 pages with reportlab: the same content as the HTML, in the same order; every page ends
     with "page N of M" (drawn last on the page, after the certificate's number)."""
     from reportlab.lib import colors
     from reportlab.lib.pagesizes import A4
     from reportlab.lib.styles import ParagraphStyle, getSampleStyleSheet
     from reportlab.lib.units import mm
+    from reportlab.lib.utils import ImageReader
     from reportlab.pdfbase import pdfmetrics
     from reportlab.pdfbase.ttfonts import TTFont
     from reportlab.pdfgen.canvas import Canvas
@@ -448,73 +319,85 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                                ("TOPPADDING", (0, 0), (-1, -1), 3), ("BOTTOMPADDING", (0, 0), (-1, -1), 3)]))
         return t
 
-    m = model
-    head = Table([[[Paragraph(esc(m["laboratory"]), lab), Paragraph(esc(m["laboratory_address"]), small)],
-                   [Paragraph(esc(m["title"]), h1), Paragraph(esc(m["subtitle"]), small)]]],
+    c = certificate
+    hd = c.header
+    head = Table([[[Paragraph(esc(hd.laboratory), lab), Paragraph(esc(hd.laboratory_address), small)],
+                   [Paragraph(esc(hd.title), h1), Paragraph(esc(hd.subtitle), small)]]],
                  colWidths=[width * 0.45, width * 0.55])
     head.setStyle(TableStyle([("VALIGN", (0, 0), (-1, -1), "TOP"), ("LINEBELOW", (0, 0), (-1, 0), 0.8, colors.HexColor("#3a5a80")),
                               ("LEFTPADDING", (0, 0), (-1, -1), 0), ("BOTTOMPADDING", (0, 0), (-1, -1), 4)]))
     story: list[Any] = [head, Spacer(1, 3 * mm)]
-    if m["not_certificate"]:
-        story += [boxed([Paragraph(f"<b>{esc(m['not_certificate'])}</b>", body)], colors.HexColor("#c0392b")), Spacer(1, 2 * mm)]
-    story.append(table(m["identification"], None, [50 * mm, width - 50 * mm], shade_first_column=True))
-    for w in m["warnings"]:
+    if hd.not_certificate:
+        story += [boxed([Paragraph(f"<b>{esc(hd.not_certificate)}</b>", body)], colors.HexColor("#c0392b")), Spacer(1, 2 * mm)]
+    story.append(table([(i.label, i.value) for i in c.identification.items], None, [50 * mm, width - 50 * mm],
+                       shade_first_column=True))
+    for w in c.identification.notes:
         story += [Spacer(1, 1.5 * mm), Paragraph(f"<b>Note:</b> {esc(w)}", body)]
-    story += [Paragraph("Result in brief", h2), table(m["key_results"], ["quantity", "value", "U (k = 2)"],
-                                                       [width - 88 * mm, 66 * mm, 22 * mm]),
-              Spacer(1, 1.5 * mm), Paragraph(esc(m["uncertainty_statement"]), small)]
-    if m["not_included"]:
-        story += [Spacer(1, 2 * mm), boxed([Paragraph("<b>The uncertainty stated does not include:</b>", body)]
-                                           + [Paragraph("• " + esc(n), small) for n in m["not_included"]],
+    brief = c.result_in_brief
+    story += [Paragraph(esc(brief.heading), h2),
+              table([(k.quantity, k.value_arcsec, k.expanded_uncertainty_arcsec) for k in brief.rows], brief.header,
+                    [width - 88 * mm, 66 * mm, 22 * mm]),
+              Spacer(1, 1.5 * mm), Paragraph(esc(brief.uncertainty_statement), small)]
+    if brief.not_included:
+        story += [Spacer(1, 2 * mm), boxed([Paragraph(f"<b>{esc(brief.not_included_heading)}</b>", body)]
+                                           + [Paragraph("• " + esc(n), small) for n in brief.not_included],
                                            colors.HexColor("#d68910"))]
-    if m["conformity"]:
-        c = m["conformity"]
-        story += [Paragraph(f"{esc(c.get('title', 'Conformity'))}: {c['verdict'].upper()}", h2), Paragraph(esc(c["rule"]), small), Spacer(1, 1.5 * mm),
-                  table(c["rows"], ["limit", "parameter", "limit / ″", "value / ″", "U / ″", "guard band / ″", "verdict"],
+    if c.conformity:
+        v = c.conformity
+        story += [Paragraph(f"{esc(v.heading)}: {v.verdict.upper()}", h2), Paragraph(esc(v.rule), small), Spacer(1, 1.5 * mm),
+                  table([(r.symbol, r.parameter, r.limit_arcsec, r.value_arcsec, r.expanded_uncertainty_arcsec,
+                          r.guard_band_arcsec, r.verdict) for r in v.rows], v.header,
                         [12 * mm, width - 101 * mm, 16 * mm, 17 * mm, 14 * mm, 24 * mm, 18 * mm])]
-    story += [Paragraph("Traceability", h2), Paragraph(esc(m["traceability"]), body), Spacer(1, 1.5 * mm),
-              Paragraph(esc(m["statement"]), body)]
-
-    story += [CondPageBreak(60 * mm), Paragraph(esc(m["rows_title"]), h2), Paragraph(esc(m["rows_note"]), small),
-              Spacer(1, 1.5 * mm), table(m["rows"], m["rows_header"])]
-    if m["iso"]:
-        story += [KeepTogether([Paragraph(esc(m["iso_title"]), h2),
-                                table(m["iso"], ["symbol", "meaning", "value / ″", "U (k = 2) / ″"],
-                                      [18 * mm, width - 62 * mm, 22 * mm, 22 * mm])])]
-        if m["vdi"]:
-            story += [KeepTogether([Paragraph("VDI/DGQ 3441 parameters (the guideline's own symbols)", h2),
-                                    table(m["vdi"], ["VDI 3441 symbol", "VDI 3441 meaning", "value / ″"],
+    story += [Paragraph(esc(c.traceability.heading), h2), Paragraph(esc(c.traceability.statement), body), Spacer(1, 1.5 * mm),
+              Paragraph(esc(c.traceability.relates), body)]
+    if c.deviations:
+        d = c.deviations
+        story += [CondPageBreak(60 * mm), Paragraph(esc(d.heading), h2), Paragraph(esc(d.note), small),
+                  Spacer(1, 1.5 * mm), table(d.rows, d.header)]
+    if c.parameters:
+        p = c.parameters
+        story += [KeepTogether([Paragraph(esc(p.heading), h2),
+                                table([(r.symbol, r.meaning, r.value_arcsec, r.expanded_uncertainty_arcsec) for r in p.rows],
+                                      p.header, [18 * mm, width - 62 * mm, 22 * mm, 22 * mm])])]
+        if p.vdi_rows:
+            story += [KeepTogether([Paragraph(esc(p.vdi_heading), h2),
+                                    table([(r.symbol, r.meaning, r.value_arcsec) for r in p.vdi_rows], p.vdi_header,
                                           [26 * mm, width - 48 * mm, 22 * mm])])]
-        story += [Paragraph(esc(n), small) for n in m["evaluation_notes"]]
-    for t in m.get("tables", []):
-        story += [KeepTogether([Paragraph(esc(t["heading"]), h2), Paragraph(esc(t["note"]), small), Spacer(1, 1.5 * mm),
-                                table(t["rows"], t["header"], [18 * mm, width - 74 * mm, 28 * mm, 28 * mm]
-                                      if len(t["header"]) == 4 else None)])]
-    for p, caption in m["figures"]:
-        from reportlab.lib.utils import ImageReader
-
-        iw, ih = ImageReader(str(p)).getSize()
+        story += [Paragraph(esc(n), small) for n in p.notes]
+    for t in c.tables:
+        story += [KeepTogether([Paragraph(esc(t.heading), h2), Paragraph(esc(t.note), small), Spacer(1, 1.5 * mm),
+                                table(t.rows, t.header, [18 * mm, width - 74 * mm, 28 * mm, 28 * mm]
+                                      if len(t.header) == 4 else None)])]
+    for f in c.figures:
+        image = path.parent / f.file
+        iw, ih = ImageReader(str(image)).getSize()
         fw = 0.76 * width if ih / iw < 0.7 else width  # three wide figures fit a page; a tall one takes its width
-        story += [KeepTogether([Spacer(1, 2 * mm), Image(str(p), width=fw, height=fw * ih / iw), Paragraph(esc(caption), small)])]
-    if m["budget"]:
-        story += [KeepTogether([Paragraph("Uncertainty budget (largest contribution over the targets)", h2),
-                                table(m["budget"], ["source", "type", "input σ", "u / ″"], [70 * mm, 12 * mm, 55 * mm, 28 * mm])])]
-        story += [Paragraph(f"Not included: {esc(n)}", small) for n in m["not_included"]]
-    story += [Paragraph("Method", h2)] + [Paragraph(esc(t), body) for t in m["method"]]
-    story += [KeepTogether([Paragraph("Reference standards and instruments", h2),
-              table(m["instruments"], ["instrument", "role", "id", "certificate", "calibrated by", "due"],
+        story += [KeepTogether([Spacer(1, 2 * mm), Image(str(image), width=fw, height=fw * ih / iw),
+                                Paragraph(esc(f.caption), small)])]
+    if c.budget:
+        b = c.budget
+        story += [KeepTogether([Paragraph(esc(b.heading), h2), Paragraph(esc(b.note), small),
+                                table([(r.source, r.type, r.input, r.contribution_arcsec) for r in b.rows], b.header,
+                                      [70 * mm, 12 * mm, 55 * mm, 28 * mm])])]
+        story += [Paragraph(f"Not included: {esc(n)}", small) for n in b.not_included]
+    story += [Paragraph(esc(c.method.heading), h2)] + [Paragraph(esc(t), body) for t in c.method.paragraphs]
+    s = c.standards
+    story += [KeepTogether([Paragraph(esc(s.heading), h2),
+              table([(r.instrument, r.role, r.id, r.certificate, r.calibrated_by, r.due) for r in s.rows], s.header,
                     [24 * mm, 32 * mm, width - 132 * mm, 28 * mm, 28 * mm, 20 * mm])]),
-              Paragraph("Connections: " + esc(m["connections"]), small)]
-    story += [KeepTogether([Paragraph("Conditions during the measurement", h2),
-                            table(m["environment"], ["quantity", "min – max over the run (mean)"], [55 * mm, width - 55 * mm])])]
-    if m["control"]:
-        story += [Paragraph("Control of the machine", h2)] + [Paragraph("• " + esc(t), small) for t in m["control"]]
-    story += [Paragraph("Run", h2),
-              Paragraph(f"Measured {esc(m['measured'])}; {esc(m['run_counts'])}; events: {esc(m['events'])}. Software: "
-                        f"{esc(m['software'])}.", body),
-              Spacer(1, 4 * mm), Paragraph("<b>End of certificate.</b>" if not m["not_certificate"] else "<b>End of report.</b>", body)]
+              Paragraph("Connections: " + esc(s.connections), small)]
+    story += [KeepTogether([Paragraph(esc(c.conditions.heading), h2),
+                            table([(i.label, i.value) for i in c.conditions.rows], c.conditions.header,
+                                  [55 * mm, width - 55 * mm])])]
+    if c.control.details:
+        story += [Paragraph(esc(c.control.heading), h2)] + [Paragraph("• " + esc(t), small) for t in c.control.details]
+    r = c.run
+    story += [Paragraph(esc(r.heading), h2),
+              Paragraph(f"Measured {esc(r.measured)}; {esc(r.run_counts)}; events: {esc(r.event_counts)}. Software: "
+                        f"{esc(r.software)}.", body),
+              Spacer(1, 4 * mm), Paragraph(f"<b>{esc(hd.closing)}</b>", body)]
 
-    footer_left = m["footer"]
+    footer_left = hd.footer
 
     class NumberedCanvas(Canvas):
         """Keeps each page until the count is known, then draws its footer last: "page N of M"."""
@@ -539,7 +422,8 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                 super().showPage()
             super().save()
 
-    signatures = table([[f"{k}: {v}" for k, v in m["signatures"]], [m["signing"], "", ""]], None, [width / 3] * 3)
+    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()], [c.sign_off.signing, "", ""]], None,
+                       [width / 3] * 3)
     signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed, under who signed it
     sign_h = signatures.wrap(width, 40 * mm)[1] + 4 * mm
 
@@ -550,7 +434,7 @@ def write_pdf(model: dict[str, Any], path: Path) -> Path:
                   rightPadding=0, topPadding=0, bottomPadding=0)
     later = Frame(15 * mm, 17 * mm, width, A4[1] - 30 * mm, id="later", leftPadding=0, rightPadding=0, topPadding=0,
                   bottomPadding=0)
-    doc = BaseDocTemplate(str(path), pagesize=A4, title=f"{m['title']} {m['certificate_number']}".strip(), author=m["laboratory"])
+    doc = BaseDocTemplate(str(path), pagesize=A4, title=f"{hd.title} {hd.certificate_number}".strip(), author=hd.laboratory)
     doc.addPageTemplates([PageTemplate("first", [first], onPage=sign, autoNextPageTemplate="later"),
                           PageTemplate("later", [later])])
     doc.build(story, canvasmaker=NumberedCanvas)
@@ -571,36 +455,45 @@ def _fonts(pdfmetrics, TTFont) -> tuple[str, str]:
         return "Helvetica", "Helvetica-Bold"
 
 
-def write_report(run_dir: Path, results: RunResults, body: list[str], method_name: str = "") -> Path:
-    """The Markdown report: a header every run shares, the method's body, the run's events."""
-    lines = [f"# rtcal run — {results.procedure.name or results.method}", ""]
-    for name, st in results.solver_status.items():
-        if st.status != "converged":
-            lines.append(f"> **Estimator `{name}` {st.status}**: {st.message}")
-            lines.append(">")
-    if results.bench and results.bench.startswith("ideal bench"):
-        lines += [f"> **Note:** {results.bench}.", ""]
-    lines += [f"- method: {method_name} (`{results.method}`)" if method_name else f"- method: `{results.method}`",
-              f"- software: rtcal {results.rtcal_version}",
-              f"- started: {results.started_utc or '?'} (UTC); measured until {results.finished_utc or '?'}; "
+def write_markdown(certificate: Certificate, path: Path) -> Path:
+    """report.md: the frame every run shares (from the document's run record), the conformity
+    table, the method's body, the run's events."""
+    c, r = certificate, certificate.run
+    lines = [f"# {r.report_title}", ""]
+    for issue in r.solver_issues:
+        lines.append(f"> **Estimator `{issue.estimator}` {issue.status}**: {issue.message}")
+        lines.append(">")
+    if r.bench_note:
+        lines += [f"> **Note:** {r.bench_note}.", ""]
+    lines += [f"- method: {c.method.name} (`{r.method_key}`)" if c.method.name != r.method_key else f"- method: `{r.method_key}`",
+              f"- software: {r.software}",
+              f"- started: {r.started_utc} (UTC); measured until {r.finished_utc}; "
               f"report written {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')}",
-              f"- measurement duration: {results.measurement_duration_s} s"
-              + (" of simulated time (virtual clock: settle times and motions were not waited for)"
-                 if results.clock == "virtual" else ""),
-              f"- raw readings: {results.raw_readings}; faults: {results.faults}; skipped: {results.skipped_readings}",
-              f"- conditions: {conditions_in_brief(results)}",
-              f"- control of the machine: {control_lines(results)[0]}"]
-    if isinstance(results.instruments, dict):
-        lines += ["- instruments:"] + [f"  - {k}: `{v}`" for k, v in results.instruments.items()]
+              f"- measurement duration: {r.duration_s} s"
+              + (" of simulated time (virtual clock: settle times and motions were not waited for)" if r.virtual_clock else ""),
+              f"- raw readings: {r.raw_readings}; faults: {r.faults}; skipped: {r.skipped_readings}",
+              f"- conditions: {c.conditions.brief}",
+              f"- control of the machine: {c.control.brief}"]
+    if r.instruments:
+        lines += ["- instruments:"] + [f"  - {i.label}: `{i.value}`" for i in r.instruments]
     else:
-        lines += [f"- instruments: {results.instruments}, bench `{results.bench}`, seed {results.seed}"]
-    if results.recommended:
-        lines.append(f"- recommended estimate: `{results.recommended}` (converged, smallest uncertainty)")
+        lines += [f"- instruments: {r.simulated}"]
+    if r.recommended:
+        lines.append(f"- recommended estimate: `{r.recommended}` (converged, smallest uncertainty)")
     lines.append("")
-    lines += conformity_section(results)
-    lines += body
-    lines += events_section(results.events)
-    path = run_dir / "report.md"
+    if c.conformity:
+        v = c.conformity
+        lines += [f"## {v.heading}: {v.verdict}", "", v.rule, "",
+                  "| limit | value / ″ | limit / ″ | U (k = 2) / ″ | guard band / ″ | verdict |", "|---|---|---|---|---|---|"]
+        lines += [f"| {x.symbol} | {x.value_arcsec} | {x.limit_arcsec} | {x.expanded_uncertainty_arcsec} | "
+                  f"{x.guard_band_arcsec} | {x.verdict} |" for x in v.rows]
+        lines += [""] + [f"- {n}" for n in v.notes] + [""]
+    lines += c.report_body
+    if r.event_counts != "none":
+        lines += ["## Events", "", r.event_counts, ""] + [f"- {e}" for e in r.notable_events]
+        if r.notable_more:
+            lines.append(f"- … {r.notable_more} more in results.json and run.sqlite")
+        lines.append("")
     path.write_text("\n".join(lines), encoding="utf-8")
     return path
 
@@ -656,34 +549,4 @@ def fault_lines(results: RunResults) -> list[str]:
     return lines
 
 
-def conformity_section(results: RunResults) -> list[str]:
-    """The verdict against the acceptance limits, with the rule (empty without limits)."""
-    c = results.conformity
-    if c is None:
-        return []
-    lines = [f"## Conformity: {c.verdict}", "", c.rule, "",
-             "| limit | value / ″ | limit / ″ | U (k = 2) / ″ | guard band / ″ | verdict |", "|---|---|---|---|---|---|"]
-    for k, v in c.per_limit.items():
-        lines.append(f"| {ISO_SYMBOL[k]} | {_fmt(v.value_arcsec)} | {v.limit_arcsec:g} | {_fmt(v.expanded_uncertainty_arcsec)} | "
-                     f"{_fmt(v.guard_band_arcsec)} | {v.verdict} |")
-    return lines + [""] + [f"- {n}" for n in c.notes] + [""]
-
-
 NOTABLE_EVENTS = ("fault", "retry", "reacquire", "skip", "pause", "abort", "resume")
-
-
-def events_section(events: list[Event], limit: int = 60) -> list[str]:
-    """Counts of every kind of event, then the faults and the actions taken, in order."""
-    if not events:
-        return []
-    counts: dict[str, int] = {}
-    for ev in events:
-        counts[ev.kind] = counts.get(ev.kind, 0) + 1
-    lines = ["## Events", "", ", ".join(f"{k}: {n}" for k, n in counts.items()), ""]
-    notable = [ev for ev in events if ev.kind in NOTABLE_EVENTS]
-    for ev in notable[:limit]:
-        who = f" ({ev.instrument})" if ev.instrument else ""
-        lines.append(f"- t = {ev.t_s:.1f} s, {ev.kind}{who}: {ev.message}")
-    if len(notable) > limit:
-        lines.append(f"- … {len(notable) - limit} more in results.json and run.sqlite")
-    return lines + [""]

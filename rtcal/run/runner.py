@@ -20,7 +20,7 @@ import yaml
 from pydantic import ValidationError
 
 from rtcal import __version__
-from rtcal.deliverables.report import report_model, write_html, write_pdf
+from rtcal.deliverables.certificate import build_certificate, write_certificate_json
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
@@ -28,7 +28,7 @@ from rtcal.deliverables.method_outputs import outputs_for
 from rtcal.methods import METHODS
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
-from rtcal.deliverables.report import write_report
+from rtcal.deliverables.report import write_html, write_markdown, write_pdf
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
 from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
                                  RunMetadata, VdiEvaluation, assemble)
@@ -505,11 +505,11 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
             if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
                 PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
             method_outputs.write_files(out)
-            write_report(out, results, method_outputs.report_body(), method_outputs.method_name())
-            model = report_model(results, out, method_outputs.certificate_figures(), method_outputs.method_text(),
-                                 method_outputs.method_name())
-            write_html(model, out / "report.html")
-            write_pdf(model, out / "report.pdf")
+            certificate = build_certificate(results, out, method_outputs)  # one document, laid out three times
+            write_markdown(certificate, out / "report.md")
+            write_html(certificate, out / "report.html")
+            write_pdf(certificate, out / "report.pdf")
+            write_certificate_json(certificate, out / "certificate.json")
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
         _stop(store, "measured", exc)
         raise
