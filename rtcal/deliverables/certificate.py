@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
 
 from rtcal.deliverables.comparison import mean_curve
 from rtcal.deliverables.deviations import PositioningDeviations
@@ -268,6 +268,11 @@ class Certificate(BaseModel):
     control: Control
     run: RunRecord
     report_body: list[str] = Field(description="the method's own sections of report.md (Markdown lines)")
+    _figures_dir: Path | None = PrivateAttr(default=None)  # where the figures were when it was built (not in the JSON)
+
+    def figure_path(self, figure: Figure, beside: Path) -> Path:
+        """The image of ``figure``: in the directory the document was built from, else beside ``beside``."""
+        return (self._figures_dir or beside.parent) / figure.file
 
 
 @dataclasses.dataclass(frozen=True)
@@ -520,7 +525,9 @@ def build_certificate(results: RunResults, run_dir: Path, outputs: MethodOutputs
                       issued=meta.date_of_issue or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"),
                       missing=[what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)],
                       departed=iso_departures(results))
-    return Certificate(**{name: build(sources) for name, build in SECTION_BUILDERS})
+    certificate = Certificate(**{name: build(sources) for name, build in SECTION_BUILDERS})
+    certificate._figures_dir = run_dir
+    return certificate
 
 
 def write_certificate_json(certificate: Certificate, path: Path) -> Path:
@@ -530,5 +537,11 @@ def write_certificate_json(certificate: Certificate, path: Path) -> Path:
 
 
 def certificate_schema() -> str:
-    """The JSON Schema of certificate.json (what ``rtcal schema --certificate`` prints)."""
-    return json.dumps(Certificate.model_json_schema(), indent=1, ensure_ascii=False)
+    """JSON Schema (draft 2020-12) of certificate.json, every field described: what ``rtcal schema
+    --certificate`` prints."""
+    schema = Certificate.model_json_schema()
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "rtcal certificate.json"
+    schema["description"] = ("The calibration certificate of one rtcal run as one document: every word and number "
+                             "report.html, report.pdf and report.md show, section by section.")
+    return json.dumps(schema, indent=2)

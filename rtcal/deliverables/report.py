@@ -266,7 +266,7 @@ def write_html(certificate: Certificate, path: Path) -> Path:
     from jinja2 import Environment, FileSystemLoader, select_autoescape
 
     env = Environment(loader=FileSystemLoader(Path(__file__).parent / "templates"), autoescape=select_autoescape(["j2"]))
-    figures = [(base64.b64encode((path.parent / f.file).read_bytes()).decode("ascii"), f.caption) for f in certificate.figures]
+    figures = [(base64.b64encode(certificate.figure_path(f, path).read_bytes()).decode("ascii"), f.caption) for f in certificate.figures]
     footer_css = "".join(ch for ch in certificate.header.footer if ch not in '"\\<>&\n\r')
     path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css),
                     encoding="utf-8")
@@ -369,7 +369,7 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                                 table(t.rows, t.header, [18 * mm, width - 74 * mm, 28 * mm, 28 * mm]
                                       if len(t.header) == 4 else None)])]
     for f in c.figures:
-        image = path.parent / f.file
+        image = certificate.figure_path(f, path)
         iw, ih = ImageReader(str(image)).getSize()
         fw = 0.76 * width if ih / iw < 0.7 else width  # three wide figures fit a page; a tall one takes its width
         story += [KeepTogether([Spacer(1, 2 * mm), Image(str(image), width=fw, height=fw * ih / iw),
