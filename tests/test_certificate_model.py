@@ -41,7 +41,7 @@ def _render(cert: Certificate, run_dir: Path, into: Path) -> tuple[str, str, str
     report.write_markdown(cert, into / "report.md")
     report.write_html(cert, into / "report.html")
     report.write_pdf(cert, into / "report.pdf")
-    pdf = "\n".join(page.get_text() for page in pymupdf.open(into / "report.pdf"))
+    pdf = "\n".join(page.get_text() for page in pymupdf.open(into / "report.pdf").pages())
     return (into / "report.md").read_text(), (into / "report.html").read_text(), pdf
 
 
@@ -60,7 +60,7 @@ def test_a_number_reads_the_same_in_all_three(iso_run):
     results = read_results(iso_run)
     cert = build_certificate(results, iso_run)
     md, html, pdf = (iso_run / "report.md").read_text(), (iso_run / "report.html").read_text(), _flat(
-        "\n".join(p.get_text() for p in pymupdf.open(iso_run / "report.pdf")))
+        "\n".join(p.get_text() for p in pymupdf.open(iso_run / "report.pdf").pages()))
     assert cert.conformity is not None and len(cert.conformity.rows) == len(results.conformity.per_limit) >= 5
     for row, limit in zip(cert.conformity.rows, results.conformity.per_limit.values()):
         value, U = value_text(limit.value_arcsec, limit.expanded_uncertainty_arcsec), u_text(limit.expanded_uncertainty_arcsec)

@@ -18,7 +18,9 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
+
+from pydantic import BaseModel
 
 from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.deviations import PositioningDeviations
@@ -160,7 +162,8 @@ def instruments_used(results: RunResults) -> list[str]:
 
     model = PROCEDURE_MODELS[results.method]
     names = []
-    for name, field in model.model_fields["instruments"].annotation.model_fields.items():
+    instruments = cast("type[BaseModel]", model.model_fields["instruments"].annotation)  # each method's Instruments model
+    for name, field in instruments.model_fields.items():
         optional = field.default is None
         if not optional or (name == "environment" and environment_of(results) is not None) or (
                 isinstance(results.instruments, dict) and name in results.instruments):
