@@ -29,8 +29,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
                 if proc.instruments.all_sim() or args.scenario:
                     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
                     check_plan_on_bench(path, proc, scenario)
-                elif proc.bench is not None:
-                    load_scenario(bench_path(path, proc))
+                elif (bench := bench_path(path, proc)) is not None:  # None: the procedure names no bench
+                    load_scenario(bench)
             else:
                 load_scenario(path)
             print(f"{path}: ok")

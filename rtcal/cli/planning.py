@@ -69,10 +69,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if proposal is not None:
             _print_proposal(args, proposal, written)
     if args.optimize:
-        from rtcal.planning.design import optimize_points
+        from rtcal.planning.reports import optimized_points
 
         try:
-            print(optimize_points(path, proc, scenario, Path(args.optimize)))
+            print(optimized_points(path, proc, scenario, Path(args.optimize)))
         except ValueError as exc:
             raise UserError(f"--optimize: {exc}") from None
     return EXIT_FAILED if proposal is not None and proposal.best is None else EXIT_OK

@@ -233,3 +233,14 @@ def optimize_refusal(path: Path, proc: Procedure) -> str | None:
     if isinstance(proc, LaserTracerMultistation):
         return None
     return f"{path} is a procedure of {proc.method}; choosing CMM points is for laser_tracer_multistation procedures"
+
+
+def optimized_points(path: Path, proc: Procedure, scenario: Any, out: Path) -> str:
+    """`rtcal plan --optimize OUT`: CMM points chosen (rtcal/planning/design.py), the procedure with
+    them written to ``out``; what was done, in words. ValueError: it cannot be done."""
+    from rtcal.planning.design import optimize_points
+    from rtcal.procedure.models import LaserTracerMultistation
+
+    if not isinstance(proc, LaserTracerMultistation):
+        raise ValueError(optimize_refusal(path, proc))
+    return optimize_points(path, proc, scenario, out)
