@@ -65,7 +65,7 @@ def test_hub_serves_a_pi_stage_that_a_run_can_drive():
 
 
 def test_a_wired_iso_230_2_run_on_the_pi_simulator(tmp_path):
-    """`rtcal sim serve --stage-model pi-gcs`: the ISO 230-2 procedure (two runs each way) drives the PI
+    """`rtcal sim serve --stage pi-gcs`: the ISO 230-2 procedure (two runs each way) drives the PI
     stage over its GCS line; its estimates agree with the in-process run of the same bench within the
     stage's repeatability (0.3″ in this scenario): targets travel as pipython formats them (12
     significant digits), so a target that in process is 45.00000000000001° is 45° on the wire, the
@@ -81,7 +81,7 @@ def test_a_wired_iso_230_2_run_on_the_pi_simulator(tmp_path):
                          .replace("bench: scenarios/", f"bench: {PROC / 'scenarios'}/"))
     scenario = PROC / "scenarios" / "abbe_bench.yaml"
     local = run_procedure(procedure, scenario, out_dir=tmp_path / "local", show_progress=False).results
-    with sim_serve(scenario, "--stage-model", "pi-gcs", "--serial", "tcp") as addresses:
+    with sim_serve(scenario, "--stage", "pi-gcs", "--serial", "tcp") as addresses:
         assert "model=pi-gcs" in addresses["stage"]
         remote = run_procedure(procedure, out_dir=tmp_path / "remote", show_progress=False, addresses=addresses,
                                virtual_clock=True).results

@@ -71,7 +71,7 @@ class RunLock:
             except OSError as exc:
                 os.close(fd)
                 raise RunDirError(f"{self.run_dir}: cannot lock the run directory ({exc.strerror or exc})") from None
-        command = " ".join(["rtcal", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith(("rtcal", "cli.py")) else "rtcal"
+        command = " ".join(["rtcal", *sys.argv[1:]]) if sys.argv and sys.argv[0].endswith(("rtcal", "cli.py", "cli/__main__.py")) else "rtcal"
         stamp = _dt.datetime.now().isoformat(timespec="seconds")
         holder = redact_tokens(f"process {os.getpid()} on {socket.gethostname()} (`{command}`, since {stamp})")
         os.ftruncate(fd, 0)

@@ -140,8 +140,8 @@ def check_address_names(addresses: dict[str, str]) -> None:
         from difflib import get_close_matches
 
         hints = {n: get_close_matches(n, known, 1) for n in unknown}
-        raise FileProblems([Problem("--instruments", 1, 1, n[:60], "not an instrument rtcal knows"
-                                    + (f"; did you mean `{hints[n][0]}`?" if hints[n] else f" ({', '.join(known)})"))
+        raise FileProblems([Problem("--instruments", 1, 1, n[:60], f"not an instrument rtcal knows; did you mean "
+                                    f"`{hints[n][0]}`?" if hints[n] else f"no such instrument (known: {', '.join(known)})")
                             for n in unknown])
 
 

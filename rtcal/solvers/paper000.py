@@ -8,6 +8,7 @@ results and the report can say them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -104,6 +105,20 @@ def chain_from_stations(stations_mm: np.ndarray, nominal_angles_rad: np.ndarray)
     step = float(np.median(np.abs(nominal_steps)))
     alg = abs(rad_to_arcsec(algorithm_error_rad(step, alpha)))
     return StationChain(plane, projected, lam, center, steps, deviation, sigma, alg)
+
+
+def station_chain_json(stations_mm: np.ndarray, first_deg: float, step_deg: float) -> dict[str, Any]:
+    """`rtcal solve stations`: the chain of stations at nominal angles first + k·step, as JSON data."""
+    chain = chain_from_stations(stations_mm, np.deg2rad(first_deg + step_deg * np.arange(len(stations_mm))))
+    return {
+        "plane": {"a": chain.plane.a, "b": chain.plane.b, "c": chain.plane.c, "e": chain.plane.e},
+        "projected_stations_mm": np.round(chain.projected_mm, 6).tolist(),
+        "center_mm": np.round(chain.center_mm, 6).tolist(),
+        "deviation_arcsec": np.round(chain.deviation_arcsec, 4).tolist(),
+        "sigma_arcsec": round(chain.sigma_arcsec, 4),
+        "algorithm_error_arcsec": chain.algorithm_error_arcsec,
+        "notes": list(PAPER_NOTES),
+    }
 
 
 def cumulative_function(nominal_angles_rad: np.ndarray):

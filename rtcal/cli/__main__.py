@@ -1,0 +1,7 @@
+"""``python -m rtcal.cli``."""
+
+import sys
+
+from rtcal.cli import main
+
+sys.exit(main())

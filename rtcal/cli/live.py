@@ -1,0 +1,35 @@
+"""``rtcal view`` and ``control``: a run's live view, and pausing, resuming or aborting it."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def cmd_live(args: argparse.Namespace) -> int:
+    """`rtcal view` and `rtcal control` (rtcal.live.commands)."""
+    from rtcal.live import commands
+
+    if args.command == "view":
+        return commands.view(args.run_dir, args.live)
+    return commands.control(args.run_dir, args.action, args.token)
+
+
+def add_view(sub: Any) -> None:
+    view = sub.add_parser("view", help="serve a run's live view read-only (in progress or finished) until Ctrl-C")
+    view.add_argument("run_dir", help="the run directory (what `run --out` wrote)")
+    view.add_argument("--live", metavar="[HOST:]PORT", help="where to serve (default 127.0.0.1:8765, or any free port; "
+                                                           "PORT 0: any free port; another host than 127.0.0.1 is warned of)")
+    view.set_defaults(func=cmd_live)
+
+
+def add_control(sub: Any) -> None:
+    from rtcal.live.control import COMMANDS
+
+    ctl = sub.add_parser("control", help="pause, resume or abort the run in progress in a run directory (needs its "
+                                         "control token)")
+    ctl.add_argument("run_dir", help="the run directory of a run in progress")
+    ctl.add_argument("action", choices=COMMANDS, help="what to ask of the run's engine")
+    ctl.add_argument("--token", help="the control token the run printed (or the environment variable "
+                                     "RTCAL_CONTROL_TOKEN, which other users cannot see in the process list)")
+    ctl.set_defaults(func=cmd_live)

@@ -1,0 +1,273 @@
+"""``rtcal evaluate``, ``compensate``, ``compare``, ``export`` and ``verify``: what a run's results
+become (tables, certificates, controller files) and whether they still hold."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rtcal.cli.common import EXIT_FAILED, EXIT_OK, UserError, json_text, make_folder, one_line
+from rtcal.outputs import output_file, write_output
+
+if TYPE_CHECKING:
+    from rtcal.deliverables.deviations import PositioningDeviations
+    from rtcal.results import RunResults
+
+
+def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResults | None]:
+    """A run directory's positioning deviations (its results.json, validated) or a deviation CSV;
+    mistakes are UserErrors naming the file and, in results.json, the field."""
+    from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
+    from rtcal.results import ResultsError, read_results
+
+    path = Path(path_text)
+    try:
+        if path.is_dir():
+            if not (path / "results.json").exists():
+                raise UserError(f"{path}: not a run directory with a readable results.json (a run that was not solved?)")
+            from rtcal.run.integrity import check_run
+
+            try:
+                results = read_results(path)
+                for warning in check_run(path, results):  # refused if it does not match its store
+                    print(f"rtcal: warning: {warning}", file=sys.stderr)
+            except ResultsError as exc:
+                raise UserError(str(exc)) from None
+            if results.positioning_deviations is None:
+                raise UserError(f"{path / 'results.json'}: no positioning_deviations (the run has no recommended estimate)")
+            table = PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json"))
+            table.check_plausible(str(path / "results.json"))
+            return table, results
+        table = PositioningDeviations.read_csv(path)
+        table.check_plausible(str(path))
+        return table, None
+    except DeviationTableError as exc:
+        raise UserError(str(exc)) from None
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """ISO 230-2 or VDI 3441 parameters of a positioning test, as JSON."""
+    from rtcal.deliverables.evaluation import evaluate
+
+    table, _ = read_deviation_table(args.source)
+    try:
+        result = evaluate(table, args.standard)
+    except ValueError as exc:
+        raise UserError(f"{args.source}: {exc}") from None
+    print(json_text(result))
+    return EXIT_OK
+
+
+def cmd_compensate(args: argparse.Namespace) -> int:
+    """A controller's compensation table from a run's (or a CSV's) positioning deviations: at the
+    measured targets unless a grid is asked for (--step-deg); a one-direction run only with
+    --allow-one-direction; warnings on stderr (and in the file where the format takes comments)."""
+    from rtcal.deliverables.compensation import COMMENT, CompensationError, table_from_deviations, write_table
+
+    table, _ = read_deviation_table(args.source)
+    given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
+             "first_point": args.first_point}
+    try:
+        comp = table_from_deviations(table, args.step_deg, args.max_gap_deg, args.allow_one_direction, args.format)
+        text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
+    except CompensationError as exc:
+        raise UserError(f"{args.source}: {exc}") from None
+    out = write_output(Path(args.out), text)
+    worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
+    print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
+          "(docs/compensation.md: the format's rules and sign)")
+    for warning in comp.warnings:
+        where = "" if args.format in COMMENT else f" (not in {out}: a {args.format} file takes no comment)"
+        print(f"rtcal: warning: {warning}{where}", file=sys.stderr)
+    return EXIT_OK
+
+
+def run_label(path_text: str) -> str:
+    """A run as a reader tells it apart: its last two path components (runs/iso, runs/iso-after)."""
+    parts = Path(path_text).resolve().parts
+    return "/".join(parts[-2:]) if len(parts) > 1 else path_text
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """Two runs side by side: the change per target against the combined uncertainty, and a plot."""
+    from rtcal.deliverables.comparison import compare, comparison_lines, plot_comparison
+
+    a, b = read_deviation_table(args.run_a), read_deviation_table(args.run_b)
+    methods = [r.method if r else None for _, r in (a, b)]
+    if None not in methods and methods[0] != methods[1]:
+        raise UserError(f"{args.run_a} is a run of {methods[0]}, {args.run_b} of {methods[1]}: compare sets two "
+                        "measurements of one kind side by side (give their positioning_deviations.csv to compare "
+                        "the tables anyway)")
+    result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
+    if result["targets_compared"] == 0:
+        raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
+    out = Path(args.out) if args.out else Path(".")  # the current directory: never inside either run
+    make_folder(out, "--out")
+    with output_file(out / "compare.png") as png:
+        plot_comparison(result, a, b, png)
+    result["plot"] = str(out / "compare.png")
+    if args.certificate:
+        result["certificate"] = _as_found_certificate(args, a[1], b[1], result, out)
+    written = [result["plot"]] + ([f"{result['certificate']}.pdf", f"{result['certificate']}.html"] if args.certificate else [])
+    print(json_text(result) if args.json else "\n".join(comparison_lines(result) + ["written: " + ", ".join(written)]))
+    return EXIT_OK
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    """Recompute a run's results from its store and say whether results.json agrees (exit 0 / 1)."""
+    from rtcal.results import ResultsError
+    from rtcal.run.rundir import RunDirError
+    from rtcal.run.verify import verify
+
+    run = Path(args.run_dir)
+    if not run.is_dir():
+        raise UserError(f"{run}: not a run directory")
+    import sqlite3
+
+    try:
+        found = verify(run)
+    except (ResultsError, RunDirError) as exc:
+        raise UserError(str(exc)) from None
+    except sqlite3.DatabaseError as exc:
+        raise UserError(f"{run / 'run.sqlite'}: cannot be read whole ({exc}); `rtcal export {run}` salvages its readings") from None
+    except ValueError as exc:  # numpy's LinAlgError is one
+        print(f"rtcal: {run}: the solvers could not recompute the results from the readings: {one_line(exc)[:300]}",
+              file=sys.stderr)
+        return EXIT_FAILED
+    for warning in found.warnings:
+        print(f"rtcal: warning: {warning}", file=sys.stderr)
+    for problem in found.integrity:
+        print(f"rtcal: {problem}", file=sys.stderr)
+    for where, stored, recomputed in found.differences[:10]:
+        print(f"rtcal: {run / 'results.json'}: {where}: stored {str(stored)[:60]}, recomputed from the readings "
+              f"{str(recomputed)[:60]}", file=sys.stderr)
+    if len(found.differences) > 10:
+        print(f"rtcal: … and {len(found.differences) - 10} more differences", file=sys.stderr)
+    verdict = "agrees" if found.agrees else "does NOT agree"
+    print(f"{run / 'results.json'} {verdict} with the results recomputed from {found.readings} readings in "
+          f"{run / 'run.sqlite'} ({found.compared} values compared to the digits stored, "
+          f"{len(found.differences)} differ; digests {'match' if not found.integrity else 'do not match'})")
+    return EXIT_OK if found.agrees else EXIT_FAILED
+
+
+def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,
+                          result: dict[str, Any], out: Path) -> str:
+    """``compare --certificate``: the as-found / as-left certificate of two run directories."""
+    from rtcal.deliverables.as_found import as_found_as_left_model
+    from rtcal.deliverables.report import write_html, write_pdf
+
+    if found is None or left is None:
+        raise UserError("--certificate: give two run directories (a certificate needs their results.json, not a CSV)")
+    model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]))
+    with output_file(out / "as_found_as_left.pdf") as pdf:
+        write_pdf(model, pdf)
+    with output_file(out / "as_found_as_left.html") as html:
+        write_html(model, html)
+    return str(out / "as_found_as_left")
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """Every raw reading and event of a run as CSV, for spreadsheets; from a damaged store, every
+    one that can still be read (exit 1: the store is damaged, and the count of what is lost)."""
+    from rtcal.run.salvage import salvage_store
+    from rtcal.run.store import EVENT_COLUMNS, READING_COLUMNS, RunStore, check_store, write_csv
+
+    run = Path(args.run_dir)
+    path = run / RunStore.FILENAME
+    if not run.is_dir():
+        raise UserError(f"{run}: not a run directory ({'no such directory' if not os.path.lexists(run) else 'not a directory'})")
+    if not os.path.lexists(path):
+        raise UserError(f"{run}: not a run directory (no {RunStore.FILENAME})")
+    found = check_store(path)
+    if found.kind in ("foreign", "empty"):
+        raise UserError(f"{path} {found.detail}: nothing to export")
+    out = Path(args.out) if args.out else run
+    make_folder(out, "--out")
+    readings_csv, events_csv = out / "readings.csv", out / "events.csv"
+    if found.kind == "run":
+        store = RunStore.open(run)
+        try:
+            planned, instrument = len(store.done_plan_indices()), store.instrument_readings()
+            rows, events = store.export_csv(out)
+        finally:
+            store.close()
+        from rtcal.deliverables.report import plural
+
+        markers = f" and {plural(rows - instrument, 'skip marker')}" if rows > instrument else ""
+        print(f"{plural(instrument, 'instrument reading')}{markers} ({plural(planned, 'planned reading')} taken) → "
+              f"{readings_csv}, {plural(events, 'event')} → {events_csv}")
+        return EXIT_OK
+    saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
+    write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
+    write_csv(events_csv, ("id",) + EVENT_COLUMNS, ((i, *saved.events[i]) for i in sorted(saved.events)))
+    from rtcal.deliverables.report import plural
+
+    print(f"{plural(len(saved.readings), 'salvaged reading')} → {readings_csv}, {plural(len(saved.events), 'salvaged event')} "
+          f"→ {events_csv}")
+    print(f"rtcal: {path} {found.detail}; salvaged page by page: {saved.summary()}", file=sys.stderr)
+    return EXIT_FAILED if found.kind == "damaged" or saved.unreadable_readings else EXIT_OK
+
+
+def add_evaluate(sub: Any) -> None:
+    from rtcal.deliverables.evaluation import STANDARDS
+
+    ev = sub.add_parser("evaluate", help="ISO 230-2 or VDI/DGQ 3441 parameters of a positioning test, as JSON")
+    ev.add_argument("source", help="a run directory (its results.json) or a CSV with the header "
+                                   "target_deg,direction,run,deviation_arcsec[,uncertainty_arcsec] (direction 1 or -1, runs from 1)")
+    ev.add_argument("--standard", choices=STANDARDS, default="iso230-2",
+                    help="ISO 230-2 (1997/2006/2014), its 1988 edition (±3s), or VDI/DGQ 3441 (default iso230-2)")
+    ev.set_defaults(func=cmd_evaluate)
+
+
+def add_compensate(sub: Any) -> None:
+    from rtcal.deliverables.compensation import FORMATS
+
+    comp = sub.add_parser("compensate", help="a controller's compensation table from a run's positioning deviations")
+    comp.add_argument("source", help="a run directory or a deviation CSV (as for `rtcal evaluate`)")
+    comp.add_argument("--format", required=True, choices=FORMATS,
+                      help="the controller's format (docs/compensation.md)")
+    comp.add_argument("--out", required=True, help="the table file to write")
+    comp.add_argument("--step-deg", type=float,
+                      help="resample onto a regular grid every STEP° over one turn (must divide 360; default: none, the "
+                           "table's points are the measured targets — formats with a fixed pitch need evenly spaced ones)")
+    comp.add_argument("--allow-one-direction", action="store_true",
+                      help="write a run measured in one direction with the same values both ways (what that does to the "
+                           "machine's backlash compensation depends on the format: docs/compensation.md)")
+    comp.add_argument("--max-gap-deg", type=float, default=60.0,
+                      help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
+    comp.add_argument("--axis", help="axis name in the file: siemens-lec/-cec (default C1), heidenhain (default C)")
+    comp.add_argument("--range-deg", type=float, nargs=2, metavar=("LO", "HI"),
+                      help="linuxcnc: the joint's travel to cover (default 0 360; LinuxCNC does not wrap a table)")
+    comp.add_argument("--detection-unit-deg", type=float,
+                      help="fanuc: the axis's detection unit (default 0.0001, IS-C; 0.001 for IS-B)")
+    comp.add_argument("--first-point", type=int, help="fanuc: number of the reference position's point, 3620 (default 0)")
+    comp.set_defaults(func=cmd_compensate)
+
+
+def add_compare(sub: Any) -> None:
+    cmp_ = sub.add_parser("compare", help="two runs of one axis side by side: change per target against the combined "
+                                          "uncertainty, ISO 230-2 parameters of both, compare.png")
+    cmp_.add_argument("run_a", help="the earlier run (directory or deviation CSV)")
+    cmp_.add_argument("run_b", help="the later run (directory or deviation CSV)")
+    cmp_.add_argument("--out", help="where compare.png goes (default: the current directory)")
+    cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    cmp_.add_argument("--certificate", action="store_true", help="also write the as-found (RUN_A) / as-left (RUN_B) "
+                                                                 "certificate: as_found_as_left.pdf and .html under --out")
+    cmp_.set_defaults(func=cmd_compare)
+
+
+def add_export(sub: Any) -> None:
+    exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv)")
+    exp.add_argument("run_dir", help="a run directory (its run.sqlite)")
+    exp.add_argument("--out", help="directory for the CSV files (default: the run directory)")
+    exp.set_defaults(func=cmd_export)
+
+
+def add_verify(sub: Any) -> None:
+    ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json and the "
+                                        "store's digests against them (exit 0: they agree, 1: they do not)")
+    ver.add_argument("run_dir", help="a run directory (its results.json and run.sqlite)")
+    ver.set_defaults(func=cmd_verify)

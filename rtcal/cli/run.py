@@ -1,0 +1,205 @@
+"""``rtcal run``, ``resume``, ``check`` and ``probe``: measuring, and the instruments before it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from drivers.addresses import redact_tokens
+from drivers.errors import InstrumentError
+from rtcal.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, UserError, disk_failure,
+                              one_line, parse_instruments_option, seed)
+from rtcal.outputs import OutputRefused, is_disk_failure
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _how_to_go_on(run_dir: str) -> str:
+    if (Path(run_dir) / "run.sqlite").is_file():
+        return f"every reading taken so far is in {run_dir}/run.sqlite; `rtcal resume {run_dir}` goes on"
+    return "nothing was measured"
+
+
+def _execute(start: Callable[[], Any], run_dir: str) -> int:
+    """Run or resume; print the outcome, or what went wrong and how to go on."""
+    import signal
+
+    from rtcal.deliverables.method_outputs import outputs_for
+    from rtcal.deliverables.report import console_lines
+    from rtcal.methods.protocol import PreparationError
+    from rtcal.results import ResultsError
+    from rtcal.run.rundir import RunDirError
+    from rtcal.run.runner import IDEAL_BENCH, AnalysisFailed
+
+    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
+    try:
+        outcome = start()
+    except (FileExistsError, PreparationError, RunDirError, ResultsError, OutputRefused) as exc:
+        raise UserError(str(exc)) from None
+    except AnalysisFailed as exc:
+        print(f"rtcal: {redact_tokens(str(exc))}", file=sys.stderr)
+        return EXIT_FAILED
+    except InstrumentError as exc:
+        print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir)}", file=sys.stderr)
+        return EXIT_FAILED
+    except OSError as exc:
+        if not is_disk_failure(exc):
+            raise
+        print(disk_failure(exc, run_dir), file=sys.stderr)
+        for note in getattr(exc, "__notes__", ()):
+            print(f"rtcal: {note}", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir)} once there is space", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    results = outcome.results
+    if outcome.finished:
+        print(f"run already finished: {run_dir} was measured and solved ({results.raw_readings} planned readings, "
+              f"{outcome.instrument_readings} instrument readings stored); nothing was taken or written "
+              f"(`rtcal verify {run_dir}` recomputes its results from its readings)")
+    else:
+        print(f"run complete: {results.raw_readings} planned readings taken, {outcome.instrument_readings} instrument "
+              "readings stored")
+    if results.bench == IDEAL_BENCH:
+        print(f"note: {IDEAL_BENCH}")
+    for line in outputs_for(results).summary() + console_lines(results):
+        print(line)
+    files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
+    print(f"results in {outcome.run_dir}/ ({files})")
+    rec = results.recommended
+    status = results.solver_status.get(rec) if rec else None
+    if rec and status is not None and status.status != "converged":
+        print(f"rtcal: the recommended estimator {rec} did not converge ({status.message}); "
+              "readings and results are kept", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return EXIT_OK
+
+
+def _run_control(live: str | None) -> Any:
+    """Every run's control socket and token, and with --live its web page (rtcal.live.attach)."""
+    from rtcal.live.attach import RunControl
+    from rtcal.live.server import LiveSpecError
+
+    try:
+        return RunControl(live)
+    except LiveSpecError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _real_controller_in_real_time(addresses: dict[str, str] | None, virtual_clock: bool) -> None:
+    """A real controller (LinuxCNC) moves in real time: a virtual clock would read before it settles."""
+    stage = str((addresses or {}).get("stage", ""))
+    if virtual_clock and stage.startswith("linuxcncrsh://"):
+        raise UserError("--virtual-clock: the stage is a real LinuxCNC (linuxcncrsh://), which moves in real time; "
+                        "drop --virtual-clock (the procedure's settle_time_s may be short)")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from rtcal.run.runner import default_run_dir, run_procedure
+
+    addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    _real_controller_in_real_time(addresses, args.virtual_clock)
+    out = args.out or str(default_run_dir(Path(args.procedure).stem))
+    control = _run_control(args.live)
+    return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
+                                          virtual_clock=args.virtual_clock, large=args.large, on_engine=control), out)
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    from rtcal.run.runner import resume_run
+
+    addresses = parse_instruments_option(args.instruments) if args.instruments else None
+    _real_controller_in_real_time(addresses, args.virtual_clock)
+    control = _run_control(args.live)
+    return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
+                                       on_engine=control), args.run_dir)
+
+
+def cmd_probe(args: argparse.Namespace) -> int:
+    """Connect to one instrument, identify it, take one reading (rtcal/run/commission.py)."""
+    from rtcal.run.commission import format_probe, probe
+
+    if not 0.01 <= args.timeout_s <= 600:
+        raise UserError("--timeout-s must lie in 0.01..600")
+    try:
+        result = probe(args.kind, args.address, args.timeout_s)
+    except InstrumentError as exc:
+        print(f"rtcal: {args.kind} at {args.address}: {one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILED
+    print(format_probe(result, args.json))
+    return EXIT_OK
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    """Probe every instrument a procedure needs and check the readings against its ranges."""
+    from rtcal.procedure.loader import load_procedure
+    from rtcal.run.commission import check, format_table
+    from rtcal.run.runner import with_addresses
+
+    proc = load_procedure(Path(args.procedure))
+    addresses = parse_instruments_option(args.instruments) if args.instruments else {}
+    if addresses:
+        proc = with_addresses(proc, addresses)  # refuses a name that is no instrument, as `run` does
+    rows = check(proc, addresses, addresses.get("operator", ""))
+    print(format_table(rows))
+    failed = [r for r in rows if r.status == "FAILED"]
+    for r in failed:
+        print(f"rtcal: {r.instrument}: {one_line(r.detail)}", file=sys.stderr)
+    counted = [r for r in rows if r.status != "standard"]  # a reference standard in calibration is not probed
+    print(f"{len(counted) - len(failed)} of {len(counted)} ready" + ("" if failed else ": the rig can run this procedure"))
+    return EXIT_FAILED if failed else EXIT_OK
+
+
+def add_run(sub: Any) -> None:
+    run = sub.add_parser("run", help="run a procedure and write a run directory")
+    run.add_argument("procedure", help="procedure YAML file")
+    run.add_argument("--scenario", help="bench scenario YAML (replaces the procedure's `bench`)")
+    run.add_argument("--seed", type=seed, help="seed of the run's random generator (default: the scenario's)")
+    run.add_argument("--out", help="run directory (default: runs/<time>-<procedure>)")
+    run.add_argument("--instruments", help="JSON object (or file) of instrument addresses, e.g. what `rtcal sim serve` "
+                                           "prints; replaces the procedure's instrument section")
+    run.add_argument("--virtual-clock", action="store_true",
+                     help="do not wait settle times in real time (for protocol simulators, never for hardware)")
+    run.add_argument("--large", action="store_true",
+                     help="accept a plan beyond 100 000 readings (up to 2 000 000; takes hours and GBs)")
+    run.add_argument("--live", metavar="[HOST:]PORT", help="serve the run's live view from this process (PORT 0: any free "
+                                                          "port; 127.0.0.1 unless HOST is given)")
+    run.set_defaults(func=cmd_run)
+
+
+def add_resume(sub: Any) -> None:
+    resume = sub.add_parser("resume", help="continue an interrupted run: every planned reading not yet stored, once")
+    resume.add_argument("run_dir", help="the directory of an interrupted run (what `run --out` wrote)")
+    resume.add_argument("--instruments", help="new instrument addresses (JSON object or file), e.g. of a restarted simulator")
+    resume.add_argument("--virtual-clock", action="store_true", help="as for `run`")
+    resume.add_argument("--live", metavar="[HOST:]PORT", help="as for `run`")
+    resume.set_defaults(func=cmd_resume)
+
+
+def add_probe(sub: Any) -> None:
+    from drivers.models import KINDS
+
+    pr = sub.add_parser("probe", help="connect to one instrument, identify it where its protocol allows, take one "
+                                      "reading and print it; exit 1 if it does not answer or answers wrongly")
+    pr.add_argument("kind", choices=KINDS, help="the kind of instrument")
+    pr.add_argument("address", help="its address, e.g. socket://10.0.0.5:4001?model=sylvac or ipp://cmm:1294 "
+                                    "(model= picks the product; docs/protocols/)")
+    pr.add_argument("--json", action="store_true",
+                    help='print one JSON object {"kind", "address", "model", "identity", "reading"}')
+    pr.add_argument("--timeout-s", type=float, default=2.0, help="deadline of each request, s (default 2)")
+    pr.set_defaults(func=cmd_probe)
+
+
+def add_check(sub: Any) -> None:
+    ck = sub.add_parser("check", help="probe every instrument a procedure needs and check the readings against its "
+                                      "ranges (stage limits, CMM volume): one table of what is ready")
+    ck.add_argument("procedure", help="procedure YAML file")
+    ck.add_argument("--instruments", help="instrument addresses (JSON object or file, e.g. what `rtcal sim serve` "
+                                          "printed); replaces the procedure's")
+    ck.set_defaults(func=cmd_check)
