@@ -164,8 +164,6 @@ def test_an_installed_format_writes_a_table_the_simulated_controller_applies(toy
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="rtcal/cli.py still spells the --format choices and option flags: its change to "
-                                       "take them from rtcal.compensation.registry is pending (the cli package split)")
 def test_rtcal_compensate_writes_an_installed_format(toy_venv):
     """`rtcal compensate RUN --format toy-csv --trim-decimals 2` in the fresh venv: the plugin's
     format and its option flag on the command line."""

@@ -42,12 +42,14 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_schema(args: argparse.Namespace) -> int:
+    from rtcal.deliverables.certificate import certificate_schema
     from rtcal.planning.reports import plan_schema, uncertainty_schema
     from rtcal.procedure.loader import procedure_schema, scenario_schema
     from rtcal.results import results_schema
 
     chosen = [(flag, schema) for flag, schema in (("--scenario", scenario_schema), ("--results", results_schema),
-                                                  ("--plan", plan_schema), ("--uncertainty", uncertainty_schema))
+                                                  ("--plan", plan_schema), ("--uncertainty", uncertainty_schema),
+                                                  ("--certificate", certificate_schema))
               if getattr(args, flag[2:])]
     if len(chosen) > 1:
         raise UserError(f"schema: give {' or '.join(flag for flag, _ in chosen)}, not both")
@@ -71,4 +73,6 @@ def add_schema(sub: Any) -> None:
     schema.add_argument("--plan", action="store_true", help="print the schema of what `rtcal plan --json` prints instead")
     schema.add_argument("--uncertainty", action="store_true",
                         help="print the schema of the uncertainty.json `rtcal uncertainty` writes instead")
+    schema.add_argument("--certificate", action="store_true",
+                        help="print the schema of a run's certificate.json (the certificate as one document) instead")
     schema.set_defaults(func=cmd_schema)

@@ -65,14 +65,13 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     """A controller's compensation table from a run's (or a CSV's) positioning deviations: at the
     measured targets unless a grid is asked for (--step-deg); a one-direction run only with
     --allow-one-direction; warnings on stderr (and in the file where the format takes comments)."""
-    from rtcal.deliverables.compensation import COMMENT, CompensationError, table_from_deviations, write_table
+    from rtcal.compensation import CompensationError, get_format, options_given, write_table
+    from rtcal.deliverables.compensation import table_from_deviations
 
     table, _ = read_deviation_table(args.source)
-    given = {"range_deg": args.range_deg and tuple(args.range_deg), "axis": args.axis, "unit_deg": args.detection_unit_deg,
-             "first_point": args.first_point}
     try:
         comp = table_from_deviations(table, args.step_deg, args.max_gap_deg, args.allow_one_direction, args.format)
-        text = write_table(args.format, comp, **{k: v for k, v in given.items() if v is not None})
+        text = write_table(args.format, comp, **options_given(vars(args)))
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
     out = write_output(Path(args.out), text)
@@ -80,7 +79,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
           "(docs/compensation.md: the format's rules and sign)")
     for warning in comp.warnings:
-        where = "" if args.format in COMMENT else f" (not in {out}: a {args.format} file takes no comment)"
+        where = "" if get_format(args.format).takes_comments else f" (not in {out}: a {args.format} file takes no comment)"
         print(f"rtcal: warning: {warning}{where}", file=sys.stderr)
     return EXIT_OK
 
@@ -157,6 +156,7 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
                           result: dict[str, Any], out: Path) -> str:
     """``compare --certificate``: the as-found / as-left certificate of two run directories."""
     from rtcal.deliverables.as_found import as_found_as_left_model
+    from rtcal.deliverables.certificate import write_certificate_json
     from rtcal.deliverables.report import write_html, write_pdf
 
     if found is None or left is None:
@@ -166,6 +166,8 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
         write_pdf(model, pdf)
     with output_file(out / "as_found_as_left.html") as html:
         write_html(model, html)
+    with output_file(out / "as_found_as_left.json") as doc:
+        write_certificate_json(model, doc)
     return str(out / "as_found_as_left")
 
 
@@ -223,11 +225,11 @@ def add_evaluate(sub: Any) -> None:
 
 
 def add_compensate(sub: Any) -> None:
-    from rtcal.deliverables.compensation import FORMATS
+    from rtcal.compensation import cli_options, format_names
 
     comp = sub.add_parser("compensate", help="a controller's compensation table from a run's positioning deviations")
     comp.add_argument("source", help="a run directory or a deviation CSV (as for `rtcal evaluate`)")
-    comp.add_argument("--format", required=True, choices=FORMATS,
+    comp.add_argument("--format", required=True, choices=format_names(),
                       help="the controller's format (docs/compensation.md)")
     comp.add_argument("--out", required=True, help="the table file to write")
     comp.add_argument("--step-deg", type=float,
@@ -238,12 +240,8 @@ def add_compensate(sub: Any) -> None:
                            "machine's backlash compensation depends on the format: docs/compensation.md)")
     comp.add_argument("--max-gap-deg", type=float, default=60.0,
                       help="refuse to interpolate across a gap between measured targets larger than this (default 60°)")
-    comp.add_argument("--axis", help="axis name in the file: siemens-lec/-cec (default C1), heidenhain (default C)")
-    comp.add_argument("--range-deg", type=float, nargs=2, metavar=("LO", "HI"),
-                      help="linuxcnc: the joint's travel to cover (default 0 360; LinuxCNC does not wrap a table)")
-    comp.add_argument("--detection-unit-deg", type=float,
-                      help="fanuc: the axis's detection unit (default 0.0001, IS-C; 0.001 for IS-B)")
-    comp.add_argument("--first-point", type=int, help="fanuc: number of the reference position's point, 3620 (default 0)")
+    for option in cli_options():
+        comp.add_argument(option.flag, **option.argparse_kwargs())
     comp.set_defaults(func=cmd_compensate)
 
 
