@@ -24,7 +24,7 @@ from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import UNCONFIRMED
 from rtcal.deliverables.rounding import u_text, value_text
-from rtcal.results.model import (AbbeResults, EnvironmentSummary, Event, InstrumentRecord, MultistationResults, RunResults)
+from rtcal.results.model import (EnvironmentSummary, Event, InstrumentRecord, RunResults)
 
 ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, positive approach"),
             ("E_down", "E↓", "unidirectional systematic positional deviation, negative approach"),
@@ -119,10 +119,10 @@ def measurement_dates(results: RunResults) -> str:
 
 
 def environment_of(results: RunResults) -> EnvironmentSummary | None:
-    """The conditions the environment sensor recorded (None: no sensor)."""
-    if isinstance(results, (MultistationResults, AbbeResults)):
-        return results.environment
-    return None
+    """The conditions the environment sensor recorded (None: no sensor), as the results' method reads them."""
+    from rtcal.methods import METHODS
+
+    return METHODS[results.method].conditions(results)
 
 
 def condition_label(name: str) -> str:
@@ -156,9 +156,9 @@ def conditions_in_brief(results: RunResults) -> str:
 def instruments_used(results: RunResults) -> list[str]:
     """The procedure's instruments this run used, then its reference standards (from the procedure
     models: one truth of which instruments a method has; the optional sensor when it recorded)."""
-    from rtcal.procedure.models import PROCEDURE_MODELS
+    from rtcal.methods import METHODS
 
-    model = PROCEDURE_MODELS[results.method]
+    model = METHODS[results.method].procedure_model
     names = []
     for name, field in model.model_fields["instruments"].annotation.model_fields.items():
         optional = field.default is None
@@ -174,8 +174,9 @@ def instrument_rows(results: RunResults) -> list[tuple[str, ...]]:
     records = results.metadata.instruments
     none = InstrumentRecord(id="", calibration_due="")
     roles = dict(ROLES)
-    if isinstance(results, AbbeResults) and results.estimates.abbe is not None and results.estimates.abbe.polygon_source == "closure":
-        roles["polygon"] = "artefact: its face errors separated from the table's by closure in this run"
+    from rtcal.methods import METHODS
+
+    roles.update(METHODS[results.method].instrument_roles(results))  # a method's own, e.g. a polygon separated by closure
     return [(name.replace("_", " "), roles.get(name, ""), records.get(name, none).id or "not recorded",
              records.get(name, none).certificate_number or "–", records.get(name, none).calibrated_by or "–",
              records.get(name, none).calibration_due or "–") for name in instruments_used(results)]
@@ -264,7 +265,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
                  method_name: str = "") -> dict[str, Any]:
     """Everything the certificate shows, as strings and rows, from the run's results."""
     from rtcal.deliverables.conformity import parameter_uncertainties
-    from rtcal.deliverables.multistation import location_tables
+    from rtcal.deliverables.method_outputs import outputs_for
 
     meta = results.metadata
     missing = [what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)]
@@ -383,7 +384,7 @@ def report_model(results: RunResults, run_dir: Path, figures: list[tuple[str, st
         "figures": [(run_dir / f, f"Figure {n}: {caption}") for n, (f, caption) in
                     enumerate([(f, c) for f, c in figures if (run_dir / f).exists()], start=1)],
         "budget": budget_rows,
-        "tables": location_tables(results),  # the axis's location errors and error motions (ISO 230-7)
+        "tables": outputs_for(results).certificate_tables(),  # the method's own, e.g. the axis's location errors (ISO 230-7)
         "method": method_text, "environment": conditions(results), "control": control_details,
         "events": ", ".join(f"{k}: {n}" for k, n in events.items()) or "none",
         "raw_readings": results.raw_readings, "skipped": results.skipped_readings, "faults": results.faults,
