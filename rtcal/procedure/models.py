@@ -971,3 +971,9 @@ def plan_outside_limits(proc: "_Procedure", stage_limits_deg, cmm_min_mm=None, c
 Procedure = Union[LaserTracerMultistation, EncoderAbbeError]
 """The built-in methods' procedures (for the type checker); every method's model is its ``procedure_model``
 in :data:`rtcal.methods.METHODS`, where the loader finds it by ``method:``."""
+
+# The bases a method's own procedure model builds on (a plugin's too: docs/architecture.md, "Adding a method")
+StrictModel = _Strict
+InstrumentsBase = _Instruments
+VerificationBase = _Verification
+ProcedureBase = _Procedure
