@@ -192,6 +192,7 @@ class AbbeMethod:
     name = "encoder_abbe_error"
     procedure_model = EncoderAbbeError
     results_model = rm.AbbeResults
+    operator_steps = True  # the polygon's seatings
 
     def plan_length(self, proc: EncoderAbbeError) -> int:
         return len(planned_visits(proc))

@@ -349,6 +349,7 @@ class MultistationMethod:
     name = "laser_tracer_multistation"
     procedure_model = LaserTracerMultistation
     results_model = rm.MultistationResults
+    operator_steps = True  # the tracer's reference point, a second mount
 
     def plan_length(self, proc: LaserTracerMultistation) -> int:
         return len(planned_readings(proc))

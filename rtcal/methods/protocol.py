@@ -73,6 +73,10 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
     procedure_model: type[BaseModel]
     """The procedure file's model (its ``method`` a ``Literal`` of :attr:`name`): the loader validates with it."""
 
+    operator_steps: bool
+    """Whether the plan has operator steps (re-seating a polygon, moving a tracer): the control
+    statement then says who carried them out."""
+
     results_model: type[RunResults]
     """results.json's model (its ``method`` a ``Literal`` of :attr:`name`): the runner assembles it, every
     command that reads a run validates with it."""

@@ -34,7 +34,11 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
                                 "another client could reach it; "
                                 "the checks of every motion and reading would have seen it move")
                 exclusive = None
-    if simulated:
+    from rtcal.methods import METHODS
+
+    if not METHODS[proc.method].operator_steps:
+        access["operator"] = "none: the method's plan has no operator step"
+    elif simulated:
         access["operator"] = "in process: the simulated bench re-seats its own polygon or tracer"
     elif operator_address:
         access["operator"] = "token: the simulated operator of `rtcal sim serve` obeys only requests carrying its printed token"

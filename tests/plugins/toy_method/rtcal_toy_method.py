@@ -371,6 +371,7 @@ class EncoderVsCommandMethod:
     name = NAME
     procedure_model = EncoderVsCommand
     results_model = EncoderResults
+    operator_steps = False
 
     def plan_length(self, proc: EncoderVsCommand) -> int:
         return len(planned_visits(proc))
