@@ -70,16 +70,22 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
     name: str
     """The procedure's ``method:`` this class implements."""
 
-    procedure_model: type[BaseModel]
-    """The procedure file's model (its ``method`` a ``Literal`` of :attr:`name`): the loader validates with it."""
+    @property
+    def procedure_model(self) -> type[BaseModel]:
+        """The procedure file's model (its ``method`` a ``Literal`` of :attr:`name`): the loader validates with it."""
+        ...
 
-    operator_steps: bool
-    """Whether the plan has operator steps (re-seating a polygon, moving a tracer): the control
-    statement then says who carried them out."""
+    @property
+    def operator_steps(self) -> bool:
+        """Whether the plan has operator steps (re-seating a polygon, moving a tracer): the control
+        statement then says who carried them out."""
+        ...
 
-    results_model: type[RunResults]
-    """results.json's model (its ``method`` a ``Literal`` of :attr:`name`): the runner assembles it, every
-    command that reads a run validates with it."""
+    @property
+    def results_model(self) -> type[RunResults]:
+        """results.json's model (its ``method`` a ``Literal`` of :attr:`name`): the runner assembles it,
+        every command that reads a run validates with it."""
+        ...
 
     def plan_length(self, proc: ProcedureT) -> int:
         """How many planned readings the procedure takes (resume counts against it)."""

@@ -6,7 +6,7 @@ import json
 import os
 from pathlib import Path
 
-from typing import Annotated, Union
+from typing import Annotated, Any, Union
 
 from pydantic import Field, TypeAdapter
 
@@ -114,7 +114,7 @@ def procedure_schema() -> str:
     """JSON Schema of procedure files (one branch per ``method``), for editors."""
     from rtcal.methods import METHODS
 
-    union = Annotated[Union[tuple(METHODS.procedure_models().values())], Field(discriminator="method")]
+    union: Any = Annotated[Union[tuple(METHODS.procedure_models().values())], Field(discriminator="method")]
     schema = TypeAdapter(union).json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "rtcal procedure"

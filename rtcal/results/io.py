@@ -34,7 +34,8 @@ def _adapter() -> TypeAdapter[RunResults]:
 
 @lru_cache(maxsize=4)
 def _adapter_of(models: tuple[type[RunResults], ...]) -> TypeAdapter[RunResults]:
-    return TypeAdapter(Annotated[Union[models], Field(discriminator="method")])  # type: ignore[valid-type]
+    union: Any = Annotated[Union[models], Field(discriminator="method")]  # built at run time from the registry
+    return TypeAdapter(union)
 
 
 class ResultsError(ValueError):

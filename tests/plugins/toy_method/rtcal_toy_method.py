@@ -204,8 +204,10 @@ class Estimates(rm.NamedSet[rm.Estimate]):
 
 
 class EncoderAnalysis(rm.Analysis):
-    recommended: Literal["encoder"] | None = Field(description="the estimate to quote")
-    solver_status: dict[Literal["encoder"], rm.SolverStatus] = Field(description="every estimator, including one that failed")
+    # a method's own estimator names: narrower than (and apart from) the built-in methods'
+    recommended: Literal["encoder"] | None = Field(description="the estimate to quote")  # type: ignore[assignment]
+    solver_status: dict[Literal["encoder"], rm.SolverStatus] = Field(  # type: ignore[assignment]
+        description="every estimator, including one that failed")
     estimates: Estimates = Field(description="every estimate that could run")
 
 
@@ -231,7 +233,8 @@ def encoder_means(store: RunStore, proc: EncoderVsCommand) -> tuple[np.ndarray, 
         return np.where(count > 0, total / np.maximum(count, 1), np.nan), count
 
 
-def visit_sigma(per_key: np.ndarray, proc: EncoderVsCommand, samples: int, estimate_noise: bool) -> tuple[float, str, str, bool, str]:
+def visit_sigma(per_key: np.ndarray, proc: EncoderVsCommand, samples: int,
+                estimate_noise: bool) -> tuple[float, str, Literal["A", "B"], bool, str]:
     """1σ of one visit's mean reading: Type A from the runs' pooled scatter (two runs or more), else the
     procedure's stated noise; with the budget's source name, type, input σ, whether estimated, note."""
     if estimate_noise and proc.steps.runs >= 2:
@@ -301,6 +304,10 @@ def true_reading(bench: Bench, keys: list[tuple[float, int]]) -> list[float]:
 
 
 # -- outputs ------------------------------------------------------------------------------------------
+def _values(values: list[float | None]) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], float)
+
+
 class EncoderOutputs:
     """A CSV and one figure of the deviation per target, the report's section and the console's lines."""
 
@@ -325,8 +332,8 @@ class EncoderOutputs:
         for d, label in ((1, "↑"), (-1, "↓")):
             sel = [i for i, x in enumerate(e.target_direction) if x == d]
             if sel:
-                ax.errorbar([e.target_deg[i] for i in sel], [e.cumulative_deviation_arcsec[i] for i in sel],
-                            [e.cumulative_expanded_uncertainty_arcsec[i] for i in sel], marker="o", capsize=3,
+                ax.errorbar(np.array([e.target_deg[i] for i in sel]), _values([e.cumulative_deviation_arcsec[i] for i in sel]),
+                            _values([e.cumulative_expanded_uncertainty_arcsec[i] for i in sel]), marker="o", capsize=3,
                             label=f"encoder − command {label} (U, k = 2)")
         ax.set_xlabel("table angle / °")
         ax.set_ylabel("deviation / ″")
