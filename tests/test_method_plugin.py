@@ -40,16 +40,16 @@ def _entry_points(*specs: tuple[str, str]) -> list[EntryPoint]:
 
 @pytest.fixture
 def toy_registry(monkeypatch):
-    """A registry that sees the toy package's entry point (and a broken one, and one that would replace a
-    built-in) as if they were installed, in place of this process's METHODS."""
+    """This process's METHODS reading the toy package's entry point (and a broken one, and one that would
+    replace a built-in) as if they were installed; as it was after the test."""
     monkeypatch.syspath_prepend(str(PLUGIN))
     monkeypatch.setattr(methods, "entry_points", lambda group: _entry_points(
         ("encoder_vs_command", "rtcal_toy_method:EncoderVsCommandMethod"),
         ("broken_method", "rtcal_no_such_module:Method"),
         ("encoder_abbe_error", "rtcal_toy_method:EncoderVsCommandMethod")) if group == methods.ENTRY_POINT_GROUP else [])
-    registry = methods.MethodRegistry(methods.BUILTIN)
-    monkeypatch.setattr(methods, "METHODS", registry)
-    return registry
+    monkeypatch.setattr(methods.METHODS, "_plugins", None)  # read again, through the entry points above
+    monkeypatch.setattr(methods.METHODS, "broken", {})
+    return methods.METHODS
 
 
 def _check_results(results: dict, run_dir: Path) -> None:
