@@ -57,6 +57,10 @@ class AbbeOutputs:
         y = np.array([np.nan if values[i] is None else values[i] for i in sel], dtype=float)
         return x, y
 
+    def certificate_tables(self) -> list[dict[str, Any]]:
+        """None besides the tables every certificate has."""
+        return []
+
     def write_files(self, run_dir: Path) -> list[Path]:
         """abbe_steps.csv and figures in the manner of seed 001's Figures 9–12, plus harmonics and closure."""
         a = self.abbe

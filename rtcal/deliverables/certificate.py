@@ -426,10 +426,8 @@ def _parameters(s: Sources) -> Parameters | None:
 
 
 def _tables(s: Sources) -> list[Table]:
-    from rtcal.deliverables.multistation import location_tables
-
     return [Table(heading=t["heading"], note=t["note"], header=list(t["header"]), rows=[list(r) for r in t["rows"]],
-                  numeric_from_column=1) for t in location_tables(s.results)]  # the axis's location (ISO 230-7)
+                  numeric_from_column=1) for t in s.outputs.certificate_tables()]  # the method's own, e.g. ISO 230-7's
 
 
 def _figures(s: Sources) -> list[Figure]:

@@ -1,15 +1,14 @@
-"""Each method's own outputs (its files, report sections and console lines), chosen by the
-typed results they are made from. The files every run has (results.json, the positioning
-deviations, report.md/html/pdf) are written around them by the runner."""
+"""Each method's own outputs (its files, report sections and console lines), from the typed
+results they are made from: the method object (:data:`rtcal.methods.METHODS`, by the results'
+``method``) makes them. The files every run has (results.json, the positioning deviations,
+report.md/html/pdf) are written around them by the runner."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
-from rtcal.deliverables.abbe import AbbeOutputs
-from rtcal.deliverables.multistation import MultistationOutputs
-from rtcal.results.model import AbbeResults, MultistationResults, RunResults
+from rtcal.results.model import RunResults
 
 
 class MethodOutputs(Protocol):
@@ -39,11 +38,13 @@ class MethodOutputs(Protocol):
         """The console lines after a run: the recommended result, then what did not converge."""
         ...
 
+    def certificate_tables(self) -> list[dict[str, Any]]:
+        """The method's own tables on the certificate: each a heading, a note, a header and rows."""
+        ...
+
 
 def outputs_for(results: RunResults) -> MethodOutputs:
     """The outputs of the method the results are of."""
-    if isinstance(results, MultistationResults):
-        return MultistationOutputs(results)
-    if isinstance(results, AbbeResults):
-        return AbbeOutputs(results)
-    raise TypeError(f"no outputs for results of {type(results).__name__}")
+    from rtcal.methods import METHODS
+
+    return METHODS[results.method].outputs(results)

@@ -19,7 +19,6 @@ from rtcal.results.model import (
     MultistationResults,
     NetworkEstimate,
     PaperEstimate,
-    RunResults,
     StationChainEstimate,
 )
 
@@ -62,10 +61,10 @@ MOTIONS_NOTE = ("Synchronous error motions per target from the second tracer mou
                 "EBC is the procedure's stated bound, and so is its part of U. U expanded uncertainty (k = 2).")
 
 
-def location_tables(results: RunResults) -> list[dict[str, Any]]:
+def location_tables(results: MultistationResults) -> list[dict[str, Any]]:
     """The certificate's tables of the axis's location errors and (two mounts) error motions: each a
     heading, a note stating the convention, a header and rows (empty: no network estimate)."""
-    if not isinstance(results, MultistationResults) or results.axis_location is None:
+    if results.axis_location is None:
         return []
     loc = results.axis_location
     rows = []
@@ -104,6 +103,10 @@ class MultistationOutputs:
 
     def write_files(self, run_dir: Path) -> list[Path]:
         return [self.write_deviation_csv(run_dir), self.plot_deviation(run_dir)]
+
+    def certificate_tables(self) -> list[dict[str, Any]]:
+        """The axis's location errors and error motions (ISO 230-7)."""
+        return location_tables(self.results)
 
     def write_deviation_csv(self, run_dir: Path) -> Path:
         """One row per station: nominal angle, then each estimator's cumulative and per-step deviation with 1σ."""

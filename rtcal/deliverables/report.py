@@ -123,8 +123,10 @@ def measurement_dates(results: RunResults) -> str:
 
 
 def environment_of(results: RunResults) -> EnvironmentSummary | None:
-    """The conditions the environment sensor recorded (None: no sensor)."""
-    return getattr(results, "environment", None)  # a method whose results have no sensor has no field for one
+    """The conditions the environment sensor recorded (None: no sensor), as the results' method reads them."""
+    from rtcal.methods import METHODS
+
+    return METHODS[results.method].conditions(results)
 
 
 def condition_label(name: str) -> str:
@@ -158,9 +160,9 @@ def conditions_in_brief(results: RunResults) -> str:
 def instruments_used(results: RunResults) -> list[str]:
     """The procedure's instruments this run used, then its reference standards (from the procedure
     models: one truth of which instruments a method has; the optional sensor when it recorded)."""
-    from rtcal.procedure.models import PROCEDURE_MODELS
+    from rtcal.methods import METHODS
 
-    model = PROCEDURE_MODELS[results.method]
+    model = METHODS[results.method].procedure_model
     names = []
     instruments = cast("type[BaseModel]", model.model_fields["instruments"].annotation)  # each method's Instruments model
     for name, field in instruments.model_fields.items():
@@ -177,9 +179,9 @@ def instrument_rows(results: RunResults) -> list[tuple[str, ...]]:
     records = results.metadata.instruments
     none = InstrumentRecord(id="", calibration_due="")
     roles = dict(ROLES)
-    abbe = getattr(getattr(results, "estimates", None), "abbe", None)  # the Abbe method's estimate, if the results have one
-    if abbe is not None and abbe.polygon_source == "closure":
-        roles["polygon"] = "artefact: its face errors separated from the table's by closure in this run"
+    from rtcal.methods import METHODS
+
+    roles.update(METHODS[results.method].instrument_roles(results))  # a method's own, e.g. a polygon separated by closure
     return [(name.replace("_", " "), roles.get(name, ""), records.get(name, none).id or "not recorded",
              records.get(name, none).certificate_number or "–", records.get(name, none).calibrated_by or "–",
              records.get(name, none).calibration_due or "–") for name in instruments_used(results)]

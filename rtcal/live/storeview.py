@@ -367,14 +367,13 @@ def _procedure_name(meta: dict[str, str]) -> str | None:
 def planned_from_procedure(meta: dict[str, str]) -> int | None:
     """The stored procedure's plan length, read as `rtcal resume` reads it (None if it cannot be)."""
     from rtcal.methods import METHODS
-    from rtcal.procedure.models import PROCEDURE_MODELS
     from rtcal.procedure.yamlfile import FileProblems, validate_text
 
     method = meta.get("method")
-    if method not in PROCEDURE_MODELS or method not in METHODS or not meta.get("procedure_yaml"):
+    if not isinstance(method, str) or method not in METHODS or not meta.get("procedure_yaml"):
         return None
     try:
-        proc = validate_text(meta["procedure_yaml"], PROCEDURE_MODELS[method], "stored procedure",
+        proc = validate_text(meta["procedure_yaml"], METHODS[method].procedure_model, "stored procedure",
                              context={"large": bool(meta.get("large"))})
         return int(METHODS[method].plan_length(proc))
     except (FileProblems, ValueError, TypeError):

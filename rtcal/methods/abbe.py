@@ -8,7 +8,7 @@ sections are the output layer's (:mod:`rtcal.deliverables.abbe`).
 from __future__ import annotations
 
 import json
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -48,6 +48,9 @@ from simulators.instruments import (
 )
 from simulators.scenario import Scenario
 from simulators.truth import abbe_truth
+
+if TYPE_CHECKING:
+    from rtcal.deliverables.abbe import AbbeOutputs
 
 NOTES = (
     "Seed 001's equations (1) and (2) are missing from its text; rtcal uses the model its words give: "
@@ -187,9 +190,40 @@ class AbbeMethod:
     """Seed 001's encoder Abbe-error method (:class:`rtcal.methods.protocol.Method`)."""
 
     name = "encoder_abbe_error"
+    procedure_model = EncoderAbbeError
+    results_model = rm.AbbeResults
+    operator_steps = True  # the polygon's seatings
 
     def plan_length(self, proc: EncoderAbbeError) -> int:
         return len(planned_visits(proc))
+
+    def scenario_problem(self, proc: EncoderAbbeError, scenario: Scenario) -> tuple[tuple[str, ...], str] | None:
+        """The autocollimator reads the bench's polygon: it must have the procedure's faces."""
+        if proc.polygon.faces != scenario.polygon.faces:
+            return ("polygon", "faces"), f"the procedure's polygon has {proc.polygon.faces} faces, the bench's {scenario.polygon.faces}"
+        return None
+
+    def checks_text(self, proc: EncoderAbbeError) -> list[str]:
+        v = proc.verification
+        return [f"encoder: its change since the run's first visit within {v.encoder_tolerance_arcsec:g}″ of the commanded change",
+                f"autocollimator: the face the commanded angle puts in view read within ±{v.autocollimator_tolerance_arcsec:g}″"]
+
+    def conditions(self, results: rm.RunResults) -> rm.EnvironmentSummary | None:
+        return results.environment if isinstance(results, rm.AbbeResults) else None
+
+    def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
+        """A polygon whose face errors this run separated by closure is an artefact, not a reference standard."""
+        abbe = results.estimates.abbe if isinstance(results, rm.AbbeResults) else None
+        if abbe is not None and abbe.polygon_source == "closure":
+            return {"polygon": "artefact: its face errors separated from the table's by closure in this run"}
+        return {}
+
+    def outputs(self, results: rm.RunResults) -> AbbeOutputs:
+        from rtcal.deliverables.abbe import AbbeOutputs
+
+        if not isinstance(results, rm.AbbeResults):
+            raise TypeError(f"encoder Abbe-error outputs need its results, not {type(results).__name__}")
+        return AbbeOutputs(results)
 
     def sim_instruments(self, proc: EncoderAbbeError, bench: Bench) -> AbbeInstrumentSet:
         env = SimEnvironmentSensor(bench) if proc.instruments.environment is not None else None

@@ -8,7 +8,7 @@ are the output layer's (:mod:`rtcal.deliverables.multistation`).
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -44,6 +44,9 @@ from simulators.instruments import (
 )
 from simulators.scenario import AngularHarmonic, LinearHarmonic, Scenario
 from simulators.truth import station_truth
+
+if TYPE_CHECKING:
+    from rtcal.deliverables.multistation import MultistationOutputs
 
 
 def _round(values: Iterable[float] | np.ndarray, digits: int = 6) -> list[float]:
@@ -344,9 +347,35 @@ class MultistationMethod:
     """Seed 000's laser-tracer multi-station method (:class:`rtcal.methods.protocol.Method`)."""
 
     name = "laser_tracer_multistation"
+    procedure_model = LaserTracerMultistation
+    results_model = rm.MultistationResults
+    operator_steps = True  # the tracer's reference point, a second mount
 
     def plan_length(self, proc: LaserTracerMultistation) -> int:
         return len(planned_readings(proc))
+
+    def scenario_problem(self, proc: LaserTracerMultistation, scenario: Scenario) -> tuple[tuple[str, ...], str] | None:
+        """The stage's and CMM's limits are every method's check (rtcal/run/runner.py): nothing besides."""
+        return None
+
+    def checks_text(self, proc: LaserTracerMultistation) -> list[str]:
+        v = proc.verification
+        return [f"CMM: its reported position within {v.cmm_tolerance_mm:g} mm of the commanded point before the length "
+                "is read, and unmoved after it",
+                f"laser tracer: each length within {v.tracer_tolerance_mm:g} mm of what the nominal geometry expects"]
+
+    def conditions(self, results: rm.RunResults) -> rm.EnvironmentSummary | None:
+        return results.environment if isinstance(results, rm.MultistationResults) else None
+
+    def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
+        return {}
+
+    def outputs(self, results: rm.RunResults) -> MultistationOutputs:
+        from rtcal.deliverables.multistation import MultistationOutputs
+
+        if not isinstance(results, rm.MultistationResults):
+            raise TypeError(f"multi-station outputs need multi-station results, not {type(results).__name__}")
+        return MultistationOutputs(results)
 
     def sim_instruments(self, proc: LaserTracerMultistation, bench: Bench) -> MultistationInstrumentSet:
         env = SimEnvironmentSensor(bench) if proc.instruments.environment is not None else None

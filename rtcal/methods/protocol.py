@@ -4,9 +4,12 @@ A method is an object with the :class:`Method` protocol's members: the plan's si
 instruments (simulated on the bench, or over their transports), what to fix before the first
 motion, its plan of steps (which the one engine, :mod:`rtcal.engine`, executes), the analysis of the logged readings into a typed
 :class:`~rtcal.results.model.Analysis`, and the Monte Carlo's draws of the stated systematic
-errors. Figures, reports and console text are the output layer's (:mod:`rtcal.deliverables`);
-they read only the typed results. A new method is a class with these members, registered in
-:data:`rtcal.methods.METHODS`.
+errors, and everything else that differs between methods: its procedure and results models (the
+loader and results.json reader pick them by ``method``), the control statement's checks, the
+bench's own refusals, the conditions and instrument roles the certificate states, and its outputs
+(files, figures, report sections: :mod:`rtcal.deliverables`, from the typed results alone). A new
+method is an object with these members, registered in :data:`rtcal.methods.METHODS` (built in) or
+by an installed package's entry point in the group ``rtcal.methods`` (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -15,9 +18,12 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
 
 if TYPE_CHECKING:
     import numpy as np
+    from pydantic import BaseModel
+
+    from rtcal.deliverables.method_outputs import MethodOutputs
 
     from rtcal.engine.plan import Plan
-    from rtcal.results.model import Analysis
+    from rtcal.results.model import Analysis, EnvironmentSummary, RunResults
     from rtcal.run.store import RunStore
     from rtcal.sequencer.operator import Operator
     from simulators.bench import Bench
@@ -64,6 +70,23 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
     name: str
     """The procedure's ``method:`` this class implements."""
 
+    @property
+    def procedure_model(self) -> type[BaseModel]:
+        """The procedure file's model (its ``method`` a ``Literal`` of :attr:`name`): the loader validates with it."""
+        ...
+
+    @property
+    def operator_steps(self) -> bool:
+        """Whether the plan has operator steps (re-seating a polygon, moving a tracer): the control
+        statement then says who carried them out."""
+        ...
+
+    @property
+    def results_model(self) -> type[RunResults]:
+        """results.json's model (its ``method`` a ``Literal`` of :attr:`name`): the runner assembles it,
+        every command that reads a run validates with it."""
+        ...
+
     def plan_length(self, proc: ProcedureT) -> int:
         """How many planned readings the procedure takes (resume counts against it)."""
         ...
@@ -93,4 +116,27 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
 
     def draw_systematics(self, proc: ProcedureT, scenario: Scenario, rng: np.random.Generator) -> Scenario:
         """A Monte Carlo trial's bench: the stated systematic errors drawn from their distributions."""
+        ...
+
+    def scenario_problem(self, proc: ProcedureT, scenario: Scenario) -> tuple[tuple[str, ...], str] | None:
+        """Why the simulated bench cannot carry out this procedure beyond its stage's and CMM's limits
+        (the procedure's field path, the message), or None: refused before anything moves."""
+        ...
+
+    def checks_text(self, proc: ProcedureT) -> list[str]:
+        """The certificate's lines on what this method's readings were checked against, besides the
+        stage's feedback (every method's), with the procedure's tolerances."""
+        ...
+
+    def conditions(self, results: RunResults) -> EnvironmentSummary | None:
+        """The air and table conditions the run recorded (None: no environment sensor)."""
+        ...
+
+    def instrument_roles(self, results: RunResults) -> dict[str, str]:
+        """The certificate's role of an instrument where this method's differs from the usual one
+        (rtcal/deliverables/report.py's ROLES), e.g. a polygon separated by closure."""
+        ...
+
+    def outputs(self, results: RunResults) -> MethodOutputs:
+        """The method's files, figures, report sections and console lines, from its results alone."""
         ...

@@ -6,11 +6,11 @@ import json
 import os
 from pathlib import Path
 
-from typing import Annotated, Union
+from typing import Annotated, Any, Union
 
 from pydantic import Field, TypeAdapter
 
-from rtcal.procedure.models import PROCEDURE_MODELS, Procedure
+from rtcal.procedure.models import Procedure
 from rtcal.compensation import CompensationError, get_format
 from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 from simulators.scenario import Scenario
@@ -19,23 +19,29 @@ from simulators.scenario import Scenario
 def load_procedure(path: str | Path, large: bool = False, text: str | None = None) -> Procedure:
     """Validate a procedure file (or its ``text``, already read); raises :class:`FileProblems`
     naming file, line and field. ``large`` accepts plans beyond the default size limits
-    (``rtcal run --large``)."""
+    (``rtcal run --large``). The model is the one the ``method:`` names in the registry of methods."""
+    from rtcal.methods import METHODS
+
+    models = METHODS.procedure_models()
     path = Path(path)
     text = read_text(path) if text is None else text
     data, locations = load_yaml(text, str(path))
     if not isinstance(data, dict):
         raise FileProblems([Problem(str(path), *locations[()], "(document)", "expected a mapping with a `method` key")])
     method = data.get("method")
-    if not isinstance(method, str) or method not in PROCEDURE_MODELS:
+    if not isinstance(method, str) or method not in models:
         line, col = locate(("method",), locations)
-        known = ", ".join(sorted(PROCEDURE_MODELS))
+        known = ", ".join(sorted(models))
         msg = "required key is missing" if method is None else f"unknown method {method!r}"
         if method is None and data and set(data) <= set(Scenario.model_fields):
             raise FileProblems([Problem(str(path), line, col, "(document)", "this is a bench scenario, not a procedure: "
                                         "give it with `--scenario` (e.g. `rtcal run PROCEDURE.yaml --scenario "
                                         f"{path}`)")])
+        broken = METHODS.broken.get(method) if isinstance(method, str) else None
+        if broken:
+            msg += f" (its plugin failed to load: {broken})"
         raise FileProblems([Problem(str(path), line, col, "method", f"{msg}; one of: {known}")])
-    return validate_text(text, PROCEDURE_MODELS[method], str(path), context={"large": large})
+    return validate_text(text, models[method], str(path), context={"large": large})
 
 
 def load_scenario(path: str | Path, text: str | None = None) -> Scenario:
@@ -106,7 +112,9 @@ def is_procedure_text(text: str) -> bool:
 
 def procedure_schema() -> str:
     """JSON Schema of procedure files (one branch per ``method``), for editors."""
-    union = Annotated[Union[tuple(PROCEDURE_MODELS.values())], Field(discriminator="method")]
+    from rtcal.methods import METHODS
+
+    union: Any = Annotated[Union[tuple(METHODS.procedure_models().values())], Field(discriminator="method")]
     schema = TypeAdapter(union).json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "rtcal procedure"

@@ -583,6 +583,20 @@ class _Procedure(_Strict):
         """The directions (+1, −1) the positioning-deviation table will have, and its runs per direction."""
         raise NotImplementedError
 
+    def plan_size(self, max_cells: int, hint: str) -> tuple[int, str, str, str | None]:
+        """The plan's planned readings (× samples), the field that sets them, the product in words, and a
+        problem of this method's own size limit (None: within ``max_cells``): :func:`plan_size_problem`."""
+        raise NotImplementedError
+
+    def planned_stage_deg(self) -> tuple[str, list[float]]:
+        """The field that sets the stage's targets, and every angle the stage is commanded to (approaches
+        included): :func:`plan_outside_limits`."""
+        raise NotImplementedError
+
+    def outside_cmm_volume(self, cmm_min_mm: Any, cmm_max_mm: Any) -> str | None:
+        """``field: message`` for a planned CMM point outside the volume (None: none, or no CMM)."""
+        return None
+
     @model_validator(mode="after")
     def _acceptance_defined(self) -> "_Procedure":
         if self.acceptance is not None:
@@ -659,6 +673,30 @@ class LaserTracerMultistation(_Procedure):
 
     def points_array(self) -> np.ndarray:
         return self.points.points_mm() if isinstance(self.points, GridPlan) else self.points.points_mm_array()
+
+    def plan_size(self, max_cells: int, hint: str) -> tuple[int, str, str, str | None]:
+        """Stations × points × samples; the joint solver's Jacobian has readings × (3·stations + 1) cells."""
+        m, n = self.stations.count, self.point_count()
+        readings = m * n * self.samples_per_reading
+        cells = m * n * (3 * m + 1)
+        problem = None
+        if cells > max_cells:
+            problem = (f"stations: {m} stations × {n} points need a solver matrix of {cells:,} cells "
+                       f"({cells * 8 / 1e9:.1f} GB each copy); at most {max_cells:,}{hint}")
+        return readings, "points", f"{m} stations × {n} points × {self.samples_per_reading} samples", problem
+
+    def planned_stage_deg(self) -> tuple[str, list[float]]:
+        d = 1 if self.stations.approach == "positive" else -1
+        return "stations", [a for a in self.stations.angles_deg() for a in (a, a - d * self.stations.overshoot_deg)]
+
+    def outside_cmm_volume(self, cmm_min_mm: Any, cmm_max_mm: Any) -> str | None:
+        pts = self.points_array()
+        outside = ~np.all((pts >= np.array(cmm_min_mm)) & (pts <= np.array(cmm_max_mm)), axis=1)
+        if outside.any():
+            k = int(np.argmax(outside))
+            return (f"points: point {k + 1} at {np.round(pts[k], 3).tolist()} mm lies outside the CMM volume "
+                    f"{list(cmm_min_mm)}..{list(cmm_max_mm)} mm")
+        return None
 
     def point_count(self) -> int:
         """Points of the plan, without building them."""
@@ -849,6 +887,16 @@ class EncoderAbbeError(_Procedure):
         per_pass = self.polygon.faces * self.steps.steps_per_face
         return len(self.polygon.seatings_deg) * self.steps.runs * len(self.steps.directions) * per_pass
 
+    def plan_size(self, max_cells: int, hint: str) -> tuple[int, str, str, str | None]:
+        """Stage visits × samples (its solvers are linear per visit: no limit of their own)."""
+        return (self.visit_count() * self.samples_per_reading, "steps",
+                f"{self.visit_count()} stage visits × {self.samples_per_reading} samples", None)
+
+    def planned_stage_deg(self) -> tuple[str, list[float]]:
+        dirs = [1 if d == "positive" else -1 for d in self.steps.directions]
+        base = [a for s in self.polygon.seatings_deg for a in self.pass_angles_deg(s)]
+        return "steps", base + [a - d * self.steps.overshoot_deg for a in base for d in dirs]
+
     @model_validator(mode="after")
     def _within_limits(self, info: ValidationInfo) -> "EncoderAbbeError":
         problem = plan_size_problem(self, large=bool((info.context or {}).get("large")))
@@ -894,54 +942,38 @@ def _check_name(name: str) -> str:
     return _check_text(name)
 
 
-def plan_size_problem(proc: "LaserTracerMultistation | EncoderAbbeError", large: bool = False) -> str | None:
-    """``field: message`` when the plan is larger than rtcal runs without ``--large`` (or at all)."""
+def plan_size_problem(proc: "_Procedure", large: bool = False) -> str | None:
+    """``field: message`` when the plan is larger than rtcal runs without ``--large`` (or at all): its
+    planned readings, then the method's own limit (:meth:`_Procedure.plan_size`)."""
     max_readings = MAX_PLANNED_READINGS_LARGE if large else MAX_PLANNED_READINGS
     max_cells = MAX_SOLVER_CELLS_LARGE if large else MAX_SOLVER_CELLS
     hint = "" if large else " (`--large` raises the limits if you mean it)"
-    if isinstance(proc, LaserTracerMultistation):
-        m, n = proc.stations.count, proc.point_count()
-        readings = m * n * proc.samples_per_reading
-        where, what = "points", f"{m} stations × {n} points × {proc.samples_per_reading} samples"
-        cells = m * n * (3 * m + 1)
-        if readings <= max_readings and cells > max_cells:
-            return (f"stations: {m} stations × {n} points need a solver matrix of {cells:,} cells "
-                    f"({cells * 8 / 1e9:.1f} GB each copy); at most {max_cells:,}{hint}")
-    else:
-        readings = proc.visit_count() * proc.samples_per_reading
-        where, what = "steps", f"{proc.visit_count()} stage visits × {proc.samples_per_reading} samples"
+    readings, where, what, own = proc.plan_size(max_cells, hint)
+    if readings <= max_readings and own is not None:
+        return own
     if readings > max_readings:
         return f"{where}: {what} = {readings:,} planned readings; at most {max_readings:,}{hint}"
     return None
 
 
-def plan_outside_limits(proc: "LaserTracerMultistation | EncoderAbbeError", stage_limits_deg, cmm_min_mm=None, cmm_max_mm=None) -> str | None:
+def plan_outside_limits(proc: "_Procedure", stage_limits_deg, cmm_min_mm=None, cmm_max_mm=None) -> str | None:
     """``field.path: message`` for the first planned target outside the given limits, else None."""
     lo, hi = stage_limits_deg
-    if isinstance(proc, LaserTracerMultistation):
-        d = 1 if proc.stations.approach == "positive" else -1
-        angles = [a for a in proc.stations.angles_deg() for a in (a, a - d * proc.stations.overshoot_deg)]
-        where = "stations"
-    else:
-        dirs = [1 if d == "positive" else -1 for d in proc.steps.directions]
-        base = [a for s in proc.polygon.seatings_deg for a in proc.pass_angles_deg(s)]
-        angles = base + [a - d * proc.steps.overshoot_deg for a in base for d in dirs]
-        where = "steps"
+    where, angles = proc.planned_stage_deg()
     bad = [a for a in angles if not lo <= a <= hi]
     if bad:
         return f"{where}: the stage would go to {bad[0]:g}° (approach included), outside its soft limits [{lo:g}, {hi:g}]°"
-    if cmm_min_mm is not None and isinstance(proc, LaserTracerMultistation):
-        pts = proc.points_array()
-        outside = ~np.all((pts >= np.array(cmm_min_mm)) & (pts <= np.array(cmm_max_mm)), axis=1)
-        if outside.any():
-            k = int(np.argmax(outside))
-            return (f"points: point {k + 1} at {np.round(pts[k], 3).tolist()} mm lies outside the CMM volume "
-                    f"{list(cmm_min_mm)}..{list(cmm_max_mm)} mm")
+    if cmm_min_mm is not None:
+        return proc.outside_cmm_volume(cmm_min_mm, cmm_max_mm)
     return None
 
 
 Procedure = Union[LaserTracerMultistation, EncoderAbbeError]
-PROCEDURE_MODELS: dict[str, type[BaseModel]] = {
-    "laser_tracer_multistation": LaserTracerMultistation,
-    "encoder_abbe_error": EncoderAbbeError,
-}
+"""The built-in methods' procedures (for the type checker); every method's model is its ``procedure_model``
+in :data:`rtcal.methods.METHODS`, where the loader finds it by ``method:``."""
+
+# The bases a method's own procedure model builds on (a plugin's too: docs/architecture.md, "Adding a method")
+StrictModel = _Strict
+InstrumentsBase = _Instruments
+VerificationBase = _Verification
+ProcedureBase = _Procedure

@@ -2,7 +2,8 @@
 
 Reading is bounded (file size; pydantic's JSON parser limits nesting and refuses NaN and
 numbers out of range) and every problem is one :class:`ResultsError` line naming the file and
-the offending field's path, e.g. ``runs/x/results.json: estimates.network.radius_mm: …``.
+the offending field's path, e.g. ``runs/x/results.json: estimates.network.radius_mm: …``. The model
+is the results model of the method the file's ``method`` names (:data:`rtcal.methods.METHODS`).
 """
 
 from __future__ import annotations
@@ -12,16 +13,29 @@ import os
 import re
 import stat
 from pathlib import Path
-from typing import Any
+from functools import lru_cache
+from typing import Annotated, Any, Union
 
-from pydantic import TypeAdapter, ValidationError
+from pydantic import Field, TypeAdapter, ValidationError
 from pydantic_core import ErrorDetails
 
-from rtcal.results.model import Results, RunResults
+from rtcal.results.model import RunResults
 
 FILENAME = "results.json"
 MAX_RESULTS_BYTES = 200_000_000  # read whole: bounded
-_ADAPTER: TypeAdapter[RunResults] = TypeAdapter(Results)
+
+
+def _adapter() -> TypeAdapter[RunResults]:
+    """results.json as one of the registered methods' results, told apart by ``method``."""
+    from rtcal.methods import METHODS
+
+    return _adapter_of(tuple(METHODS.results_models().values()))
+
+
+@lru_cache(maxsize=4)
+def _adapter_of(models: tuple[type[RunResults], ...]) -> TypeAdapter[RunResults]:
+    union: Any = Annotated[Union[models], Field(discriminator="method")]  # built at run time from the registry
+    return TypeAdapter(union)
 
 
 class ResultsError(ValueError):
@@ -65,7 +79,7 @@ def read_results(run_dir: str | Path) -> RunResults:
 def parse_results(data: bytes | str, where: str = FILENAME) -> RunResults:
     """Validate the text of a results.json (``where`` names it in messages)."""
     try:
-        return _ADAPTER.validate_json(data, strict=True)
+        return _adapter().validate_json(data, strict=True)
     except ValidationError as exc:
         raise ResultsError(f"{where}: {_printable(_first_problem(exc.errors(), data))}") from None
 
@@ -80,7 +94,9 @@ def _first_problem(errors: list[ErrorDetails], data: bytes | str) -> str:
     e = errors[0]
     more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
     loc = list(e["loc"])
-    if loc and loc[0] in ("laser_tracer_multistation", "encoder_abbe_error"):
+    from rtcal.methods import METHODS
+
+    if loc and loc[0] in METHODS:
         loc = loc[1:]  # the method the file is told apart by, not a key of it
     msg = str(e["msg"]).removeprefix("Value error, ")
     if e["type"] == "json_invalid":
@@ -138,7 +154,7 @@ def path_at(text: str, offset: int, max_parts: int = 12) -> str:
 
 def results_schema() -> str:
     """JSON Schema (draft 2020-12) of results.json, every field described."""
-    schema = _ADAPTER.json_schema()
+    schema = _adapter().json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "rtcal results.json"
     schema["description"] = ("The results of one rtcal run (schema_version 1.x): its metadata, every estimate with "

@@ -14,7 +14,7 @@ hardware, ``estimates.closure`` without a closure, …) is left out of the file,
 
 from __future__ import annotations
 
-from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar, Union
+from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
@@ -648,7 +648,8 @@ class RunInfo(ResultsModel):
         "1.0", description="version of this schema: a minor step adds optional keys, a major one changes keys "
                                     "(absent in files of rtcal before 0.1.0's results model: read as 1.0)")
     rtcal_version: Name = Field(description="the rtcal that wrote the file")
-    method: Literal["laser_tracer_multistation", "encoder_abbe_error"] = Field(description="the calibration method")
+    method: Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,99}$")] = Field(
+        description="the calibration method (each method's results narrow it to its name)")
     procedure: ProcedureRef = Field(description="the procedure followed")
     metadata: RunMetadata = Field(description="the report's header: customer, machine, axis, instruments, …")
     seed: Annotated[int, Field(ge=0, le=2**63 - 1)] | None = Field(
@@ -845,13 +846,8 @@ class AbbeResults(AbbeAnalysis, RunResults):
     method: Literal["encoder_abbe_error"] = Field(description="the calibration method")
 
 
-Results = Annotated[Union[MultistationResults, AbbeResults], Field(discriminator="method")]
-"""results.json: one of the methods' results, told apart by ``method``."""
-
-_RESULTS_OF: dict[type[Analysis], type[RunResults]] = {MultistationAnalysis: MultistationResults, AbbeAnalysis: AbbeResults}
-
-
-def assemble(info: RunInfo, analysis: Analysis, log: RunLog) -> RunResults:
-    """The run's results from its three parts (validated as the file will be read)."""
+def assemble(info: RunInfo, analysis: Analysis, log: RunLog, model: type[RunResults]) -> RunResults:
+    """The run's results from its three parts, as the method's results ``model`` (its ``results_model``:
+    rtcal.methods.METHODS), validated as the file will be read."""
     fields = {**dict(info), **dict(analysis), **dict(log)}
-    return _RESULTS_OF[type(analysis)].model_validate(fields)
+    return model.model_validate(fields)

@@ -6,7 +6,7 @@ evidence that nobody else moved the machine."""
 from __future__ import annotations
 
 from drivers.factory import resolve
-from rtcal.procedure.models import LaserTracerMultistation, Procedure
+from rtcal.procedure.models import Procedure
 from rtcal.results.model import Control
 
 MOVING = {"stage": "stage", "cmm": "cmm"}  # the instruments another client could move, and their kinds
@@ -34,7 +34,11 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
                                 "another client could reach it; "
                                 "the checks of every motion and reading would have seen it move")
                 exclusive = None
-    if simulated:
+    from rtcal.methods import METHODS
+
+    if not METHODS[proc.method].operator_steps:
+        access["operator"] = "none: the method's plan has no operator step"
+    elif simulated:
         access["operator"] = "in process: the simulated bench re-seats its own polygon or tracer"
     elif operator_address:
         access["operator"] = "token: the simulated operator of `rtcal sim serve` obeys only requests carrying its printed token"
@@ -44,19 +48,16 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
 
 
 def checks_text(proc: Procedure) -> list[str]:
-    """What the sequencer checked at every motion and reading, with the procedure's tolerances."""
+    """What the sequencer checked at every motion and reading, with the procedure's tolerances: the
+    stage's (every method's), then the method's own instruments' (its ``checks_text``)."""
     v = proc.verification
     stage = (f"{v.stage_tolerance_deg * 3600:g}″ (the procedure's stage tolerance)" if v.stage_tolerance_deg
              else "two steps of the drive (the default stage tolerance)")
     out = [f"stage: the drive's feedback position read after settling and again after the readings: within {stage} "
            "of the command, and unmoved while reading"]
-    if isinstance(proc, LaserTracerMultistation):
-        out += [f"CMM: its reported position within {v.cmm_tolerance_mm:g} mm of the commanded point before the length "
-                "is read, and unmoved after it",
-                f"laser tracer: each length within {v.tracer_tolerance_mm:g} mm of what the nominal geometry expects"]
-    else:
-        out += [f"encoder: its change since the run's first visit within {v.encoder_tolerance_arcsec:g}″ of the commanded change",
-                f"autocollimator: the face the commanded angle puts in view read within ±{v.autocollimator_tolerance_arcsec:g}″"]
+    from rtcal.methods import METHODS
+
+    out += METHODS[proc.method].checks_text(proc)  # each method states its own instruments' checks
     out.append("a reading the checks contradict is kept, marked rejected and never used; a table or probe that moves "
                "while nothing is commanded stops the run without a certificate")
     return out

@@ -27,7 +27,7 @@ from rtcal.deliverables.evaluation import evaluate
 from rtcal.deliverables.method_outputs import outputs_for
 from rtcal.methods import METHODS
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
-from rtcal.procedure.models import PROCEDURE_MODELS, EncoderAbbeError, Procedure, plan_outside_limits
+from rtcal.procedure.models import Procedure, plan_outside_limits
 from rtcal.deliverables.report import write_html, write_markdown, write_pdf
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
 from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
@@ -127,7 +127,7 @@ NON_INSTRUMENT_ADDRESSES = ("operator",)  # what `rtcal sim serve` prints beside
 def known_address_names() -> list[str]:
     """Every name an ``--instruments`` object may hold: any method's instruments (`rtcal sim serve`
     serves them all, a procedure uses some) and the simulated operator."""
-    names = {f for model in PROCEDURE_MODELS.values() for f in model.model_fields["instruments"].annotation.model_fields}
+    names = {f for model in METHODS.procedure_models().values() for f in model.model_fields["instruments"].annotation.model_fields}
     return sorted(names) + list(NON_INSTRUMENT_ADDRESSES)
 
 
@@ -162,15 +162,15 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
 
 def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenario) -> None:
     """Refuse, before anything moves, a plan the simulated bench cannot do: stage limits, CMM
-    volume, a polygon of another face count. `rtcal validate` runs the same check."""
+    volume, and what the method itself refuses (a polygon of another face count). `rtcal validate` runs
+    the same check."""
     problem = plan_outside_limits(proc, scenario.stage.soft_limits_deg, scenario.cmm.volume_min_mm, scenario.cmm.volume_max_mm)
     if problem:
         field, _, message = problem.partition(": ")
         raise FileProblems([problem_at(procedure_path, (field,), f"{message} (the simulated bench's limits)")])
-    if isinstance(proc, EncoderAbbeError) and proc.polygon.faces != scenario.polygon.faces:
-        raise FileProblems([problem_at(procedure_path, ("polygon", "faces"),
-                                       f"the procedure's polygon has {proc.polygon.faces} faces, the bench's "
-                                       f"{scenario.polygon.faces}")])
+    refused = METHODS[proc.method].scenario_problem(proc, scenario)
+    if refused is not None:
+        raise FileProblems([problem_at(procedure_path, refused[0], refused[1])])
 
 
 def _operator(bench: Bench | None, addresses: dict[str, str] | None):
@@ -273,8 +273,8 @@ def resume_run(
             raise RunDirError(f"cannot resume: {exc}") from None
         meta = store.meta()
         where = f"{run_dir / RunStore.FILENAME}"
-        model = PROCEDURE_MODELS[_stored(meta, "method", lambda v: v if v in PROCEDURE_MODELS else None, run_dir,
-                                         f"one of {', '.join(PROCEDURE_MODELS)}")]
+        model = METHODS[_stored(meta, "method", lambda v: v if v in METHODS else None, run_dir,
+                                f"one of {', '.join(METHODS)}")].procedure_model
         proc = validate_text(_stored(meta, "procedure_yaml", str, run_dir, "the procedure's text"), model,
                              f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
         instruments = _stored(meta, "instruments", type(proc.instruments).model_validate_json, run_dir,
@@ -487,7 +487,7 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
                      conformity=conformity_of(proc, analysis, evaluation),
                      control=control_record(proc, simulated, meta.get("operator_address", ""), len(store.rejected_attempts())),
                      digests=digests_of(store))
-        results = assemble(info, analysis, log)
+        results = assemble(info, analysis, log, method.results_model)
     except ValidationError as exc:  # a value beyond what results.json admits: the readings stay, the file is not written
         store.close()
         first = exc.errors()[0]

@@ -91,7 +91,6 @@ def compare(stored: Any, recomputed: Any, path: str, out: Verification) -> None:
 def recompute(run_dir: Path) -> tuple[RunResults, dict[str, Any], int]:
     """results.json as read, the parts of it the store determines recomputed, and the readings used."""
     from rtcal.methods import METHODS
-    from rtcal.procedure.models import PROCEDURE_MODELS
     from rtcal.procedure.yamlfile import validate_text
     from rtcal.results.model import Event
     from rtcal.run.rundir import RunDirError
@@ -106,9 +105,9 @@ def recompute(run_dir: Path) -> tuple[RunResults, dict[str, Any], int]:
         meta = store.meta()
         where = f"{path} (stored procedure)"
         method = meta.get("method", "")
-        if method not in PROCEDURE_MODELS:
+        if method not in METHODS:
             raise RunDirError(f"{path}: its `method` is {method[:40]!r}, not one rtcal knows: the store was edited")
-        proc: Any = validate_text(meta.get("procedure_yaml", ""), PROCEDURE_MODELS[method], where,
+        proc: Any = validate_text(meta.get("procedure_yaml", ""), METHODS[method].procedure_model, where,
                              context={"large": bool(meta.get("large"))})
         try:
             proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta.get("instruments", ""))})

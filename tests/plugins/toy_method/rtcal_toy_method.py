@@ -1,0 +1,423 @@
+"""A third calibration method as an installed plugin (entry point ``rtcal.methods``): the rotary
+table's positioning deviation read from its own encoder against the command.
+
+At each target of an ISO 230-2 style cycle (runs × directions, each target approached past an
+overrun from its own side) the stage is moved, settled, its feedback checked, and the encoder read
+``samples_per_reading`` times; the deviation is encoder − command, relative to the first target of
+the first direction (an incremental encoder's zero is arbitrary). No reference standard is used:
+what the encoder itself misreads (its Abbe error, graduation, eccentricity) is in the result, and
+the certificate says so. Everything here is rtcal's public seams: the procedure model bases, the
+engine's steps, the sequencer's checks, the estimate block and the output protocol.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator, Literal
+
+import numpy as np
+from pydantic import Field, ValidationInfo, model_validator
+
+from drivers import factory
+from drivers.interfaces import Encoder, RotaryStage
+from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.deliverables.figures import legend_below, plt
+from rtcal.engine.plan import Attempt, Entry
+from rtcal.engine.steps import Move, Read, Recover, Settle, Step, Validate
+from rtcal.methods.estimates import choose_recommended, deviation_block, run_estimators
+from rtcal.methods.protocol import address_of
+from rtcal.procedure.models import (FaultPolicy, InstrumentChoice, InstrumentsBase, ProcedureBase, StageChoice, StrictModel,
+                                    VerificationBase, plan_outside_limits, plan_size_problem)
+from rtcal.results import model as rm
+from rtcal.run.store import MARKERS, SKIPPED, RunStore
+from rtcal.sequencer.checks import EncoderCheck, MotionChecks
+from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
+from simulators.bench import Bench
+from simulators.instruments import SimEncoder, SimStage
+from simulators.scenario import Scenario
+from simulators.truth import abbe_truth
+
+NAME = "encoder_vs_command"
+
+
+# -- the procedure ------------------------------------------------------------------------------------
+class Instruments(InstrumentsBase):
+    stage: StageChoice = Field(StageChoice(), description="the rotary table's drive")
+    encoder: InstrumentChoice = Field(InstrumentChoice(), description="the counter of the table's own encoder")
+
+
+class OnFault(StrictModel):
+    stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
+    encoder: FaultPolicy = Field(FaultPolicy(), description="when the encoder counter fails")
+
+
+class Verification(VerificationBase):
+    encoder_tolerance_arcsec: float = Field(600.0, gt=0.0, le=648_000.0, description=(
+        "how far the encoder's change since the start's first reading may be from the commanded change, arcsec"))
+
+
+class Steps(StrictModel):
+    targets_deg: list[float] = Field([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0], min_length=2, max_length=360,
+                                     description="the targets, deg, in increasing order")
+    directions: list[Literal["positive", "negative"]] = Field(["positive", "negative"], min_length=1, max_length=2,
+                                                              description="approach directions")
+    runs: int = Field(2, ge=1, le=100, description="runs per direction (ISO 230-2: 5)")
+    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0, description="overrun past each target, deg")
+
+    @model_validator(mode="after")
+    def _increasing(self) -> "Steps":
+        if any(b <= a for a, b in zip(self.targets_deg, self.targets_deg[1:])):
+            raise ValueError("targets_deg: give the targets in increasing order, each once")
+        return self
+
+
+class Uncertainty(StrictModel):
+    encoder_noise_arcsec: float = Field(0.3, ge=0.0, le=3600.0, description=(
+        "1σ of one encoder reading, arcsec (Type B; with two runs or more the runs' scatter is used instead)"))
+    encoder_calibration_u_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description=(
+        "standard uncertainty of the encoder's indication from its calibration, arcsec (0: not stated)"))
+
+
+class EncoderVsCommand(ProcedureBase):
+    """The table's positioning deviation as its own encoder reads it against the command."""
+
+    method: Literal["encoder_vs_command"] = Field(description="the table's encoder against the command (plugin)")
+    instruments: Instruments = Field(Instruments(), description="backend of each instrument")
+    steps: Steps = Field(Steps(), description="targets, directions, runs")
+    samples_per_reading: int = Field(1, ge=1, le=1000, description="encoder samples averaged per visit")
+    settle_time_s: float = Field(1.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
+    on_fault: OnFault = Field(OnFault(), description="what to do when an instrument fails")
+    verification: Verification = Field(Verification(), description="what every motion and reading is checked against")
+    uncertainty: Uncertainty = Field(Uncertainty(), description="inputs of the uncertainty budget")
+
+    def directions(self) -> list[int]:
+        return [1 if d == "positive" else -1 for d in self.steps.directions]
+
+    def approaches(self) -> tuple[set[int], int]:
+        return set(self.directions()), self.steps.runs
+
+    def plan_size(self, max_cells: int, hint: str) -> tuple[int, str, str, str | None]:
+        visits = len(self.steps.targets_deg) * len(self.directions()) * self.steps.runs
+        return visits * self.samples_per_reading, "steps", f"{visits} stage visits × {self.samples_per_reading} samples", None
+
+    def planned_stage_deg(self) -> tuple[str, list[float]]:
+        base = list(self.steps.targets_deg)
+        return "steps", base + [a - d * self.steps.overshoot_deg for a in base for d in self.directions()]
+
+    @model_validator(mode="after")
+    def _within_limits(self, info: ValidationInfo) -> "EncoderVsCommand":
+        problem = plan_size_problem(self, large=bool((info.context or {}).get("large"))) or plan_outside_limits(
+            self, self.instruments.stage.soft_limits_deg)
+        if problem:
+            raise ValueError(problem)
+        return self
+
+
+@dataclass(frozen=True)
+class Visit:
+    run: int
+    direction: int
+    step: int
+    angle_deg: float
+
+
+def planned_visits(proc: EncoderVsCommand) -> list[Visit]:
+    """ISO 230-2's linear cycle: each run ↑ through every target, then ↓."""
+    out = []
+    targets = proc.steps.targets_deg
+    for r in range(proc.steps.runs):
+        for d in proc.directions():
+            order = range(len(targets)) if d > 0 else range(len(targets) - 1, -1, -1)
+            out += [Visit(r, d, i, float(targets[i])) for i in order]
+    return out
+
+
+# -- instruments and plan ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class InstrumentSet:
+    stage: RotaryStage
+    encoder: Encoder
+
+    def devices(self) -> dict[str, Any]:
+        return {"stage": self.stage, "encoder": self.encoder}
+
+    def close(self) -> None:
+        self.stage.close()
+        self.encoder.close()
+
+
+class EncoderPlan:
+    """Move, settle, check the feedback, read the encoder, check it moved as commanded and the table stood still."""
+
+    method = NAME
+    retake_skipped = False
+
+    def __init__(self, proc: EncoderVsCommand, generation: int, stage_step_deg: float):
+        self.proc = proc
+        self.visits = planned_visits(proc)
+        self.policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
+        self.checks = MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
+        self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
+        self.entries = [
+            Entry(k, 0, {"station": v.step, "run": v.run, "direction": v.direction, "commanded_angle_deg": v.angle_deg,
+                         "plan_index": k, "segment": generation},
+                  {"target_deg": v.angle_deg, "run": v.run + 1, "direction": "↑" if v.direction > 0 else "↓"},
+                  f"visit at {v.angle_deg:g}°")
+            for k, v in enumerate(self.visits)]
+
+    def prologue(self) -> Iterator[Step]:
+        overshoot = self.proc.steps.overshoot_deg
+        yield Validate("stage", tuple(x for v in self.visits for x in (v.angle_deg, v.angle_deg - v.direction * overshoot)))
+
+    def enter_group(self, entry: Entry, first: bool) -> Iterator[Step]:
+        return iter(())  # no operator's set-up: nothing is re-seated
+
+    def positions_unknown(self) -> None:
+        """Nothing to forget: every visit approaches its target."""
+
+    def leave_group(self, group: int, segment: int | None) -> None:
+        return None
+
+    def attempt(self, entry: Entry) -> Attempt:
+        proc, v = self.proc, self.visits[entry.index]
+        angle = v.angle_deg
+        to_target = Move("stage", angle, v.direction, proc.steps.overshoot_deg, what=f"move to {angle:g}°")
+        yield to_target
+        yield Settle(proc.settle_time_s)
+        feedback = yield Read("stage", (("feedback_deg", "deg"),), lambda stage: self.checks.stage_at(stage, angle), angle,
+                              f"position at {angle:g}°", redo=(Recover("stage"), to_target, Settle(proc.settle_time_s)))
+        for s in range(proc.samples_per_reading):
+            value = yield Read("encoder", (("angle_deg", "deg"),), lambda encoder: encoder.read_angle_deg(), angle,
+                               f"reading at {angle:g}°", sample=s)
+            self.encoder_moves.check(float(value), angle)
+        yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: self.checks.stage_still(stage, feedback), angle,
+                   f"position at {angle:g}°")
+
+
+# -- results -----------------------------------------------------------------------------------------
+class Estimates(rm.NamedSet[rm.Estimate]):
+    """``estimates`` of the encoder-against-command method."""
+
+    encoder: rm.TargetedEstimate | None = Field(None, description="encoder − command per target and direction")
+
+
+class EncoderAnalysis(rm.Analysis):
+    # a method's own estimator names: narrower than (and apart from) the built-in methods'
+    recommended: Literal["encoder"] | None = Field(description="the estimate to quote")  # type: ignore[assignment]
+    solver_status: dict[Literal["encoder"], rm.SolverStatus] = Field(  # type: ignore[assignment]
+        description="every estimator, including one that failed")
+    estimates: Estimates = Field(description="every estimate that could run")
+
+
+class EncoderResults(EncoderAnalysis, rm.RunResults):
+    """results.json of the encoder-against-command method (a plugin's)."""
+
+    method: Literal["encoder_vs_command"] = Field(description="the calibration method")
+
+
+def encoder_means(store: RunStore, proc: EncoderVsCommand) -> tuple[np.ndarray, np.ndarray]:
+    """Per planned visit: mean of encoder − command (arcsec, wrapped to ±180°) and its sample count;
+    readings of a rejected or incomplete attempt are used nowhere."""
+    unfinished = store.rejected_attempts() | {(r.plan_index, r.attempt) for r in store.readings(quantity=SKIPPED)}
+    visits = planned_visits(proc)
+    total, count = np.zeros(len(visits)), np.zeros(len(visits))
+    for r in store.readings(instrument="encoder", quantity="angle_deg"):
+        if r.quantity in MARKERS or (r.plan_index, r.attempt) in unfinished or r.plan_index is None:
+            continue
+        off = (r.value - visits[r.plan_index].angle_deg + 180.0) % 360.0 - 180.0
+        total[r.plan_index] += off * 3600.0
+        count[r.plan_index] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan), count
+
+
+def visit_sigma(per_key: np.ndarray, proc: EncoderVsCommand, samples: int,
+                estimate_noise: bool) -> tuple[float, str, Literal["A", "B"], bool, str]:
+    """1σ of one visit's mean reading: Type A from the runs' pooled scatter (two runs or more), else the
+    procedure's stated noise; with the budget's source name, type, input σ, whether estimated, note."""
+    if estimate_noise and proc.steps.runs >= 2:
+        sigma = float(np.sqrt(np.mean(np.var(per_key, axis=1, ddof=1))))
+        return sigma, "encoder repeatability", "A", True, "pooled 1σ of one visit over the runs"
+    stated = proc.uncertainty.encoder_noise_arcsec
+    return (stated / np.sqrt(samples), "encoder reading noise", "B", False,
+            f"the procedure's stated 1σ of one reading ({stated:g}″), {samples} samples averaged")
+
+
+def analyse(proc: EncoderVsCommand, store: RunStore, bench: Bench | None, estimate_noise: bool) -> EncoderAnalysis:
+    """Per target and direction the mean over the runs of encoder − command, relative to the first target of
+    the first direction, with its budget; the rows of every visit as the positioning-deviation table."""
+    visits = planned_visits(proc)
+    means, count = encoder_means(store, proc)
+    keys = [(t, d) for d in proc.directions() for t in proc.steps.targets_deg]  # first direction first
+    runs = proc.steps.runs
+    index = {(v.angle_deg, v.direction, v.run): i for i, v in enumerate(visits)}
+    per_key = np.array([[means[index[(t, d, r)]] for r in range(runs)] for t, d in keys])
+    u_cal = proc.uncertainty.encoder_calibration_u_arcsec
+    sigma, source, kind, estimated, note = visit_sigma(per_key, proc, max(int(count.min()), 1), estimate_noise)
+    table = None
+
+    def estimate() -> rm.Estimate:
+        if np.isnan(per_key).any():
+            raise ValueError(f"{int(np.isnan(per_key).sum())} visits have no encoder reading")
+        n = len(keys)
+        D = np.eye(n) - np.outer(np.ones(n), np.eye(n)[0])  # relative to the first target
+        components = [BudgetComponent(source, kind, sigma, "″", D @ (np.eye(n) * sigma**2 / runs) @ D.T, estimated, note)]
+        omitted = ["the encoder's own errors (Abbe shift, graduation, eccentricity): no reference standard separates them"]
+        if u_cal > 0:
+            components.append(BudgetComponent("encoder calibration", "B", u_cal, "″", D @ (np.eye(n) * u_cal**2) @ D.T,
+                                              False, "the encoder's indication, from its calibration"))
+        else:
+            omitted.append("the encoder's calibration (not stated)")
+        cumulative = per_key.mean(axis=1) - per_key[0].mean()
+        block = deviation_block(cumulative, DeviationBudget(components), not_included=omitted)
+        return rm.TargetedEstimate(**block.model_dump(), converged=True, message="mean over the runs per target",
+                                   target_deg=[float(t) for t, _ in keys], target_direction=[d for _, d in keys])
+
+    found, status = run_estimators({"encoder": estimate})
+    if "encoder" in found:
+        ref = per_key[0].mean()
+        u_row = np.sqrt(sigma**2 + sigma**2 / runs + 2 * u_cal**2)  # one visit against the reference's mean
+        table = PositioningDeviations(
+            np.array([v.angle_deg for v in visits]), np.array([v.direction for v in visits]),
+            np.array([v.run + 1 for v in visits]), np.round(means - ref, 4), np.full(len(visits), round(float(u_row), 4)),
+            estimator="encoder", notes=("encoder − command, relative to the first target of the first direction "
+                                        "(no reference standard: the encoder's own errors are in the deviations)",)).to_model()
+    return EncoderAnalysis(
+        nominal_angles_deg=[float(t) for t in proc.steps.targets_deg],
+        raw_readings=len(store.done_plan_indices()),
+        recommended=choose_recommended(found, status),
+        solver_status=status,
+        estimates=Estimates(**found),
+        positioning_deviations=table,
+        truth=None if bench is None or "encoder" not in found else rm.Truth(cumulative_deviation_arcsec=true_reading(bench, keys)),
+    )
+
+
+def true_reading(bench: Bench, keys: list[tuple[float, int]]) -> list[float]:
+    """What a noise-free encoder reads against the command at each target, relative to the first: the
+    table's true εz plus the encoder's own systematic error (the simulator's truth)."""
+    t = abbe_truth(bench, np.array([k[0] for k in keys]), np.array([k[1] for k in keys]))
+    seen = np.array(t["positioning_error_arcsec"]) + np.array(t["encoder_error_arcsec"])
+    return [round(float(x), 6) for x in seen - seen[0]]
+
+
+# -- outputs ------------------------------------------------------------------------------------------
+def _values(values: list[float | None]) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], float)
+
+
+class EncoderOutputs:
+    """A CSV and one figure of the deviation per target, the report's section and the console's lines."""
+
+    FIGURE = "encoder_deviation.png"
+
+    def __init__(self, results: EncoderResults):
+        self.results = results
+        e = results.estimates.encoder
+        if e is None:
+            raise ValueError("estimates.encoder: missing")
+        self.e: rm.TargetedEstimate = e
+
+    def write_files(self, run_dir: Path) -> list[Path]:
+        e, csv_path = self.e, run_dir / "encoder_deviations.csv"
+        with csv_path.open("w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(["target_deg", "direction", "deviation_arcsec", "u_arcsec", "U_arcsec"])
+            for row in zip(e.target_deg, e.target_direction, e.cumulative_deviation_arcsec, e.cumulative_uncertainty_arcsec,
+                           e.cumulative_expanded_uncertainty_arcsec):
+                w.writerow(row)
+        fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
+        for d, label in ((1, "↑"), (-1, "↓")):
+            sel = [i for i, x in enumerate(e.target_direction) if x == d]
+            if sel:
+                ax.errorbar(np.array([e.target_deg[i] for i in sel]), _values([e.cumulative_deviation_arcsec[i] for i in sel]),
+                            _values([e.cumulative_expanded_uncertainty_arcsec[i] for i in sel]), marker="o", capsize=3,
+                            label=f"encoder − command {label} (U, k = 2)")
+        ax.set_xlabel("table angle / °")
+        ax.set_ylabel("deviation / ″")
+        ax.grid(alpha=0.3)
+        legend_below(fig)
+        fig.savefig(run_dir / self.FIGURE, dpi=110)
+        plt.close(fig)
+        return [csv_path, run_dir / self.FIGURE]
+
+    def report_body(self) -> list[str]:
+        e = self.e
+        lines = ["## Encoder against the command", "", "| target / ° | dir | deviation / ″ | U (k = 2) / ″ |", "|---|---|---|---|"]
+        for t, d, x, U in zip(e.target_deg, e.target_direction, e.cumulative_deviation_arcsec,
+                              e.cumulative_expanded_uncertainty_arcsec):
+            lines.append(f"| {t:g} | {'↑' if d > 0 else '↓'} | {x if x is not None else '–'} | {U if U is not None else '–'} |")
+        return lines + [""]
+
+    def certificate_figures(self) -> list[tuple[str, str]]:
+        return [(self.FIGURE, "the table's deviation as its encoder reads it against the command, with U (k = 2)")]
+
+    def method_text(self) -> list[str]:
+        return ["The table was moved to each target from both sides and its own encoder read there; the deviation is the "
+                "encoder's reading minus the commanded angle, relative to the first target. No reference standard was "
+                "used: the encoder's own errors are part of the result and not in its uncertainty."]
+
+    def method_name(self) -> str:
+        return "positioning deviation read from the table's own encoder against the command"
+
+    def summary(self) -> list[str]:
+        values = [abs(x) for x in self.e.cumulative_deviation_arcsec if x is not None]
+        return [f"encoder − command: largest |deviation| {max(values, default=0.0):.2f}″ over "
+                f"{len(self.e.target_deg)} targets (estimate `encoder`)"]
+
+    def certificate_tables(self) -> list[dict[str, Any]]:
+        return []
+
+
+# -- the method --------------------------------------------------------------------------------------
+class EncoderVsCommandMethod:
+    """:class:`rtcal.methods.protocol.Method` of the encoder-against-command method."""
+
+    name = NAME
+    procedure_model = EncoderVsCommand
+    results_model = EncoderResults
+    operator_steps = False
+
+    def plan_length(self, proc: EncoderVsCommand) -> int:
+        return len(planned_visits(proc))
+
+    def sim_instruments(self, proc: EncoderVsCommand, bench: Bench) -> InstrumentSet:
+        return InstrumentSet(SimStage(bench), SimEncoder(bench))
+
+    def transport_instruments(self, proc: EncoderVsCommand) -> InstrumentSet:
+        i = proc.instruments
+        return InstrumentSet(factory.open_stage(address_of(i.stage), i.stage.soft_limits_deg, i.stage.timeout_s),
+                             factory.open_encoder(address_of(i.encoder), i.encoder.timeout_s))
+
+    def prepare(self, proc: EncoderVsCommand, operator: Any) -> dict[str, str]:
+        return {}
+
+    def plan(self, proc: EncoderVsCommand, done: set[int], generation: int = 0, stage_step_deg: float = 0.0) -> EncoderPlan:
+        return EncoderPlan(proc, generation, stage_step_deg)
+
+    def analyse(self, proc: EncoderVsCommand, store: RunStore, bench: Bench | None,
+                estimate_noise: bool = True) -> EncoderAnalysis:
+        return analyse(proc, store, bench, estimate_noise)
+
+    def draw_systematics(self, proc: EncoderVsCommand, scenario: Scenario, rng: np.random.Generator) -> Scenario:
+        return scenario  # no stated systematic error to draw
+
+    def scenario_problem(self, proc: EncoderVsCommand, scenario: Scenario) -> None:
+        return None
+
+    def checks_text(self, proc: EncoderVsCommand) -> list[str]:
+        return [f"encoder: its change since the run's first visit within {proc.verification.encoder_tolerance_arcsec:g}″ "
+                "of the commanded change"]
+
+    def conditions(self, results: rm.RunResults) -> None:
+        return None
+
+    def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
+        return {"encoder": "measuring instrument: the table's own encoder, read against the command (not a reference standard)"}
+
+    def outputs(self, results: rm.RunResults) -> EncoderOutputs:
+        if not isinstance(results, EncoderResults):
+            raise TypeError(f"encoder-against-command outputs need its results, not {type(results).__name__}")
+        return EncoderOutputs(results)
