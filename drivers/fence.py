@@ -10,7 +10,7 @@ shown characters; a plugin whose constructor or method raises anything but the t
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Collection
 
 import numpy as np
 
@@ -95,13 +95,14 @@ class _Fenced:
     def describe(self) -> dict[str, FieldDescription]:
         return describe_kind(self._kind)  # a driver that describes itself otherwise is refused when opened
 
-    def read_values(self) -> dict[str, Value]:
-        """A driver's own ``read_values`` (a plugin's) is checked against the kind's description; else the
-        kind's adapter over the fenced read methods."""
+    def read_values(self, fields: Collection[str] | None = None) -> dict[str, Value]:
+        """A driver's own ``read_values`` (a plugin's) is checked against the kind's whole description; else
+        the kind's adapter over the fenced read methods."""
         try:
             if type(self._inner).read_values is not Instrument.read_values:
-                return check_values(self._kind, self._call("read_values"))
-            return super().read_values()  # type: ignore[misc]  # the kind's adapter (Instrument.read_values)
+                values = check_values(self._kind, self._call("read_values"))
+                return values if fields is None else {n: v for n, v in values.items() if n in fields}
+            return super().read_values(fields)  # type: ignore[misc]  # the kind's adapter (Instrument.read_values)
         except ReadingOutsideDescription as exc:
             raise InstrumentFault(self.name, f"reading refused: {shown_identity(str(exc))}{self._by()}") from None
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Mapping, NamedTuple
+from typing import Collection, Mapping, NamedTuple
 
 import numpy as np
 
@@ -27,9 +27,10 @@ class FieldDescription:
     the store, the dataset and ``rtcal probe`` take its name and unit from here and never spell them.
 
     ``recorded_as`` names a purpose's stored quantity where it is not ``{purpose}_{name}`` (stores
-    written before the descriptions keep their names). ``probe_key``/``probe_scale``: how ``rtcal probe``
-    shows the value (its documented keys). ``may_be_nan``: NaN means "not measured" (a sensor without a
-    material probe, an axis the instrument reports invalid), never a fault."""
+    written before the descriptions keep their names). ``may_be_nan``: NaN means "not measured" (a sensor
+    without a material probe, an axis the instrument reports invalid), never a fault. How ``rtcal probe``
+    shows it (its documented keys): ``probe_key`` ("": its name; None: not shown), divided by
+    ``probe_divisor``, NaN as null, omitted or kept (``probe_nan``)."""
 
     name: str
     unit: str
@@ -37,8 +38,9 @@ class FieldDescription:
     dtype: str = "number"  # "number" (a float) or "integer"
     may_be_nan: bool = False
     recorded_as: Mapping[str, str] = field(default_factory=dict)
-    probe_key: str = ""
-    probe_scale: float = 1.0
+    probe_key: str | None = ""
+    probe_divisor: float = 1.0
+    probe_nan: str = "keep"  # "null", "omit" or "keep"
 
     def quantity(self, purpose: str = "") -> str:
         """The quantity a reading of this field taken for ``purpose`` is stored under."""
@@ -65,24 +67,28 @@ def _fields(*fields: FieldDescription) -> dict[str, FieldDescription]:
 
 # one table per instrument kind: every value an instrument of the kind reads
 DESCRIPTIONS: dict[str, dict[str, FieldDescription]] = {
-    "stage": _fields(FieldDescription("feedback_deg", "deg", "the table angle its position feedback (encoder) reports",
-                                      recorded_as={"after": "feedback_after_deg"})),
+    "stage": _fields(FieldDescription("position_deg", "deg", "the angle the drive believes it is at (commanded or feedback)"),
+                     FieldDescription("feedback_deg", "deg", "the table angle its position feedback (encoder) reports",
+                                      recorded_as={"after": "feedback_after_deg"}, probe_key=None)),
     "cmm": _fields(*(FieldDescription(f"position_{a}_mm", "mm", f"the probe's {a} coordinate its scales report, CMM frame",
                                       probe_key=f"{a}_mm") for a in "xyz")),
     "laser_tracer": _fields(FieldDescription("length_mm", "mm", "the relative interferometric length since the last reference"),
-                            FieldDescription("segment", "1", "the tracking segment the length belongs to", "integer")),
+                            FieldDescription("segment", "1", "the tracking segment the length belongs to", "integer",
+                                             probe_key=None)),
     "encoder": _fields(FieldDescription("angle_deg", "deg", "the angle the encoder under test counts")),
     "autocollimator": _fields(
-        FieldDescription("x_arcsec", "arcsec", "the deflection about the table axis (the face's angle)", may_be_nan=True),
-        FieldDescription("y_arcsec", "arcsec", "the deflection about the horizontal axis (the face's tilt)", may_be_nan=True)),
+        FieldDescription("x_arcsec", "arcsec", "the deflection about the table axis (the face's angle)", may_be_nan=True,
+                         probe_nan="null"),
+        FieldDescription("y_arcsec", "arcsec", "the deflection about the horizontal axis (the face's tilt)", may_be_nan=True,
+                         probe_nan="null")),
     "dial_indicator": _fields(FieldDescription("y_um", "um", "the indicator's displacement (the table's radial motion)",
-                                               probe_key="displacement_mm", probe_scale=1e-3)),
+                                               probe_key="displacement_mm", probe_divisor=1000.0)),
     # NaN: not measured by this sensor (EnvironmentReading); a plan stores only what was measured
     "environment": _fields(FieldDescription("air_temperature_c", "degC", "the air temperature on the beam path", may_be_nan=True),
                            FieldDescription("air_pressure_pa", "Pa", "the air pressure", may_be_nan=True),
                            FieldDescription("humidity_pct", "%", "the air's relative humidity", may_be_nan=True),
                            FieldDescription("material_temperature_c", "degC", "the table's material temperature",
-                                            may_be_nan=True)),
+                                            may_be_nan=True, probe_nan="omit")),
 }
 
 
@@ -101,10 +107,15 @@ class ReadingOutsideDescription(ValueError):
     """A reading that is not what its instrument's description says (a name, a unit, NaN)."""
 
 
-def check_values(kind: str, values: Mapping[str, object]) -> dict[str, Value]:
-    """``values`` as the kind's description says they must be: every described name, no other,
-    each a :class:`Value` in the described unit, finite unless the field may be NaN."""
+def check_values(kind: str, values: Mapping[str, object], fields: Collection[str] | None = None) -> dict[str, Value]:
+    """``values`` as the kind's description says they must be: every described name (of ``fields``, if
+    given), no other, each a :class:`Value` in the described unit, finite unless the field may be NaN."""
     table = DESCRIPTIONS[kind]
+    if fields is not None:
+        unknown = sorted(set(fields) - set(table))
+        if unknown:
+            raise ReadingOutsideDescription(f"{', '.join(unknown)}: not described for a {kind.replace('_', ' ')}")
+        table = {n: f for n, f in table.items() if n in fields}
     if not isinstance(values, Mapping):
         raise ReadingOutsideDescription(f"the reading {str(values)[:60]!r} is not named values")
     extra, missing = sorted(set(values) - set(table)), sorted(set(table) - set(values))
@@ -157,11 +168,15 @@ class Instrument(ABC):
         """Name → description of every value :meth:`read_values` gives (the kind's one table)."""
         return describe_kind(self.kind)
 
-    def read_values(self) -> dict[str, Value]:
-        """One reading as named values with units, checked against :meth:`describe`."""
-        return check_values(self.kind, self._raw_values())
+    def read_values(self, fields: Collection[str] | None = None) -> dict[str, Value]:
+        """One reading as named values with units (every described field, or those named), checked
+        against :meth:`describe`."""
+        wanted = frozenset(self.describe() if fields is None else fields)
+        values = self._raw_values(wanted)
+        return check_values(self.kind, {n: v for n, v in values.items() if n in wanted}, wanted)
 
-    def _raw_values(self) -> dict[str, Value]:
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        """The kind's adapter: its own read methods, called once each for what ``wanted`` needs."""
         raise NotImplementedError(f"{type(self).__name__} does not read")
 
 
@@ -203,8 +218,9 @@ class RotaryStage(Instrument):
     def recover(self) -> None:
         self.reset_alarm()
 
-    def _raw_values(self) -> dict[str, Value]:
-        return {"feedback_deg": Value(self.feedback_deg(), "deg")}
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        read = {"position_deg": self.position_deg, "feedback_deg": self.feedback_deg}
+        return {n: Value(f(), "deg") for n, f in read.items() if n in wanted}
 
 
 class Cmm(Instrument):
@@ -234,7 +250,7 @@ class Cmm(Instrument):
     @abstractmethod
     def stop(self) -> None: ...
 
-    def _raw_values(self) -> dict[str, Value]:
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         return {f"position_{a}_mm": Value(float(v), "mm") for a, v in zip("xyz", self.position_mm())}
 
 
@@ -259,7 +275,7 @@ class LaserTracer(Instrument):
     def read_length(self) -> LengthReading:
         """One relative length; raises TrackingLost if tracking was lost since the reference."""
 
-    def _raw_values(self) -> dict[str, Value]:
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         r = self.read_length()
         return {"length_mm": Value(r.length_mm, "mm"), "segment": Value(r.segment, "1")}
 
@@ -270,7 +286,7 @@ class Encoder(Instrument):
     @abstractmethod
     def read_angle_deg(self) -> float: ...
 
-    def _raw_values(self) -> dict[str, Value]:
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         return {"angle_deg": Value(self.read_angle_deg(), "deg")}
 
 
@@ -286,7 +302,7 @@ class Autocollimator(Instrument):
         other is good (what `rtcal probe` shows as null); ``read_arcsec`` is what a run uses."""
         return self.read_arcsec()
 
-    def _raw_values(self) -> dict[str, Value]:
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         x, y = self.read_axes_arcsec()
         return {"x_arcsec": Value(x, "arcsec"), "y_arcsec": Value(y, "arcsec")}
 
@@ -297,7 +313,7 @@ class DialIndicator(Instrument):
     @abstractmethod
     def read_um(self) -> float: ...
 
-    def _raw_values(self) -> dict[str, Value]:
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         return {"y_um": Value(self.read_um(), "um")}
 
 
@@ -319,6 +335,6 @@ class EnvironmentSensor(Instrument):
     @abstractmethod
     def read(self) -> EnvironmentReading: ...
 
-    def _raw_values(self) -> dict[str, Value]:
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         r = self.read()
         return {f.name: Value(float(getattr(r, f.name)), f.unit) for f in DESCRIPTIONS["environment"].values()}

@@ -82,9 +82,10 @@ def planned_visits(proc: EncoderAbbeError) -> list[Visit]:
 
 class AbbePlan:
     """Seed 001's order of work. Readings carry the run's ``generation`` (0, +1 per resume) as their
-    segment, for the record. A resumed run asks the operator to confirm the polygon's seating where
-    it goes on (it stays where it was unless someone moved it), and to seat it anew for a seating it
-    left earlier."""
+    segment, for the record (docs/store.md: the documented mapping; every method's start is also the
+    store's ``starts`` table, by attempt). A resumed run asks the operator to confirm the polygon's
+    seating where it goes on (it stays where it was unless someone moved it), and to seat it anew for a
+    seating it left earlier."""
 
     method = "encoder_abbe_error"
     retake_skipped = False  # a skipped visit is taken again by a resume, whole
