@@ -227,6 +227,26 @@ def descriptions_of(instrument: str, kind: str, fields: Iterable[Any]) -> list[S
             for f in fields for p in PURPOSES]
 
 
+def stored_descriptions(db: sqlite3.Connection) -> dict[tuple[str, str], StoredDescription]:
+    """(instrument, quantity) → what it is, as a store's ``descriptions`` table says (empty before it)."""
+    if db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'descriptions'").fetchone() is None:
+        return {}
+    rows = db.execute(f"SELECT {', '.join(DESCRIPTION_COLUMNS)} FROM descriptions")
+    return {(d.instrument, d.quantity): d for d in (StoredDescription(*row) for row in rows)}
+
+
+def described_in(db: sqlite3.Connection) -> dict[tuple[str, str], StoredDescription]:
+    """What every (instrument, quantity) of a store is: its descriptions, over — for an instrument a store
+    written before them does not describe — the kind tables (drivers/interfaces.py) of the instruments
+    a procedure names (the same names and units: the plans have always stored them so)."""
+    from drivers.factory import KIND_OF
+    from drivers.interfaces import describe_kind
+
+    found = {(d.instrument, d.quantity): d for name, kind in KIND_OF.items()
+             for d in descriptions_of(name, kind, describe_kind(kind).values())}
+    return {**found, **stored_descriptions(db)}
+
+
 class RunStore:
     """A run's database file. Use :meth:`create` for a new run and :meth:`open` to read one."""
 
@@ -416,21 +436,11 @@ class RunStore:
 
     def descriptions(self) -> dict[tuple[str, str], StoredDescription]:
         """(instrument, quantity) → what it is; empty for a store from before descriptions."""
-        if not self._has_table("descriptions"):
-            return {}
-        rows = self._db.execute(f"SELECT {', '.join(DESCRIPTION_COLUMNS)} FROM descriptions")
-        return {(d.instrument, d.quantity): d for d in (StoredDescription(*row) for row in rows)}
+        return stored_descriptions(self._db)
 
     def described(self) -> dict[tuple[str, str], StoredDescription]:
-        """What every (instrument, quantity) is: the store's descriptions, over — for an instrument a store
-        written before them does not describe — the kind tables (drivers/interfaces.py) of the instruments
-        a procedure names."""
-        from drivers.factory import KIND_OF
-        from drivers.interfaces import describe_kind
-
-        found = {(d.instrument, d.quantity): d for name, kind in KIND_OF.items()
-                 for d in descriptions_of(name, kind, describe_kind(kind).values())}
-        return {**found, **self.descriptions()}
+        """What every (instrument, quantity) is (:func:`described_in`)."""
+        return described_in(self._db)
 
     def add_event(self, t_s: float, kind: str, message: str, instrument: str | None = None) -> None:
         with self._transaction():
