@@ -104,7 +104,7 @@ def abbe_conditions(store: RunStore) -> dict[str, dict[str, float]] | None:
     described = store.described()
     for r in _one_attempt_per_visit(list(store.readings())):  # all of a visit's readings: its marks decide
         d = described.get((r.instrument, r.quantity))
-        if r.instrument == "environment" and d is not None and not d.purpose:
+        if d is not None and d.kind == "environment" and not d.purpose:
             per_visit.setdefault((r.plan_index, r.attempt), {}).setdefault(d.field, []).append(r.value)
     return summarise_conditions(per_visit.values())
 
