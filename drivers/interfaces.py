@@ -50,9 +50,6 @@ class FieldDescription:
             return self.name
         return self.recorded_as.get(purpose, f"{purpose}_{self.name}")
 
-    def as_dict(self) -> dict[str, object]:
-        return {"name": self.name, "unit": self.unit, "dtype": self.dtype, "what": self.what, "may_be_nan": self.may_be_nan}
-
 
 class Value(NamedTuple):
     """A named reading's value with its unit (what :meth:`Instrument.read_values` returns per field)."""
@@ -136,6 +133,8 @@ def check_values(kind: str, values: Mapping[str, object], fields: Collection[str
             raise ReadingOutsideDescription(f"{name}: {str(number)[:40]!r} is not a number")
         if not math.isfinite(float(number)) and not (f.may_be_nan and math.isnan(float(number))):
             raise ReadingOutsideDescription(f"{name} is {float(number)}: not a reading")
+        if f.dtype == "integer" and not float(number).is_integer():
+            raise ReadingOutsideDescription(f"{name} is {float(number)}: its description says a whole number")
         out[name] = Value(float(number), f.unit)
     return out
 

@@ -155,6 +155,7 @@ def _plugin(returned: object) -> LaserTracer:
     ({"length_um": Value(800.0, "um"), "segment": Value(3, "1")}, r"not described: length_um.*missing: length_mm"),
     ({"length_mm": Value(math.nan, "mm"), "segment": Value(3, "1")}, r"length_mm is nan: not a reading"),
     ({"length_mm": 812.0, "segment": Value(3, "1")}, r"length_mm: '812.0' is not a value with its unit"),
+    ({"length_mm": Value(812.0, "mm"), "segment": Value(3.5, "1")}, r"segment is 3.5: its description says a whole number"),
     ([812.0, 3], r"is not named values"),
 ])
 def test_a_plugin_reading_outside_its_description_is_refused_in_one_line(returned, message):
