@@ -5,6 +5,7 @@ the engine that refuses a plan's undescribed quantity, and the store that keeps 
 
 from __future__ import annotations
 
+import csv
 import math
 import shutil
 import sqlite3
@@ -311,4 +312,7 @@ def test_a_store_written_before_descriptions_still_exports_and_reads_the_same(ab
         new_store.close()
         old_store.close()
     assert main(["export", str(old), "--out", str(tmp_path / "csv")]) == 0
-    assert (tmp_path / "csv" / "readings.csv").is_file()
+    with (tmp_path / "csv" / "descriptions.csv").open() as fh:  # what each exported quantity is, from the kind tables
+        rows = {(r["instrument"], r["quantity"]): r for r in csv.DictReader(fh)}
+    assert rows[("encoder", "angle_deg")]["unit"] == "deg" and rows[("stage", "feedback_after_deg")]["purpose"] == "after"
+    assert ("encoder", "check_angle_deg") not in rows  # only what the store holds

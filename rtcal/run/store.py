@@ -512,11 +512,17 @@ class RunStore:
         return int(self._db.execute("SELECT COUNT(*) FROM readings WHERE quantity <> ?", (SKIPPED,)).fetchone()[0])
 
     def export_csv(self, directory: Path) -> tuple[int, int]:
-        """readings.csv (every column) and events.csv, streamed row by row; returns the row counts."""
+        """readings.csv (every column), events.csv and descriptions.csv (what each stored quantity is:
+        docs/store.md), streamed row by row; returns the readings' and events' row counts."""
         readings = self._db.execute(f"SELECT id, {', '.join(READING_COLUMNS)} FROM readings ORDER BY id")
         events = self._db.execute(f"SELECT id, {', '.join(EVENT_COLUMNS)} FROM events ORDER BY id")
-        return write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS, readings), \
+        counts = write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS, readings), \
             write_csv(directory / "events.csv", ("id",) + EVENT_COLUMNS, events)
+        stored = {(i, q) for i, q in self._db.execute("SELECT DISTINCT instrument, quantity FROM readings")}
+        described = [d for key, d in sorted(self.described().items()) if key in stored]
+        write_csv(directory / "descriptions.csv", DESCRIPTION_COLUMNS,
+                  (tuple(getattr(d, c) for c in DESCRIPTION_COLUMNS) for d in described))
+        return counts
 
     def close(self) -> None:
         self._db.close()
