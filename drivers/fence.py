@@ -10,13 +10,14 @@ shown characters; a plugin whose constructor or method raises anything but the t
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Collection
 
 import numpy as np
 
 from drivers.errors import InstrumentError, InstrumentFault
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading, EnvironmentSensor,
-                                Instrument, LaserTracer, LengthReading, RotaryStage)
+                                FieldDescription, Instrument, LaserTracer, LengthReading, ReadingOutsideDescription,
+                                RotaryStage, Value, check_values, describe_kind)
 
 MAX_IDENTITY_CHARS = 200
 # per kind: the unit its readings are in (what a driver class's ``reading_unit`` must say, if it says one)
@@ -90,6 +91,20 @@ class _Fenced:
 
     def recover(self) -> None:
         self._call("recover")
+
+    def describe(self) -> dict[str, FieldDescription]:
+        return describe_kind(self._kind)  # a driver that describes itself otherwise is refused when opened
+
+    def read_values(self, fields: Collection[str] | None = None) -> dict[str, Value]:
+        """A driver's own ``read_values`` (a plugin's) is checked against the kind's whole description; else
+        the kind's adapter over the fenced read methods."""
+        try:
+            if type(self._inner).read_values is not Instrument.read_values:
+                values = check_values(self._kind, self._call("read_values"))
+                return values if fields is None else {n: v for n, v in values.items() if n in fields}
+            return super().read_values(fields)  # type: ignore[misc]  # the kind's adapter (Instrument.read_values)
+        except ReadingOutsideDescription as exc:
+            raise InstrumentFault(self.name, f"reading refused: {shown_identity(str(exc))}{self._by()}") from None
 
 
 def what_plugin(model: str, plugin: str) -> str:
@@ -238,4 +253,28 @@ def fenced(kind: str, model: str, plugin: str, build: Callable[[], Instrument]) 
             pass
         raise InstrumentFault(kind, f"{what_plugin(model, plugin)} declares its readings in {shown_identity(str(unit))[:20]!r}; "
                                     f"a {kind.replace('_', ' ')} reads {UNITS[kind]}")
+    refused = _described_otherwise(kind, inner)
+    if refused:
+        try:
+            inner.close()
+        except Exception:  # noqa: BLE001, S110 — refused anyway
+            pass
+        raise InstrumentFault(kind, f"{what_plugin(model, plugin)} describes its readings otherwise than a "
+                                    f"{kind.replace('_', ' ')} reads: {shown_identity(refused)[:120]}")
     return FENCES[kind](inner, kind, model, plugin)
+
+
+def _described_otherwise(kind: str, inner: Instrument) -> str:
+    """What a driver's own ``describe()`` says that its kind's description does not ("" if nothing)."""
+    if type(inner).describe is Instrument.describe:
+        return ""
+    try:
+        own = inner.describe()
+        theirs = {str(k): (getattr(f, "name", None), getattr(f, "unit", None)) for k, f in dict(own).items()}
+    except Exception as exc:  # noqa: BLE001 — a plugin's describe that fails is a description refused
+        return f"describe raised {type(exc).__name__}"
+    ours = {k: (f.name, f.unit) for k, f in describe_kind(kind).items()}
+    if theirs == ours:
+        return ""
+    wrong = sorted(set(theirs.items()) ^ set(ours.items()), key=str)
+    return ", ".join(f"{k} {v[1]!r}" for k, v in wrong[:4])

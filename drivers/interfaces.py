@@ -6,17 +6,146 @@ one of these; the sequencer sees nothing else. Motions block until in position.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Collection, Mapping, NamedTuple
 
 import numpy as np
 
 from drivers.errors import OutOfLimits
 
+# what a reading is taken for, beside the reading itself (""): the same field read again to check a
+# position already read ("check"), after the other readings to see the machine stood still ("after"),
+# or back at a tracking segment's reference point ("return")
+PURPOSES = ("", "check", "after", "return")
+
+
+@dataclass(frozen=True)
+class FieldDescription:
+    """One value an instrument kind reads (as ophyd's ``describe``): described once per kind, so a plan,
+    the store, the dataset and ``rtcal probe`` take its name and unit from here and never spell them.
+
+    ``recorded_as`` names a purpose's stored quantity where it is not ``{purpose}_{name}`` (stores
+    written before the descriptions keep their names). ``may_be_nan``: NaN means "not measured" (a sensor
+    without a material probe, an axis the instrument reports invalid), never a fault. How ``rtcal probe``
+    shows it (its documented keys): ``probe_key`` ("": its name; None: not shown), divided by
+    ``probe_divisor``, NaN as null, omitted or kept (``probe_nan``)."""
+
+    name: str
+    unit: str
+    what: str
+    dtype: str = "number"  # "number" (a float) or "integer"
+    may_be_nan: bool = False
+    recorded_as: Mapping[str, str] = field(default_factory=dict)
+    probe_key: str | None = ""
+    probe_divisor: float = 1.0
+    probe_nan: str = "keep"  # "null", "omit" or "keep"
+
+    def quantity(self, purpose: str = "") -> str:
+        """The quantity a reading of this field taken for ``purpose`` is stored under."""
+        if purpose not in PURPOSES:
+            raise ValueError(f"unknown purpose {purpose!r} (known: {', '.join(p or '(none)' for p in PURPOSES)})")
+        if not purpose:
+            return self.name
+        return self.recorded_as.get(purpose, f"{purpose}_{self.name}")
+
+
+class Value(NamedTuple):
+    """A named reading's value with its unit (what :meth:`Instrument.read_values` returns per field)."""
+
+    value: float
+    unit: str
+
+
+def _fields(*fields: FieldDescription) -> dict[str, FieldDescription]:
+    return {f.name: f for f in fields}
+
+
+# one table per instrument kind: every value an instrument of the kind reads
+DESCRIPTIONS: dict[str, dict[str, FieldDescription]] = {
+    "stage": _fields(FieldDescription("position_deg", "deg", "the angle the drive believes it is at (commanded or feedback)"),
+                     FieldDescription("feedback_deg", "deg", "the table angle its position feedback (encoder) reports",
+                                      recorded_as={"after": "feedback_after_deg"}, probe_key=None)),
+    "cmm": _fields(*(FieldDescription(f"position_{a}_mm", "mm", f"the probe's {a} coordinate its scales report, CMM frame",
+                                      probe_key=f"{a}_mm") for a in "xyz")),
+    "laser_tracer": _fields(FieldDescription("length_mm", "mm", "the relative interferometric length since the last reference"),
+                            FieldDescription("segment", "1", "the tracking segment the length belongs to", "integer",
+                                             probe_key=None)),
+    "encoder": _fields(FieldDescription("angle_deg", "deg", "the angle the encoder under test counts")),
+    "autocollimator": _fields(
+        FieldDescription("x_arcsec", "arcsec", "the deflection about the table axis (the face's angle)", may_be_nan=True,
+                         probe_nan="null"),
+        FieldDescription("y_arcsec", "arcsec", "the deflection about the horizontal axis (the face's tilt)", may_be_nan=True,
+                         probe_nan="null")),
+    "dial_indicator": _fields(FieldDescription("y_um", "um", "the indicator's displacement (the table's radial motion)",
+                                               probe_key="displacement_mm", probe_divisor=1000.0)),
+    # NaN: not measured by this sensor (EnvironmentReading); a plan stores only what was measured
+    "environment": _fields(FieldDescription("air_temperature_c", "degC", "the air temperature on the beam path", may_be_nan=True),
+                           FieldDescription("air_pressure_pa", "Pa", "the air pressure", may_be_nan=True),
+                           FieldDescription("humidity_pct", "%", "the air's relative humidity", may_be_nan=True),
+                           FieldDescription("material_temperature_c", "degC", "the table's material temperature",
+                                            may_be_nan=True, probe_nan="omit")),
+}
+
+
+def describe_kind(kind: str) -> dict[str, FieldDescription]:
+    """The description of every instrument of ``kind`` (KeyError for a kind rtcal does not know)."""
+    return dict(DESCRIPTIONS[kind])
+
+
+def recorded(kind: str, *names: str, purpose: str = "") -> tuple[tuple[str, str], ...]:
+    """(quantity, unit) of each named field of ``kind`` read for ``purpose``: what a plan's Read stores."""
+    table = DESCRIPTIONS[kind]
+    return tuple((table[n].quantity(purpose), table[n].unit) for n in names)
+
+
+class ReadingOutsideDescription(ValueError):
+    """A reading that is not what its instrument's description says (a name, a unit, NaN)."""
+
+
+def check_values(kind: str, values: Mapping[str, object], fields: Collection[str] | None = None) -> dict[str, Value]:
+    """``values`` as the kind's description says they must be: every described name (of ``fields``, if
+    given), no other, each a :class:`Value` in the described unit, finite unless the field may be NaN."""
+    table = DESCRIPTIONS[kind]
+    if fields is not None:
+        unknown = sorted(set(fields) - set(table))
+        if unknown:
+            raise ReadingOutsideDescription(f"{', '.join(unknown)}: not described for a {kind.replace('_', ' ')}")
+        table = {n: f for n, f in table.items() if n in fields}
+    if not isinstance(values, Mapping):
+        raise ReadingOutsideDescription(f"the reading {str(values)[:60]!r} is not named values")
+    extra, missing = sorted(set(values) - set(table)), sorted(set(table) - set(values))
+    if extra or missing:
+        raise ReadingOutsideDescription(
+            f"the reading's names {sorted(map(str, values))} are not the {kind.replace('_', ' ')}'s described "
+            f"{sorted(table)}" + (f" (not described: {', '.join(map(str, extra))})" if extra else "")
+            + (f" (missing: {', '.join(missing)})" if missing else ""))
+    out = {}
+    for name, f in table.items():
+        v = values[name]
+        if not isinstance(v, tuple) or len(v) != 2:
+            raise ReadingOutsideDescription(f"{name}: {str(v)[:40]!r} is not a value with its unit")
+        number, unit = v
+        if unit != f.unit:
+            raise ReadingOutsideDescription(f"{name} in {str(unit)[:20]!r}; its description says {f.unit!r}")
+        if isinstance(number, bool) or not isinstance(number, (int, float, np.integer, np.floating)):
+            raise ReadingOutsideDescription(f"{name}: {str(number)[:40]!r} is not a number")
+        if not math.isfinite(float(number)) and not (f.may_be_nan and math.isnan(float(number))):
+            raise ReadingOutsideDescription(f"{name} is {float(number)}: not a reading")
+        if f.dtype == "integer" and not float(number).is_integer():
+            raise ReadingOutsideDescription(f"{name} is {float(number)}: its description says a whole number")
+        out[name] = Value(float(number), f.unit)
+    return out
+
 
 class Instrument(ABC):
-    """Common life cycle: a name for messages, connect on construction, close when done."""
+    """Common life cycle: a name for messages, connect on construction, close when done.
 
+    Every kind also reads uniformly: :meth:`describe` (its kind's table, once per device) and
+    :meth:`read_values` (named values with units), adapters over the kind's own read methods."""
+
+    kind: str = ""  # which table of DESCRIPTIONS describes it
     name: str = "instrument"
     model: str = ""  # the product whose protocol a real-transport driver speaks (drivers/models.py)
     # how the protocol keeps other clients out while rtcal holds the instrument, as a certificate
@@ -34,9 +163,26 @@ class Instrument(ABC):
         """Clear what the instrument latched after an error (a drive alarm, a CMM's error state)
         so that the next request can succeed; the fault policies call it before a retry."""
 
+    def describe(self) -> dict[str, FieldDescription]:
+        """Name → description of every value :meth:`read_values` gives (the kind's one table)."""
+        return describe_kind(self.kind)
+
+    def read_values(self, fields: Collection[str] | None = None) -> dict[str, Value]:
+        """One reading as named values with units (every described field, or those named), checked
+        against :meth:`describe`."""
+        wanted = frozenset(self.describe() if fields is None else fields)
+        values = self._raw_values(wanted)
+        return check_values(self.kind, {n: v for n, v in values.items() if n in wanted}, wanted)
+
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        """The kind's adapter: its own read methods, called once each for what ``wanted`` needs."""
+        raise NotImplementedError(f"{type(self).__name__} does not read")
+
 
 class RotaryStage(Instrument):
     """A rotary table driven to commanded angles (degrees, counterclockwise positive)."""
+
+    kind = "stage"
 
     limits_deg: tuple[float, float] = (-360.0, 360.0)
     step_deg: float = 0.0  # the smallest motion the drive makes (0: continuous); bounds how far its feedback may sit from the command
@@ -71,9 +217,15 @@ class RotaryStage(Instrument):
     def recover(self) -> None:
         self.reset_alarm()
 
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        read = {"position_deg": self.position_deg, "feedback_deg": self.feedback_deg}
+        return {n: Value(f(), "deg") for n, f in read.items() if n in wanted}
+
 
 class Cmm(Instrument):
     """A CMM moving its probe (here carrying the tracer's cat-eye reflector); mm, CMM frame."""
+
+    kind = "cmm"
 
     volume_min_mm: tuple[float, float, float] = (-np.inf, -np.inf, -np.inf)
     volume_max_mm: tuple[float, float, float] = (np.inf, np.inf, np.inf)
@@ -97,6 +249,9 @@ class Cmm(Instrument):
     @abstractmethod
     def stop(self) -> None: ...
 
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        return {f"position_{a}_mm": Value(float(v), "mm") for a, v in zip("xyz", self.position_mm())}
+
 
 @dataclass(frozen=True)
 class LengthReading:
@@ -109,6 +264,8 @@ class LengthReading:
 class LaserTracer(Instrument):
     """An interferometer that tracks a reflector: relative length from its last reference."""
 
+    kind = "laser_tracer"
+
     @abstractmethod
     def reference(self) -> int:
         """(Re)establish the count at the present reflector position; returns the new segment number."""
@@ -117,13 +274,24 @@ class LaserTracer(Instrument):
     def read_length(self) -> LengthReading:
         """One relative length; raises TrackingLost if tracking was lost since the reference."""
 
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        r = self.read_length()
+        return {"length_mm": Value(r.length_mm, "mm"), "segment": Value(r.segment, "1")}
+
 
 class Encoder(Instrument):
+    kind = "encoder"
+
     @abstractmethod
     def read_angle_deg(self) -> float: ...
 
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        return {"angle_deg": Value(self.read_angle_deg(), "deg")}
+
 
 class Autocollimator(Instrument):
+    kind = "autocollimator"
+
     @abstractmethod
     def read_arcsec(self) -> tuple[float, float]:
         """(x, y) deflection of the reflected beam, arcsec; x is the angle about the table axis."""
@@ -133,10 +301,19 @@ class Autocollimator(Instrument):
         other is good (what `rtcal probe` shows as null); ``read_arcsec`` is what a run uses."""
         return self.read_arcsec()
 
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        x, y = self.read_axes_arcsec()
+        return {"x_arcsec": Value(x, "arcsec"), "y_arcsec": Value(y, "arcsec")}
+
 
 class DialIndicator(Instrument):
+    kind = "dial_indicator"
+
     @abstractmethod
     def read_um(self) -> float: ...
+
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        return {"y_um": Value(self.read_um(), "um")}
 
 
 @dataclass(frozen=True)
@@ -152,5 +329,11 @@ class EnvironmentReading:
 class EnvironmentSensor(Instrument):
     """A weather station for the interferometer's air and a material probe on the table."""
 
+    kind = "environment"
+
     @abstractmethod
     def read(self) -> EnvironmentReading: ...
+
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        r = self.read()
+        return {f.name: Value(float(getattr(r, f.name)), f.unit) for f in DESCRIPTIONS["environment"].values()}

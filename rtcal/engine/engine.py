@@ -34,12 +34,13 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from drivers.errors import InstrumentError, TrackingLost
+from drivers.interfaces import Instrument
 from rtcal.clock import Clock, VirtualClock
 from rtcal.engine.faults import RETAKE, FaultHandler, RunAborted, Skip
 from rtcal.engine.plan import Attempt, Entry, Plan
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Samples, Settle,
                                 Skipped, Step, Validate)
-from rtcal.run.store import REJECTED, SKIPPED, Reading
+from rtcal.run.store import REJECTED, SKIPPED, Reading, descriptions_of
 from rtcal.sequencer.checks import Contradiction
 from rtcal.sequencer.motion import approach
 
@@ -75,6 +76,9 @@ class Engine:
         self._faults: FaultHandler | None = None
         self._in_segment: dict[int, list[dict[str, Any]]] = {}  # tracking segment → contexts of the whole attempts in it
         self._tracking: set[str] = set()  # instruments read in tracking segments (ReadSamples)
+        self._described = {name: descriptions_of(name, d.kind, d.describe().values())
+                           for name, d in self.devices.items() if _describes(d)}
+        self._quantities = {name: {(r.quantity, r.unit) for r in rows} for name, rows in self._described.items()}
 
     # ---- control, from any thread -------------------------------------------------------------
     def request_pause(self) -> None:
@@ -111,7 +115,8 @@ class Engine:
         self._plan = plan
         self._faults = FaultHandler(dict(plan.policies), self._event, self.clock, self.operator, self._safe_state)
         pending = [e for e in plan.entries if e.index not in done]
-        self.emit("start", method=plan.method, planned=len(plan.entries), done=len(done), t_s=self.clock.now_s())
+        self.emit("start", method=plan.method, planned=len(plan.entries), done=len(done), t_s=self.clock.now_s(),
+                  descriptions=[d for rows in self._described.values() for d in rows])
         self._set_state("running")
         try:
             for step in plan.prologue():
@@ -188,6 +193,7 @@ class Engine:
             return None
         if isinstance(step, ReadSamples):
             device = self.devices[step.instrument]
+            self._check_described(step.instrument, ((step.quantity, step.unit),))
             values = []
             for n in range(step.count):
                 values.append(float(step.measure(device)))
@@ -380,10 +386,18 @@ class Engine:
         for move in failed:  # the fault is recorded and retried as a motion of its own
             self._execute(move, context, readings)
 
+    def _check_described(self, instrument: str, quantities: Sequence[tuple[str, str]]) -> None:
+        """A plan stores only what its instrument's description names, in the described unit."""
+        known = self._quantities.get(instrument)
+        wrong = [q for q in quantities if known is not None and tuple(q) not in known]
+        if wrong:
+            raise TypeError(f"{instrument}: {wrong} is not in its description {sorted(known or ())}")
+
     def _read(self, step: Read, context: dict[str, Any], readings: list[Reading]) -> Any:
         device = self.devices.get(step.instrument)
         if device is None:
             return None
+        self._check_described(step.instrument, step.quantities)
         redo = (lambda: self._raw_all(step.redo)) if step.redo else None
         value = self._policy(step.instrument, lambda: step.measure(device), step.what, context, readings,
                              recover=redo, optional=step.optional, sample=step.sample)
@@ -397,6 +411,7 @@ class Engine:
 
     def _samples(self, step: ReadSamples, context: dict[str, Any], readings: list[Reading]) -> Samples:
         device = self.devices[step.instrument]
+        self._check_described(step.instrument, ((step.quantity, step.unit),))
         self._tracking.add(step.instrument)
         reacquired = [False]
 
@@ -457,6 +472,11 @@ class Engine:
                     self._event("fault", name, f"while stopping: {exc}")
                 except Exception:  # the store is gone too: nothing more to record
                     pass
+
+
+def _describes(device: Any) -> bool:
+    """A device that describes its readings (every rtcal instrument; a test's scripted stand-in may not)."""
+    return isinstance(device, Instrument) and bool(device.kind)
 
 
 def _as_values(value: Any, n: int) -> list[float]:

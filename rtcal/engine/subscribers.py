@@ -32,6 +32,11 @@ class StoreWriter:
         elif name == "event":
             self.store.add_event(doc["t_s"], doc["kind"], doc["message"], doc["instrument"])
         elif name == "start":
+            if doc.get("descriptions"):  # what each instrument's stored quantities are (drivers/interfaces.py)
+                self.store.add_descriptions(doc["descriptions"])
+            generation = self.store.meta().get("generation", "0")
+            if "t_s" in doc and generation.isdigit():  # which attempt this start (0, +1 per resume) begins with
+                self.store.add_start(int(generation), doc["t_s"])
             self.store.set_meta({"planned_readings": str(doc["planned"])})
         elif name == "state":
             self.store.set_meta({"engine_state": doc["state"]})

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
-from rtcal.run.store import MARKERS, REJECTED, RunStore
+from rtcal.run.store import MARKERS, REJECTED, RunStore, StoredDescription, described_in
 
 STATES = ("starting", "running", "paused", "stopping", "finished", "failed", "aborted")
 FINAL_STATES = ("finished", "failed", "aborted")
@@ -80,6 +80,7 @@ class _Accumulated:
     completions: deque = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))  # (reading id, t_s)
     latest: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
     newest_t_s: float | None = None
+    described: dict[tuple[str, str], StoredDescription] = field(default_factory=dict)
 
 
 class StoreView:
@@ -169,6 +170,7 @@ class StoreView:
             self._acc = acc = _Accumulated()
         if hi == acc.last_id:
             return
+        acc.described = described_in(db)  # what each quantity is: the view shows by it, never by an instrument's name
         rows = db.execute(
             "SELECT plan_index, attempt, SUM(quantity IN (" + _MARKS + ")), SUM(quantity = ?), MAX(id), MAX(t_s), "
             "MIN(run), MIN(direction), MIN(commanded_angle_deg), MIN(point), MIN(station), MIN(seating) "
@@ -188,8 +190,11 @@ class StoreView:
         for instrument, quantity, value, unit, t_s, rid in db.execute(
                 "SELECT instrument, quantity, value, unit, t_s, MAX(id) FROM readings WHERE id > ? AND id <= ? "
                 "AND quantity NOT IN (" + _MARKS + ") GROUP BY instrument, quantity", (acc.last_id, hi)):
+            d = acc.described.get((instrument, quantity))
             acc.latest[(instrument, quantity)] = {"instrument": instrument, "quantity": quantity, "value": value,
-                                                  "unit": unit, "t_s": t_s, "id": rid}
+                                                  "unit": unit, "t_s": t_s, "id": rid,
+                                                  "kind": None if d is None else d.kind,
+                                                  "what": None if d is None else d.what}
         newest = db.execute("SELECT MAX(t_s) FROM readings WHERE id > ? AND id <= ?", (acc.last_id, hi)).fetchone()[0]
         if newest is not None:
             acc.newest_t_s = float(newest)

@@ -15,13 +15,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
-from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage
+from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage, recorded
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
 from rtcal.plans.conditions import environment_read
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.run.store import Reading
 from rtcal.sequencer.checks import EncoderCheck, MotionChecks, abbe_cross_checks, check_abbe_visit, check_face
+
+
+# what a visit reads, named and united by each kind's description (drivers/interfaces.py)
+ENCODER = recorded("encoder", "angle_deg")
+FACE = recorded("autocollimator", "x_arcsec")  # about the table axis: the face's angle
+INDICATOR = recorded("dial_indicator", "y_um")
 
 
 @dataclass(frozen=True)
@@ -76,9 +82,10 @@ def planned_visits(proc: EncoderAbbeError) -> list[Visit]:
 
 class AbbePlan:
     """Seed 001's order of work. Readings carry the run's ``generation`` (0, +1 per resume) as their
-    segment, for the record. A resumed run asks the operator to confirm the polygon's seating where
-    it goes on (it stays where it was unless someone moved it), and to seat it anew for a seating it
-    left earlier."""
+    segment, for the record (docs/store.md: the documented mapping; every method's start is also the
+    store's ``starts`` table, by attempt). A resumed run asks the operator to confirm the polygon's
+    seating where it goes on (it stays where it was unless someone moved it), and to seat it anew for a
+    seating it left earlier."""
 
     method = "encoder_abbe_error"
     retake_skipped = False  # a skipped visit is taken again by a resume, whole
@@ -126,31 +133,31 @@ class AbbePlan:
         to_target = Move("stage", angle, v.direction, proc.steps.overshoot_deg, what=f"move to {angle:g}°")
         yield to_target
         yield Settle(proc.settle_time_s)
-        feedback = yield Read("stage", (("feedback_deg", "deg"),), lambda stage: self.checks.stage_at(stage, angle), angle,
+        feedback = yield Read("stage", recorded("stage", "feedback_deg"), lambda stage: self.checks.stage_at(stage, angle), angle,
                               f"position at {angle:g}°", redo=(Recover("stage"), to_target, Settle(proc.settle_time_s)))
         if proc.instruments.environment is not None:
             yield environment_read(f"environment at {angle:g}°")
-        taken: list[tuple[str, str, str, Callable[[Any], float], float]] = [
-            ("encoder", "angle_deg", "deg", lambda encoder: encoder.read_angle_deg(), angle)]
+        taken: list[tuple[str, tuple[tuple[str, str], ...], Callable[[Any], float], float]] = [
+            ("encoder", ENCODER, lambda encoder: encoder.read_angle_deg(), angle)]
         if v.face_in_front:
-            taken.append(("autocollimator", "x_arcsec", "arcsec", lambda ac: ac.read_arcsec()[0], 0.0))
-        taken += [(f"dial_indicator_{n + 1}", "y_um", "um", lambda indicator: indicator.read_um(), 0.0) for n in range(2)]
+            taken.append(("autocollimator", FACE, lambda ac: ac.read_arcsec()[0], 0.0))
+        taken += [(f"dial_indicator_{n + 1}", INDICATOR, lambda indicator: indicator.read_um(), 0.0) for n in range(2)]
         values: list[tuple[str, str, float]] = []
         for s in range(proc.samples_per_reading):
-            for instrument, quantity, unit, measure, nominal in taken:
+            for instrument, quantities, measure, nominal in taken:
                 try:
-                    value = yield Read(instrument, ((quantity, unit),), measure, nominal, f"reading at {angle:g}°", sample=s)
+                    value = yield Read(instrument, quantities, measure, nominal, f"reading at {angle:g}°", sample=s)
                 except Skipped:
                     continue  # marked in the visit; the other instruments are still read
-                values.append((instrument, quantity, float(value)))
+                values.append((instrument, quantities[0][0], float(value)))
         tolerance = proc.verification.autocollimator_tolerance_arcsec
-        seen = any(q == "x_arcsec" and abs(x) <= tolerance for _, q, x in values)  # the table turned: an encoder that disagrees misreads
+        seen = any(q == FACE[0][0] and abs(x) <= tolerance for _, q, x in values)  # the table turned: an encoder that disagrees misreads
         for _, quantity, value in values:
-            if quantity == "angle_deg":
+            if quantity == ENCODER[0][0]:
                 self.encoder_moves.check(value, angle, table_seen=seen)
-            elif quantity == "x_arcsec":
+            elif quantity == FACE[0][0]:
                 check_face(value, tolerance, angle)
         check_abbe_visit(*self.cross, [Reading(0.0, i, q, x, "") for i, q, x in values], angle, v.seating, v.run,
                          v.direction, entry.index)
-        yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: self.checks.stage_still(stage, feedback), angle,
+        yield Read("stage", recorded("stage", "feedback_deg", purpose="after"), lambda stage: self.checks.stage_still(stage, feedback), angle,
                    f"position at {angle:g}°")

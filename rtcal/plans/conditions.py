@@ -3,11 +3,11 @@ readings it accompanies, never holding them up (an optional step)."""
 
 from __future__ import annotations
 
-from drivers.interfaces import EnvironmentSensor
+from drivers.interfaces import DESCRIPTIONS, EnvironmentSensor, recorded
 from rtcal.engine.steps import Read
 
-ENVIRONMENT_QUANTITIES = (("air_temperature_c", "degC"), ("air_pressure_pa", "Pa"), ("humidity_pct", "%"),
-                          ("material_temperature_c", "degC"))
+ENVIRONMENT_FIELDS = tuple(DESCRIPTIONS["environment"])
+ENVIRONMENT_QUANTITIES = recorded("environment", *ENVIRONMENT_FIELDS)
 
 
 def environment_read(what: str) -> Read:
@@ -17,4 +17,4 @@ def environment_read(what: str) -> Read:
 
 def _environment_values(sensor: EnvironmentSensor) -> list[float]:
     env = sensor.read()
-    return [float(getattr(env, q)) for q, _ in ENVIRONMENT_QUANTITIES]  # NaN: not measured, not stored
+    return [float(getattr(env, name)) for name in ENVIRONMENT_FIELDS]  # NaN: not measured, not stored

@@ -16,13 +16,19 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from drivers.interfaces import Cmm, EnvironmentSensor, LaserTracer, RotaryStage
+from drivers.interfaces import DESCRIPTIONS, Cmm, EnvironmentSensor, LaserTracer, RotaryStage, recorded
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Settle, Skipped,
                                 Step, Validate)
 from rtcal.plans.conditions import environment_read
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck, TracerReturnCheck
+
+# what a reading stores, named and united by each kind's description (drivers/interfaces.py)
+CMM_POSITION = tuple(DESCRIPTIONS["cmm"])  # x, y, z in the description's order
+LENGTH = recorded("laser_tracer", "length_mm")[0]
+LENGTH_BACK = recorded("laser_tracer", "length_mm", purpose="return")[0]  # at the segment's reference point
+
 
 @dataclass(frozen=True)
 class MultistationInstrumentSet:
@@ -127,7 +133,7 @@ class MultistationPlan:
             yield Move("cmm", point, what=f"move to point {i + 1}")
             self.at_point, self.at_station = i, j
             yield Settle(self.proc.settle_time_s)
-            samples = yield ReadSamples("laser_tracer", "return_length_mm", "mm", self.proc.samples_per_reading,
+            samples = yield ReadSamples("laser_tracer", *LENGTH_BACK, self.proc.samples_per_reading,
                                         lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(group, i, j),
                                         where, f"length back at {where}", self.proc.durations.tracer_sample_s)
             self.returns.check(segment, list(samples.values), float(self.lengths.distance_mm[group][i, j]), where)
@@ -179,10 +185,10 @@ class MultistationPlan:
         if stage_moved or cmm_moved:
             yield Settle(proc.settle_time_s)
         settle = Settle(proc.settle_time_s)
-        feedback = yield Read("stage", (("feedback_deg", "deg"),), lambda stage: checks.stage_at(stage, angle), angle,
+        feedback = yield Read("stage", recorded("stage", "feedback_deg"), lambda stage: checks.stage_at(stage, angle), angle,
                               f"position at station {j + 1}", redo=(Recover("stage"), to_station, settle))
-        kind = "position" if cmm_moved else "check_position"  # the solvers average one position per visit of the point
-        xyz = yield Read("cmm", tuple((f"{kind}_{axis}_mm", "mm") for axis in "xyz"), lambda cmm: checks.cmm_at(cmm, point),
+        purpose = "" if cmm_moved else "check"  # the solvers average one position per visit of the point
+        xyz = yield Read("cmm", recorded("cmm", *CMM_POSITION, purpose=purpose), lambda cmm: checks.cmm_at(cmm, point),
                          point, f"position at point {i + 1}", redo=(Recover("cmm"), to_point, settle))
         where = f"point {i + 1}, station {j + 1}"
         durations = proc.durations
@@ -191,7 +197,7 @@ class MultistationPlan:
             self.lengths.referenced(mk, i, j)
         if proc.instruments.environment is not None:  # the air the lengths are counted in, read just before them
             yield environment_read(f"environment at point {i + 1}, station {j + 1}")
-        samples = yield ReadSamples("laser_tracer", "length_mm", "mm", proc.samples_per_reading,
+        samples = yield ReadSamples("laser_tracer", *LENGTH, proc.samples_per_reading,
                                     lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(mk, i, j),
                                     where, f"length at {where}", durations.tracer_sample_s, durations.reference_tracer_s)
         if samples.reacquired:
@@ -201,9 +207,9 @@ class MultistationPlan:
         for value in samples.values:
             self.lengths.check(value, mk, i, j)
         # the table and the probe stood still while the tracer counted: read both again
-        yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: checks.stage_still(stage, feedback), angle,
+        yield Read("stage", recorded("stage", "feedback_deg", purpose="after"), lambda stage: checks.stage_still(stage, feedback), angle,
                    f"position at station {j + 1}")
-        yield Read("cmm", tuple((f"after_position_{axis}_mm", "mm") for axis in "xyz"),
+        yield Read("cmm", recorded("cmm", *CMM_POSITION, purpose="after"),
                    lambda cmm: checks.cmm_still(cmm, xyz), point, f"position at point {i + 1}", redo=(Recover("cmm"),))
         if samples.segment is not None and self.segment_ref.get(samples.segment) == (i, j):  # the segment's first reading
             self.returns.referenced(samples.segment, list(samples.values))                 # at its reference point

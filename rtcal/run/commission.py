@@ -57,35 +57,22 @@ def _retrying(instrument: Instrument, read: Callable[[], Any], attempts: int = 3
     raise AssertionError("unreachable")
 
 
-def _tracer_length(tracer) -> float:
-    try:
-        return tracer.read_length().length_mm
-    except TrackingLost:  # never referenced, or the beam was lost: reference where the reflector is, then read
-        tracer.reference()
-        return tracer.read_length().length_mm
-
-
 def read_once(kind: str, instrument: Instrument) -> dict[str, float | None]:
-    """One reading, under the keys ``rtcal probe`` documents for the kind."""
-    if kind == "stage":
-        return {"position_deg": float(instrument.position_deg())}
-    if kind == "cmm":
-        x, y, z = (float(v) for v in instrument.position_mm())
-        return {"x_mm": x, "y_mm": y, "z_mm": z}
-    if kind == "laser_tracer":
-        return {"length_mm": float(_tracer_length(instrument))}
-    if kind == "encoder":
-        return {"angle_deg": float(instrument.read_angle_deg())}
-    if kind == "autocollimator":  # an axis the instrument reports invalid is None (null in --json)
-        x, y = instrument.read_axes_arcsec()
-        return {"x_arcsec": float(x) if math.isfinite(x) else None, "y_arcsec": float(y) if math.isfinite(y) else None}
-    if kind == "dial_indicator":
-        return {"displacement_mm": float(instrument.read_um()) / 1000.0}
-    r = instrument.read()
-    reading = {"air_temperature_c": r.air_temperature_c, "air_pressure_pa": r.air_pressure_pa, "humidity_pct": r.humidity_pct}
-    if math.isfinite(r.material_temperature_c):
-        reading["material_temperature_c"] = r.material_temperature_c
-    return {k: float(v) for k, v in reading.items()}
+    """One reading, under the keys ``rtcal probe`` documents: the fields the instrument's description
+    shows (drivers/interfaces.py: ``probe_key``, ``probe_divisor``, ``probe_nan``), whatever its kind."""
+    shown = {name: f for name, f in instrument.describe().items() if f.probe_key is not None}
+    try:
+        values = instrument.read_values(shown)
+    except TrackingLost:  # never referenced, or the beam was lost: reference where the reflector is, then read
+        getattr(instrument, "reference")()
+        values = instrument.read_values(shown)
+    reading: dict[str, float | None] = {}
+    for name, f in shown.items():
+        value = values[name].value / f.probe_divisor
+        if math.isnan(value) and f.probe_nan == "omit":
+            continue
+        reading[f.probe_key or name] = None if math.isnan(value) and f.probe_nan == "null" else float(value)
+    return reading
 
 
 def probe(kind: str, address: str, timeout_s: float = 2.0, **context: Any) -> ProbeResult:

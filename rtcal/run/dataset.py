@@ -1,4 +1,5 @@
-"""Logged readings → solver inputs. Reads the store only; knows nothing of instruments."""
+"""Logged readings → solver inputs. Reads the store only: what each stored quantity is (its field,
+its purpose) comes from the store's descriptions, never from parsing its name."""
 
 from __future__ import annotations
 
@@ -9,7 +10,15 @@ import numpy as np
 from rtcal.solvers.air import ciddor_n
 from rtcal.solvers.abbe import AbbeVisits
 from rtcal.solvers.station_data import MountReadings, MultistationData
-from rtcal.run.store import MARKERS, SKIPPED, RunStore
+from rtcal.run.store import MARKERS, SKIPPED, RunStore, StoredDescription
+
+
+def _quantity(described: dict[tuple[str, str], StoredDescription], instrument: str, field: str, purpose: str = "") -> str:
+    """The quantity ``instrument``'s ``field`` read for ``purpose`` is stored under."""
+    for d in described.values():
+        if d.instrument == instrument and d.field == field and d.purpose == purpose:
+            return d.quantity
+    raise KeyError(f"{instrument}.{field} ({purpose or 'reading'}) is not described in the store")
 
 
 def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:
@@ -18,27 +27,30 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
     readings of a rejected attempt (they contradicted the commands) are kept in the store and used
     nowhere; lengths count only from an attempt that was stored whole."""
     m = len(nominal_angles_deg)
+    described = store.described()
     rejected = store.rejected_attempts()
     unfinished = rejected | {(r.plan_index, r.attempt) for r in store.readings(quantity=SKIPPED)}
     pos_sum = np.zeros((n_points, 3))
     pos_count = np.zeros((n_points, 3))
+    axes = {_quantity(described, "cmm", f"position_{a}_mm"): k for k, a in enumerate("xyz")}  # a position read on arrival
     for r in store.readings(instrument="cmm"):
-        if not r.quantity.startswith("position_") or (r.plan_index, r.attempt) in rejected:
+        if r.quantity not in axes or (r.plan_index, r.attempt) in rejected:
             continue
-        axis = "xyz".index(r.quantity[len("position_")])
+        axis = axes[r.quantity]
         pos_sum[r.point, axis] += r.value
         pos_count[r.point, axis] += 1
     env: dict[tuple[int, int, int], dict[str, list[float]]] = {}
     for r in store.readings(instrument="environment"):
-        if r.quantity not in MARKERS and (r.plan_index, r.attempt) not in rejected:
-            env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(r.quantity, []).append(r.value)
+        d = described.get((r.instrument, r.quantity))
+        if d is not None and not d.purpose and (r.plan_index, r.attempt) not in rejected:
+            env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(d.field, []).append(r.value)
     len_sum = np.zeros((mounts, n_points, m))
     len_count = np.zeros((mounts, n_points, m))
     time_sum = np.zeros((mounts, n_points, m))
     segments = np.full((mounts, n_points, m), -1)
     visits = np.full((mounts, n_points, m), -1)
     visit, last = -1, None
-    for r in store.readings(instrument="laser_tracer", quantity="length_mm"):
+    for r in store.readings(instrument="laser_tracer", quantity=_quantity(described, "laser_tracer", "length_mm")):
         if (r.plan_index, r.attempt) in unfinished:
             continue
         k = r.seating or 0
@@ -89,9 +101,11 @@ def summarise_conditions(groups: Iterable[dict[str, list[float]]]) -> dict[str, 
 def abbe_conditions(store: RunStore) -> dict[str, dict[str, float]] | None:
     """The environment sensor's readings of the visits the analysis uses, summarised."""
     per_visit: dict[tuple, dict[str, list[float]]] = {}
+    described = store.described()
     for r in _one_attempt_per_visit(list(store.readings())):  # all of a visit's readings: its marks decide
-        if r.instrument == "environment" and r.quantity not in MARKERS:
-            per_visit.setdefault((r.plan_index, r.attempt), {}).setdefault(r.quantity, []).append(r.value)
+        d = described.get((r.instrument, r.quantity))
+        if d is not None and d.kind == "environment" and not d.purpose:
+            per_visit.setdefault((r.plan_index, r.attempt), {}).setdefault(d.field, []).append(r.value)
     return summarise_conditions(per_visit.values())
 
 
@@ -117,13 +131,15 @@ def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:
     """One row per stage visit (seating, run, direction, step), samples averaged per instrument."""
     sums: dict[tuple, dict[str, list[float]]] = {}
     commanded: dict[tuple, float] = {}
+    described = store.described()
     for r in _one_attempt_per_visit(list(store.readings())):
         key = (r.seating, r.run, r.direction, r.station)
         commanded[key] = r.commanded_angle_deg
         sums.setdefault(key, {}).setdefault(f"{r.instrument}.{r.quantity}", []).append(r.value)
     keys = list(sums)
 
-    def column(name: str) -> np.ndarray:
+    def column(instrument: str, field: str) -> np.ndarray:
+        name = f"{instrument}.{_quantity(described, instrument, field)}"
         return np.array([np.mean(sums[k][name]) if name in sums[k] else np.nan for k in keys])
 
     return AbbeVisits(
@@ -131,9 +147,9 @@ def abbe_visits(store: RunStore, seatings_deg: list[float]) -> AbbeVisits:
         seating_deg=np.array([seatings_deg[k[0]] for k in keys]),
         seating_index=np.array([k[0] for k in keys]),
         direction=np.array([k[2] for k in keys]),
-        encoder_deg=column("encoder.angle_deg"),
-        autocollimator_arcsec=column("autocollimator.x_arcsec"),
-        indicator1_um=column("dial_indicator_1.y_um"),
-        indicator2_um=column("dial_indicator_2.y_um"),
+        encoder_deg=column("encoder", "angle_deg"),
+        autocollimator_arcsec=column("autocollimator", "x_arcsec"),
+        indicator1_um=column("dial_indicator_1", "y_um"),
+        indicator2_um=column("dial_indicator_2", "y_um"),
         run=np.array([k[1] for k in keys]),
     )

@@ -16,16 +16,18 @@ import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rtcal.run.store import LAST_READING_ID, READING_COLUMNS
+from rtcal.run.store import LAST_READING_ID, NOT_NULL, READING_COLUMN_TYPES, READING_COLUMNS
 
 MAGIC = b"SQLite format 3\x00"
 WAL_MAGIC = (0x377F0682, 0x377F0683)
 TABLE_LEAF, TABLE_INTERIOR = 0x0D, 0x05
 NUMERIC = (int, float)
-# per reading column after the id: the Python types a stored value may have (None: NULL allowed)
-_READING_TYPES = [NUMERIC, (str,), (str,), NUMERIC, (str,)] + [(int, type(None))] * 4 + [NUMERIC + (type(None),)] * 4 \
-    + [(int, type(None))] * 5
-_REAL_COLUMNS = {0, 3, 9, 10, 11, 12}  # REAL affinity: SQLite stores a whole value as an integer on disk
+# per reading column after the id, by the store's declared column types: the Python types a stored value
+# may have (None: NULL allowed)
+_PYTHON_TYPES: dict[str, tuple[type, ...]] = {"REAL": NUMERIC, "INTEGER": (int,), "TEXT": (str,)}
+_READING_TYPES = [_PYTHON_TYPES[READING_COLUMN_TYPES[c]] + (() if c in NOT_NULL else (type(None),)) for c in READING_COLUMNS]
+# REAL affinity: SQLite stores a whole value as an integer on disk
+_REAL_COLUMNS = {k for k, c in enumerate(READING_COLUMNS) if READING_COLUMN_TYPES[c] == "REAL"}
 
 
 @dataclass

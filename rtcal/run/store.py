@@ -27,10 +27,31 @@ import sqlite3
 from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 from urllib.parse import quote
 
 from drivers.addresses import redact_tokens
+
+# what every stored (instrument, quantity) is: its field of the instrument's description
+# (drivers/interfaces.py), why it was read (purpose) and its unit; and which attempt each start of the run
+# (0, +1 per resume) began with. docs/store.md says what every column means
+DESCRIPTIONS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS descriptions (
+    instrument TEXT NOT NULL,
+    kind TEXT NOT NULL,
+    quantity TEXT NOT NULL,
+    field TEXT NOT NULL,
+    purpose TEXT NOT NULL,
+    unit TEXT NOT NULL,
+    dtype TEXT NOT NULL,
+    what TEXT NOT NULL,
+    PRIMARY KEY (instrument, quantity)
+);
+CREATE TABLE IF NOT EXISTS starts (
+    generation INTEGER PRIMARY KEY,
+    first_attempt INTEGER NOT NULL,
+    t_s REAL NOT NULL
+)"""
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -63,13 +84,20 @@ CREATE TABLE IF NOT EXISTS events (
     instrument TEXT,
     message TEXT NOT NULL
 );
-"""
+""" + DESCRIPTIONS_SCHEMA
 
 READING_COLUMNS = (
     "t_s", "instrument", "quantity", "value", "unit", "point", "station", "sample", "segment",
     "commanded_angle_deg", "commanded_x_mm", "commanded_y_mm", "commanded_z_mm", "seating", "run", "direction",
     "plan_index", "attempt",
 )
+# the type of each reading column, in the table's order (what salvage decodes a damaged page's record by)
+READING_COLUMN_TYPES = {"t_s": "REAL", "instrument": "TEXT", "quantity": "TEXT", "value": "REAL", "unit": "TEXT",
+                        "point": "INTEGER", "station": "INTEGER", "sample": "INTEGER", "segment": "INTEGER",
+                        "commanded_angle_deg": "REAL", "commanded_x_mm": "REAL", "commanded_y_mm": "REAL",
+                        "commanded_z_mm": "REAL", "seating": "INTEGER", "run": "INTEGER", "direction": "INTEGER",
+                        "plan_index": "INTEGER", "attempt": "INTEGER"}
+NOT_NULL = ("t_s", "instrument", "quantity", "value", "unit")
 SKIPPED = "skipped"  # the quantity of a marker row: this attempt skipped the instrument's reading
 REJECTED = "rejected"  # the quantity of a marker row: this attempt's readings contradict the commands; none is used
 MARKERS = (SKIPPED, REJECTED)
@@ -173,6 +201,52 @@ class Reading:
     attempt: int | None = None  # readings of one attempt at a planned reading share it (None: stores before attempts)
 
 
+DESCRIPTION_COLUMNS = ("instrument", "kind", "quantity", "field", "purpose", "unit", "dtype", "what")
+
+
+@dataclass(frozen=True)
+class StoredDescription:
+    """One row of the store's ``descriptions`` table: what an instrument's stored quantity is."""
+
+    instrument: str
+    kind: str
+    quantity: str
+    field: str
+    purpose: str
+    unit: str
+    dtype: str
+    what: str
+
+
+def descriptions_of(instrument: str, kind: str, fields: Iterable[Any]) -> list[StoredDescription]:
+    """Every quantity an instrument's described fields (drivers.interfaces.FieldDescription) may be stored
+    under, one per purpose."""
+    from drivers.interfaces import PURPOSES
+
+    return [StoredDescription(instrument, kind, f.quantity(p), f.name, p, f.unit, f.dtype, f.what)
+            for f in fields for p in PURPOSES]
+
+
+def stored_descriptions(db: sqlite3.Connection) -> dict[tuple[str, str], StoredDescription]:
+    """(instrument, quantity) → what it is, as a store's ``descriptions`` table says (empty before it)."""
+    if db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'descriptions'").fetchone() is None:
+        return {}
+    rows = db.execute(f"SELECT {', '.join(DESCRIPTION_COLUMNS)} FROM descriptions")
+    return {(d.instrument, d.quantity): d for d in (StoredDescription(*row) for row in rows)}
+
+
+def described_in(db: sqlite3.Connection) -> dict[tuple[str, str], StoredDescription]:
+    """What every (instrument, quantity) of a store is: its descriptions, over — for an instrument a store
+    written before them does not describe — the kind tables (drivers/interfaces.py) of the instruments
+    a procedure names (the same names and units: the plans have always stored them so)."""
+    from drivers.factory import KIND_OF
+    from drivers.interfaces import describe_kind
+
+    found = {(d.instrument, d.quantity): d for name, kind in KIND_OF.items()
+             for d in descriptions_of(name, kind, describe_kind(kind).values())}
+    return {**found, **stored_descriptions(db)}
+
+
 class RunStore:
     """A run's database file. Use :meth:`create` for a new run and :meth:`open` to read one."""
 
@@ -243,6 +317,10 @@ class RunStore:
             if "attempt" not in columns:  # a store from before attempts: each planned reading was attempted once
                 db.execute("ALTER TABLE readings ADD COLUMN attempt INTEGER")
                 db.execute("CREATE INDEX IF NOT EXISTS readings_by_plan ON readings(plan_index, attempt)")
+            tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if "descriptions" not in tables:  # a store from before descriptions: a resume describes its instruments
+                for statement in DESCRIPTIONS_SCHEMA.split(";"):
+                    db.execute(statement)
         except sqlite3.Error as exc:
             db.close()
             raise _as_disk_failure(exc, path) or StoreDamaged(f"{path}: {exc}") from None
@@ -332,6 +410,38 @@ class RunStore:
                              "(SELECT MAX(id) FROM readings))")
             self._keep()
 
+    def add_descriptions(self, rows: Iterable[StoredDescription]) -> None:
+        """What each (instrument, quantity) a run stores is; a resume's descriptions replace the earlier ones."""
+        with self._transaction():
+            self._db.executemany("INSERT OR REPLACE INTO descriptions(instrument, kind, quantity, field, purpose, unit, "
+                                 "dtype, what) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                                 [tuple(getattr(d, c) for c in DESCRIPTION_COLUMNS) for d in rows])
+
+    def add_start(self, generation: int, t_s: float) -> None:
+        """A start of the run (0, +1 per resume) begins with the next attempt (the first start so numbered is kept)."""
+        with self._transaction():
+            self._db.execute("INSERT OR IGNORE INTO starts(generation, first_attempt, t_s) VALUES (?, ?, ?)",
+                             (generation, self._next_attempt, t_s))
+
+    def start_of(self, attempt: int | None) -> int | None:
+        """The start (0, +1 per resume) an attempt was taken in; None where the store does not say (a store
+        from before starts were recorded, a reading outside any attempt)."""
+        if attempt is None or not self._has_table("starts"):
+            return None
+        row = self._db.execute("SELECT MAX(generation) FROM starts WHERE first_attempt <= ?", (attempt,)).fetchone()
+        return None if row[0] is None else int(row[0])
+
+    def _has_table(self, name: str) -> bool:
+        return self._db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = ?", (name,)).fetchone() is not None
+
+    def descriptions(self) -> dict[tuple[str, str], StoredDescription]:
+        """(instrument, quantity) → what it is; empty for a store from before descriptions."""
+        return stored_descriptions(self._db)
+
+    def described(self) -> dict[tuple[str, str], StoredDescription]:
+        """What every (instrument, quantity) is (:func:`described_in`)."""
+        return described_in(self._db)
+
     def add_event(self, t_s: float, kind: str, message: str, instrument: str | None = None) -> None:
         with self._transaction():
             self._db.execute("INSERT INTO events(t_s, kind, instrument, message) VALUES (?, ?, ?, ?)",
@@ -402,11 +512,17 @@ class RunStore:
         return int(self._db.execute("SELECT COUNT(*) FROM readings WHERE quantity <> ?", (SKIPPED,)).fetchone()[0])
 
     def export_csv(self, directory: Path) -> tuple[int, int]:
-        """readings.csv (every column) and events.csv, streamed row by row; returns the row counts."""
+        """readings.csv (every column), events.csv and descriptions.csv (what each stored quantity is:
+        docs/store.md), streamed row by row; returns the readings' and events' row counts."""
         readings = self._db.execute(f"SELECT id, {', '.join(READING_COLUMNS)} FROM readings ORDER BY id")
         events = self._db.execute(f"SELECT id, {', '.join(EVENT_COLUMNS)} FROM events ORDER BY id")
-        return write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS, readings), \
+        counts = write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS, readings), \
             write_csv(directory / "events.csv", ("id",) + EVENT_COLUMNS, events)
+        stored = {(i, q) for i, q in self._db.execute("SELECT DISTINCT instrument, quantity FROM readings")}
+        described = [d for key, d in sorted(self.described().items()) if key in stored]
+        write_csv(directory / "descriptions.csv", DESCRIPTION_COLUMNS,
+                  (tuple(getattr(d, c) for c in DESCRIPTION_COLUMNS) for d in described))
+        return counts
 
     def close(self) -> None:
         self._db.close()

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.errors import InstrumentFault
-from drivers.interfaces import Cmm, RotaryStage
+from drivers.interfaces import DESCRIPTIONS, Cmm, RotaryStage
 
 if TYPE_CHECKING:
     from rtcal.procedure.models import EncoderAbbeError
@@ -372,12 +372,15 @@ def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderChec
 
 def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, readings: list[Reading], command_deg: float,
                      seating: int, run: int, direction: int, visit: int) -> None:
-    """One visit's readings (the store's Reading objects) through the cross-checks."""
+    """One visit's readings (the store's Reading objects) through the cross-checks; each quantity as
+    its kind's description names it (drivers/interfaces.py)."""
+    displacement = DESCRIPTIONS["dial_indicator"]["y_um"].quantity()
+    face, angle = DESCRIPTIONS["autocollimator"]["x_arcsec"].quantity(), DESCRIPTIONS["encoder"]["angle_deg"].quantity()
     for r in readings:
-        if r.quantity == "y_um":
+        if r.quantity == displacement:
             indicators.check(r.instrument, r.value)
-    x = [r.value for r in readings if r.quantity == "x_arcsec"]
-    encoder = [r.value for r in readings if r.quantity == "angle_deg"]
+    x = [r.value for r in readings if r.quantity == face]
+    encoder = [r.value for r in readings if r.quantity == angle]
     if x and encoder:  # the mean of the encoder's samples, across 0°/360° too
         mean_deg = encoder[0] + float(np.mean([_wrap_arcsec(e - encoder[0]) for e in encoder])) / 3600.0
         ac.check(float(np.mean(x)), mean_deg, command_deg, seating, run, direction, visit)

@@ -95,8 +95,8 @@ function addReading(r) {
   }
 }
 
-function plotLabel(q, unit) {
-  return q.endsWith("_deg") ? q + " − command (arcsec)" : q + " (" + unit + ")";
+function plotLabel(q, unit) {  // an angle (its unit, from the store) is plotted as its departure from the command
+  return unit === "deg" ? q + " − command (arcsec)" : q + " (" + unit + ")";
 }
 
 // ---- formatting ------------------------------------------------------------------------------
@@ -205,7 +205,9 @@ function renderLatest(latest) {
   const rows = [], envRows = [];
   for (const r of latest) {
     const tr = document.createElement("tr");
-    const cells = r.instrument === "environment"
+    const conditions = r.kind === "environment";  // the store's description of the quantity says what it is
+    if (r.what) tr.title = r.what;
+    const cells = conditions
       ? [r.quantity, fmtNum(r.value, 2) + " " + r.unit, r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"]
       : [r.instrument, r.quantity, fmtNum(r.value) + " " + r.unit, r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"];
     cells.forEach((text, i) => {
@@ -213,7 +215,7 @@ function renderLatest(latest) {
       td.textContent = text;
       if (i >= cells.length - 2) td.className = "num";
     });
-    (r.instrument === "environment" ? envRows : rows).push(tr);
+    (conditions ? envRows : rows).push(tr);
   }
   body.replaceChildren(...rows);
   if (envRows.length) env.replaceChildren(...envRows);
@@ -265,7 +267,7 @@ function renderResult(result) {
 function renderPlot() {
   const q = $("plot-select").value;
   if (!q) return;
-  const deg = q.endsWith("_deg");
+  const deg = S.quantities.get(q) === "deg";
   const series = new Map();
   const perPlan = new Map(); // plan_index -> accepted attempt's mean (a plan is done once)
   for (const a of S.attempts.values()) {
