@@ -24,7 +24,7 @@ import numpy as np
 
 from rtcal.solvers.air import ciddor_n
 from rtcal.clock import Clock, VirtualClock
-from rtcal.deliverables.compensation import PARSERS
+from rtcal.deliverables.compensation import PARSERS, CompensationTable
 from rtcal.solvers.harmonics import evaluate
 from rtcal.units import arcsec_to_rad, um_to_mm
 from simulators.faults import FaultInjector
@@ -104,7 +104,11 @@ class Bench:
         st_ = scenario.stepper
         self.step_rad = 2 * math.pi / (st_.steps_per_revolution * st_.worm_ratio) if st_.steps_per_revolution else 0.0
         comp = scenario.stage.compensation
-        self.compensation = PARSERS[comp.format](comp.text, comp.file or "compensation") if comp is not None else None
+        self.compensation: CompensationTable | None = None
+        if comp is not None:
+            if comp.text is None:  # the loader reads the table into the scenario (rtcal/procedure/loader.py)
+                raise ValueError(f"stage.compensation: the table {comp.file} was not read")
+            self.compensation = PARSERS[comp.format](comp.text, comp.file or "compensation")
         # state
         self.commanded_rad = 0.0  # where the motor was sent (the user's command plus any compensation)
         self.target_rad = 0.0  # the user's command, in whole steps: what the controller shows, moves start from

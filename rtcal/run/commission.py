@@ -13,14 +13,15 @@ import json
 import math
 import textwrap
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 from drivers import factory
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentError, TrackingLost
-from drivers.interfaces import Instrument
+from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer,
+                                RotaryStage)
 from drivers.models import KINDS
 
 
@@ -35,14 +36,17 @@ class ProbeResult:
     address: str
     model: str
     identity: str = ""
-    reading: dict[str, float] = field(default_factory=dict)
+    reading: dict[str, float | None] = field(default_factory=dict)  # None: an axis the instrument reports invalid
 
     def as_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, "address": self.address, "model": self.model, "identity": self.identity,
                 "reading": self.reading}
 
 
-def _retrying(instrument: Instrument, read: Callable[[], Any], attempts: int = 3) -> Any:
+_T = TypeVar("_T")
+
+
+def _retrying(instrument: Instrument, read: Callable[[], _T], attempts: int = 3) -> _T:
     """``read()``, recovering the instrument between attempts (a CMM's error state, a drive alarm)."""
     for attempt in range(attempts):
         try:
@@ -57,7 +61,7 @@ def _retrying(instrument: Instrument, read: Callable[[], Any], attempts: int = 3
     raise AssertionError("unreachable")
 
 
-def _tracer_length(tracer) -> float:
+def _tracer_length(tracer: LaserTracer) -> float:
     try:
         return tracer.read_length().length_mm
     except TrackingLost:  # never referenced, or the beam was lost: reference where the reflector is, then read
@@ -66,26 +70,29 @@ def _tracer_length(tracer) -> float:
 
 
 def read_once(kind: str, instrument: Instrument) -> dict[str, float | None]:
-    """One reading, under the keys ``rtcal probe`` documents for the kind."""
-    if kind == "stage":
+    """One reading, under the keys ``rtcal probe`` documents for the kind (the factory opens each
+    kind as its interface)."""
+    if kind == "stage" and isinstance(instrument, RotaryStage):
         return {"position_deg": float(instrument.position_deg())}
-    if kind == "cmm":
+    if kind == "cmm" and isinstance(instrument, Cmm):
         x, y, z = (float(v) for v in instrument.position_mm())
         return {"x_mm": x, "y_mm": y, "z_mm": z}
-    if kind == "laser_tracer":
+    if kind == "laser_tracer" and isinstance(instrument, LaserTracer):
         return {"length_mm": float(_tracer_length(instrument))}
-    if kind == "encoder":
+    if kind == "encoder" and isinstance(instrument, Encoder):
         return {"angle_deg": float(instrument.read_angle_deg())}
-    if kind == "autocollimator":  # an axis the instrument reports invalid is None (null in --json)
+    if kind == "autocollimator" and isinstance(instrument, Autocollimator):  # an axis reported invalid: None (null in --json)
         x, y = instrument.read_axes_arcsec()
         return {"x_arcsec": float(x) if math.isfinite(x) else None, "y_arcsec": float(y) if math.isfinite(y) else None}
-    if kind == "dial_indicator":
+    if kind == "dial_indicator" and isinstance(instrument, DialIndicator):
         return {"displacement_mm": float(instrument.read_um()) / 1000.0}
-    r = instrument.read()
-    reading = {"air_temperature_c": r.air_temperature_c, "air_pressure_pa": r.air_pressure_pa, "humidity_pct": r.humidity_pct}
-    if math.isfinite(r.material_temperature_c):
-        reading["material_temperature_c"] = r.material_temperature_c
-    return {k: float(v) for k, v in reading.items()}
+    if kind == "environment" and isinstance(instrument, EnvironmentSensor):
+        r = instrument.read()
+        reading = {"air_temperature_c": r.air_temperature_c, "air_pressure_pa": r.air_pressure_pa, "humidity_pct": r.humidity_pct}
+        if math.isfinite(r.material_temperature_c):
+            reading["material_temperature_c"] = r.material_temperature_c
+        return {k: float(v) for k, v in reading.items()}
+    raise TypeError(f"a {type(instrument).__name__} is not a {kind.replace('_', ' ')}")
 
 
 def probe(kind: str, address: str, timeout_s: float = 2.0, **context: Any) -> ProbeResult:
@@ -139,11 +146,12 @@ def _context(name: str, choice) -> dict[str, Any]:
     return {}
 
 
-def _in_range(name: str, choice, reading: dict[str, float]) -> str:
+def _in_range(name: str, choice: Any, reading: dict[str, float | None]) -> str:
     """What is wrong with a reading for this procedure ("" if nothing): stage limits, CMM volume."""
     if name == "stage":
         lo, hi = choice.soft_limits_deg
-        if not lo <= reading["position_deg"] <= hi:
+        position = reading["position_deg"]
+        if position is not None and not lo <= position <= hi:
             return f"position {reading['position_deg']:.4f}° outside the procedure's soft limits [{lo:g}, {hi:g}]°"
     if name == "autocollimator" and reading["x_arcsec"] is None:
         return "X axis not valid (the autocollimator sees no face about the table axis): a run needs it"
