@@ -6,7 +6,7 @@ import json
 import os
 from pathlib import Path
 
-from typing import Annotated, Union
+from typing import Annotated, Any, Union
 
 from pydantic import Field, TypeAdapter
 
@@ -52,21 +52,23 @@ def load_scenario(path: str | Path, text: str | None = None) -> Scenario:
     if comp is None:
         return scenario
     where = ("stage", "compensation", "file" if comp.file else "text")
-    text = comp.text
+    table = comp.text
     if comp.file is not None:
         table_path = Path(path).parent / comp.file
         try:
             if table_path.stat().st_size > 1_000_000:
                 raise FileProblems([problem_at(path, where, f"{table_path} is larger than 1 MB: not a compensation table")])
-            text = table_path.read_text(encoding="utf-8")
+            table = table_path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
             raise FileProblems([problem_at(path, where, f"cannot read {table_path}: {exc}")]) from None
+    if table is None:  # never: the model holds a file or a text (CompensationScenario)
+        raise FileProblems([problem_at(path, where, "give the table's file")])
     try:
-        PARSERS[comp.format](text, comp.file or "text")
+        PARSERS[comp.format](table, comp.file or "text")
     except CompensationError as exc:
         raise FileProblems([problem_at(path, where, str(exc))]) from None
     return scenario.model_copy(update={"stage": scenario.stage.model_copy(update={
-        "compensation": comp.model_copy(update={"text": text, "file": None})})})
+        "compensation": comp.model_copy(update={"text": table, "file": None})})})
 
 
 def bench_path(procedure_path: str | Path, proc: Procedure) -> Path | None:
@@ -106,7 +108,8 @@ def is_procedure_text(text: str) -> bool:
 
 def procedure_schema() -> str:
     """JSON Schema of procedure files (one branch per ``method``), for editors."""
-    union = Annotated[Union[tuple(PROCEDURE_MODELS.values())], Field(discriminator="method")]
+    # built at run time from the registry: a type for pydantic, none mypy can check
+    union: Any = Annotated[Union[tuple(PROCEDURE_MODELS.values())], Field(discriminator="method")]
     schema = TypeAdapter(union).json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "rtcal procedure"
