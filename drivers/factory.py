@@ -18,7 +18,6 @@ from drivers.models import Model, model_for
 KIND_OF = {"stage": "stage", "cmm": "cmm", "laser_tracer": "laser_tracer", "encoder": "encoder",
            "autocollimator": "autocollimator", "dial_indicator_1": "dial_indicator", "dial_indicator_2": "dial_indicator",
            "environment": "environment"}
-# the kinds of address each instrument of a procedure speaks with its default model
 
 
 class SchemeMismatch(AddressError):
@@ -52,31 +51,46 @@ def open_instrument(kind: str, address: str, timeout_s: float, **context: Any) -
     return fenced(kind, model.name, model.plugin, lambda: cls(parsed, timeout_s, **context))
 
 
+# each kind's fence subclasses the kind's interface (drivers/fence.py): the asserts below only narrow the type
 def open_stage(address: str, limits_deg: tuple[float, float], timeout_s: float) -> RotaryStage:
-    return open_instrument("stage", address, timeout_s, limits_deg=limits_deg)
+    instrument = open_instrument("stage", address, timeout_s, limits_deg=limits_deg)
+    assert isinstance(instrument, RotaryStage)
+    return instrument
 
 
-def open_cmm(address: str, volume_min_mm, volume_max_mm, timeout_s: float, tool: str | None = None,
+def open_cmm(address: str, volume_min_mm: Any, volume_max_mm: Any, timeout_s: float, tool: str | None = None,
              home: bool = False) -> Cmm:
-    return open_instrument("cmm", address, timeout_s, volume_min_mm=volume_min_mm, volume_max_mm=volume_max_mm, tool=tool,
-                           home=home)
+    instrument = open_instrument("cmm", address, timeout_s, volume_min_mm=volume_min_mm, volume_max_mm=volume_max_mm,
+                                 tool=tool, home=home)
+    assert isinstance(instrument, Cmm)
+    return instrument
 
 
 def open_laser_tracer(address: str, timeout_s: float) -> LaserTracer:
-    return open_instrument("laser_tracer", address, timeout_s)
+    instrument = open_instrument("laser_tracer", address, timeout_s)
+    assert isinstance(instrument, LaserTracer)
+    return instrument
 
 
 def open_encoder(address: str, timeout_s: float) -> Encoder:
-    return open_instrument("encoder", address, timeout_s)
+    instrument = open_instrument("encoder", address, timeout_s)
+    assert isinstance(instrument, Encoder)
+    return instrument
 
 
 def open_autocollimator(address: str, timeout_s: float) -> Autocollimator:
-    return open_instrument("autocollimator", address, timeout_s)
+    instrument = open_instrument("autocollimator", address, timeout_s)
+    assert isinstance(instrument, Autocollimator)
+    return instrument
 
 
 def open_dial_indicator(address: str, name: str, timeout_s: float) -> DialIndicator:
-    return open_instrument("dial_indicator", address, timeout_s, name=name)
+    instrument = open_instrument("dial_indicator", address, timeout_s, name=name)
+    assert isinstance(instrument, DialIndicator)
+    return instrument
 
 
 def open_environment(address: str, timeout_s: float) -> EnvironmentSensor:
-    return open_instrument("environment", address, timeout_s)
+    instrument = open_instrument("environment", address, timeout_s)
+    assert isinstance(instrument, EnvironmentSensor)
+    return instrument

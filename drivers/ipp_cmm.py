@@ -29,6 +29,7 @@ import math
 import select
 import socket
 import time
+from typing import TypeVar
 
 import numpy as np
 
@@ -40,6 +41,7 @@ from drivers.interfaces import Cmm
 MAX_LINE_BYTES = 64 * 1024
 MAX_COORDINATE_MM = 1e6
 MOTIONS = ("GoTo", "PtMeas", "Home")
+_Error = TypeVar("_Error", bound=Exception | None)  # what _drop passes on
 COORDINATE_SYSTEM = "MachineCsy"  # §6.3.3.1: the machine's own axes, whatever a previous session left active
 log = logging.getLogger(__name__)
 
@@ -47,7 +49,7 @@ log = logging.getLogger(__name__)
 class IppCmm(Cmm):
     name = "cmm"
     model, kind, schemes, framing = "ipp", "cmm", ("ipp",), None
-    options: dict = {}  # home=1 (drivers/addresses.py): the run may home an unhomed machine
+    options: dict[str, tuple[float, float, bool]] = {}  # home=1 (drivers/addresses.py): the run may home an unhomed machine
     exclusive_access = ("an I++ DME server serves one session at a time, and rtcal held it while measuring (NIST's "
                         "reference server stops serving a second connection; docs/protocols/ipp_dme.md: not confirmed "
                         "for every real server)")
@@ -137,13 +139,19 @@ class IppCmm(Cmm):
             raise EmergencyStop(self.name, f"emergency stop reported by the CMM ({self.emergency}); nothing is sent "
                                            "until it is released at the machine and the run is started again")
 
-    def _drop(self, error: Exception | None) -> Exception | None:
+    def _drop(self, error: _Error) -> _Error:
         """Close a connection that can no longer be trusted; the next command opens a new one."""
         if self.sock is not None:
             self.sock.close()
             self.sock = None
         self._buffer = b""
         return error
+
+    def _connected(self) -> socket.socket:
+        """The open connection (a command opens one first; one that failed was dropped with an error)."""
+        if self.sock is None:
+            raise InstrumentFault(self.name, "not connected")
+        return self.sock
 
     def _readline(self, deadline: float) -> str:
         while b"\r\n" not in self._buffer:
@@ -153,9 +161,10 @@ class IppCmm(Cmm):
             if left <= 0:
                 self._buffer = b""  # a partial line will never complete: start clean next time
                 raise InstrumentTimeout(self.name, "no reply within the timeout")
+            sock = self._connected()
             try:
-                self.sock.settimeout(left)
-                chunk = self.sock.recv(4096)
+                sock.settimeout(left)
+                chunk = sock.recv(4096)
             except socket.timeout:
                 self._buffer = b""
                 raise InstrumentTimeout(self.name, "no reply within the timeout") from None
@@ -181,9 +190,12 @@ class IppCmm(Cmm):
     def _read_unsolicited(self) -> None:
         """Lines that arrived while no command ran: an ``E0000`` event (an emergency stop pressed
         between commands) latches before the next command is sent; other stale lines are dropped."""
+        sock = self.sock
+        if sock is None:
+            return  # nothing can have arrived
         try:
-            while select.select([self.sock], [], [], 0)[0]:
-                chunk = self.sock.recv(4096)
+            while select.select([sock], [], [], 0)[0]:
+                chunk = sock.recv(4096)
                 if not chunk:
                     return  # closed: the send or the read that follows reports it
                 self._buffer += chunk
@@ -209,7 +221,7 @@ class IppCmm(Cmm):
             tag = f"{self._tag:05d}"
         deadline = time.monotonic() + self.timeout_s * (10 if text.startswith(MOTIONS) else 1)
         try:
-            self.sock.sendall(f"{tag} {text}\r\n".encode("ascii"))
+            self._connected().sendall(f"{tag} {text}\r\n".encode("ascii"))
         except OSError as exc:
             raise self._drop(InstrumentFault(self.name, f"send failed: {exc}")) from None
         data: list[str] = []
@@ -276,9 +288,9 @@ class IppCmm(Cmm):
     def position_mm(self) -> np.ndarray:
         data = self.command("Get(X(), Y(), Z())")
         values = ipp.axes(data[0]) if data else {}
-        if any(values.get(a) is None for a in "XYZ"):
+        xyz = [v for v in (values.get(a) for a in "XYZ") if v is not None]
+        if len(xyz) < 3:
             raise InstrumentFault(self.name, f"Get returned {data[:1]!r:.200}")
-        xyz = [values["X"], values["Y"], values["Z"]]
         if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_MM for v in xyz):
             raise InstrumentFault(self.name, f"Get returned a position that is no position: {data[0]:.200}")
         return np.array(xyz)

@@ -30,6 +30,7 @@ import time
 from drivers.addresses import Address, AddressError
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.interfaces import RotaryStage
+from drivers.models import Framing
 
 AXES = "XYZABCUVW"  # linuxcncrsh numbers a position's axes in this order (abs_act_pos 5 is C)
 CONNECT_PASSWORD, ENABLE_PASSWORD = "EMC", "EMCTOO"  # linuxcncrsh's documented defaults (no secret: see its man page)
@@ -44,6 +45,8 @@ class LinuxCncStage(RotaryStage):
     the joint's rapid) and ``move_timeout_s`` (longest wait for one move, default 60)."""
 
     name = "stage"
+    framing: Framing | None
+    options: dict[str, tuple[float, float, bool]]
     model, kind, schemes, framing, options = "linuxcnc", "stage", ("linuxcncrsh",), None, {}
     step_deg = 1e-6
 
@@ -61,7 +64,7 @@ class LinuxCncStage(RotaryStage):
         self.stray: list[str] = []
         self._buffer = b""
         try:
-            self.sock = socket.create_connection((address.host, address.port), timeout=timeout_s)
+            self.sock: socket.socket | None = socket.create_connection((address.host, address.port), timeout=timeout_s)
         except OSError as exc:
             raise InstrumentTimeout(self.name, f"cannot connect to linuxcncrsh at {address.host}:{address.port}: {exc}") from None
         try:
@@ -71,9 +74,16 @@ class LinuxCncStage(RotaryStage):
             raise
 
     # -- the wire
+    def _connected(self, what: str) -> socket.socket:
+        """The connection (None once closed)."""
+        if self.sock is None:
+            raise InstrumentFault(self.name, f"{what}: the connection to LinuxCNC is closed")
+        return self.sock
+
     def _send(self, line: str) -> None:
+        sock = self._connected(repr(line))
         try:
-            self.sock.sendall(line.encode("ascii") + b"\r\n")
+            sock.sendall(line.encode("ascii") + b"\r\n")
         except OSError as exc:
             raise InstrumentFault(self.name, f"{line!r}: connection to LinuxCNC lost ({exc!r})") from None
 
@@ -91,9 +101,10 @@ class LinuxCncStage(RotaryStage):
             left = deadline - time.monotonic()
             if left <= 0:
                 raise InstrumentTimeout(self.name, f"{what}: no reply in {timeout_s:g} s")
+            sock = self._connected(what)
             try:
-                self.sock.settimeout(left)
-                chunk = self.sock.recv(4096)
+                sock.settimeout(left)
+                chunk = sock.recv(4096)
             except socket.timeout:
                 raise InstrumentTimeout(self.name, f"{what}: no reply in {timeout_s:g} s") from None
             except OSError as exc:

@@ -22,7 +22,7 @@ from drivers import az_registers as az
 from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV, Address
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.interfaces import RotaryStage
-from drivers.models import BUILTIN
+from drivers.models import builtin_framing
 from drivers.serial_line import framing_of
 
 # pymodbus logs what it trips over; with no handler Python would print it on the console over the
@@ -38,8 +38,9 @@ class ModbusStage(RotaryStage):
     (the drive's own setting; ``baud``, ``parity``, ``stopbits`` options)."""
 
     name = "stage"
+    options: dict[str, tuple[float, float, bool]]
     model, kind, schemes, options = "oriental-az", "stage", ("modbus-tcp", "modbus-rtu"), {}
-    framing = BUILTIN["oriental-az"].framing
+    framing = builtin_framing("oriental-az")
 
     SETTLE_S = 0.3  # after IN-POS: how long the feedback may take to come within tolerance of the target
     tolerance_steps = 2.0  # how far the feedback may end from the target (set from tolerance_deg at open)
@@ -55,6 +56,7 @@ class ModbusStage(RotaryStage):
         self.speed_hz = max(1, round(address.option("speed_deg_per_s", 10.0) * self.steps_per_deg))
         self.limits_deg = limits_deg
         self.timeout_s = timeout_s
+        self.client: ModbusTcpClient | ModbusSerialClient
         if address.scheme == "modbus-tcp":
             self.client = ModbusTcpClient(address.host, port=address.port, timeout=timeout_s, retries=0)
             where = f"{address.host}:{address.port}"
@@ -119,7 +121,7 @@ class ModbusStage(RotaryStage):
             feedback = None
             if status & az.OUT_MOVE:
                 started = True
-            elif not started:  # IN-POS of the previous position until the drive starts: look at the feedback
+            elif not started and before_steps is not None and target_steps is not None:  # IN-POS of the previous position until the drive starts: look at the feedback
                 feedback = self._read32(az.FEEDBACK_POSITION)[0]
                 started = feedback != before_steps or abs(feedback - target_steps) <= self.tolerance_steps
             if started and status & az.OUT_IN_POS and not status & az.OUT_MOVE:
@@ -133,7 +135,7 @@ class ModbusStage(RotaryStage):
                 if time.monotonic() > settle_until:
                     return  # in position somewhere else: the motion checks name it, with the feedback
             if time.monotonic() > (deadline if started else start_deadline):
-                if not started:
+                if not started and before_steps is not None:
                     raise InstrumentTimeout(self.name, f"{what}: the drive never started the motion (feedback still "
                                                        f"{before_steps / self.steps_per_deg:.6f}°)")
                 raise InstrumentTimeout(self.name, f"{what}: not in position in time")

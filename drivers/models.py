@@ -54,6 +54,14 @@ class Model:
             raise AddressError(f"model {self.name!r}: its driver {self.target} cannot be loaded ({exc})") from None
 
 
+def builtin_framing(name: str) -> Framing:
+    """A built-in serial model's framing (each has one: the table below)."""
+    framing = BUILTIN[name].framing
+    if framing is None:
+        raise KeyError(f"built-in model {name!r} has no serial framing")
+    return framing
+
+
 def _builtin(name: str, kind: str, target: str, schemes: tuple[str, ...] = ("serial",), framing: Framing | None = None) -> Model:
     return Model(name, kind, target, schemes, framing)
 

@@ -27,7 +27,7 @@ import time
 from drivers.addresses import Address, AddressError
 from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, OutOfLimits
 from drivers.interfaces import RotaryStage
-from drivers.models import BUILTIN, Framing
+from drivers.models import Framing, builtin_framing
 from drivers.serial_line import SerialLine
 
 log = logging.getLogger(__name__)
@@ -42,8 +42,8 @@ MAX_POSITION_DEG = 1e6  # a rotation stage's position beyond this is no position
 class PiGcsStage(RotaryStage):
     name = "stage"
     model, kind, schemes = "pi-gcs", "stage", ("serial",)
-    options: dict = {}  # axis= and home= are general address options (drivers/addresses.py)
-    framing: Framing = BUILTIN["pi-gcs"].framing
+    options: dict[str, tuple[float, float, bool]] = {}  # axis= and home= are general address options (drivers/addresses.py)
+    framing: Framing = builtin_framing("pi-gcs")
     POLL_S = 0.01
 
     def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),

@@ -18,7 +18,7 @@ import re
 from drivers.addresses import Address
 from drivers.errors import InstrumentError, InstrumentFault, TrackingLost
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, LaserTracer, LengthReading
-from drivers.models import BUILTIN, Framing
+from drivers.models import Framing, builtin_framing
 from drivers.serial_line import SerialLine
 
 NUMBER = r"[+-]?\d+(?:\.\d+)?"
@@ -43,7 +43,7 @@ class SerialInstrument:
     model: str = ""
     kind: str = ""
     schemes = ("serial",)
-    options: dict = {}
+    options: dict[str, tuple[float, float, bool]] = {}
     framing: Framing = Framing()
     terminator = b"\r"  # of replies
     line: SerialLine
@@ -62,7 +62,7 @@ class ElcomatAutocollimator(SerialInstrument, Autocollimator):
     ``d`` → ``8 <serial> <day> <month> <year> <focal length>`` is the identity."""
 
     name = "autocollimator"
-    model, kind, framing = "elcomat", "autocollimator", BUILTIN["elcomat"].framing
+    model, kind, framing = "elcomat", "autocollimator", builtin_framing("elcomat")
     REQUEST = b"a\r\n"
     REPLY = re.compile(rf"(\d+) (\d+) ({NUMBER}) ({NUMBER})")
     IDENTITY = re.compile(r"8 (\S+) (\d+) (\d+) (\d+) (\d+(?:\.\d+)?)")
@@ -109,7 +109,7 @@ class SylvacIndicator(SerialInstrument, DialIndicator):
     that echoes commands (UniCal manual) is tolerated: a line that repeats the request is skipped.
     ``ERRn`` is the instrument's own error."""
 
-    model, kind, framing = "sylvac", "dial_indicator", BUILTIN["sylvac"].framing
+    model, kind, framing = "sylvac", "dial_indicator", builtin_framing("sylvac")
     REQUEST = b"?\r"
     REPLY = re.compile(r"\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)\s*(mm)?\s*", re.IGNORECASE)
     ERROR = re.compile(r"\s*ERR\s*(\d)\s*", re.IGNORECASE)
@@ -175,7 +175,7 @@ class QsbEncoder(SerialInstrument, Encoder):
     optional 8-hex timestamp and an optional ``!``; the count is 32-bit two's complement."""
 
     name = "encoder"
-    model, kind, framing = "qsb", "encoder", BUILTIN["qsb"].framing
+    model, kind, framing = "qsb", "encoder", builtin_framing("qsb")
     terminator = b"\n"
     REPLY = re.compile(r"([rwse]) ?([0-9A-F]{2}) ?([0-9A-F]{8})(?: ?([0-9A-F]{8}))? ?(!)?", re.IGNORECASE)
     SETUP = ((0x15, 0x03), (0x00, 0x00), (0x03, 0x03))
@@ -212,7 +212,7 @@ class QsbEncoder(SerialInstrument, Encoder):
 
 class LineLaserTracer(SerialInstrument, LaserTracer):
     name = "laser_tracer"
-    model, kind, framing = "rtcal-line", "laser_tracer", BUILTIN["rtcal-line"].framing
+    model, kind, framing = "rtcal-line", "laser_tracer", builtin_framing("rtcal-line")
     REF_REPLY = re.compile(r"OK REF (\d{1,9})")
     LEN_REPLY = re.compile(rf"LEN ({NUMBER}) (\d{{1,9}})|ERR (\w+)")
     RANGE_MM = 100_000.0  # a tracer follows a reflector within some 20 m; a length change beyond 100 m is garbage

@@ -11,13 +11,14 @@ terminal server's port settings); pyserial still holds the values for inspection
 
 from __future__ import annotations
 
+import sys
 from typing import Callable
 
 import serial
 
-try:  # a pseudo-terminal or adapter whose other end died raises termios.error, which is no OSError
+if sys.platform != "win32":  # a pseudo-terminal or adapter whose other end died raises termios.error, which is no OSError
     from termios import error as TermiosError
-except ImportError:  # Windows has no termios
+else:  # Windows has no termios
     class TermiosError(Exception):
         pass
 

@@ -21,7 +21,7 @@ import time
 from drivers.addresses import Address, AddressError, parse_address
 from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout
 from drivers.interfaces import EnvironmentReading, EnvironmentSensor
-from drivers.models import BUILTIN, Framing
+from drivers.models import Framing, builtin_framing
 from drivers.serial_line import SerialLine
 
 FIELD = re.compile(r"([A-Za-z][A-Za-z0-9]*)\s*=\s*([+-]?\d+(?:\.\d+)?)\s*([^\s=]+(?=\s|$))?")
@@ -83,8 +83,9 @@ class IthxThermometer:
 
 class VaisalaPtu300(EnvironmentSensor):
     name = "environment"
+    options: dict[str, tuple[float, float, bool]]
     model, kind, schemes, options = "vaisala-ptu300", "environment", ("serial",), {}
-    framing: Framing = BUILTIN["vaisala-ptu300"].framing
+    framing: Framing = builtin_framing("vaisala-ptu300")
     FORM = '"P=" 4.4 P " " U4 " T=" 3.4 T " " U3 " RH=" 3.3 RH " " U3 #r #n'
     MEASURES_AIR = True  # a PTB330 is a barometer: air temperature and humidity come from the thermometer
 
@@ -200,8 +201,10 @@ class VaisalaPtu300(EnvironmentSensor):
         pressure_pa = self._pressure_pa(fields)
         if self.MEASURES_AIR:
             t, rh = self._air(fields)
-        else:
+        elif self.thermometer is not None:
             t, rh = self.thermometer.read("*SRTC"), self.thermometer.read("*SRH")
+        else:  # never: a barometer is not opened without its thermometer
+            raise InstrumentFault(self.name, "no thermometer for the air temperature and humidity")
         material = self.thermometer.read("*SRTC2") if self.thermometer else math.nan
         values = {"air_temperature_c": t, "air_pressure_pa": pressure_pa, "humidity_pct": rh, "material_temperature_c": material}
         check_ranges(self.name, values)
@@ -218,6 +221,6 @@ class VaisalaPtu300(EnvironmentSensor):
 
 class VaisalaPtb330(VaisalaPtu300):
     model = "vaisala-ptb330"
-    framing = BUILTIN["vaisala-ptb330"].framing
+    framing = builtin_framing("vaisala-ptb330")
     FORM = '"P=" 4.4 P " " U4 #r #n'
     MEASURES_AIR = False

@@ -94,7 +94,7 @@ class SimStage(_Injecting, RotaryStage):
     def __init__(self, bench: Bench, inject: bool = True):
         self.bench = bench
         self.inject = inject
-        self.limits_deg = tuple(bench.scenario.stage.soft_limits_deg)
+        self.limits_deg = bench.scenario.stage.soft_limits_deg
         self.step_deg = math.degrees(bench.step_rad)
         self.alarm: str | None = None
         self.stuck_at_deg: float | None = None  # a stuck drive's feedback: the command it echoes
@@ -160,7 +160,7 @@ class SimCmm(_Injecting, Cmm):
         self.bench = bench
         self.inject = inject
         sc = bench.scenario.cmm
-        self.volume_min_mm, self.volume_max_mm = tuple(sc.volume_min_mm), tuple(sc.volume_max_mm)
+        self.volume_min_mm, self.volume_max_mm = sc.volume_min_mm, sc.volume_max_mm
         self._rng = bench.rng("cmm")
         self._reading_error_mm = np.zeros(3)
 
@@ -207,10 +207,14 @@ class SimLaserTracer(_Injecting, LaserTracer):
         return self.bench.tracer_length_mm() * self.bench.air_index() / self._n_std
 
     def reference(self) -> int:
-        self.bench.beam_broken = False  # re-acquired: the beam reaches the reflector again
-        self._reference_mm = self._optical_mm()
-        self._segment += 1
+        self._take_reference()
         return self._segment
+
+    def _take_reference(self) -> float:
+        self.bench.beam_broken = False  # re-acquired: the beam reaches the reflector again
+        self._reference_mm = reference_mm = self._optical_mm()
+        self._segment += 1
+        return reference_mm
 
     def read_length(self) -> LengthReading:
         fault = self._fault()
@@ -223,8 +227,7 @@ class SimLaserTracer(_Injecting, LaserTracer):
         if self.bench.beam_broken:
             raise TrackingLost(self.name, "tracking lost: re-reference the tracer")
         self.bench.reading()
-        if self._reference_mm is None:
-            self.reference()
+        reference_mm = self._take_reference() if self._reference_mm is None else self._reference_mm
         length = self.bench.tracer_length_mm()
         lt = self.bench.scenario.laser_tracer
         sigma_mm = um_to_mm(lt.length_noise_um + lt.length_noise_ppm * length * 1e-3)
@@ -232,7 +235,7 @@ class SimLaserTracer(_Injecting, LaserTracer):
         if self.state_fault is not None and self.state_fault.kind == "creep":  # every reading adds to the count
             self._creep_readings += 1
             creep_mm = um_to_mm(self.state_fault.creep_um_per_reading) * self._creep_readings
-        return LengthReading(self._optical_mm() - self._reference_mm + creep_mm + sigma_mm * self._rng.standard_normal(),
+        return LengthReading(self._optical_mm() - reference_mm + creep_mm + sigma_mm * self._rng.standard_normal(),
                              self._segment)
 
 

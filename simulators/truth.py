@@ -23,12 +23,12 @@ def station_truth(bench: Bench, angles_deg: np.ndarray, direction: int) -> dict:
     for c, s in zip(cmd, systematic):
         visits = [mv.actual_rad for mv in bench.truth.stage_moves if math.isclose(mv.commanded_rad, c, abs_tol=1e-12)]
         realized.append(float(np.mean(visits)) if visits else float(s))
-    realized = np.array(realized)
+    realized_rad = np.array(realized)
     error = rad_to_arcsec(systematic - cmd)
     return {
         "deviation_arcsec": np.diff(error).tolist(),
         "cumulative_deviation_arcsec": (error - error[0]).tolist(),
-        "realized_deviation_arcsec": np.diff(rad_to_arcsec(realized - cmd)).tolist(),
+        "realized_deviation_arcsec": np.diff(rad_to_arcsec(realized_rad - cmd)).tolist(),
         "positioning_error_arcsec": error.tolist(),
     }
 
@@ -55,6 +55,8 @@ def abbe_truth(bench: Bench, angles_deg: np.ndarray, directions: np.ndarray,
            "positioning_error_arcsec": np.round([p[0] for p in per_step], 6).tolist(),
            "face_error_arcsec": np.round(bench.face_errors_arcsec, 6).tolist()}
     if target_deg is not None:
+        if target_direction is None:
+            raise ValueError("target_direction: one approach direction per target")
         eps = np.array([_systematic_arcsec(bench, a, d)[0] for a, d in zip(target_deg, target_direction)])
         out["cumulative_deviation_arcsec"] = np.round(eps - eps[0], 6).tolist()
     return out

@@ -6,9 +6,6 @@ from __future__ import annotations
 import json
 import re
 import shutil
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import jsonschema
@@ -215,14 +212,3 @@ def test_no_consumer_indexes_results_by_string_keys():
             if STRING_KEY_ACCESS.search(line):
                 found.append(f"{path.relative_to(REPO)}:{k}: {line.strip()}")
     assert found == []
-
-
-def test_the_type_checker_passes(tmp_path):
-    """mypy as configured in pyproject.toml: strict on the results model and the method protocol,
-    and the method classes checked against the protocol (rtcal/methods/__init__.py). From a cold
-    cache, as in CI."""
-    start = time.monotonic()
-    done = subprocess.run([sys.executable, "-m", "mypy", "--cache-dir", str(tmp_path / "mypy_cache")],
-                          cwd=REPO, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
-    assert time.monotonic() - start < 120

@@ -101,17 +101,17 @@ def means_of(evaluation: Iso230Evaluation, analysis: Analysis, table: Positionin
     e = analysis.recommended_estimate()
     if e is not None:
         where = {(round(t, 6), d): j for j, (t, d) in enumerate(estimate_targets(analysis, table))}
-        rows = [where.get(k) for k in keys]
-        if all(r is not None for r in rows):
+        rows = [r for r in (where.get(k) for k in keys) if r is not None]
+        if len(rows) == len(keys):
             c = np.array([[np.nan if v is None else v for v in row] for row in e.cumulative_covariance_arcsec2], float)
             cov = c[np.ix_(rows, rows)]
     source = "the covariance of the recommended estimate's mean deviations"
     if not np.all(np.isfinite(cov)):
-        u2 = {}
+        u2: dict[tuple[float, int], list[float]] = {}
         for t, d, u in zip(table.target_deg, table.direction, table.uncertainty_arcsec):
             if np.isfinite(u):
                 u2.setdefault((round(float(t), 6), int(d)), []).append(float(u) ** 2)
-        cov = np.diag([np.mean(u2[k]) if k in u2 else np.nan for k in keys])
+        cov = np.diag([float(np.mean(u2[k])) if k in u2 else np.nan for k in keys])
         source = ("the rows' u, taken fully correlated within a target and direction and independent between them "
                   "(the estimate's covariance was not available)")
     return Means(keys, np.array(mean, float), np.array(s, float), np.array(n, int), cov, source)

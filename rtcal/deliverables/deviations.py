@@ -224,7 +224,10 @@ class PositioningDeviations:
                                           f"±{limit:,.0f}{unit}; not a positioning deviation table")
         keys = list(zip(np.round(self.target_deg, 9), self.direction, self.run))
         if len(set(keys)) != len(keys):
-            seen: set = set()
-            dup = next(k for k in keys if k in seen or seen.add(k))
+            seen: set[tuple[float, int, int]] = set()
+            for dup in keys:  # the first key seen before (there is one)
+                if dup in seen:
+                    break
+                seen.add(dup)
             raise DeviationTableError(f"{where}: target {dup[0]:g}°, direction {int(dup[1]):+d}, run {int(dup[2])} "
                                       "appears more than once")

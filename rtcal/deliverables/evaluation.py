@@ -26,7 +26,7 @@ Values are rounded to 0.0001″ (far below any instrument's resolution) for the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -135,46 +135,96 @@ def _one_approach_note(stats: list[TargetStatistics], direction: int, what: str)
     return f"one approach ({sym}) at {_deg_list(lone)}: s needs two, so {what} undefined"
 
 
-def _iso230_2(stats: list[TargetStatistics], both: bool, k: float, notes: list[str]) -> dict[str, Any]:
-    """ISO 230-2 with coverage k (2; 3 for the 1988 edition) in A and 2k·s in R."""
-    per = []
-    for s in stats:
-        paired = s.n_up > 0 and s.n_down > 0
-        B_i = s.mean_up - s.mean_down if paired else None
+@dataclass(frozen=True)
+class _IsoTarget:
+    """One target's ISO 230-2 values (arcsec); None where undefined (the field order is the
+    results file's)."""
+
+    target_deg: float
+    mean_up: float | None
+    mean_down: float | None
+    mean: float | None
+    B_i: float | None
+    s_up: float | None
+    s_down: float | None
+    R_up_i: float | None
+    R_down_i: float | None
+    R_i: float | None
+    n_up: int
+    n_down: int
+
+    @classmethod
+    def of(cls, s: TargetStatistics, k: float) -> _IsoTarget:
         R_up = 2 * k * s.s_up if s.s_up is not None else None
         R_down = 2 * k * s.s_down if s.s_down is not None else None
-        R_i = max(k * s.s_up + k * s.s_down + abs(B_i), R_up, R_down) if paired and R_up is not None and R_down is not None else None
-        per.append({"target_deg": s.target_deg, "mean_up": s.mean_up, "mean_down": s.mean_down,
-                    "mean": (s.mean_up + s.mean_down) / 2 if paired else None, "B_i": B_i,
-                    "s_up": s.s_up, "s_down": s.s_down, "R_up_i": R_up, "R_down_i": R_down, "R_i": R_i,
-                    "n_up": s.n_up, "n_down": s.n_down})
-    out: dict[str, Any] = {}
+        mean = B_i = R_i = None
+        if s.mean_up is not None and s.mean_down is not None:  # approached from both sides
+            B_i = s.mean_up - s.mean_down
+            mean = (s.mean_up + s.mean_down) / 2
+            if s.s_up is not None and s.s_down is not None and R_up is not None and R_down is not None:
+                R_i = max(k * s.s_up + k * s.s_down + abs(B_i), R_up, R_down)
+        return cls(s.target_deg, s.mean_up, s.mean_down, mean, B_i, s.s_up, s.s_down, R_up, R_down, R_i,
+                   s.n_up, s.n_down)
+
+    def side(self, direction: int) -> tuple[float | None, float | None, float | None, int]:
+        """Mean, s, R_i and number of approaches of one direction."""
+        return ((self.mean_up, self.s_up, self.R_up_i, self.n_up) if direction > 0
+                else (self.mean_down, self.s_down, self.R_down_i, self.n_down))
+
+
+@dataclass(frozen=True)
+class _VdiTarget:
+    """One target's VDI/DGQ 3441 values (arcsec); None where undefined."""
+
+    target_deg: float
+    mean: float | None
+    U_j: float | None
+    Ps_j: float | None
+    n_up: int
+    n_down: int
+
+
+def _row(row: _IsoTarget | _VdiTarget) -> dict[str, Any]:
+    """A per-target row for the results file, in field order, rounded."""
+    return {f.name: _round(getattr(row, f.name)) for f in fields(row)}
+
+
+def _iso230_2(stats: list[TargetStatistics], both: bool, k: float, notes: list[str]) -> dict[str, Any]:
+    """ISO 230-2 with coverage k (2; 3 for the 1988 edition) in A and 2k·s in R."""
+    per = [_IsoTarget.of(s, k) for s in stats]
+    out: dict[str, float | None] = {}
     for d, key in ((1, "up"), (-1, "down")):
-        rows = [p for p in per if p[f"n_{key}"]]
-        out[f"E_{key}"] = _span([p[f"mean_{key}"] for p in rows])
-        if rows and all(p[f"s_{key}"] is not None for p in rows):  # s = 0 is a value, not a missing one
-            out[f"R_{key}"] = max(p[f"R_{key}_i"] for p in rows)
-            out[f"A_{key}"] = (max(p[f"mean_{key}"] + k * p[f"s_{key}"] for p in rows)
-                               - min(p[f"mean_{key}"] - k * p[f"s_{key}"] for p in rows))
+        rows = [p.side(d) for p in per if p.side(d)[3]]
+        out[f"E_{key}"] = _span([mean for mean, _, _, _ in rows])
+        # s = 0 is a value, not a missing one; R_i is defined wherever s is
+        full = [(mean, sd, R) for mean, sd, R, _ in rows if mean is not None and sd is not None and R is not None]
+        if rows and len(full) == len(rows):
+            out[f"R_{key}"] = max(R for _, _, R in full)
+            out[f"A_{key}"] = (max(mean + k * sd for mean, sd, _ in full)
+                               - min(mean - k * sd for mean, sd, _ in full))
         else:
             out[f"R_{key}"] = out[f"A_{key}"] = None
             note = _one_approach_note(stats, d, f"R_{key} and A_{key} are")
             if note:
                 notes.append(note)
-    pairs = [p for p in per if p["B_i"] is not None]
+    pairs = [p for p in per if p.B_i is not None]
     if both:
-        lone = [p["target_deg"] for p in per if p["B_i"] is None]
+        lone = [p.target_deg for p in per if p.B_i is None]
         if lone:
             notes.append(f"approached in one direction only: {_deg_list(lone)}, left out of M, B, B_mean, R and A "
                          "(E uses every mean)")
-        out["E"] = _span([p["mean_up"] for p in per] + [p["mean_down"] for p in per])
-        out["M"] = _span([p["mean"] for p in pairs])
-        out["B"] = max(abs(p["B_i"]) for p in pairs) if pairs else None
-        out["B_mean"] = math.fsum(p["B_i"] for p in pairs) / len(pairs) if pairs else None
-        if pairs and all(p["R_i"] is not None for p in pairs):
-            out["R"] = max(p["R_i"] for p in pairs)
-            out["A"] = (max(max(p["mean_up"] + k * p["s_up"], p["mean_down"] + k * p["s_down"]) for p in pairs)
-                        - min(min(p["mean_up"] - k * p["s_up"], p["mean_down"] - k * p["s_down"]) for p in pairs))
+        B_i = [p.B_i for p in pairs if p.B_i is not None]
+        out["E"] = _span([p.mean_up for p in per] + [p.mean_down for p in per])
+        out["M"] = _span([p.mean for p in pairs])
+        out["B"] = max(abs(b) for b in B_i) if pairs else None
+        out["B_mean"] = math.fsum(B_i) / len(pairs) if pairs else None
+        full_pairs = [(p.mean_up, p.s_up, p.mean_down, p.s_down, p.R_i) for p in pairs
+                      if p.mean_up is not None and p.s_up is not None and p.mean_down is not None
+                      and p.s_down is not None and p.R_i is not None]
+        if pairs and len(full_pairs) == len(pairs):  # R_i is defined where both s are
+            out["R"] = max(R_i for _, _, _, _, R_i in full_pairs)
+            out["A"] = (max(max(mu + k * su, md + k * sd) for mu, su, md, sd, _ in full_pairs)
+                        - min(min(mu - k * su, md - k * sd) for mu, su, md, sd, _ in full_pairs))
         else:
             out["R"] = out["A"] = None
             if pairs:
@@ -183,39 +233,47 @@ def _iso230_2(stats: list[TargetStatistics], both: bool, k: float, notes: list[s
         out.update({"E": None, "M": None, "B": None, "B_mean": None, "R": None, "A": None})
     order = ("E_up", "E_down", "E", "M", "B", "B_mean", "R_up", "R_down", "R", "A_up", "A_down", "A")
     return {**{key: _round(out[key]) for key in order},
-            "per_target": [{key: _round(v) for key, v in p.items()} for p in per]}
+            "per_target": [_row(p) for p in per]}
 
 
 def _vdi3441(stats: list[TargetStatistics], both: bool, notes: list[str]) -> dict[str, Any]:
     per = []
     for s in stats:
+        mean: float | None
+        U: float | None
+        Ps: float | None
         if both:
-            paired = s.n_up > 0 and s.n_down > 0
-            mean = (s.mean_up + s.mean_down) / 2 if paired else None
-            U = abs(s.mean_up - s.mean_down) if paired else None
-            Ps = 6 * (s.s_up + s.s_down) / 2 if paired and s.s_up is not None and s.s_down is not None else None
+            mean = U = Ps = None
+            if s.mean_up is not None and s.mean_down is not None:  # approached from both sides
+                mean = (s.mean_up + s.mean_down) / 2
+                U = abs(s.mean_up - s.mean_down)
+                Ps = 6 * (s.s_up + s.s_down) / 2 if s.s_up is not None and s.s_down is not None else None
         else:  # one direction measured: its mean and scatter stand alone (noted)
             mean, sd, _ = s.side(1 if s.n_up else -1)
             U, Ps = None, (6 * sd if sd is not None else None)
-        per.append({"target_deg": s.target_deg, "mean": mean, "U_j": U, "Ps_j": Ps, "n_up": s.n_up, "n_down": s.n_down})
-    rows = [p for p in per if p["mean"] is not None]
+        per.append(_VdiTarget(s.target_deg, mean, U, Ps, s.n_up, s.n_down))
+    rows = [p for p in per if p.mean is not None]
     if both and len(rows) < len(per):
-        notes.append(f"approached in one direction only: {_deg_list([p['target_deg'] for p in per if p['mean'] is None])}, "
+        notes.append(f"approached in one direction only: {_deg_list([p.target_deg for p in per if p.mean is None])}, "
                      "left out")
-    ps_ok = bool(rows) and all(p["Ps_j"] is not None for p in rows)
+    Ps_j = [p.Ps_j for p in rows if p.Ps_j is not None]
+    ps_ok = bool(rows) and len(Ps_j) == len(rows)
     if not ps_ok:
-        lone = [p["target_deg"] for p in rows if p["Ps_j"] is None]
+        lone = [p.target_deg for p in rows if p.Ps_j is None]
         notes.append(f"one approach in a direction at {_deg_list(lone)}: s needs two, so Ps_max, Ps_mean and P are "
                      "undefined")
-    out = {"Pa": _span([p["mean"] for p in rows]),
-           "P": None, "Ps_max": max(p["Ps_j"] for p in rows) if ps_ok else None,
-           "Ps_mean": math.fsum(p["Ps_j"] for p in rows) / len(rows) if ps_ok else None,
-           "U_max": max(p["U_j"] for p in rows) if both and rows else None,
-           "U_mean": math.fsum(p["U_j"] for p in rows) / len(rows) if both and rows else None}
+    U_j = [p.U_j for p in rows if p.U_j is not None]  # with both directions, every row has U_j
+    out: dict[str, float | None] = {
+        "Pa": _span([p.mean for p in rows]),
+        "P": None, "Ps_max": max(Ps_j) if ps_ok else None,
+        "Ps_mean": math.fsum(Ps_j) / len(rows) if ps_ok else None,
+        "U_max": max(U_j) if both and rows else None,
+        "U_mean": math.fsum(U_j) / len(rows) if both and rows else None}
     if both and ps_ok:
-        out["P"] = (max(p["mean"] + (p["U_j"] + p["Ps_j"]) / 2 for p in rows)
-                    - min(p["mean"] - (p["U_j"] + p["Ps_j"]) / 2 for p in rows))
+        full = [(p.mean, p.U_j, p.Ps_j) for p in rows if p.mean is not None and p.U_j is not None and p.Ps_j is not None]
+        out["P"] = (max(mean + (U + Ps) / 2 for mean, U, Ps in full)
+                    - min(mean - (U + Ps) / 2 for mean, U, Ps in full))
     elif not both:
         notes.append("one direction only: Pa and Ps describe that direction alone; U and P need both")
     return {**{key: _round(v) for key, v in out.items()},
-            "per_target": [{key: _round(v) for key, v in p.items()} for p in per]}
+            "per_target": [_row(p) for p in per]}

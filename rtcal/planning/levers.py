@@ -28,7 +28,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 import yaml
@@ -263,7 +263,7 @@ def multistation_candidates(plan: Plan, proc: LaserTracerMultistation, max_radiu
     """(readings, plan) for every combination the search tries (see the module docstring)."""
     factor = max([1.0, *radius_factors(plan, proc, max_radius_mm)])
     mounts = [False] + ([True] if proc.second_mount is None else [])
-    layers = [None]
+    layers: Sequence[int | None] = [None]
     if isinstance(proc.points, GridPlan):
         L = proc.points.layers
         layers = sorted({max(2, round(L * f)) for f in (0.5, 0.75, 1.0, 1.5, 2.0)})

@@ -298,7 +298,7 @@ class GridPlan(_Strict):
         xs = lo[0] + size[0] * (np.arange(self.columns) / max(self.columns - 1, 1))
         ys = lo[1] + size[1] * (np.arange(self.rows) / max(self.rows - 1, 1))
         zs = lo[2] + size[2] * (np.arange(self.layers) / max(self.layers - 1, 1))
-        layer = []
+        layer: list[tuple[float, float]] = []
         for r, y in enumerate(ys):
             row = xs if r % 2 == 0 else xs[::-1]
             layer.extend((x, y) for x in row)
@@ -661,7 +661,7 @@ class LaserTracerMultistation(_Procedure):
         if (angle == PAPER_STATION_1_DEG or not number(angle) or not isinstance(axis, (list, tuple)) or len(axis) != 3
                 or not all(number(v) for v in axis)):
             return data  # the default as it stands, or a mistake the fields' own validation will name
-        return {**data, "solver": {**solver, "first_station_guess_mm": _turned_guess(float(angle), tuple(map(float, axis)))}}
+        return {**data, "solver": {**solver, "first_station_guess_mm": _turned_guess(float(angle), (float(axis[0]), float(axis[1]), float(axis[2])))}}
 
     @property
     def mounts(self) -> int:

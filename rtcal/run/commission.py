@@ -13,14 +13,15 @@ import json
 import math
 import textwrap
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 from drivers import factory
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentError, TrackingLost
-from drivers.interfaces import Instrument
+from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer,
+                                RotaryStage)
 from drivers.models import KINDS
 
 
@@ -35,14 +36,17 @@ class ProbeResult:
     address: str
     model: str
     identity: str = ""
-    reading: dict[str, float] = field(default_factory=dict)
+    reading: dict[str, float | None] = field(default_factory=dict)  # None: an axis the instrument reports invalid
 
     def as_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, "address": self.address, "model": self.model, "identity": self.identity,
                 "reading": self.reading}
 
 
-def _retrying(instrument: Instrument, read: Callable[[], Any], attempts: int = 3) -> Any:
+_T = TypeVar("_T")
+
+
+def _retrying(instrument: Instrument, read: Callable[[], _T], attempts: int = 3) -> _T:
     """``read()``, recovering the instrument between attempts (a CMM's error state, a drive alarm)."""
     for attempt in range(attempts):
         try:
@@ -126,11 +130,12 @@ def _context(name: str, choice) -> dict[str, Any]:
     return {}
 
 
-def _in_range(name: str, choice, reading: dict[str, float]) -> str:
+def _in_range(name: str, choice: Any, reading: dict[str, float | None]) -> str:
     """What is wrong with a reading for this procedure ("" if nothing): stage limits, CMM volume."""
     if name == "stage":
         lo, hi = choice.soft_limits_deg
-        if not lo <= reading["position_deg"] <= hi:
+        position = reading["position_deg"]
+        if position is not None and not lo <= position <= hi:
             return f"position {reading['position_deg']:.4f}° outside the procedure's soft limits [{lo:g}, {hi:g}]°"
     if name == "autocollimator" and reading["x_arcsec"] is None:
         return "X axis not valid (the autocollimator sees no face about the table axis): a run needs it"

@@ -41,6 +41,8 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         pos_count[r.point, axis] += 1
     env: dict[tuple[int, int, int], dict[str, list[float]]] = {}
     for r in store.readings(instrument="environment"):
+        if r.point is None or r.station is None:  # not taken at a length: no length's air
+            continue
         d = described.get((r.instrument, r.quantity))
         if d is not None and not d.purpose and (r.plan_index, r.attempt) not in rejected:
             env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(d.field, []).append(r.value)
@@ -72,7 +74,8 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
         material = np.full((mounts, n_points, m), np.nan)
         for (k, i, j), q in env.items():
             if all(name in q for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct")):
-                index[k, i, j] = ciddor_n(np.mean(q["air_temperature_c"]), np.mean(q["air_pressure_pa"]), np.mean(q["humidity_pct"]))
+                index[k, i, j] = ciddor_n(float(np.mean(q["air_temperature_c"])), float(np.mean(q["air_pressure_pa"])),
+                                          float(np.mean(q["humidity_pct"])))
             if "material_temperature_c" in q:
                 material[k, i, j] = np.mean(q["material_temperature_c"])
         summary = summarise_conditions(env.values())

@@ -13,11 +13,11 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 import yaml
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from rtcal import __version__
 from rtcal.deliverables.certificate import build_certificate, write_certificate_json
@@ -127,7 +127,8 @@ NON_INSTRUMENT_ADDRESSES = ("operator",)  # what `rtcal sim serve` prints beside
 def known_address_names() -> list[str]:
     """Every name an ``--instruments`` object may hold: any method's instruments (`rtcal sim serve`
     serves them all, a procedure uses some) and the simulated operator."""
-    names = {f for model in METHODS.procedure_models().values() for f in model.model_fields["instruments"].annotation.model_fields}
+    names = {f for model in METHODS.procedure_models().values()
+             for f in cast("type[BaseModel]", model.model_fields["instruments"].annotation).model_fields}  # each method's Instruments
     return sorted(names) + list(NON_INSTRUMENT_ADDRESSES)
 
 
@@ -275,8 +276,8 @@ def resume_run(
         where = f"{run_dir / RunStore.FILENAME}"
         model = METHODS[_stored(meta, "method", lambda v: v if v in METHODS else None, run_dir,
                                 f"one of {', '.join(METHODS)}")].procedure_model
-        proc = validate_text(_stored(meta, "procedure_yaml", str, run_dir, "the procedure's text"), model,
-                             f"{where} (stored procedure)", context={"large": bool(meta.get("large"))})
+        proc = cast(Procedure, validate_text(_stored(meta, "procedure_yaml", str, run_dir, "the procedure's text"), model,
+                                             f"{where} (stored procedure)", context={"large": bool(meta.get("large"))}))  # as load_procedure
         instruments = _stored(meta, "instruments", type(proc.instruments).model_validate_json, run_dir,
                               "the procedure's instrument section as JSON")
         proc = proc.model_copy(update={"instruments": instruments})

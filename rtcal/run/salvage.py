@@ -228,7 +228,7 @@ def _payload(data: bytes, at: int, size: int, usable: int, page, count: int) -> 
     return b"".join(parts)
 
 
-def _record(payload: bytes) -> list:
+def _record(payload: bytes) -> list[int | float | str | bytes | None]:
     """The values of a record (section 2.1): serial types in a header, then the values."""
     header_size, at = _varint(payload, 0)
     if header_size > len(payload):
@@ -237,7 +237,8 @@ def _record(payload: bytes) -> list:
     while at < header_size:
         t, at = _varint(payload, at)
         types.append(t)
-    values, at = [], header_size
+    values: list[int | float | str | bytes | None] = []
+    at = header_size
     for t in types:
         if t == 0:
             values.append(None)

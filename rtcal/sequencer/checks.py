@@ -73,23 +73,30 @@ class MotionChecks:
                                              "is driving it; rtcal needs the machine to itself")
         return feedback
 
+    def _cmm_tolerance(self) -> float:
+        if self.cmm_tolerance_mm is None:
+            raise ValueError("these motion checks were made without a CMM tolerance: they check no CMM")
+        return self.cmm_tolerance_mm
+
     def cmm_at(self, cmm: Cmm, point_mm: np.ndarray) -> np.ndarray:
         """The CMM's reported position, or Contradiction when it is not the commanded point."""
+        tolerance_mm = self._cmm_tolerance()
         xyz = np.asarray(cmm.position_mm(), float)
         off = float(np.linalg.norm(xyz - point_mm))
-        if not off <= self.cmm_tolerance_mm:
+        if not off <= tolerance_mm:
             raise Contradiction("cmm", f"reported position {np.round(xyz, 4).tolist()} mm where "
                                        f"{np.round(point_mm, 4).tolist()} mm was commanded: {off:.4f} mm off "
-                                       f"(tolerance {self.cmm_tolerance_mm:g} mm, verification.cmm_tolerance_mm)")
+                                       f"(tolerance {tolerance_mm:g} mm, verification.cmm_tolerance_mm)")
         return xyz
 
     def cmm_still(self, cmm: Cmm, before_mm: np.ndarray) -> np.ndarray:
         """The reported position after a reading, or UncommandedMotion when the probe moved during it."""
+        tolerance_mm = self._cmm_tolerance()
         xyz = np.asarray(cmm.position_mm(), float)
         moved = float(np.linalg.norm(xyz - before_mm))
-        if not moved <= self.cmm_tolerance_mm:
+        if not moved <= tolerance_mm:
             raise UncommandedMotion("cmm", f"the probe moved {moved:.4f} mm during a reading while nothing was commanded "
-                                           f"(tolerance {self.cmm_tolerance_mm:g} mm, verification.cmm_tolerance_mm): another "
+                                           f"(tolerance {tolerance_mm:g} mm, verification.cmm_tolerance_mm): another "
                                            "client or a hand is driving it; rtcal needs the machine to itself")
         return xyz
 

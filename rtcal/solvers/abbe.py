@@ -47,7 +47,7 @@ from rtcal.solvers.harmonics import (
     resolvable_orders,
     smooth_values,
 )
-from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, ResidualCheck
+from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget, ResidualCheck, SourceType
 from rtcal.units import ARCSEC_PER_RAD
 
 
@@ -326,7 +326,7 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
 
     # random per-visit error of ε̂: from the closure residuals, repeated runs, or as stated
     pooled = _pooled_sigma(eps, seating[ac] * n_s + step_idx[ac]) if len(np.unique(run)) > 1 else None
-    random_parts: list[tuple[str, str, float, str]]
+    random_parts: list[tuple[str, SourceType, float, str]]
     if closure is not None and noise.estimate:
         random_parts = [("closure residuals (autocollimator, repeatability)", "A", closure.sigma,
                          "per visit, from the closure fit's residuals")]

@@ -111,7 +111,8 @@ def index_sensitivity(temperature_c: float = 20.0, pressure_pa: float = 101325.0
         up, down = list(base), list(base)
         up[k] += h
         down[k] -= h
-        out.append((ciddor_n(*up, wavelength_nm) - ciddor_n(*down, wavelength_nm)) / (2 * h))
+        out.append((ciddor_n(up[0], up[1], up[2], wavelength_nm) - ciddor_n(down[0], down[1], down[2], wavelength_nm))
+                   / (2 * h))
     return out[0], out[1], out[2]
 
 def correct_lengths(lengths_mm: np.ndarray, air_index: np.ndarray, segments: np.ndarray, points_mm: np.ndarray,

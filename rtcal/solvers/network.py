@@ -271,13 +271,13 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
     if lay.error_motions:
         others = np.flatnonzero(~first)
         for comp in range(3):  # ∂s/∂p_k = Rz(φ): columns
-            col = np.zeros((N, 3))
+            ds_dp = np.zeros((N, 3))
             if comp < 2:
-                col[:, 0] = cs[sj] if comp == 0 else -sn[sj]
-                col[:, 1] = sn[sj] if comp == 0 else cs[sj]
+                ds_dp[:, 0] = cs[sj] if comp == 0 else -sn[sj]
+                ds_dp[:, 1] = sn[sj] if comp == 0 else cs[sj]
             else:
-                col[:, 2] = 1.0
-            Jg[others, lay.mount.start + 3 * (mk[others] - 1) + comp] = -np.einsum("ij,ij->i", eb, through_tilt(col))[others]
+                ds_dp[:, 2] = 1.0
+            Jg[others, lay.mount.start + 3 * (mk[others] - 1) + comp] = -np.einsum("ij,ij->i", eb, through_tilt(ds_dp))[others]
         for comp in range(3):
             Jg[rows, lay.delta.start + 3 * sj + comp] = -eb[:, comp]
         sr = s[st]
@@ -443,7 +443,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     def cost_of(x: np.ndarray, w_len, w_pts) -> float:
         f_len, f_pts = _residuals(x, lay, pi, st, seg, obs, points)
         prior = float(np.sum((x[prior_idx] / prior_sigma) ** 2))
-        return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if lay.free_points else 0.0) + prior
+        return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if f_pts is not None else 0.0) + prior
 
     converged, it, message = False, 0, ""
     previous = None  # (x, θ, iterations, message) of the last converged pass
@@ -516,16 +516,20 @@ def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndar
     return idx, sigma
 
 
-def _add_prior(pieces, x: np.ndarray, idx: np.ndarray, sigma: np.ndarray):
+# the normal equations' Schur pieces: N_gg, b_g, then N_pp, N_gp, b_p (None without free points)
+_Pieces = tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]
+
+
+def _add_prior(pieces: _Pieces, x: np.ndarray, idx: np.ndarray, sigma: np.ndarray) -> _Pieces:
     """The priors' rows in the normal equations: + 1/σ² on the diagonal, + x/σ² in the gradient."""
     if len(idx) == 0:
         return pieces
-    Ngg, bg, *rest = pieces
+    Ngg, bg, Npp, Ngp, bp = pieces
     Ngg = Ngg.copy()
     bg = bg.copy()
     Ngg[idx, idx] += 1.0 / sigma**2
     bg[idx] += x[idx] / sigma**2
-    return (Ngg, bg, *rest)
+    return (Ngg, bg, Npp, Ngp, bp)
 
 
 def _inverse_pieces(x, lay, evaluate, weights, theta, pi, prior):

@@ -64,11 +64,12 @@ class MultistationData:
         first length of the whole run, +1 at its last (NaN where skipped). Without recorded times the
         lengths are taken as evenly spaced in the order they are stored (point-major, mount by mount)."""
         lengths = [np.asarray(self.lengths_mm, float)] + [np.asarray(o.lengths_mm, float) for o in self.other_mounts]
-        times = [self.times_s] + [o.times_s for o in self.other_mounts]
-        if any(t is None for t in times):
+        recorded = [self.times_s] + [o.times_s for o in self.other_mounts]
+        known = [t for t in recorded if t is not None]
+        if len(known) < len(recorded):
             size = lengths[0].size
-            times = [np.arange(k * size, (k + 1) * size, dtype=float).reshape(lengths[0].shape) for k in range(len(lengths))]
-        times = [np.where(np.isfinite(L), np.asarray(t, float), np.nan) for t, L in zip(times, lengths)]
+            known = [np.arange(k * size, (k + 1) * size, dtype=float).reshape(lengths[0].shape) for k in range(len(lengths))]
+        times = [np.where(np.isfinite(L), np.asarray(t, float), np.nan) for t, L in zip(known, lengths)]
         every = np.concatenate([t[np.isfinite(t)] for t in times])
         if every.size == 0:
             return [np.full(L.shape, np.nan) for L in lengths]
@@ -79,8 +80,9 @@ class MultistationData:
     def material_offsets_k(self) -> list[np.ndarray] | None:
         """Per mount: the table's temperature above 20 °C at each length, n×m (a length without its own
         reading takes the mean of the others); None when the table's temperature was not measured."""
-        temps = [self.material_temperature_c] + [o.material_temperature_c for o in self.other_mounts]
-        if any(t is None for t in temps) or not any(np.isfinite(t).any() for t in temps):
+        recorded = [self.material_temperature_c] + [o.material_temperature_c for o in self.other_mounts]
+        temps = [t for t in recorded if t is not None]
+        if len(temps) < len(recorded) or not any(np.isfinite(t).any() for t in temps):
             return None
         mean = float(np.nanmean(np.concatenate([np.asarray(t, float).ravel() for t in temps])))
         return [np.where(np.isfinite(t), t, mean) - 20.0 for t in temps]

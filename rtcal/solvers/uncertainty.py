@@ -88,12 +88,16 @@ def reml_scales(jacobian: np.ndarray, residuals: np.ndarray, sources: list[Sourc
     a_sources = [s for s in sources if s.type == "A"]
     if not a_sources:
         return VarianceEstimate({}, {}, 0, True)
-    diag = [_as_diagonal(s.effect) for s in sources]
-    low = [None if d is not None else np.asarray(s.effect, float) for s, d in zip(sources, diag)]
+    # per source: (True, diagonal of F·Fᵀ) when it is diagonal, else (False, F)
+    effects: list[tuple[bool, np.ndarray]] = []
+    for s in sources:
+        diagonal_k = _as_diagonal(s.effect)
+        effects.append((True, diagonal_k) if diagonal_k is not None else (False, np.asarray(s.effect, float)))
     is_a = [s.type == "A" for s in sources]
     a_index = [k for k, a in enumerate(is_a) if a]
     # a first guess that already fits the residuals' size: scale every Type A source together
-    total_trace = sum(float(np.sum(d)) if d is not None else float(np.sum(f**2)) for d, f, a in zip(diag, low, is_a) if a)
+    total_trace = sum(float(np.sum(e)) if diagonal else float(np.sum(e**2))
+                      for (diagonal, e), a in zip(effects, is_a) if a)
     theta = np.full(len(a_index), max(float(r @ r) / max(total_trace * (1.0 - p / max(N, 1)), 1e-300), floor))
     info = np.eye(len(theta))
     converged = False
@@ -102,12 +106,12 @@ def reml_scales(jacobian: np.ndarray, residuals: np.ndarray, sources: list[Sourc
         scale = dict(zip(a_index, theta))
         d = np.full(N, 1e-300)
         cols = []
-        for k, (dk, fk) in enumerate(zip(diag, low)):
+        for k, (diagonal, e) in enumerate(effects):
             t = scale.get(k, 1.0)
-            if dk is not None:
-                d = d + t * dk
+            if diagonal:
+                d = d + t * e
             else:
-                cols.append(np.sqrt(t) * fk)
+                cols.append(np.sqrt(t) * e)
         U = np.column_stack(cols) if cols else np.zeros((N, 0))
         dinv = 1.0 / d
         DU, DJ = U * dinv[:, None], J * dinv[:, None]
@@ -123,30 +127,28 @@ def reml_scales(jacobian: np.ndarray, residuals: np.ndarray, sources: list[Sourc
         Pr = dinv * r - YH @ (Y.T @ r)
         yhy_diag = np.sum(YH * Y, axis=1)
         diagP = dinv - yhy_diag
-        terms = []  # per Type A source: ('d', e²) or ('f', F, P·F)
+        terms: list[tuple[np.ndarray, np.ndarray | None]] = []  # per Type A source: (e², None) or (F, P·F)
         for k in a_index:
-            if diag[k] is not None:
-                terms.append(("d", diag[k], None))
-            else:
-                F = low[k]
-                terms.append(("f", F, dinv[:, None] * F - YH @ (Y.T @ F)))
+            diagonal, X = effects[k]
+            terms.append((X, None) if diagonal else (X, dinv[:, None] * X - YH @ (Y.T @ X)))
         score = np.empty(len(theta))
-        for i, (kind, X, PX) in enumerate(terms):
-            if kind == "d":
+        for i, (X, PX) in enumerate(terms):
+            if PX is None:
                 score[i] = 0.5 * (float(np.sum(Pr**2 * X)) - float(np.sum(diagP * X)))
             else:
                 FtPr = X.T @ Pr
                 score[i] = 0.5 * (float(FtPr @ FtPr) - float(np.sum(X * PX)))
-        for i, (ki, Xi, PXi) in enumerate(terms):
+        for i, (Xi, PXi) in enumerate(terms):
             for j in range(i, len(terms)):
-                kj, Xj, PXj = terms[j]
-                if ki == "d" and kj == "d":
-                    Qi, Qj = Y.T @ (Xi[:, None] * Y), Y.T @ (Xj[:, None] * Y)
-                    val = (float(np.sum(Xi * Xj * dinv**2)) - 2.0 * float(np.sum(Xi * Xj * dinv * yhy_diag))
-                           + float(np.sum((H @ Qi) * (H @ Qj).T)))
-                elif ki == "d":
-                    val = float(np.sum(Xi[:, None] * PXj**2))
-                elif kj == "d":
+                Xj, PXj = terms[j]
+                if PXi is None:
+                    if PXj is None:
+                        Qi, Qj = Y.T @ (Xi[:, None] * Y), Y.T @ (Xj[:, None] * Y)
+                        val = (float(np.sum(Xi * Xj * dinv**2)) - 2.0 * float(np.sum(Xi * Xj * dinv * yhy_diag))
+                               + float(np.sum((H @ Qi) * (H @ Qj).T)))
+                    else:
+                        val = float(np.sum(Xi[:, None] * PXj**2))
+                elif PXj is None:
                     val = float(np.sum(Xj[:, None] * PXi**2))
                 else:
                     val = float(np.sum((Xi.T @ PXj) ** 2))

@@ -24,7 +24,7 @@ import threading
 import tty
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from drivers.addresses import DEFAULT_GEAR, DEFAULT_STEPS_PER_REV  # a scenario without a stepper serves the driver's default
 from drivers.models import BUILTIN
@@ -43,6 +43,9 @@ from simulators.instruments import (
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
 from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, IppMachine, serve_ipp
+
+if TYPE_CHECKING:  # imported when a LinuxCNC hub starts
+    from simulators.servers.linuxcnc import LinuxCncProcess
 from simulators.servers.serial_protocols import (
     ElcomatHandler,
     EnvironmentNow,
@@ -171,7 +174,7 @@ class SimulatorHub:
         self.ipp_machine = IppMachine(homed=self.cmm_homed)
         res = self.scenario.encoder.resolution_arcsec
         self.counts_per_rev = round(1296000 / res) if res > 0 else 2**30
-        lines = {
+        lines: dict[str, LineHandler] = {
             "laser_tracer": TracerHandler(SimLaserTracer(b, inject=False)),
             "encoder": QsbHandler(SimEncoder(b, inject=False), self.counts_per_rev),
             "autocollimator": ElcomatHandler(SimAutocollimator(b, inject=False)),
@@ -193,7 +196,7 @@ class SimulatorHub:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._servers: list = []
-        self.linuxcnc = None  # the LinuxCncProcess of a `stage="linuxcnc"` hub
+        self.linuxcnc: LinuxCncProcess | None = None  # the LinuxCncProcess of a `stage="linuxcnc"` hub
         self.feed_updates = 0  # motor positions the LinuxCNC bench feed delivered
         self._feed_address = ""
 

@@ -20,6 +20,7 @@ from simulators.instruments import (
     SimEnvironmentSensor,
     SimLaserTracer,
     SimStage,
+    _Injecting,
 )
 
 
@@ -43,14 +44,20 @@ class FaultyLine:
 
     def __init__(self, handler: LineHandler, name: str, bench):
         self.handler, self.name, self.bench = handler, name, bench
-        self.terminator = handler.terminator
+        self.terminator, self.reply_terminator = handler.terminator, handler.reply_terminator
+
+    def counted(self, request: bytes) -> bool:
+        return self.handler.counted(request)
 
     def handle(self, request: bytes) -> bytes:
         fault = self.bench.faults.draw(self.name) if self.handler.counted(request) else None
         if fault is None:
             return self.handler.handle(request)
         if fault.kind in STATE_KINDS:  # inside the instrument, and it stays: stale, frozen, creep, inch
-            self.handler.instrument.afflict(fault)
+            instrument = getattr(self.handler, "instrument", None)
+            if not isinstance(instrument, _Injecting):  # the scenario allows them only where an instrument holds them
+                raise ValueError(f"{self.name}: no instrument behind the line to hold a {fault.kind} fault")
+            instrument.afflict(fault)
             return self.handler.handle(request)
         if fault.kind == "beam_break":
             self.bench.beam_broken = True
@@ -256,6 +263,13 @@ class VaisalaHandler:
         lines += [f"Module {i + 1}       : {m}" for i, m in enumerate(self.MODULES[self.model])]
         return "".join(line + "\r\n" for line in lines)
 
+    def _send_line(self) -> bytes:
+        """SEND's reply: a fresh reading in the current FORM (one FORM accepted only if it formats)."""
+        line = self._format(self.form, self.now.fresh())
+        if line is None:
+            raise ValueError(f"FORM {self.form!r} does not format a reading")
+        return line.encode()
+
     def _format(self, form: str, reading: EnvironmentReading | None) -> str | None:
         """The SEND line for ``form``, or None if the format is not understood (checked with no reading)."""
         values = {} if reading is None else {"P": reading.air_pressure_pa / 100.0, "T": reading.air_temperature_c,
@@ -281,7 +295,7 @@ class VaisalaHandler:
         echo = request.strip() + b"\r\n" if self.echo else b""
         streamed = b""
         if self.run and request.strip().upper() != b"S":
-            streamed = self._format(self.form, self.now.fresh()).encode()
+            streamed = self._send_line()
         reply = self._answer(request)
         return streamed + echo + reply + (b">" if self.echo else b"")
 
@@ -291,7 +305,7 @@ class VaisalaHandler:
         if command == "?":
             return self.listing().encode()
         if command == "SEND":
-            return self._format(self.form, self.now.fresh()).encode()
+            return self._send_line()
         if command == "ERRS":
             return b"No errors\r\n"
         if command == "S":
