@@ -454,14 +454,16 @@ def with_buys(outcome: Outcome, rows: list[dict[str, Any]]) -> Outcome:
 
 
 def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: float | None = None,
-            margin: float = DEFAULT_MARGIN, evaluate_plan: Callable[[Plan], Outcome] | None = None) -> Proposal:
+            margin: float = DEFAULT_MARGIN, evaluate_plan: Callable[[Plan], Outcome] | None = None,
+            explain: bool = True) -> Proposal:
     """The shortest plan whose predicted U (k = 2, recommended estimator, worst target) is ≤ the target
     less ``margin`` (a fraction of it). The prediction is linear about the noise-free bench with the noise
     as stated; the margin leaves room for what it does not hold — the noise a run finds in its readings,
     and the sampling of the Monte Carlo (`rtcal uncertainty`) that verifies the proposal, whose RMS error
     per target is known to ±1/√(2N) and whose worst target is the largest of several such estimates.
     Candidates are tried shortest first (the walked machine time); a configuration (mounts, points, order)
-    whose U without the tracer's noise already exceeds the goal is not tried with more samples."""
+    whose U without the tracer's noise already exceeds the goal is not tried with more samples. ``explain``:
+    what each of the proposal's levers buys, in turn (a prediction per lever that changes the readings)."""
     goal = target_arcsec * (1.0 - margin)
     evaluate_plan = evaluate_plan or evaluate
     chains: dict[int, tuple[Plan, ...]] = {}
@@ -495,7 +497,7 @@ def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: fl
         if group and last_of_size:
             break
     reached = min(group, key=lambda o: (o.duration_s, o.expanded_max_arcsec)) if group else None
-    if reached is not None and id(reached.plan) in chains and len(chains[id(reached.plan)]) > 1:
+    if explain and reached is not None and id(reached.plan) in chains and len(chains[id(reached.plan)]) > 1:
         reached = with_buys(reached, what_each_buys(chains[id(reached.plan)], reached, evaluate_plan))
     finite = [o for o in tried if math.isfinite(o.expanded_max_arcsec)]
     smallest = min(finite, key=lambda o: o.expanded_max_arcsec) if finite else None
