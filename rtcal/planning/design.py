@@ -16,6 +16,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import yaml
@@ -27,8 +28,8 @@ from rtcal.units import ARCSEC_PER_RAD
 from rtcal.procedure.yamlfile import load_yaml, read_text
 
 
-def point_information(x_globals: np.ndarray, lay_template: _Layout, points_mm: np.ndarray, w_length: np.ndarray,
-                      w_point: np.ndarray, m: int) -> np.ndarray:
+def point_information(x_globals: np.ndarray, lay_template: _Layout, points_mm: np.ndarray,
+                      w_length: Callable[[np.ndarray], np.ndarray], w_point: float, m: int) -> np.ndarray:
     """(K, g, g): each point's Schur-reduced information about the globals (lengths to all m stations)."""
     K = len(points_mm)
     lay = _Layout(m, lay_template.k, K, True, True)
@@ -75,7 +76,9 @@ def exchange(current: np.ndarray, candidates: np.ndarray, G: np.ndarray, passes:
             base = total - infos[idx]
             used = set(chosen)
             trial = [(_criterion(base + candidates[c], G), c) for c in range(len(candidates)) if c not in used]
-            value, c = min(trial) if trial else (np.inf, None)
+            if not trial:
+                continue
+            value, c = min(trial)
             if value < best * (1 - 1e-6):
                 best, total, chosen[slot] = value, base + candidates[c], c
                 infos[c] = candidates[c]

@@ -10,14 +10,21 @@ the stated noise on the noise-free bench, the run's simulated clock), so a lever
 are those of a procedure that validates and runs.
 
 The search for a target U (:func:`propose`) tries the plans its method offers in order of machine
-time (readings, then the simulated clock) and stops at the first group of equally long plans of
-which one reaches the target; between plans equally long it takes the smaller U. For the
-multi-station method it combines a second mount, the tracer as far from the axis as allowed, the
-number of CMM point layers and an environment sensor (only where the procedure states the air's
-ranges: a sensor then replaces them); the stations (the certificate's targets) and the samples per
-reading (the simulated tracer counts no time for a sample, so their machine time is not known here)
-are left as written. Plans with one mount are skipped once one of them shows that the error motions
-alone (a bias no repetition averages) exceed the target at the furthest radius.
+time and stops at the first group of equally long plans of which one reaches the target; between
+plans equally long it takes the smaller U. For the multi-station method the machine time is the
+engine's walk of the plan (:func:`walked_duration_s`: motions, settling, every tracer sample and the
+operator's steps as `durations:` states them — what the simulated clock counts, without running), and
+it combines a second mount, the tracer as far from the axis as allowed, the number of CMM point layers,
+the order (point- or station-major), 1, 2 or 4 × the samples per reading, and an environment sensor
+(only where the procedure states the air's ranges: a sensor then replaces them); every candidate has
+the levers that cost nothing in U (the table and the CMM moving together, the CMM's shortest path
+through the grid) and, where the bench's table grows with its temperature and a sensor reads it, the
+expansion coefficient stated so that the lengths are corrected. The stations (the certificate's
+targets) are left as written. Plans with one mount are skipped once one of them shows that the error
+motions alone (a bias no repetition averages) exceed the target at the furthest radius; a
+configuration whose U without the tracer's noise exceeds it is not tried with more samples. What each
+lever of the proposal buys (seconds and arcseconds, in turn from the procedure as written) is in its
+changes and the JSON's ``levers_buy``.
 """
 
 from __future__ import annotations
@@ -213,7 +220,7 @@ def more_runs(plan: Plan, runs: int) -> Plan:
     return Plan(data, plan.bench, plan.changes + (f"{runs} runs",))
 
 
-SAMPLE_NOTE = " (the simulated tracer counts no time for a sample: add the real tracer's)"
+SAMPLE_NOTE = " (each sample the time `durations.tracer_sample_s` states)"
 
 
 def station_major(plan: Plan) -> Plan:
@@ -307,6 +314,15 @@ def levers(plan: Plan, proc: Procedure, max_radius_mm: float | None = None) -> l
         out.append(more_samples(plan, 4 * proc.samples_per_reading, SAMPLE_NOTE))
         if proc.instruments.environment is None:
             out.append(environment_sensor(plan, proc))
+        if proc.order == "point_major":
+            out.append(station_major(plan))
+        if not proc.concurrent_motions:
+            out.append(concurrent_motions(plan))
+        if isinstance(proc.points, GridPlan) and proc.points.layers > 1 and proc.points.layer_order == "same":
+            out.append(shortest_point_path(plan))
+        alpha = expansion_to_state(plan, proc)
+        if alpha > 0:
+            out.append(stated_expansion(plan, alpha))
     elif isinstance(proc, EncoderAbbeError):
         out += [more_runs(plan, r) for r in (2 * proc.steps.runs, 5 * proc.steps.runs) if r <= 100]
     return out
@@ -340,11 +356,11 @@ def multistation_candidates(plan: Plan, proc: LaserTracerMultistation, max_radiu
     shortest first; ``chains`` (if given) gets each plan's intermediate plans, lever by lever (by ``id``)."""
     factor = max([1.0, *radius_factors(plan, proc, max_radius_mm)])
     mounts = [False] + ([True] if proc.second_mount is None else [])
-    layers = [None]
+    layers: list[int | None] = [None]
     grid = isinstance(proc.points, GridPlan)
     if isinstance(proc.points, GridPlan):
         L = proc.points.layers
-        layers = sorted({max(2, round(L * f)) for f in (0.5, 0.75, 1.0, 1.5, 2.0)})
+        layers = [*sorted({max(2, round(L * f)) for f in (0.5, 0.75, 1.0, 1.5, 2.0)})]
     from rtcal.methods.multistation import stated_air_ranges
 
     sensor = proc.instruments.environment is None and bool(stated_air_ranges(proc)) and proc.instruments.all_sim()

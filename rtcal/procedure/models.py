@@ -302,7 +302,7 @@ class GridPlan(_Strict):
         xs = lo[0] + size[0] * (np.arange(self.columns) / max(self.columns - 1, 1))
         ys = lo[1] + size[1] * (np.arange(self.rows) / max(self.rows - 1, 1))
         zs = lo[2] + size[2] * (np.arange(self.layers) / max(self.layers - 1, 1))
-        layer = []
+        layer: list[tuple[float, float]] = []
         for r, y in enumerate(ys):
             row = xs if r % 2 == 0 else xs[::-1]
             layer.extend((x, y) for x in row)
