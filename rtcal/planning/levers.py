@@ -224,8 +224,8 @@ SAMPLE_NOTE = " (each sample the time `durations.tracer_sample_s` states)"
 
 
 def station_major(plan: Plan) -> Plan:
-    """For each station the CMM visits every point: the table turns 10 times instead of returning over its
-    whole span after every point. Each station is then one visit, so the stage's repeatability is no longer
+    """For each station the CMM visits every point: the table turns once per station instead of stepping
+    through every station and back over its whole span after every point. Each station is then one visit, so the stage's repeatability is no longer
     averaged over the points' visits (the budget says so: its term grows)."""
     data = copy.deepcopy(plan.procedure)
     data["order"] = "station_major"
