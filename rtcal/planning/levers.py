@@ -10,14 +10,21 @@ the stated noise on the noise-free bench, the run's simulated clock), so a lever
 are those of a procedure that validates and runs.
 
 The search for a target U (:func:`propose`) tries the plans its method offers in order of machine
-time (readings, then the simulated clock) and stops at the first group of equally long plans of
-which one reaches the target; between plans equally long it takes the smaller U. For the
-multi-station method it combines a second mount, the tracer as far from the axis as allowed, the
-number of CMM point layers and an environment sensor (only where the procedure states the air's
-ranges: a sensor then replaces them); the stations (the certificate's targets) and the samples per
-reading (the simulated tracer counts no time for a sample, so their machine time is not known here)
-are left as written. Plans with one mount are skipped once one of them shows that the error motions
-alone (a bias no repetition averages) exceed the target at the furthest radius.
+time and stops at the first group of equally long plans of which one reaches the target; between
+plans equally long it takes the smaller U. For the multi-station method the machine time is the
+engine's walk of the plan (:func:`walked_duration_s`: motions, settling, every tracer sample and the
+operator's steps as `durations:` states them — what the simulated clock counts, without running), and
+it combines a second mount, the tracer as far from the axis as allowed, the number of CMM point layers,
+the order (point- or station-major), 1, 2 or 4 × the samples per reading, and an environment sensor
+(only where the procedure states the air's ranges: a sensor then replaces them); every candidate has
+the levers that cost nothing in U (the table and the CMM moving together, the CMM's shortest path
+through the grid) and, where the bench's table grows with its temperature and a sensor reads it, the
+expansion coefficient stated so that the lengths are corrected. The stations (the certificate's
+targets) are left as written. Plans with one mount are skipped once one of them shows that the error
+motions alone (a bias no repetition averages) exceed the target at the furthest radius; a
+configuration whose U without the tracer's noise exceeds it is not tried with more samples. What each
+lever of the proposal buys (seconds and arcseconds, in turn from the procedure as written) is in its
+changes and the JSON's ``levers_buy``.
 """
 
 from __future__ import annotations
@@ -60,15 +67,18 @@ class Outcome:
     shares: dict[str, float] = field(default_factory=dict)
     contributions: dict[str, list[float]] = field(default_factory=dict)  # the recommended's budget, 1σ per target
     problem: str = ""  # why the plan could not be predicted (it does not validate, no estimator converged)
+    buys: tuple[dict[str, Any], ...] = ()  # a proposal's levers in turn: {lever, seconds, arcsec} each changes
 
     def summary(self) -> dict[str, Any]:
         """The JSON form of a lever or proposal."""
-        return {"changes": list(self.plan.changes) or ["as written"], "recommended": self.recommended,
+        changes = [r["lever"] for r in self.buys] if self.buys else list(self.plan.changes)  # the words without the effects
+        return {"changes": changes or ["as written"], "recommended": self.recommended,
                 "expanded_uncertainty_max_arcsec": _finite(self.expanded_max_arcsec), "duration_s": round(self.duration_s, 1),
                 "raw_readings": self.raw_readings,
                 "sources_rms_arcsec": {k: round(float(np.sqrt(np.mean(np.square(v[1:])))), 4)
                                        for k, v in self.contributions.items() if len(v) > 1},
-                **({"problem": self.problem} if self.problem else {})}
+                **({"problem": self.problem} if self.problem else {}),
+                **({"levers_buy": list(self.buys)} if self.buys else {})}
 
 
 def _finite(value: float) -> float | None:
@@ -210,7 +220,75 @@ def more_runs(plan: Plan, runs: int) -> Plan:
     return Plan(data, plan.bench, plan.changes + (f"{runs} runs",))
 
 
-SAMPLE_NOTE = " (the simulated tracer counts no time for a sample: add the real tracer's)"
+SAMPLE_NOTE = " (each sample the time `durations.tracer_sample_s` states)"
+
+
+def station_major(plan: Plan) -> Plan:
+    """For each station the CMM visits every point: the table turns once per station instead of stepping
+    through every station and back over its whole span after every point. Each station is then one visit, so the stage's repeatability is no longer
+    averaged over the points' visits (the budget says so: its term grows)."""
+    data = copy.deepcopy(plan.procedure)
+    data["order"] = "station_major"
+    return Plan(data, plan.bench, plan.changes + ("station-major order (for each station, every point)",))
+
+
+def concurrent_motions(plan: Plan) -> Plan:
+    """The table and the CMM start together where both move (the engine's ``Parallel``): time only."""
+    data = copy.deepcopy(plan.procedure)
+    data["concurrent_motions"] = True
+    return Plan(data, plan.bench, plan.changes + ("the table and the CMM moving together",))
+
+
+def shortest_point_path(plan: Plan) -> Plan:
+    """Every other grid layer walked backwards: the CMM rises straight to the next layer instead of crossing
+    back to the first corner (each move one grid step: the shortest path through the grid). Time only."""
+    data = copy.deepcopy(plan.procedure)
+    data.setdefault("points", {"kind": "grid"})["layer_order"] = "alternate"
+    return Plan(data, plan.bench, plan.changes + ("the CMM's shortest path through the points (every other layer "
+                                                  "backwards)",))
+
+
+def stated_expansion(plan: Plan, alpha_ppm_per_k: float) -> Plan:
+    """The table's expansion coefficient stated, so the lengths are corrected for the table's growth about
+    the axis with the temperature the sensor reads (its standard uncertainty 10 % of it). The value is the
+    bench's: the lab's model of its table, to be checked against the table's own."""
+    data = copy.deepcopy(plan.procedure)
+    u = data.setdefault("uncertainty", {})
+    u["table_expansion_ppm_per_k"] = alpha_ppm_per_k
+    u["table_expansion_u_ppm_per_k"] = round(0.1 * alpha_ppm_per_k, 4)
+    return Plan(data, plan.bench, plan.changes + (
+        f"the table's expansion stated, {alpha_ppm_per_k:g} ± {0.1 * alpha_ppm_per_k:.3g} ppm/K (the bench's: state "
+        "your table's): each length corrected for its growth with the temperature the sensor reads",))
+
+
+def expansion_to_state(plan: Plan, proc: LaserTracerMultistation) -> float:
+    """The bench's expansion coefficient when the table grows, a sensor reads its temperature and the
+    procedure states none (else 0: nothing to state, or no temperature to correct with)."""
+    alpha = float(plan.bench.get("stage", {}).get("thermal_expansion_ppm_per_k") or 0.0)
+    sensor = proc.instruments.environment is not None or "environment" in plan.procedure.get("instruments", {})
+    return alpha if alpha > 0 and sensor and proc.uncertainty.table_expansion_ppm_per_k == 0 else 0.0
+
+
+def walked_duration_s(plan: Plan) -> float:
+    """The plan's machine time as the engine's walker counts it on the plan's bench (no simulation, no
+    store: the simulated run's clock counts the same), operator steps included; ∞ when it does not validate."""
+    from rtcal.engine.walk import Timing, walk
+    from rtcal.planning.predict import simulated
+    from rtcal.plans.multistation import MultistationPlan
+    from rtcal.procedure.loader import load_procedure
+    from rtcal.procedure.yamlfile import FileProblems
+    from simulators.scenario import Scenario
+
+    text = yaml.safe_dump({k: v for k, v in simulated(plan.procedure).items() if k != "bench"}, sort_keys=False,
+                          allow_unicode=True)
+    try:
+        proc = load_procedure(Path("plan.yaml"), text=text)
+        scenario = Scenario.model_validate(plan.bench)
+    except (FileProblems, ValueError):
+        return math.inf
+    if not isinstance(proc, LaserTracerMultistation):
+        return math.inf
+    return walk(MultistationPlan(proc), Timing.of_scenario(scenario)).duration_s
 
 
 def radius_factors(plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None) -> list[float]:
@@ -236,6 +314,15 @@ def levers(plan: Plan, proc: Procedure, max_radius_mm: float | None = None) -> l
         out.append(more_samples(plan, 4 * proc.samples_per_reading, SAMPLE_NOTE))
         if proc.instruments.environment is None:
             out.append(environment_sensor(plan, proc))
+        if proc.order == "point_major":
+            out.append(station_major(plan))
+        if not proc.concurrent_motions:
+            out.append(concurrent_motions(plan))
+        if isinstance(proc.points, GridPlan) and proc.points.layers > 1 and proc.points.layer_order == "same":
+            out.append(shortest_point_path(plan))
+        alpha = expansion_to_state(plan, proc)
+        if alpha > 0:
+            out.append(stated_expansion(plan, alpha))
     elif isinstance(proc, EncoderAbbeError):
         out += [more_runs(plan, r) for r in (2 * proc.steps.runs, 5 * proc.steps.runs) if r <= 100]
     return out
@@ -259,32 +346,58 @@ def lever_notes(proc: Procedure) -> list[str]:
 
 
 # -- the search ----------------------------------------------------------------------------------------------
-def multistation_candidates(plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None) -> list[tuple[int, Plan]]:
-    """(readings, plan) for every combination the search tries (see the module docstring)."""
+SAMPLE_FACTORS = (1, 2, 4)  # samples per reading the search tries, × the procedure's
+TRACER_NOISE_SOURCE = "tracer length noise"  # the budget's only term that more samples per reading lower
+
+
+def multistation_candidates(plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None,
+                            chains: dict[int, tuple[Plan, ...]] | None = None) -> list[tuple[float, Plan]]:
+    """(walked machine time, plan) for every combination the search tries (see the module docstring),
+    shortest first; ``chains`` (if given) gets each plan's intermediate plans, lever by lever (by ``id``)."""
     factor = max([1.0, *radius_factors(plan, proc, max_radius_mm)])
     mounts = [False] + ([True] if proc.second_mount is None else [])
-    layers: Sequence[int | None] = [None]
+    layers: list[int | None] = [None]
+    grid = isinstance(proc.points, GridPlan)
     if isinstance(proc.points, GridPlan):
         L = proc.points.layers
-        layers = sorted({max(2, round(L * f)) for f in (0.5, 0.75, 1.0, 1.5, 2.0)})
+        layers = [*sorted({max(2, round(L * f)) for f in (0.5, 0.75, 1.0, 1.5, 2.0)})]
     from rtcal.methods.multistation import stated_air_ranges
 
     sensor = proc.instruments.environment is None and bool(stated_air_ranges(proc)) and proc.instruments.all_sim()
-    per_point = proc.stations.count * proc.samples_per_reading
+    orders = [False] + ([True] if proc.order == "point_major" else [])
+    samples = sorted({proc.samples_per_reading * f for f in SAMPLE_FACTORS if proc.samples_per_reading * f <= 1000})
     out = []
     for two in mounts:
         for n_layers in layers:
-            p = plan
-            if two:
-                p = second_mount(p, proc)
-            if factor > 1.0:
-                p = tracer_radius(p, proc, factor)
-            if n_layers is not None and n_layers != getattr(proc.points, "layers", None):
-                p = point_layers(p, n_layers)
-            if sensor:
-                p = environment_sensor(p, proc)
-            points = proc.point_count() if n_layers is None else n_layers * proc.point_count() // proc.points.layers  # type: ignore[union-attr]
-            out.append((points * per_point * (proc.mounts + int(two)), p))
+            for major in orders:
+                for n_samples in samples:
+                    chain = [plan]
+
+                    def step(lever: Callable[[Plan], Plan]) -> None:
+                        chain.append(lever(chain[-1]))
+
+                    if two:
+                        step(lambda p: second_mount(p, proc))
+                    if factor > 1.0:
+                        step(lambda p: tracer_radius(p, proc, factor))
+                    if n_layers is not None and n_layers != getattr(proc.points, "layers", None):
+                        step(lambda p: point_layers(p, n_layers))
+                    if major:
+                        step(station_major)
+                    if not proc.concurrent_motions:
+                        step(concurrent_motions)
+                    if grid and (n_layers or 0) > 1 and getattr(proc.points, "layer_order", "same") == "same":
+                        step(shortest_point_path)
+                    if n_samples != proc.samples_per_reading:
+                        step(lambda p: more_samples(p, n_samples))
+                    if sensor:
+                        step(lambda p: environment_sensor(p, proc))
+                    alpha = expansion_to_state(chain[-1], proc)
+                    if alpha > 0:
+                        step(lambda p: stated_expansion(p, alpha))
+                    if chains is not None:
+                        chains[id(chain[-1])] = tuple(chain)
+                    out.append((round(walked_duration_s(chain[-1]), 1), chain[-1]))
     return sorted(out, key=lambda c: c[0])
 
 
@@ -312,40 +425,96 @@ def error_motion_floor(outcome: Outcome) -> float:
 DEFAULT_MARGIN = 0.1
 
 
+TIME_ONLY = ("the table and the CMM moving together", "the CMM's shortest path")  # levers that change no reading
+
+
+def _config(plan: Plan) -> tuple[bool, Any, str]:
+    """What fixes a plan's budget apart from its samples per reading: mounts, points, order."""
+    d = plan.procedure
+    return bool(d.get("second_mount")), d.get("points", {}).get("layers"), str(d.get("order", "point_major"))
+
+
+def floor_without_tracer_noise(outcome: Outcome) -> float:
+    """U (k = 2) at the worst target without the tracer's length noise: what no number of samples lowers."""
+    rest = [np.array(v) for k, v in outcome.contributions.items() if k != TRACER_NOISE_SOURCE]
+    return float(2.0 * np.max(np.sqrt(sum(v**2 for v in rest)))) if rest else 0.0
+
+
+def what_each_buys(chain: tuple[Plan, ...], final: Outcome, evaluate_plan: Callable[[Plan], Outcome]) -> list[dict[str, Any]]:
+    """Each lever of a plan applied in turn from the procedure as written: the machine time (walked) and the
+    U (k = 2, worst target; predicted, except for the time-only levers, which change no reading) it changes."""
+    rows: list[dict[str, Any]] = []
+    u_before = evaluate_plan(chain[0]).expanded_max_arcsec
+    t_before = walked_duration_s(chain[0])
+    for k, p in enumerate(chain[1:], 1):
+        change = p.changes[-1]
+        last = k == len(chain) - 1
+        u = final.expanded_max_arcsec if last else (
+            u_before if change.startswith(TIME_ONLY) else evaluate_plan(p).expanded_max_arcsec)
+        t = final.duration_s if last else walked_duration_s(p)
+        rows.append({"lever": change, "seconds": round(t - t_before, 1),
+                     "arcsec": round(u - u_before, 4) if math.isfinite(u) and math.isfinite(u_before) else None})
+        u_before, t_before = u, t
+    return rows
+
+
+def with_buys(outcome: Outcome, rows: list[dict[str, Any]]) -> Outcome:
+    """The outcome with each change's effect in its words (the console and the written plan's header show
+    the changes) and in ``buys`` (the JSON)."""
+    def words(r: dict[str, Any]) -> str:
+        u = "" if r["arcsec"] is None else f", {r['arcsec']:+.2f}″"
+        return f"{r['lever']} [{r['seconds']:+.0f} s{u}]"
+    plan = Plan(outcome.plan.procedure, outcome.plan.bench, tuple(words(r) for r in rows))
+    return Outcome(plan, outcome.recommended, outcome.expanded_max_arcsec, outcome.duration_s, outcome.raw_readings,
+                   outcome.shares, outcome.contributions, outcome.problem, tuple(rows))
+
+
 def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: float | None = None,
-            margin: float = DEFAULT_MARGIN, evaluate_plan: Callable[[Plan], Outcome] | None = None) -> Proposal:
+            margin: float = DEFAULT_MARGIN, evaluate_plan: Callable[[Plan], Outcome] | None = None,
+            explain: bool = True) -> Proposal:
     """The shortest plan whose predicted U (k = 2, recommended estimator, worst target) is ≤ the target
     less ``margin`` (a fraction of it). The prediction is linear about the noise-free bench with the noise
     as stated; the margin leaves room for what it does not hold — the noise a run finds in its readings,
     and the sampling of the Monte Carlo (`rtcal uncertainty`) that verifies the proposal, whose RMS error
-    per target is known to ±1/√(2N) and whose worst target is the largest of several such estimates."""
+    per target is known to ±1/√(2N) and whose worst target is the largest of several such estimates.
+    Candidates are tried shortest first (the walked machine time); a configuration (mounts, points, order)
+    whose U without the tracer's noise already exceeds the goal is not tried with more samples. ``explain``:
+    what each of the proposal's levers buys, in turn (a prediction per lever that changes the readings)."""
     goal = target_arcsec * (1.0 - margin)
     evaluate_plan = evaluate_plan or evaluate
+    chains: dict[int, tuple[Plan, ...]] = {}
+    candidates: list[tuple[float, Plan]]
     if isinstance(proc, LaserTracerMultistation):
-        candidates = multistation_candidates(plan, proc, max_radius_mm)
+        candidates = multistation_candidates(plan, proc, max_radius_mm, chains)
     elif isinstance(proc, EncoderAbbeError):
-        candidates = abbe_candidates(plan, proc)
+        candidates = [(float(n), p) for n, p in abbe_candidates(plan, proc)]
     else:
         candidates = []
     tried: list[Outcome] = []
     skipped: list[str] = []
     one_mount_out = False
+    floors_out: set[tuple[bool, Any, str]] = set()
     group: list[Outcome] = []
     for k, (size, candidate) in enumerate(candidates):
-        is_one_mount = isinstance(proc, LaserTracerMultistation) and not candidate.procedure.get("second_mount")
-        if is_one_mount and one_mount_out:
+        multistation = isinstance(proc, LaserTracerMultistation)
+        is_one_mount = multistation and not candidate.procedure.get("second_mount")
+        if (is_one_mount and one_mount_out) or (multistation and _config(candidate) in floors_out):
             skipped.append(", ".join(candidate.changes) or "as written")
             continue
         outcome = evaluate_plan(candidate)
         tried.append(outcome)
         if is_one_mount and error_motion_floor(outcome) > goal:
             one_mount_out = True
+        if multistation and floor_without_tracer_noise(outcome) > goal:
+            floors_out.add(_config(candidate))
         if outcome.expanded_max_arcsec <= goal:
             group.append(outcome)
         last_of_size = k + 1 == len(candidates) or candidates[k + 1][0] != size
         if group and last_of_size:
             break
     reached = min(group, key=lambda o: (o.duration_s, o.expanded_max_arcsec)) if group else None
+    if explain and reached is not None and id(reached.plan) in chains and len(chains[id(reached.plan)]) > 1:
+        reached = with_buys(reached, what_each_buys(chains[id(reached.plan)], reached, evaluate_plan))
     finite = [o for o in tried if math.isfinite(o.expanded_max_arcsec)]
     smallest = min(finite, key=lambda o: o.expanded_max_arcsec) if finite else None
     return Proposal(reached, smallest, tried, skipped)

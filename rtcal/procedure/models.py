@@ -292,6 +292,10 @@ class GridPlan(_Strict):
     layers: int = Field(4, ge=1, le=100, description="planes of points along Z")
     columns: int = Field(4, ge=1, le=100, description="points per row, along X")
     rows: int = Field(4, ge=1, le=100, description="rows per layer, along Y")
+    layer_order: Literal["same", "alternate"] = Field(
+        "same", description="`same` (the paper's): every layer walked alike, the CMM back to the first corner between "
+                            "layers; `alternate`: every other layer walked backwards, the CMM rising straight to the next "
+                            "(the shortest path through the grid; `rtcal plan --target-u` proposes it)")
 
     def points_mm(self) -> np.ndarray:
         lo, size = np.array(self.volume_min_mm), np.array(self.volume_size_mm)
@@ -302,7 +306,8 @@ class GridPlan(_Strict):
         for r, y in enumerate(ys):
             row = xs if r % 2 == 0 else xs[::-1]
             layer.extend((x, y) for x in row)
-        return np.array([(x, y, z) for z in zs for x, y in layer])
+        back = self.layer_order == "alternate"
+        return np.array([(x, y, z) for k, z in enumerate(zs) for x, y in (layer[::-1] if back and k % 2 else layer)])
 
 
 class ListPlan(_Strict):
