@@ -50,6 +50,7 @@ from simulators.scenario import Scenario
 from simulators.truth import abbe_truth
 
 if TYPE_CHECKING:
+    from rtcal.planning.levers import AbbePlanner
     from rtcal.deliverables.abbe import AbbeOutputs
 
 NOTES = (
@@ -217,6 +218,12 @@ class AbbeMethod:
         if abbe is not None and abbe.polygon_source == "closure":
             return {"polygon": "artefact: its face errors separated from the table's by closure in this run"}
         return {}
+
+    @property
+    def planner(self) -> AbbePlanner:
+        from rtcal.planning.levers import AbbePlanner
+
+        return AbbePlanner()
 
     def outputs(self, results: rm.RunResults) -> AbbeOutputs:
         from rtcal.deliverables.abbe import AbbeOutputs

@@ -46,6 +46,7 @@ from simulators.scenario import AngularHarmonic, LinearHarmonic, Scenario
 from simulators.truth import station_truth
 
 if TYPE_CHECKING:
+    from rtcal.planning.levers import MultistationPlanner
     from rtcal.deliverables.multistation import MultistationOutputs
 
 
@@ -369,6 +370,12 @@ class MultistationMethod:
 
     def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
         return {}
+
+    @property
+    def planner(self) -> MultistationPlanner:
+        from rtcal.planning.levers import MultistationPlanner
+
+        return MultistationPlanner()
 
     def outputs(self, results: rm.RunResults) -> MultistationOutputs:
         from rtcal.deliverables.multistation import MultistationOutputs

@@ -140,3 +140,10 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
     def outputs(self, results: RunResults) -> MethodOutputs:
         """The method's files, figures, report sections and console lines, from its results alone."""
         ...
+
+    @property
+    def planner(self) -> Any:
+        """What ``rtcal plan`` may vary in this method's plans (``levers``, ``notes``, ``candidates``,
+        ``pruning``, ``points_refusal``, ``choose_points``: rtcal/planning/levers.py's planners), or None:
+        the plan is predicted as written, with no levers and no proposal."""
+        ...

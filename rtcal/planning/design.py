@@ -117,8 +117,6 @@ def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenari
     from rtcal.run.runner import run_procedure
     from rtcal.run.store import RunStore
 
-    if not isinstance(proc, LaserTracerMultistation):
-        raise ValueError("--optimize chooses CMM points: it is for laser_tracer_multistation procedures")
     noise = noise_model(proc, estimate=False)
     tmp = Path(tempfile.mkdtemp(prefix="design-"))
     try:

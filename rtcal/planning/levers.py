@@ -274,7 +274,7 @@ def walked_duration_s(plan: Plan) -> float:
     store: the simulated run's clock counts the same), operator steps included; ∞ when it does not validate."""
     from rtcal.engine.walk import Timing, walk
     from rtcal.planning.predict import simulated
-    from rtcal.plans.multistation import MultistationPlan
+    from rtcal.methods import METHODS
     from rtcal.procedure.loader import load_procedure
     from rtcal.procedure.yamlfile import FileProblems
     from simulators.scenario import Scenario
@@ -286,9 +286,7 @@ def walked_duration_s(plan: Plan) -> float:
         scenario = Scenario.model_validate(plan.bench)
     except (FileProblems, ValueError):
         return math.inf
-    if not isinstance(proc, LaserTracerMultistation):
-        return math.inf
-    return walk(MultistationPlan(proc), Timing.of_scenario(scenario)).duration_s
+    return walk(METHODS[proc.method].plan(proc, set()), Timing.of_scenario(scenario)).duration_s
 
 
 def radius_factors(plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None) -> list[float]:
@@ -301,9 +299,29 @@ def radius_factors(plan: Plan, proc: LaserTracerMultistation, max_radius_mm: flo
 
 
 def levers(plan: Plan, proc: Procedure, max_radius_mm: float | None = None) -> list[Plan]:
-    """One plan per lever of the procedure's method, each changing one thing."""
-    out: list[Plan] = []
-    if isinstance(proc, LaserTracerMultistation):
+    """One plan per lever of the procedure's method, each changing one thing (none: the method has no planner)."""
+    planner = _planner(proc)
+    return planner.levers(plan, proc, max_radius_mm) if planner is not None else []
+
+
+def lever_notes(proc: Procedure) -> list[str]:
+    """Levers the method has that the table does not vary, and why."""
+    planner = _planner(proc)
+    return planner.notes(proc) if planner is not None else []
+
+
+def _planner(proc: Procedure) -> Any:
+    """The procedure's method's planner (rtcal.methods.protocol.Method.planner), None: it has none."""
+    from rtcal.methods import METHODS
+
+    return METHODS[proc.method].planner
+
+
+class MultistationPlanner:
+    """What `rtcal plan` may vary in a laser-tracer multi-station plan (the method's ``planner``)."""
+
+    def levers(self, plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None) -> list[Plan]:
+        out: list[Plan] = []
         if proc.second_mount is None:
             out.append(second_mount(plan, proc))
         out += [tracer_radius(plan, proc, f) for f in radius_factors(plan, proc, max_radius_mm)]
@@ -323,14 +341,9 @@ def levers(plan: Plan, proc: Procedure, max_radius_mm: float | None = None) -> l
         alpha = expansion_to_state(plan, proc)
         if alpha > 0:
             out.append(stated_expansion(plan, alpha))
-    elif isinstance(proc, EncoderAbbeError):
-        out += [more_runs(plan, r) for r in (2 * proc.steps.runs, 5 * proc.steps.runs) if r <= 100]
-    return out
+        return out
 
-
-def lever_notes(proc: Procedure) -> list[str]:
-    """Levers the method has that the table does not vary, and why."""
-    if isinstance(proc, LaserTracerMultistation):
+    def notes(self, proc: LaserTracerMultistation) -> list[str]:
         notes = []
         if proc.second_mount is not None:
             notes.append("second mount: in the plan")
@@ -340,9 +353,47 @@ def lever_notes(proc: Procedure) -> list[str]:
             notes.append("points: the plan lists them (`--optimize` chooses better ones)")
         notes.append("runs: a multi-station plan is one run; its repetition lever is the samples per reading")
         return notes
-    if isinstance(proc, EncoderAbbeError):
+
+    def candidates(self, plan: Plan, proc: LaserTracerMultistation, max_radius_mm: float | None,
+                   chains: dict[int, tuple[Plan, ...]]) -> list[tuple[float, Plan]]:
+        return multistation_candidates(plan, proc, max_radius_mm, chains)
+
+    def pruning(self, candidate: Plan) -> tuple[bool, Any]:
+        """(whether the candidate has one mount, whose error motions alone may exclude every one-mount plan;
+        the configuration whose budget without the tracer's noise may exclude more samples of it)."""
+        return not candidate.procedure.get("second_mount"), _config(candidate)
+
+    def points_refusal(self, path: Path, proc: LaserTracerMultistation) -> str | None:
+        return None
+
+    def choose_points(self, path: Path, proc: LaserTracerMultistation, scenario: Any, out: Path) -> str:
+        """`rtcal plan --optimize`: CMM points that lower the predicted U (rtcal/planning/design.py)."""
+        from rtcal.planning.design import optimize_points
+
+        return optimize_points(path, proc, scenario, out)
+
+
+class AbbePlanner:
+    """What `rtcal plan` may vary in an encoder Abbe-error plan: its runs."""
+
+    def levers(self, plan: Plan, proc: EncoderAbbeError, max_radius_mm: float | None) -> list[Plan]:
+        return [more_runs(plan, r) for r in (2 * proc.steps.runs, 5 * proc.steps.runs) if r <= 100]
+
+    def notes(self, proc: EncoderAbbeError) -> list[str]:
         return ["samples per reading: the budget takes each reading's stated noise as it is; runs average it"]
-    return []
+
+    def candidates(self, plan: Plan, proc: EncoderAbbeError, max_radius_mm: float | None,
+                   chains: dict[int, tuple[Plan, ...]]) -> list[tuple[float, Plan]]:
+        return [(float(n), p) for n, p in abbe_candidates(plan, proc)]
+
+    def pruning(self, candidate: Plan) -> tuple[bool, Any]:
+        return False, None
+
+    def points_refusal(self, path: Path, proc: EncoderAbbeError) -> str | None:
+        return f"{path} is a procedure of {proc.method}; choosing CMM points is for laser_tracer_multistation procedures"
+
+    def choose_points(self, path: Path, proc: EncoderAbbeError, scenario: Any, out: Path) -> str:
+        raise ValueError(self.points_refusal(path, proc))
 
 
 # -- the search ----------------------------------------------------------------------------------------------
@@ -483,30 +534,24 @@ def propose(plan: Plan, proc: Procedure, target_arcsec: float, max_radius_mm: fl
     goal = target_arcsec * (1.0 - margin)
     evaluate_plan = evaluate_plan or evaluate
     chains: dict[int, tuple[Plan, ...]] = {}
-    candidates: list[tuple[float, Plan]]
-    if isinstance(proc, LaserTracerMultistation):
-        candidates = multistation_candidates(plan, proc, max_radius_mm, chains)
-    elif isinstance(proc, EncoderAbbeError):
-        candidates = [(float(n), p) for n, p in abbe_candidates(plan, proc)]
-    else:
-        candidates = []
+    planner = _planner(proc)
+    candidates: list[tuple[float, Plan]] = planner.candidates(plan, proc, max_radius_mm, chains) if planner else []
     tried: list[Outcome] = []
     skipped: list[str] = []
     one_mount_out = False
-    floors_out: set[tuple[bool, Any, str]] = set()
+    floors_out: set[Any] = set()
     group: list[Outcome] = []
     for k, (size, candidate) in enumerate(candidates):
-        multistation = isinstance(proc, LaserTracerMultistation)
-        is_one_mount = multistation and not candidate.procedure.get("second_mount")
-        if (is_one_mount and one_mount_out) or (multistation and _config(candidate) in floors_out):
+        is_one_mount, config = planner.pruning(candidate)
+        if (is_one_mount and one_mount_out) or (config is not None and config in floors_out):
             skipped.append(", ".join(candidate.changes) or "as written")
             continue
         outcome = evaluate_plan(candidate)
         tried.append(outcome)
         if is_one_mount and error_motion_floor(outcome) > goal:
             one_mount_out = True
-        if multistation and floor_without_tracer_noise(outcome) > goal:
-            floors_out.add(_config(candidate))
+        if config is not None and floor_without_tracer_noise(outcome) > goal:
+            floors_out.add(config)
         if outcome.expanded_max_arcsec <= goal:
             group.append(outcome)
         last_of_size = k + 1 == len(candidates) or candidates[k + 1][0] != size

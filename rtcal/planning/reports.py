@@ -227,20 +227,24 @@ def uncertainty_schema() -> str:
 
 
 def optimize_refusal(path: Path, proc: Procedure) -> str | None:
-    """Why `rtcal plan --optimize` cannot choose CMM points for this procedure (None: it can)."""
-    from rtcal.procedure.models import LaserTracerMultistation
+    """Why `rtcal plan --optimize` cannot choose points for this procedure (None: its method's planner can),
+    asked before anything is predicted."""
+    from rtcal.methods import METHODS
 
-    if isinstance(proc, LaserTracerMultistation):
-        return None
-    return f"{path} is a procedure of {proc.method}; choosing CMM points is for laser_tracer_multistation procedures"
+    planner = METHODS[proc.method].planner
+    if planner is None:
+        return f"{path} is a procedure of {proc.method}, whose method has no planner: there are no points to choose"
+    refusal: str | None = planner.points_refusal(path, proc)
+    return refusal
 
 
 def optimized_points(path: Path, proc: Procedure, scenario: Any, out: Path) -> str:
-    """`rtcal plan --optimize OUT`: CMM points chosen (rtcal/planning/design.py), the procedure with
-    them written to ``out``; what was done, in words. ValueError: it cannot be done."""
-    from rtcal.planning.design import optimize_points
-    from rtcal.procedure.models import LaserTracerMultistation
+    """`rtcal plan --optimize OUT`: points chosen by the method's planner (for the multi-station method,
+    CMM points: rtcal/planning/design.py), the procedure with them written to ``out``; what was done, in
+    words. ValueError: it cannot be done (the method's planner says why)."""
+    from rtcal.methods import METHODS
 
-    if not isinstance(proc, LaserTracerMultistation):
+    planner = METHODS[proc.method].planner
+    if planner is None:
         raise ValueError(optimize_refusal(path, proc))
-    return optimize_points(path, proc, scenario, out)
+    return str(planner.choose_points(path, proc, scenario, out))

@@ -379,6 +379,7 @@ class EncoderVsCommandMethod:
     procedure_model = EncoderVsCommand
     results_model = EncoderResults
     operator_steps = False
+    planner = None  # `rtcal plan` predicts its plan as written: no levers
 
     def plan_length(self, proc: EncoderVsCommand) -> int:
         return len(planned_visits(proc))
