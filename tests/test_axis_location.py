@@ -16,7 +16,7 @@ import pytest
 
 from rtcal.procedure.models import GridPlan
 from rtcal.solvers.location import location_from_axis, location_jacobian
-from rtcal.solvers.network import _without_fundamental, cmm_matrix, solve_network
+from rtcal.solvers.network import NetworkOptions, _without_fundamental, cmm_matrix, solve_network
 from rtcal.solvers.station_budget import StationNoiseModel
 from rtcal.solvers.station_data import MountReadings, MultistationData
 from rtcal.units import ARCSEC_PER_RAD
@@ -120,7 +120,8 @@ def trial(seed: int, mounts: int):
     bench = _bench(rng)
     data, first = readings(bench, mounts, rng)
     guess = first[0] + rng.normal(0.0, 0.3, 3)  # a first guess off by a few tenths of a millimetre
-    est = solve_network(data, guess, noise=noise_model(), mount_guesses_mm=[first[1]] if mounts > 1 else None)
+    est = solve_network(data, guess, noise=noise_model(), mount_guesses_mm=[first[1]] if mounts > 1 else None,
+                        options=NetworkOptions(check_residuals=False))  # the χ² check is 60 % of a trial's time
     assert est.converged, est.message
     loc = est.axis_location
     z_loc = (loc.values - true_location(bench)) / loc.sigma
