@@ -172,8 +172,13 @@ def test_exact_readings_give_the_benchs_axis(mounts):
 
 @lru_cache(maxsize=None)
 def _trial_cached(seed: int, mounts: int):
-    """One bench's result, computed once per session: the 30- and 100-bench tests share their first seeds."""
-    return trial(seed, mounts)
+    """One bench's result, computed once per session: the 30- and 100-bench tests share their first seeds.
+    One BLAS thread: these small matrices gain nothing from more, and on a loaded 2-core machine
+    threads fighting for cores made a two-mount trial 8× slower (2.2 s against 0.26 s)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        return trial(seed, mounts)
 
 
 def coverage(trials: int, mounts: int) -> tuple[np.ndarray, np.ndarray | None]:
