@@ -66,6 +66,7 @@ class NetworkOptions:
     free_points: bool = True  # CMM points as weighted observations (False: exact, as in the paper)
     estimate_variances: bool = True  # Type A sizes of tracer and CMM noise from the residuals
     max_iterations: int = 50
+    check_residuals: bool = True  # the residuals' χ² against the stated noise (a dense Cholesky: a Monte Carlo skips it)
 
 
 @dataclass(frozen=True)
@@ -500,7 +501,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         if settled:
             break
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
-                   (prior_idx, prior_sigma), run_fraction, material_offset)
+                   (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals)
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -606,7 +607,7 @@ def _unseen_motions(S_inv: np.ndarray, lay: _Layout, prior, nominal: np.ndarray,
 
 
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
-            run_fraction, material_offset=None):
+            run_fraction, material_offset=None, check_residuals: bool = True):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
         x, lay, evaluate, weights, theta, pi, prior)
@@ -690,7 +691,7 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
                 f"within ±{bound:g} {unit} (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one mount cannot "
                 "separate them from the rotation"))
     check = None
-    if noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
+    if check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
         # the residuals (lengths, then the points' coordinates) against the noise as stated: θ = 1, the Type B
         # sources acting on them, and the error motions the stated bounds allow where the model has none
         stated = [replace(src, effect=src.effect / np.sqrt(theta[0])) if src.name == "tracer length noise" else
