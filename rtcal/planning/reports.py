@@ -48,10 +48,19 @@ class DominantSource(_Document):
     share: float = Field(description="its share of the variance over the targets (0 … 1)")
 
 
+class LeverBuys(_Document):
+    """What one lever of a proposal changes, applied after the ones before it."""
+
+    lever: str = Field(description="the lever, in words")
+    seconds: float = Field(description="the machine time it adds (negative: saves), s, walked")
+    arcsec: float | None = Field(description="the change of U (k = 2) at the worst target, arcsec (null: a lever that "
+                                             "changes no reading, so no prediction was made)")
+
+
 class PlanOutcome(_Document):
     """A plan predicted the same way as the procedure (a lever, or a proposal)."""
 
-    OMIT_WHEN_NONE = ("problem",)
+    OMIT_WHEN_NONE = ("problem", "levers_buy")
     changes: list[str] = Field(description="what was changed, in words (['as written']: nothing)")
     recommended: str | None = Field(description="the recommended estimator of this plan")
     expanded_uncertainty_max_arcsec: float | None = Field(description="U (k = 2) at its worst target, arcsec (null: not finite)")
@@ -59,6 +68,9 @@ class PlanOutcome(_Document):
     raw_readings: int = Field(description="its planned readings")
     sources_rms_arcsec: dict[str, float] = Field(description="each source's RMS 1σ over the targets, arcsec")
     problem: str | None = Field(None, description="why the plan could not be predicted (absent when it was)")
+    levers_buy: list[LeverBuys] | None = Field(
+        None, description="a proposal's levers applied in turn from the procedure as written, each with what it buys "
+                          "(absent for a single lever)")
 
     @classmethod
     def of(cls, outcome: Outcome) -> PlanOutcome:

@@ -607,7 +607,7 @@ def _unseen_motions(S_inv: np.ndarray, lay: _Layout, prior, nominal: np.ndarray,
 
 
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
-            run_fraction, material_offset=None, check_residuals: bool = True):
+            run_fraction, material_offset=None, check_residuals=True):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
         x, lay, evaluate, weights, theta, pi, prior)
