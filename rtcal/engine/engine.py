@@ -36,6 +36,7 @@ import numpy as np
 from drivers.errors import InstrumentError, TrackingLost
 from drivers.interfaces import Instrument
 from rtcal.clock import Clock, VirtualClock
+from rtcal.engine.walk import Motion, Timing
 from rtcal.engine.faults import RETAKE, FaultHandler, RunAborted, Skip
 from rtcal.engine.plan import Attempt, Entry, Plan
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Samples, Settle,
@@ -57,8 +58,11 @@ class Engine:
     """Executes plans against ``devices`` (name → driver) on ``clock``; see the module docstring."""
 
     def __init__(self, devices: Mapping[str, Any], clock: Clock, operator: Any, subscribers: Sequence[Subscriber] = (),
-                 new_attempt: Callable[[], int] | None = None, next_segment: int = 0):
+                 new_attempt: Callable[[], int] | None = None, next_segment: int = 0, motion_timing: Timing | None = None):
         self.devices = dict(devices)
+        # a wired run on a virtual clock: its simulators move in their own processes, off this clock; each
+        # motion then takes on it the time the walk gives it (at the bench's speeds), as an in-process one does
+        self._motion = Motion(motion_timing) if motion_timing is not None and isinstance(clock, VirtualClock) else None
         self.clock = clock
         self.operator = operator
         self.subscribers = list(subscribers)
@@ -350,10 +354,15 @@ class Engine:
         device = self.devices[step.instrument]
         if step.instrument not in self._moved:
             self._moved.append(step.instrument)
+        start_s = self.clock.now_s()
         if step.direction:
             approach(device, float(step.target), step.direction, step.overshoot_deg)
         else:
             device.move_to(step.target)
+        if self._motion is not None:
+            rest_s = self._motion.seconds(step) - (self.clock.now_s() - start_s)
+            if rest_s > 0:
+                self.clock.sleep(rest_s)
 
     def _parallel(self, step: Parallel, context: dict[str, Any], readings: list[Reading]) -> None:
         """Start the motions together; each that faulted is then ridden out under its own policy."""

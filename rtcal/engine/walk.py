@@ -48,14 +48,14 @@ class PlanWalk:
     """Every step in order, when the walk was asked to keep them (`walk(..., listing=True)`)."""
 
 
-class _Walker:
+class Motion:
+    """How long each motion takes at the timing's speeds, from where the last one left the machine: the
+    walk's clock, and a wired run's on a virtual clock (its simulators move in their own processes)."""
+
     def __init__(self, timing: Timing):
         self.timing = timing
         self.stage_deg = timing.stage_start_deg
         self.cmm_mm = np.asarray(timing.cmm_start_mm, float)
-        self.tracking = False
-        self.segment = -1
-        self.walk = PlanWalk()
 
     def _stage_time(self, move: Move) -> float:
         """The table's travel: through the overshoot when it would arrive the other way (as
@@ -73,13 +73,25 @@ class _Walker:
             self.stage_deg = leg
         return travel / self.timing.stage_speed_deg_per_s
 
-    def _move_time(self, move: Move) -> float:
+    def seconds(self, move: Move) -> float:
         if move.instrument == "stage":
             return self._stage_time(move)
         target = np.asarray(move.target, float)
         seconds = float(np.linalg.norm(target - self.cmm_mm)) / self.timing.cmm_speed_mm_per_s
         self.cmm_mm = target
         return seconds
+
+
+class _Walker:
+    def __init__(self, timing: Timing):
+        self.timing = timing
+        self.motion = Motion(timing)
+        self.tracking = False
+        self.segment = -1
+        self.walk = PlanWalk()
+
+    def _move_time(self, move: Move) -> float:
+        return self.motion.seconds(move)
 
     def step(self, step: Step) -> Any:
         w = self.walk

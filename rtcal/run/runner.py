@@ -38,6 +38,7 @@ from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, stag
 from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
 from rtcal.engine.subscribers import ConsoleProgress, StoreWriter
+from rtcal.engine.walk import Timing
 from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
 from rtcal.run.store import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
@@ -225,6 +226,9 @@ def run_procedure(
         check_plan_on_bench(procedure_path, proc, scenario)
         seed = scenario.seed if seed is None else int(seed)
         bench = Bench(scenario, VirtualClock(), seed)
+    motion_timing = None
+    if not simulated and virtual_clock:  # simulators over wires: their motions in the bench's time (--scenario, else `bench`)
+        motion_timing = Timing.of_scenario(resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)[0])
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
     operator = _operator(bench, addresses)
     prepared = method.prepare(proc, operator)
@@ -240,7 +244,7 @@ def run_procedure(
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
-                                  estimate_noise, on_engine)
+                                  estimate_noise, on_engine, motion_timing)
     finally:
         lock.release()
 
@@ -408,8 +412,10 @@ def _virtual_end(started_utc: str | None, elapsed_s: float) -> str | None:
 
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
-                       estimate_noise: bool = True, on_engine: OnEngine | None = None) -> RunOutcome:
-    """Open the instruments, take every pending planned reading, then analyse and write the outputs."""
+                       estimate_noise: bool = True, on_engine: OnEngine | None = None,
+                       motion_timing: Timing | None = None) -> RunOutcome:
+    """Open the instruments, take every pending planned reading, then analyse and write the outputs
+    (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds)."""
     method = METHODS[proc.method]
     simulated = bench is not None
     clock = bench.clock if bench else (VirtualClock(store.last_time_s()) if virtual_clock else RealClock())
@@ -425,7 +431,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     subscribers: list = [StoreWriter(store)]
     if show_progress is not False:
         subscribers.append(ConsoleProgress())
-    engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1)
+    engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1, motion_timing)
     detach = None
     try:
         try:
