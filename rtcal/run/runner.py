@@ -226,9 +226,7 @@ def run_procedure(
         check_plan_on_bench(procedure_path, proc, scenario)
         seed = scenario.seed if seed is None else int(seed)
         bench = Bench(scenario, VirtualClock(), seed)
-    motion_timing = None
-    if not simulated and virtual_clock:  # simulators over wires: their motions in the bench's time (--scenario, else `bench`)
-        motion_timing = Timing.of_scenario(resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)[0])
+    motion_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated and virtual_clock else None
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
     operator = _operator(bench, addresses)
     prepared = method.prepare(proc, operator)
@@ -408,6 +406,17 @@ def _virtual_end(started_utc: str | None, elapsed_s: float) -> str | None:
         return (_dt.datetime.fromisoformat(started_utc) + _dt.timedelta(seconds=elapsed_s)).isoformat()
     except ValueError:
         return None
+
+
+def _wired_motion_timing(procedure_path: Path, proc: Procedure, scenario_path: str | Path | None) -> Timing | None:
+    """Simulators over wires on a virtual clock: their motions at the speeds of the bench they model
+    (--scenario, else the procedure's `bench`); None when neither can be read (the clock then counts
+    only what the drivers wait)."""
+    try:
+        scenario, _ = resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)
+    except FileProblems:
+        return None
+    return Timing.of_scenario(scenario)
 
 
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
