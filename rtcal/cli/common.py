@@ -11,14 +11,11 @@ from typing import Any, NoReturn
 
 from rtcal.outputs import is_disk_failure
 from rtcal.procedure.yamlfile import FileProblems
+from rtcal.errors import UserError  # noqa: F401  (re-exported: the CLI's modules and tests import it here)
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NOT_CONVERGED = 0, 1, 2, 3
 EXIT_INTERRUPTED = 130
 MAX_SEED = 2**63 - 1
-
-
-class UserError(Exception):
-    """A mistake the user can fix; printed as one line, exit code 2."""
 
 
 class Parser(argparse.ArgumentParser):

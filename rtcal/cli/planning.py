@@ -4,7 +4,6 @@ and duration of a plan, the Monte Carlo that checks the reported uncertainty, an
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import sys
@@ -12,12 +11,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rtcal.cli.common import EXIT_FAILED, EXIT_OK, UserError, make_folder, seed
+from rtcal.run.inputs import read_stations_csv
 from rtcal.outputs import output_file, write_output
-from rtcal.procedure.yamlfile import FileProblems, read_bytes
 
 if TYPE_CHECKING:
-    import numpy as np
-
     from rtcal.planning.levers import Outcome, Proposal
     from rtcal.planning.reports import PlanPrediction
 
@@ -220,41 +217,6 @@ def cmd_uncertainty(args: argparse.Namespace) -> int:
             print(line)
     print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
     return EXIT_OK
-
-
-def read_stations_csv(path: Path) -> np.ndarray:
-    """Station centres from a CSV with header X,Y,Z (mm), one station per row, in order."""
-    import io
-
-    import numpy as np
-
-    try:
-        data = read_bytes(path, 16 * 1024 * 1024)
-    except FileProblems as exc:
-        raise UserError(str(exc.problems[0])) from None
-    try:
-        with io.StringIO(data.decode("utf-8-sig"), newline="") as fh:  # -sig: a spreadsheet's byte-order mark
-            reader = csv.DictReader(fh)
-            fields = [f.strip() for f in (reader.fieldnames or [])]
-            if not {"X", "Y", "Z"} <= set(fields):
-                raise UserError(f"{path}:1: header must name X,Y,Z (found {','.join(fields) or 'nothing'})")
-            rows = []
-            for k, row in enumerate(reader, start=2):
-                row = {key.strip(): v for key, v in row.items() if key}
-                try:
-                    xyz = [float(row["X"]), float(row["Y"]), float(row["Z"])]
-                except (TypeError, ValueError):
-                    raise UserError(f"{path}:{k}: X, Y and Z must be numbers (mm)") from None
-                if not all(abs(v) <= 1e6 for v in xyz):  # also false for NaN
-                    raise UserError(f"{path}:{k}: X, Y and Z must be finite and within ±1e6 mm")
-                rows.append(xyz)
-    except UnicodeDecodeError:
-        raise UserError(f"{path}: not UTF-8 text") from None
-    except csv.Error as exc:
-        raise UserError(f"{path}:{reader.line_num}: not CSV: {exc}") from None
-    if len(rows) < 4:
-        raise UserError(f"{path}: {len(rows)} stations; at least 4 are needed (eq. 2)")
-    return np.array(rows)
 
 
 def cmd_solve_stations(args: argparse.Namespace) -> int:

@@ -10,42 +10,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rtcal.cli.common import EXIT_FAILED, EXIT_OK, UserError, json_text, make_folder, one_line
+from rtcal.run.inputs import read_deviation_table
 from rtcal.outputs import output_file, write_output
 
 if TYPE_CHECKING:
     from rtcal.deliverables.deviations import PositioningDeviations
     from rtcal.results import RunResults
-
-
-def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResults | None]:
-    """A run directory's positioning deviations (its results.json, validated) or a deviation CSV;
-    mistakes are UserErrors naming the file and, in results.json, the field."""
-    from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
-    from rtcal.results import ResultsError, read_results
-
-    path = Path(path_text)
-    try:
-        if path.is_dir():
-            if not (path / "results.json").exists():
-                raise UserError(f"{path}: not a run directory with a readable results.json (a run that was not solved?)")
-            from rtcal.run.integrity import check_run
-
-            try:
-                results = read_results(path)
-                for warning in check_run(path, results):  # refused if it does not match its store
-                    print(f"rtcal: warning: {warning}", file=sys.stderr)
-            except ResultsError as exc:
-                raise UserError(str(exc)) from None
-            if results.positioning_deviations is None:
-                raise UserError(f"{path / 'results.json'}: no positioning_deviations (the run has no recommended estimate)")
-            table = PositioningDeviations.from_model(results.positioning_deviations, str(path / "results.json"))
-            table.check_plausible(str(path / "results.json"))
-            return table, results
-        table = PositioningDeviations.read_csv(path)
-        table.check_plausible(str(path))
-        return table, None
-    except DeviationTableError as exc:
-        raise UserError(str(exc)) from None
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
