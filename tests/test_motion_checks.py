@@ -156,7 +156,7 @@ def test_a_drive_that_stops_short_over_modbus_rtu_gives_no_certificate(tmp_path)
 
 
 def test_a_second_modbus_client_nudging_the_drive_stops_the_run(tmp_path):
-    """A real second client turns the table 3 steps every 20 ms (incremental moves through the same
+    """A real second client turns the table 3 steps every 5 ms (incremental moves through the same
     direct-data registers): the run stops with the stage named, whatever moment the nudges hit."""
     stop = threading.Event()
     # a drive that starts each motion at once: with a start latency a nudge and rtcal's own move can replace each
@@ -170,7 +170,7 @@ def test_a_second_modbus_client_nudging_the_drive_stops_the_run(tmp_path):
             while not stop.is_set():
                 words = [w for v in (2, 3, 1000, 1000, 1000, 1000, 1) for w in az.split32(v)]
                 intruder.write_registers(az.OPERATION_TYPE, words, device_id=1)
-                time.sleep(0.02)
+                time.sleep(0.005)
 
         thread = threading.Thread(target=nudge, daemon=True)
         thread.start()
