@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import sysconfig
 from importlib.metadata import EntryPoint
 from pathlib import Path
 
@@ -20,7 +19,7 @@ from rtcal.compensation import CompensationError, CompensationFormat, FormatOpti
 from rtcal.deliverables.compensation import PARSERS, table_from_deviations, write_table
 from rtcal.deliverables.deviations import PositioningDeviations
 from tests.compensation_loop import AFTER_SEED, ISO, load_table, run
-from tests.test_plugins import _wheel
+from tests.test_plugins import venv_with_plugin
 
 REPO = Path(__file__).resolve().parents[1]
 PLUGIN = REPO / "tests" / "plugins" / "toy_format"
@@ -121,15 +120,7 @@ def toy_venv(tmp_path_factory):
     sample plugin installed by pip from a wheel of tests/plugins/toy_format; and a calibration run
     (the shipped ISO 230-2 test on its bench) made in this process, where no plugin is installed."""
     tmp = tmp_path_factory.mktemp("toy")
-    fresh = tmp / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(fresh)], check=True, timeout=60)
-    python = fresh / "bin" / "python"
-    site = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                               capture_output=True, text=True, check=True).stdout.strip())
-    (site / "rtcal_base.pth").write_text(f"import site; site.addsitedir({sysconfig.get_paths()['purelib']!r})\n")
-    install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "--no-compile", "--quiet",
-                              "--prefix", str(fresh), str(_wheel(PLUGIN, tmp))], capture_output=True, text=True, timeout=120)
-    assert install.returncode == 0, install.stderr
+    python = venv_with_plugin(PLUGIN, tmp)
     before = run(ISO, tmp / "calibration")
     return python, tmp, before
 

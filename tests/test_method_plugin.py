@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import sysconfig
 from importlib.metadata import EntryPoint
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import pytest
 import rtcal.methods as methods
 from rtcal.procedure.loader import load_procedure
 from rtcal.procedure.yamlfile import FileProblems
-from tests.test_plugins import _wheel
+from tests.test_plugins import venv_with_plugin
 
 REPO = Path(__file__).resolve().parents[1]
 PLUGIN = REPO / "tests" / "plugins" / "toy_method"
@@ -108,16 +107,7 @@ def test_an_installed_method_plugin_validates_runs_and_verifies(tmp_path):
     """A fresh venv that sees rtcal (and its dependencies) but not this test's process; the toy method
     installed into it with pip from a wheel of tests/plugins/toy_method; there `rtcal validate`, `rtcal
     run` (simulated) and `rtcal verify` take a procedure of that method."""
-    fresh = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(fresh)], check=True, timeout=60)
-    python = fresh / "bin" / "python"
-    site = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                               capture_output=True, text=True, check=True).stdout.strip())
-    (site / "rtcal_base.pth").write_text(f"import site; site.addsitedir({sysconfig.get_paths()['purelib']!r})\n")
-    install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "--no-compile", "--quiet",
-                              "--prefix", str(fresh), str(_wheel(PLUGIN, tmp_path))], capture_output=True, text=True,
-                             timeout=120)
-    assert install.returncode == 0, install.stderr
+    python = venv_with_plugin(PLUGIN, tmp_path)
     procedure = tmp_path / "encoder.yaml"
     procedure.write_text(PROCEDURE)
 

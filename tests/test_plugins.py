@@ -85,21 +85,28 @@ def _wheel(package: Path, out: Path) -> Path:
     return wheel
 
 
-@pytest.mark.slow
-def test_an_installed_plugin_adds_a_model_for_probe_and_a_wired_run(tmp_path):
-    """A fresh venv that sees rtcal (and its dependencies) but not this test's process; the sample
-    plugin installed into it with pip from a wheel of tests/plugins/acme_bridge; there `rtcal
-    probe` reads a tracer with model=acme-bridge and a wired multistation run uses it."""
-    fresh = tmp_path / "venv"
+def venv_with_plugin(package: Path, tmp: Path) -> Path:
+    """A fresh venv that sees rtcal (and its dependencies) but not the tests' process, with ``package``
+    (one of tests/plugins/) installed into it by pip from its wheel; its python."""
+    fresh = tmp / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(fresh)], check=True, timeout=60)
     python = fresh / "bin" / "python"
     site = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                                capture_output=True, text=True, check=True).stdout.strip())
     (site / "rtcal_base.pth").write_text(f"import site; site.addsitedir({sysconfig.get_paths()['purelib']!r})\n")
     install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "--no-compile", "--quiet",
-                              "--prefix", str(fresh), str(_wheel(PLUGIN, tmp_path))], capture_output=True, text=True,
+                              "--prefix", str(fresh), str(_wheel(package, tmp))], capture_output=True, text=True,
                              timeout=120)
     assert install.returncode == 0, install.stderr
+    return python
+
+
+@pytest.mark.slow
+def test_an_installed_plugin_adds_a_model_for_probe_and_a_wired_run(tmp_path):
+    """A fresh venv that sees rtcal (and its dependencies) but not this test's process; the sample
+    plugin installed into it with pip from a wheel of tests/plugins/acme_bridge; there `rtcal
+    probe` reads a tracer with model=acme-bridge and a wired multistation run uses it."""
+    python = venv_with_plugin(PLUGIN, tmp_path)
     with pytest.raises(Exception, match="unknown model 'acme-bridge'"):  # this process has no such plugin
         factory.resolve("laser_tracer", "socket://h:1?model=acme-bridge")
 
