@@ -223,12 +223,12 @@ def add_compare(sub: Any) -> None:
     cmp_.add_argument("--out", help="where compare.png goes (default: the current directory)")
     cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     cmp_.add_argument("--certificate", action="store_true", help="also write the as-found (RUN_A) / as-left (RUN_B) "
-                                                                 "certificate: as_found_as_left.pdf and .html under --out")
+                                                                 "certificate: as_found_as_left.pdf, .html and .json under --out")
     cmp_.set_defaults(func=cmd_compare)
 
 
 def add_export(sub: Any) -> None:
-    exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv)")
+    exp = sub.add_parser("export", help="every raw reading and event of a run as CSV (readings.csv, events.csv, descriptions.csv)")
     exp.add_argument("run_dir", help="a run directory (its run.sqlite)")
     exp.add_argument("--out", help="directory for the CSV files (default: the run directory)")
     exp.set_defaults(func=cmd_export)

@@ -84,14 +84,10 @@ class Motion:
 
 class _Walker:
     def __init__(self, timing: Timing):
-        self.timing = timing
         self.motion = Motion(timing)
         self.tracking = False
         self.segment = -1
         self.walk = PlanWalk()
-
-    def _move_time(self, move: Move) -> float:
-        return self.motion.seconds(move)
 
     def step(self, step: Step) -> Any:
         w = self.walk
@@ -100,12 +96,12 @@ class _Walker:
         kind = type(step).__name__
         w.steps[kind] = w.steps.get(kind, 0) + 1
         if isinstance(step, Move):
-            seconds = self._move_time(step)
+            seconds = self.motion.seconds(step)
             w.motion_s += seconds
             w.duration_s += seconds
             return None
         if isinstance(step, Parallel):
-            seconds = max(self._move_time(m) for m in step.moves)
+            seconds = max(self.motion.seconds(m) for m in step.moves)
             w.motion_s += seconds
             w.duration_s += seconds
             return None

@@ -326,8 +326,10 @@ def resume_run(
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
+        motion_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
+                         if not simulated and virtual_clock else None)  # as `run` counts them (from the procedure's bench)
         return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation,
-                                  on_engine=on_engine)
+                                  on_engine=on_engine, motion_timing=motion_timing)
     finally:
         lock.release()
 
