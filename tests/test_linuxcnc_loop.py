@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import json
 import math
+import fcntl
 import re
 import select
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from contextlib import contextmanager
@@ -34,8 +36,10 @@ from simulators.servers.linuxcnc import available
 from tests.compensation_loop import AFTER_SEED, ISO, VERIFY, load_table, rtcal
 from tests.compensation_loop import run as run_simulated
 
-pytestmark = [pytest.mark.skipif(bool(available()), reason=available() or "LinuxCNC present"),
-              pytest.mark.xdist_group("linuxcnc")]  # one LinuxCNC per machine: these run in one worker (--dist loadgroup)
+pytestmark = pytest.mark.skipif(bool(available()), reason=available() or "LinuxCNC present")
+# One LinuxCNC per machine: the tests of every xdist worker take TESTS_LOCK in turn (xdist_group
+# does not hold them together under pytest 9.2, whose node ids xdist 3.8 can no longer suffix).
+TESTS_LOCK = Path(tempfile.gettempdir()) / "rtcal-linuxcnc-tests.flock"
 
 REPO = Path(__file__).resolve().parents[1]
 BENCH = REPO / "procedures" / "scenarios" / "abbe_bench.yaml"
@@ -46,8 +50,31 @@ READ_PIN = ("import hal; c = hal.component('rtcal-test-probe'); c.ready(); "
 
 
 @contextmanager
+def one_linuxcnc_at_a_time(timeout_s: float = 1200.0):
+    """TESTS_LOCK held: no other test process runs a LinuxCNC meanwhile."""
+    with open(TESTS_LOCK, "a") as lock:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                assert time.monotonic() < deadline, f"{TESTS_LOCK} still held after {timeout_s:g} s"
+                time.sleep(0.5)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+@contextmanager
 def linuxcnc_bench(*options: str, scenario: Path = BENCH):
     """``rtcal sim serve --stage linuxcnc OPTIONS``: its addresses; LinuxCNC shut down afterwards, checked."""
+    with one_linuxcnc_at_a_time():
+        yield from _linuxcnc_bench(options, scenario)
+
+
+def _linuxcnc_bench(options: tuple[str, ...], scenario: Path):
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "sim", "serve", "--stage", "linuxcnc", "--scenario",
                              str(scenario), *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=REPO)
@@ -245,3 +272,16 @@ def test_killed_controller_mid_run_exit_1_and_resume_on_a_restarted_one(tmp_path
         code, out, err = rtcal("resume", tmp_path / "run", "--instruments", json.dumps(addresses))
         assert code == 0, out + err
     assert json.loads((tmp_path / "run" / "results.json").read_text())["starts"] == 2
+
+
+def test_a_second_linuxcnc_is_refused_with_a_message(tmp_path):
+    """LinuxCNC's HAL is global: while one runs (its machine lock held), `sim serve --stage linuxcnc` says so and stops."""
+    from simulators.servers.linuxcnc import MACHINE_LOCK
+
+    with one_linuxcnc_at_a_time(), open(MACHINE_LOCK, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        proc = subprocess.run([sys.executable, "-m", "rtcal.cli", "sim", "serve", "--stage", "linuxcnc", "--scenario",
+                               str(BENCH)], capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert proc.returncode != 0 and proc.stdout == "", proc
+    assert "another LinuxCNC started by rtcal is running on this machine" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr

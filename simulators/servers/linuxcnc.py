@@ -10,12 +10,15 @@ registered with atexit, so no LinuxCNC outlives its starter.
 
 As root, ``rtapi_app`` refuses to run without a fallback uid: ``RTAPI_UID`` is set to ``nobody``
 and ``RTAPI_FIFO_PATH`` to a file directly under /tmp (../shared/reference/linuxcnc_headless.md).
-Only one LinuxCNC can run on a machine (its HAL shared memory and /tmp/linuxcnc.lock are global).
+Only one LinuxCNC can run on a machine (its HAL shared memory and /tmp/linuxcnc.lock are global):
+``start()`` holds an exclusive lock on ``MACHINE_LOCK`` until ``stop()``, so a second one is refused
+with a message rather than colliding with the first in HAL.
 """
 
 from __future__ import annotations
 
 import atexit
+import fcntl
 import os
 import shutil
 import signal
@@ -31,6 +34,7 @@ INI, HAL, FEED = "rtcal_c.ini", "rtcal_c.hal", "rtcal_bench_feed.py"
 SYSTEM_PYTHON = "/usr/bin/python3"  # LinuxCNC's hal module is built for it alone
 NOBODY_UID = 65534
 NML_FILE = Path("/usr/share/linuxcnc/linuxcnc.nml")  # the default NML_FILE the linuxcnc script uses
+MACHINE_LOCK = Path("/tmp/rtcal-linuxcnc.flock")  # held by the one LinuxCNC rtcal runs on this machine
 
 
 def available() -> str:
@@ -62,6 +66,23 @@ class LinuxCncProcess:
         self.fifo = Path(f"/tmp/rtcal-rtapi-{uuid.uuid4().hex[:12]}")
         self.port = 0
         self.log: Path | None = None
+        self._machine_lock: int | None = None
+
+    def _take_machine(self) -> None:
+        """The machine's one LinuxCNC: an exclusive lock, or RuntimeError naming why not."""
+        fd = os.open(MACHINE_LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise RuntimeError("another LinuxCNC started by rtcal is running on this machine (only one can: its HAL "
+                               f"shared memory is global; {MACHINE_LOCK} is locked); stop it first") from None
+        self._machine_lock = fd
+
+    def _release_machine(self) -> None:
+        fd, self._machine_lock = self._machine_lock, None
+        if fd is not None:
+            os.close(fd)  # closing the descriptor releases the lock
 
     def _write_config(self) -> Path:
         folder = Path(tempfile.mkdtemp(prefix="rtcal-linuxcnc-"))
@@ -89,6 +110,7 @@ class LinuxCncProcess:
             raise RuntimeError(why)
         from simulators.servers.hub import free_port
 
+        self._take_machine()
         self.port = free_port(self.host)
         folder = self._write_config()
         self.env = env = dict(os.environ, RUNTESTS="1", RTCAL_BENCH_FEED=self.feed, RTCAL_LINUXCNC_ID=self.marker)
@@ -102,9 +124,11 @@ class LinuxCncProcess:
         atexit.register(self.stop)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
+            code = self.proc.poll()
+            if code is not None:
+                tail = self.tail()
                 self.stop()
-                raise RuntimeError(f"LinuxCNC exited at start ({self.proc.returncode}): {self.tail()}")
+                raise RuntimeError(f"LinuxCNC exited at start ({code}): {tail}")
             if self._hello():
                 return self.port
             time.sleep(0.2)
@@ -203,4 +227,5 @@ class LinuxCncProcess:
         if self.folder is not None and not os.environ.get("RTCAL_KEEP_LINUXCNC_FOLDER"):
             shutil.rmtree(self.folder, ignore_errors=True)
             self.folder = None
+        self._release_machine()
         atexit.unregister(self.stop)
