@@ -147,7 +147,8 @@ function renderState(st) {
   $("bar-fill").style.width = pct.toFixed(1) + "%";
   $("bar").setAttribute("aria-valuenow", pct.toFixed(0));
   $("percent").textContent = st.planned_readings ? pct.toFixed(0) + " %" : "";
-  $("eta").textContent = st.state === "finished" ? "done" : st.eta_s === null ? "– (no rate yet)" : fmtDuration(st.eta_s);
+  $("eta").textContent = st.state === "finished" ? "done" : st.operator ? "– (waiting for the operator)"
+    : st.eta_s === null ? "– (no rate yet)" : fmtDuration(st.eta_s);
   $("current").textContent = fmtCurrent(st.current);
   $("faults").textContent = st.faults;
   $("faults").className = st.faults ? "has" : "";
