@@ -10,6 +10,7 @@ from pathlib import Path
 from rtcal.procedure.loader import load_procedure
 from rtcal.run.store import REJECTED, SKIPPED, Reading, RunStore
 from rtcal.plans.abbe import planned_visits
+from rtcal.sequencer.operator import reseat_instruction
 
 PROCEDURE = Path(__file__).resolve().parents[1] / "procedures" / "iso230_2_polygon.yaml"
 
@@ -48,7 +49,8 @@ class StoreWriter(threading.Thread):
     run clock each), a rejected attempt and a fault event at visit ``reject_at`` (taken again), a
     skipped one at ``skip_at`` (left for a resume: ``written`` counts the visits done); stops at
     ``stop_after`` visits (None: all) or when ``halt`` is set; ``hold`` pauses it (with ``engine``
-    it says so in the meta as the engine does)."""
+    it says so in the meta as the engine does); at visit ``ask_at`` it asks the operator ``instruction``
+    (the meta's ``operator_waiting``, as the engine's store writer keeps it) until ``confirmed`` is set."""
 
     def __init__(self, run_dir: Path, interval_s: float = 0.05, stop_after: int | None = None, reject_at: int = 3,
                  finish: bool = False, engine: bool = False, skip_at: int | None = 5):
@@ -63,6 +65,10 @@ class StoreWriter(threading.Thread):
         self.halt = threading.Event()
         self.hold = threading.Event()
         self.written = 0
+        self.ask_at: int | None = None
+        self.instruction = reseat_instruction(45.0, 15.0)  # what the waiting operator asks (rtcal/sequencer/operator.py)
+        self.asking = False
+        self.confirmed = threading.Event()
         store, self.visits = create_store(run_dir)
         store.set_meta({"status": "running"})
         store.close()
@@ -82,6 +88,13 @@ class StoreWriter(threading.Thread):
                     self.store.set_meta({"engine_state": "running", "planned_readings": str(len(self.visits)),
                                          "current": json.dumps({"plan_index": k, "target_deg": v.angle_deg,
                                                                 "run": v.run + 1, "direction": "+" if v.direction > 0 else "-"})})
+                if k == self.ask_at:
+                    self.store.set_meta({"operator_waiting": json.dumps({"instruction": self.instruction, "t_s": t})})
+                    self.asking = True
+                    while not self.confirmed.is_set() and not self.halt.is_set():
+                        self.halt.wait(0.02)
+                    self.asking = False
+                    self.store.set_meta({"operator_waiting": ""})
                 if self.halt.wait(self.interval_s):
                     break
                 if k == self.reject_at:

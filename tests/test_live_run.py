@@ -48,8 +48,8 @@ def fast_iso(tmp_path: Path, settle_s: float = 0.05, runs: int = 5) -> Path:
 
 def start_run(*args: str) -> tuple[subprocess.Popen, dict[str, str]]:
     """`rtcal ...` in a process; waits for its `live view:` (if any) and `control token:` lines."""
-    proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], cwd=REPO, stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # no terminal: as under nohup
     seen: dict[str, str] = {}
     deadline = time.monotonic() + 60
     while "control token" not in seen:
@@ -169,6 +169,67 @@ def test_remote_abort_exits_130_and_resume_finishes(tmp_path):
     gone = subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(tmp_path / "run"), "pause", "--token",
                            seen["control token"]], cwd=REPO, capture_output=True, text=True, timeout=30)
     assert gone.returncode == 1  # no engine runs for that directory any more
+
+
+def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path):
+    """A wired ISO run with --live and no terminal (as under nohup): the polygon's seating waits for a person
+    instead of stopping the run; the page's state shows the instruction; `rtcal control … confirm` continues it
+    (a wrong token and a stray confirm change nothing, exit 2; the page's stray confirm is a 409). A second run
+    aborted while it waits stops like Ctrl-C (exit 130)."""
+    from rtcal.cli import main
+    from rtcal.live.control import send_control
+    from rtcal.sequencer.operator import RemoteSimOperator
+
+    procedure = fast_iso(tmp_path, settle_s=0.05, runs=2)
+    with SimulatorHub(_scenario(tmp_path, "none"), seed=1) as hub:
+        addresses = {k: v for k, v in hub.addresses.items() if k != "operator"}  # a person, not the simulated one
+        data = yaml.safe_load(procedure.read_text(encoding="utf-8"))  # who then gives the polygon's certificate
+        data["polygon"]["certificate_arcsec"] = RemoteSimOperator(hub.addresses["operator"]).polygon_certificate_arcsec()
+        procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+        run_dir = tmp_path / "run"
+        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(run_dir),
+                               "--live", "127.0.0.1:0")
+        url, token = seen["live view"], seen["control token"]
+        try:
+            asked = wait_for(lambda: (s := state(url))["operator"] and s)
+            assert asked["state"] == "running" and "Seat the polygon turned by 0 face(s)" in asked["operator"]["instruction"]
+            time.sleep(1.0)
+            assert proc.poll() is None and state(url)["done_readings"] == 0  # it waits, nothing measured
+            assert post(url, "confirm", None) == 401 and main(["control", str(run_dir), "confirm", "--token", "x" + token]) == 2
+            assert state(url)["operator"] is not None  # refused: still waiting
+            RemoteSimOperator(hub.addresses["operator"]).reseat_polygon(0.0, 15.0)  # the person seats the polygon …
+            confirm = subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(run_dir), "confirm", "--token",
+                                      token], cwd=REPO, capture_output=True, text=True, timeout=60)  # … and confirms
+            assert confirm.returncode == 0, confirm.stderr
+            wait_for(lambda: state(url)["operator"] is None)
+            assert main(["control", str(run_dir), "confirm", "--token", token]) == 2  # nothing waits now
+            request = urllib.request.Request(url + "api/confirm", method="POST", data=b"",
+                                             headers={"Authorization": f"Bearer {token}"})
+            with pytest.raises(urllib.error.HTTPError) as stray:
+                urllib.request.urlopen(request, timeout=10)
+            assert stray.value.code == 409 and "no operator step waits" in json.loads(stray.value.read())["error"]
+            code, err = finish(proc)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert code == 0, err
+        assert "rtcal: operator: Seat the polygon" in err and f"`rtcal control {run_dir} confirm`" in err
+        results = read_results(run_dir)
+        assert any(e.kind == "confirm" and "remotely" in e.message for e in results.events)
+        assert "remotely" in results.control.instruments["operator"]
+
+        aborted = tmp_path / "aborted"
+        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(aborted),
+                               "--live", "127.0.0.1:0")
+        try:
+            wait_for(lambda: state(seen["live view"])["operator"])
+            send_control(aborted, seen["control token"], "abort")
+            code, err = finish(proc, 60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert code == 130, err
+        assert f"rtcal resume {aborted}" in err
 
 
 def end_early(tmp_path: Path, procedure: Path, scenario, how: str):

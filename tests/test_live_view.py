@@ -56,6 +56,14 @@ class FakeEngine:
         if self.writer:
             self.writer.halt.set()
 
+    def request_confirm(self) -> None:
+        from rtcal.sequencer.operator import NothingToConfirm
+
+        if self.writer is None or not self.writer.asking or self.writer.confirmed.is_set():
+            raise NothingToConfirm("nothing to confirm: no operator step waits now")
+        self.calls.append("confirm")
+        self.writer.confirmed.set()
+
 
 def get_json(url: str) -> dict:
     with urllib.request.urlopen(url, timeout=20) as r:
@@ -463,6 +471,26 @@ def test_the_page_in_headless_chromium(tmp_path):
             wait_for(lambda: engine.calls == ["pause", "resume"])
             wait_for(lambda: done() > held)
             assert page.inner_text("#state").lower() == "running"
+            # an operator step: the instruction shows at the top with Done, which confirms it with the token
+            assert not page.is_visible("#operator-card")
+            writer.ask_at = writer.written + 4  # a visit still to come (one was skipped: k > written)
+            page.wait_for_selector("#operator-card", state="visible", timeout=20000)
+            assert page.inner_text("#operator-instruction") == writer.instruction
+            assert page.is_visible("#btn-confirm") and page.title().startswith("Operator step")
+            asked = done()
+            with LiveServer(run_dir, "127.0.0.1", 0) as view:  # `rtcal view`: the instruction, no working button
+                readonly = browser.new_page()
+                readonly.goto(view.url)
+                readonly.wait_for_selector("#operator-card", state="visible", timeout=20000)
+                assert readonly.inner_text("#operator-instruction") == writer.instruction
+                assert not readonly.is_visible("#btn-confirm") and readonly.is_visible("#operator-readonly")
+                readonly.close()
+            page.screenshot(path=str(tmp_path / "live_operator.png"), full_page=True)
+            assert done() == asked and engine.calls == ["pause", "resume"]  # it waits
+            page.click("#btn-confirm")
+            wait_for(lambda: engine.calls == ["pause", "resume", "confirm"])
+            page.wait_for_selector("#operator-card", state="hidden", timeout=20000)
+            wait_for(lambda: done() > asked)  # the run goes on
             other = browser.new_page()  # the token given in the URL's fragment: kept in the page, gone from the URL
             other.goto(server.url + "#token=" + token)
             assert other.input_value("#token") == token and "token" not in other.url
@@ -473,6 +501,7 @@ def test_the_page_in_headless_chromium(tmp_path):
             writer.join(10)
     assert errors == []
     assert (tmp_path / "live_view.png").stat().st_size > 10000
+    assert (tmp_path / "live_operator.png").stat().st_size > 10000
 
 
 def test_a_viewer_far_behind_catches_up_from_the_store(writing, monkeypatch):

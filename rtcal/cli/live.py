@@ -26,8 +26,8 @@ def add_view(sub: Any) -> None:
 def add_control(sub: Any) -> None:
     from rtcal.live.control import COMMANDS
 
-    ctl = sub.add_parser("control", help="pause, resume or abort the run in progress in a run directory (needs its "
-                                         "control token)")
+    ctl = sub.add_parser("control", help="pause, resume or abort the run in progress in a run directory, or confirm "
+                                         "the operator step it waits for (needs its control token)")
     ctl.add_argument("run_dir", help="the run directory of a run in progress")
     ctl.add_argument("action", choices=COMMANDS, help="what to ask of the run's engine")
     ctl.add_argument("--token", help="the control token the run printed (or the environment variable "

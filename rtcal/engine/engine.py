@@ -15,12 +15,16 @@ Written once here, for every method:
 - **pause, resume, abort** — requested from any thread (the control socket, the live view): a
   pause takes effect at the next checkpoint, with the reading in hand committed and the machines
   still; resume approaches anew; abort stops like Ctrl-C.
+- **confirm** — an operator step (or a fault the operator must clear) waits in the operator object;
+  a remote confirm is handed to it when it is :class:`~rtcal.sequencer.operator.Confirmable`
+  (refused with NothingToConfirm when nothing waits), and an abort ends the wait. What the
+  operator is asked is published as an ``operator`` document, its answer as a ``confirm`` event.
 - **one safe-state path** — however a run ends early (a fault abort, a remote abort, Ctrl-C,
   SIGTERM, an unexpected error) every device the engine moved is stopped before the exception
   goes on to the caller, which records the status and closes the connections.
 
 Documents (``subscriber(name, doc)``, called in the engine's thread, in order): ``start``,
-``state``, ``attempt``, ``readings``, ``event``, ``done``, ``stop``. The store writer, the console
+``state``, ``attempt``, ``readings``, ``event``, ``operator``, ``done``, ``stop``. The store writer, the console
 progress and the live view are subscribers (:mod:`rtcal.engine.subscribers`).
 """
 
@@ -44,6 +48,7 @@ from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples,
 from rtcal.run.store import REJECTED, SKIPPED, Reading, descriptions_of
 from rtcal.sequencer.checks import Contradiction
 from rtcal.sequencer.motion import approach
+from rtcal.sequencer.operator import Confirmable, NothingToConfirm
 
 Subscriber = Callable[[str, dict[str, Any]], None]
 
@@ -83,6 +88,8 @@ class Engine:
         self._described = {name: descriptions_of(name, d.kind, d.describe().values())
                            for name, d in self.devices.items() if _describes(d)}
         self._quantities = {name: {(r.quantity, r.unit) for r in rows} for name, rows in self._described.items()}
+        if isinstance(operator, Confirmable):
+            operator.listen(self._operator_asked)
 
     # ---- control, from any thread -------------------------------------------------------------
     def request_pause(self) -> None:
@@ -96,6 +103,13 @@ class Engine:
     def request_abort(self) -> None:
         self._abort.set()
         self._wake.set()
+        if isinstance(self.operator, Confirmable):  # an operator step waiting ends now
+            self.operator.cancel()
+
+    def request_confirm(self) -> None:
+        """Confirm the operator step (or the fault to clear) that waits; NothingToConfirm if none does."""
+        if not isinstance(self.operator, Confirmable) or not self.operator.confirm():
+            raise NothingToConfirm("nothing to confirm: no operator step waits now")
 
     # ---- documents ----------------------------------------------------------------------------
     def emit(self, name: str, **doc: Any) -> None:
@@ -106,6 +120,13 @@ class Engine:
         if kind == "fault":
             self.faults_seen += 1
         self.emit("event", t_s=self.clock.now_s(), kind=kind, instrument=instrument, message=message)
+
+    def _operator_asked(self, instruction: str | None, answer: str) -> None:
+        """The operator's wait, in the engine's thread: what is asked (an ``operator`` document), then
+        how it was answered (a ``confirm`` event)."""
+        self.emit("operator", instruction=instruction, t_s=self.clock.now_s())
+        if instruction is None and answer:
+            self._event("confirm", None, f"the operator confirmed {answer}")
 
     def _set_state(self, state: str) -> None:
         self.state = state

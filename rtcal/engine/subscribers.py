@@ -16,10 +16,13 @@ from typing import Any, Callable, TextIO
 
 from rtcal.run.store import RunStore
 
+OPERATOR_WAITING = "operator_waiting"  # the store's meta key the live view reads
+
 
 class StoreWriter:
     """Commits each ``readings`` and ``event`` document to the run's store before the engine goes on,
-    and keeps ``engine_state``, ``planned_readings`` and ``current`` in its metadata."""
+    and keeps ``engine_state``, ``planned_readings``, ``current`` and ``operator_waiting`` (what the
+    operator is asked now, as JSON ``{"instruction", "t_s"}``; empty when nothing waits) in its metadata."""
 
     def __init__(self, store: RunStore):
         self.store = store
@@ -38,10 +41,16 @@ class StoreWriter:
             if "t_s" in doc and generation.isdigit():  # which attempt this start (0, +1 per resume) begins with
                 self.store.add_start(int(generation), doc["t_s"])
             self.store.set_meta({"planned_readings": str(doc["planned"])})
+            if self.store.meta().get(OPERATOR_WAITING):  # a run killed while it waited: nothing waits now
+                self.store.set_meta({OPERATOR_WAITING: ""})
         elif name == "state":
             self.store.set_meta({"engine_state": doc["state"]})
         elif name == "attempt":
             self.current = {**doc["label"], "plan_index": doc["index"]}
+        elif name == "operator":
+            asked = doc["instruction"]
+            self.store.set_meta({OPERATOR_WAITING: json.dumps({"instruction": asked, "t_s": doc["t_s"]}, ensure_ascii=False)
+                                 if asked else ""})
 
 
 def _hms(seconds: float) -> str:

@@ -3,7 +3,8 @@
 Every run (in process or wired) gets a control token, printed once on the console before the
 first motion and written nowhere else, and serves its control socket in the run directory, so
 `rtcal control` reaches it whether or not it was started with ``--live``. With ``--live`` the same
-process serves the live view, whose Pause / Resume / Abort buttons need that token.
+process serves the live view, whose Pause / Resume / Abort buttons (and Done, when an operator step
+waits) need that token.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ class RunControl:
         self.live = parse_live_spec(live) if live is not None else None  # LiveSpecError before anything starts
         self.stream = stream if stream is not None else sys.stderr
         self.url: str | None = None
+        self.remote_operator = self.live is not None
+        """With --live the run can be reached: an operator step without a terminal waits for a remote confirm."""
 
     def __call__(self, engine: Controllable, run_dir: Path) -> Callable[[], None]:
         session = start_session(run_dir, engine, self.live, self.stream)

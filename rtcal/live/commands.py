@@ -46,7 +46,8 @@ def view(run_dir: str, live: str | None) -> int:
 
 
 def control(run_dir: str, command: str, token: str | None) -> int:
-    """Send pause, resume or abort to the engine of RUN_DIR: 0 accepted, 1 no engine, 2 refused."""
+    """Send pause, resume, abort or confirm to the engine of RUN_DIR: 0 accepted, 1 no engine, 2 refused
+    (a wrong token; a confirm when no operator step waits)."""
     if command not in COMMANDS:
         return _fail(f"unknown command {command!r}: one of {', '.join(COMMANDS)}", EXIT_USAGE)
     token = token if token is not None else os.environ.get(TOKEN_ENV)
@@ -60,6 +61,6 @@ def control(run_dir: str, command: str, token: str | None) -> int:
     except NoEngine as exc:
         return _fail(str(exc), EXIT_FAILED)
     except ControlRefused as exc:
-        return _fail(str(exc), EXIT_USAGE if exc.reason in ("token", "command", "request") else EXIT_FAILED)
+        return _fail(str(exc), EXIT_USAGE if exc.reason in ("token", "command", "request", "nothing") else EXIT_FAILED)
     print(f"{command}: accepted by the engine of {run_dir}", file=sys.stderr)
     return EXIT_OK

@@ -6,8 +6,9 @@ control token. A socket file rather than a TCP port: it needs no free port, it i
 run directory alone, and the file mode (0600) keeps other users out before the token is even
 read. The token itself is compared in constant time and never written to any file or log.
 
-Protocol: one JSON line per connection, ``{"token": "...", "command": "pause"|"resume"|"abort"}``,
-answered by one JSON line, ``{"ok": true}`` or ``{"ok": false, "error": "token"|"command"|"request"|"failed"}``.
+Protocol: one JSON line per connection, ``{"token": "...", "command": "pause"|"resume"|"abort"|"confirm"}``,
+answered by one JSON line, ``{"ok": true}`` or ``{"ok": false, "error": "token"|"command"|"request"|"nothing"|"failed"}``
+("nothing": a confirm when no operator step waits; nothing changed).
 """
 
 from __future__ import annotations
@@ -23,8 +24,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Protocol, runtime_checkable
 
+from rtcal.sequencer.operator import NothingToConfirm
+
 SOCKET_NAME = ".rtcal-control.sock"
-COMMANDS = ("pause", "resume", "abort")
+COMMANDS = ("pause", "resume", "abort", "confirm")
 MAX_LINE_BYTES = 4096  # a request is ~100 bytes; anything longer is refused unread
 CONNECTION_TIMEOUT_S = 2.0  # a client that sends nothing cannot hold the server
 TOKEN_ENV = "RTCAL_CONTROL_TOKEN"
@@ -50,6 +53,9 @@ class Controllable(Protocol):
 
     def request_abort(self) -> None: ...
 
+    def request_confirm(self) -> None:
+        """Confirm the operator step that waits (continues the run); NothingToConfirm if none waits."""
+
 
 class NoEngine(Exception):
     """No engine serves this run directory (no socket, connection refused, a stale socket): exit 1."""
@@ -74,7 +80,9 @@ def token_matches(given: object, token: str) -> bool:
 
 def dispatch(target: Controllable, command: str) -> None:
     """Hand ``command`` (one of COMMANDS) to the engine."""
-    {"pause": target.request_pause, "resume": target.request_resume, "abort": target.request_abort}[command]()
+    if command not in COMMANDS:
+        raise ValueError(f"unknown command {command!r}")
+    getattr(target, f"request_{command}")()
 
 
 @contextmanager
@@ -128,7 +136,7 @@ def _read_line(sock: socket.socket) -> bytes | None:
 
 
 def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5) -> None:
-    """Ask the engine of ``run_dir`` to pause, resume or abort. Returns when it accepted; raises
+    """Ask the engine of ``run_dir`` to pause, resume, abort or confirm. Returns when it accepted; raises
     ValueError for an unknown command, NoEngine when no engine runs for the directory (or it did
     not answer), ControlRefused when it refused (a wrong token, above all)."""
     if command not in COMMANDS:
@@ -148,6 +156,7 @@ def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5) 
     if not isinstance(reply, dict) or reply.get("ok") is not True:
         reason = str(reply.get("error", "request")) if isinstance(reply, dict) else "request"
         messages = {"token": "the engine refused the control token", "command": f"the engine does not know `{command}`",
+                    "nothing": "nothing to confirm: no operator step waits now (nothing was changed)",
                     "failed": f"the engine could not {command}"}
         raise ControlRefused(reason, messages.get(reason, "the engine refused the request"))
 
@@ -242,6 +251,8 @@ class ControlServer:
             try:
                 dispatch(self._target, str(request["command"]))
                 reply = {"ok": True}
+            except NothingToConfirm:
+                reply = {"ok": False, "error": "nothing"}
             except Exception:  # the engine refused (e.g. finished already): the run goes on as it was
                 reply = {"ok": False, "error": "failed"}
         conn.sendall(json.dumps(reply).encode() + b"\n")

@@ -10,8 +10,8 @@ the report's.
 Routes (the contract of issue 24): ``GET /`` the page; ``GET /api/state`` the state JSON;
 ``GET /api/events`` ``text/event-stream`` (each reading an event whose ``id`` is its store id, so a
 browser reconnecting with ``Last-Event-ID`` carries on; ``state`` and ``log`` events carry no id);
-``POST /api/pause|resume|abort`` with ``Authorization: Bearer TOKEN`` → 202, no or a wrong token
-→ 401, a read-only view → 409 whatever the token.
+``POST /api/pause|resume|abort|confirm`` with ``Authorization: Bearer TOKEN`` → 202, no or a wrong token
+→ 401, a read-only view → 409 whatever the token; a confirm when no operator step waits → 409.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from starlette.routing import Route
 
 from rtcal.live.control import COMMANDS, Controllable, dispatch, token_matches
 from rtcal.live.storeview import REPORT_FILES, StoreView
+from rtcal.sequencer.operator import NothingToConfirm
 
 DEFAULT_PORT = 8765
 LOOPBACK = "127.0.0.1"
@@ -287,6 +288,8 @@ class LiveServer:
                          {"WWW-Authenticate": 'Bearer realm="rtcal"'})
         try:
             await anyio.to_thread.run_sync(dispatch, self.control, command)
+        except NothingToConfirm as exc:  # a second tablet's Done, or one pressed twice: nothing changed
+            return _json({"error": f"{exc} (nothing was changed)"}, 409)
         except Exception as exc:  # the engine refused (e.g. already finished): nothing changed
             return _json({"error": f"the engine could not {command}: {exc}"[:300]}, 409)
         return _json({"accepted": command}, 202)

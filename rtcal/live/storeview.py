@@ -8,8 +8,8 @@ times for the rate) is accumulated from the readings added since the last poll, 
 the new rows, not the whole store.
 
 The engine writes its state into the store's meta (``engine_state``, ``planned_readings``,
-``current``); a store written before it knew them is read from ``status``, the stored procedure
-and the last reading instead.
+``current``, and ``operator_waiting`` while an operator step waits for a person); a store written
+before it knew them is read from ``status``, the stored procedure and the last reading instead.
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ class StoreView:
     def _empty_state(self, note: str) -> dict[str, Any]:
         return {"state": "starting", "method": None, "planned_readings": None, "done_readings": 0, "eta_s": None,
                 "faults": 0, "current": {}, "name": None, "last_reading_id": 0, "latest": [], "progress": None,
-                "events_count": 0, "result": None, "note": note}
+                "events_count": 0, "result": None, "note": note, "operator": None}
 
     def _read_state(self) -> dict[str, Any]:
         db = self._connect()
@@ -160,6 +160,7 @@ class StoreView:
             "events_count": n_events,
             "result": self._result() if state == "finished" else None,
             "note": None,
+            "operator": operator_of(meta) if state not in FINAL_STATES else None,
         }
 
     def _accumulate(self, db: sqlite3.Connection, hi: int) -> None:
@@ -334,6 +335,19 @@ def engine_state(meta: dict[str, str]) -> str:
     if status == "not started" and meta.get("error"):
         return "failed"
     return "starting"
+
+
+def operator_of(meta: dict[str, str]) -> dict[str, Any] | None:
+    """What the operator is asked now (``{"instruction", "t_s"}``), None when nothing waits."""
+    try:
+        value = json.loads(meta.get("operator_waiting") or "null")
+    except ValueError:
+        return None
+    if not isinstance(value, dict) or not isinstance(value.get("instruction"), str) or not value["instruction"]:
+        return None
+    t_s = value.get("t_s")
+    return {"instruction": value["instruction"][:2000],
+            "t_s": float(t_s) if isinstance(t_s, (int, float)) and math.isfinite(t_s) else None}
 
 
 def current_of(meta: dict[str, str], last: tuple | None) -> dict[str, Any]:

@@ -39,7 +39,7 @@ from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
 from rtcal.engine.subscribers import ConsoleProgress, StoreWriter
 from rtcal.engine.walk import Timing
-from rtcal.sequencer.operator import BenchOperator, ConsoleOperator, RemoteSimOperator
+from rtcal.sequencer.operator import BenchOperator, RemoteSimOperator, WaitingOperator
 from rtcal.run.store import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
@@ -49,7 +49,9 @@ from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, digests_of, resul
 
 OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
 """Called with the engine and the run directory before the first motion (remote control, the live
-view); what it returns is called when the run ends, however it ends."""
+view); what it returns is called when the run ends, however it ends. One with a true
+``remote_operator`` attribute (`--live`: the run serves its page) lets an operator step without a
+terminal wait for a remote confirm instead of stopping the run."""
 
 __all__ = ["METHODS", "AnalysisFailed", "RunOutcome", "resume_run", "run_procedure"]
 
@@ -175,10 +177,15 @@ def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenari
         raise FileProblems([problem_at(procedure_path, refused[0], refused[1])])
 
 
-def _operator(bench: Bench | None, addresses: dict[str, str] | None):
+def _operator(bench: Bench | None, addresses: dict[str, str] | None, on_engine: OnEngine | None = None,
+              run_dir: Path | None = None):
+    """The simulated bench, the simulated operator of `rtcal sim serve`, or a person: at the terminal
+    and by a remote confirm, which without a terminal is waited for only when the run serves its page."""
     if bench:
         return BenchOperator(bench)
-    return RemoteSimOperator(addresses["operator"]) if addresses and "operator" in addresses else ConsoleOperator()
+    if addresses and "operator" in addresses:
+        return RemoteSimOperator(addresses["operator"])
+    return WaitingOperator(remote=bool(getattr(on_engine, "remote_operator", False)), run_dir=run_dir)
 
 
 def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
@@ -228,7 +235,7 @@ def run_procedure(
         bench = Bench(scenario, VirtualClock(), seed)
     motion_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated and virtual_clock else None
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
-    operator = _operator(bench, addresses)
+    operator = _operator(bench, addresses, on_engine, run_dir)
     prepared = method.prepare(proc, operator)
     lock = claim_new_run_dir(run_dir)
     try:
@@ -328,7 +335,7 @@ def resume_run(
                             f"{planned} planned readings were already stored")
         motion_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
                          if not simulated and virtual_clock else None)  # as `run` counts them (from the procedure's bench)
-        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses), virtual_clock, show_progress, generation,
+        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir), virtual_clock, show_progress, generation,
                                   on_engine=on_engine, motion_timing=motion_timing)
     finally:
         lock.release()

@@ -1,11 +1,20 @@
 """Operator steps: what a person must do mid-run (re-seat the polygon, move the tracer). On hardware the
-sequencer pauses with a prompt; on the simulated bench the bench does it itself."""
+sequencer pauses with a prompt; on the simulated bench the bench does it itself.
+
+On hardware the person confirms at the run's terminal (Enter) or, with :class:`WaitingOperator`,
+also from elsewhere: the live page's Done button or `rtcal control RUN_DIR confirm` reach the
+engine's control channel, which hands the confirm to the operator object — the one thing that waits.
+"""
 
 from __future__ import annotations
 
 import math
+import os
+import select
 import sys
-from typing import Callable, Protocol
+import threading
+from pathlib import Path
+from typing import Callable, Protocol, TextIO, runtime_checkable
 
 from drivers.errors import InstrumentError
 
@@ -30,6 +39,31 @@ class Operator(Protocol):
         """The run pauses: the operator clears the fault (releases an e-stop, frees the beam)."""
 
 
+def reseat_instruction(offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> str:
+    """What the person is asked before a polygon seating (the console and the live page say the same)."""
+    faces = offset_deg / face_pitch_deg
+    what = f"{faces:g} face(s)" if abs(faces - round(faces)) < 1e-9 else f"{offset_deg:g}°"
+    if resumed:
+        return (f"The run resumes with the polygon seated turned by {what}. Do not move it; "
+                "if it was moved, abort and start the seating again.")
+    return (f"Seat the polygon turned by {what} from its home seating "
+            f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
+            "and align it to the autocollimator within its range.")
+
+
+def tracer_instruction(mount: int, where: str, resumed: bool = False) -> str:
+    """What the person is asked before the laser tracer's mount ``mount`` (0: the first)."""
+    if resumed:
+        return f"The run resumes with the laser tracer on mount {mount + 1}. Do not move it."
+    return (f"Move the laser tracer to mount {mount + 1} ({where}), at the same height as before, and fix it "
+            "(rtcal then re-references the beam).")
+
+
+def fault_instruction(message: str) -> str:
+    """What the person is asked when a fault's policy pauses the run for them."""
+    return f"Clear the fault ({message}): release the emergency stop, free the beam; the run then tries again."
+
+
 class ConsoleOperator:
     """Prints what to do and waits for Enter; refuses to continue without a terminal."""
 
@@ -37,29 +71,15 @@ class ConsoleOperator:
         self._ask = ask
 
     def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
-        faces = offset_deg / face_pitch_deg
-        what = f"{faces:g} face(s)" if abs(faces - round(faces)) < 1e-9 else f"{offset_deg:g}°"
-        if resumed:
-            message = (f"\nOperator: the run resumes with the polygon seated turned by {what}. Do not move it; "
-                       "if it was moved, abort and start the seating again. Press Enter to continue.")
-        else:
-            message = (f"\nOperator: seat the polygon turned by {what} from its home seating "
-                       f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
-                       "align it to the autocollimator within its range, then press Enter.")
+        message = "\nOperator: " + reseat_instruction(offset_deg, face_pitch_deg, resumed) + " Then press Enter."
         if not sys.stdin.isatty() and self._ask is input:
-            raise OperatorUnavailable("the procedure needs an operator to re-seat the polygon but there is no terminal; "
-                                      "run it from a terminal")
+            raise OperatorUnavailable(NO_TERMINAL_RESEAT)
         self._ask(message + " ")
 
     def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
-        if resumed:
-            message = f"\nOperator: the run resumes with the laser tracer on mount {mount + 1}. Do not move it. Press Enter."
-        else:
-            message = (f"\nOperator: move the laser tracer to mount {mount + 1} ({where}), at the same height as before; "
-                       "fix it, then press Enter (rtcal re-references the beam).")
+        message = "\nOperator: " + tracer_instruction(mount, where, resumed) + " Then press Enter."
         if not sys.stdin.isatty() and self._ask is input:
-            raise OperatorUnavailable("the procedure needs an operator to move the laser tracer but there is no terminal; "
-                                      "run it from a terminal")
+            raise OperatorUnavailable(NO_TERMINAL_TRACER)
         self._ask(message + " ")
 
     def polygon_certificate_arcsec(self) -> list[float] | None:
@@ -67,8 +87,184 @@ class ConsoleOperator:
 
     def clear_fault(self, message: str) -> None:
         if not sys.stdin.isatty() and self._ask is input:
-            raise OperatorUnavailable(f"the run paused for the operator ({message}) but there is no terminal")
+            raise OperatorUnavailable(no_terminal_fault(message))
         self._ask(f"\nOperator: {message}. Clear the fault, then press Enter to try again. ")
+
+
+NO_TERMINAL_RESEAT = ("the procedure needs an operator to re-seat the polygon but there is no terminal; "
+                      "run it from a terminal")
+NO_TERMINAL_TRACER = ("the procedure needs an operator to move the laser tracer but there is no terminal; "
+                      "run it from a terminal")
+
+
+def no_terminal_fault(message: str) -> str:
+    return f"the run paused for the operator ({message}) but there is no terminal"
+
+
+class OperatorCancelled(KeyboardInterrupt):
+    """A remote abort while the run waited for the operator: the run stops as Ctrl-C stops it
+    (the safe state, the status recorded, exit 130, resumable)."""
+
+
+class NothingToConfirm(RuntimeError):
+    """A confirm sent when no operator step waits: refused, and nothing changes."""
+
+
+Asked = Callable[[str | None, str], None]
+"""``asked(instruction, answer)``: the instruction while the operator is asked (answer ""), then
+``asked(None, answer)`` once it is over (answer: "at the terminal", "remotely", or "" if it was not
+answered: an abort, Ctrl-C)."""
+
+
+@runtime_checkable
+class Confirmable(Protocol):
+    """An operator whose steps can be confirmed from another thread (the engine's control channel)."""
+
+    def confirm(self) -> bool:
+        """Confirm what the operator is asked now: True; False if nothing waits (nothing changes)."""
+
+    def cancel(self) -> None:
+        """A remote abort: what waits (or will wait) raises OperatorCancelled."""
+
+    def listen(self, asked: Asked) -> None:
+        """Tell ``asked`` what the person is asked and when it is over (in the waiting thread)."""
+
+
+def stdin_terminal() -> int | None:
+    """The descriptor of this process's terminal, None without one (nohup, a service, a pipe)."""
+    try:
+        return sys.stdin.fileno() if sys.stdin is not None and sys.stdin.isatty() else None
+    except (ValueError, OSError):  # stdin closed or replaced by something without a descriptor
+        return None
+
+
+class WaitingOperator:
+    """The console operator whose every step can also be confirmed remotely: Enter at the terminal
+    or a remote :meth:`confirm` (the live page's Done, `rtcal control RUN_DIR confirm`), whichever
+    comes first, continues the run. Without a terminal it waits for a remote confirm when the run
+    can be reached (``remote``: it serves its live page), and otherwise refuses as
+    :class:`ConsoleOperator` does (OperatorUnavailable, the same message). :meth:`cancel` (a remote
+    abort) ends the wait with OperatorCancelled. The terminal is read by ``select`` on its
+    descriptor in the waiting thread itself, so no reader is left blocked on stdin afterwards."""
+
+    def __init__(self, remote: bool = False, run_dir: Path | str | None = None,
+                 terminal: Callable[[], int | None] = stdin_terminal, out: TextIO | None = None,
+                 log: TextIO | None = None, poll_s: float = 0.2):
+        self.remote = remote
+        self.run_dir = run_dir
+        self._terminal = terminal
+        self._out = out
+        self._log = log
+        self.poll_s = poll_s
+        self._lock = threading.Lock()
+        self._waiting: threading.Event | None = None
+        self._cancelled = threading.Event()
+        self._listeners: list[Asked] = []
+        self.asking: str | None = None
+        """The instruction the person is asked now (None: nothing waits)."""
+
+    # ---- from other threads ------------------------------------------------------------------
+    def confirm(self) -> bool:
+        with self._lock:
+            if self._waiting is None or self._waiting.is_set():
+                return False
+            self._waiting.set()
+            return True
+
+    def cancel(self) -> None:
+        self._cancelled.set()
+        with self._lock:
+            if self._waiting is not None:
+                self._waiting.set()  # wake it: it finds the cancel before it counts a confirm
+
+    def listen(self, asked: Asked) -> None:
+        self._listeners.append(asked)
+
+    # ---- the operator's steps (the engine's thread) -------------------------------------------
+    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
+        self._wait(reseat_instruction(offset_deg, face_pitch_deg, resumed), NO_TERMINAL_RESEAT)
+
+    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
+        self._wait(tracer_instruction(mount, where, resumed), NO_TERMINAL_TRACER)
+
+    def polygon_certificate_arcsec(self) -> list[float] | None:
+        return None
+
+    def clear_fault(self, message: str) -> None:
+        self._wait(fault_instruction(message), no_terminal_fault(message))
+
+    def _wait(self, instruction: str, unavailable: str) -> None:
+        fd = self._terminal()
+        if fd is None and not self.remote:
+            raise OperatorUnavailable(unavailable)
+        if self._cancelled.is_set():
+            raise OperatorCancelled("aborted by a remote request")
+        confirmed = threading.Event()
+        with self._lock:
+            self._waiting = confirmed
+        self.asking = instruction
+        answer = ""
+        try:
+            self._tell(instruction, "")
+            remote_hint = self._remote_hint()
+            if fd is not None:
+                _drain(fd)  # an Enter pressed before the instruction was shown confirms nothing
+                out = self._out if self._out is not None else sys.stdout
+                out.write(f"\nOperator: {instruction} Then press Enter" + (f" (or {remote_hint})" if remote_hint else "")
+                          + ". ")
+                out.flush()
+            else:
+                log = self._log if self._log is not None else sys.stderr
+                log.write(f"rtcal: operator: {instruction} Waiting for {remote_hint}.\n")
+                log.flush()
+            answer = self._until_confirmed(confirmed, fd, unavailable)
+        finally:
+            with self._lock:
+                self._waiting = None
+            self.asking = None
+            self._tell(None, answer)
+
+    def _remote_hint(self) -> str:
+        where = f"`rtcal control {self.run_dir} confirm`" if self.run_dir is not None else "`rtcal control RUN_DIR confirm`"
+        return ("Done on the live page, or " if self.remote else "") + where + " with the run's control token"
+
+    def _until_confirmed(self, confirmed: threading.Event, fd: int | None, unavailable: str) -> str:
+        while True:
+            if self._cancelled.is_set():
+                raise OperatorCancelled("aborted by a remote request while the operator was asked")
+            if confirmed.is_set():
+                return "remotely"
+            if fd is None:
+                confirmed.wait(self.poll_s)
+                continue
+            ready, _, _ = select.select([fd], [], [], self.poll_s)
+            if not ready:
+                continue
+            data = os.read(fd, 4096)
+            if not data:  # the terminal went away (a closed ssh session)
+                fd = None
+                if not self.remote:
+                    raise OperatorUnavailable(unavailable.replace("there is no terminal", "the terminal closed"))
+                continue
+            if b"\n" in data or b"\r" in data:
+                with self._lock:
+                    if confirmed.is_set():  # a remote confirm came first
+                        continue
+                    confirmed.set()
+                if self._cancelled.is_set():
+                    continue
+                return "at the terminal"
+
+    def _tell(self, instruction: str | None, answer: str) -> None:
+        for asked in self._listeners:
+            asked(instruction, answer)
+
+
+def _drain(fd: int) -> None:
+    """Discard what was typed before the prompt."""
+    while select.select([fd], [], [], 0)[0]:
+        if not os.read(fd, 4096):
+            return
 
 
 class BenchOperator:

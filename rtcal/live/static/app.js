@@ -147,10 +147,12 @@ function renderState(st) {
   $("bar-fill").style.width = pct.toFixed(1) + "%";
   $("bar").setAttribute("aria-valuenow", pct.toFixed(0));
   $("percent").textContent = st.planned_readings ? pct.toFixed(0) + " %" : "";
-  $("eta").textContent = st.state === "finished" ? "done" : st.eta_s === null ? "– (no rate yet)" : fmtDuration(st.eta_s);
+  $("eta").textContent = st.state === "finished" ? "done" : st.operator ? "– (waiting for the operator)"
+    : st.eta_s === null ? "– (no rate yet)" : fmtDuration(st.eta_s);
   $("current").textContent = fmtCurrent(st.current);
   $("faults").textContent = st.faults;
   $("faults").className = st.faults ? "has" : "";
+  renderOperator(st);
   $("control-live").hidden = !st.control;
   $("control-readonly").hidden = !!st.control;
   if (st.control) {
@@ -162,6 +164,21 @@ function renderState(st) {
   renderLatest(st.latest || []);
   renderResult(st.result);
   $("events-count").textContent = st.events_count ? "(" + st.events_count + ")" : "";
+}
+
+function renderOperator(st) {
+  const op = st.operator;
+  const card = $("operator-card");
+  const waiting = !!(op && op.instruction);
+  if (waiting && card.dataset.asked !== op.instruction) $("operator-msg").textContent = ""; // a new step: no old answer
+  card.dataset.asked = waiting ? op.instruction : "";
+  card.hidden = !waiting;
+  document.title = (waiting ? "Operator step · " : "") + (st.name || "rtcal live view");
+  if (!waiting) return;
+  $("operator-instruction").textContent = op.instruction;
+  $("operator-live").hidden = !st.control;
+  $("operator-readonly").hidden = !!st.control;
+  $("operator-since").textContent = op.t_s === null || op.t_s === undefined ? "" : "asked at " + fmtNum(op.t_s, 1) + " s of the run's clock";
 }
 
 function renderGrid(st) {
@@ -385,12 +402,16 @@ function drawPlot(svg, legend, series, xLabel, yLabel) {
 async function control(command) {
   const typed = $("token").value.trim();
   if (typed) S.token = typed;
-  const msg = $("control-msg");
-  if (!S.token) { msg.textContent = "enter the run's control token first"; msg.className = "bad"; $("token").focus(); return; }
+  const msg = $(command === "confirm" ? "operator-msg" : "control-msg");
+  if (!S.token) {
+    msg.textContent = "enter the run's control token first" + (command === "confirm" ? " (under Control)" : "");
+    msg.className = "bad"; $("token").focus(); return;
+  }
   msg.textContent = command + "…"; msg.className = "";
   try {
     const res = await fetch("api/" + command, { method: "POST", headers: { Authorization: "Bearer " + S.token }, cache: "no-store" });
-    if (res.status === 202) { msg.textContent = command + " requested: it takes effect at the next checkpoint"; msg.className = "ok"; }
+    if (res.status === 202 && command === "confirm") { msg.textContent = "confirmed: the run goes on"; msg.className = "ok"; }
+    else if (res.status === 202) { msg.textContent = command + " requested: it takes effect at the next checkpoint"; msg.className = "ok"; }
     else if (res.status === 401) { msg.textContent = "refused: wrong control token"; msg.className = "bad"; S.token = null; }
     else { const body = await res.json().catch(() => ({})); msg.textContent = "refused (" + res.status + "): " + (body.error || ""); msg.className = "bad"; }
   } catch (e) {
@@ -418,6 +439,7 @@ document.addEventListener("DOMContentLoaded", () => {
   $("btn-pause").addEventListener("click", () => control("pause"));
   $("btn-resume").addEventListener("click", () => control("resume"));
   $("btn-abort").addEventListener("click", armAbort);
+  $("btn-confirm").addEventListener("click", () => control("confirm"));
   $("plot-select").addEventListener("change", () => { $("plot-select").dataset.chosen = "1"; renderPlot(); });
   $("run-dir").textContent = location.host;
   connect();
