@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import textwrap
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -19,4 +21,9 @@ def legend_below(fig, ncol: int = 2) -> None:
                 handles.append(h)
                 labels.append(label)
     if handles:
-        fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=8, frameon=False)
+        # constrained layout sizes the legend's height, not its width: a label longer than its
+        # column is wrapped, or the legend runs past the figure's edges
+        font_pt = 8
+        column_chars = int(fig.get_figwidth() * 72 / (font_pt * 0.6) / ncol) - 8
+        labels = [textwrap.fill(label.replace(" = ", "\u00a0=\u00a0"), column_chars) for label in labels]  # k = 2 kept whole
+        fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=font_pt, frameon=False)
