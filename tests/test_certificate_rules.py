@@ -82,6 +82,9 @@ def test_expired_standard_refuses_to_start(tmp_path):
     assert not (tmp_path / "run" / "run.sqlite").exists()
     code, printed, err = _run(["check", str(path)])
     assert code == 1 and "autocollimator" in err and yesterday in printed
+    code, printed, err = _run(["validate", str(path)])  # validate says what run would refuse, where
+    assert code == 2 and "ok" not in printed, printed
+    assert re.search(rf":\d+:\d+: metadata\.instruments\.autocollimator\.calibration_due: {yesterday} is past", err), err
 
 
 def test_check_shows_every_due_date_and_cuts_no_word():

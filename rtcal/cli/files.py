@@ -26,6 +26,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
             text = read_text(path)
             if is_procedure_text(text):
                 proc = load_procedure(path, args.large, text)
+                _check_due_dates(path, proc)
                 if proc.instruments.all_sim() or args.scenario:
                     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
                     check_plan_on_bench(path, proc, scenario)
@@ -39,6 +40,22 @@ def cmd_validate(args: argparse.Namespace) -> int:
     for p in problems:
         print(p, file=sys.stderr)
     return EXIT_USAGE if problems else EXIT_OK
+
+
+def _check_due_dates(path: Path, proc: Any) -> None:
+    """What `run` refuses today: a reference standard or instrument past its calibration due date."""
+    import datetime as _dt
+
+    from rtcal.procedure.yamlfile import problem_at
+    from rtcal.run.runner import expired_instruments
+
+    today = _dt.datetime.now(_dt.timezone.utc).date()
+    expired = expired_instruments(proc, today)
+    if expired:
+        raise FileProblems([problem_at(path, ("metadata", "instruments", name, "calibration_due"),
+                                       f"{due} is past (today {today.isoformat()}): `rtcal run` refuses an instrument past "
+                                       "its calibration due date; recalibrate it, or use one in calibration")
+                            for name, due in expired])
 
 
 def cmd_schema(args: argparse.Namespace) -> int:
