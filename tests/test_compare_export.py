@@ -29,7 +29,9 @@ def test_compare_same_stage_twice(two_runs, tmp_path, capsys):
     more than 10 would mean U too small)."""
     capsys.readouterr()
     assert main(["compare", str(two_runs[0]), str(two_runs[1]), "--out", str(tmp_path), "--json"]) == 0
-    r = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    r = json.loads(captured.out)  # stdout is the JSON alone; the file written is named on stderr
+    assert f"written: {tmp_path / 'compare.png'}" in captured.err
     assert r["targets_compared"] == 48 and r["targets_changed"] <= 10
     assert set(r["iso230_2"]) >= {"E", "B", "R", "A"} and (tmp_path / "compare.png").stat().st_size > 0
     row = r["per_target"][0]
@@ -45,9 +47,11 @@ def test_compare_refuses_unrelated_input(tmp_path, capsys):
     assert "share no target" in capsys.readouterr().err
 
 
-def test_export_writes_every_reading_and_event(two_runs, tmp_path):
+def test_export_writes_every_reading_and_event(two_runs, tmp_path, capsys):
     run = two_runs[0]
     assert main(["export", str(run), "--out", str(tmp_path)]) == 0
+    said = capsys.readouterr().out
+    assert all(str(tmp_path / name) in said for name in ("readings.csv", "events.csv", "descriptions.csv")), said
     db = sqlite3.connect(run / "run.sqlite")
     with (tmp_path / "readings.csv").open() as fh:
         rows = list(csv.DictReader(fh))

@@ -80,8 +80,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     result["plot"] = str(out / "compare.png")
     if args.certificate:
         result["certificate"] = _as_found_certificate(args, a[1], b[1], result, out)
-    written = [result["plot"]] + ([f"{result['certificate']}.pdf", f"{result['certificate']}.html"] if args.certificate else [])
-    print(json_text(result) if args.json else "\n".join(comparison_lines(result) + ["written: " + ", ".join(written)]))
+    written = [result["plot"]] + ([f"{result['certificate']}.{kind}" for kind in ("pdf", "html", "json")]
+                                  if args.certificate else [])
+    if args.json:  # stdout is the JSON alone; what was written goes to stderr, still named
+        print(json_text(result))
+        print("rtcal: written: " + ", ".join(written), file=sys.stderr)
+    else:
+        print("\n".join(comparison_lines(result) + ["written: " + ", ".join(written)]))
     return EXIT_OK
 
 
@@ -170,7 +175,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
         markers = f" and {plural(rows - instrument, 'skip marker')}" if rows > instrument else ""
         print(f"{plural(instrument, 'instrument reading')}{markers} ({plural(planned, 'planned reading')} taken) → "
-              f"{readings_csv}, {plural(events, 'event')} → {events_csv}")
+              f"{readings_csv}, {plural(events, 'event')} → {events_csv}, what each quantity is → "
+              f"{out / 'descriptions.csv'}")
         return EXIT_OK
     saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
     write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
