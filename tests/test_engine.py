@@ -322,6 +322,10 @@ def test_console_progress_writes_a_line_every_10_percent_or_60_s_in_a_log():
     assert lines[0].startswith("rtcal: readings 2/40 (5 %) · target 30°, run 1, direction ↑ · about 6:20 left · 0 faults")
     assert [line.split()[2] for line in lines[1:]] == [f"{4 * k}/40" for k in range(1, 11)]
     assert lines[-1].endswith("· 1 fault") and "left" in lines[-2]
+    simulated = ConsoleProgress(io.StringIO(), bar=False, virtual_clock=True)  # the bench's time, not the wall's
+    simulated("start", {"planned": 4, "done": 0, "t_s": 0.0})
+    simulated("done", {"done": 1, "faults": 0, "t_s": 30.0})
+    assert "about 1:30 left on the virtual clock" in simulated.line()
 
 
 def test_store_writer_keeps_where_the_engine_is(tmp_path):

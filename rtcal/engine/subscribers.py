@@ -75,8 +75,9 @@ class ConsoleProgress:
     time have passed, and one at the end."""
 
     def __init__(self, stream: TextIO | None = None, bar: bool | None = None, every_s: float = 60.0,
-                 now: Callable[[], float] = time.monotonic):
+                 now: Callable[[], float] = time.monotonic, virtual_clock: bool = False):
         self.stream = stream if stream is not None else sys.stderr
+        self.virtual_clock = virtual_clock  # the time left is the bench's, not the wall's: said so
         self.bar = self.stream.isatty() if bar is None else bar
         self.every_s = every_s
         self.now = now
@@ -103,7 +104,8 @@ class ConsoleProgress:
         pct = 100.0 * self.done / self.planned if self.planned else 100.0
         eta = self.eta_s()
         return (f"readings {self.done}/{self.planned} ({pct:.0f} %)" + (f" · {self.where}" if self.where else "")
-                + (f" · about {_hms(eta)} left" if eta is not None else "")
+                + (f" · about {_hms(eta)} left" + (" on the virtual clock" if self.virtual_clock else "")
+                   if eta is not None else "")
                 + f" · {self.faults} fault{'' if self.faults == 1 else 's'}")
 
     def __call__(self, name: str, doc: dict[str, Any]) -> None:

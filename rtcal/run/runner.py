@@ -448,7 +448,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     plan = method.plan(proc, done, generation, float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0))
     subscribers: list = [StoreWriter(store)]
     if show_progress is not False:
-        subscribers.append(ConsoleProgress())
+        subscribers.append(ConsoleProgress(virtual_clock=not isinstance(clock, RealClock)))
     engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1, motion_timing)
     detach = None
     try:
