@@ -1,6 +1,6 @@
 """`rtcal compare`: two runs of the same axis side by side — before and after compensation, or
 months apart (drift). Per target and direction the change of the mean deviation and whether it
-exceeds the combined expanded uncertainty U_c = 2·√(u_A² + u_B²) of the two means (two runs are
+exceeds the combined expanded uncertainty U_c = 2·√(u_first² + u_second²) of the two means (two runs are
 independent measurements); the ISO 230-2 parameters of both; one plot with both curves and
 their U (k = 2) bands."""
 
@@ -109,12 +109,13 @@ def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, RunR
             color = f"C{k}"
             if np.all(np.isfinite(u)):
                 ax.fill_between(x, y - 2 * u, y + 2 * u, color=color, alpha=0.25, lw=0)
-            ax.plot(x, y, style, marker="o" if len(x) <= 500 else None, ms=4, color=color, label=f"{'A' if k == 0 else 'B'}: {name}, {'↑ positive' if d > 0 else '↓ negative'} approach")
+            ax.plot(x, y, style, marker="o" if len(x) <= 500 else None, ms=4, color=color, label=f"{'first' if k == 0 else 'second'}: {name}, {'↑ positive' if d > 0 else '↓ negative'} approach")
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("target (commanded angle) / °")
     ax.set_ylabel("mean positioning deviation (actual − commanded) / ″")
-    ax.set_title(f"A: {result['a']}   vs   B: {result['b']}\n{result['targets_changed']} of {result['targets_compared']} target "
-                 "values changed by more than U_c = 2·√(u_A² + u_B²)", fontsize=10)
+    ax.set_title(f"first: {result['a']}   vs   second: {result['b']}\n{result['targets_changed']} of "
+                 f"{result['targets_compared']} target values changed by more than U_c = 2·√(u_first² + u_second²)",
+                 fontsize=10)
     ax.grid(alpha=0.3)
     handles, labels = ax.get_legend_handles_labels()
     handles.append(Patch(color="0.5", alpha=0.3, lw=0))
@@ -127,28 +128,31 @@ def plot_comparison(result: dict[str, Any], a: tuple[PositioningDeviations, RunR
 
 
 def comparison_lines(result: dict[str, Any]) -> list[str]:
-    """The comparison as a console table (under 100 columns): per target and direction A, B, the
+    """The comparison as a console table (under 100 columns): per target and direction the first and second run, the
     change and the combined U_c (rounded once, as on a certificate), then the ISO 230-2 parameters."""
     from rtcal.deliverables.rounding import u_text
 
     def num(v: float | None, sign: str = "+") -> str:
         return "–" if v is None else format(v, f"{sign}.2f")
 
-    lines = [f"A: {result['a']}", f"B: {result['b']}", "",
-             f"{'target / °':>10}  {'dir':>3}  {'A / ″':>9}  {'B / ″':>9}  {'B − A / ″':>10}  {'U_c / ″':>8}  beyond U_c"]
+    # the runs are "first" and "second": "A" and "B" are ISO 230-2 parameters in the same table
+    lines = [f"first: {result['a']}", f"second: {result['b']}", "",
+             f"{'target / °':>10}  {'dir':>3}  {'first / ″':>9}  {'second / ″':>10}  {'change / ″':>10}  {'U_c / ″':>8}  "
+             "beyond U_c"]
     for r in result["per_target"]:
         lines.append(f"{r['target_deg']:>10g}  {'↑' if r['direction'] > 0 else '↓':>3}  {num(r['a_arcsec']):>9}  "
-                     f"{num(r['b_arcsec']):>9}  {num(r['change_arcsec']):>10}  {u_text(r['combined_U_arcsec']):>8}  "
+                     f"{num(r['b_arcsec']):>10}  {num(r['change_arcsec']):>10}  {u_text(r['combined_U_arcsec']):>8}  "
                      + ("yes" if r["exceeds_U"] else "no" if r["exceeds_U"] is not None else "–"))
-    lines += ["", f"{'ISO 230-2':>10}  {'A / ″':>9}  {'B / ″':>9}  {'B − A / ″':>10}"]
+    lines += ["", f"{'ISO 230-2':>10}  {'':>3}  {'first / ″':>9}  {'second / ″':>10}  {'change / ″':>10}"]
     for k, v in result["iso230_2"].items():
         change = None if v["a"] is None or v["b"] is None else v["b"] - v["a"]
-        lines.append(f"{k.replace('_up', '↑').replace('_down', '↓').replace('_mean', ' mean'):>10}  {num(v['a'], ''):>9}  "
-                     f"{num(v['b'], ''):>9}  {num(change):>10}")
+        lines.append(f"{k.replace('_up', '↑').replace('_down', '↓').replace('_mean', ' mean'):>10}  {'':>3}  "
+                     f"{num(v['a'], ''):>9}  {num(v['b'], ''):>10}  {num(change):>10}")
     changed, compared = result["targets_changed"], result["targets_compared"]
     lines += ["", f"{changed} of {compared} target value{'s' if compared != 1 else ''} changed by more than "
-              "U_c = 2·√(u_A² + u_B²) (k = 2)"]
-    only = [f"{result[k]} only in {k[-1].upper()}" for k in ("only_in_a", "only_in_b") if result[k]]
+              "U_c = 2·√(u_first² + u_second²) (k = 2)"]
+    only = [f"{result[k]} only in the {'first' if k == 'only_in_a' else 'second'}" for k in ("only_in_a", "only_in_b")
+            if result[k]]
     if only:
         lines.append("not compared: " + ", ".join(only))
     return lines
