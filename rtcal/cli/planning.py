@@ -248,7 +248,8 @@ def add_plan(sub: Any) -> None:
                       help="propose the shortest plan whose U (k = 2, recommended estimator, worst target) reaches this; "
                            "written to --out (exit 1 when none does)")
     plan.add_argument("--out", metavar="FILE.yaml", help="with --target-u: where the proposed procedure goes (its bench "
-                                                         "beside it, FILE.bench.yaml, when the plan moves the tracer)")
+                                                         "beside it, FILE.bench.yaml, when the plan moves the tracer or "
+                                                         "the bench lies outside FILE's folder)")
     plan.add_argument("--margin", type=float, default=0.1,
                       help="with --target-u: plan for this fraction below the target (default 0.1: room for what the "
                            "prediction does not hold and for the Monte Carlo that verifies it)")

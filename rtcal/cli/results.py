@@ -242,6 +242,7 @@ def add_export(sub: Any) -> None:
 
 def add_verify(sub: Any) -> None:
     ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json and the "
-                                        "store's digests against them (exit 0: they agree, 1: they do not)")
+                                        "store's digests against them (exit 0: they agree, 1: they do not, 2: not a run "
+                                        "directory, or a results.json that is not rtcal's)")
     ver.add_argument("run_dir", help="a run directory (its results.json and run.sqlite)")
     ver.set_defaults(func=cmd_verify)
