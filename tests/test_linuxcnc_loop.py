@@ -285,3 +285,9 @@ def test_a_second_linuxcnc_is_refused_with_a_message(tmp_path):
     assert proc.returncode != 0 and proc.stdout == "", proc
     assert "another LinuxCNC started by rtcal is running on this machine" in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_the_short_procedure_validates():
+    """docs/compensation.md names it: `rtcal validate` passes it as it stands (no bench outside its folder)."""
+    code, out, err = rtcal("validate", SHORT)
+    assert code == 0 and out.strip().endswith(": ok"), out + err
