@@ -87,6 +87,8 @@ def test_the_line_is_one_independent_error_per_length():
     assert sensor_noise_variance_mm2(L, radial, np.zeros(3), noise) == pytest.approx(air.effect**2 + table.effect**2)
     # the table's term only where the lengths are corrected with a measured table temperature
     assert [s.name for s in sensor_noise_sources(L, radial, None, noise)] == [AIR_NOISE_SOURCE]
+    assert noise_model(load_procedure(DATA / "warming_sensor.yaml")).material_temperature_noise_k == 0.03  # the default
+    assert noise_model(load_procedure(DATA / "warming_range.yaml")).material_temperature_noise_k == 0.0  # no sensor
 
 
 def test_a_noisy_sensor_enters_the_network_budget_and_its_prediction():
