@@ -71,7 +71,8 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         air_index_sigma=air_index_sigma(proc), air_index_bound=air_index_bound(proc)[0], air_note=air_index_bound(proc)[1],
         table_expansion_ppm_per_k=u.table_expansion_ppm_per_k, table_expansion_u_ppm_per_k=u.table_expansion_u_ppm_per_k,
         material_temperature_sigma_k=u.environment.material_temperature_k if table_sensor(proc) else 0.0,
-        material_temperature_bound_k=stated_table_range(proc))
+        material_temperature_bound_k=stated_table_range(proc), air_index_noise=air_index_noise(proc),
+        material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0)
 
 
 def table_sensor(proc: LaserTracerMultistation) -> bool:
@@ -120,6 +121,17 @@ def air_index_sigma(proc: LaserTracerMultistation) -> float:
     e = proc.uncertainty.environment
     dT, dp, dh = index_sensitivity()
     return float(np.sqrt((dT * e.air_temperature_k) ** 2 + (dp * e.air_pressure_pa) ** 2 + (dh * e.humidity_pct) ** 2))
+
+
+def air_index_noise(proc: LaserTracerMultistation) -> float:
+    """1σ of the index each length is corrected with from the sensor's own noise per reading (independent
+    from length to length, unlike :func:`air_index_sigma`'s common error; 0: no sensor)."""
+    if proc.instruments.environment is None:
+        return 0.0
+    e = proc.uncertainty.environment
+    dT, dp, dh = index_sensitivity()
+    return float(np.sqrt((dT * e.air_temperature_noise_k) ** 2 + (dp * e.air_pressure_noise_pa) ** 2
+                         + (dh * e.humidity_noise_pct) ** 2))
 
 
 AIR_QUANTITIES = (("air_temperature_k", "temperature", "K", 0), ("air_pressure_pa", "pressure", "Pa", 1),

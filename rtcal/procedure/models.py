@@ -402,6 +402,16 @@ class EnvironmentUncertainty(_Strict):
     material_temperature_k: float = Field(0.1, ge=0.0, le=20.0, description=(
         "the table's (material) temperature, K: with a sensor reading it, its 1σ (e.g. 0.1); without one the range ± "
         "about 20 °C the table may take during the run (e.g. 0.5); used with uncertainty.table_expansion_ppm_per_k"))
+    # With a sensor: its reading-to-reading noise (1σ per reading). Each length is corrected with its own reading,
+    # so this enters every length independently, unlike the common errors above (docs/paper000.md derives the defaults).
+    air_temperature_noise_k: float = Field(0.01, ge=0.0, le=10.0, description=(
+        "with a sensor: its air-temperature noise per reading, K (1σ, e.g. 0.01: the PTU300's last printed digit)"))
+    air_pressure_noise_pa: float = Field(3.0, ge=0.0, le=1000.0, description=(
+        "with a sensor: its pressure noise per reading, Pa (1σ, e.g. 3: the PTB330 barometer's ±0.03 hPa repeatability)"))
+    humidity_noise_pct: float = Field(0.0, ge=0.0, le=50.0, description=(
+        "with a sensor: its humidity noise per reading, % RH (1σ; 0: at 0.009 ppm of index per % RH, negligible)"))
+    material_temperature_noise_k: float = Field(0.03, ge=0.0, le=10.0, description=(
+        "with a sensor reading the table: its noise per reading, K (1σ, e.g. 0.03: a one-decimal thermometer's 0.1/√12)"))
 
 
 class MultistationUncertainty(_Strict):

@@ -37,6 +37,8 @@ from rtcal.solvers.station_budget import (
     air_drift_source,
     bounded_components,
     radial_sensitivity_mm,
+    sensor_noise_sources,
+    sensor_noise_variance_mm2,
     table_expansion_sources,
     cmm_matrix_derivatives,
     error_motion_covariances,
@@ -420,6 +422,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     point_var0 = (max(noise.point_noise_um, 1e-3) * 1e-3) ** 2 / np.repeat(data.point_visit_counts, 3)
     theta = np.array([1.0, 1.0])  # variance scales of (tracer, CMM points)
     rep_rad = arcsec_to_rad(noise.stage_repeatability_arcsec)
+    sensor_noise = noise.air_index_noise > 0 or (material_offset is not None and noise.material_temperature_noise_k > 0)
 
     def weights(theta, L, P, A):
         rep = np.zeros(len(obs))
@@ -430,7 +433,13 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
             t = np.cross(axis, P[st] - x[lay.c])
             rep = np.where(single_visit, (np.einsum("ij,ij->i", e, t) * rep_rad) ** 2, 0.0)
         shape = (a_mm + b * L) ** 2
-        return 1.0 / (theta[0] * shape + rep), 1.0 / (theta[1] * point_var0), shape, rep
+        sensor = 0.0
+        if sensor_noise:  # the environment sensor's own noise per reading: a known part of each length's variance
+            d = A[pi] - P[st]
+            e = d / np.linalg.norm(d, axis=1)[:, None]
+            axis, _, _ = axis_basis(*x[lay.a])
+            sensor = sensor_noise_variance_mm2(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis), material_offset, noise)
+        return 1.0 / (theta[0] * shape + rep + sensor), 1.0 / (theta[1] * point_var0), shape, rep
 
     q_fixed = np.zeros(6)
 
@@ -664,6 +673,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     unit = d_len / L_abs[:, None]
     for src in table_expansion_sources(unit, P[st], x[lay.c], axis_dir, material_offset, noise):
         sources.append(replace(src, effect=np.vstack([src.effect, np.zeros((len(zeros_pts), 1))])))
+    for src in sensor_noise_sources(L_abs, radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, noise):
+        sources.append(replace(src, effect=np.concatenate([src.effect, zeros_pts]), note=src.note + "; in the weights"))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
     G_loc = np.zeros((4, lay.g))  # X0C, Y0C, A0C, B0C ← globals (c, a)

@@ -16,6 +16,10 @@ Sources (the procedure's ``uncertainty`` section states them; docs/paper000.md d
   corrected with is off by the sensor's uncertainty, one error for the whole run (a scale of every
   counted distance); without one, the air drifts within the stated ranges and nothing corrects
   it — see :func:`air_drift_effect`;
+- **sensor noise per reading** (Type B): each length is corrected with its own reading of the
+  sensor, so the sensor's reading-to-reading noise (air index; the table temperature where the
+  lengths are corrected for expansion) is one independent error per length — see
+  :func:`sensor_noise_sources`;
 - **error motions** (Type B): radial, axial and tilt error motions displace each station; no
   single-mount model sees them. Each is modelled as an unknown smooth function bounded by the
   stated value, a random Fourier series of orders 1..K with σ = bound/√2 at every angle (the
@@ -74,6 +78,8 @@ class StationNoiseModel:
     table_expansion_u_ppm_per_k: float = 0.0  # its standard uncertainty
     material_temperature_sigma_k: float = 0.0  # with a sensor reading the table: its 1σ (the lengths are corrected)
     material_temperature_bound_k: float = 0.0  # without one: the table within 20 °C ± this over the run, uncorrected
+    air_index_noise: float = 0.0  # the sensor's own noise per reading, as 1σ of index: independent from length to length
+    material_temperature_noise_k: float = 0.0  # the table sensor's noise per reading, K (1σ), with the lengths corrected
 
 
 @dataclass(frozen=True)
@@ -220,6 +226,8 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
             raise ValueError("the air's drift needs each length's place in the run")
         sources.append(air_drift_source(L, obs.run_fraction, noise))
     sources += table_expansion_sources(u, P, axis_center_mm, axis_direction, obs.material_offset_k, noise)
+    sources += sensor_noise_sources(L, radial_sensitivity_mm(u, P, axis_center_mm, axis_direction), obs.material_offset_k,
+                                    noise)
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
         columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
@@ -267,6 +275,43 @@ def table_expansion_sources(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_c
                           noise.material_temperature_sigma_k, "K",
                           "the table temperature's sensor uncertainty as stated, one error for the run, times α"))
     return out
+
+
+AIR_NOISE_SOURCE = "air refractive index: sensor noise per reading"
+THERMAL_NOISE_SOURCE = "thermal expansion: table temperature sensor noise per reading"
+
+
+def sensor_noise_sources(distances_mm: np.ndarray, radial_mm: np.ndarray, material_offset_k: np.ndarray | None,
+                         noise: StationNoiseModel) -> list[Source]:
+    """The environment sensor's own noise, one independent error per length (Type B, its size stated).
+
+    Each length is corrected with the sensor's reading taken with it (:func:`rtcal.solvers.air.correct_lengths`):
+    an error δn of that reading's index moves the corrected length by L·δn (L the whole tracer-to-reflector
+    distance), and an error δT of its table temperature moves the expansion correction by α·δT·u·ρ. Neither is
+    common to the run (as the sensor's stated uncertainty, `air refractive index`, is); the network weights each length
+    with it (:func:`sensor_noise_variance_mm2`)."""
+    out = []
+    if noise.air_index_noise > 0:
+        out.append(Source(AIR_NOISE_SOURCE, "B", np.asarray(distances_mm, float) * noise.air_index_noise,
+                          noise.air_index_noise * 1e6, "ppm",
+                          "the environment sensor's noise per reading (temperature, pressure, humidity as stated, by "
+                          "Ciddor's sensitivities), independent from length to length"))
+    if material_offset_k is not None and noise.material_temperature_bound_k <= 0 and noise.table_expansion_ppm_per_k > 0 \
+            and noise.material_temperature_noise_k > 0:
+        out.append(Source(THERMAL_NOISE_SOURCE, "B", np.asarray(radial_mm, float) * noise.table_expansion_ppm_per_k * 1e-6
+                          * noise.material_temperature_noise_k, noise.material_temperature_noise_k, "K",
+                          f"the table temperature's noise per reading as stated, times α = {noise.table_expansion_ppm_per_k:g} "
+                          "ppm/K, independent from length to length"))
+    return out
+
+
+def sensor_noise_variance_mm2(distances_mm: np.ndarray, radial_mm: np.ndarray, material_offset_k: np.ndarray | None,
+                              noise: StationNoiseModel) -> np.ndarray:
+    """(N,): each length's variance from :func:`sensor_noise_sources`, mm² (for a weighted estimator's weights)."""
+    total = np.zeros(len(np.asarray(distances_mm)))
+    for src in sensor_noise_sources(distances_mm, radial_mm, material_offset_k, noise):
+        total = total + src.effect**2
+    return total
 
 
 def bounded_course_component(name: str, influence: np.ndarray, sensitivity: np.ndarray, run_time: np.ndarray,
