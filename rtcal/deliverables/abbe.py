@@ -307,10 +307,15 @@ class AbbeOutputs:
         for name, terms in (("positioning_error", a.harmonics.positioning_error_arcsec),
                             ("encoder_vs_command", a.harmonics.encoder_vs_command_arcsec)):
             sig = [t for t in terms or [] if t.significant]
+            mixed = [t for t in terms or [] if t.not_separable_from]
             if sig:
                 lines.append(f"{name}: significant harmonics "
                              + ", ".join(f"{t.order}× {t.amplitude:.2f}″" + (" (Nyquist: lower bound)" if t.aliased else "")
                                          for t in sig))
+            if mixed:  # leakage of an order the targets cannot resolve (rtcal.solvers.harmonics: separability)
+                lines.append(f"{name}: not separable at these targets (not significant): "
+                             + ", ".join(f"{t.order}× {t.amplitude:.2f}″ ~ order {'/'.join(map(str, t.not_separable_from or []))}"
+                                         for t in mixed))
         closure = r.estimates.closure
         if closure is not None:
             lines.append(f"closure: polygon face errors 1σ ≤ {fmt(largest(closure.face_uncertainty_arcsec), '.3f')}″, "

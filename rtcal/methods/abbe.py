@@ -86,7 +86,8 @@ def harmonic_terms(fit: HarmonicFit) -> list[rm.HarmonicTerm]:
     return [rm.HarmonicTerm(order=t.order, amplitude=round(t.amplitude, 4), amplitude_sigma=round(t.amplitude_sigma, 4),
                             phase_deg=round(float(np.degrees(t.phase_rad)), 3),
                             phase_sigma_deg=round(float(np.degrees(t.phase_sigma_rad)), 3),
-                            significant=bool(t.significant), threshold=round(t.threshold, 4), aliased=t.aliased)
+                            significant=bool(t.significant), threshold=round(t.threshold, 4), aliased=t.aliased,
+                            not_separable_from=list(t.not_separable_from) or None)
             for t in fit.terms]
 
 

@@ -42,6 +42,7 @@ from rtcal.solvers.closure import ClosureResult, solve_closure
 from rtcal.solvers.harmonics import (
     HarmonicFit,
     fit_harmonics,
+    grid_nyquist,
     harmonic_amplitudes,
     nyquist_order,
     resolvable_orders,
@@ -461,7 +462,8 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
                 amps = np.max(harmonic_amplitudes(th, np.column_stack([e[ok] for e in rounding]), orders, groups[ok]), axis=0)
                 qthr = dict(zip(orders, amps.tolist()))
             harmonics[name] = fit_harmonics(th, values[ok], orders, groups[ok], floor_sigma=floor, aliased_order=nyq,
-                                            max_order=setup.max_order, quantisation_threshold=qthr)
+                                            max_order=setup.max_order, quantisation_threshold=qthr,
+                                            alternatives_up_to=grid_nyquist(th, setup.max_order))
 
     # what rounding the indicators to their digit does to a smooth shaft motion, for random zeros
     rounding: dict[str, list[np.ndarray]] = {k: [] for k in ("tilt", "radial", "predicted")}
