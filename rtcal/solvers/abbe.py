@@ -164,6 +164,59 @@ class AbbeEstimate:
     random_sigma_arcsec: float  # the per-visit random error of the reference as used (estimated or stated)
     random_sigma_type: str = "B"  # "A": estimated from closure residuals or runs; "B": as stated
     residual_check: ResidualCheck | None = None  # the repeated readings (runs or closure) against the stated noise
+    scale_check: ScaleCheck | None = None  # measured against predicted encoder error: the geometry's scale
+
+
+SCALE_BAND = 1.5  # measured/predicted beyond ×1.5 or ÷1.5: not an encoder's own error, a wrong geometry value
+SCALE_DELTA_CHI2 = 100.0  # and the scale's share of χ² beyond 10σ: never reached by chance
+
+
+@dataclass(frozen=True)
+class ScaleCheck:
+    """Does the measured encoder error follow the predicted one at the scale the geometry says?
+
+    measured = k·predicted is fitted with the stated 1σ of each step's residual (weights 1/σ²):
+    k̂ = Σwmp/Σwp², σ_k = 1/√Σwp². The residual's χ² (the Birge ratio, against the stated noise)
+    cannot itself be the test: the residual holds the encoder's own graduation error, which the
+    method measures (an honest closure run shows a Birge ratio of 11). What no honest encoder
+    error does is follow the prediction's shape at another scale: the part of χ² a scale removes,
+    (k̂ − 1)²/σ_k², is χ²₁ when the geometry is right. The check fails when that part exceeds
+    SCALE_DELTA_CHI2 and k̂ lies outside [1/SCALE_BAND, SCALE_BAND] (an encoder's own error
+    correlated with the shaft's once-per-turn motion moves k̂ by a few %, on the shipped bench
+    1.04–1.07): the prediction, i.e. encoder_radius_mm (prediction ∝ 1/rE), grating_offset_mm or
+    indicator_heights_mm, is then wrong by about a factor 1/k̂."""
+
+    scale: float  # k̂: measured ≈ k̂ · predicted
+    scale_sigma: float
+    delta_chi2: float  # (k̂ − 1)²/σ_k²
+    birge_ratio: float  # √(χ²/ν) of measured − predicted against its stated σ
+    dof: int
+    failed: bool
+
+    def message(self, encoder_radius_mm: float) -> str:
+        return (f"the measured encoder error is {self.scale:.3g} × the predicted one (±{self.scale_sigma:.2g}; "
+                f"χ² share {self.delta_chi2:.0f}, Birge ratio {self.birge_ratio:.3g} for {self.dof} steps): the "
+                f"instruments contradict the geometry. Likely a geometry value wrong by a factor ≈ {1 / self.scale:.3g} "
+                f"if it is encoder_radius_mm: {encoder_radius_mm:g} mm would have to be ≈ {encoder_radius_mm / self.scale:.3g} "
+                "mm (mm typed for m, a diameter for a radius?); else grating_offset_mm or indicator_heights_mm")
+
+
+def scale_check(measured: np.ndarray, predicted: np.ndarray, sigma: np.ndarray) -> ScaleCheck | None:
+    """:class:`ScaleCheck` over the steps where all three are finite (None: fewer than 3, or no prediction)."""
+    ok = np.isfinite(measured) & np.isfinite(predicted) & np.isfinite(sigma) & (sigma > 0)
+    if ok.sum() < 3:
+        return None
+    m, p, w = measured[ok], predicted[ok], 1.0 / sigma[ok] ** 2
+    spp = float(np.sum(w * p * p))
+    if spp <= 0:
+        return None
+    k = float(np.sum(w * m * p)) / spp
+    sk = 1.0 / np.sqrt(spp)
+    dchi2 = (k - 1.0) ** 2 / sk**2
+    dof = int(ok.sum()) - 1
+    birge = float(np.sqrt(np.sum(w * (m - p) ** 2) / max(dof, 1)))
+    outside = not (1.0 / SCALE_BAND <= k <= SCALE_BAND)
+    return ScaleCheck(k, float(sk), float(dchi2), birge, dof, bool(outside and dchi2 > SCALE_DELTA_CHI2))
 
 
 SMOOTH_MOTION_ORDERS = 4  # the shaft motion whose rounding is simulated: orders 1..4 of the indicator readings
@@ -510,4 +563,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
         random_sigma_type=random_parts[0][1],
         residual_check=_residual_check(noise, pooled, closure, len(whole) if closure is not None else 0),
+        scale_check=scale_check(meas_steps, pred_steps, np.sqrt(res_var)),
     )
