@@ -194,11 +194,12 @@ class ScaleCheck:
     failed: bool
 
     def message(self, encoder_radius_mm: float) -> str:
-        return (f"the measured encoder error is {self.scale:.3g} × the predicted one (±{self.scale_sigma:.2g}; "
-                f"χ² share {self.delta_chi2:.0f}, Birge ratio {self.birge_ratio:.3g} for {self.dof} steps): the "
-                f"instruments contradict the geometry. Likely a geometry value wrong by a factor ≈ {1 / self.scale:.3g} "
-                f"if it is encoder_radius_mm: {encoder_radius_mm:g} mm would have to be ≈ {encoder_radius_mm / self.scale:.3g} "
-                "mm (mm typed for m, a diameter for a radius?); else grating_offset_mm or indicator_heights_mm")
+        return (f"the measured encoder error is {self.scale:.3g} × the predicted one (±{self.scale_sigma:.2g}; that "
+                f"scale's χ² share {self.delta_chi2:.0f} against the stated noise, Birge ratio {self.birge_ratio:.3g} over "
+                f"{self.dof + 1} steps): the readings contradict the procedure's geometry. Likely cause: a geometry value "
+                f"wrong by a factor ≈ {1 / self.scale:.3g} — geometry.encoder_radius_mm = {encoder_radius_mm:g} fits as "
+                f"≈ {encoder_radius_mm / self.scale:.3g} mm (m typed as mm? a diameter for a radius?), or grating_offset_mm "
+                "or indicator_heights_mm")
 
 
 def scale_check(measured: np.ndarray, predicted: np.ndarray, sigma: np.ndarray) -> ScaleCheck | None:
