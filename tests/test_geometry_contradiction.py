@@ -26,23 +26,28 @@ def _steps(seed: int, scale: float, eccentricity_arcsec: float = 2.0):
     truth = 14 * np.sin(theta + 0.7) + 5 * np.sin(2 * theta + 0.3) + 3 * np.sin(3 * theta)
     measured = truth + eccentricity_arcsec * np.sin(theta + rng.uniform(0, 2 * np.pi)) + rng.normal(0, 0.3, theta.size)
     sigma = np.full(theta.size, 1.3) / scale
-    return measured, truth / scale, sigma
+    return np.degrees(theta), measured, truth / scale, sigma
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_an_honest_encoder_error_passes(seed):
     check = scale_check(*_steps(seed, 1.0))
     assert check is not None and not check.failed
-    assert abs(check.scale - 1) < 0.3
+    assert abs(check.scale - 1) < 0.05
+
+
+def test_a_large_eccentricity_is_the_encoders_own_error():
+    check = scale_check(*_steps(0, 1.0, eccentricity_arcsec=20.0))
+    assert check is not None and not check.failed and abs(check.scale - 1) < 0.05
 
 
 @pytest.mark.parametrize("factor", [1000.0, 0.001, 2.0, 0.5, 25.4])
 def test_a_prediction_at_another_scale_fails(factor):
     check = scale_check(*_steps(0, factor))
     assert check is not None and check.failed
-    assert check.scale == pytest.approx(factor, rel=0.2)  # the encoder's own error moves it a little
+    assert check.scale == pytest.approx(factor, rel=0.05)
     fitted_mm = 32.0 * factor / check.scale
-    assert abs(fitted_mm - 32.0) < 0.2 * 32.0 and not 1 / SCALE_BAND < check.scale < SCALE_BAND
+    assert abs(fitted_mm - 32.0) < 0.05 * 32.0 and not 1 / SCALE_BAND < check.scale < SCALE_BAND
     assert f"fits as ≈ {fitted_mm:.3g} mm" in check.message(32.0 * factor)
 
 
