@@ -198,7 +198,7 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
         threshold = max(z * float(np.sqrt((va + vb) / 2)), quantisation_threshold.get(n, 0.0))
         terms.append(HarmonicTerm(n, amp, float(np.arctan2(b, a)), float(np.sqrt(max(amp_var, 0.0))),
                                   float(np.sqrt(max(ph_var, 0.0))), amp > threshold, threshold))
-    warnings = []
+    warnings: list[str] = []
     if alternatives_up_to is not None:
         crit = 2.0 * float(f_dist.isf(p_each, 2, dof)) if estimated else float(chi2_dist.isf(p_each, 2))
         terms = _separability(theta, y, groups, terms, aliased_order, theta0, float(resid @ resid),
