@@ -89,3 +89,19 @@ def test_false_alarm_rate_over_seeds(tmp_path, source):
     """Honest simulated benches over 40 seeds: not one run fails the scale check."""
     for seed in range(40):
         assert main(["run", str(source), "--seed", str(seed), "--out", str(tmp_path / f"r{seed}")]) == 0
+
+
+def test_a_noisy_prediction_of_a_shaft_that_barely_moves_is_not_a_wrong_geometry():
+    """Coarse indicators on a small motion: the prediction's own noise pulls the fitted scale towards 0
+    (errors in the variable); the check corrects for it with the prediction's stated σ."""
+    rng = np.random.default_rng(3)
+    theta = np.radians(np.arange(0, 360, 1.0))
+    truth = 2.0 * np.sin(2 * theta) + 1.5 * np.sin(3 * theta + 1.0)
+    sigma_p = np.full(theta.size, 1.5)
+    predicted = truth + rng.normal(0, 1.5, theta.size)
+    measured = truth + rng.normal(0, 0.3, theta.size)
+    sigma = np.hypot(sigma_p, 0.3)
+    naive = scale_check(np.degrees(theta), measured, predicted, sigma)
+    assert naive is not None and naive.failed  # what the correction is for
+    check = scale_check(np.degrees(theta), measured, predicted, sigma, sigma_p)
+    assert check is not None and not check.failed and abs(check.scale - 1) < 0.2

@@ -202,11 +202,16 @@ class ScaleCheck:
                 "or indicator_heights_mm")
 
 
-def scale_check(angle_deg: np.ndarray, measured: np.ndarray, predicted: np.ndarray, sigma: np.ndarray) -> ScaleCheck | None:
+def scale_check(angle_deg: np.ndarray, measured: np.ndarray, predicted: np.ndarray, sigma: np.ndarray,
+                predicted_sigma: np.ndarray | None = None) -> ScaleCheck | None:
     """:class:`ScaleCheck` over the steps where all are finite (None: too few, or no prediction). The fit
     measured = k·predicted + once-per-turn + constant leaves an encoder's eccentricity (its own
-    error, purely order 1) out of k̂."""
+    error, purely order 1) out of k̂. The prediction's own noise (``predicted_sigma``: coarse
+    indicators on a shaft that barely moves) pulls k̂ towards 0 by λ = 1 − σ_p²/var(predicted):
+    k̂ and σ_k are divided by λ (errors in the variable, at least 0.1)."""
     ok = np.isfinite(measured) & np.isfinite(predicted) & np.isfinite(sigma) & (sigma > 0)
+    if predicted_sigma is not None:
+        ok &= np.isfinite(predicted_sigma)
     if ok.sum() < 6:
         return None
     th = np.radians(np.asarray(angle_deg, float)[ok])
@@ -218,6 +223,12 @@ def scale_check(angle_deg: np.ndarray, measured: np.ndarray, predicted: np.ndarr
     cov = np.linalg.inv(N)
     k = float((cov @ (X.T @ (w * m)))[0])
     sk = float(np.sqrt(cov[0, 0]))
+    if predicted_sigma is not None:  # the prediction's variation beyond the nuisance terms, against its noise
+        Z = X[:, 1:]
+        rest = p - Z @ np.linalg.lstsq(Z * np.sqrt(w)[:, None], p * np.sqrt(w), rcond=None)[0]
+        spread = float(np.sum(w * rest**2))
+        lam = max(1.0 - float(np.sum(w * predicted_sigma[ok] ** 2)) * (len(p) - 3) / len(p) / spread, 0.1) if spread > 0 else 1.0
+        k, sk = k / lam, sk / lam
     dchi2 = (k - 1.0) ** 2 / sk**2
     dof = int(ok.sum()) - 1
     birge = float(np.sqrt(np.sum(w * (m - p - np.average(m - p, weights=w)) ** 2) / max(dof, 1)))
@@ -569,5 +580,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
         random_sigma_type=random_parts[0][1],
         residual_check=_residual_check(noise, pooled, closure, len(whole) if closure is not None else 0),
-        scale_check=scale_check(s_angle, meas_steps, pred_steps, np.sqrt(res_var)),
+        scale_check=scale_check(s_angle, meas_steps, pred_steps, np.sqrt(res_var), np.sqrt(np.diag(pred_cov))),
     )
