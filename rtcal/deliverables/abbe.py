@@ -151,6 +151,7 @@ class AbbeOutputs:
             if terms is not None]
         width = 0.8 / max(len(present), 1)
         orders: set[int] = set()
+        any_mixed = False
         for k, (label, terms) in enumerate(present):
             xs = [t.order + (k - len(present) / 2 + 0.5) * width for t in terms]
             ax.bar(xs, [t.amplitude for t in terms], width, yerr=[2 * t.amplitude_sigma for t in terms], capsize=2,
@@ -158,6 +159,12 @@ class AbbeOutputs:
             ax.hlines([t.threshold for t in terms], [x - width / 2 for x in xs], [x + width / 2 for x in xs], colors="k",
                       lw=1.2, label="significance threshold (family-wise 1 %)" if k == 0 else "_nolegend_")
             orders |= {t.order for t in terms}
+            mixed = [(x, t) for x, t in zip(xs, terms) if t.not_separable_from]
+            if mixed:  # leakage of an order the targets cannot resolve: not a harmonic of the table
+                ax.bar([x for x, _ in mixed], [t.amplitude for _, t in mixed], width, color="white", edgecolor="0.4",
+                       hatch="////", label="not separable from a higher order at these targets (leakage)"
+                       if not any_mixed else "_nolegend_")
+                any_mixed = True
         ax.set_xticks(sorted(orders), [str(o) for o in sorted(orders)])
         ax.set_xlabel("harmonic order (per revolution)")
         ax.set_ylabel("amplitude / arcsec")
@@ -307,10 +314,15 @@ class AbbeOutputs:
         for name, terms in (("positioning_error", a.harmonics.positioning_error_arcsec),
                             ("encoder_vs_command", a.harmonics.encoder_vs_command_arcsec)):
             sig = [t for t in terms or [] if t.significant]
+            mixed = [t for t in terms or [] if t.not_separable_from]
             if sig:
                 lines.append(f"{name}: significant harmonics "
                              + ", ".join(f"{t.order}× {t.amplitude:.2f}″" + (" (Nyquist: lower bound)" if t.aliased else "")
                                          for t in sig))
+            if mixed:  # leakage of an order the targets cannot resolve (rtcal.solvers.harmonics: separability)
+                lines.append(f"{name}: not separable at these targets (not significant): "
+                             + ", ".join(f"{t.order}× {t.amplitude:.2f}″ ~ order {'/'.join(map(str, t.not_separable_from or []))}"
+                                         for t in mixed))
         closure = r.estimates.closure
         if closure is not None:
             lines.append(f"closure: polygon face errors 1σ ≤ {fmt(largest(closure.face_uncertainty_arcsec), '.3f')}″, "

@@ -180,7 +180,7 @@ def interpolation_check(data: MeasuredDeviations, step_deg: float | None = None)
     step if coarser) against the harmonics of the measured deviations (GapCheck: the rule)."""
     from scipy.stats import f as f_dist
 
-    from rtcal.solvers.harmonics import fit_harmonics, resolvable_orders, smooth_values
+    from rtcal.solvers.harmonics import fit_harmonics, grid_nyquist, resolvable_orders, smooth_values
 
     gap, after = max(_gap(t) for t in data.targets.values())
     if step_deg is not None and step_deg > gap:
@@ -197,7 +197,8 @@ def interpolation_check(data: MeasuredDeviations, step_deg: float | None = None)
     orders = resolvable_orders(angles, MAX_CHECKED_ORDER, n_offsets=len(dirs))
     if not orders:
         return GapCheck(gap, after)
-    fit = fit_harmonics(angles, means, orders, groups)
+    # an order the targets cannot tell from an unmodelled one is leakage, not an error the data show
+    fit = fit_harmonics(angles, means, orders, groups, alternatives_up_to=grid_nyquist(angles, MAX_CHECKED_ORDER))
     significant = tuple((t.order, t.amplitude) for t in fit.terms if t.significant)
     n_mean = float(np.mean(counts))  # approaches per fitted mean
     within = data.within_ss / data.within_dof if data.within_dof > 0 else None
@@ -210,10 +211,13 @@ def interpolation_check(data: MeasuredDeviations, step_deg: float | None = None)
         floor = (1e-9 * float(np.max(np.abs(means)))) ** 2
         p_value = float(f_dist.sf(lof_ms / max(within, floor), lof_dof, data.within_dof))
         unresolved = float(np.sqrt(max(lof_ms - within, 0.0) * lof_dof / n_mean / len(means)))  # RMS over the cells
+    leaked = [t for t in fit.terms if t.not_separable_from]  # an unresolved order's share that fell into fitted ones
+    unresolved = float(np.hypot(unresolved, np.sqrt(sum(t.amplitude**2 / 2.0 for t in leaked))))
     check = GapCheck(gap_deg=gap, after_deg=after, orders=tuple(orders), significant=significant, lack_of_fit_p=p_value,
                      unresolved_rms_arcsec=unresolved, noise_arcsec=noise)
     failing = [(n, a) for n, a in significant if n >= first_failing]
-    beyond = p_value is not None and p_value < LACK_OF_FIT_ALPHA and orders[-1] + 1 >= first_failing
+    lack_of_fit = p_value is not None and p_value < LACK_OF_FIT_ALPHA
+    beyond = (lack_of_fit or bool(leaked)) and orders[-1] + 1 >= first_failing
     missed = float(sum(a * (1.0 - np.cos(min(np.pi * gap * n / 360.0, np.pi))) for n, a in failing))
     missed += float(np.sqrt(2.0) * unresolved) if beyond else 0.0  # a sine of that RMS, missed whole
     if not (failing or beyond) or missed <= 2.0 * noise:
@@ -222,12 +226,17 @@ def interpolation_check(data: MeasuredDeviations, step_deg: float | None = None)
     if failing:
         low, high = failing[0][0], failing[-1][0]
         which = f"order {high}" if low == high else f"orders {low}–{high}"
-        shown.append(f"{which} (up to {max(a for _, a in failing):.2f}″; period {360 / high:.3g}°)")
+        top, amp = max(failing, key=lambda f: f[1])
+        periods = f"period {360 / high:.3g}°" if low == high else f"periods {360 / low:.3g}°–{360 / high:.3g}°"
+        shown.append(f"{which} (up to {amp:.2f}″ at order {top}; {periods})" if low != high else f"{which} ({amp:.2f}″; {periods})")
     if beyond:
         k = orders[-1]
         targets = len(np.unique(np.concatenate(list(data.targets.values()))))
+        evidence = ([f"lack of fit, p = {p_value:.1g}"] if lack_of_fit else []) + (
+            [f"leakage into order{'s' if len(leaked) > 1 else ''} {', '.join(str(t.order) for t in leaked)}, which the "
+             "targets cannot tell from higher orders"] if leaked else [])
         shown.append(f"an error of order above {k}, which {targets} targets cannot resolve ({unresolved:.2f}″ "
-                     f"RMS beyond orders 1–{k}: lack of fit, p = {p_value:.1g})")
+                     f"RMS beyond orders 1–{k}: {'; '.join(evidence)})")
     order = orders[-1] + 1 if beyond else failing[-1][0]
     quarter = f"{QUARTER_PERIOD * 360.0 / order:.3g}°{' (or closer still: the order may be higher)' if beyond else ''}"
     if step_deg is not None and gap == step_deg:

@@ -24,7 +24,7 @@ from rtcal.methods.estimates import (
     run_estimators,
     with_residual_test,
 )
-from rtcal.methods.protocol import PreparationError, address_of
+from rtcal.methods.protocol import DataContradiction, PreparationError, address_of
 from rtcal.results import model as rm
 from rtcal.plans.abbe import AbbeInstrumentSet, AbbePlan, planned_visits
 from rtcal.sequencer.operator import Operator
@@ -86,7 +86,8 @@ def harmonic_terms(fit: HarmonicFit) -> list[rm.HarmonicTerm]:
     return [rm.HarmonicTerm(order=t.order, amplitude=round(t.amplitude, 4), amplitude_sigma=round(t.amplitude_sigma, 4),
                             phase_deg=round(float(np.degrees(t.phase_rad)), 3),
                             phase_sigma_deg=round(float(np.degrees(t.phase_sigma_rad)), 3),
-                            significant=bool(t.significant), threshold=round(t.threshold, 4), aliased=t.aliased)
+                            significant=bool(t.significant), threshold=round(t.threshold, 4), aliased=t.aliased,
+                            not_separable_from=list(t.not_separable_from) or None)
             for t in fit.terms]
 
 
@@ -274,6 +275,9 @@ class AbbeMethod:
         if cert is None:
             solvers["closure"] = lambda: closure_estimate(solved[0])
         estimates, status = run_estimators(solvers)
+        check = solved[0].scale_check if solved else None
+        if check is not None and check.failed:  # no reading is trusted alone: the data refute the geometry
+            raise DataContradiction(check.message(proc.geometry.encoder_radius_mm))
         recommended = choose_recommended(estimates, status)
         found = estimates.get("abbe")
         a = found if isinstance(found, rm.AbbeEstimate) else None

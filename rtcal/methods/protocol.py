@@ -35,6 +35,12 @@ class PreparationError(Exception):
     mistake the user corrects (the CLI says it in one line, exit 2)."""
 
 
+class DataContradiction(Exception):
+    """The readings contradict the procedure's model (e.g. a geometry value): a fault, never a result.
+    The run keeps its readings, writes no results or certificate and exits 1, as for an instrument
+    contradiction."""
+
+
 class InstrumentSet(Protocol):
     """The instruments a method measures with, opened together and closed together; ``devices()``
     names each for the plan's steps."""

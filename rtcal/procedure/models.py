@@ -833,6 +833,9 @@ class PolygonSetup(_Strict):
         return self
 
 
+MIN_ENCODER_RADIUS_MM = 1.0  # the smallest rotary encoder discs are a few mm across
+
+
 class AbbeGeometry(_Strict):
     """Design sizes of the stage the solver uses (from drawings or measurement), mm."""
 
@@ -840,6 +843,15 @@ class AbbeGeometry(_Strict):
     grating_offset_mm: float = Field(60.0, ge=-1e4, le=1e4, description="Zs: grating plane below the tilt centre, mm (seed 001: 60)")
     indicator_heights_mm: tuple[Annotated[float, Field(ge=-1e4, le=1e4)], Annotated[float, Field(ge=-1e4, le=1e4)]] = Field(
         (50.0, 70.0), description="L1, L2: the dial indicators below the tilt centre, mm")
+
+    @field_validator("encoder_radius_mm")
+    @classmethod
+    def _real_encoder(cls, radius_mm: float) -> float:
+        """A read head under 1 mm from the axis is no rotary encoder: a unit slip (m typed as mm)."""
+        if radius_mm < MIN_ENCODER_RADIUS_MM:
+            raise ValueError(f"{radius_mm:g} mm is no encoder's read-head radius (at least {MIN_ENCODER_RADIUS_MM:g} mm; "
+                             f"seed 001's is 32 mm): metres typed as mm? ({radius_mm * 1000:g} mm)")
+        return radius_mm
 
     @model_validator(mode="after")
     def _separated(self) -> "AbbeGeometry":

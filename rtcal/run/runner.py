@@ -26,6 +26,7 @@ from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
 from rtcal.deliverables.method_outputs import outputs_for
 from rtcal.methods import METHODS
+from rtcal.methods.protocol import DataContradiction
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import Procedure, plan_outside_limits
 from rtcal.deliverables.report import write_html, write_markdown, write_pdf
@@ -478,6 +479,10 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
     meta = store.meta()
     try:
         analysis = method.analyse(proc, store, bench, estimate_noise)
+    except DataContradiction as exc:
+        store.close()
+        raise AnalysisFailed(f"check FAILED: {exc}; no results and no certificate written; every reading is in "
+                             f"{run_dir / RunStore.FILENAME}") from exc
     except (ValueError, np.linalg.LinAlgError) as exc:
         store.close()
         raise AnalysisFailed(f"the readings are complete but the solvers could not use them: {exc}; "

@@ -42,6 +42,7 @@ from rtcal.solvers.closure import ClosureResult, solve_closure
 from rtcal.solvers.harmonics import (
     HarmonicFit,
     fit_harmonics,
+    grid_nyquist,
     harmonic_amplitudes,
     nyquist_order,
     resolvable_orders,
@@ -163,6 +164,76 @@ class AbbeEstimate:
     random_sigma_arcsec: float  # the per-visit random error of the reference as used (estimated or stated)
     random_sigma_type: str = "B"  # "A": estimated from closure residuals or runs; "B": as stated
     residual_check: ResidualCheck | None = None  # the repeated readings (runs or closure) against the stated noise
+    scale_check: ScaleCheck | None = None  # measured against predicted encoder error: the geometry's scale
+
+
+SCALE_BAND = 1.5  # measured/predicted beyond ×1.5 or ÷1.5: not an encoder's own error, a wrong geometry value
+SCALE_DELTA_CHI2 = 49.0  # and the scale's share of χ² beyond 7σ (chance 3·10⁻¹²)
+
+
+@dataclass(frozen=True)
+class ScaleCheck:
+    """Does the measured encoder error follow the predicted one at the scale the geometry says?
+
+    measured = k·predicted + a·sin θ + b·cos θ + c is fitted with the stated 1σ of each step's
+    residual (weights 1/σ²); the once-per-turn terms take the encoder's eccentricity, its own
+    error. The residual's χ² alone (its Birge ratio against the stated noise) cannot be the test:
+    the residual holds the encoder's own graduation error, which the method measures (an honest
+    closure run shows a Birge ratio of 11, the ISO run with 0.032 mm for 32 mm the same 11). What
+    no honest encoder error does is follow the prediction's shape at another scale: the part of χ²
+    a scale removes, (k̂ − 1)²/σ_k², is χ²₁ when the geometry is right. The check fails when that
+    part exceeds SCALE_DELTA_CHI2 and k̂ lies outside [1/SCALE_BAND, SCALE_BAND]: the prediction,
+    i.e. encoder_radius_mm (prediction ∝ 1/rE), grating_offset_mm or indicator_heights_mm, is
+    then wrong by about a factor 1/k̂."""
+
+    scale: float  # k̂: measured ≈ k̂ · predicted
+    scale_sigma: float
+    delta_chi2: float  # (k̂ − 1)²/σ_k²
+    birge_ratio: float  # √(χ²/ν) of measured − predicted against its stated σ
+    dof: int
+    failed: bool
+
+    def message(self, encoder_radius_mm: float) -> str:
+        return (f"the measured encoder error is {self.scale:.3g} × the predicted one (±{self.scale_sigma:.2g}; that "
+                f"scale's χ² share {self.delta_chi2:.0f} against the stated noise, Birge ratio {self.birge_ratio:.3g} over "
+                f"{self.dof + 1} steps): the readings contradict the procedure's geometry. Likely cause: a geometry value "
+                f"wrong by a factor ≈ {1 / self.scale:.3g} — geometry.encoder_radius_mm = {encoder_radius_mm:g} fits as "
+                f"≈ {encoder_radius_mm / self.scale:.3g} mm (m typed as mm? a diameter for a radius?), or grating_offset_mm "
+                "or indicator_heights_mm")
+
+
+def scale_check(angle_deg: np.ndarray, measured: np.ndarray, predicted: np.ndarray, sigma: np.ndarray,
+                predicted_sigma: np.ndarray | None = None) -> ScaleCheck | None:
+    """:class:`ScaleCheck` over the steps where all are finite (None: too few, or no prediction). The fit
+    measured = k·predicted + once-per-turn + constant leaves an encoder's eccentricity (its own
+    error, purely order 1) out of k̂. The prediction's own noise (``predicted_sigma``: coarse
+    indicators on a shaft that barely moves) pulls k̂ towards 0 by λ = 1 − σ_p²/var(predicted):
+    k̂ and σ_k are divided by λ (errors in the variable, at least 0.1)."""
+    ok = np.isfinite(measured) & np.isfinite(predicted) & np.isfinite(sigma) & (sigma > 0)
+    if predicted_sigma is not None:
+        ok &= np.isfinite(predicted_sigma)
+    if ok.sum() < 6:
+        return None
+    th = np.radians(np.asarray(angle_deg, float)[ok])
+    m, p, w = measured[ok], predicted[ok], 1.0 / sigma[ok] ** 2
+    X = np.column_stack([p, np.sin(th), np.cos(th), np.ones_like(th)])
+    N = X.T @ (w[:, None] * X)
+    if not np.all(np.isfinite(N)) or np.linalg.matrix_rank(N) < 4:
+        return None
+    cov = np.linalg.inv(N)
+    k = float((cov @ (X.T @ (w * m)))[0])
+    sk = float(np.sqrt(cov[0, 0]))
+    if predicted_sigma is not None:  # the prediction's variation beyond the nuisance terms, against its noise
+        Z = X[:, 1:]
+        rest = p - Z @ np.linalg.lstsq(Z * np.sqrt(w)[:, None], p * np.sqrt(w), rcond=None)[0]
+        spread = float(np.sum(w * rest**2))
+        lam = max(1.0 - float(np.sum(w * predicted_sigma[ok] ** 2)) * (len(p) - 3) / len(p) / spread, 0.1) if spread > 0 else 1.0
+        k, sk = k / lam, sk / lam
+    dchi2 = (k - 1.0) ** 2 / sk**2
+    dof = int(ok.sum()) - 1
+    birge = float(np.sqrt(np.sum(w * (m - p - np.average(m - p, weights=w)) ** 2) / max(dof, 1)))
+    outside = not (1.0 / SCALE_BAND <= k <= SCALE_BAND)
+    return ScaleCheck(k, sk, float(dchi2), birge, dof, bool(outside and dchi2 > SCALE_DELTA_CHI2))
 
 
 SMOOTH_MOTION_ORDERS = 4  # the shaft motion whose rounding is simulated: orders 1..4 of the indicator readings
@@ -461,7 +532,8 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
                 amps = np.max(harmonic_amplitudes(th, np.column_stack([e[ok] for e in rounding]), orders, groups[ok]), axis=0)
                 qthr = dict(zip(orders, amps.tolist()))
             harmonics[name] = fit_harmonics(th, values[ok], orders, groups[ok], floor_sigma=floor, aliased_order=nyq,
-                                            max_order=setup.max_order, quantisation_threshold=qthr)
+                                            max_order=setup.max_order, quantisation_threshold=qthr,
+                                            alternatives_up_to=grid_nyquist(th, setup.max_order))
 
     # what rounding the indicators to their digit does to a smooth shaft motion, for random zeros
     rounding: dict[str, list[np.ndarray]] = {k: [] for k in ("tilt", "radial", "predicted")}
@@ -508,4 +580,5 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
         extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
         random_sigma_type=random_parts[0][1],
         residual_check=_residual_check(noise, pooled, closure, len(whole) if closure is not None else 0),
+        scale_check=scale_check(s_angle, meas_steps, pred_steps, np.sqrt(res_var), np.sqrt(np.diag(pred_cov))),
     )
