@@ -161,10 +161,12 @@ class AbbeOutputs:
             orders |= {t.order for t in terms}
             mixed = [(x, t) for x, t in zip(xs, terms) if t.not_separable_from]
             if mixed:  # leakage of an order the targets cannot resolve: not a harmonic of the table
-                ax.bar([x for x, _ in mixed], [t.amplitude for _, t in mixed], width, color="white", edgecolor="0.4",
-                       hatch="////", label="not separable from a higher order at these targets (leakage)"
-                       if not any_mixed else "_nolegend_")
+                ax.bar([x for x, _ in mixed], [t.amplitude for _, t in mixed], width, color="white", edgecolor=f"C{k}",
+                       hatch="////", label="_nolegend_")  # hatched in the series' colour: whose bar it is stays visible
                 any_mixed = True
+        if any_mixed:  # one grey legend entry for the hatching of every series
+            ax.fill_between([], [], facecolor="white", edgecolor="0.4", hatch="////",
+                            label="hatched: not separable from a higher order at these targets (leakage)")
         ax.set_xticks(sorted(orders), [str(o) for o in sorted(orders)])
         ax.set_xlabel("harmonic order (per revolution)")
         ax.set_ylabel("amplitude / arcsec")
