@@ -319,7 +319,7 @@ def resume_run(
             addresses = {**(addresses or {}), "operator": operator_address}
             store.set_meta({"operator_address": operator_address})  # stored with its token redacted
         generation = previous_generation + (1 if done < planned else 0)
-        virtual_clock = _resumed_clock(store, proc, simulated, virtual_clock, run_dir, done < planned)
+        virtual_clock = _resumed_clock(meta.get(CLOCK_KEY), proc, simulated, virtual_clock, run_dir, done < planned)
         bench = None
         if simulated:
             scenario_yaml = _stored(meta, "scenario_yaml", str, run_dir, "a bench scenario's text")
@@ -338,6 +338,7 @@ def resume_run(
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
+            _record_clock(store, meta.get(CLOCK_KEY), virtual_clock)
         motion_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
                          if not simulated and virtual_clock else None)  # as `run` counts them (from the procedure's bench)
         return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir), virtual_clock, show_progress, generation,
@@ -350,12 +351,11 @@ CLOCK_KEY = "clock"
 """The store's meta key of the clock kind the run goes on (`virtual`, `real`): a resume reuses it."""
 
 
-def _resumed_clock(store: RunStore, proc: Procedure, simulated: bool, asked: bool | None, run_dir: Path,
+def _resumed_clock(stored: str | None, proc: Procedure, simulated: bool, asked: bool | None, run_dir: Path,
                    measuring: bool) -> bool:
-    """Whether a resume goes on on the virtual clock: as asked, else as the run went (a store from
-    before the clock kind was stored: real, as resumes then did). An in-process simulation is always
-    virtual; a real LinuxCNC never. A change of kind is stored and logged (the times still only grow)."""
-    stored = store.meta().get(CLOCK_KEY)
+    """Whether a resume goes on on the virtual clock: as asked, else as the run went (``stored``; a store
+    from before the clock kind was stored: real, as resumes then did). An in-process simulation is always
+    virtual; a real LinuxCNC never (RunDirError, exit 2)."""
     if simulated:
         if asked is False and measuring:
             raise RunDirError(f"--real-clock: {run_dir} is simulated in process, which runs on the virtual clock; "
@@ -366,13 +366,17 @@ def _resumed_clock(store: RunStore, proc: Procedure, simulated: bool, asked: boo
     if virtual and str(getattr(stage, "address", "") or "").startswith("linuxcncrsh://"):
         raise RunDirError(f"cannot resume {run_dir} on the virtual clock: the stage is a real LinuxCNC "
                           "(linuxcncrsh://), which moves in real time; add --real-clock")
+    return virtual
+
+
+def _record_clock(store: RunStore, stored: str | None, virtual: bool) -> None:
+    """A change of clock kind is stored (the next resume goes on on it) and logged (times still only grow)."""
     kind = "virtual" if virtual else "real"
-    if measuring and kind != stored:
+    if kind != stored:
         store.set_meta({CLOCK_KEY: kind})
         if stored:
             store.add_event(store.last_time_s(), "resume", f"goes on on the {kind} clock (the run went on the {stored} "
                             "clock until now)")
-    return virtual
 
 
 def _stored_operator(meta: dict[str, str], run_dir: Path) -> str:
