@@ -189,3 +189,10 @@ def test_a_resume_on_the_real_clock_when_asked_still_goes_forward(tmp_path, addr
     assert results["clock"] == "real" and all(b >= a for a, b in zip(times, times[1:]))
     assert stopped_s < results["measurement_duration_s"]
     assert any("real clock" in e["message"] for e in results["events"] if e["kind"] == "resume")
+
+
+def test_after_an_instrument_failure_the_hint_says_the_file_must_hold_the_addresses_that_answer(tmp_path):
+    addresses = str(tmp_path / "a.json")
+    hint = resume_hint(tmp_path / "run", addresses, instruments_failed=True)
+    assert HINT.search(hint).group(1) == f"rtcal resume {tmp_path / 'run'} --instruments {addresses}"
+    assert f"write them to {addresses}" in hint
