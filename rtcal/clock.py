@@ -43,10 +43,11 @@ class VirtualClock:
 
 
 class RealClock:
-    """Wall-clock time since construction, for runs against hardware."""
+    """Wall-clock time since construction, plus ``start_s`` (where a resumed run's clock goes on), for
+    runs against hardware."""
 
-    def __init__(self) -> None:
-        self._t0 = time.monotonic()
+    def __init__(self, start_s: float = 0.0) -> None:
+        self._t0 = time.monotonic() - float(start_s)
 
     def now_s(self) -> float:
         return time.monotonic() - self._t0

@@ -18,14 +18,19 @@ def _interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
 
-def _how_to_go_on(run_dir: str) -> str:
+def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_failed: bool = False) -> str:
+    """Where the readings are and the resume command for this run (rtcal/run/hint.py)."""
+    from rtcal.run.hint import resume_hint
+
     if (Path(run_dir) / "run.sqlite").is_file():
-        return f"every reading taken so far is in {run_dir}/run.sqlite; `rtcal resume {run_dir}` goes on"
+        return (f"every reading taken so far is in {run_dir}/run.sqlite; "
+                f"{resume_hint(run_dir, instruments, instruments_failed=instruments_failed)}")
     return "nothing was measured"
 
 
-def _execute(start: Callable[[], Any], run_dir: str) -> int:
-    """Run or resume; print the outcome, or what went wrong and how to go on."""
+def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = None) -> int:
+    """Run or resume; print the outcome, or what went wrong and how to go on (``instruments``: the
+    --instruments text given, for the resume command)."""
     import signal
 
     from rtcal.deliverables.method_outputs import outputs_for
@@ -45,7 +50,7 @@ def _execute(start: Callable[[], Any], run_dir: str) -> int:
         return EXIT_FAILED
     except InstrumentError as exc:
         print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
-        print(f"rtcal: {_how_to_go_on(run_dir)}", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir, instruments, instruments_failed=True)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
         if not is_disk_failure(exc):
@@ -53,10 +58,10 @@ def _execute(start: Callable[[], Any], run_dir: str) -> int:
         print(disk_failure(exc, run_dir), file=sys.stderr)
         for note in getattr(exc, "__notes__", ()):
             print(f"rtcal: {note}", file=sys.stderr)
-        print(f"rtcal: {_how_to_go_on(run_dir)} once there is space", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir, instruments)} once there is space", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:
-        print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir)}", file=sys.stderr)
+        print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     results = outcome.results
     if outcome.finished:
@@ -108,17 +113,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
     control = _run_control(args.live)
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
-                                          virtual_clock=args.virtual_clock, large=args.large, on_engine=control), out)
+                                          virtual_clock=args.virtual_clock, large=args.large, on_engine=control), out,
+                    args.instruments)
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
     from rtcal.run.runner import resume_run
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
-    _real_controller_in_real_time(addresses, args.virtual_clock)
+    _real_controller_in_real_time(addresses, bool(args.virtual_clock))  # None: the run's own clock, checked there
     control = _run_control(args.live)
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
-                                       on_engine=control), args.run_dir)
+                                       on_engine=control), args.run_dir, args.instruments)
 
 
 def cmd_probe(args: argparse.Namespace) -> int:
@@ -177,7 +183,11 @@ def add_resume(sub: Any) -> None:
     resume = sub.add_parser("resume", help="continue an interrupted run: every planned reading not yet stored, once")
     resume.add_argument("run_dir", help="the directory of an interrupted run (what `run --out` wrote)")
     resume.add_argument("--instruments", help="new instrument addresses (JSON object or file), e.g. of a restarted simulator")
-    resume.add_argument("--virtual-clock", action="store_true", help="as for `run`")
+    clock = resume.add_mutually_exclusive_group()
+    clock.add_argument("--virtual-clock", action="store_true", default=None,
+                       help="as for `run` (default: the clock the run was started on)")
+    clock.add_argument("--real-clock", dest="virtual_clock", action="store_false",
+                       help="go on in real time although the run was started with --virtual-clock")
     resume.add_argument("--live", metavar="[HOST:]PORT", help="as for `run`")
     resume.set_defaults(func=cmd_resume)
 

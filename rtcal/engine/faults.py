@@ -156,6 +156,6 @@ class FaultHandler:
         except InstrumentError as exc:
             self.event("fault", instrument, f"while stopping: {exc}")
         aborted = RunAborted(instrument, f"run aborted after {error}{because}; every reading taken is kept — "
-                                        "`rtcal resume` goes on and retakes what was skipped")
+                                        "`rtcal resume` of the run goes on and retakes what was skipped")
         aborted.cause = error
         raise aborted

@@ -24,6 +24,7 @@ from rtcal.outputs import STAGING_PREFIX, remove_stale_staging, staged_outputs  
 from drivers.addresses import redact_tokens
 from rtcal.results import RunResults, read_results
 from rtcal.run.store import RunStore, check_store
+from rtcal.run.hint import resume_hint
 
 LOCK_NAME = ".rtcal.lock"
 
@@ -121,7 +122,7 @@ def claim_new_run_dir(run_dir: Path) -> RunLock:
         if os.path.lexists(store):
             found = check_store(store)
             if found.kind == "run":
-                raise RunDirError(f"--out {run_dir}: already holds a run; `rtcal resume {run_dir}` goes on, "
+                raise RunDirError(f"--out {run_dir}: already holds a run; {resume_hint(run_dir)}, "
                                   "or choose another --out")
             if found.kind != "empty":
                 raise RunDirError(f"--out {run_dir}: its {RunStore.FILENAME} {found.detail}; rtcal does not replace "

@@ -47,6 +47,7 @@ from simulators.bench import Bench
 from simulators.scenario import Scenario
 from drivers.addresses import REDACTED, redact_tokens
 from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, digests_of, results_digest
+from rtcal.run.hint import OPERATOR_TOKEN_ENV, resume_hint
 
 OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
 """Called with the engine and the run directory before the first motion (remote control, the live
@@ -247,6 +248,7 @@ def run_procedure(
             "seed": str(seed) if simulated else "", "software_version": __version__,
             "started_utc": _now(), "status": "not started", "generation": "0", "large": "1" if large else "",
             "operator_address": (addresses or {}).get("operator", ""),
+            CLOCK_KEY: "virtual" if simulated or virtual_clock else "real",
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
@@ -258,7 +260,7 @@ def run_procedure(
 def resume_run(
     run_dir: str | Path,
     addresses: dict[str, str] | None = None,
-    virtual_clock: bool = False,
+    virtual_clock: bool | None = None,
     show_progress: bool | None = None,
     on_engine: OnEngine | None = None,
 ) -> RunOutcome:
@@ -270,6 +272,8 @@ def resume_run(
     `rtcal sim serve`). The first pending reading re-approaches its targets from the
     procedure's direction and re-references the tracer. Skipped readings are retaken, also
     those of a run that was solved without them. A complete run is left as it is. The run directory is locked (RunBusy) until the resume ends.
+    ``virtual_clock`` None: the clock kind stored with the run; either way the clock goes on from the
+    run's last stored time, so times only increase and the duration counts every start.
     """
     run_dir = Path(run_dir)
     if addresses:
@@ -316,6 +320,7 @@ def resume_run(
             addresses = {**(addresses or {}), "operator": operator_address}
             store.set_meta({"operator_address": operator_address})  # stored with its token redacted
         generation = previous_generation + (1 if done < planned else 0)
+        virtual_clock = _resumed_clock(meta.get(CLOCK_KEY), proc, simulated, virtual_clock, run_dir, done < planned)
         bench = None
         if simulated:
             scenario_yaml = _stored(meta, "scenario_yaml", str, run_dir, "a bench scenario's text")
@@ -334,6 +339,7 @@ def resume_run(
             store.set_meta({"generation": str(generation), "status": "running", f"resumed_utc_{generation}": _now()})
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
+            _record_clock(store, meta.get(CLOCK_KEY), virtual_clock)
         motion_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
                          if not simulated and virtual_clock else None)  # as `run` counts them (from the procedure's bench)
         return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir), virtual_clock, show_progress, generation,
@@ -342,7 +348,36 @@ def resume_run(
         lock.release()
 
 
-OPERATOR_TOKEN_ENV = "RTCAL_OPERATOR_TOKEN"
+CLOCK_KEY = "clock"
+"""The store's meta key of the clock kind the run goes on (`virtual`, `real`): a resume reuses it."""
+
+
+def _resumed_clock(stored: str | None, proc: Procedure, simulated: bool, asked: bool | None, run_dir: Path,
+                   measuring: bool) -> bool:
+    """Whether a resume goes on on the virtual clock: as asked, else as the run went (``stored``; a store
+    from before the clock kind was stored: real, as resumes then did). An in-process simulation is always
+    virtual; a real LinuxCNC never (RunDirError, exit 2)."""
+    if simulated:
+        if asked is False and measuring:
+            raise RunDirError(f"--real-clock: {run_dir} is simulated in process, which runs on the virtual clock; "
+                              "drop --real-clock")
+        return True
+    virtual = asked if asked is not None else stored == "virtual"
+    stage = getattr(proc.instruments, "stage", None)
+    if virtual and str(getattr(stage, "address", "") or "").startswith("linuxcncrsh://"):
+        raise RunDirError(f"cannot resume {run_dir} on the virtual clock: the stage is a real LinuxCNC "
+                          "(linuxcncrsh://), which moves in real time; add --real-clock")
+    return virtual
+
+
+def _record_clock(store: RunStore, stored: str | None, virtual: bool) -> None:
+    """A change of clock kind is stored (the next resume goes on on it) and logged (times still only grow)."""
+    kind = "virtual" if virtual else "real"
+    if kind != stored:
+        store.set_meta({CLOCK_KEY: kind})
+        if stored:
+            store.add_event(store.last_time_s(), "resume", f"goes on on the {kind} clock (the run went on the {stored} "
+                            "clock until now)")
 
 
 def _stored_operator(meta: dict[str, str], run_dir: Path) -> str:
@@ -354,8 +389,8 @@ def _stored_operator(meta: dict[str, str], run_dir: Path) -> str:
     token = os.environ.get(OPERATOR_TOKEN_ENV, "")
     if not token:
         raise RunDirError(f"cannot resume: {run_dir} was run with the simulated operator at {stored}, whose token is "
-                          "not stored with the run: give its address again with --instruments '{\"operator\": "
-                          f"\"sim-operator://…?token=…\"}}' (as `rtcal sim serve` printed it), or set {OPERATOR_TOKEN_ENV}")
+                          f"not stored with the run: {resume_hint(run_dir, needs_addresses=True)}, or set "
+                          f"{OPERATOR_TOKEN_ENV}")
     return stored.replace(f"token={REDACTED}", f"token={token}")
 
 
@@ -437,7 +472,8 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds)."""
     method = METHODS[proc.method]
     simulated = bench is not None
-    clock = bench.clock if bench else (VirtualClock(store.last_time_s()) if virtual_clock else RealClock())
+    goes_on_s = store.last_time_s()  # a resume's clock goes on where the run stopped: times only grow
+    clock = bench.clock if bench else (VirtualClock(goes_on_s) if virtual_clock else RealClock(goes_on_s))
     try:
         store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)

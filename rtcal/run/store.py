@@ -31,6 +31,7 @@ from typing import Any, Callable, Iterable, Iterator
 from urllib.parse import quote
 
 from drivers.addresses import redact_tokens
+from rtcal.run.hint import resume_hint
 
 # what every stored (instrument, quantity) is: its field of the instrument's description
 # (drivers/interfaces.py), why it was read (purpose) and its unit; and which attempt each start of the run
@@ -270,7 +271,7 @@ class RunStore:
         """A new store with its schema and metadata, appearing at ``run.sqlite`` only when whole."""
         path = run_dir / cls.FILENAME
         if os.path.lexists(path):
-            raise FileExistsError(f"{path} already holds a run; `rtcal resume {run_dir}` goes on, or choose another --out")
+            raise FileExistsError(f"{path} already holds a run; {resume_hint(run_dir)}, or choose another --out")
         partial = run_dir / f"{cls.PARTIAL_PREFIX}{os.getpid()}"
         try:
             os.unlink(partial)
