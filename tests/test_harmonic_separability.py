@@ -59,12 +59,17 @@ def test_real_orders_one_and_three_are_found(phase_deg):
     truth = [Harmonic(1, 20.0, np.radians(40)), Harmonic(3, 5.0, np.radians(phase_deg))]
     theta, y, groups = _series(truth, 5)
     fit = _fit(theta, y, groups)
-    assert [t.order for t in fit.terms if t.significant] == [1, 3]
-    for t in fit.terms:
-        if t.significant:
-            expected = next(h.amplitude for h in truth if h.order == t.order)
-            assert abs(t.amplitude - expected) <= 3 * t.amplitude_sigma
-            assert not t.not_separable_from
+    found = {t.order: t for t in fit.terms}
+    assert found[1].significant and not found[1].not_separable_from
+    # 12 targets on a 15° grid with orders 1–5 fitted: a real order 3 is found, or — at a phase where
+    # an unfitted order (here 10) reproduces it at these angles as well (2 degrees of freedom apart) —
+    # named as not separable from it; never silently missing, never an order that is not there
+    assert found[3].significant or found[3].not_separable_from, found[3]
+    assert all(m > 5 for m in found[3].not_separable_from)
+    assert [t.order for t in fit.terms if t.significant] in ([1, 3], [1])
+    for order in (1, 3):
+        expected = next(h.amplitude for h in truth if h.order == order)
+        assert abs(found[order].amplitude - expected) <= 3 * found[order].amplitude_sigma
 
 
 def _run_iso(tmp_path: Path, positioning: list[dict]) -> dict:

@@ -35,10 +35,11 @@ class PreparationError(Exception):
     mistake the user corrects (the CLI says it in one line, exit 2)."""
 
 
-class DataContradiction(Exception):
+class DataContradiction(ValueError):
     """The readings contradict the procedure's model (e.g. a geometry value): a fault, never a result.
     The run keeps its readings, writes no results or certificate and exits 1, as for an instrument
-    contradiction."""
+    contradiction. A ValueError: every command that re-solves stored readings (verify, evaluate)
+    already turns one into a message and an exit code."""
 
 
 class InstrumentSet(Protocol):

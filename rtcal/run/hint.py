@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import shlex
 import sqlite3
+from contextlib import closing
 from pathlib import Path
 
 from drivers.addresses import REDACTED, redact_tokens
@@ -32,7 +33,7 @@ def _needs_addresses(run_dir: Path) -> bool:
     if not path.is_file():
         return False
     try:
-        with sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=0.5) as db:
+        with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=0.5)) as db:
             meta = dict(db.execute("SELECT key, value FROM meta WHERE key IN ('operator_address', 'instruments')"))
     except sqlite3.Error:
         return False

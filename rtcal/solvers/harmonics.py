@@ -35,8 +35,8 @@ to the orders above them, so an unmodelled order m leaks into the fitted ones �
 is a significant harmonic of the table only if the targets can tell it from such leakage: for each
 order n that passes the test above and each unmodelled order m ≤ M (M: the Nyquist order of the
 coarsest even grid holding every target, at most the caller's limit; above it an order is the
-mirror of a lower one at every such target), the series is refitted with the other significant
-orders, m in place of n, and the offsets. If that model leaves a residual sum of squares larger
+mirror of a lower one at every such target), the series is refitted with every other fitted
+order, m in place of n, and the offsets (the two models differ by n's two coefficients alone). If that model leaves a residual sum of squares larger
 than the full fit's by no more than two coefficients of noise would (2·F(2, ν) σ², or χ²₂ σ² with
 a known σ, at the same family level), the data cannot tell n from m: n is reported not
 significant, ``not_separable_from`` names every such m, and a warning says so. A metrologist's
@@ -243,7 +243,8 @@ def _separability(theta: np.ndarray, y: np.ndarray, groups: np.ndarray | None, t
         if not t.significant or t.aliased:
             out.append(t)
             continue
-        rest = [o for o in significant if o != t.order]
+        # the full model with m in n's place: the two differ by n's two coefficients alone, as crit assumes
+        rest = [t2.order for t2 in terms if not t2.aliased and t2.order != t.order]
         confused = []
         for m in candidates:
             A, _ = _design(theta, rest + [m], g, aliased_order, theta0)
