@@ -89,7 +89,7 @@ class StoreWriter(threading.Thread):
                                          "current": json.dumps({"plan_index": k, "target_deg": v.angle_deg,
                                                                 "run": v.run + 1, "direction": "+" if v.direction > 0 else "-"})})
                 if k == self.ask_at:
-                    self.store.set_meta({"operator_waiting": json.dumps({"instruction": self.instruction, "t_s": t})})
+                    self.store.set_meta({"operator_waiting": json.dumps({"instruction": self.instruction, "t_s": t, "step": 1})})
                     self.asking = True
                     while not self.confirmed.is_set() and not self.halt.is_set():
                         self.halt.wait(0.02)

@@ -213,10 +213,9 @@ def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path
             if proc.poll() is None:
                 proc.kill()
         assert code == 0, err
-        assert "rtcal: operator: Seat the polygon" in err and f"`rtcal control {run_dir} confirm`" in err
+        assert "rtcal: operator: Seat the polygon" in err and f"`rtcal control {run_dir} confirm --step 1`" in err
         results = read_results(run_dir)
         assert any(e.kind == "confirm" and "remotely" in e.message for e in results.events)
-        assert "remotely" in results.control.instruments["operator"]
 
         aborted = tmp_path / "aborted"
         proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(aborted),

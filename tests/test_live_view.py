@@ -39,6 +39,7 @@ class FakeEngine:
 
     def __init__(self, writer: StoreWriter | None = None):
         self.calls: list[str] = []
+        self.confirmed_steps: list[int | None] = []
         self.writer = writer
 
     def request_pause(self) -> None:
@@ -56,12 +57,13 @@ class FakeEngine:
         if self.writer:
             self.writer.halt.set()
 
-    def request_confirm(self) -> None:
+    def request_confirm(self, step: int | None = None) -> None:
         from rtcal.sequencer.operator import NothingToConfirm
 
-        if self.writer is None or not self.writer.asking or self.writer.confirmed.is_set():
+        if self.writer is None or not self.writer.asking or self.writer.confirmed.is_set() or step not in (None, 1):
             raise NothingToConfirm("nothing to confirm: no operator step waits now")
         self.calls.append("confirm")
+        self.confirmed_steps.append(step)
         self.writer.confirmed.set()
 
 
@@ -194,7 +196,7 @@ def test_control_needs_the_token_and_a_view_has_none(writing):
     run_dir, writer, engine, token, server, url = writing
     for command in ("pause", "resume", "abort"):
         assert post(url + f"api/{command}") == 401
-        assert post(url + f"api/{command}", "x" + token[1:]) == 401
+        assert post(url + f"api/{command}", ("y" if token[0] == "x" else "x") + token[1:]) == 401
         assert post(url + f"api/{command}", "") == 401
     assert engine.calls == [] and not writer.hold.is_set() and not writer.halt.is_set()
     assert post(url + "api/pause", token) == 202 and engine.calls == ["pause"]
@@ -325,7 +327,7 @@ def test_control_socket_and_rtcal_control(tmp_path, capsys, monkeypatch):
         assert stat.S_ISSOCK(st.st_mode) and stat.S_IMODE(st.st_mode) == 0o600
         (tmp_path / "idle").mkdir()
         # the three exit codes from processes of their own, started together (each spends seconds importing)
-        started = [rtcal_started("control", str(run_dir), "pause", "--token", "x" + token[1:]),
+        started = [rtcal_started("control", str(run_dir), "pause", "--token", ("y" if token[0] == "x" else "x") + token[1:]),
                    rtcal_started("control", str(run_dir), "pause", env={"RTCAL_CONTROL_TOKEN": token}),
                    rtcal_started("control", str(tmp_path / "idle"), "abort", "--token", token)]
         wrong, ok, gone = (finished(p) for p in started)
@@ -489,6 +491,7 @@ def test_the_page_in_headless_chromium(tmp_path):
             assert done() == asked and engine.calls == ["pause", "resume"]  # it waits
             page.click("#btn-confirm")
             wait_for(lambda: engine.calls == ["pause", "resume", "confirm"])
+            assert engine.confirmed_steps == [1]  # Done named the step it showed: a late one cannot answer the next
             page.wait_for_selector("#operator-card", state="hidden", timeout=20000)
             wait_for(lambda: done() > asked)  # the run goes on
             other = browser.new_page()  # the token given in the URL's fragment: kept in the page, gone from the URL

@@ -67,7 +67,26 @@ def test_a_remote_confirm_continues_and_a_stray_one_is_refused():
     assert not t.is_alive() and t.error is None
     assert op.confirm() is False and op.asking is None
     assert heard == [(heard[0][0], ""), (None, "remotely")] and "Seat the polygon" in heard[0][0]
-    assert "`rtcal control runs/x confirm`" in op._log.getvalue() and "live page" in op._log.getvalue()
+    assert "`rtcal control runs/x confirm --step 1`" in op._log.getvalue() and "live page" in op._log.getvalue()
+
+
+def test_a_late_confirm_for_a_step_already_answered_never_releases_the_next():
+    """Step 1 confirmed (at the terminal, say); a Done still on its way for step 1 arrives while step 2
+    (a fault to clear) waits: refused, step 2 still waits; a confirm naming step 2 releases it."""
+    op, heard = operator(remote=True, run_dir="runs/x")
+    first = Waiting(op)
+    wait_for(lambda: op.asking)
+    assert op.step == 1 and op.confirm(1) is True
+    first.join(5)
+    second = Waiting(op, lambda o: o.clear_fault("stage: E-stop"))
+    wait_for(lambda: op.asking)
+    assert op.step == 2 and op.confirm(1) is False  # the late Done for step 1
+    time.sleep(0.1)
+    assert second.is_alive() and op.asking
+    assert op.confirm(2) is True
+    second.join(5)
+    assert not second.is_alive() and second.error is None
+    assert [answer for instruction, answer in heard if instruction is None] == ["remotely", "remotely"]
 
 
 def test_enter_at_the_terminal_continues_and_an_early_enter_does_not():
@@ -208,8 +227,10 @@ def test_rtcal_control_confirm_over_the_control_socket(tmp_path, capsys):
         assert err.count("\n") == 1 and "no operator step waits" in err
         t = Waiting(op)
         wait_for(lambda: op.asking)
-        assert main(["control", str(run_dir), "confirm", "--token", "x" + token[1:]]) == 2  # a wrong token
+        assert main(["control", str(run_dir), "confirm", "--token", ("y" if token[0] == "x" else "x") + token[1:]]) == 2  # a wrong token
         assert t.is_alive()
-        assert main(["control", str(run_dir), "confirm", "--token", token]) == 0
+        assert main(["control", str(run_dir), "confirm", "--token", token, "--step", "2"]) == 2  # not the step that waits
+        assert "operator step 2 does not wait now" in capsys.readouterr().err and t.is_alive()
+        assert main(["control", str(run_dir), "confirm", "--token", token, "--step", "1"]) == 0
         t.join(5)
         assert t.error is None and not t.is_alive()

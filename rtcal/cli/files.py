@@ -26,12 +26,17 @@ def cmd_validate(args: argparse.Namespace) -> int:
             text = read_text(path)
             if is_procedure_text(text):
                 proc = load_procedure(path, args.large, text)
-                _check_due_dates(path, proc)
-                if proc.instruments.all_sim() or args.scenario:
-                    scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
-                    check_plan_on_bench(path, proc, scenario)
-                elif (bench := bench_path(path, proc)) is not None:  # None: the procedure names no bench
-                    load_scenario(bench)
+                due = _due_date_problems(path, proc)  # said with, not instead of, the bench's problems
+                try:
+                    if proc.instruments.all_sim() or args.scenario:
+                        scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
+                        check_plan_on_bench(path, proc, scenario)
+                    elif (bench := bench_path(path, proc)) is not None:  # None: the procedure names no bench
+                        load_scenario(bench)
+                except FileProblems as exc:
+                    raise FileProblems(due + list(exc.problems)) from None
+                if due:
+                    raise FileProblems(due)
             else:
                 load_scenario(path)
             print(f"{path}: ok")
@@ -42,7 +47,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return EXIT_USAGE if problems else EXIT_OK
 
 
-def _check_due_dates(path: Path, proc: Any) -> None:
+def _due_date_problems(path: Path, proc: Any) -> list:
     """What `run` refuses today: a reference standard or instrument past its calibration due date."""
     import datetime as _dt
 
@@ -51,11 +56,10 @@ def _check_due_dates(path: Path, proc: Any) -> None:
 
     today = _dt.datetime.now(_dt.timezone.utc).date()
     expired = expired_instruments(proc, today)
-    if expired:
-        raise FileProblems([problem_at(path, ("metadata", "instruments", name, "calibration_due"),
-                                       f"{due} is past (today {today.isoformat()}): `rtcal run` refuses an instrument past "
-                                       "its calibration due date; recalibrate it, or use one in calibration")
-                            for name, due in expired])
+    return [problem_at(path, ("metadata", "instruments", name, "calibration_due"),
+                       f"{due} is past (today {today.isoformat()}): `rtcal run` refuses an instrument past its "
+                       "calibration due date; recalibrate it, or use one in calibration")
+            for name, due in expired]
 
 
 def cmd_schema(args: argparse.Namespace) -> int:

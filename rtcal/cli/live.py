@@ -12,7 +12,7 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     if args.command == "view":
         return commands.view(args.run_dir, args.live)
-    return commands.control(args.run_dir, args.action, args.token)
+    return commands.control(args.run_dir, args.action, args.token, getattr(args, "step", None))
 
 
 def add_view(sub: Any) -> None:
@@ -23,6 +23,13 @@ def add_view(sub: Any) -> None:
     view.set_defaults(func=cmd_live)
 
 
+def _step(text: str) -> int:
+    """--step: a positive integer, or argparse's own one-line error (exit 2)."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an operator step (a number from 1)")
+    return int(text)
+
+
 def add_control(sub: Any) -> None:
     from rtcal.live.control import COMMANDS
 
@@ -30,6 +37,9 @@ def add_control(sub: Any) -> None:
                                          "the operator step it waits for (needs its control token)")
     ctl.add_argument("run_dir", help="the run directory of a run in progress")
     ctl.add_argument("action", choices=COMMANDS, help="what to ask of the run's engine")
+    ctl.add_argument("--step", type=_step, metavar="N",
+                     help="with confirm: only if operator step N waits (the number the live page and the run's "
+                          "console show), so a late confirm never answers the next step")
     ctl.add_argument("--token", help="the control token the run printed (or the environment variable "
                                      "RTCAL_CONTROL_TOKEN, which other users cannot see in the process list)")
     ctl.set_defaults(func=cmd_live)

@@ -106,10 +106,12 @@ class Engine:
         if isinstance(self.operator, Confirmable):  # an operator step waiting ends now
             self.operator.cancel()
 
-    def request_confirm(self) -> None:
-        """Confirm the operator step (or the fault to clear) that waits; NothingToConfirm if none does."""
-        if not isinstance(self.operator, Confirmable) or not self.operator.confirm():
-            raise NothingToConfirm("nothing to confirm: no operator step waits now")
+    def request_confirm(self, step: int | None = None) -> None:
+        """Confirm the operator step (or the fault to clear) that waits — only wait ``step`` when given;
+        NothingToConfirm if none (or another) waits."""
+        if not isinstance(self.operator, Confirmable) or not self.operator.confirm(step):
+            which = "no operator step waits now" if step is None else f"operator step {step} does not wait now"
+            raise NothingToConfirm(f"nothing to confirm: {which}")
 
     # ---- documents ----------------------------------------------------------------------------
     def emit(self, name: str, **doc: Any) -> None:
@@ -124,7 +126,7 @@ class Engine:
     def _operator_asked(self, instruction: str | None, answer: str) -> None:
         """The operator's wait, in the engine's thread: what is asked (an ``operator`` document), then
         how it was answered (a ``confirm`` event)."""
-        self.emit("operator", instruction=instruction, t_s=self.clock.now_s())
+        self.emit("operator", instruction=instruction, t_s=self.clock.now_s(), step=getattr(self.operator, "step", None))
         if instruction is None and answer:
             self._event("confirm", None, f"the operator confirmed {answer}")
 

@@ -49,7 +49,8 @@ class StoreWriter:
             self.current = {**doc["label"], "plan_index": doc["index"]}
         elif name == "operator":
             asked = doc["instruction"]
-            self.store.set_meta({OPERATOR_WAITING: json.dumps({"instruction": asked, "t_s": doc["t_s"]}, ensure_ascii=False)
+            self.store.set_meta({OPERATOR_WAITING: json.dumps({"instruction": asked, "t_s": doc["t_s"], "step": doc.get("step")},
+                                                                ensure_ascii=False)
                                  if asked else ""})
 
 

@@ -45,7 +45,7 @@ def view(run_dir: str, live: str | None) -> int:
         return EXIT_OK
 
 
-def control(run_dir: str, command: str, token: str | None) -> int:
+def control(run_dir: str, command: str, token: str | None, step: int | None = None) -> int:
     """Send pause, resume, abort or confirm to the engine of RUN_DIR: 0 accepted, 1 no engine, 2 refused
     (a wrong token; a confirm when no operator step waits)."""
     if command not in COMMANDS:
@@ -57,7 +57,7 @@ def control(run_dir: str, command: str, token: str | None) -> int:
     if not Path(run_dir).is_dir():
         return _fail(f"{run_dir}: no such run directory", EXIT_USAGE)
     try:
-        send_control(Path(run_dir), token, command)
+        send_control(Path(run_dir), token, command, step=step)
     except NoEngine as exc:
         return _fail(str(exc), EXIT_FAILED)
     except ControlRefused as exc:

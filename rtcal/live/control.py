@@ -53,8 +53,8 @@ class Controllable(Protocol):
 
     def request_abort(self) -> None: ...
 
-    def request_confirm(self) -> None:
-        """Confirm the operator step that waits (continues the run); NothingToConfirm if none waits."""
+    def request_confirm(self, step: int | None = None) -> None:
+        """Confirm the operator step that waits (only wait ``step`` when given); NothingToConfirm if none does."""
 
 
 class NoEngine(Exception):
@@ -78,11 +78,31 @@ def token_matches(given: object, token: str) -> bool:
     return isinstance(given, str) and hmac.compare_digest(given.encode("utf-8", "surrogatepass"), token.encode("utf-8"))
 
 
-def dispatch(target: Controllable, command: str) -> None:
-    """Hand ``command`` (one of COMMANDS) to the engine."""
+def dispatch(target: Controllable, command: str, step: int | None = None) -> None:
+    """Hand ``command`` (one of COMMANDS) to the engine; a confirm names the wait it answers (``step``)."""
     if command not in COMMANDS:
         raise ValueError(f"unknown command {command!r}")
-    getattr(target, f"request_{command}")()
+    if command == "confirm":
+        target.request_confirm(step)
+    else:
+        getattr(target, f"request_{command}")()
+
+
+def step_of(value: object) -> int | None:
+    """A confirm's operator step: None (whichever waits) or a positive int; ValueError otherwise."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"an operator step is a number from 1, not {str(value)[:20]!r}")
+    return value
+
+
+def _valid_step(value: object) -> bool:
+    try:
+        step_of(value)
+    except ValueError:
+        return False
+    return True
 
 
 @contextmanager
@@ -135,7 +155,7 @@ def _read_line(sock: socket.socket) -> bytes | None:
     return data.split(b"\n", 1)[0]
 
 
-def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5) -> None:
+def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5, step: int | None = None) -> None:
     """Ask the engine of ``run_dir`` to pause, resume, abort or confirm. Returns when it accepted; raises
     ValueError for an unknown command, NoEngine when no engine runs for the directory (or it did
     not answer), ControlRefused when it refused (a wrong token, above all)."""
@@ -143,7 +163,8 @@ def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5) 
         raise ValueError(f"unknown command {command!r}: one of {', '.join(COMMANDS)}")
     with _connect(socket_path(Path(run_dir)), timeout_s) as sock:
         try:
-            sock.sendall(json.dumps({"token": token, "command": command}).encode() + b"\n")
+            request = {"token": token, "command": command, **({"step": step} if step is not None else {})}
+            sock.sendall(json.dumps(request).encode() + b"\n")
             line = _read_line(sock)
         except (socket.timeout, ConnectionError) as exc:
             raise NoEngine(f"the engine of {run_dir} did not answer ({exc.__class__.__name__})") from None
@@ -156,7 +177,8 @@ def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5) 
     if not isinstance(reply, dict) or reply.get("ok") is not True:
         reason = str(reply.get("error", "request")) if isinstance(reply, dict) else "request"
         messages = {"token": "the engine refused the control token", "command": f"the engine does not know `{command}`",
-                    "nothing": "nothing to confirm: no operator step waits now (nothing was changed)",
+                    "nothing": "nothing to confirm: " + ("no operator step waits now" if step is None else
+                                                         f"operator step {step} does not wait now") + " (nothing was changed)",
                     "failed": f"the engine could not {command}"}
         raise ControlRefused(reason, messages.get(reason, "the engine refused the request"))
 
@@ -247,9 +269,11 @@ class ControlServer:
             reply = {"ok": False, "error": "token"}
         elif request.get("command") not in COMMANDS:
             reply = {"ok": False, "error": "command"}
+        elif not _valid_step(request.get("step")):
+            reply = {"ok": False, "error": "request"}
         else:
             try:
-                dispatch(self._target, str(request["command"]))
+                dispatch(self._target, str(request["command"]), step_of(request.get("step")))
                 reply = {"ok": True}
             except NothingToConfirm:
                 reply = {"ok": False, "error": "nothing"}

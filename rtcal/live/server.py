@@ -11,7 +11,8 @@ Routes (the contract of issue 24): ``GET /`` the page; ``GET /api/state`` the st
 ``GET /api/events`` ``text/event-stream`` (each reading an event whose ``id`` is its store id, so a
 browser reconnecting with ``Last-Event-ID`` carries on; ``state`` and ``log`` events carry no id);
 ``POST /api/pause|resume|abort|confirm`` with ``Authorization: Bearer TOKEN`` → 202, no or a wrong token
-→ 401, a read-only view → 409 whatever the token; a confirm when no operator step waits → 409.
+→ 401, a read-only view → 409 whatever the token; a confirm (``?step=N``: the wait it answers) when no
+operator step (or another one) waits → 409.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
-from rtcal.live.control import COMMANDS, Controllable, dispatch, token_matches
+from rtcal.live.control import COMMANDS, Controllable, dispatch, step_of, token_matches
 from rtcal.live.storeview import REPORT_FILES, StoreView
 from rtcal.sequencer.operator import NothingToConfirm
 
@@ -286,9 +287,13 @@ class LiveServer:
         if scheme.lower() != "bearer" or not token_matches(given.strip(), self._token or ""):
             return _json({"error": "the run's control token is needed (Authorization: Bearer TOKEN)"}, 401,
                          {"WWW-Authenticate": 'Bearer realm="rtcal"'})
+        try:  # a confirm names the wait it answers (?step=N, the page sends the one it shows)
+            step = step_of(int(request.query_params["step"])) if "step" in request.query_params else None
+        except ValueError:
+            return _json({"error": "step: an operator step is a number from 1"}, 400)
         try:
-            await anyio.to_thread.run_sync(dispatch, self.control, command)
-        except NothingToConfirm as exc:  # a second tablet's Done, or one pressed twice: nothing changed
+            await anyio.to_thread.run_sync(dispatch, self.control, command, step)
+        except NothingToConfirm as exc:  # pressed twice, a second tablet's, or a step answered already: nothing changed
             return _json({"error": f"{exc} (nothing was changed)"}, 409)
         except Exception as exc:  # the engine refused (e.g. already finished): nothing changed
             return _json({"error": f"the engine could not {command}: {exc}"[:300]}, 409)

@@ -338,16 +338,17 @@ def engine_state(meta: dict[str, str]) -> str:
 
 
 def operator_of(meta: dict[str, str]) -> dict[str, Any] | None:
-    """What the operator is asked now (``{"instruction", "t_s"}``), None when nothing waits."""
+    """What the operator is asked now (``{"instruction", "t_s", "step"}``), None when nothing waits."""
     try:
         value = json.loads(meta.get("operator_waiting") or "null")
     except ValueError:
         return None
     if not isinstance(value, dict) or not isinstance(value.get("instruction"), str) or not value["instruction"]:
         return None
-    t_s = value.get("t_s")
+    t_s, step = value.get("t_s"), value.get("step")
     return {"instruction": value["instruction"][:2000],
-            "t_s": float(t_s) if isinstance(t_s, (int, float)) and math.isfinite(t_s) else None}
+            "t_s": float(t_s) if isinstance(t_s, (int, float)) and math.isfinite(t_s) else None,
+            "step": step if isinstance(step, int) and not isinstance(step, bool) else None}
 
 
 def current_of(meta: dict[str, str], last: tuple | None) -> dict[str, Any]:

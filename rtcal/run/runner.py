@@ -356,13 +356,15 @@ def _resumed_clock(stored: str | None, proc: Procedure, simulated: bool, asked: 
                    measuring: bool) -> bool:
     """Whether a resume goes on on the virtual clock: as asked, else as the run went (``stored``; a store
     from before the clock kind was stored: real, as resumes then did). An in-process simulation is always
-    virtual; a real LinuxCNC never (RunDirError, exit 2)."""
+    virtual; a real LinuxCNC never (RunDirError, exit 2). Not ``measuring`` (every reading stored),
+    the stored kind stands."""
     if simulated:
         if asked is False and measuring:
             raise RunDirError(f"--real-clock: {run_dir} is simulated in process, which runs on the virtual clock; "
                               "drop --real-clock")
         return True
-    virtual = asked if asked is not None else stored == "virtual"
+    # nothing left to measure: the results describe the clock the readings were taken on, whatever is asked
+    virtual = asked if asked is not None and measuring else stored == "virtual"
     stage = getattr(proc.instruments, "stage", None)
     if virtual and str(getattr(stage, "address", "") or "").startswith("linuxcncrsh://"):
         raise RunDirError(f"cannot resume {run_dir} on the virtual clock: the stage is a real LinuxCNC "

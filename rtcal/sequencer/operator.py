@@ -16,6 +16,7 @@ import threading
 from pathlib import Path
 from typing import Callable, Protocol, TextIO, runtime_checkable
 
+from drivers.addresses import redact_tokens
 from drivers.errors import InstrumentError
 
 
@@ -61,7 +62,8 @@ def tracer_instruction(mount: int, where: str, resumed: bool = False) -> str:
 
 def fault_instruction(message: str) -> str:
     """What the person is asked when a fault's policy pauses the run for them."""
-    return f"Clear the fault ({message}): release the emergency stop, free the beam; the run then tries again."
+    # shown on the console and the page: a driver's message may hold an address with its token
+    return f"Clear the fault ({redact_tokens(message)}): release the emergency stop, free the beam; the run then tries again."
 
 
 class ConsoleOperator:
@@ -120,8 +122,9 @@ answered: an abort, Ctrl-C)."""
 class Confirmable(Protocol):
     """An operator whose steps can be confirmed from another thread (the engine's control channel)."""
 
-    def confirm(self) -> bool:
-        """Confirm what the operator is asked now: True; False if nothing waits (nothing changes)."""
+    def confirm(self, step: int | None = None) -> bool:
+        """Confirm what the operator is asked now (``step``: only if it is that wait): True; False if
+        nothing (or another wait) waits — nothing changes."""
 
     def cancel(self) -> None:
         """A remote abort: what waits (or will wait) raises OperatorCancelled."""
@@ -162,11 +165,15 @@ class WaitingOperator:
         self._listeners: list[Asked] = []
         self.asking: str | None = None
         """The instruction the person is asked now (None: nothing waits)."""
+        self.step = 0
+        """The number of the current (or last) wait, from 1: a confirm naming another one is refused."""
 
     # ---- from other threads ------------------------------------------------------------------
-    def confirm(self) -> bool:
+    def confirm(self, step: int | None = None) -> bool:
+        """Confirm the wait ``step`` (None: whichever waits now); False if it does not wait (nothing
+        changes): a late Done meant for a step already confirmed at the terminal never releases the next."""
         with self._lock:
-            if self._waiting is None or self._waiting.is_set():
+            if self._waiting is None or self._waiting.is_set() or (step is not None and step != self.step):
                 return False
             self._waiting.set()
             return True
@@ -201,6 +208,7 @@ class WaitingOperator:
             raise OperatorCancelled("aborted by a remote request")
         confirmed = threading.Event()
         with self._lock:
+            self.step += 1
             self._waiting = confirmed
         self.asking = instruction
         answer = ""
@@ -225,7 +233,7 @@ class WaitingOperator:
             self._tell(None, answer)
 
     def _remote_hint(self) -> str:
-        where = f"`rtcal control {self.run_dir} confirm`" if self.run_dir is not None else "`rtcal control RUN_DIR confirm`"
+        where = f"`rtcal control {self.run_dir if self.run_dir is not None else 'RUN_DIR'} confirm --step {self.step}`"
         return ("Done on the live page, or " if self.remote else "") + where + " with the run's control token"
 
     def _until_confirmed(self, confirmed: threading.Event, fd: int | None, unavailable: str) -> str:

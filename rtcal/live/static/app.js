@@ -170,15 +170,18 @@ function renderOperator(st) {
   const op = st.operator;
   const card = $("operator-card");
   const waiting = !!(op && op.instruction);
-  if (waiting && card.dataset.asked !== op.instruction) $("operator-msg").textContent = ""; // a new step: no old answer
-  card.dataset.asked = waiting ? op.instruction : "";
+  const asked = waiting ? (op.step ?? "") + ":" + op.instruction : "";
+  if (waiting && card.dataset.asked !== asked) $("operator-msg").textContent = ""; // a new step: no old answer
+  card.dataset.asked = asked;
+  S.operatorStep = waiting && Number.isInteger(op.step) ? op.step : null; // Done answers this step, never a later one
   card.hidden = !waiting;
   document.title = (waiting ? "Operator step · " : "") + (st.name || "rtcal live view");
   if (!waiting) return;
   $("operator-instruction").textContent = op.instruction;
   $("operator-live").hidden = !st.control;
   $("operator-readonly").hidden = !!st.control;
-  $("operator-since").textContent = op.t_s === null || op.t_s === undefined ? "" : "asked at " + fmtNum(op.t_s, 1) + " s of the run's clock";
+  $("operator-since").textContent = (S.operatorStep ? "operator step " + S.operatorStep + (op.t_s == null ? "" : " · ") : "")
+    + (op.t_s == null ? "" : "asked at " + fmtNum(op.t_s, 1) + " s of the run's clock");
 }
 
 function renderGrid(st) {
@@ -409,7 +412,8 @@ async function control(command) {
   }
   msg.textContent = command + "…"; msg.className = "";
   try {
-    const res = await fetch("api/" + command, { method: "POST", headers: { Authorization: "Bearer " + S.token }, cache: "no-store" });
+    const step = command === "confirm" && S.operatorStep ? "?step=" + S.operatorStep : "";
+    const res = await fetch("api/" + command + step, { method: "POST", headers: { Authorization: "Bearer " + S.token }, cache: "no-store" });
     if (res.status === 202 && command === "confirm") { msg.textContent = "confirmed: the run goes on"; msg.className = "ok"; }
     else if (res.status === 202) { msg.textContent = command + " requested: it takes effect at the next checkpoint"; msg.className = "ok"; }
     else if (res.status === 401) { msg.textContent = "refused: wrong control token"; msg.className = "bad"; S.token = null; }
