@@ -35,11 +35,12 @@ to the orders above them, so an unmodelled order m leaks into the fitted ones �
 is a significant harmonic of the table only if the targets can tell it from such leakage: for each
 order n that passes the test above and each unmodelled order m ≤ M (M: the Nyquist order of the
 coarsest even grid holding every target, at most the caller's limit; above it an order is the
-mirror of a lower one at every such target), the series is refitted with every other fitted
-order, m in place of n, and the offsets (the two models differ by n's two coefficients alone). If that model leaves a residual sum of squares larger
-than the full fit's by no more than two coefficients of noise would (2·F(2, ν) σ², or χ²₂ σ² with
-a known σ, at the same family level), the data cannot tell n from m: n is reported not
-significant, ``not_separable_from`` names every such m, and a warning says so. A metrologist's
+mirror of a lower one at every such target), the series is fitted with the
+significant orders and m, and again without n: if n's two coefficients then explain no more than
+two coefficients of noise would (2·F(2, ν) σ², or χ²₂ σ² with a known σ, at the same family level —
+a nested test), m takes n's share at these targets and the data cannot tell n from m: n is reported
+not significant, ``not_separable_from`` names every such m, and a warning says so. An m orthogonal
+to n at the targets (two orders below the Nyquist order of an even grid) takes nothing. A metrologist's
 reading: the harmonic is not a property of the table the data prove, it is one the design cannot
 distinguish from another; denser or evenly spaced targets resolve it.
 """
@@ -125,9 +126,12 @@ def nyquist_order(angles_rad: np.ndarray) -> int | None:
 
 
 def grid_nyquist(angles_rad: np.ndarray, cap: int) -> int:
-    """The Nyquist order of the coarsest even grid (360°/N, N ≤ 2·cap) holding every sampled angle
-    (at 10⁻⁶° resolution), else ``cap``: the highest order the targets could tell from a lower one."""
+    """The Nyquist order of the coarsest even grid (360°/N, N ≤ 2·cap, through any first angle) holding
+    every sampled angle (at 10⁻⁶° resolution), else ``cap``: the highest order the targets could tell
+    from a lower one. Aliasing depends on the spacing, not on where the grid starts: 24 angles at
+    7.5° + k·15° mirror order 23 onto order 1 as 0° + k·15° do."""
     micro = np.round(np.degrees(distinct_angles(angles_rad)) * 1e6).astype(np.int64) % 360_000_000
+    micro = (micro - micro[0]) % 360_000_000 if len(micro) else micro
     step = int(np.gcd.reduce(np.concatenate([micro, [360_000_000]])))
     return min(cap, 360_000_000 // step // 2)
 
@@ -230,34 +234,38 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
 def _separability(theta: np.ndarray, y: np.ndarray, groups: np.ndarray | None, terms: list[HarmonicTerm],
                   aliased_order: int | None, theta0: float, rss_full: float, sigma: float, crit: float, up_to: int,
                   warnings: list[str]) -> list[HarmonicTerm]:
-    """Each significant order against every unmodelled order m ≤ ``up_to`` put in its place (module
-    docstring): not significant, with the orders it cannot be told from, where one fits as well."""
+    """Each significant order against every unmodelled order m ≤ ``up_to`` (module docstring): not
+    significant, with the orders it cannot be told from, where m in the model takes its share.
+    (``rss_full``: unused since the test is nested; kept for the callers.)"""
     g = np.zeros(len(y), int) if groups is None else np.asarray(groups)
     fitted = {t.order for t in terms if not t.aliased} | ({aliased_order} if aliased_order is not None else set())
     candidates = [m for m in range(1, up_to + 1) if m not in fitted]
     significant = [t.order for t in terms if t.significant and not t.aliased]
     if not candidates or not significant or sigma <= 0:
         return terms
+    # n against m: with m in the model too (the significant orders and m), does n still explain what
+    # n's two coefficients must (rss without n minus rss with it, a nested 2-coefficient test at crit)?
+    # An m the targets mirror onto n takes n's share and n is not separable from it; an m orthogonal
+    # to n at these targets (any two orders below the Nyquist order of an even grid) takes nothing.
+    def rss(orders: list[int]) -> float:
+        A, _ = _design(theta, orders, g, aliased_order, theta0)
+        r = y - A @ np.linalg.lstsq(A, y, rcond=None)[0]
+        return float(r @ r)
+
     out = []
     for t in terms:
         if not t.significant or t.aliased:
             out.append(t)
             continue
-        # the full model with m in n's place: the two differ by n's two coefficients alone, as crit assumes
-        rest = [t2.order for t2 in terms if not t2.aliased and t2.order != t.order]
-        confused = []
-        for m in candidates:
-            A, _ = _design(theta, rest + [m], g, aliased_order, theta0)
-            r = y - A @ np.linalg.lstsq(A, y, rcond=None)[0]
-            if (float(r @ r) - rss_full) / sigma**2 <= crit:
-                confused.append(m)
+        rest = [o for o in significant if o != t.order]
+        confused = [m for m in candidates if (rss(rest + [m]) - rss(significant + [m])) / sigma**2 <= crit]
         if confused:
             t = HarmonicTerm(t.order, t.amplitude, t.phase_rad, t.amplitude_sigma, t.phase_sigma_rad, False, t.threshold,
                              t.aliased, tuple(confused))
             which = f"order {confused[0]}" if len(confused) == 1 else "orders " + ", ".join(map(str, confused))
             warnings.append(f"order {t.order} ({t.amplitude:.4g}) cannot be separated from {which} at these "
-                            f"{len(distinct_angles(theta))} angles: {which} in its place "
-                            f"{'explains' if len(confused) == 1 else 'explain'} the data as well "
-                            "(leakage of an unmodelled order through the targets); not reported as significant")
+                            f"{len(distinct_angles(theta))} angles: with {which} in the model, order {t.order} "
+                            "no longer explains a significant part of the data (leakage of an unmodelled order "
+                            "through the targets); not reported as significant")
         out.append(t)
     return out
