@@ -230,3 +230,22 @@ def test_departures_from_iso_230_2():
     assert any("180°, 270° are not among" in d for d in departures(_table([0, 20, 50, 90, 130, 200, 290, 340])))
     assert any(d.startswith("3 targets") for d in departures(_table([0, 10, 25])))
     assert parameters_label(["x"]).startswith("positioning parameters computed as ISO 230-2 defines them")
+
+
+def test_each_certificate_its_own_number(iso_run):
+    """A procedure serves many runs: a second run beside the first with the procedure's number is
+    warned about; --certificate-number gives this run its own, kept through verify (the stored
+    procedure carries it); a number a certificate cannot print is refused (exit 2)."""
+    first, _ = iso_run
+    own = json.loads((first / "certificate.json").read_text())["header"]["certificate_number"]
+    assert own
+    code, _, err = _run(["run", str(ISO), "--out", str(first.parent / "again")])
+    assert code == 0 and f"{first / 'certificate.json'} carries the same certificate number" in err, err
+    code, _, err = _run(["run", str(ISO), "--out", str(first.parent / "numbered"), "--certificate-number", own + "-B"])
+    assert code == 0 and "same certificate number" not in err, err
+    numbered = json.loads((first.parent / "numbered" / "certificate.json").read_text())["header"]["certificate_number"]
+    assert numbered == own + "-B"
+    assert _run(["verify", str(first.parent / "numbered")])[0] == 0
+    with pytest.raises(SystemExit) as refused:
+        main(["run", str(ISO), "--out", str(first.parent / "bad"), "--certificate-number", "EML\u202e-1"])
+    assert refused.value.code == 2 and not (first.parent / "bad").exists()

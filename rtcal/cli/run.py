@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -77,6 +78,9 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")
+    for other in certificates_numbered_alike(outcome.run_dir):
+        print(f"rtcal: warning: {other} carries the same certificate number: give each certificate its own "
+              "(`rtcal run --certificate-number NUMBER`, or metadata.certificate_number)", file=sys.stderr)
     rec = results.recommended
     status = results.solver_status.get(rec) if rec else None
     if rec and status is not None and status.status != "converged":
@@ -84,6 +88,33 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
               "readings and results are kept", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
+
+
+def certificate_number(text: str) -> str:
+    """--certificate-number: what metadata.certificate_number accepts, or argparse's one-line error (exit 2)."""
+    import unicodedata
+
+    if not text.strip() or len(text) > 100:
+        raise argparse.ArgumentTypeError("a certificate number is 1 to 100 characters")
+    if any(unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co") for c in text):
+        raise argparse.ArgumentTypeError("no control or invisible formatting characters in a certificate number")
+    return text
+
+
+def certificates_numbered_alike(run_dir: Path, limit: int = 200) -> list[Path]:
+    """Other runs beside ``run_dir`` (the same parent folder, at most ``limit`` looked at) whose
+    certificate.json carries this run's certificate number: a certificate's number must be unique."""
+    def number(path: Path) -> str:
+        try:
+            return str(json.loads(path.read_text(encoding="utf-8"))["header"]["certificate_number"] or "")
+        except (OSError, ValueError, KeyError, TypeError):
+            return ""
+
+    own = number(run_dir / "certificate.json")
+    if not own:
+        return []
+    others = sorted(p for p in run_dir.resolve().parent.iterdir() if p.is_dir() and p != run_dir.resolve())[:limit]
+    return [p / "certificate.json" for p in others if number(p / "certificate.json") == own]
 
 
 def _run_control(live: str | None) -> Any:
@@ -113,7 +144,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
     control = _run_control(args.live)
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
-                                          virtual_clock=args.virtual_clock, large=args.large, on_engine=control), out,
+                                          virtual_clock=args.virtual_clock, large=args.large, on_engine=control,
+                                          certificate_number=args.certificate_number), out,
                     args.instruments)
 
 
@@ -176,6 +208,9 @@ def add_run(sub: Any) -> None:
                      help="accept a plan beyond 100 000 readings (up to 2 000 000; takes hours and GBs)")
     run.add_argument("--live", metavar="[HOST:]PORT", help="serve the run's live view from this process (PORT 0: any free "
                                                           "port; 127.0.0.1 unless HOST is given)")
+    run.add_argument("--certificate-number", type=certificate_number, metavar="NUMBER",
+                     help="this run's certificate number (replaces the procedure's metadata.certificate_number: a "
+                          "procedure serves many runs, each certificate needs its own)")
     run.set_defaults(func=cmd_run)
 
 

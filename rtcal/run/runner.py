@@ -115,6 +115,16 @@ def expired_instruments(proc: Procedure, on: _dt.date) -> list[tuple[str, str]]:
             if rec.calibration_due and _dt.date.fromisoformat(rec.calibration_due) < on]
 
 
+def with_certificate_number(procedure_yaml: str, number: str, name: str) -> str:
+    """The procedure's text with ``metadata.certificate_number`` set to ``number``: what the run
+    stores, so resume, verify and the live view read the certificate's own number. A procedure is a
+    template used for many runs; each certificate needs its own number (ISO/IEC 17025 7.8.2.1)."""
+    data = yaml.safe_load(procedure_yaml)
+    data.setdefault("metadata", {})["certificate_number"] = number
+    return (f"# {name}, as run: metadata.certificate_number given by `rtcal run --certificate-number`\n"
+            + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
+
+
 def check_calibration_due(proc: Procedure, on: _dt.date | None = None) -> None:
     """Refuse a measurement on a day when a reference standard or instrument is past its due date."""
     on = on or _dt.datetime.now(_dt.timezone.utc).date()
@@ -211,9 +221,11 @@ def run_procedure(
     outputs: bool = True,
     estimate_noise: bool = True,
     on_engine: OnEngine | None = None,
+    certificate_number: str | None = None,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
-    results.json, figures or report — for Monte Carlo trials).
+    results.json, figures or report — for Monte Carlo trials). ``certificate_number`` replaces the
+    procedure's ``metadata.certificate_number`` for this run (the stored procedure says so).
 
     All instruments ``sim``: an in-process bench (from the scenario) with a virtual clock, and
     the results carry its truth. Otherwise real transports at the procedure's addresses (or
@@ -224,6 +236,9 @@ def run_procedure(
     procedure_path = Path(procedure_path)
     procedure_yaml = read_text(procedure_path)
     proc = load_procedure(procedure_path, large, procedure_yaml)
+    if certificate_number is not None:
+        procedure_yaml = with_certificate_number(procedure_yaml, certificate_number, procedure_path.name)
+        proc = load_procedure(procedure_path, large, procedure_yaml)
     if addresses:
         proc = with_addresses(proc, addresses)
     check_calibration_due(proc)
