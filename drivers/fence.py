@@ -10,7 +10,7 @@ shown characters; a plugin whose constructor or method raises anything but the t
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Collection
+from typing import Any, Callable, Collection, NoReturn
 
 import numpy as np
 
@@ -247,21 +247,22 @@ def fenced(kind: str, model: str, plugin: str, build: Callable[[], Instrument]) 
                                     f"{type(exc).__name__}: {shown_identity(str(exc))}") from None
     unit = getattr(type(inner), "reading_unit", None)  # a plugin may declare the unit its readings are in
     if unit is not None and unit != UNITS[kind]:
-        try:
-            inner.close()
-        except Exception:  # noqa: BLE001, S110 — refused anyway
-            pass
-        raise InstrumentFault(kind, f"{what_plugin(model, plugin)} declares its readings in {shown_identity(str(unit))[:20]!r}; "
-                                    f"a {kind.replace('_', ' ')} reads {UNITS[kind]}")
+        _refuse(inner, kind, f"{what_plugin(model, plugin)} declares its readings in {shown_identity(str(unit))[:20]!r}; "
+                             f"a {kind.replace('_', ' ')} reads {UNITS[kind]}")
     refused = _described_otherwise(kind, inner)
     if refused:
-        try:
-            inner.close()
-        except Exception:  # noqa: BLE001, S110 — refused anyway
-            pass
-        raise InstrumentFault(kind, f"{what_plugin(model, plugin)} describes its readings otherwise than a "
-                                    f"{kind.replace('_', ' ')} reads: {shown_identity(refused)[:120]}")
+        _refuse(inner, kind, f"{what_plugin(model, plugin)} describes its readings otherwise than a "
+                             f"{kind.replace('_', ' ')} reads: {shown_identity(refused)[:120]}")
     return FENCES[kind](inner, kind, model, plugin)
+
+
+def _refuse(inner: Any, kind: str, message: str) -> NoReturn:
+    """An opened instrument that will not be used: closed (whatever its close does), then the fault."""
+    try:
+        inner.close()
+    except Exception:  # noqa: BLE001, S110 — refused anyway
+        pass
+    raise InstrumentFault(kind, message)
 
 
 def _described_otherwise(kind: str, inner: Instrument) -> str:

@@ -26,6 +26,7 @@ from rtcal.results import read_results
 from rtcal.run.runner import run_procedure
 from simulators.servers.hub import SimulatorHub
 from tests.test_transport_end_to_end import sim_serve
+from tests.polling import wait_for as poll_until
 
 REPO = Path(__file__).resolve().parents[1]
 ISO = REPO / "procedures" / "iso230_2_polygon.yaml"
@@ -78,13 +79,8 @@ def post(url: str, command: str, token: str | None) -> int:
 
 
 def wait_for(predicate, timeout_s: float = 60.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.1)
-    raise AssertionError("timed out")
+    """tests.polling.wait_for every 0.1 s (real-time runs: patient, coarse)."""
+    return poll_until(predicate, timeout_s, 0.1)
 
 
 def finish(proc: subprocess.Popen, timeout_s: float = 180) -> tuple[int, str]:

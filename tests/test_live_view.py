@@ -27,6 +27,7 @@ from live_fill import PROCEDURE, StoreWriter  # noqa: E402
 from rtcal.live.control import (SOCKET_NAME, ControlServer, NoEngine, new_token, send_control)  # noqa: E402
 from rtcal.live.server import LiveServer, LiveSpecError, parse_live_spec  # noqa: E402
 from rtcal.live.storeview import open_read_only  # noqa: E402
+from tests.polling import wait_for  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CONTRACT_KEYS = {"state", "method", "planned_readings", "done_readings", "eta_s", "faults", "current"}
@@ -82,16 +83,6 @@ def post(url: str, token: str | None = None) -> int:
             return r.status
     except urllib.error.HTTPError as exc:
         return exc.code
-
-
-def wait_for(predicate, timeout_s: float = 30.0, step_s: float = 0.05):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(step_s)
-    raise AssertionError("timed out waiting")
 
 
 def planned_of_procedure() -> int:

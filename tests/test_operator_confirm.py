@@ -20,16 +20,12 @@ from rtcal.procedure.models import FaultPolicy
 from rtcal.sequencer.operator import (ConsoleOperator, NothingToConfirm, OperatorCancelled, OperatorUnavailable,
                                       WaitingOperator)
 from tests.test_engine import FakeProbe, FakeStage, TwoDevicePlan
+from tests.polling import wait_for as poll_until
 
 
 def wait_for(predicate, timeout_s: float = 10.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.01)
-    raise AssertionError("timed out")
+    """tests.polling.wait_for every 0.01 s (threads in this process: quick)."""
+    return poll_until(predicate, timeout_s, 0.01)
 
 
 class Waiting(threading.Thread):

@@ -21,6 +21,7 @@ import pytest
 from rtcal.clock import RealClock
 from rtcal.run.hint import OPERATOR_TOKEN_ENV, PLACEHOLDER, resume_hint
 from rtcal.run.store import RunStore
+from tests.polling import stored_plan_indices
 
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURE = REPO / "tests" / "data" / "small_multistation.yaml"  # 64 planned readings, about 5 s wired
@@ -82,17 +83,9 @@ def test_an_in_process_run_refuses_the_real_clock(tmp_path):
 
 # -- a wired run interrupted and resumed by the printed command ----------------------------------
 
-def _stored(db: Path) -> int:
-    try:
-        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.1) as c:
-            return c.execute("SELECT COUNT(DISTINCT plan_index) FROM readings").fetchone()[0]
-    except sqlite3.OperationalError:
-        return 0
-
-
 def _interrupt_after(run: subprocess.Popen, db: Path, planned_readings: int) -> None:
     deadline = time.monotonic() + 60
-    while _stored(db) < planned_readings and run.poll() is None and time.monotonic() < deadline:
+    while stored_plan_indices(db) < planned_readings and run.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
     if run.poll() is None:
         run.send_signal(signal.SIGINT)

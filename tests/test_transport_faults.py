@@ -32,6 +32,7 @@ from rtcal.run.runner import METHODS
 from rtcal.sequencer.operator import OperatorUnavailable, RemoteSimOperator
 from simulators.scenario import Scenario
 from simulators.servers.hub import SimulatorHub
+from tests.polling import stored_plan_indices
 
 TIMEOUT_S = 0.5
 REPO = Path(__file__).resolve().parents[1]
@@ -442,14 +443,6 @@ def _done_once(db: Path) -> list[int]:
     return [n for _, n in rows]
 
 
-def _stored(db: Path) -> int:
-    try:
-        with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.1) as c:
-            return c.execute("SELECT COUNT(DISTINCT plan_index) FROM readings").fetchone()[0]
-    except sqlite3.OperationalError:
-        return 0
-
-
 KILLS = [
     ("tests/data/small_multistation.yaml", ("--serial", "pty", "--modbus", "tcp")),
     ("procedures/encoder_abbe_error.yaml", ("--serial", "tcp", "--modbus", "rtu")),
@@ -468,7 +461,7 @@ def test_simulator_killed_mid_run_stops_safely_and_resumes(tmp_path, procedure, 
                             str(tmp_path / "a.json"), "--virtual-clock", "--out", str(out)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
-    while _stored(db) < 5 and run.poll() is None and time.monotonic() < deadline:
+    while stored_plan_indices(db) < 5 and run.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
     sim.kill()
     sim.wait()

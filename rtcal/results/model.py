@@ -380,7 +380,7 @@ class HarmonicTerm(ResultsModel):
     threshold: Number = Field(description="amplitude above which this order counts as significant")
     aliased: bool = Field(description="the Nyquist order: only |A·sin φ| is seen, the phase is unknown")
     not_separable_from: list[Annotated[int, Field(ge=1, le=100_000)]] | None = Field(
-        None, description="unmodelled orders that, in this order's place, explain the data as well: the targets cannot "
+        None, description="unmodelled orders that, fitted beside it, take its share of the data: the targets cannot "
                           "tell them apart, so the order is not reported significant (absent: separable or not tested)")
 
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset({"not_separable_from"})
