@@ -16,7 +16,7 @@ from typing import Any, Callable
 from drivers.addresses import AddressError, redact_tokens
 from drivers.errors import InstrumentError
 from rtcal import __version__
-from rtcal.cli import files, live, planning, results, run, sim
+from rtcal.cli import catalog, files, live, planning, results, run, sim
 from rtcal.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, EXIT_USAGE, MAX_SEED, Parser,
                               UserError, disk_failure, json_text, parse_instruments_option)
 from rtcal.cli.common import seed as _seed
@@ -41,6 +41,7 @@ COMMANDS: tuple[Callable[[Any], None], ...] = (
     files.add_validate, files.add_schema,
     planning.add_solve,
     live.add_view, live.add_control,
+    catalog.add_catalog,
 )
 
 

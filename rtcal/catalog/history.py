@@ -1,0 +1,126 @@
+"""A machine axis's history: as-found / as-left pairs, E's trend per year and the date it reaches
+its limit, the next due date.
+
+Pairs: two calibrations of one axis within :data:`PAIR_WINDOW_DAYS` of each other are an adjustment
+(compensation) between them: the first is as found, the second as left.
+
+Trend: a weighted least-squares line E(t) = a + b·t through the runs that show the machine as it
+drifted (every run except the as-left of a pair: an as-left run is the state a compensation has
+just made, not drift), each weighted by 1/u² with u = U/2 (U: E's expanded uncertainty, k = 2).
+b is E's trend per year; its U is 2·√Var(b) from the fit's covariance (the runs' own u, not the
+scatter). The predicted date is where the line reaches E's acceptance limit (the latest run's),
+given only when b > 0 and at least two runs at different times enter the fit."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime, timedelta, timezone
+from typing import Any
+
+from rtcal.catalog.schema import PARAMETERS
+
+PAIR_WINDOW_DAYS = 14.0
+INTERVAL_DAYS = 365.0  # the recalibration interval when the trend says nothing sooner
+YEAR_DAYS = 365.25
+METHOD = ("weighted linear fit of E over time (weights 1/u², u = U/2) through every run except the as-left run of an "
+          f"as-found/as-left pair (two runs within {PAIR_WINDOW_DAYS:g} days: the second follows a compensation and "
+          "shows no drift); U of the trend 2·sqrt(Var(b)); limit date where the line reaches E's limit")
+
+
+def _time(text: str) -> datetime:
+    t = datetime.fromisoformat(text)
+    return t if t.tzinfo else t.replace(tzinfo=timezone.utc)
+
+
+def entry_json(row: dict[str, Any]) -> dict[str, Any]:
+    """One entry as ``history --json`` prints it."""
+    out = {k: row[k] for k in ("run_id", "serial_number", "axis", "machine", "customer", "measured_utc", "finished_utc",
+                               "method", "certificate_number", "verdict", "run_dir")}
+    for p in PARAMETERS:
+        out[f"{p}_arcsec"] = row[f"{p}_arcsec"]
+        out[f"{p}_U_arcsec"] = row[f"{p}_U_arcsec"]
+        out[f"{p}_limit_arcsec"] = row[f"{p}_limit_arcsec"]
+    for key in ("Pa", "P", "Ps_max", "U_max"):
+        out[f"vdi_{key}_arcsec"] = row[f"vdi_{key}_arcsec"]
+    import json
+    out["location_errors"] = json.loads(row["location_errors"])
+    out["digests"] = json.loads(row["digests"])
+    return out
+
+
+def pairs(rows: list[dict[str, Any]]) -> list[tuple[int, int]]:
+    """(as-found index, as-left index) of each pair, rows of one axis oldest first."""
+    out: list[tuple[int, int]] = []
+    i = 0
+    while i + 1 < len(rows):
+        gap = _time(rows[i + 1]["measured_utc"]) - _time(rows[i]["measured_utc"])
+        if gap <= timedelta(days=PAIR_WINDOW_DAYS):
+            out.append((i, i + 1))
+            i += 2
+        else:
+            i += 1
+    return out
+
+
+def trend(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """E's trend per year with its U and the date E reaches its limit (see the module's docstring)."""
+    as_left = {j for _, j in pairs(rows)}
+    used = [r for k, r in enumerate(rows) if k not in as_left and r["E_arcsec"] is not None and r["E_U_arcsec"]]
+    limit = next((r["E_limit_arcsec"] for r in reversed(rows) if r["E_limit_arcsec"] is not None), None)
+    out: dict[str, Any] = {"method": METHOD, "runs_fitted": len(used), "E_trend_arcsec_per_year": None,
+                           "E_trend_U_arcsec_per_year": None, "E_limit_arcsec": limit, "E_reaches_limit_utc": None}
+    if len(used) < 2:
+        return out
+    t0 = _time(used[0]["measured_utc"])
+    x = [(_time(r["measured_utc"]) - t0).total_seconds() / 86400 / YEAR_DAYS for r in used]
+    y = [float(r["E_arcsec"]) for r in used]
+    w = [1 / (float(r["E_U_arcsec"]) / 2) ** 2 for r in used]
+    s, sx, sy = sum(w), sum(wi * xi for wi, xi in zip(w, x)), sum(wi * yi for wi, yi in zip(w, y))
+    sxx, sxy = sum(wi * xi * xi for wi, xi in zip(w, x)), sum(wi * xi * yi for wi, xi, yi in zip(w, x, y))
+    det = s * sxx - sx * sx
+    if det <= 0 or max(x) - min(x) < 1e-6:
+        return out
+    b = (s * sxy - sx * sy) / det
+    a = (sxx * sy - sx * sxy) / det
+    out["E_trend_arcsec_per_year"] = round(b, 4)
+    out["E_trend_U_arcsec_per_year"] = round(2 * math.sqrt(s / det), 4)
+    if limit is not None and b > 0:
+        years = (limit - a) / b
+        out["E_reaches_limit_utc"] = (t0 + timedelta(days=years * YEAR_DAYS)).isoformat()
+    return out
+
+
+def next_due(rows: list[dict[str, Any]]) -> str:
+    """The last calibration plus the interval, or sooner when the trend reaches the limit sooner."""
+    last = _time(rows[-1]["measured_utc"])
+    due = last + timedelta(days=INTERVAL_DAYS)
+    reach = trend(rows)["E_reaches_limit_utc"]
+    if reach is not None and last < _time(reach) < due:
+        due = _time(reach)
+    return due.date().isoformat()
+
+
+def history_document(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per axis: its entries, pairs and trend (rows oldest first, possibly of several axes)."""
+    axes: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        axes.setdefault(r["axis"], []).append(r)
+    out: dict[str, Any] = {}
+    for axis, rs in axes.items():
+        out[axis] = {
+            "pairs": [{"as_found": rs[i]["run_id"], "as_left": rs[j]["run_id"],
+                       "E_change_arcsec": None if rs[i]["E_arcsec"] is None or rs[j]["E_arcsec"] is None
+                       else round(rs[j]["E_arcsec"] - rs[i]["E_arcsec"], 4)} for i, j in pairs(rs)],
+            "trend": trend(rs), "next_due": next_due(rs)}
+    return out
+
+
+def fleet(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``catalog list``: per machine axis its last calibration, verdict and next due date."""
+    axes: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        axes.setdefault((r["serial_number"], r["axis"]), []).append(r)
+    return [{"serial_number": sn, "axis": axis, "machine": rs[-1]["machine"], "customer": rs[-1]["customer"],
+             "calibrations": len(rs), "last_utc": rs[-1]["measured_utc"], "last_run_id": rs[-1]["run_id"],
+             "verdict": rs[-1]["verdict"], "E_arcsec": rs[-1]["E_arcsec"], "E_U_arcsec": rs[-1]["E_U_arcsec"],
+             "next_due": next_due(rs)} for (sn, axis), rs in axes.items()]

@@ -1,0 +1,153 @@
+"""``rtcal catalog add | history | list``: a lab's catalogue of verified calibrations (rtcal/catalog)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from rtcal.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, UserError, json_text
+
+
+def _open(args: argparse.Namespace) -> Any:
+    from rtcal.catalog.store import Catalog, CatalogUsage
+
+    try:
+        return Catalog(args.db)
+    except CatalogUsage as exc:
+        raise UserError(str(exc)) from None
+
+
+def cmd_catalog(args: argparse.Namespace) -> int:
+    from rtcal.catalog.store import CatalogError
+
+    try:
+        return int({"add": _add, "history": _history, "list": _list}[args.catalog_command](args))
+    except CatalogError as exc:
+        print(f"rtcal: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+
+
+def _add(args: argparse.Namespace) -> int:
+    """Verify every run first (a refused one: exit 1 or 2, nothing of it written), then one transaction each."""
+    from rtcal.catalog.entry import RunRefused, entry_of, verified_results
+
+    entries = []
+    for run in args.runs:
+        try:
+            entries.append(entry_of(Path(run), verified_results(Path(run))))
+        except RunRefused as exc:
+            print(f"rtcal: catalog add refused: {exc}", file=sys.stderr)
+            return EXIT_USAGE if exc.code == 2 else EXIT_FAILED
+    with _open(args) as cat:
+        for entry in entries:
+            added = cat.add(entry)
+            print(f"{entry['run_id']} {entry['serial_number']} {entry['axis']} {entry['measured_utc']}: "
+                  f"{'added to' if added else 'already in'} {cat.name}")
+    return EXIT_OK
+
+
+def _history(args: argparse.Namespace) -> int:
+    from rtcal.catalog.history import entry_json, history_document
+
+    with _open(args) as cat:
+        rows = cat.history(args.serial, args.axis)
+    if not rows:
+        print(f"rtcal: no calibration of {args.serial}{' axis ' + args.axis if args.axis else ''} in {cat.name}",
+              file=sys.stderr)
+        return EXIT_FAILED
+    doc = history_document(rows)
+    if args.plot:
+        _plot(rows, Path(args.plot))
+    if args.json:
+        entries = [entry_json(r) for r in rows]
+        for e in entries:  # each entry carries its axis's pairs role and trend
+            axis = doc[e["axis"]]
+            e["as_found_of"] = next((p["as_left"] for p in axis["pairs"] if p["as_found"] == e["run_id"]), None)
+            e["as_left_of"] = next((p["as_found"] for p in axis["pairs"] if p["as_left"] == e["run_id"]), None)
+            e["trend"] = axis["trend"]
+        print(json_text(entries))
+        return EXIT_OK
+    print(f"{'measured (UTC)':26} {'axis':5} {'method':22} {'E ± U (″)':>16} {'verdict':10} certificate")
+    for r in rows:
+        e = "–" if r["E_arcsec"] is None else f"{r['E_arcsec']:.2f} ± {r['E_U_arcsec'] or 0:.2f}"
+        print(f"{r['measured_utc'][:25]:26} {r['axis']:5} {r['method'][:22]:22} {e:>16} {r['verdict']:10} "
+              f"{r['certificate_number']}")
+    for axis, d in doc.items():
+        t = d["trend"]
+        for p in d["pairs"]:
+            print(f"axis {axis}: as found {p['as_found'][:12]} → as left {p['as_left'][:12]}: E changed "
+                  f"{p['E_change_arcsec']}″")
+        if t["E_trend_arcsec_per_year"] is None:
+            print(f"axis {axis}: E's trend needs two runs at different times outside as-left runs ({t['runs_fitted']})")
+        else:
+            print(f"axis {axis}: E's trend {t['E_trend_arcsec_per_year']:+.3f} ± {t['E_trend_U_arcsec_per_year']:.3f} ″/year "
+                  f"({t['runs_fitted']} runs); reaches its limit {t['E_limit_arcsec']}″ "
+                  f"{t['E_reaches_limit_utc'][:10] if t['E_reaches_limit_utc'] else 'not on this trend'}")
+        print(f"axis {axis}: next due {d['next_due']} (method: {t['method']})")
+    return EXIT_OK
+
+
+def _plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """E ± U over time per axis, with its acceptance limit."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from rtcal.catalog.history import _time
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for axis in sorted({r["axis"] for r in rows}):
+        rs = [r for r in rows if r["axis"] == axis and r["E_arcsec"] is not None]
+        ax.errorbar([_time(r["measured_utc"]) for r in rs], [r["E_arcsec"] for r in rs],
+                    yerr=[r["E_U_arcsec"] or 0 for r in rs], fmt="o-", capsize=3, label=f"axis {axis}: E ± U (k = 2)")
+        limits = [r["E_limit_arcsec"] for r in rs if r["E_limit_arcsec"] is not None]
+        if limits:
+            ax.axhline(limits[-1], color="red", linestyle="--", label=f"axis {axis}: E's limit {limits[-1]:g}″")
+    ax.set_ylabel("E (arcsec)")
+    ax.set_title(f"{rows[0]['serial_number']}: ISO 230-2 E over time")
+    ax.legend()
+    fig.autofmt_xdate()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _list(args: argparse.Namespace) -> int:
+    from rtcal.catalog.history import fleet
+
+    with _open(args) as cat:
+        machines = fleet(cat.machines())
+    if args.json:
+        print(json_text(machines))
+        return EXIT_OK
+    print(f"{'serial number':20} {'axis':5} {'machine':30} {'runs':>4} {'last (UTC)':11} {'verdict':10} next due")
+    for m in machines:
+        print(f"{m['serial_number'][:20]:20} {m['axis'][:5]:5} {m['machine'][:30]:30} {m['calibrations']:>4} "
+              f"{m['last_utc'][:10]:11} {m['verdict']:10} {m['next_due']}")
+    return EXIT_OK
+
+
+def add_catalog(sub: Any) -> None:
+    cat = sub.add_parser("catalog", help="a lab's catalogue of verified calibrations (SQLite by default, or PostgreSQL): "
+                                         "add runs, a machine's history, the fleet")
+    cat_sub = cat.add_subparsers(dest="catalog_command", required=True)
+    db_help = ("the catalogue: postgresql://user:password@host:port/db or a SQLite file (default: $RTCAL_CATALOG, else "
+               "catalog.sqlite under the user's data folder)")
+    add = cat_sub.add_parser("add", help="verify finished runs (as `rtcal verify`) and add each in one transaction; a run "
+                                         "already there changes nothing")
+    add.add_argument("runs", nargs="+", metavar="RUN", help="run directories")
+    add.add_argument("--db", help=db_help)
+    hist = cat_sub.add_parser("history", help="a machine axis's calibrations oldest first, as-found/as-left pairs, E's "
+                                              "trend and the date it reaches its limit")
+    hist.add_argument("--serial", required=True, metavar="SN", help="the machine's serial number")
+    hist.add_argument("--axis", help="one axis (default: every axis)")
+    hist.add_argument("--db", help=db_help)
+    hist.add_argument("--json", action="store_true", help="print a JSON list of the entries")
+    hist.add_argument("--plot", metavar="FILE", help="draw E ± U over time with the limit into FILE (PNG)")
+    lst = cat_sub.add_parser("list", help="every machine axis: its last calibration, verdict and next due date")
+    lst.add_argument("--db", help=db_help)
+    lst.add_argument("--json", action="store_true", help="print a JSON list")
+    for p in (add, hist, lst):
+        p.set_defaults(func=cmd_catalog)
