@@ -137,16 +137,15 @@ class Catalog:
 
     def add(self, entry: dict[str, Any]) -> bool:
         """Insert one entry in one transaction; False when its run id was there already (nothing changes)."""
-        dialect = self.engine.dialect.name
-        if dialect == "postgresql":
-            from sqlalchemy.dialects.postgresql import insert as pg_insert
-            stmt: Any = pg_insert(calibrations).values(**entry).on_conflict_do_nothing(index_elements=["run_id"])
+        if self.engine.dialect.name == "postgresql":
+            from sqlalchemy.dialects.postgresql import insert
         else:
-            from sqlalchemy.dialects.sqlite import insert as sqlite_insert
-            stmt = sqlite_insert(calibrations).values(**entry).on_conflict_do_nothing(index_elements=["run_id"])
+            from sqlalchemy.dialects.sqlite import insert  # type: ignore[assignment]
+        stmt = insert(calibrations).values(**entry).on_conflict_do_nothing(index_elements=["run_id"]) \
+            .returning(calibrations.c.run_id)
         with self._failures("failed while adding a run (nothing of it was written)"):
             with self.engine.begin() as conn:
-                inserted = conn.execute(stmt).rowcount == 1
+                inserted = conn.execute(stmt).first() is not None
                 if Catalog.before_commit is not None:
                     Catalog.before_commit()
         return inserted
