@@ -22,7 +22,8 @@ def binaries() -> Path | None:
 class PostgresServer:
     """``start()``, ``stop()``, ``url`` (postgresql://rtcal_test:…@127.0.0.1:PORT/rtcal), ``password``."""
 
-    def __init__(self) -> None:
+    def __init__(self, fsync: bool = False) -> None:
+        self.fsync = fsync  # tests: off (speed); the benchmark: on, as a lab's server
         bin_dir = binaries()
         if bin_dir is None:
             raise FileNotFoundError("PostgreSQL's binaries (Debian's postgresql package) are not installed")
@@ -53,7 +54,7 @@ class PostgresServer:
 
     def start(self) -> None:
         self._run("pg_ctl", "-D", str(self.data), "-l", str(self.root / "log"), "-w", "-o",
-                  f"-p {self.port} -k {self.root} -c listen_addresses=127.0.0.1 -c fsync=off", "start")
+                  f"-p {self.port} -k {self.root} -c listen_addresses=127.0.0.1 -c fsync={'on' if self.fsync else 'off'}", "start")
 
     def stop(self, mode: str = "fast") -> None:
         self._run("pg_ctl", "-D", str(self.data), "-m", mode, "-w", "stop")

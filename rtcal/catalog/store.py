@@ -86,6 +86,7 @@ def _engine(url: URL) -> Engine:
     @event.listens_for(engine, "connect")
     def _sqlite_connect(dbapi_conn: Any, _record: Any) -> None:
         dbapi_conn.isolation_level = None  # transactions are ours (BEGIN IMMEDIATE below), not pysqlite's
+        dbapi_conn.execute("PRAGMA journal_mode=WAL")  # one fsync per add, and readers never wait for a writer
 
     @event.listens_for(engine, "begin")
     def _sqlite_begin(conn: Connection) -> None:
