@@ -165,12 +165,32 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
     if not 0.01 <= args.timeout_s <= 600:
         raise UserError("--timeout-s must lie in 0.01..600")
+    if args.kind == "machine":
+        return _probe_machine(args)
     try:
         result = probe(args.kind, args.address, args.timeout_s)
     except InstrumentError as exc:
         print(f"rtcal: {args.kind} at {args.address}: {one_line(exc)}", file=sys.stderr)
         return EXIT_FAILED
     print(format_probe(result, args.json))
+    return EXIT_OK
+
+
+def _probe_machine(args: argparse.Namespace) -> int:
+    """`rtcal probe machine opc.tcp://HOST:PORT`: the machine's OPC 40001-1 identification."""
+    from drivers.opcua_identity import read_identity
+
+    if not args.address.startswith("opc.tcp://"):
+        raise UserError(f"{args.address[:80]}: a machine's identification is read over OPC UA: opc.tcp://HOST:PORT")
+    try:
+        ident = read_identity(args.address, args.timeout_s)
+    except InstrumentError as exc:
+        print(f"rtcal: machine at {args.address}: {one_line(exc)}", file=sys.stderr)
+        return EXIT_FAILED
+    if args.json:
+        print(json.dumps(ident))
+    else:
+        print("\n".join(f"{k}: {v}" for k, v in ident.items()))
     return EXIT_OK
 
 
@@ -232,7 +252,8 @@ def add_probe(sub: Any) -> None:
 
     pr = sub.add_parser("probe", help="connect to one instrument, identify it where its protocol allows, take one "
                                       "reading and print it; exit 1 if it does not answer or answers wrongly")
-    pr.add_argument("kind", choices=KINDS, help="the kind of instrument")
+    pr.add_argument("kind", choices=(*KINDS, "machine"), help="the kind of instrument (machine: the machine's OPC "
+                                                               "40001-1 identification at opc.tcp://HOST:PORT)")
     pr.add_argument("address", help="its address, e.g. socket://10.0.0.5:4001?model=sylvac or ipp://cmm:1294 "
                                     "(model= picks the product; docs/protocols/)")
     pr.add_argument("--json", action="store_true",

@@ -67,9 +67,17 @@ def cmd_sim_serve(args: argparse.Namespace) -> int:
             print(f"rtcal: LinuxCNC could not start: {one_line(exc)}", file=sys.stderr)
             return EXIT_FAILED
         raise UserError(f"simulators could not start: {exc}") from None
+    machine = None
+    if args.opcua:  # the machine's identity server: its address on stderr (not an instrument of --instruments)
+        from simulators.opcua_machine import OpcUaMachine
+
+        machine = OpcUaMachine(host=args.host)
+        print(f"rtcal: machine identity (OPC UA): {machine.address}", file=sys.stderr, flush=True)
     if not stop.is_set():
         print(json.dumps(addresses), flush=True)
     stop.wait()
+    if machine is not None:
+        machine.close()
     hub.stop()
     return EXIT_OK
 
@@ -120,4 +128,7 @@ def add_sim(sub: Any) -> None:
                             "(default 600 s; docs/faults.md)")
     serve.add_argument("--comp", help="with --stage linuxcnc: a LinuxCNC compensation table (what `rtcal compensate "
                                       "--format linuxcnc` writes) loaded as the joint's COMP_FILE")
+    serve.add_argument("--opcua", action="store_true",
+                       help="also serve the simulated machine's OPC 40001-1 identification over OPC UA (its opc.tcp:// "
+                            "address on stderr; `rtcal probe machine` reads it, metadata.machine_identity uses it)")
     serve.set_defaults(func=cmd_sim_serve)

@@ -100,6 +100,17 @@ class Metadata(_Strict):
     condition_on_receipt: str = Field("", max_length=500, description="the item's condition on receipt (ISO/IEC 17025 "
                                                                      "7.8.2.1 j; e.g. clean, no visible damage, table "
                                                                      "at room temperature overnight)")
+    machine_identity: str = Field("", max_length=300, description="the machine's OPC UA server, opc.tcp://HOST:PORT: its "
+                                                                 "OPC 40001-1 identification fills the certificate's item "
+                                                                 "at run time, and a serial number other than "
+                                                                 "`serial_number` refuses the run")
+
+    @field_validator("machine_identity")
+    @classmethod
+    def _opc_tcp(cls, text: str) -> str:
+        if text and not text.startswith("opc.tcp://"):
+            raise ValueError(f"{text[:60]!r} is not an OPC UA address (opc.tcp://HOST:PORT)")
+        return _check_text(text)
 
     _plain = field_validator("customer", "machine", "axis", "serial_number", "location", "operator", "certificate_number",
                              "laboratory", "laboratory_address", "customer_address", "performed_by", "approved_by",

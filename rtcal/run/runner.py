@@ -209,6 +209,28 @@ def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
         store.keep_meta(lambda: {"fault_requests": json.dumps(dict(bench.faults.requests), sort_keys=True)})
 
 
+def with_machine_identity(proc: Procedure, path: Path, text: str) -> Procedure:
+    """``metadata.machine_identity``: the machine's OPC 40001-1 identification read before anything
+    moves; a serial number other than the procedure's refuses the run (FileProblems, exit 2), else
+    the certificate's item takes the machine's serial number, manufacturer and model where the
+    procedure leaves them empty. An unreachable server is an InstrumentError (exit 1)."""
+    address = proc.metadata.machine_identity
+    if not address:
+        return proc
+    from drivers.opcua_identity import read_identity
+
+    ident = read_identity(address)
+    said = str(ident.get("serial_number") or "")
+    if proc.metadata.serial_number and said != proc.metadata.serial_number:
+        line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
+        raise FileProblems([Problem(str(path), line, 1, "metadata.machine_identity",
+                                    f"the machine at {address} says serial number {said[:100]!r}, the procedure "
+                                    f"{proc.metadata.serial_number!r}: another machine; nothing was moved")])
+    machine = proc.metadata.machine or " ".join(str(ident.get(k) or "") for k in ("manufacturer", "model")).strip()
+    meta = proc.metadata.model_copy(update={"serial_number": proc.metadata.serial_number or said, "machine": machine})
+    return proc.model_copy(update={"metadata": meta})
+
+
 def run_procedure(
     procedure_path: str | Path,
     scenario_path: str | Path | None = None,
@@ -242,6 +264,7 @@ def run_procedure(
     if addresses:
         proc = with_addresses(proc, addresses)
     check_calibration_due(proc)
+    proc = with_machine_identity(proc, procedure_path, procedure_yaml)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
     bench, scenario_text = None, ""

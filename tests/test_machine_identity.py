@@ -1,0 +1,98 @@
+"""Issue 33: a machine's OPC 40001-1 identification over OPC UA (asyncua's client against
+asyncua's server, on loopback): `rtcal probe machine`, `rtcal sim serve --opcua`, and a
+procedure's `metadata.machine_identity` that fills the item and refuses another machine."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from rtcal.cli import main
+from rtcal.procedure.loader import load_procedure
+from rtcal.run.runner import with_machine_identity
+from simulators.opcua_machine import DEFAULT_IDENTITY, OpcUaMachine
+
+REPO = Path(__file__).resolve().parents[1]
+PROCEDURE = REPO / "procedures" / "iso230_2_verification.yaml"
+
+
+@pytest.fixture()
+def machine():
+    m = OpcUaMachine(identity={"SerialNumber": "SN-4711", "Model": "RT-200"})
+    yield m
+    m.close()
+
+
+def test_probe_reads_the_identification_by_the_machinery_namespace(machine, capsys):
+    assert main(["probe", "machine", machine.address, "--json"]) == 0
+    ident = json.loads(capsys.readouterr().out)
+    assert ident["serial_number"] == "SN-4711" and ident["model"] == "RT-200"
+    assert ident["manufacturer"] == DEFAULT_IDENTITY["Manufacturer"]
+    assert ident["year_of_construction"] == DEFAULT_IDENTITY["YearOfConstruction"]
+    assert ident["software_revision"] == DEFAULT_IDENTITY["SoftwareRevision"]
+
+
+def test_a_machine_that_does_not_answer_is_exit_1_in_one_line(capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert main(["probe", "machine", f"opc.tcp://127.0.0.1:{port}", "--timeout-s", "1"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+
+
+def _procedure(tmp_path: Path, address: str, serial: str | None) -> Path:
+    text = PROCEDURE.read_text()
+    line = "  serial_number: SIM-230-2\n"
+    assert line in text
+    text = text.replace(line, (f"  serial_number: {serial}\n" if serial else "") + f"  machine_identity: {address}\n")
+    path = tmp_path / "proc.yaml"
+    path.write_text(text)
+    (tmp_path / "scenarios").symlink_to(REPO / "procedures" / "scenarios")
+    return path
+
+
+def test_another_machines_serial_number_refuses_the_run_before_anything(machine, tmp_path, capsys):
+    path = _procedure(tmp_path, machine.address, "SIM-230-2")
+    assert main(["run", str(path), "--virtual-clock", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "metadata.machine_identity" in err and "SN-4711" in err
+    assert re.match(rf"{re.escape(str(path))}:\d+:", err)
+    assert not (tmp_path / "run" / "run.sqlite").exists()
+
+
+def test_the_machines_identification_fills_the_item(machine, tmp_path):
+    path = _procedure(tmp_path, machine.address, None)
+    proc = load_procedure(path)
+    filled = with_machine_identity(proc, path, path.read_text())
+    assert filled.metadata.serial_number == "SN-4711"
+    assert filled.metadata.machine == proc.metadata.machine  # the procedure's own name is kept
+
+
+def test_sim_serve_opcua_serves_the_identity():
+    proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "sim", "serve", "--opcua", "--no-pacing"], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        address = None
+        for _ in range(50):
+            line = proc.stderr.readline()
+            if m := re.search(r"machine identity \(OPC UA\): (opc\.tcp://\S+)", line):
+                address = m.group(1)
+                break
+        assert address, "no OPC UA address printed"
+        r = subprocess.run([sys.executable, "-m", "rtcal.cli", "probe", "machine", address, "--json"], cwd=REPO,
+                           capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["serial_number"] == DEFAULT_IDENTITY["SerialNumber"]
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(30)
