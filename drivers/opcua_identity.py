@@ -32,7 +32,7 @@ async def _read(address: str, timeout_s: float, machine: str | None) -> dict[str
                                              "no OPC 40001-1 identification") from None
         machines = await client.nodes.objects.get_child(f"{ns}:Machines")
         children = await machines.get_children()
-        names = [(await c.read_browse_name()).Name for c in children]
+        names = [str((await c.read_browse_name()).Name) for c in children]
         if not children:
             raise InstrumentError("machine", f"{address}: Machines is empty")
         if machine is not None and machine not in names:

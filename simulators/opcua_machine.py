@@ -26,16 +26,17 @@ async def _serve(host: str, port: int, machine: str, identity: dict[str, Any], r
     server.set_server_name("rtcal simulated machine")
     di = await server.register_namespace(DI_URI)
     mns = await server.register_namespace(MACHINERY_URI)
-    machines = await server.nodes.objects.add_folder(ua.NodeId("Machines", mns), ua.QualifiedName("Machines", mns))
-    node = await machines.add_object(ua.NodeId(machine, mns), ua.QualifiedName(machine, mns))
-    ident = await node.add_object(ua.NodeId(f"{machine}.Identification", mns), ua.QualifiedName("Identification", di))
+    machines = await server.nodes.objects.add_folder(f"ns={mns};s=Machines", ua.QualifiedName("Machines", mns))
+    node = await machines.add_object(f"ns={mns};s={machine}", ua.QualifiedName(machine, mns))
+    ident = await node.add_object(f"ns={mns};s={machine}.Identification", ua.QualifiedName("Identification", di))
     for name, value in identity.items():
         ns = mns if name == "YearOfConstruction" else di
         variant = ua.Variant(value, ua.VariantType.UInt16) if name == "YearOfConstruction" else \
             ua.Variant(ua.LocalizedText(value) if name in ("Manufacturer", "Model") else value)
-        await ident.add_property(ua.NodeId(f"{machine}.{name}", mns), ua.QualifiedName(name, ns), variant)
+        await ident.add_property(f"ns={mns};s={machine}.{name}", ua.QualifiedName(name, ns), variant)
     async with server:
-        sock = server.bserver._server.sockets[0]  # noqa: SLF001 — the port the OS gave (port 0)
+        binary: Any = server.bserver
+        sock = binary._server.sockets[0]  # noqa: SLF001 — the port the OS gave (port 0)
         bound.append(f"opc.tcp://{host}:{sock.getsockname()[1]}")
         ready.set()
         await stop.wait()

@@ -91,12 +91,13 @@ def trend(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def next_due(rows: list[dict[str, Any]]) -> str:
-    """The last calibration plus the interval, or sooner when the trend reaches the limit sooner."""
+    """The last calibration plus the interval, or sooner when the trend reaches the limit sooner
+    (at the last calibration when the trend had reached it before)."""
     last = _time(rows[-1]["measured_utc"])
     due = last + timedelta(days=INTERVAL_DAYS)
     reach = trend(rows)["E_reaches_limit_utc"]
-    if reach is not None and last < _time(reach) < due:
-        due = _time(reach)
+    if reach is not None and _time(reach) < due:
+        due = max(_time(reach), last)  # a limit the trend passed before the last calibration: due now
     return due.date().isoformat()
 
 

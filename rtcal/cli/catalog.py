@@ -71,8 +71,8 @@ def _history(args: argparse.Namespace) -> int:
         return EXIT_OK
     print(f"{'measured (UTC)':26} {'axis':5} {'method':22} {'E ± U (″)':>16} {'verdict':10} certificate")
     for r in rows:
-        e = "–" if r["E_arcsec"] is None else f"{r['E_arcsec']:.2f} ± {r['E_U_arcsec'] or 0:.2f}"
-        print(f"{r['measured_utc'][:25]:26} {r['axis']:5} {r['method'][:22]:22} {e:>16} {r['verdict']:10} "
+        e_text = "–" if r["E_arcsec"] is None else f"{r['E_arcsec']:.2f} ± {r['E_U_arcsec'] or 0:.2f}"
+        print(f"{r['measured_utc'][:25]:26} {r['axis']:5} {r['method'][:22]:22} {e_text:>16} {r['verdict']:10} "
               f"{r['certificate_number']}")
     for axis, d in doc.items():
         t = d["trend"]
@@ -94,17 +94,21 @@ def _plot(rows: list[dict[str, Any]], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.dates import AutoDateFormatter, AutoDateLocator, date2num
 
     from rtcal.catalog.history import _time
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
     for axis in sorted({r["axis"] for r in rows}):
         rs = [r for r in rows if r["axis"] == axis and r["E_arcsec"] is not None]
-        ax.errorbar([_time(r["measured_utc"]) for r in rs], [r["E_arcsec"] for r in rs],
+        ax.errorbar(date2num([_time(r["measured_utc"]) for r in rs]), [r["E_arcsec"] for r in rs],
                     yerr=[r["E_U_arcsec"] or 0 for r in rs], fmt="o-", capsize=3, label=f"axis {axis}: E ± U (k = 2)")
         limits = [r["E_limit_arcsec"] for r in rs if r["E_limit_arcsec"] is not None]
         if limits:
             ax.axhline(limits[-1], color="red", linestyle="--", label=f"axis {axis}: E's limit {limits[-1]:g}″")
+    locator = AutoDateLocator()
+    ax.xaxis.set_major_locator(locator)
+    ax.xaxis.set_major_formatter(AutoDateFormatter(locator))
     ax.set_ylabel("E (arcsec)")
     ax.set_title(f"{rows[0]['serial_number']}: ISO 230-2 E over time")
     ax.legend()
