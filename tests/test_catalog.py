@@ -183,7 +183,7 @@ def test_the_trend_is_a_weighted_line_that_leaves_out_as_left_runs():
     x = [0, 1, 2, 3]
     s, sx, sxx = 4 * 4.0, 4.0 * sum(x), 4.0 * sum(v * v for v in x)
     assert t["E_trend_U_arcsec_per_year"] == pytest.approx(2 * (s / (s * sxx - sx * sx)) ** 0.5, abs=1e-4)
-    assert next_due(rows) == "2024-12-31"  # within the year after the last run (2023-01-04): the limit date
+    assert next_due(rows) == "2024-01-03"  # a year after the last run (2023-01-03): the limit (2024-12-31) is later
     beyond = [_row(0, 50), _row(365.25, 58), _row(730.5, 66)]  # over its limit at the last run: due then
     assert next_due(beyond) == beyond[-1]["measured_utc"][:10]
     heavy = [_row(0, 40, u=0.1), _row(365.25, 50, u=100.0), _row(730.5, 40, u=0.1)]  # a weight counts
