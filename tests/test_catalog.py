@@ -188,3 +188,43 @@ def test_the_trend_is_a_weighted_line_that_leaves_out_as_left_runs():
     assert next_due(beyond) == beyond[-1]["measured_utc"][:10]
     heavy = [_row(0, 40, u=0.1), _row(365.25, 50, u=100.0), _row(730.5, 40, u=0.1)]  # a weight counts
     assert abs(trend(heavy)["E_trend_arcsec_per_year"]) < 0.01
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
+def test_the_catalog_page_shows_the_fleet_and_a_machines_history_in_chromium(finished_run, tmp_path):
+    import re
+
+    sync_api = pytest.importorskip("playwright.sync_api")
+    db = str(tmp_path / "catalog.sqlite")
+    assert main(["catalog", "add", str(finished_run), "--db", db]) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "view", "--catalog", "--db", db, "--live", "127.0.0.1:0"],
+                            cwd=REPO, stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        url = None
+        for _ in range(20):
+            if m := re.search(r"catalog view: (http://\S+)", proc.stderr.readline()):
+                url = m.group(1)
+                break
+        assert url, "no URL printed"
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            page = browser.new_page()
+            page.goto(url)
+            row = page.locator("#fleet tr.machine")
+            assert row.count() == 1
+            text = row.first.inner_text()
+            results = json.loads((finished_run / "results.json").read_text())
+            assert SERIAL in text and results["conformity"]["verdict"] in text
+            page.click(f"text={SERIAL}")
+            page.wait_for_selector("#history tr.run")
+            assert page.locator("#history tr.run").count() == 1
+            assert str(results["evaluation"]["iso230_2"]["E"]) in page.locator("#history").inner_text()
+            page.screenshot(path=str(tmp_path / "catalog.png"), full_page=True)
+            browser.close()
+    finally:
+        proc.terminate()
+        proc.wait(20)
+    assert proc.returncode == 0

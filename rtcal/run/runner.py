@@ -576,7 +576,7 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
             rtcal_version=__version__,
             method=proc.method,
             procedure=ProcedureRef(name=proc.name, path=meta.get("procedure_path", "")),
-            metadata=RunMetadata.model_validate(proc.metadata.model_dump()),
+            metadata=RunMetadata.model_validate(proc.metadata.model_dump(exclude={"machine_identity"})),
             seed=int(meta["seed"]) if simulated else None,
             instruments="simulated in process" if simulated else {
                 f: redact_tokens(getattr(proc.instruments, f).address) for f in proc.instruments.present()},
