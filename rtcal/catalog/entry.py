@@ -4,13 +4,14 @@ history needs taken from its results.json."""
 from __future__ import annotations
 
 import hashlib
-import json
 import sqlite3
 from pathlib import Path
 from typing import Any
 
 from rtcal.catalog.schema import PARAMETERS, VDI
 from rtcal.catalog.store import dumps, now_utc
+from rtcal.results import read_results
+from rtcal.results.model import RunResults
 
 
 class RunRefused(Exception):
@@ -21,14 +22,15 @@ class RunRefused(Exception):
         self.code = code
 
 
-def run_id(results: dict[str, Any]) -> str:
+def run_id(results: RunResults) -> str:
     """The run's id: its digests (procedure, readings, events) and start time, hashed. The same run
     copied elsewhere keeps it; any other run differs in one of them."""
-    key = dumps({"digests": results.get("digests"), "started_utc": results.get("started_utc")})
+    digests = results.digests.model_dump(mode="json") if results.digests else None
+    key = dumps({"digests": digests, "started_utc": results.started_utc})
     return hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
-def verified_results(run_dir: Path) -> dict[str, Any]:
+def verified_results(run_dir: Path) -> RunResults:
     """results.json of a run that ``rtcal verify`` finds agreeing with its readings and digests."""
     from rtcal.procedure.yamlfile import FileProblems
     from rtcal.results import ResultsError
@@ -50,59 +52,46 @@ def verified_results(run_dir: Path) -> dict[str, Any]:
     if not found.agrees:
         what = found.integrity[0] if found.integrity else f"{len(found.differences)} values differ from its readings"
         raise RunRefused(f"{run_dir}: does not verify (`rtcal verify {run_dir}`): {' '.join(what.split())[:300]}", 1)
-    return json.loads((run_dir / "results.json").read_text(encoding="utf-8"))  # type: ignore[no-any-return]
+    return read_results(run_dir)
 
 
-def _location_errors(estimates: dict[str, Any]) -> dict[str, Any]:
-    """Every estimate of an axis location error with its U (names carrying 'location' or 'offset')."""
+def _location_errors(results: RunResults) -> dict[str, Any]:
+    """Every estimate of an axis location error with its U (names carrying location, offset, tilt, eccentric)."""
     out: dict[str, Any] = {}
-    for solver, est in (estimates or {}).items():
-        if not isinstance(est, dict):
-            continue
-        for key, value in est.items():
+    for solver, est in results.estimates.model_dump(mode="json").items():
+        for key, value in (est or {}).items() if isinstance(est, dict) else ():
             if any(w in key for w in ("location", "offset", "tilt", "eccentric")) and not isinstance(value, list):
                 out[f"{solver}.{key}"] = value
     return out
 
 
-def _uncertainties(run_dir: Path) -> dict[str, float | None]:
-    """U (k = 2) of each ISO 230-2 parameter, as the certificate states it (with or without limits)."""
-    from rtcal.deliverables.conformity import parameter_uncertainties
-    from rtcal.results import read_results
-
-    return parameter_uncertainties(read_results(run_dir))
-
-
-def entry_of(run_dir: Path, results: dict[str, Any]) -> dict[str, Any]:
+def entry_of(run_dir: Path, results: RunResults) -> dict[str, Any]:
     """The catalogue row of a verified run."""
-    meta = results.get("metadata") or {}
-    evaluation = results.get("evaluation") or {}
-    iso = evaluation.get("iso230_2") or {}
-    vdi = evaluation.get("vdi3441") or {}
-    conformity = results.get("conformity") or {}
-    limits = conformity.get("per_limit") or {}
+    from rtcal.deliverables.conformity import parameter_uncertainties
+
+    meta = results.metadata
+    iso = results.evaluation.iso230_2 if results.evaluation else None
+    vdi = results.evaluation.vdi3441 if results.evaluation else None
+    conformity = results.conformity
+    limits = conformity.per_limit if conformity else {}
     row: dict[str, Any] = {
         "run_id": run_id(results),
-        "serial_number": str(meta.get("serial_number") or ""),
-        "axis": str(meta.get("axis") or ""),
-        "machine": str(meta.get("machine") or ""),
-        "customer": str(meta.get("customer") or ""),
-        "method": str(results.get("method") or ""),
-        "measured_utc": str(results.get("started_utc") or ""),
-        "finished_utc": str(results.get("finished_utc") or ""),
-        "certificate_number": str(results.get("certificate_number") or meta.get("certificate_number") or ""),
-        "verdict": str(conformity.get("verdict") or "none"),
-        "location_errors": dumps(_location_errors(results.get("estimates") or {})),
-        "digests": dumps(results.get("digests") or {}),
+        "serial_number": meta.serial_number, "axis": meta.axis, "machine": meta.machine, "customer": meta.customer,
+        "method": results.method,
+        "measured_utc": results.started_utc or "", "finished_utc": results.finished_utc or "",
+        "certificate_number": meta.certificate_number,
+        "verdict": conformity.verdict if conformity else "none",
+        "location_errors": dumps(_location_errors(results)),
+        "digests": dumps(results.digests.model_dump(mode="json") if results.digests else {}),
         "run_dir": str(run_dir.resolve()),
         "added_utc": now_utc(),
-        "results": dumps(results),
+        "results": (run_dir / "results.json").read_text(encoding="utf-8"),  # the file as written, byte for byte
     }
-    uncertainties = _uncertainties(run_dir)
+    uncertainties = parameter_uncertainties(results)
     for p in PARAMETERS:
-        row[f"{p}_arcsec"] = iso.get(p)
+        row[f"{p}_arcsec"] = getattr(iso, p, None)
         row[f"{p}_U_arcsec"] = uncertainties.get(p)
-        row[f"{p}_limit_arcsec"] = (limits.get(p) or {}).get("limit_arcsec")
+        row[f"{p}_limit_arcsec"] = limits[p].limit_arcsec if p in limits else None
     for p in VDI:
-        row[f"vdi_{p}_arcsec"] = vdi.get(p)
+        row[f"vdi_{p}_arcsec"] = getattr(vdi, p, None)
     return row
