@@ -117,7 +117,7 @@ class Catalog:
         self.url = database_url(location)
         self.name = safe_name(self.url)
         self.engine = _engine(self.url)
-        with self._failures("cannot be migrated"):
+        with self._failures("cannot be opened"):
             with self.engine.begin() as conn:
                 _migrate(conn)
 
