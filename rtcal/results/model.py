@@ -59,7 +59,7 @@ class ResultsModel(BaseModel):
     that does not apply), as against a null the file always carries (a value that is missing).
     """
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True, defer_build=True)
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset()
 
     @model_serializer(mode="wrap")

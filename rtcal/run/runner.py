@@ -20,16 +20,13 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from rtcal import __version__
-from rtcal.deliverables.certificate import build_certificate, write_certificate_json
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
-from rtcal.deliverables.method_outputs import outputs_for
 from rtcal.methods import METHODS
 from rtcal.methods.protocol import DataContradiction
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import Procedure, plan_outside_limits
-from rtcal.deliverables.report import write_html, write_markdown, write_pdf
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
 from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
                                  RunMetadata, VdiEvaluation, assemble)
@@ -581,6 +578,11 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
         store.set_meta({"status": "solved"})
         store.close()
         return RunOutcome(run_dir, results, counted)
+    # the documents' modules load here, not at import: `rtcal validate` imports this module
+    from rtcal.deliverables.certificate import build_certificate, write_certificate_json
+    from rtcal.deliverables.method_outputs import outputs_for
+    from rtcal.deliverables.report import write_html, write_markdown, write_pdf
+
     method_outputs = outputs_for(results)
     try:
         with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed

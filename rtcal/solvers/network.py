@@ -27,9 +27,12 @@ radius, angles, dead paths, CMM) are a few dozen.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
+
+if TYPE_CHECKING:  # scipy.sparse loads where it is used: at import it costs every command 0.1 s
+    import scipy.sparse as sp
 
 from rtcal.solvers.station_budget import (
     AIR_DRIFT_SOURCE,
@@ -301,6 +304,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
 
 def _point_jacobian(Jp_rows: np.ndarray, point_of_row: np.ndarray, n: int) -> sp.csr_matrix:
     """The lengths' Jacobian with respect to the points as a sparse N×3n matrix (3 entries a row)."""
+    import scipy.sparse as sp
+
     N = len(point_of_row)
     cols = 3 * point_of_row[:, None] + np.arange(3)
     return sp.csr_matrix((Jp_rows.ravel(), (np.repeat(np.arange(N), 3), cols.ravel())), shape=(N, 3 * n))
@@ -691,6 +696,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
+        import scipy.sparse as sp
+
         U = sp.csr_matrix((-e.ravel(), (np.repeat(np.arange(N_len), 3), (3 * st[:, None] + np.arange(3)).ravel())),
                           shape=(N_len, 3 * m))
         T = (U.T @ (G @ H_len).T).T  # cumulative ← station displacements
