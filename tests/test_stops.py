@@ -209,3 +209,23 @@ def test_every_ending_signal_is_routed():
     assert {"SIGHUP", "SIGINT", "SIGQUIT", "SIGTERM", "SIGUSR1", "SIGALRM"} <= names
     assert not names & {"SIGKILL", "SIGSEGV", "SIGCHLD", "SIGWINCH", "SIGURG"}
     assert isinstance(Interrupted("SIGHUP"), KeyboardInterrupt)
+
+
+def test_the_progress_outlives_its_console():
+    """After SIGHUP the terminal is gone and a write to it fails (EIO): the run's stop must not fail with it."""
+    from rtcal.engine.subscribers import ConsoleProgress
+
+    class Hungup:
+        def write(self, text: str) -> int:
+            raise OSError(5, "Input/output error")
+
+        def flush(self) -> None:
+            raise OSError(5, "Input/output error")
+
+        def isatty(self) -> bool:
+            return True
+
+    progress = ConsoleProgress(Hungup())
+    progress("start", {"planned": 2, "done": 0, "t_s": 0.0})
+    progress("done", {"done": 1, "faults": 0, "t_s": 1.0})
+    progress("stop", {"state": "aborted", "reason": "interrupted by SIGHUP", "t_s": 1.0})
