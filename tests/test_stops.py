@@ -229,3 +229,26 @@ def test_the_progress_outlives_its_console():
     progress("start", {"planned": 2, "done": 0, "t_s": 0.0})
     progress("done", {"done": 1, "faults": 0, "t_s": 1.0})
     progress("stop", {"state": "aborted", "reason": "interrupted by SIGHUP", "t_s": 1.0})
+
+
+def test_a_signal_while_the_results_are_computed_writes_none_and_is_recorded(tmp_path, monkeypatch):
+    """Every reading taken, then SIGHUP while solving: no results or certificate, the status
+    `interrupted` and an abort event (not `measured` and silence); a resume computes and writes them."""
+    from rtcal.run import runner
+
+    procedure = short_iso(tmp_path)
+    run_dir = tmp_path / "run"
+    solved = runner.evaluation_of
+
+    def hung_up(analysis):
+        raise Interrupted("SIGHUP")
+
+    monkeypatch.setattr(runner, "evaluation_of", hung_up)
+    with pytest.raises(Interrupted):
+        runner.run_procedure(procedure, BENCH, out_dir=run_dir, show_progress=False)
+    assert status_of(run_dir) == "interrupted"
+    assert any("interrupted by SIGHUP while the results were computed" in m for m in abort_events(run_dir))
+    assert not (run_dir / "results.json").exists() and not (run_dir / "certificate.json").exists()
+    monkeypatch.setattr(runner, "evaluation_of", solved)
+    runner.resume_run(run_dir, show_progress=False)
+    assert status_of(run_dir) == "solved" and (run_dir / "certificate.json").is_file()
