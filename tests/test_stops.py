@@ -252,3 +252,16 @@ def test_a_signal_while_the_results_are_computed_writes_none_and_is_recorded(tmp
     monkeypatch.setattr(runner, "evaluation_of", solved)
     runner.resume_run(run_dir, show_progress=False)
     assert status_of(run_dir) == "solved" and (run_dir / "certificate.json").is_file()
+
+
+def test_rtcal_control_says_why_an_abort_after_measuring_is_refused(tmp_path):
+    from rtcal.live.control import ControlRefused, ControlServer, new_token, send_control
+
+    stage = SlowStage(0.0)
+    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator())
+    engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
+    token = new_token()
+    with ControlServer(tmp_path, token, engine):
+        with pytest.raises(ControlRefused, match="could not abort: the run has finished measuring") as refused:
+            send_control(tmp_path, token, "abort")
+    assert refused.value.reason == "failed"

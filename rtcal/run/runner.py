@@ -496,7 +496,10 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
-        _stop(store, "not started", exc)
+        if isinstance(exc, KeyboardInterrupt):  # nothing moved yet
+            _record_interruption(store, goes_on_s, exc, "not started", "while the instruments were opened: nothing moved")
+        else:
+            _stop(store, "not started", exc)
         raise
     done = store.done_plan_indices()
     devices = inst.devices()
@@ -520,7 +523,8 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         try:
             return _solve_and_write(proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
         except KeyboardInterrupt as exc:  # a signal while solving or writing: no results, recorded as any stop
-            _record_interruption(store, clock.now_s(), exc)
+            _record_interruption(store, clock.now_s(), exc, "interrupted", "while the results were computed: none were "
+                                 "written; `rtcal resume` computes them again")
             raise
     finally:
         if detach is not None:  # the live view showed the run to its end
@@ -607,16 +611,15 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
     return RunOutcome(run_dir, results, counted)
 
 
-def _record_interruption(store: RunStore, t_s: float, exc: KeyboardInterrupt) -> None:
-    """Ctrl-C, a signal, after every reading was taken: an ``abort`` event and the status
-    `interrupted` (a resume solves and writes again); the store closed."""
+def _record_interruption(store: RunStore, t_s: float, exc: KeyboardInterrupt, status: str, when: str) -> None:
+    """Ctrl-C, a signal, outside the engine (which records its own): an ``abort`` event saying
+    ``when``, and ``status``; the store closed."""
     try:
-        store.add_event(t_s, "abort", f"{exc or 'interrupted by SIGINT (Ctrl-C)'} while the results were computed: "
-                                      "none were written; `rtcal resume` computes them again")
+        store.add_event(t_s, "abort", f"{exc or 'interrupted by SIGINT (Ctrl-C)'} {when}")
     except Exception:  # noqa: BLE001 — the disk refused it (or the store was closed): the status still tries
         pass
     try:
-        _stop(store, "interrupted", exc)
+        _stop(store, status, exc)
     except sqlite3.ProgrammingError:  # closed: the results were written whole just before
         pass
 
