@@ -265,3 +265,25 @@ def test_rtcal_control_says_why_an_abort_after_measuring_is_refused(tmp_path):
         with pytest.raises(ControlRefused, match="could not abort: the run has finished measuring") as refused:
             send_control(tmp_path, token, "abort")
     assert refused.value.reason == "failed"
+
+
+class StopTakesTime(SlowStage):
+    """Its stop takes 0.2 s, and a second Ctrl-C comes while it runs (an impatient operator)."""
+
+    def stop(self) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)  # the signal arrives here
+        super().stop()
+
+
+def test_a_second_signal_does_not_cut_the_stop_short():
+    stage = StopTakesTime(3.0)
+    docs: list[tuple[str, dict]] = []
+    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator(), [lambda n, d: docs.append((n, d))])
+    threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
+    with pytest.raises(KeyboardInterrupt) as caught:  # (without the routing a bare one: never out of this test)
+        engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
+    assert stage.stopped, "the stop was cut short"
+    assert isinstance(caught.value, Interrupted) and str(caught.value) == "interrupted by SIGINT (Ctrl-C)"
+    assert docs[-1][0] == "stop" and engine.state == "aborted"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
