@@ -183,9 +183,9 @@ class Engine:
         self.emit("start", method=plan.method, planned=len(plan.entries), done=len(done), t_s=self.clock.now_s(),
                   descriptions=[d for rows in self._described.values() for d in rows])
         self._set_state("running")
-        self._thread = threading.current_thread()
         with signals.routed():  # a signal that would end the process, or an abort, interrupts what runs now
             try:
+                self._thread = threading.current_thread()
                 self._check_abort()
                 for step in plan.prologue():
                     self._execute(step, {}, [])
