@@ -30,7 +30,8 @@ from typing import Any, Iterator
 # ridden out in Python, and SIGKILL cannot be caught (`rtcal resume` is the answer to both)
 ENDING_NAMES = ("SIGHUP", "SIGINT", "SIGQUIT", "SIGTERM", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGVTALRM", "SIGPROF",
                 "SIGIO", "SIGPWR", "SIGXCPU", "SIGXFSZ", "SIGSTKFLT")
-WAKE_SIGNAL = signal.SIGURG  # ignored by default: a stray one wakes nothing, it only carries a pending abort
+# ignored by default: a stray one wakes nothing, it only carries a pending abort (None: no POSIX signals here)
+WAKE_SIGNAL: int | None = getattr(signal, "SIGURG", None) if hasattr(signal, "pthread_kill") else None
 
 
 def ending_signals() -> dict[int, str]:
@@ -99,7 +100,7 @@ def routed() -> Iterator[bool]:
     router = _ROUTER
     if router.depth == 0:
         router.names = ending_signals()
-        for signum in [*router.names, WAKE_SIGNAL]:
+        for signum in [*router.names, *([WAKE_SIGNAL] if WAKE_SIGNAL is not None else [])]:
             try:
                 current = signal.getsignal(signum)
             except (OSError, ValueError):
@@ -136,7 +137,7 @@ def interrupt(exc: KeyboardInterrupt, thread: threading.Thread | None = None) ->
         router.deliver()
     else:
         main = threading.main_thread().ident
-        if main is not None:
+        if main is not None and WAKE_SIGNAL is not None:
             signal.pthread_kill(main, WAKE_SIGNAL)
     return True
 
