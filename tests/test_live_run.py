@@ -2,7 +2,7 @@
 protocols of `rtcal sim serve`, the page in headless Chromium (progress rising, Pause holding the run, Resume
 finishing it with the results of an uninterrupted run), a request without the token changing nothing, a
 remote abort ending like Ctrl-C (exit 130, `rtcal resume` finishes), and every way a run ends early
-stopping the drive (Ctrl-C, SIGTERM, a remote abort, a fault abort)."""
+stopping the drive (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT, a remote abort, a fault abort)."""
 
 from __future__ import annotations
 
@@ -248,7 +248,7 @@ def end_early(tmp_path: Path, procedure: Path, scenario, how: str):
         return hub, err
 
 
-@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "abort", "fault"])
 def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
     """A seed-000 run over the Modbus drive and the I++ server: the drive receives STOP and the CMM `AbortE()`
     however the run ends early."""

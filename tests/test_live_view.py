@@ -53,7 +53,7 @@ class FakeEngine:
         if self.writer:
             self.writer.hold.clear()
 
-    def request_abort(self) -> None:
+    def request_abort(self, by: str = "") -> None:
         self.calls.append("abort")
         if self.writer:
             self.writer.halt.set()

@@ -15,10 +15,6 @@ from rtcal.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED,
 from rtcal.outputs import OutputRefused, is_disk_failure
 
 
-def _interrupt(*_: object) -> None:
-    raise KeyboardInterrupt
-
-
 def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_failed: bool = False) -> str:
     """Where the readings are and the resume command for this run (rtcal/run/hint.py)."""
     from rtcal.run.hint import resume_hint
@@ -32,18 +28,17 @@ def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_fail
 def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = None) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on (``instruments``: the
     --instruments text given, for the resume command)."""
-    import signal
-
     from rtcal.deliverables.method_outputs import outputs_for
     from rtcal.deliverables.report import console_lines
     from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
+    from rtcal.engine.signals import routed
     from rtcal.run.runner import IDEAL_BENCH, AnalysisFailed
 
-    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
-        outcome = start()
+        with routed():  # `kill`, SIGHUP (a closed SSH session), SIGQUIT …: each stops like Ctrl-C, status recorded
+            outcome = start()
     except (FileExistsError, PreparationError, RunDirError, ResultsError, OutputRefused) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
@@ -61,8 +56,13 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
             print(f"rtcal: {note}", file=sys.stderr)
         print(f"rtcal: {_how_to_go_on(run_dir, instruments)} once there is space", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt:
-        print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
+    except KeyboardInterrupt as exc:  # Ctrl-C, a signal, an abort from the page or `rtcal control`
+        why = str(exc) if str(exc).startswith(("interrupted by", "aborted by")) else "interrupted"
+        try:  # after SIGHUP the terminal may be gone: the status is recorded, the exit code still says it
+            print(f"\nrtcal: {why}; {_how_to_go_on(run_dir, instruments)}",
+                  file=sys.stderr, flush=True)
+        except OSError:
+            pass
         return EXIT_INTERRUPTED
     results = outcome.results
     if outcome.finished:

@@ -54,6 +54,16 @@ class StoreWriter:
                                  if asked else ""})
 
 
+class _Gone:
+    """Where the progress goes once the console is gone: nowhere."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
 def _hms(seconds: float) -> str:
     seconds = max(0, int(round(seconds)))
     h, rem = divmod(seconds, 3600)
@@ -110,6 +120,12 @@ class ConsoleProgress:
                 + f" · {self.faults} fault{'' if self.faults == 1 else 's'}")
 
     def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        try:
+            self._update(name, doc)
+        except OSError:  # the terminal is gone (SIGHUP, a closed SSH session: EIO): the store has it all
+            self.stream = _Gone()
+
+    def _update(self, name: str, doc: dict[str, Any]) -> None:
         if name == "start":
             self.planned, self.done = doc["planned"], doc["done"]
             self._first_done, self._t0_s = doc["done"], doc["t_s"]

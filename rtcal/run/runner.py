@@ -10,6 +10,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import sqlite3
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -492,7 +493,10 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
-        _stop(store, "not started", exc)
+        if isinstance(exc, KeyboardInterrupt):  # nothing moved yet
+            _record_interruption(store, goes_on_s, exc, "not started", "while the instruments were opened: nothing moved")
+        else:
+            _stop(store, "not started", exc)
         raise
     done = store.done_plan_indices()
     devices = inst.devices()
@@ -513,8 +517,12 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
             raise
         finally:
             inst.close()
-        outcome = _solve_and_write(proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
-        return outcome
+        try:
+            return _solve_and_write(proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
+        except KeyboardInterrupt as exc:  # a signal while solving or writing: no results, recorded as any stop
+            _record_interruption(store, clock.now_s(), exc, "interrupted", "while the results were computed: none were "
+                                 "written; `rtcal resume` computes them again")
+            raise
     finally:
         if detach is not None:  # the live view showed the run to its end
             detach()
@@ -596,12 +604,26 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
             write_pdf(certificate, out / "report.pdf")
             write_certificate_json(certificate, out / "certificate.json")
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
-        _stop(store, "measured", exc)
+        if not isinstance(exc, KeyboardInterrupt):  # (an interruption is recorded by the caller)
+            _stop(store, "measured", exc)
         raise
     # only now: `resume` of a solved run changes nothing; the store records which results.json it has
     store.set_meta({"status": "solved", "engine_state": "finished", RESULTS_DIGEST_KEY: results_digest(results)})
     store.close()
     return RunOutcome(run_dir, results, counted)
+
+
+def _record_interruption(store: RunStore, t_s: float, exc: KeyboardInterrupt, status: str, when: str) -> None:
+    """Ctrl-C, a signal, outside the engine (which records its own): an ``abort`` event saying
+    ``when``, and ``status``; the store closed."""
+    try:
+        store.add_event(t_s, "abort", f"{exc or 'interrupted by SIGINT (Ctrl-C)'} {when}")
+    except Exception:  # noqa: BLE001 — the disk refused it (or the store was closed): the status still tries
+        pass
+    try:
+        _stop(store, status, exc)
+    except sqlite3.ProgrammingError:  # closed: the results were written whole just before
+        pass
 
 
 def _stop(store: RunStore, status: str, exc: BaseException) -> None:
