@@ -47,12 +47,15 @@ class SiemensLecFormat(CompensationFormat):
     def instructions(self, table: CompensationTable, **options: Any) -> list[str]:
         axis, n = options.get("axis", "C1"), len(table.positions_deg)
         reference = float(options.get("reference_deg", 0.0))
+        reversal_arcsec = float(abs(table.trim_down_deg - table.trim_up_deg).mean()) * 3600.0
         return [f"MD38000 $MA_MM_ENC_COMP_MAX_POINTS[0,{axis}] >= {n} (the table's {n} points; K3 p. 242; on an 808D at "
                 "most 200, p. 106); a change of MD38000 reorganises the NC memory: back it up first",
                 f"load this file while MD32700 $MA_ENC_COMP_ENABLE[0,{axis}] = 0, then set it to 1 and POWER ON (K3 p. 238, "
                 "808D p. 106)",
                 f"the compensation acts only once {axis} is referenced; the table is 0 at its reference point, {reference:g} deg "
-                "(K3 p. 238: no position jump when the LEC is activated)"]
+                "(K3 p. 238: no position jump when the LEC is activated)",
+                f"the table is the mean of both directions: the reversal measured, {reversal_arcsec:.2f} arcsec on average, "
+                "is left to the axis's backlash compensation (MD32450 $MA_BACKLASH, K3 4.3): keep it set"]
 
     def parse(self, text: str, where: str = "<siemens-lec>") -> CompensationTable:
         points, settings, _ = _siemens.values(text, where, "AA_ENC_COMP")
