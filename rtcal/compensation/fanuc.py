@@ -156,11 +156,11 @@ class FanucFormat(CompensationFormat):
         if first != ref:
             raise CompensationError(f"{where}:{line_of[3621]}: a rotary axis's farthest − point (3621) is its reference point (3620)")
         n = int(last - first)
-        unit = unit_deg if degrees else 360.0 / per_rev
-        if n < 2 or interval <= 0 or magnification <= 0 or abs(n * interval - per_rev) > 1e-6 * per_rev:
+        if n < 2 or n >= self.max_points or interval <= 0 or magnification <= 0 or abs(n * interval - per_rev) > 1e-6 * per_rev:
             raise CompensationError(f"{where}:{line_of[3622]}: 3622 − 3621 = {n} intervals of {interval:g} must make one turn "
                                     f"of {per_rev:g} (3625), with magnification 3623 > 0")
         step = 360.0 / n
+        unit = unit_deg if degrees else 360.0 / per_rev
         bidirectional = int(values.get(3605, 0)) & 1 == 1
         ints = {k: int(v) for k, v in values.items() if k < 3605 or k > 3627}
 
@@ -218,8 +218,10 @@ class FanucFormat(CompensationFormat):
                 number, raw = int(m.group(1)), m.group(3)
                 if number >= PITCH_BASE:
                     key = number - PITCH_BASE
-                elif number == 3605:
-                    key, raw = 3605, str(int(raw, 2) if set(raw.lstrip("+")) <= {"0", "1"} else int(raw))
+                elif number == 3605:  # a bit parameter: #7 … #0
+                    if not re.fullmatch(r"[01]{1,8}", raw):
+                        raise CompensationError(f"{where}:{line_no}: 3605 is a bit parameter, e.g. P00000001")
+                    key, raw = 3605, str(int(raw, 2))
                 elif 3620 <= number <= 3627:
                     key = number
                 else:
