@@ -127,7 +127,7 @@ def _mutated(fmt: str, old: str, new: str) -> str:
 
 @pytest.mark.parametrize("fmt, old, new, message", [
     ("siemens-lec", "M17\n", "", "M17 is missing"),
-    ("siemens-lec", "CHANDATA(1)\n", "CHANDATA(1)\nG01 X10\n", ":6: not a \\$AA_ENC_COMP assignment"),
+    ("siemens-lec", "CHANDATA(1)\n", "CHANDATA(1)\nG01 X10\n", ":7: not a \\$AA_ENC_COMP assignment"),
     ("siemens-lec", "IS_MODULO[0,C1]=1", "IS_MODULO[0,C1]=0", "modulo table"),
     ("siemens-lec", "$AA_ENC_COMP[0,3,", "$AA_ENC_COMP[0,33,", "without gaps"),
     ("siemens-cec", "%_N_NC_CEC_INI", "%_N_AX_EEC_INI", ":1: the first line must be %_N_NC_CEC_INI"),
