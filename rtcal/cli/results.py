@@ -41,13 +41,16 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     table, _ = read_deviation_table(args.source)
     try:
         comp = table_from_deviations(table, args.step_deg, args.max_gap_deg, args.allow_one_direction, args.format)
-        text = write_table(args.format, comp, **options_given(vars(args)))
+        options = options_given(vars(args))
+        text = write_table(args.format, comp, **options)
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
     out = write_output(Path(args.out), text)
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
           "(docs/compensation.md: the format's rules and sign)")
+    for step in get_format(args.format).instructions(comp, **options):  # what to do on the control
+        print(f"on the control: {step}")
     for warning in comp.warnings:
         where = "" if get_format(args.format).takes_comments else f" (not in {out}: a {args.format} file takes no comment)"
         print(f"rtcal: warning: {warning}{where}", file=sys.stderr)

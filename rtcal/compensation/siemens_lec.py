@@ -1,34 +1,61 @@
-"""SINUMERIK LEC (leadscrew/encoder error compensation, docs/compensation.md): one modulo table,
-the mean of both directions; a positive value moves the axis negative."""
+"""SINUMERIK LEC (measuring-system / leadscrew error compensation, docs/compensation.md): one
+modulo table, the mean of both directions, referred to 0 at the reference point; a positive
+value moves the axis negative. Sources: Siemens Function Manual Extended Functions, K3
+"Compensations" 4.4.2, edition 03/2013 (pp. 238, 241, 242), and the 808D manual (p. 106)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 from rtcal.compensation import _siemens
-from rtcal.compensation.base import CompensationFormat
+from rtcal.compensation.base import CompensationFormat, FormatOption
 from rtcal.compensation.table import CompensationError, CompensationTable, regular_table
+
+REFERENCE = FormatOption("reference_deg", "--reference-deg", "the angle of the axis's reference point (datum), where "
+                         "the table is 0", "default 0", type=float)
 
 
 class SiemensLecFormat(CompensationFormat):
     name = "siemens-lec"
     max_points = _siemens.MAX_POINTS
     fixed_pitch = "$AA_ENC_COMP_STEP"
-    sign = "the deviation (−trim), deg: a positive value moves the axis negative; one table, the mean of both directions"
+    sign = ("the deviation (−trim), deg: a positive value moves the axis negative (K3 p. 238); one table, the mean of "
+            "both directions, 0 at the reference point (K3 p. 238)")
     comment = ("; ", "")
     one_direction = ("the one LEC table stands for the mean of both directions, the reversal left to the axis's backlash "
                      "compensation; from one direction it is that direction's curve, off the mean by half the reversal at "
                      "each target")
-    options = (_siemens.AXIS,)
+    options = (_siemens.AXIS, REFERENCE, _siemens.POINTS)
 
-    def write(self, table: CompensationTable, axis: str = "C1") -> str:
-        """LEC, one table (the mean of both directions): a positive value moves the axis negative, so
-        the value is the deviation, −trim, in degrees; modulo: the value at MAX repeats MIN's."""
-        self.check_points(table)
-        mean = (table.trim_up_deg + table.trim_down_deg) / 2
-        lines = ["%_N_AX_EEC_INI", *self.comment_lines(table), "CHANDATA(1)"]
-        lines += [f"$AA_ENC_COMP[0,{i},{axis}]={-v + 0.0:.8f}" for i, v in enumerate(mean)]
+    def write(self, table: CompensationTable, axis: str = "C1", reference_deg: float = 0.0,
+              max_points: int = _siemens.DEFAULT_POINTS) -> str:
+        """One LEC table: "A positive compensation value causes the corresponding machine axis to move
+        in the negative direction" (K3 p. 238), so the value is the deviation (−trim), in degrees;
+        the mean of both directions (one table per encoder), 0 at the reference point (K3 p. 238);
+        MIN 0, MAX 360, IS_MODULO 1, the value at MAX equal to MIN's, no gaps (K3 p. 241). What the
+        control needs to take it (MD32700, MD38000, POWER ON, a referenced axis) as ``;`` lines."""
+        _siemens.check_size(max_points)
+        self.check_points(table, max_points)
+        values = _siemens.mean_from_reference(table, _siemens.check_reference(reference_deg))
+        lines = ["%_N_AX_EEC_INI", *self.comment_lines(table),
+                 *(f"; {line}" for line in self.instructions(table, axis=axis, reference_deg=reference_deg)), "CHANDATA(1)"]
+        lines += [f"$AA_ENC_COMP[0,{i},{axis}]={v + 0.0:.8f}" for i, v in enumerate(values)]
         lines += [f"$AA_ENC_COMP_STEP[0,{axis}]={table.step_deg:.6f}", f"$AA_ENC_COMP_MIN[0,{axis}]=0.0",
                   f"$AA_ENC_COMP_MAX[0,{axis}]=360.0", f"$AA_ENC_COMP_IS_MODULO[0,{axis}]=1", "M17"]
         return "\n".join(lines) + "\n"
+
+    def instructions(self, table: CompensationTable, **options: Any) -> list[str]:
+        axis, n = options.get("axis", "C1"), len(table.positions_deg)
+        reference = float(options.get("reference_deg", 0.0))
+        reversal_arcsec = float(abs(table.trim_down_deg - table.trim_up_deg).mean()) * 3600.0
+        return [f"MD38000 $MA_MM_ENC_COMP_MAX_POINTS[0,{axis}] >= {n} (the table's {n} points; K3 p. 242; on an 808D at "
+                "most 200, p. 106); a change of MD38000 reorganises the NC memory: back it up first",
+                f"load this file while MD32700 $MA_ENC_COMP_ENABLE[0,{axis}] = 0, then set it to 1 and POWER ON (K3 p. 238, "
+                "808D p. 106)",
+                f"the compensation acts only once {axis} is referenced; the table is 0 at its reference point, {reference:g} deg "
+                "(K3 p. 238: no position jump when the LEC is activated)",
+                f"the table is the mean of both directions: the reversal measured, {reversal_arcsec:.2f} arcsec on average, "
+                "is left to the axis's backlash compensation (MD32450 $MA_BACKLASH, K3 4.3): keep it set"]
 
     def parse(self, text: str, where: str = "<siemens-lec>") -> CompensationTable:
         points, settings, _ = _siemens.values(text, where, "AA_ENC_COMP")
