@@ -9,7 +9,14 @@ import time
 
 import pytest
 
-from drivers import models
+from drivers import models, pi_gcs
+from drivers.addresses import parse_address
+from drivers.errors import InstrumentFault
+from drivers.pi_gcs import PiGcsStage
+from simulators.scenario import Scenario
+from simulators.servers.hub import SimulatorHub
+from tests import emulators as emu
+from tests.emulators import Emulator
 from tests.test_trust_round2 import _one_line
 
 
@@ -65,3 +72,73 @@ def test_a_sylvac_that_keeps_sending_ends_the_probe_within_a_bound(capsys):
     flood.listener.close()
     assert "keeps sending after MM" in err and "dial_indicator" in err, err
     assert took_s < 3.0, took_s  # the loop after MM had no deadline: it read as long as the indicator sent
+
+
+class _FastClock:
+    """Time running ``factor`` times faster than the wall clock, for the driver and the emulator
+    alike: a 35 s turn takes under 2 s of the test's time, every deadline scaled with it."""
+
+    def __init__(self, factor: float):
+        self.factor, self.t0 = factor, time.monotonic()
+
+    def monotonic(self) -> float:
+        return self.t0 + (time.monotonic() - self.t0) * self.factor
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds / self.factor)
+
+
+def _pi_stage(controller: Emulator) -> PiGcsStage:
+    return PiGcsStage(parse_address(f"{controller.url()}?model=pi-gcs&axis=1"), 1.0)
+
+
+def test_a_pi_turn_of_350_deg_at_10_deg_per_s_arrives(monkeypatch):
+    """35 s of travel: the wait was ten timeouts (10 s) whatever the move; now it is the move's own."""
+    clock = _FastClock(20.0)
+    monkeypatch.setattr(pi_gcs, "time", clock)
+    answer = emu.pi_gcs(travel_deg=360.0, velocity_deg_per_s=10.0, clock=clock.monotonic)
+    with Emulator(answer, b"\n") as controller:
+        stage = _pi_stage(controller)
+        try:
+            start_s = clock.monotonic()
+            stage.move_to(350.0)
+            took_s = clock.monotonic() - start_s
+            assert stage.position_deg() == 350.0
+        finally:
+            stage.close()
+    assert 35.0 <= took_s < 40.0, took_s
+
+
+def test_a_pi_motion_error_mid_move_is_named_when_it_happens():
+    """Error 1024 two seconds into a 35 s move: the fault names it then, not after ten timeouts as
+    "not on target in time" (ERR? was never read while waiting)."""
+    answer = emu.pi_gcs(travel_deg=360.0, velocity_deg_per_s=10.0, motion_error_after_s=2.0)
+    with Emulator(answer, b"\n") as controller:
+        stage = _pi_stage(controller)
+        try:
+            start_s = time.monotonic()
+            with pytest.raises(InstrumentFault, match=r"GCS error 1024 \(motion error") as fault:
+                stage.move_to(350.0)
+            took_s = time.monotonic() - start_s
+        finally:
+            stage.close()
+    assert "at 20.0" in str(fault.value)  # where it stopped: 2 s at 10°/s
+    assert took_s < 2.5, took_s
+
+
+def test_the_pi_simulator_injects_a_motion_error_and_reports_it_by_err():
+    with SimulatorHub(Scenario(), seed=1, serial="tcp", stage_model="pi-gcs") as hub:
+        assert hub.pi_gcs is not None
+        hub.pi_gcs.motion_error_moves = {2}
+        stage = PiGcsStage(parse_address(hub.addresses["stage"]), 1.0)
+        try:
+            stage.move_to(10.0)
+            start_s = time.monotonic()
+            with pytest.raises(InstrumentFault, match=r"move to 30\.000000°: GCS error 1024 \(motion error.*at 20\.0"):
+                stage.move_to(30.0)
+            assert time.monotonic() - start_s < 1.0
+            stage.reset_alarm()  # ERR? read, servo on again: the table moves on
+            stage.move_to(40.0)
+            assert stage.position_deg() == pytest.approx(40.0, abs=1e-6)
+        finally:
+            stage.close()
