@@ -1,5 +1,6 @@
-"""Issue 36, drivers that are trusted too readily: a plugin that is not its kind's interface (8), a
-Sylvac that keeps sending (6), a PI controller's motion error and long moves (5)."""
+"""Issue 36, what is trusted too readily: a plugin that is not its kind's interface (8), a Sylvac
+that keeps sending (6), a PI controller's motion error and long moves (5), a drive that never moves
+blamed on the encoder (7), dial indicators trusted alone (11)."""
 
 from __future__ import annotations
 
@@ -142,3 +143,17 @@ def test_the_pi_simulator_injects_a_motion_error_and_reports_it_by_err():
             assert stage.position_deg() == pytest.approx(40.0, abs=1e-6)
         finally:
             stage.close()
+
+
+def test_a_drive_that_never_moves_is_named_not_the_encoder(tmp_path):
+    """The stage stuck from its 10th request on (it reports in position, the table stays): the encoder
+    reads the target before, and the autocollimator sees a face square — the same face, reading as it
+    did, since the step is whole faces. It was blamed on the encoder ("a frozen counter")."""
+    from rtcal.run.runner import RunAborted, run_procedure
+    from tests.test_cross_checks import ISO, _scenario_file
+
+    scenario = _scenario_file(tmp_path, [{"instrument": "stage", "kind": "stuck", "at_request": list(range(10, 60))}])
+    with pytest.raises(RunAborted, match="the table did not turn") as exc:
+        run_procedure(ISO, scenario, out_dir=tmp_path / "run", show_progress=False)
+    assert exc.value.instrument == "stage"
+    assert "drive did not move the table" in str(exc.value) and "encoder's count is frozen" in str(exc.value)
