@@ -361,6 +361,37 @@ class IndicatorCheck:
                                             "(25.4× too small); set it to mm")
 
 
+class IndicatorRepeatCheck:
+    """Each dial indicator at a target already seen (another run, the other direction, another
+    seating of the polygon: the indicators touch the shaft, not the polygon) reads what it read there within ``tolerance_um(n)``: 5σ of the difference (its
+    stated noise and digit), a digit (two roundings), plus the stated ``drift_um``. The shaft's
+    radial and tilt motion is a function of the angle, the same at each visit; an indicator that
+    creeps or slips on its stand is not — and the encoder error predicted from both indicators
+    would carry its creep into the certificate's Abbe part, so it is checked here as the
+    autocollimator is (:class:`AutocollimatorEncoderCheck`)."""
+
+    def __init__(self, sigma_um: float, digit_um: float, drift_um: float):
+        self.sigma_um, self.digit_um, self.drift_um = sigma_um, digit_um, drift_um
+        self.seen: dict[tuple[str, float], dict[int, float]] = {}  # (indicator, target) → {visit: mean}
+
+    def tolerance_um(self, n: int) -> float:
+        """Against the mean of n earlier visits of the target."""
+        return 5.0 * self.sigma_um * float(np.sqrt(1.0 + 1.0 / n)) + self.digit_um + self.drift_um
+
+    def check(self, instrument: str, y_um: float, command_deg: float, visit: int) -> None:
+        key = (instrument, round(command_deg % 360.0, 6))  # the shaft's, whatever the polygon's seating
+        earlier = {k: v for k, v in self.seen.get(key, {}).items() if k != visit}  # a retaken visit replaces its own
+        if earlier:
+            ref, tol = float(np.mean(list(earlier.values()))), self.tolerance_um(len(earlier))
+            if not abs(y_um - ref) <= tol:
+                raise Contradiction(instrument, f"at {command_deg:g}° reads {y_um:+.2f} µm, {y_um - ref:+.2f} µm from its "
+                                                f"{len(earlier)} earlier visit(s) of this target (tolerance {tol:.2g} µm: 5σ "
+                                                "of its stated noise, a digit, verification.indicator_drift_um): the "
+                                                "indicator creeps or slipped on its stand; the tilt and radial motion — "
+                                                "and the encoder error predicted from them — would be wrong")
+        self.seen.setdefault(key, {})[visit] = y_um
+
+
 class TracerReturnCheck:
     """The tracer's length where its tracking segment was referenced, measured again (at the end
     of each pass, before the tracer is moved, before a stop): a count that drifted or creeps shows
@@ -397,24 +428,30 @@ class TracerReturnCheck:
                                                 "count drifts or creeps; every length of the segment is suspect")
 
 
-def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck]:
+def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck, IndicatorRepeatCheck]:
     """The cross-checks of an encoder Abbe-error (or ISO 230-2) procedure, with its stated figures."""
     v, u = proc.verification, proc.uncertainty
     sigma = v.cross_check_noise_arcsec or combined_sigma((u.autocollimator_noise_arcsec, u.autocollimator_resolution_arcsec),
                                                          (u.encoder_noise_arcsec, u.encoder_resolution_arcsec)) or 0.3
+    indicator_sigma = combined_sigma((u.indicator_noise_um, u.indicator_resolution_um)) or 0.3
     return (AutocollimatorEncoderCheck(sigma, v.cross_check_drift_arcsec, v.encoder_error_bound_arcsec, v.face_error_bound_arcsec),
-            IndicatorCheck(v.indicator_range_um, u.indicator_resolution_um))
+            IndicatorCheck(v.indicator_range_um, u.indicator_resolution_um),
+            IndicatorRepeatCheck(indicator_sigma, u.indicator_resolution_um, v.indicator_drift_um))
 
 
-def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, readings: list[Reading], command_deg: float,
-                     seating: int, run: int, direction: int, visit: int) -> None:
+def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, repeats: IndicatorRepeatCheck,
+                     readings: list[Reading], command_deg: float, seating: int, run: int, direction: int, visit: int) -> None:
     """One visit's readings (the store's Reading objects) through the cross-checks; each quantity as
     its kind's description names it (drivers/interfaces.py)."""
     displacement = DESCRIPTIONS["dial_indicator"]["y_um"].quantity()
     face, angle = DESCRIPTIONS["autocollimator"]["x_arcsec"].quantity(), DESCRIPTIONS["encoder"]["angle_deg"].quantity()
+    shaft: dict[str, list[float]] = {}
     for r in readings:
         if r.quantity == displacement:
             indicators.check(r.instrument, r.value)
+            shaft.setdefault(r.instrument, []).append(r.value)
+    for instrument, values in sorted(shaft.items()):
+        repeats.check(instrument, float(np.mean(values)), command_deg, visit)
     x = [r.value for r in readings if r.quantity == face]
     encoder = [r.value for r in readings if r.quantity == angle]
     if x and encoder:  # the mean of the encoder's samples, across 0°/360° too
