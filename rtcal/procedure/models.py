@@ -488,6 +488,10 @@ class AbbeVerification(_Verification):
     indicator_range_um: float = Field(
         1000.0, gt=0.0, le=100_000.0, description="how far the dial indicators may read from zero: the shaft's radial and "
                                                   "tilt motion at them, µm (e.g. 1000)")
+    indicator_drift_um: float = Field(
+        1.0, ge=0.0, le=100_000.0, description="how far a dial indicator's reading at one target may drift during the run "
+                                               "beyond 5σ of its stated noise and a digit (thermal drift of its stand), µm "
+                                               "(e.g. 1)")
 
 
 class MultistationDurations(_Strict):
