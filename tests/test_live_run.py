@@ -17,6 +17,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -47,10 +48,11 @@ def fast_iso(tmp_path: Path, settle_s: float = 0.05, runs: int = 5) -> Path:
     return path
 
 
-def start_run(*args: str) -> tuple[subprocess.Popen, dict[str, str]]:
+def start_run(*args: str, preexec_fn: Callable[[], None] | None = None) -> tuple[subprocess.Popen, dict[str, str]]:
     """`rtcal ...` in a process; waits for its `live view:` (if any) and `control token:` lines."""
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], cwd=REPO, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # no terminal: as under nohup
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=preexec_fn)  # no terminal: as under nohup
     seen: dict[str, str] = {}
     deadline = time.monotonic() + 60
     while "control token" not in seen:

@@ -29,6 +29,21 @@ def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_fail
     return "nothing was measured"
 
 
+def out_of_descriptors(exc: BaseException) -> bool:
+    """The process (EMFILE) or the system (ENFILE) has no file descriptor left, anywhere in the chain of
+    causes: the computer's fault during a run, not the user's input."""
+    import errno
+
+    seen: set[int] = set()
+    found: BaseException | None = exc
+    while found is not None and id(found) not in seen:
+        seen.add(id(found))
+        if isinstance(found, OSError) and found.errno in (errno.EMFILE, errno.ENFILE):
+            return True
+        found = found.__cause__ or found.__context__
+    return False
+
+
 def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = None) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on (``instruments``: the
     --instruments text given, for the resume command)."""
@@ -54,6 +69,11 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         print(f"rtcal: {_how_to_go_on(run_dir, instruments, instruments_failed=True)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
+        if out_of_descriptors(exc):
+            print(f"rtcal: this process ran out of file descriptors ({exc.strerror or exc}): close what holds them "
+                  "(`ulimit -n` is the limit)", file=sys.stderr)
+            print(f"rtcal: {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
+            return EXIT_FAILED
         if not is_disk_failure(exc):
             raise
         print(disk_failure(exc, run_dir), file=sys.stderr)

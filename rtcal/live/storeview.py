@@ -294,6 +294,21 @@ class StoreView:
             threading.Thread(target=solve, name="rtcal-live-result", daemon=True).start()
         return cached[1] if cached is not None else None
 
+    def finish(self) -> None:
+        """The run has ended: its next state is read afresh, with the result solved now (not aside),
+        so the last state a page gets carries it."""
+        path = self.run_dir / "results.json"
+        try:
+            st = path.stat()
+        except OSError:
+            st = None
+        if st is not None:
+            stamp = (st.st_mtime_ns, st.st_size)
+            if self._result_cache is None or self._result_cache[0] != stamp:
+                self._result_cache, self._result_stamp = (stamp, result_brief(self.run_dir)), stamp
+        with self._lock:
+            self._state_at = -1e9
+
     # -- what the event stream sends -------------------------------------------------------------
     def readings_after(self, last_id: int, limit: int = 2000) -> list[dict[str, Any]]:
         """Readings with an id above ``last_id``, oldest first (marker rows included: the page

@@ -1,0 +1,125 @@
+"""A `rtcal run --live` as its page sees it to the end: idle connections from anyone on the computer
+never take the run's process to its descriptor limit, and every event stream ends with the run's
+final state (finished) instead of breaking off at `running`."""
+
+from __future__ import annotations
+
+import errno
+import json
+import resource
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rtcal.live.control import send_control
+from tests.polling import wait_for
+from tests.test_live_run import start_run
+
+REPO = Path(__file__).resolve().parents[1]
+ISO = REPO / "procedures" / "iso230_2_polygon.yaml"
+
+pytestmark = pytest.mark.slow
+
+
+def short_iso(tmp_path: Path, runs: int = 2) -> Path:
+    data = yaml.safe_load(ISO.read_text(encoding="utf-8"))
+    (tmp_path / "bench.yaml").write_bytes((ISO.parent / data["bench"]).read_bytes())
+    data["bench"] = "bench.yaml"
+    data["steps"]["runs"] = runs
+    path = tmp_path / "iso_short.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    return path
+
+
+def _limit_descriptors() -> None:  # the default of a login session: what a lab's run gets
+    resource.setrlimit(resource.RLIMIT_NOFILE, (1024, 1024))
+
+
+def start_live_run(procedure: Path, run_dir: Path) -> tuple[subprocess.Popen, str, str]:
+    """`rtcal run --live` with the descriptors of a login session; its URL and token."""
+    proc, seen = start_run("run", str(procedure), "--out", str(run_dir), "--live", "127.0.0.1:0",
+                           preexec_fn=_limit_descriptors)
+    return proc, seen["live view"], seen["control token"]
+
+
+def state(url: str) -> dict:
+    with urllib.request.urlopen(url + "api/state", timeout=10) as r:
+        return json.loads(r.read())
+
+
+def open_idle(host: str, port: int, count: int) -> list[socket.socket]:
+    """``count`` connections that never send a byte (non-blocking: a full backlog does not hold the test)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft < count + 200:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, count + 400), hard))
+    socks = []
+    for _ in range(count):
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        s.setblocking(False)
+        code = s.connect_ex((host, port))
+        assert code in (0, errno.EINPROGRESS), errno.errorcode.get(code)
+        socks.append(s)
+    return socks
+
+
+def test_1100_idle_connections_never_starve_the_run(tmp_path):
+    run_dir = tmp_path / "run"
+    proc, url, token = start_live_run(short_iso(tmp_path), run_dir)
+    socks: list[socket.socket] = []
+    try:
+        send_control(run_dir, token, "pause")
+        wait_for(lambda: state(url)["state"] == "paused", 60)
+        host, port = url.removeprefix("http://").rstrip("/").rsplit(":", 1)
+        socks = open_idle(host, int(port), 1100)
+        time.sleep(3.0)  # the run's server accepts (and closes at once beyond its cap) them
+        assert proc.poll() is None
+        send_control(run_dir, token, "resume")
+        out, err = proc.communicate(timeout=300)
+    finally:
+        for s in socks:
+            s.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-3000:]
+    assert (run_dir / "results.json").is_file() and (run_dir / "report.pdf").is_file()
+    assert len(err) < 5000, err[-3000:]  # no traceback per connection
+
+
+def read_stream(url: str, timeout_s: float = 300) -> list[tuple[str, str]]:
+    """Every event of one /api/events stream until the server ends it: (event, data)."""
+    events = []
+    with urllib.request.urlopen(url + "api/events", timeout=timeout_s) as r:
+        name, data = "message", ""
+        for raw in r:
+            line = raw.decode("utf-8").rstrip("\n")
+            if not line:
+                if data:
+                    events.append((name, data))
+                name, data = "message", ""
+            elif line.startswith("event: "):
+                name = line[7:]
+            elif line.startswith("data: "):
+                data += line[6:]
+    return events
+
+
+def test_the_event_stream_ends_with_the_finished_state(tmp_path):
+    run_dir = tmp_path / "run"
+    proc, url, token = start_live_run(short_iso(tmp_path), run_dir)
+    try:
+        events = read_stream(url)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-3000:]
+    states = [json.loads(d) for n, d in events if n == "state"]
+    last = states[-1]
+    assert last["state"] == "finished" and last["done_readings"] == last["planned_readings"]
+    assert last["result"] is not None and last["result"]["error"] is None  # the result comes with it
