@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import json
 import resource
+import shutil
 import socket
 import subprocess
 import sys
@@ -18,6 +19,8 @@ import pytest
 import yaml
 
 from rtcal.live.control import send_control
+from rtcal.live.server import LiveServer
+from rtcal.run.runner import run_procedure
 from tests.polling import wait_for
 from tests.test_live_run import start_run
 
@@ -123,3 +126,44 @@ def test_the_event_stream_ends_with_the_finished_state(tmp_path):
     last = states[-1]
     assert last["state"] == "finished" and last["done_readings"] == last["planned_readings"]
     assert last["result"] is not None and last["result"]["error"] is None  # the result comes with it
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no chromium installed (Debian: apt-get install chromium)")
+def test_the_finished_page_of_24_targets(tmp_path):
+    """What a lab sees at the end: no cell lit as `now`, none left `to do`, the grid from 0° to 345° with
+    its done column and the readings' age column inside 1300 px, the result in a sentence (the console's
+    lines one click away), units as µm and °C."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    procedure = short_iso(tmp_path)
+    data = yaml.safe_load(procedure.read_text(encoding="utf-8"))
+    data["steps"]["targets_deg"] = [15 * k for k in range(24)]
+    procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    run_procedure(procedure, out_dir=tmp_path / "run", show_progress=False)
+    with LiveServer(tmp_path / "run", "127.0.0.1", 0) as server, sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--headless", "--no-sandbox", "--disable-gpu",
+                                                                    "--disable-background-networking"])
+        try:
+            page = browser.new_page(viewport={"width": 1300, "height": 1000})
+            page.goto(server.url)
+            page.wait_for_selector("#result-card:not([hidden])", timeout=60000)
+            page.wait_for_selector("#grid table")
+            assert page.locator("#grid .cell.current").count() == 0 and page.locator("#grid .cell.pending").count() == 0
+            assert page.is_hidden("#legend-now") and page.inner_text("#current") == "–"
+            heads = page.eval_on_selector_all("#grid thead th", "ths => ths.map(t => t.textContent)")
+            assert heads[1] == "0°" and heads[-2] == "345°" and heads[-1] == "done" and len(heads) == 26
+            assert page.eval_on_selector_all("#grid thead th", "ths => ths[ths.length - 1].getBoundingClientRect().right") <= 1300
+            assert page.eval_on_selector("#grid-card", "e => e.scrollWidth <= e.clientWidth")
+            age = page.eval_on_selector_all("#latest th", "ths => ths[ths.length - 1].getBoundingClientRect().right")
+            card = page.eval_on_selector("#latest-card", "e => e.getBoundingClientRect().right")
+            assert age <= card <= 1300
+            assert page.inner_text("#result-headline").startswith("Positioning error of the axis E = ")
+            assert not page.is_visible("#result-lines")  # the console's lines are one click away
+            page.click("#result-details summary")
+            assert "positioning deviation" in page.inner_text("#result-lines")
+            latest = page.inner_text("#latest") + page.inner_text("#environment")
+            assert "µm" in latest and "°C" in latest and " um" not in latest and "degC" not in latest
+        finally:
+            browser.close()

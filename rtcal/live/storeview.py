@@ -434,4 +434,27 @@ def result_brief(run_dir: Path) -> dict[str, Any] | None:
                       "run": table.run, "deviation_arcsec": table.deviation_arcsec,
                       "U_arcsec": [None if u is None else 2.0 * u for u in table.uncertainty_arcsec]}
     files = [f for f in REPORT_FILES if os.path.isfile(run_dir / f) and not os.path.islink(run_dir / f)]
-    return {"error": None, "lines": lines, "deviations": deviations, "files": files}
+    return {"error": None, "headline": headline(results, lines), "lines": lines, "deviations": deviations,
+            "files": files}
+
+
+def headline(results: Any, lines: list[str]) -> str:
+    """The result in a lab's words: the axis' positioning error E with its U (k = 2) and the
+    verdict against the limit under the procedure's decision rule; a method without ISO 230-2
+    parameters says its first summary line."""
+    from rtcal.deliverables.conformity import parameter_uncertainties
+
+    iso = results.evaluation.iso230_2 if results.evaluation else None
+    if iso is None or iso.E is None:
+        return lines[0] if lines else "measured and solved"
+    u = parameter_uncertainties(results).get("E")
+    text = f"Positioning error of the axis E = {iso.E:.2f}″" + (f" (U = {u:.2f}″, k = 2)" if u is not None else "")
+    c = results.conformity
+    if c is None:
+        return text + "; the procedure states no acceptance limit."
+    limit = c.per_limit.get("E")
+    n = len(c.per_limit)
+    which = (f"its {n} acceptance limits (E ≤ {limit.limit_arcsec:g}″ among them)" if n > 1 and limit is not None
+             else f"its acceptance limit E ≤ {limit.limit_arcsec:g}″" if limit is not None else "its acceptance limits")
+    rule = "guarded acceptance, ISO 14253-1" if c.decision_rule == "guarded" else "simple acceptance, ILAC-G8"
+    return f"{text}. Against {which}: {c.verdict.upper()} ({rule})."
