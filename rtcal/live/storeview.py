@@ -150,7 +150,7 @@ class StoreView:
             "method": meta.get("method"),
             "planned_readings": planned,
             "done_readings": done,
-            "eta_s": self._eta_s(state, planned, done),
+            "eta_s": self._eta_s(state, planned, done, meta.get("eta_s")),
             "faults": faults,
             "current": current_of(meta, last),
             "name": _procedure_name(meta),
@@ -201,13 +201,20 @@ class StoreView:
             acc.newest_t_s = float(newest)
         acc.last_id = hi
 
-    def _eta_s(self, state: str, planned: int | None, done: int) -> float | None:
-        """Time left at the rate of the last completions (s per planned reading, on the run's
-        clock); null until two completions on one clock give a rate."""
+    def _eta_s(self, state: str, planned: int | None, done: int, stored: str | None = None) -> float | None:
+        """Time left: the engine's estimate (the one its log prints, rtcal.engine.subscribers.Eta),
+        else at the rate of the last completions (s per planned reading, on the run's clock); null
+        until two completions on one clock give a rate."""
         if state == "finished":
             return 0.0
         if state in ("failed", "aborted") or planned is None:
             return None
+        try:
+            eta = float(stored or "nan")
+        except ValueError:
+            eta = math.nan
+        if math.isfinite(eta) and eta >= 0:
+            return round(eta, 1)
         tail = list(self._acc.completions)
         start = len(tail) - 1
         while start > 0 and tail[start - 1][1] <= tail[start][1]:  # a resumed run's clock may start again at 0
