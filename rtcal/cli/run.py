@@ -165,7 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     control = _run_control(args.live)
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
                                           virtual_clock=args.virtual_clock, large=args.large, on_engine=control,
-                                          certificate_number=args.certificate_number), out,
+                                          certificate_number=args.certificate_number, rehearse=args.rehearse), out,
                     args.instruments)
 
 
@@ -176,7 +176,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
     _real_controller_in_real_time(addresses, bool(args.virtual_clock))  # None: the run's own clock, checked there
     control = _run_control(args.live)
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
-                                       on_engine=control), args.run_dir, args.instruments)
+                                       on_engine=control, rehearse=args.rehearse), args.run_dir, args.instruments)
 
 
 def cmd_probe(args: argparse.Namespace) -> int:
@@ -214,6 +214,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     return EXIT_FAILED if failed else EXIT_OK
 
 
+REHEARSE_HELP = ("rehearse the operator steps on simulators: each waits for a person (Enter, the page's Done, "
+                 "`rtcal control RUN_DIR confirm`), then the simulated operator (`operator` in --instruments) does it")
+
+
 def add_run(sub: Any) -> None:
     run = sub.add_parser("run", help="run a procedure and write a run directory")
     run.add_argument("procedure", help="procedure YAML file")
@@ -231,6 +235,7 @@ def add_run(sub: Any) -> None:
     run.add_argument("--certificate-number", type=certificate_number, metavar="NUMBER",
                      help="this run's certificate number (replaces the procedure's metadata.certificate_number: a "
                           "procedure serves many runs, each certificate needs its own)")
+    run.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
     run.set_defaults(func=cmd_run)
 
 
@@ -244,6 +249,7 @@ def add_resume(sub: Any) -> None:
     clock.add_argument("--real-clock", dest="virtual_clock", action="store_false",
                        help="go on in real time although the run was started with --virtual-clock")
     resume.add_argument("--live", metavar="[HOST:]PORT", help="as for `run`")
+    resume.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
     resume.set_defaults(func=cmd_resume)
 
 

@@ -40,7 +40,7 @@ from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
 from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
 from rtcal.engine.walk import Timing, walk
-from rtcal.sequencer.operator import BenchOperator, RemoteSimOperator, WaitingOperator
+from rtcal.sequencer.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
 from rtcal.run.store import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
@@ -190,14 +190,23 @@ def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenari
 
 
 def _operator(bench: Bench | None, addresses: dict[str, str] | None, on_engine: OnEngine | None = None,
-              run_dir: Path | None = None):
+              run_dir: Path | None = None, rehearse: bool = False):
     """The simulated bench, the simulated operator of `rtcal sim serve`, or a person: at the terminal
-    and by a remote confirm, which without a terminal is waited for only when the run serves its page."""
+    and by a remote confirm, which without a terminal is waited for only when the run serves its page.
+    ``rehearse``: a person confirms each step, then the simulated bench or operator carries it out."""
+    remote = bool(getattr(on_engine, "remote_operator", False))
+    simulated: BenchOperator | RemoteSimOperator | None = None
     if bench:
-        return BenchOperator(bench)
-    if addresses and "operator" in addresses:
-        return RemoteSimOperator(addresses["operator"])
-    return WaitingOperator(remote=bool(getattr(on_engine, "remote_operator", False)), run_dir=run_dir)
+        simulated = BenchOperator(bench)
+    elif addresses and "operator" in addresses:
+        simulated = RemoteSimOperator(addresses["operator"])
+    if rehearse:
+        if simulated is None:
+            raise RunDirError("--rehearse: a person confirms each operator step and the simulated operator then does "
+                              "it on the simulators: give its address (`operator` in --instruments, as `rtcal sim "
+                              "serve` printed it); on hardware leave --rehearse out")
+        return RehearsalOperator(simulated, remote=remote, run_dir=run_dir)
+    return simulated if simulated is not None else WaitingOperator(remote=remote, run_dir=run_dir)
 
 
 def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
@@ -222,6 +231,7 @@ def run_procedure(
     estimate_noise: bool = True,
     on_engine: OnEngine | None = None,
     certificate_number: str | None = None,
+    rehearse: bool = False,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
     results.json, figures or report — for Monte Carlo trials). ``certificate_number`` replaces the
@@ -253,7 +263,7 @@ def run_procedure(
     bench_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated else None
     motion_timing = bench_timing if virtual_clock else None
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
-    operator = _operator(bench, addresses, on_engine, run_dir)
+    operator = _operator(bench, addresses, on_engine, run_dir, rehearse)
     prepared = method.prepare(proc, operator)
     lock = claim_new_run_dir(run_dir)
     try:
@@ -279,6 +289,7 @@ def resume_run(
     virtual_clock: bool | None = None,
     show_progress: bool | None = None,
     on_engine: OnEngine | None = None,
+    rehearse: bool = False,
 ) -> RunOutcome:
     """Continue an interrupted run from its store: every planned reading not yet stored, once.
 
@@ -359,7 +370,7 @@ def resume_run(
         bench_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
                         if not simulated else None)  # as `run` counts them (from the procedure's bench)
         motion_timing = bench_timing if virtual_clock else None
-        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir), virtual_clock, show_progress, generation,
+        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir, rehearse), virtual_clock, show_progress, generation,
                                   on_engine=on_engine, motion_timing=motion_timing, eta_timing=bench_timing)
     finally:
         lock.release()
