@@ -167,3 +167,18 @@ def test_the_finished_page_of_24_targets(tmp_path):
             assert "µm" in latest and "°C" in latest and " um" not in latest and "degC" not in latest
         finally:
             browser.close()
+
+
+def test_a_run_out_of_descriptors_exits_1_with_the_resume_hint(tmp_path, capsys):
+    """EMFILE mid-run (here from a source file the run imports late) is the computer's fault: exit 1 and
+    how to resume, not exit 2 as if the user had named a bad file."""
+    from rtcal.cli.run import _execute
+
+    (tmp_path / "run.sqlite").write_bytes(b"")
+
+    def start_plain() -> None:
+        raise OSError(errno.EMFILE, "Too many open files", str(REPO / "rtcal" / "deliverables" / "report.py"))
+
+    assert _execute(start_plain, str(tmp_path)) == 1
+    err = capsys.readouterr().err
+    assert "ran out of file descriptors" in err and f"rtcal resume {tmp_path}" in err
