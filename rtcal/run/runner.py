@@ -515,7 +515,8 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
     devices = inst.devices()
     step_deg = float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0)
     plan = method.plan(proc, done, generation, step_deg)
-    timing = eta_timing or (Timing.of_scenario(bench.scenario) if bench is not None else None)
+    shown = show_progress is not False or on_engine is not None  # a Monte Carlo trial shows no one the time left
+    timing = (eta_timing or (Timing.of_scenario(bench.scenario) if bench is not None else None)) if shown else None
     virtual = not isinstance(clock, RealClock)
     eta = Eta(walk(method.plan(proc, done, generation, step_deg), timing, done).entry_s, virtual) if timing else None
     subscribers: list = ([eta] if eta else []) + [StoreWriter(store, eta)]  # the estimate first: both read it
