@@ -158,8 +158,9 @@ function renderState(st) {
   $("bar-fill").style.width = pct.toFixed(1) + "%";
   $("bar").setAttribute("aria-valuenow", pct.toFixed(0));
   $("percent").textContent = st.planned_readings ? pct.toFixed(0) + " %" : "";
-  $("eta").textContent = st.state === "finished" ? "done" : st.operator ? "– (waiting for the operator)"
-    : st.eta_s === null ? "– (no rate yet)" : fmtDuration(st.eta_s);
+  $("eta").textContent = st.state === "finished" ? "done" : st.eta_s === null
+    ? (st.operator ? "– (waiting for the operator)" : "– (no rate yet)")
+    : fmtDuration(st.eta_s) + (st.operator ? " once the operator's step is done" : "");
   $("current").textContent = FINAL.has(st.state) ? "–" : fmtCurrent(st.current);
   $("faults").textContent = st.faults;
   $("faults").className = st.faults ? "has" : "";
