@@ -165,6 +165,13 @@ def test_the_finished_page_of_24_targets(tmp_path):
             assert "positioning deviation" in page.inner_text("#result-lines")
             latest = page.inner_text("#latest") + page.inner_text("#environment")
             assert "µm" in latest and "°C" in latest and " um" not in latest and "degC" not in latest
+            # a run that ended early: where it was is not lit, what it never took is `not measured`, not `to do`
+            page.evaluate("""() => renderGrid({state: "aborted", current: {target_deg: 15, run: 1, direction: "+"},
+                progress: {axis: "target", columns: ["0°", "15°"], rows: [{label: "run 1 ↑", cells: ["done", "pending"],
+                done: 1}]}})""")
+            assert page.locator("#grid .cell.current").count() == 0 and page.locator("#grid .cell.pending").count() == 0
+            assert page.get_attribute("#grid .cell.unmeasured", "title") == "run 1 ↑, 15°: not measured"
+            assert page.inner_text("#legend-pending") == "not measured"
         finally:
             browser.close()
 
