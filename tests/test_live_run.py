@@ -17,6 +17,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -47,10 +48,11 @@ def fast_iso(tmp_path: Path, settle_s: float = 0.05, runs: int = 5) -> Path:
     return path
 
 
-def start_run(*args: str) -> tuple[subprocess.Popen, dict[str, str]]:
+def start_run(*args: str, preexec_fn: Callable[[], None] | None = None) -> tuple[subprocess.Popen, dict[str, str]]:
     """`rtcal ...` in a process; waits for its `live view:` (if any) and `control token:` lines."""
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], cwd=REPO, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # no terminal: as under nohup
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=preexec_fn)  # no terminal: as under nohup
     seen: dict[str, str] = {}
     deadline = time.monotonic() + 60
     while "control token" not in seen:
@@ -282,3 +284,42 @@ def _scenario(tmp_path: Path, how: str, bench: Path = BENCH, faults: list | None
     path = tmp_path / "bench.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
     return load_scenario(path, path.read_text(encoding="utf-8"))
+
+
+def test_a_rehearsal_on_simulators_waits_for_a_person_then_the_simulated_operator_reseats(tmp_path, capsys):
+    """`rtcal run --rehearse`: the polygon's two seatings each wait for a person as on hardware (no terminal, a
+    --live run: the page and `rtcal control … confirm`); once confirmed the simulated operator re-seats the
+    polygon on the simulators, so the run finishes (without it the second seating finds no reflection), its
+    `certificate_arcsec: bench` handed over by the simulated operator; each seating is logged once done, after
+    its confirm. Without the simulated operator's address --rehearse is refused with why (exit 2)."""
+    from rtcal.cli import main
+
+    procedure = fast_iso(tmp_path, settle_s=0.05, runs=2)
+    data = yaml.safe_load(procedure.read_text(encoding="utf-8"))
+    data["polygon"]["seatings_deg"] = [0, 7.5]
+    procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    with SimulatorHub(_scenario(tmp_path, "none"), seed=1) as hub:
+        without = {k: v for k, v in hub.addresses.items() if k != "operator"}
+        assert main(["run", str(procedure), "--instruments", json.dumps(without), "--out", str(tmp_path / "x"),
+                     "--rehearse"]) == 2
+        assert "give its address (`operator` in --instruments" in capsys.readouterr().err
+        assert main(["run", str(procedure), "--instruments", json.dumps(without), "--out", str(tmp_path / "y")]) == 2
+        assert "this run has neither (its operator steps are a person's)" in capsys.readouterr().err  # why `bench` is refused
+        run_dir = tmp_path / "run"
+        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(dict(hub.addresses)), "--out",
+                               str(run_dir), "--live", "127.0.0.1:0", "--rehearse")
+        url, token = seen["live view"], seen["control token"]
+        try:
+            for step in (1, 2):
+                asked = wait_for(lambda: (s := state(url))["operator"] and s["operator"]["step"] == step and s)
+                assert "Seat the polygon" in asked["operator"]["instruction"]
+                assert main(["control", str(run_dir), "confirm", "--token", token, "--step", str(step)]) == 0
+            code, err = finish(proc)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert code == 0, err
+    results = read_results(run_dir)
+    kinds = [(e.kind, e.message) for e in results.events if e.kind in ("operator", "confirm")]
+    assert [k for k, _ in kinds] == ["confirm", "operator", "confirm", "operator"], kinds
+    assert "seated at 7.5°" in kinds[3][1]

@@ -25,6 +25,21 @@ def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_fail
     return "nothing was measured"
 
 
+def out_of_descriptors(exc: BaseException) -> bool:
+    """The process (EMFILE) or the system (ENFILE) has no file descriptor left, anywhere in the chain of
+    causes: the computer's fault during a run, not the user's input."""
+    import errno
+
+    seen: set[int] = set()
+    found: BaseException | None = exc
+    while found is not None and id(found) not in seen:
+        seen.add(id(found))
+        if isinstance(found, OSError) and found.errno in (errno.EMFILE, errno.ENFILE):
+            return True
+        found = found.__cause__ or found.__context__
+    return False
+
+
 def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = None) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on (``instruments``: the
     --instruments text given, for the resume command)."""
@@ -49,6 +64,11 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         print(f"rtcal: {_how_to_go_on(run_dir, instruments, instruments_failed=True)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
+        if out_of_descriptors(exc):
+            print(f"rtcal: this process ran out of file descriptors ({exc.strerror or exc}): close what holds them "
+                  "(`ulimit -n` is the limit)", file=sys.stderr)
+            print(f"rtcal: {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
+            return EXIT_FAILED
         if not is_disk_failure(exc):
             raise
         print(disk_failure(exc, run_dir), file=sys.stderr)
@@ -145,7 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     control = _run_control(args.live)
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
                                           virtual_clock=args.virtual_clock, large=args.large, on_engine=control,
-                                          certificate_number=args.certificate_number), out,
+                                          certificate_number=args.certificate_number, rehearse=args.rehearse), out,
                     args.instruments)
 
 
@@ -156,7 +176,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
     _real_controller_in_real_time(addresses, bool(args.virtual_clock))  # None: the run's own clock, checked there
     control = _run_control(args.live)
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
-                                       on_engine=control), args.run_dir, args.instruments)
+                                       on_engine=control, rehearse=args.rehearse), args.run_dir, args.instruments)
 
 
 def cmd_probe(args: argparse.Namespace) -> int:
@@ -194,6 +214,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     return EXIT_FAILED if failed else EXIT_OK
 
 
+REHEARSE_HELP = ("rehearse the operator steps on simulators: each waits for a person (Enter, the page's Done, "
+                 "`rtcal control RUN_DIR confirm`), then the simulated operator (`operator` in --instruments) does it")
+
+
 def add_run(sub: Any) -> None:
     run = sub.add_parser("run", help="run a procedure and write a run directory")
     run.add_argument("procedure", help="procedure YAML file")
@@ -211,6 +235,7 @@ def add_run(sub: Any) -> None:
     run.add_argument("--certificate-number", type=certificate_number, metavar="NUMBER",
                      help="this run's certificate number (replaces the procedure's metadata.certificate_number: a "
                           "procedure serves many runs, each certificate needs its own)")
+    run.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
     run.set_defaults(func=cmd_run)
 
 
@@ -224,6 +249,7 @@ def add_resume(sub: Any) -> None:
     clock.add_argument("--real-clock", dest="virtual_clock", action="store_false",
                        help="go on in real time although the run was started with --virtual-clock")
     resume.add_argument("--live", metavar="[HOST:]PORT", help="as for `run`")
+    resume.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
     resume.set_defaults(func=cmd_resume)
 
 

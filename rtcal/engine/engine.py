@@ -408,9 +408,9 @@ class Engine:
             self._policy(step.instrument, lambda: self._reference(step.instrument, step.where, step.why, step.seconds),
                          step.why, context, readings)
             return True
-        if isinstance(step, OperatorStep):
-            self._event("operator", step.instrument, step.message)
+        if isinstance(step, OperatorStep):  # logged once done ("polygon seated at …"), not when asked
             getattr(self.operator, step.action)(*step.args)
+            self._event("operator", step.instrument, step.message)
             self._spend(step.seconds)
             return None
         raise TypeError(f"not a step: {step!r}")

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TextIO
 
 from rtcal.live.control import ControlServer, Controllable, new_token
-from rtcal.live.server import LiveServer
+from rtcal.live.server import FINISHED_LINGER_S, LiveServer
 
 
 @dataclass
@@ -27,10 +27,11 @@ class LiveSession:
         return self.server.url if self.server is not None else None
 
     def close(self) -> None:
-        """Stop the web server and remove the control socket (call it however the run ends)."""
+        """Stop the web server (once every page has the run's end) and remove the control socket
+        (call it however the run ends)."""
         try:
             if self.server is not None:
-                self.server.stop()
+                self.server.stop(linger_s=FINISHED_LINGER_S)
         finally:
             self.control.close()
 

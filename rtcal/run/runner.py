@@ -36,9 +36,9 @@ from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
-from rtcal.engine.subscribers import ConsoleProgress, StoreWriter
-from rtcal.engine.walk import Timing
-from rtcal.sequencer.operator import BenchOperator, RemoteSimOperator, WaitingOperator
+from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
+from rtcal.engine.walk import Timing, walk
+from rtcal.sequencer.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
 from rtcal.run.store import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
@@ -188,14 +188,23 @@ def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenari
 
 
 def _operator(bench: Bench | None, addresses: dict[str, str] | None, on_engine: OnEngine | None = None,
-              run_dir: Path | None = None):
+              run_dir: Path | None = None, rehearse: bool = False):
     """The simulated bench, the simulated operator of `rtcal sim serve`, or a person: at the terminal
-    and by a remote confirm, which without a terminal is waited for only when the run serves its page."""
+    and by a remote confirm, which without a terminal is waited for only when the run serves its page.
+    ``rehearse``: a person confirms each step, then the simulated bench or operator carries it out."""
+    remote = bool(getattr(on_engine, "remote_operator", False))
+    simulated: BenchOperator | RemoteSimOperator | None = None
     if bench:
-        return BenchOperator(bench)
-    if addresses and "operator" in addresses:
-        return RemoteSimOperator(addresses["operator"])
-    return WaitingOperator(remote=bool(getattr(on_engine, "remote_operator", False)), run_dir=run_dir)
+        simulated = BenchOperator(bench)
+    elif addresses and "operator" in addresses:
+        simulated = RemoteSimOperator(addresses["operator"])
+    if rehearse:
+        if simulated is None:
+            raise RunDirError("--rehearse: a person confirms each operator step and the simulated operator then does "
+                              "it on the simulators: give its address (`operator` in --instruments, as `rtcal sim "
+                              "serve` printed it); on hardware leave --rehearse out")
+        return RehearsalOperator(simulated, remote=remote, run_dir=run_dir)
+    return simulated if simulated is not None else WaitingOperator(remote=remote, run_dir=run_dir)
 
 
 def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
@@ -220,6 +229,7 @@ def run_procedure(
     estimate_noise: bool = True,
     on_engine: OnEngine | None = None,
     certificate_number: str | None = None,
+    rehearse: bool = False,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
     results.json, figures or report — for Monte Carlo trials). ``certificate_number`` replaces the
@@ -248,9 +258,10 @@ def run_procedure(
         check_plan_on_bench(procedure_path, proc, scenario)
         seed = scenario.seed if seed is None else int(seed)
         bench = Bench(scenario, VirtualClock(), seed)
-    motion_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated and virtual_clock else None
+    bench_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated else None
+    motion_timing = bench_timing if virtual_clock else None
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
-    operator = _operator(bench, addresses, on_engine, run_dir)
+    operator = _operator(bench, addresses, on_engine, run_dir, rehearse)
     prepared = method.prepare(proc, operator)
     lock = claim_new_run_dir(run_dir)
     try:
@@ -265,7 +276,7 @@ def run_procedure(
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
-                                  estimate_noise, on_engine, motion_timing)
+                                  estimate_noise, on_engine, motion_timing, bench_timing)
     finally:
         lock.release()
 
@@ -276,6 +287,7 @@ def resume_run(
     virtual_clock: bool | None = None,
     show_progress: bool | None = None,
     on_engine: OnEngine | None = None,
+    rehearse: bool = False,
 ) -> RunOutcome:
     """Continue an interrupted run from its store: every planned reading not yet stored, once.
 
@@ -353,10 +365,11 @@ def resume_run(
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
             _record_clock(store, meta.get(CLOCK_KEY), virtual_clock)
-        motion_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
-                         if not simulated and virtual_clock else None)  # as `run` counts them (from the procedure's bench)
-        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir), virtual_clock, show_progress, generation,
-                                  on_engine=on_engine, motion_timing=motion_timing)
+        bench_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
+                        if not simulated else None)  # as `run` counts them (from the procedure's bench)
+        motion_timing = bench_timing if virtual_clock else None
+        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir, rehearse), virtual_clock, show_progress, generation,
+                                  on_engine=on_engine, motion_timing=motion_timing, eta_timing=bench_timing)
     finally:
         lock.release()
 
@@ -482,9 +495,10 @@ def _wired_motion_timing(procedure_path: Path, proc: Procedure, scenario_path: s
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True, on_engine: OnEngine | None = None,
-                       motion_timing: Timing | None = None) -> RunOutcome:
+                       motion_timing: Timing | None = None, eta_timing: Timing | None = None) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs
-    (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds)."""
+    (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds;
+    ``eta_timing``: the speeds the time left is walked at, a simulated bench's own by default)."""
     method = METHODS[proc.method]
     simulated = bench is not None
     goes_on_s = store.last_time_s()  # a resume's clock goes on where the run stopped: times only grow
@@ -500,10 +514,15 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         raise
     done = store.done_plan_indices()
     devices = inst.devices()
-    plan = method.plan(proc, done, generation, float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0))
-    subscribers: list = [StoreWriter(store)]
+    step_deg = float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0)
+    plan = method.plan(proc, done, generation, step_deg)
+    shown = show_progress is not False or on_engine is not None  # a Monte Carlo trial shows no one the time left
+    timing = (eta_timing or (Timing.of_scenario(bench.scenario) if bench is not None else None)) if shown else None
+    virtual = not isinstance(clock, RealClock)
+    eta = Eta(walk(method.plan(proc, done, generation, step_deg), timing, done).entry_s, virtual) if timing else None
+    subscribers: list = ([eta] if eta else []) + [StoreWriter(store, eta)]  # the estimate first: both read it
     if show_progress is not False:
-        subscribers.append(ConsoleProgress(virtual_clock=not isinstance(clock, RealClock)))
+        subscribers.append(ConsoleProgress(virtual_clock=virtual, eta=eta))
     engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1, motion_timing)
     detach = None
     try:
