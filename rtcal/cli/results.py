@@ -48,6 +48,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
           "(docs/compensation.md: the format's rules and sign)")
+    if get_format(args.format).loading:
+        print(f"{args.format}: {get_format(args.format).loading}")
     for warning in comp.warnings:
         where = "" if get_format(args.format).takes_comments else f" (not in {out}: a {args.format} file takes no comment)"
         print(f"rtcal: warning: {warning}{where}", file=sys.stderr)

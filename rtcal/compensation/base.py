@@ -74,7 +74,9 @@ class CompensationFormat:
     ``one_direction``: what writing one measured direction's values both ways does to the
     machine's reversal compensation. ``options``: what the writer takes besides the table.
     ``max_trim_arcsec``: the largest trim written. ``wraps``: the controller applies the table
-    modulo one turn (False: beyond its ends the end trims hold, as LinuxCNC does)."""
+    modulo one turn (False: beyond its ends the end trims hold, as LinuxCNC does). ``loading``:
+    what the controller must be told to read the file as written ("" if nothing), printed by
+    `rtcal compensate`."""
 
     name: ClassVar[str]
     max_points: ClassVar[int]
@@ -85,6 +87,7 @@ class CompensationFormat:
     options: ClassVar[tuple[FormatOption, ...]] = ()
     max_trim_arcsec: ClassVar[float] = DEFAULT_MAX_TRIM_ARCSEC
     wraps: ClassVar[bool] = True
+    loading: ClassVar[str] = ""  # what the controller must be told to read the file as written (LinuxCNC: its type)
 
     # ``write(table, **options) -> str``: the file's text for ``table`` (trims, deg), each of the
     # format's ``options`` a keyword with its default (declared so a subclass names its own); it
