@@ -74,7 +74,8 @@ class LinuxCncStage(RotaryStage):
     step_deg = 1e-6
 
     def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),
-                 **_: object):
+                 may_move: bool = True, **_: object):
+        """``may_move=False`` (`rtcal probe`, `rtcal check`): never homes or changes the mode, whatever the address says."""
         self.address, self.timeout_s, self.limits_deg = address, timeout_s, limits_deg
         self.axis = address.text("axis", "C").upper()
         if self.axis not in AXES:
@@ -83,7 +84,8 @@ class LinuxCncStage(RotaryStage):
         self.joint = int(address.option("joint", 0))
         self.move_timeout_s = address.option("move_timeout_s", 60.0)
         self.feed_deg_per_min = 60.0 * address.option("speed_deg_per_s", 0.0)  # 0: G0, the joint's rapid
-        self.may_home = address.option("home", 0) == 1
+        self.may_move = may_move
+        self.may_home = may_move and address.option("home", 0) == 1
         self.server = ""
         self.compensation = "not checked"
         self.stray: list[str] = []
@@ -220,8 +222,9 @@ class LinuxCncStage(RotaryStage):
         self._check_compensation()
         if self.get("joint_homed", self.joint)[-1:] != ["YES"]:
             if not self.may_home:
-                raise InstrumentFault(self.name, f"joint {self.joint} is not homed: home it at the controller, or add "
-                                                 "home=1 to the stage's address to let rtcal home it")
+                raise InstrumentFault(self.name, f"joint {self.joint} is not homed: home it at the controller"
+                                      + (", or add home=1 to the stage's address to let rtcal home it" if self.may_move
+                                         else " (a probe never homes)"))
             self.set("mode", "manual", timeout_s=self.move_timeout_s)
             self.set("home", self.joint, timeout_s=self.move_timeout_s)
             deadline = time.monotonic() + self.move_timeout_s  # set_wait done does not wait for homing to finish
@@ -229,7 +232,8 @@ class LinuxCncStage(RotaryStage):
                 if time.monotonic() > deadline:
                     raise InstrumentFault(self.name, f"joint {self.joint} did not home: {self._why()}")
                 time.sleep(0.05)
-        self.set("mode", "mdi", timeout_s=self.move_timeout_s)
+        if self.may_move:
+            self.set("mode", "mdi", timeout_s=self.move_timeout_s)
 
     def _check_compensation(self) -> None:
         """The joint's COMP_FILE read as LinuxCNC reads it with its COMP_FILE_TYPE, where the INI

@@ -173,6 +173,14 @@ def test_an_unhomed_joint_is_homed_only_when_the_address_says_home_1():
     assert fake.state["homed"] == "YES" and r.index("set mode manual") < r.index("set home 0") < r.index("set mode mdi")
 
 
+def test_a_probe_never_homes_even_with_home_1(capsys):
+    fake = FakeRsh(homed="NO")
+    code = main(["probe", "stage", f"linuxcncrsh://127.0.0.1:{fake.port}?home=1", "--timeout-s", "2"])
+    err = capsys.readouterr().err
+    assert code == 1 and "not homed" in err and "a probe never homes" in err, err
+    assert not [q for q in fake.requests if q.startswith(("set home", "set mode"))], fake.requests
+
+
 def test_after_refused_moves_the_next_legal_one_succeeds(rsh):
     """Issue 36: LinuxCNC queues three messages for a refused MDI line; the driver read one, and the next
     legal move failed ("reported before the move"). A refusal for a limit is OutOfLimits."""
