@@ -18,9 +18,10 @@ axis's commanded and actual positions at the target. The approach direction and 
 the procedure's (rtcal.sequencer.motion): the driver goes where it is told, by the shortest
 way LinuxCNC takes for a linear (non-wrapped) joint.
 
-Errors queue: LinuxCNC's NML error channel (``emcError``) is a queue, and emcrsh's ``getError``
-(src/emc/usr_intf/emcrsh.cc) takes one message per ``get error`` (``updateError()`` reads the
-next one; ``ERROR OK`` once none is left). A refused MDI line queues several (2.9, seen: "Linear
+Errors queue: LinuxCNC's NML error channel (``emcError``) is a queue of errors, operator
+displays and texts, and emcrsh's ``getError``/``getOperatorDisplay``/``getOperatorText``
+(src/emc/usr_intf/emcrsh.cc) each take its next message, of whatever kind (shcom.cc
+``updateError()``), and answer their own kind's or ``OK``. A refused MDI line queues several (2.9, seen: "Linear
 move on line 0 would exceed C's positive limit", "… joint 0's positive limit", "invalid params in
 linear command"): the driver reads the queue empty after every refusal, so the next move starts
 clean; a refusal for a limit is ``OutOfLimits`` (nothing moved), any other a plain fault.
@@ -55,7 +56,7 @@ CONNECT_PASSWORD, ENABLE_PASSWORD = "EMC", "EMCTOO"  # linuxcncrsh's documented 
 MAX_LINE_BYTES = 4096
 POSITION_TOLERANCE_DEG = 2e-6  # two units of the six decimals linuxcncrsh prints
 MAX_STRAY = 4  # late extra reply lines skipped before a request's own reply
-MAX_QUEUED = 64  # `get error` reads one queued message each; a queue longer than this is a controller in trouble
+MAX_QUEUED = 64  # rounds of reading LinuxCNC's message queue; a longer queue is a controller in trouble
 LIMIT_ERROR = re.compile(r"exceed .*limit", re.IGNORECASE)  # 2.9: "Linear move on line 0 would exceed C's positive limit"
 MAX_COMP_DEG = 1.0  # a rotary table's correction beyond this is a table read as the wrong COMP_FILE_TYPE
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
@@ -181,20 +182,24 @@ class LinuxCncStage(RotaryStage):
             return f"(and asking why failed: {exc})"
         return "; ".join(([f"LinuxCNC: {'; '.join(errors)}"] if errors else []) + facts)
 
-    def error(self) -> str:
-        """LinuxCNC's next queued error text, or "" (``get error`` answers ``ERROR OK`` when none)."""
-        words = self.get("error")
+    def _message(self, item: str) -> str:
+        """``get error``/``operator_display``/``operator_text``: the text, or "" for ``<ITEM> OK``."""
+        words = self.get(item)
         return "" if [w.upper() for w in words] == ["OK"] else " ".join(words)
 
     def _drain_errors(self) -> list[str]:
-        """Every queued error, read until ``ERROR OK`` (one per ``get error``: emcrsh ``getError``)."""
-        errors: list[str] = []
+        """Every queued message, until a round of ``get error``, ``get operator_display`` and ``get
+        operator_text`` says OK: errors, operator displays and texts share one NML queue, and each of
+        these requests reads its next message whatever its kind (shcom.cc ``updateError``), so an
+        ``ERROR OK`` alone may hide an error queued behind a display message."""
+        messages: list[str] = []
         for _ in range(MAX_QUEUED):
-            text = self.error()
-            if not text:
-                return errors
-            errors.append(text)
-        raise InstrumentFault(self.name, f"LinuxCNC's error queue does not empty ({MAX_QUEUED} messages, the last: {errors[-1]!r})")
+            heard = [(item, self._message(item)) for item in ("error", "operator_display", "operator_text")]
+            if not any(text for _, text in heard):
+                return messages
+            messages += [text if item == "error" else f"{item.replace('_', ' ')}: {text}" for item, text in heard if text]
+        raise InstrumentFault(self.name, f"LinuxCNC's message queue does not empty ({len(messages)} messages, the last: "
+                                         f"{messages[-1]!r})")
 
     # -- session and machine state
     def _open_session(self) -> None:

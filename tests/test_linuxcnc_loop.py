@@ -180,19 +180,11 @@ def test_loop_calibrate_compensate_reload_verify(tmp_path):
 
 
 def console(stage_address: str, *requests: str) -> list[str]:
-    """An operator at another linuxcncrsh console: ``requests`` in one session (verbose, in control,
-    each ``set`` done before its reply); the replies, one each."""
+    """An operator at another linuxcncrsh console (simulators.servers.linuxcnc.console): the replies."""
+    from simulators.servers import linuxcnc
+
     host, port = re.match(r"linuxcncrsh://([^:]+):(\d+)", stage_address).groups()
-    replies = []
-    with socket.create_connection((host, int(port)), timeout=30) as s, s.makefile("rb") as lines:
-        for line in ("hello EMC operator 1.0", "set echo off", "set verbose on", "set enable EMCTOO",
-                     "set set_wait done", *requests):
-            s.sendall(line.encode() + b"\r\n")
-            reply = ""
-            while not reply:
-                reply = lines.readline().decode().strip()
-            replies.append(reply)
-    return replies[5:]
+    return linuxcnc.console(host, int(port), *requests)
 
 
 def _estop_from_another_console(stage_address: str, after_s: float, done: threading.Event) -> None:

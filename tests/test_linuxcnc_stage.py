@@ -25,8 +25,10 @@ class FakeRsh:
     mdi (G0/G1 C…), abort, and the gets the driver asks. As strict as LinuxCNC 2.9: the machine
     starts as the operator left it (``estop``, ``machine``, ``homed``); ``set machine on`` is refused
     in E-stop, MDI needs MDI mode, power and homing; a target beyond the joint's limits (±``limit``)
-    is refused with the three messages 2.9 queues, and ``get error`` reads one queued message each
-    (emcrsh ``getError``). ``cut_short_at`` makes the next move stop there with E-stop on, yet
+    is refused with the three messages 2.9 queues. Errors, operator displays and texts share one
+    queue (``messages``, (kind, text)): ``get error``, ``get operator_display`` and ``get
+    operator_text`` each read the next message into its kind's string, then answer their own
+    string, or OK, and clear it (emcrsh ``getError``, shcom.cc ``updateError``). ``cut_short_at`` makes the next move stop there with E-stop on, yet
     answer ACK (as LinuxCNC 2.9 does). ``inifile``: what ``get inifile`` answers."""
 
     def __init__(self, joint_type: str = "ANGULAR", stray_after_ack: bool = True, estop: str = "OFF",
@@ -37,7 +39,8 @@ class FakeRsh:
         self.cut_short_at: float | None = None
         self.die_on_mdi = False  # the controller is killed while a move is under way: the connection closes
         self.requests: list[str] = []
-        self.errors: list[str] = []
+        self.messages: list[tuple[str, str]] = []
+        self.strings = {"ERROR": "", "OPERATOR_DISPLAY": "", "OPERATOR_TEXT": ""}
         self.server = socket.create_server(("127.0.0.1", 0))
         self.port = self.server.getsockname()[1]
         threading.Thread(target=self._serve, daemon=True).start()
@@ -66,8 +69,12 @@ class FakeRsh:
             return ""
         if w[0] == "get":
             item = w[1].upper()
-            if item == "ERROR":
-                return f"ERROR {self.errors.pop(0) if self.errors else 'OK'}\r\n"
+            if item in self.strings:
+                if self.messages:
+                    kind, text = self.messages.pop(0)
+                    self.strings[kind] = text
+                text, self.strings[item] = self.strings[item] or "OK", ""
+                return f"{item} {text}\r\n"
             if item in ("ESTOP", "MACHINE", "MODE", "ENABLE"):
                 return f"{item} {self.state[item.lower()]}\r\n"
             if item == "INIFILE":
@@ -102,12 +109,12 @@ class FakeRsh:
             ok = self.state["mode"] == "MDI" and self.state["machine"] == "ON" and self.state["homed"] == "YES"
             target = float(w[3][1:])
             if not ok:
-                self.errors.append("Must be in MDI mode to issue MDI command")
+                self.messages.append(("ERROR", "Must be in MDI mode to issue MDI command"))
             elif abs(target) > self.limit:
                 ok, side = False, "positive" if target > 0 else "negative"
-                self.errors += [f"Linear move on line 0 would exceed C's {side} limit",
-                                f"Linear move on line 0 would exceed joint 0's {side} limit",
-                                "invalid params in linear command"]
+                self.messages += [("ERROR", f"Linear move on line 0 would exceed C's {side} limit"),
+                                  ("ERROR", f"Linear move on line 0 would exceed joint 0's {side} limit"),
+                                  ("ERROR", "invalid params in linear command")]
             elif self.cut_short_at is not None:
                 self.pos, self.cut_short_at = self.cut_short_at, None
                 self.state.update(estop="ON", machine="OFF")
@@ -190,7 +197,21 @@ def test_after_refused_moves_the_next_legal_one_succeeds(rsh):
             with pytest.raises(OutOfLimits, match="exceed .* limit.*invalid params"):
                 stage.move_to(target)
         stage.move_to(30.0)
-        assert stage.position_deg() == pytest.approx(30.0) and rsh.errors == []
+        assert stage.position_deg() == pytest.approx(30.0) and rsh.messages == []
+    finally:
+        stage.close()
+
+
+def test_an_error_queued_behind_an_operator_display_is_read(rsh):
+    """Errors and operator messages share LinuxCNC's queue: `get error` that reads a display answers
+    ERROR OK though an error waits behind it; the driver reads on until every kind says OK."""
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}", (-400, 400), 2.0)
+    try:
+        rsh.messages += [("OPERATOR_DISPLAY", "check the clamp"), ("ERROR", "joint 0 following error")]
+        with pytest.raises(InstrumentFault, match="before the move: operator display: check the clamp; joint 0 following"):
+            stage.move_to(10.0)
+        stage.move_to(10.0)  # the fault was reported; the queue is empty
+        assert rsh.messages == [] and all(not text for text in rsh.strings.values())
     finally:
         stage.close()
 

@@ -55,6 +55,38 @@ def with_comp(ini_text: str, comp_file: Path, comp_type: int = 0, joint: int = 0
     return ini_text.replace(head, f"{head}COMP_FILE = {comp_file}\nCOMP_FILE_TYPE = {comp_type}\n", 1)
 
 
+def console(host: str, port: int, *requests: str, timeout_s: float = 30.0) -> list[str]:
+    """An operator at a linuxcncrsh console of their own: ``requests`` (e.g. ``set estop off``, ``set
+    machine on``, ``set home 0``, ``get estop``), each answered before the next (``set_wait done``);
+    their replies. A refused ``set`` is tried again (seen: ``set machine on`` or ``set mode manual``
+    refused just after the step before it), RuntimeError if it is still refused after ``timeout_s``;
+    after ``set home`` it waits until the joint is homed."""
+    replies = []
+    with socket.create_connection((host, port), timeout=timeout_s) as s, s.makefile("rb") as lines:
+        def ask(line: str) -> str:
+            s.sendall(line.encode() + b"\r\n")
+            while True:
+                reply = lines.readline().decode(errors="replace").strip()
+                if reply:
+                    return reply
+        for line in ("hello EMC rtcal-operator 1.0", "set echo off"):
+            ask(line)
+        for line in ("set verbose on", "set enable EMCTOO", "set set_wait done", *requests):
+            deadline = time.monotonic() + timeout_s
+            reply = ask(line)
+            while line.startswith("set") and reply.upper().endswith("NAK"):
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"LinuxCNC refused the operator's {line!r}: {ask('get error')}")
+                time.sleep(0.1)
+                reply = ask(line)
+            replies.append(reply)
+            while line.startswith("set home") and not ask("get joint_homed 0").upper().endswith("YES"):
+                if time.monotonic() > deadline:
+                    raise RuntimeError("LinuxCNC's joint 0 did not home")
+                time.sleep(0.05)
+    return replies[3:]
+
+
 class LinuxCncProcess:
     """One headless LinuxCNC: ``start()`` → linuxcncrsh's port; ``stop()`` shuts it down."""
 
@@ -147,30 +179,8 @@ class LinuxCncProcess:
             return False
 
     def operator(self, *requests: str, timeout_s: float = 30.0) -> list[str]:
-        """The operator at a linuxcncrsh console of their own: ``requests`` (e.g. ``set estop off``,
-        ``set machine on``, ``set home 0``), each answered before the next (``set_wait done``); their
-        replies. RuntimeError if one is refused; after ``set home`` it waits until the joint is homed."""
-        replies = []
-        with socket.create_connection((self.host, self.port), timeout=timeout_s) as s, s.makefile("rb") as lines:
-            def ask(line: str) -> str:
-                s.sendall(line.encode() + b"\r\n")
-                while True:
-                    reply = lines.readline().decode(errors="replace").strip()
-                    if reply:
-                        return reply
-            for line in ("hello EMC rtcal-operator 1.0", "set echo off"):
-                ask(line)
-            for line in ("set verbose on", "set enable EMCTOO", "set set_wait done", *requests):
-                reply = ask(line)
-                if line.startswith("set") and reply.upper().endswith("NAK"):
-                    raise RuntimeError(f"LinuxCNC refused the operator's {line!r}: {ask('get error')}")
-                replies.append(reply)
-                deadline = time.monotonic() + timeout_s
-                while line.startswith("set home") and not ask("get joint_homed 0").upper().endswith("YES"):
-                    if time.monotonic() > deadline:
-                        raise RuntimeError("LinuxCNC's joint 0 did not home")
-                    time.sleep(0.05)
-        return replies
+        """The operator at a console of their own (``console``) on this LinuxCNC."""
+        return console(self.host, self.port, *requests, timeout_s=timeout_s)
 
     def tail(self, lines: int = 8) -> str:
         try:
