@@ -23,7 +23,7 @@ FORMATS = list(WRITERS)
 
 # the documented line syntax of every format (docs/compensation.md)
 SYNTAX = {
-    "linuxcnc": [r"\d+\.\d{6} -?\d+\.\d{8} -?\d+\.\d{8}"],
+    "linuxcnc": [r"\d+\.\d{6} -?\d+\.\d{8} -?\d+\.\d{8}", r"# rtcal: .*"],
     "siemens-lec": [r"%_N_AX_EEC_INI", r"; [ -~]+", r"CHANDATA\(1\)", r"\$AA_ENC_COMP\[0,\d+,C1\]=-?\d+\.\d{8}",
                     r"\$AA_ENC_COMP_(STEP|MIN|MAX|IS_MODULO)\[0,C1\]=[\d.]+", r"M17"],
     "siemens-cec": [r"%_N_NC_CEC_INI", r"; [ -~]+", r"CHANDATA\(1\)", r"\$AN_CEC\[[01],\d+\]=-?\d+\.\d{8}",
@@ -113,10 +113,25 @@ def test_a_gap_too_wide_to_interpolate_is_refused(tmp_path, capsys):
     # silently cut the table short on the machine, so rtcal refuses them
     ("0 0 0\n\n15 15 15\n30 30 30\n", ":2: expected three finite numbers .* would ignore the 2 line"),
     ("# from rtcal\n0 0 0\n15 15 15\n", ":1: expected three finite numbers"),
+    # a footer is never read by LinuxCNC, but one that says the table is of the other type is refused
+    ("0 0 0\n15 15 15\n# rtcal: COMP_FILE_TYPE = 1\n", "says COMP_FILE_TYPE = 1; rtcal reads and writes type 0"),
 ])
 def test_bad_linuxcnc_tables_are_refused_with_a_line(text, message):
     with pytest.raises(CompensationError, match=message):
         PARSERS["linuxcnc"](text, "c.comp")
+
+
+def test_linuxcnc_file_and_console_state_comp_file_type_0(tmp_path, capsys):
+    """Issue 36: rtcal's type-0 table loaded as COMP_FILE_TYPE = 1 went unnoticed; the file (in a footer
+    LinuxCNC never reads) and `rtcal compensate`'s output say the type."""
+    csv = tmp_path / "d.csv"
+    _smooth_table().write_csv(csv)
+    assert main(["compensate", str(csv), "--format", "linuxcnc", "--out", str(tmp_path / "c.comp")]) == 0
+    assert "on the control: load it with COMP_FILE_TYPE = 0 in the joint's INI section" in capsys.readouterr().out
+    text = (tmp_path / "c.comp").read_text()
+    footer = [line for line in text.splitlines() if not re.fullmatch(SYNTAX["linuxcnc"][0], line)]
+    assert footer and all(line.startswith("# rtcal: ") for line in footer) and "COMP_FILE_TYPE = 0" in footer[0]
+    assert text.splitlines()[-len(footer):] == footer  # after the table: LinuxCNC stops reading there
 
 
 def _mutated(fmt: str, old: str, new: str) -> str:
