@@ -414,6 +414,8 @@ def test_warnings_go_into_files_that_take_comments(tmp_path, capsys, fmt, commen
         assert code == 0 and "not in" not in err
         lines = [line for line in text.splitlines() if line.startswith(comment)]
         assert len(lines) == 1 and lines[0].isascii()
+    if fmt == "siemens-lec":  # no reversal measured: none to hand to MD32450
+        assert "; MD32450 $MA_BACKLASH[0,C1]: leave it as it is (one direction measured" in text and " add " not in text
     back = PARSERS[fmt](text, "t")
     np.testing.assert_allclose(back.trim_up_deg, back.trim_down_deg)
     assert back.trim_up_deg[0] == pytest.approx(0.0)
