@@ -7,6 +7,8 @@ the commanded angle (deg) for an approach direction, i.e. where the motor is sen
 Sources (docs/compensation.md, ../shared/reference/compensation_formats.md):
 - SINUMERIK LEC: Function Manual Extended Functions K3 03/2013 pp. 238, 241, 242.
 - SINUMERIK CEC: K3 pp. 249, 264, 268; 802D sl p. 222.
+- SINUMERIK backlash compensation MD32450 $MA_BACKLASH (machine data of the axis, not in the file):
+  808D Parameter Manual 08/2013 (6FC5397-8EP40-0BA0) p. 228; 840C NC machine data 09.95 p. 6-41.
 - FANUC: 0i-PB Parameter Manual B-63980EN/01 p. 100; Technical Report A-77810E; 15i Parameter
   Manual B-63330EN/03 p. 25 (I/O records).
 - HEIDENHAIN: TNC 407 Technical Manual pp. 151-156; TNC 335 p. 4-24; MANUALplus 620 pp. 716-718.
@@ -43,14 +45,32 @@ class CyclicCurve:
 
 @dataclass(frozen=True)
 class Applied:
-    """What a controller adds to the command per approach direction: ``sign`` × the curve's value."""
+    """What a controller adds to the command per approach direction: ``sign`` × the curve's value,
+    plus its backlash compensation (``backlash_deg``, see ``with_backlash``)."""
 
     up: CyclicCurve
     down: CyclicCurve
     sign: float
+    backlash_deg: float = 0.0
+    reference_direction: int = +1
 
     def trim_deg(self, commanded_deg: float, direction: int) -> float:
-        return self.sign * (self.up if direction >= 0 else self.down).at(commanded_deg)
+        d = +1 if direction >= 0 else -1
+        reversed_ = d != self.reference_direction  # approached against the reference approach: one reversal more
+        return self.sign * (self.up if d > 0 else self.down).at(commanded_deg) + (d * self.backlash_deg if reversed_ else 0.0)
+
+
+def with_backlash(applied: Applied, backlash_deg: float, reference_direction: int = +1) -> Applied:
+    """SINUMERIK backlash compensation, MD32450: "Backlash on reversal between positive and negative
+    travel directions. Input of the compensation value is positive, if the encoder is leading the
+    machine part (normal situation) … always active after reference point approach" (808D Parameter
+    Manual p. 228; the simulated axis counts as referenced); "The control compensates the backlash …
+    each time the relevant axis changes its direction of travel" (840C MD 220*, p. 6-41). So on each
+    reversal the motor travels the backlash further in the new direction: approached in the
+    direction of the reference approach it stands at the command (where the axis was referenced),
+    approached the other way the backlash further that way. Only the reversal changes, not a
+    constant (which changes no ISO 230-2 figure anyway)."""
+    return Applied(applied.up, applied.down, applied.sign, backlash_deg, reference_direction)
 
 
 # -- SINUMERIK: %_N_..._INI files of $-assignments ----------------------------------------
@@ -210,15 +230,20 @@ def heidenhain(text: str, where: str) -> Applied:
 
 CONTROLLERS: dict[str, Callable[[str, str], Applied]] = {
     "siemens-lec": sinumerik_lec, "siemens-cec": sinumerik_cec, "fanuc": fanuc, "heidenhain": heidenhain}
+SINUMERIK = ("siemens-lec", "siemens-cec")  # the controls whose axis has MD32450
 
 
-def controller(fmt: str, text: str, where: str) -> Applies:
-    """The table as the simulated control of ``fmt`` applies it; formats without a controller here
-    (LinuxCNC, plugins) through their own reading."""
+def controller(fmt: str, text: str, where: str, backlash_deg: float = 0.0) -> Applies:
+    """The table as the simulated control of ``fmt`` applies it, with the SINUMERIK axis's
+    MD32450 ``backlash_deg`` (``with_backlash``); formats without a controller here (LinuxCNC,
+    plugins) through their own reading."""
+    if backlash_deg and fmt not in SINUMERIK:
+        raise ControllerError(f"{where}: backlash_deg is SINUMERIK machine data (MD32450); the {fmt} control has none")
     if fmt in CONTROLLERS:
         try:
-            return CONTROLLERS[fmt](text, where)
+            applied = CONTROLLERS[fmt](text, where)
         except (KeyError, IndexError, ValueError) as exc:
             raise ControllerError(f"{where}: the simulated {fmt} control refuses the table ({exc})") from None
+        return with_backlash(applied, backlash_deg) if backlash_deg else applied
     from rtcal.compensation import get_format
     return get_format(fmt).load(text, where)

@@ -27,6 +27,7 @@ from pydantic_core import PydanticCustomError
 from rtcal.compensation.registry import format_names
 from rtcal.solvers.harmonics import Harmonic
 from rtcal.units import arcsec_to_rad, um_to_mm
+from simulators.controllers import SINUMERIK
 
 # Bounds a person would accept for a bench (every number is also finite): angles of error up to
 # 1°, lengths of error up to 10 mm, positions within 1 km.
@@ -102,6 +103,10 @@ class CompensationScenario(_Strict):
                         json_schema_extra=_format_names_schema)
     file: str | None = Field(None, max_length=4096, description="the table file, relative to the scenario (e.g. c.comp)")
     text: str | None = Field(None, max_length=1_000_000, description="the table itself (filled from `file` when loaded)")
+    backlash_deg: float = Field(0.0, ge=-1.0, le=1.0, description=(
+        "SINUMERIK (siemens-lec, siemens-cec) only: the axis's backlash compensation MD32450 $MA_BACKLASH, deg; on each "
+        "reversal the control adds it to the travel in the new direction (808D Parameter Manual p. 228: positive when "
+        "the encoder leads the table); the axis counts as referenced in the positive direction (0: none)"))
 
     @field_validator("format", mode="before")
     @classmethod
@@ -119,6 +124,8 @@ class CompensationScenario(_Strict):
     def _one_source(self) -> "CompensationScenario":
         if (self.file is None) == (self.text is None):
             raise ValueError("file: give the table's file")
+        if self.backlash_deg and self.format not in SINUMERIK:
+            raise ValueError(f"backlash_deg: MD32450 is SINUMERIK machine data; a {self.format} control has none")
         return self
 
 

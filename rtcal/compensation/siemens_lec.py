@@ -1,11 +1,19 @@
 """SINUMERIK LEC (measuring-system / leadscrew error compensation, docs/compensation.md): one
 modulo table, the mean of both directions, referred to 0 at the reference point; a positive
 value moves the axis negative. Sources: Siemens Function Manual Extended Functions, K3
-"Compensations" 4.4.2, edition 03/2013 (pp. 238, 241, 242), and the 808D manual (p. 106)."""
+"Compensations" 4.4.2, edition 03/2013 (pp. 238, 241, 242), and the 808D manual (p. 106). The
+reversal the one table cannot hold goes to the axis's backlash compensation, MD32450 $MA_BACKLASH:
+"Input of the compensation value is positive, if the encoder is leading the machine part (normal
+situation), negative, if the encoder is behind the machine part" (SINUMERIK 808D Parameter Manual
+08/2013, 6FC5397-8EP40-0BA0, p. 228); "Positive backlash (normal case): actual encoder value ahead
+of real actual value (table): too little table travel" (SINUMERIK 840C NC machine data 09.95,
+MD 220*, p. 6-41)."""
 
 from __future__ import annotations
 
 from typing import Any
+
+import numpy as np
 
 from rtcal.compensation import _siemens
 from rtcal.compensation.base import CompensationFormat, FormatOption
@@ -47,15 +55,22 @@ class SiemensLecFormat(CompensationFormat):
     def instructions(self, table: CompensationTable, **options: Any) -> list[str]:
         axis, n = options.get("axis", "C1"), len(table.positions_deg)
         reference = float(options.get("reference_deg", 0.0))
-        reversal_arcsec = float(abs(table.trim_down_deg - table.trim_up_deg).mean()) * 3600.0
+        backlash = backlash_change_deg(table)
+        if np.array_equal(table.trim_up_deg, table.trim_down_deg):
+            md32450 = (f"MD32450 $MA_BACKLASH[0,{axis}]: leave it as it is (one direction measured: the reversal is "
+                       "not known)")
+        else:
+            md32450 = (f"MD32450 $MA_BACKLASH[0,{axis}]: add {backlash:+.8f} deg to its present value (the table is the "
+                       f"mean of both directions; the reversal measured, {-backlash * 3600.0:+.2f} arcsec on average, is "
+                       "the backlash compensation's; 808D Parameter Manual p. 228: positive when the encoder leads the "
+                       "machine part); NEW CONF")
         return [f"MD38000 $MA_MM_ENC_COMP_MAX_POINTS[0,{axis}] >= {n} (the table's {n} points; K3 p. 242; on an 808D at "
                 "most 200, p. 106); a change of MD38000 reorganises the NC memory: back it up first",
                 f"load this file while MD32700 $MA_ENC_COMP_ENABLE[0,{axis}] = 0, then set it to 1 and POWER ON (K3 p. 238, "
                 "808D p. 106)",
                 f"the compensation acts only once {axis} is referenced; the table is 0 at its reference point, {reference:g} deg "
                 "(K3 p. 238: no position jump when the LEC is activated)",
-                f"the table is the mean of both directions: the reversal measured, {reversal_arcsec:.2f} arcsec on average, "
-                "is left to the axis's backlash compensation (MD32450 $MA_BACKLASH, K3 4.3): keep it set"]
+                md32450]
 
     def parse(self, text: str, where: str = "<siemens-lec>") -> CompensationTable:
         points, settings, _ = _siemens.values(text, where, "AA_ENC_COMP")
@@ -63,3 +78,14 @@ class SiemensLecFormat(CompensationFormat):
             raise CompensationError(f"{where}: expected one table, encoder 0 ($AA_ENC_COMP[0,…])")
         positions, values = _siemens.table(points[0], settings.get(0, {}), where)
         return regular_table(positions, -values, -values, where, self.max_points)
+
+
+def backlash_change_deg(table: CompensationTable) -> float:
+    """What to add to MD32450 so the backlash compensation takes the reversal the one LEC table
+    (the mean) leaves, deg. Positive backlash b: after a reversal the table travels b too little
+    in the new direction (840C MD 220*, p. 6-41), so it lags in both directions: x̄↓ − x̄↑ = b
+    (ISO 230-2, x = actual − target). A trim is −x per direction, so the value is the mean over
+    one turn's points of x̄↓ − x̄↑ = trim↑ − trim↓ = −mean(B) (the entry at 360° repeats 0°'s)."""
+    p = np.asarray(table.positions_deg, float)
+    points = len(p) - 1 if len(p) > 1 and abs(p[-1] - p[0] - 360.0) < 1e-6 else len(p)
+    return float(np.mean((np.asarray(table.trim_up_deg) - np.asarray(table.trim_down_deg))[:points]))
