@@ -120,11 +120,24 @@ def cmd_verify(args: argparse.Namespace) -> int:
               f"{str(recomputed)[:60]}", file=sys.stderr)
     if len(found.differences) > 10:
         print(f"rtcal: … and {len(found.differences) - 10} more differences", file=sys.stderr)
+    for name, status in found.altered_files:
+        print(f"rtcal: {run / name}: {status} — {ALTERED[status]}", file=sys.stderr)
+    same = found.compared - len(found.differences)
+    print(f"{run / 'results.json'}: {same} of {found.compared} values agree with the results recomputed from "
+          f"{found.readings} readings in {run / 'run.sqlite'} (to the digits stored)")
+    print(f"{run / 'results.json'} and {run / 'run.sqlite'}: digests {'match' if not found.integrity else 'do NOT match'} "
+          "(each records the other's)")
+    for name, status in found.files:
+        print(f"{run / name}: {status}")
     verdict = "agrees" if found.agrees else "does NOT agree"
-    print(f"{run / 'results.json'} {verdict} with the results recomputed from {found.readings} readings in "
-          f"{run / 'run.sqlite'} ({found.compared} values compared to the digits stored, "
-          f"{len(found.differences)} differ; digests {'match' if not found.integrity else 'do not match'})")
+    print(f"{run} {verdict}: {len(found.differences)} values differ, {len(found.altered_files)} of {len(found.files)} "
+          f"deliverables changed, digests {'match' if not found.integrity else 'do not match'}")
     return EXIT_OK if found.agrees else EXIT_FAILED
+
+
+ALTERED = {"EDITED": "changed after the run wrote it: its SHA-256 is not the one results.json records for it",
+           "missing": "results.json records it as written by the run, and it is gone",
+           "not a regular file": "a link or a folder stands where the run wrote this file"}
 
 
 def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,
@@ -241,8 +254,10 @@ def add_export(sub: Any) -> None:
 
 
 def add_verify(sub: Any) -> None:
-    ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json and the "
-                                        "store's digests against them (exit 0: they agree, 1: they do not, 2: not a run "
-                                        "directory, or a results.json that is not rtcal's)")
+    ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json, the store "
+                                        "and every deliverable (certificate, reports, CSV, figures) against their "
+                                        "digests; says each file's status (exit 0: all agree, 1: a value differs or a "
+                                        "file was edited, naming it; 2: not a run directory, or a results.json that is "
+                                        "not rtcal's)")
     ver.add_argument("run_dir", help="a run directory (its results.json and run.sqlite)")
     ver.set_defaults(func=cmd_verify)
