@@ -149,6 +149,12 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
 
     if found is None or left is None:
         raise UserError("--certificate: give two run directories (a certificate needs their results.json, not a CSV)")
+    if args.certificate_number is not None:  # a document of its own: its own number
+        left = left.model_copy(update={"metadata": left.metadata.model_copy(update={
+            "certificate_number": args.certificate_number})})
+    elif left.metadata.certificate_number:
+        print(f"rtcal: warning: {out / 'as_found_as_left.pdf'} carries {args.run_b}'s certificate number "
+              f"{left.metadata.certificate_number}: give it its own (--certificate-number NUMBER)", file=sys.stderr)
     model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]))
     with output_file(out / "as_found_as_left.pdf") as pdf:
         write_pdf(model, pdf)
@@ -235,6 +241,8 @@ def add_compensate(sub: Any) -> None:
 
 
 def add_compare(sub: Any) -> None:
+    from rtcal.cli.run import certificate_number
+
     cmp_ = sub.add_parser("compare", help="two runs of one axis side by side: change per target against the combined "
                                           "uncertainty, ISO 230-2 parameters of both, compare.png")
     cmp_.add_argument("run_a", help="the earlier run (directory or deviation CSV)")
@@ -243,6 +251,9 @@ def add_compare(sub: Any) -> None:
     cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     cmp_.add_argument("--certificate", action="store_true", help="also write the as-found (RUN_A) / as-left (RUN_B) "
                                                                  "certificate: as_found_as_left.pdf, .html and .json under --out")
+    cmp_.add_argument("--certificate-number", type=certificate_number, metavar="NUMBER",
+                      help="with --certificate: the as-found / as-left certificate's own number (default: the as-left "
+                           "run's, with a warning: each certificate needs its own)")
     cmp_.set_defaults(func=cmd_compare)
 
 
