@@ -133,3 +133,16 @@ def test_a_runs_edited_csv_is_refused_naming_both_files(solved, tmp_path, capsys
     own.parent.mkdir()
     shutil.copy(csv, own)
     assert main(["compensate", str(own), "--format", "linuxcnc", "--out", str(comp)]) == 0
+
+
+def test_the_as_found_as_left_certificate_gets_its_own_number(solved, tmp_path, capsys):
+    """Issue 36, item 17: a certificate of its own has a number of its own (warned of when not given)."""
+    out = tmp_path / "as-left"
+    capsys.readouterr()
+    assert main(["compare", str(solved), str(solved), "--certificate", "--out", str(out)]) == 0
+    assert "give it its own (--certificate-number NUMBER)" in capsys.readouterr().err
+    assert main(["compare", str(solved), str(solved), "--certificate", "--certificate-number", "EML-2026-0999",
+                 "--out", str(out)]) == 0
+    assert "give it its own" not in capsys.readouterr().err
+    header = json.loads((out / "as_found_as_left.json").read_text())["header"]
+    assert header["certificate_number"] == "EML-2026-0999" and "EML-2026-0999" in header["footer"]
