@@ -66,7 +66,7 @@ def test_results_and_store_record_each_others_digests_and_a_copied_run_stays_val
     capsys.readouterr()
     assert main(["evaluate", str(copy)]) == 0
     assert main(["verify", str(copy)]) == 0
-    assert f"{copy} agrees: 0 values differ" in capsys.readouterr().out
+    assert f"{copy} agrees: 0 differ of " in capsys.readouterr().out
 
 
 def _edit_results(run: Path, edit) -> None:

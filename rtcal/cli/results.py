@@ -130,7 +130,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     for name, status in found.files:
         print(f"{run / name}: {status}")
     verdict = "agrees" if found.agrees else "does NOT agree"
-    print(f"{run} {verdict}: {len(found.differences)} values differ, {len(found.altered_files)} of {len(found.files)} "
+    print(f"{run} {verdict}: {len(found.differences)} differ of {found.compared} values, {len(found.altered_files)} of {len(found.files)} "
           f"deliverables changed, digests {'match' if not found.integrity else 'do not match'}")
     return EXIT_OK if found.agrees else EXIT_FAILED
 
