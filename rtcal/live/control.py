@@ -5,6 +5,9 @@ The engine (a :class:`Controllable`) serves ``RUN_DIR/.rtcal-control.sock`` thro
 control token. A socket file rather than a TCP port: it needs no free port, it is found from the
 run directory alone, and the file mode (0600) keeps other users out before the token is even
 read. The token itself is compared in constant time and never written to any file or log.
+A run without ``--live`` has no token (none is printed: nothing but the socket can reach it): its
+server admits a request only from a process of its own user (the peer's credentials, SO_PEERCRED,
+where the system gives them; elsewhere the 0600 socket alone), and any token sent is ignored.
 
 Protocol: one JSON line per connection, ``{"token": "...", "command": "pause"|"resume"|"abort"|"confirm"}``,
 answered by one JSON line, ``{"ok": true}`` or ``{"ok": false, "error": "token"|"command"|"request"|"nothing"|"failed"}``
@@ -20,6 +23,7 @@ import os
 import secrets
 import socket
 import stat
+import struct
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -190,12 +194,22 @@ def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5, 
         raise ControlRefused(reason, messages.get(reason, "the engine refused the request"))
 
 
+def _peer_is_owner(conn: socket.socket) -> bool:
+    """A tokenless server's check: the connecting process runs as this one's user (Linux's
+    SO_PEERCRED; where the system has no such option, the socket's 0600 mode already ensured it)."""
+    option = getattr(socket, "SO_PEERCRED", None)
+    if option is None:
+        return True
+    _pid, uid, _gid = struct.unpack("3i", conn.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i")))
+    return uid == os.geteuid()
+
+
 class ControlServer:
     """Serves the engine's control socket in a thread: one request per connection, checked
     against the token, handed to ``target``. :meth:`close` stops it and removes the socket."""
 
-    def __init__(self, run_dir: Path, token: str, target: Controllable):
-        if len(token) < 16:
+    def __init__(self, run_dir: Path, token: str | None, target: Controllable):
+        if token is not None and len(token) < 16:
             raise ValueError("a control token needs at least 128 random bits (use new_token())")
         self.run_dir = Path(run_dir)
         self.path = socket_path(self.run_dir)
@@ -272,7 +286,7 @@ class ControlServer:
             request = None
         if not isinstance(request, dict):
             reply = {"ok": False, "error": "request"}
-        elif not token_matches(request.get("token"), self._token):
+        elif not (token_matches(request.get("token"), self._token) if self._token is not None else _peer_is_owner(conn)):
             reply = {"ok": False, "error": "token"}
         elif request.get("command") not in COMMANDS:
             reply = {"ok": False, "error": "command"}

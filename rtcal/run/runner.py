@@ -44,7 +44,7 @@ from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_tex
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 from drivers.addresses import REDACTED, redact_tokens
-from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, digests_of, results_digest
+from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, deliverable_digests, digests_of, results_digest
 from rtcal.run.hint import OPERATOR_TOKEN_ENV, resume_hint
 
 OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
@@ -613,7 +613,6 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
     method_outputs = outputs_for(results)
     try:
         with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
-            write_results(out, results)
             if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
                 PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
             method_outputs.write_files(out)
@@ -622,6 +621,9 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
             write_html(certificate, out / "report.html")
             write_pdf(certificate, out / "report.pdf")
             write_certificate_json(certificate, out / "certificate.json")
+            # last: results.json records the digest of every file above as written (the certificate shows none)
+            results = with_deliverable_digests(results, deliverable_digests(out))
+            write_results(out, results)
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
         if not isinstance(exc, KeyboardInterrupt):  # (an interruption is recorded by the caller)
             _stop(store, "measured", exc)
@@ -643,6 +645,13 @@ def _record_interruption(store: RunStore, t_s: float, exc: KeyboardInterrupt, st
         _stop(store, status, exc)
     except sqlite3.ProgrammingError:  # closed: the results were written whole just before
         pass
+
+
+def with_deliverable_digests(results: RunResults, digests: dict[str, str]) -> RunResults:
+    """``results`` whose ``digests`` also record the deliverables' (validated as the file will be read)."""
+    assert results.digests is not None  # a run's results always carry its store's digests
+    block = results.digests.model_copy(update={"deliverables_sha256": digests})
+    return type(results).model_validate({**dict(results), "digests": type(block).model_validate(block.model_dump())})
 
 
 def _stop(store: RunStore, status: str, exc: BaseException) -> None:

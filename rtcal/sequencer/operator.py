@@ -234,7 +234,8 @@ class WaitingOperator:
 
     def _remote_hint(self) -> str:
         where = f"`rtcal control {self.run_dir if self.run_dir is not None else 'RUN_DIR'} confirm --step {self.step}`"
-        return ("Done on the live page, or " if self.remote else "") + where + " with the run's control token"
+        return ("Done on the live page, or " + where + " with the run's control token" if self.remote
+                else where + " (from your user: without --live the run has no token)")
 
     def _until_confirmed(self, confirmed: threading.Event, fd: int | None, unavailable: str) -> str:
         while True:
