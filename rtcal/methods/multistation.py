@@ -69,7 +69,8 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         error_motion_radial_um=em.radial_um, error_motion_axial_um=em.axial_um, error_motion_tilt_arcsec=em.tilt_arcsec,
         error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm, estimate=estimate,
         air_index_sigma=air_index_sigma(proc), air_index_bound=air_index_bound(proc)[0], air_note=air_index_bound(proc)[1],
-        table_expansion_ppm_per_k=u.table_expansion_ppm_per_k, table_expansion_u_ppm_per_k=u.table_expansion_u_ppm_per_k,
+        table_expansion_ppm_per_k=table_expansion(proc)[0], table_expansion_u_ppm_per_k=table_expansion(proc)[1],
+        table_expansion_assumed=table_expansion(proc)[2],
         material_temperature_sigma_k=u.environment.material_temperature_k if table_sensor(proc) else 0.0,
         material_temperature_bound_k=stated_table_range(proc), air_index_noise=air_index_noise(proc),
         material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0)
@@ -79,6 +80,26 @@ def table_sensor(proc: LaserTracerMultistation) -> bool:
     """Whether an environment sensor reads the table's temperature with the lengths (the simulated one
     does; a real one whose readings carry no material temperature is treated as without, at analysis)."""
     return proc.instruments.environment is not None
+
+
+# The coefficient a table read by the sensor is corrected with when the procedure states none: a steel table
+# (and the tracer's steel mount on it). Steels span about 10–13 ppm/K at 20 °C (carbon and low-alloy 11–12.5,
+# cast iron 9–11; austenitic stainless 16–17 is outside and must be stated); 11.5 ± 2 ppm/K (1σ) covers them.
+DEFAULT_TABLE_MATERIAL = "steel"
+DEFAULT_TABLE_EXPANSION_PPM_PER_K = 11.5
+DEFAULT_TABLE_EXPANSION_U_PPM_PER_K = 2.0
+
+
+def table_expansion(proc: LaserTracerMultistation) -> tuple[float, float, str]:
+    """(α, u(α), the material assumed or ""): as stated; with a sensor reading the table's temperature and no
+    α stated, the default for a steel table — a table read warm and never corrected would leave its growth
+    (1 K/h: about 1″ over a run) outside the budget. ``table_expansion_ppm_per_k: 0`` states a table that does not grow."""
+    u = proc.uncertainty
+    if "table_expansion_ppm_per_k" in u.model_fields_set or not table_sensor(proc):
+        return float(u.table_expansion_ppm_per_k), float(u.table_expansion_u_ppm_per_k), ""
+    stated_u = "table_expansion_u_ppm_per_k" in u.model_fields_set
+    return (DEFAULT_TABLE_EXPANSION_PPM_PER_K, float(u.table_expansion_u_ppm_per_k) if stated_u
+            else DEFAULT_TABLE_EXPANSION_U_PPM_PER_K, DEFAULT_TABLE_MATERIAL)
 
 
 def stated_table_range(proc: LaserTracerMultistation) -> float:
@@ -94,7 +115,7 @@ def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistatio
     """The lengths as if the table were at 20 °C: each station, grown by g = α·(T − 20 °C) about the
     axis when its length was read (T the sensor's table temperature then), moved the length by
     −g·u·ρ (u from station to point, ρ the station's distance vector from the axis), which is added back."""
-    alpha = proc.uncertainty.table_expansion_ppm_per_k * 1e-6
+    alpha = table_expansion(proc)[0] * 1e-6
     offsets = data.material_offsets_k()
     if alpha == 0 or offsets is None:
         return data
@@ -185,7 +206,7 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
     u = proc.uncertainty
     out = []
     measured = table_sensor(proc) and (data is None or data.material_offsets_k() is not None)
-    if u.table_expansion_ppm_per_k == 0:
+    if table_expansion(proc)[0] == 0 and "table_expansion_ppm_per_k" not in u.model_fields_set:
         out.append("thermal expansion of the table: no coefficient stated (uncertainty.table_expansion_ppm_per_k); the table "
                    "and the tracer on it grow about the axis with its temperature (steel: 11.5 ppm/K), which moves the "
                    "stations between readings")

@@ -76,6 +76,7 @@ class StationNoiseModel:
     air_note: str = ""  # what the bound is made of (the stated ranges), for the budget's note
     table_expansion_ppm_per_k: float = 0.0  # the table's (and the mounted tracer's) radial growth about the axis per K
     table_expansion_u_ppm_per_k: float = 0.0  # its standard uncertainty
+    table_expansion_assumed: str = ""  # the material whose default α is used, none being stated ("": α as stated)
     material_temperature_sigma_k: float = 0.0  # with a sensor reading the table: its 1σ (the lengths are corrected)
     material_temperature_bound_k: float = 0.0  # without one: the table within 20 °C ± this over the run, uncorrected
     air_index_noise: float = 0.0  # the sensor's own noise per reading, as 1σ of index: independent from length to length
@@ -264,17 +265,28 @@ def table_expansion_sources(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_c
     dT = np.nan_to_num(np.asarray(material_offset_k, float))
     out = []
     if noise.table_expansion_u_ppm_per_k > 0 and np.any(dT != 0):
-        out.append(Source(THERMAL_SOURCE, "B", (s * dT * noise.table_expansion_u_ppm_per_k * 1e-6)[:, None],
+        out.append(Source(thermal_source_name(noise), "B", (s * dT * noise.table_expansion_u_ppm_per_k * 1e-6)[:, None],
                           noise.table_expansion_u_ppm_per_k, "ppm/K",
                           f"the lengths corrected for the table's growth about the axis, α = {noise.table_expansion_ppm_per_k:g} "
                           f"ppm/K, with the measured table temperature ({float(np.min(dT)) + 20:.2f}…{float(np.max(dT)) + 20:.2f} °C);"
-                          " α's standard uncertainty as stated"))
+                          + (f" α not stated: the default for a {noise.table_expansion_assumed} table, its uncertainty "
+                             f"{noise.table_expansion_u_ppm_per_k:g} ppm/K (state uncertainty.table_expansion_ppm_per_k; "
+                             "0 for a table that does not grow)" if noise.table_expansion_assumed
+                             else " α's standard uncertainty as stated")))
     if noise.table_expansion_ppm_per_k > 0 and noise.material_temperature_sigma_k > 0:
         out.append(Source(THERMAL_SENSOR_SOURCE, "B",
                           (s * noise.table_expansion_ppm_per_k * 1e-6 * noise.material_temperature_sigma_k)[:, None],
                           noise.material_temperature_sigma_k, "K",
                           "the table temperature's sensor uncertainty as stated, one error for the run, times α"))
     return out
+
+
+def thermal_source_name(noise: StationNoiseModel) -> str:
+    """The coefficient's budget line; it says when α is a default, not stated (every table and certificate shows it)."""
+    if not noise.table_expansion_assumed:
+        return THERMAL_SOURCE
+    return (f"{THERMAL_SOURCE}: not stated, {noise.table_expansion_assumed}'s {noise.table_expansion_ppm_per_k:g} ± "
+            f"{noise.table_expansion_u_ppm_per_k:g} ppm/K assumed")
 
 
 AIR_NOISE_SOURCE = "air refractive index: sensor noise per reading"
