@@ -18,7 +18,8 @@ from rtcal.run.dataset import multistation_data
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.engine.walk import Timing, walk
-from rtcal.methods.estimates import choose_recommended, deviation_block, residual_test, run_estimators, with_residual_test
+from rtcal.methods.estimates import (choose_recommended, deviation_block, not_covered, residual_test, run_estimators,
+                                     with_residual_test)
 from rtcal.methods.protocol import address_of
 from rtcal.results import model as rm
 from rtcal.sequencer.operator import Operator
@@ -224,8 +225,8 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
             out.append(f"error motions {', '.join(unstated)}: no bound stated while the others are "
                        "(uncertainty.error_motions); taken as zero, which a table rarely is")
     out.append("CMM geometry beyond its three scales and three squarenesses (a smooth error field): not modelled and "
-               "not excluded; each estimate's residual test (Birge ratio against the stated noise) shows a field only "
-               "where it exceeds the point noise")
+               "not excluded; each estimate's residual test (against the whole budget) shows a field only where the "
+               "stations and dead paths cannot take it up: a smooth 1 µm field passes it unseen")
     if u.cmm_scale_ppm == 0 and u.cmm_squareness_arcsec == 0:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
@@ -250,7 +251,8 @@ def _estimated_sigma(budget: StationBudget, source: str) -> float:
 def chain_fields(ch: StationChain, budget: StationBudget, omitted: list[str]) -> dict[str, object]:
     """What every station-based estimator reports: the deviations and their budget, eq. 34 and 36, the chain."""
     return {
-        **dict(deviation_block(ch.cumulative_deviation_arcsec, budget.cumulative, not_included=omitted)),
+        **dict(deviation_block(ch.cumulative_deviation_arcsec, budget.cumulative,
+                               not_included=not_covered(omitted, budget.residual_check))),
         "eq34_sigma_arcsec": round(float(ch.sigma_arcsec), 4),
         "algorithm_error_arcsec": float(ch.algorithm_error_arcsec),
         "estimated_noise": rm.EstimatedNoise(tracer_length_noise_um_at_1m=_estimated_sigma(budget, "tracer length noise"),
@@ -319,7 +321,7 @@ def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEsti
     cmm = {name: rm.CmmError(value=round(float(v), 4), sigma=round(float(s), 4) if np.isfinite(s) else None)
            for name, v, s in zip(CMM_NAMES, est.cmm_errors, est.cmm_errors_sigma)}
     return rm.NetworkEstimate(
-        **dict(deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=omitted)),
+        **dict(deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=not_covered(omitted, est.residual_check))),
         estimated_noise=rm.EstimatedNoise(tracer_length_noise_um_at_1m=round(est.sigma_length_um, 5),
                                           cmm_point_noise_um=round(est.sigma_point_um, 5)),
         cmm_errors=rm.CmmErrors(**cmm),

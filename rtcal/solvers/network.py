@@ -713,7 +713,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
             Ud = U.toarray()
             for *_, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
                 V0[:N_len, :N_len] += Ud @ cov @ Ud.T
-        check = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
+        tested = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
+        check = None if tested is None else replace(tested, whole_budget=True)  # weighted: rᵀV₀⁻¹r is its χ²(ν)
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     q_sigma = np.sqrt(np.clip(np.diag(S_inv)[lay.q], 0.0, None)) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])

@@ -442,13 +442,21 @@ def station_budget(
         radial = radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction)
         components += bounded_components(G @ influence, L, radial, obs.run_fraction if obs.run_fraction is not None
                                          else np.linspace(-1, 1, len(L)), noise)
-    for name, bound, unit, cov in error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise):
+    motions = error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise)
+    for name, bound, unit, cov in motions:
         components.append(BudgetComponent(name, "B", bound, unit, G @ cov @ G.T, False,
                                           f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
                                           "mount cannot separate them from the rotation"))
     check = None
     stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
-    if not stated_zero:  # the noise as stated (Type A at θ = 1) and the Type B sources that act on the residuals
-        check = residual_check(residuals, stated_covariance(sources, len(np.asarray(residuals))),
-                               np.linalg.matrix_rank(J))
+    if not stated_zero:  # the whole budget as stated (Type A at θ = 1), every source that moves the residuals
+        N = len(np.asarray(residuals))
+        V = stated_covariance(sources, N)
+        if motions:  # the error motions move the stations: each length by −u·δP of its station
+            diff = np.asarray(obs.points_mm, float)[obs.point] - np.asarray(stations_mm, float)[obs.station]
+            D = np.zeros((N, 3 * len(stations_mm)))
+            for c in range(3):
+                D[np.arange(N), 3 * np.asarray(obs.station) + c] = -diff[:, c] / np.linalg.norm(diff, axis=1)
+            V += sum(D @ cov @ D.T for *_, cov in motions)
+        check = residual_check(residuals, V, 0, jacobian=J)
     return StationBudget(DeviationBudget(components), variances, sources, check)
