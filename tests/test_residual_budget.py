@@ -105,3 +105,47 @@ def test_the_residual_test_false_alarm_rate_on_benches_as_budgeted_campaign(case
     summary = _summary(case, 40, 4242, case)
     rates = [e["residual_test_failed"] for e in summary["estimators"].values()]
     assert max(rates) <= 0.05
+
+
+def test_a_stated_cmm_field_is_drawn_as_the_budget_models_it():
+    """The Monte Carlo's drawn field (random Fourier features) has the budget's covariance σ²·exp(−d²/2ℓ²)."""
+    from rtcal.methods.multistation import _random_field
+
+    rng = np.random.default_rng(7)
+    p, q = np.zeros(3), np.array([120.0, 60.0, -40.0])
+    sigma, ell = 0.5, 150.0
+    values = []
+    for _ in range(1500):
+        x_terms = [t for t in _random_field(sigma, ell, rng) if t.axis == "x"]
+        values.append([sum(t.amplitude_um * np.sin(2 * np.pi * float(np.dot(t.direction, a)) / t.wavelength_mm
+                                                   + np.radians(t.phase_deg)) for t in x_terms) for a in (p, q)])
+    v = np.array(values)
+    assert np.var(v[:, 0]) == pytest.approx(sigma**2, rel=0.1)
+    expected = sigma**2 * np.exp(-0.5 * float(q @ q) / ell**2)
+    assert np.mean(v[:, 0] * v[:, 1]) == pytest.approx(expected, abs=0.025)
+
+
+def test_a_stated_cmm_field_enters_every_estimators_budget_and_residual_test():
+    from rtcal.run.runner import run_procedure
+    from rtcal.solvers.station_budget import CMM_FIELD_SOURCE
+
+    stated = load_procedure(DATA / "cmm_field_stated.yaml")
+    assert not any(n.startswith("CMM geometry beyond") for n in not_included(stated))
+    assert any(n.startswith("CMM geometry beyond") for n in not_included(load_procedure(DATA / "cmm_field.yaml")))
+    runs = {case: run_procedure(str(DATA / f"{case}.yaml"), DATA / "cmm_field_bench.yaml", 5,
+                                Path(tempfile.mkdtemp()) / "run", show_progress=False, outputs=False).results
+            for case in ("cmm_field", "cmm_field_stated")}
+    for name in ("paper", "shared_dead_path", "network"):
+        parts = {c.source: c for c in getattr(runs["cmm_field_stated"].estimates, name).uncertainty_budget.components}
+        assert max(v for v in parts[CMM_FIELD_SOURCE].contribution_arcsec if v is not None) > 0.05
+        without = getattr(runs["cmm_field"].estimates, name)
+        assert CMM_FIELD_SOURCE not in {c.source for c in without.uncertainty_budget.components}
+        with_field = getattr(runs["cmm_field_stated"].estimates, name)
+        assert with_field.residual_test.chi2 < without.residual_test.chi2  # the field is in the test's V too
+
+
+@pytest.mark.campaign
+def test_a_stated_cmm_field_is_covered_campaign():
+    """The field drawn from the stated size (40 trials): every estimate's U covers ≥ 93 % (docs/paper000.md)."""
+    summary = _summary("cmm_field_stated", 40, 4242, "cmm_field")
+    assert min(e["overall"]["coverage_k2"] for e in summary["estimators"].values()) >= 0.93

@@ -43,7 +43,7 @@ from simulators.instruments import (
     SimLaserTracer,
     SimStage,
 )
-from simulators.scenario import AngularHarmonic, LinearHarmonic, Scenario
+from simulators.scenario import AngularHarmonic, CmmFieldTerm, LinearHarmonic, Scenario
 from simulators.truth import station_truth
 
 if TYPE_CHECKING:
@@ -74,7 +74,8 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         table_expansion_assumed=table_expansion(proc)[2],
         material_temperature_sigma_k=u.environment.material_temperature_k if table_sensor(proc) else 0.0,
         material_temperature_bound_k=stated_table_range(proc), air_index_noise=air_index_noise(proc),
-        material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0)
+        material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0,
+        cmm_field_um=u.cmm_field_um, cmm_field_length_mm=u.cmm_field_length_mm)
 
 
 def table_sensor(proc: LaserTracerMultistation) -> bool:
@@ -224,9 +225,11 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
         if unstated:
             out.append(f"error motions {', '.join(unstated)}: no bound stated while the others are "
                        "(uncertainty.error_motions); taken as zero, which a table rarely is")
-    out.append("CMM geometry beyond its three scales and three squarenesses (a smooth error field): not modelled and "
-               "not excluded; each estimate's residual test (against the whole budget) shows a field only where the "
-               "stations and dead paths cannot take it up: a smooth 1 µm field passes it unseen")
+    if u.cmm_field_um == 0:
+        out.append("CMM geometry beyond its three scales and three squarenesses (a smooth error field): not stated "
+                   "(uncertainty.cmm_field_um); each estimate's residual test (against the whole budget) shows a field "
+                   "only where the stations and dead paths cannot take it up: a smooth 1 µm field passes it unseen "
+                   "while it moves the angles")
     if u.cmm_scale_ppm == 0 and u.cmm_squareness_arcsec == 0:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
@@ -373,6 +376,23 @@ def _random_series(sigma: float, max_order: int, rng: np.random.Generator, cls):
             for k in range(max_order)]
 
 
+FIELD_TERMS_PER_AXIS = 30  # the scenario holds at most 100 terms
+
+
+def _random_field(sigma_um: float, length_mm: float, rng: np.random.Generator) -> list[CmmFieldTerm]:
+    """A CMM error field as the budget models it (:func:`rtcal.solvers.station_budget.cmm_field_source`), per
+    coordinate K plane waves of random wave vectors ω ~ N(0, I/ℓ²), phases uniform and amplitude σ·√(2/K):
+    E[e(p)·e(p')] = σ²·E[cos ω·(p − p')] = σ²·exp(−|p − p'|²/2ℓ²) (random Fourier features)."""
+    k = FIELD_TERMS_PER_AXIS
+    terms = []
+    for axis in "xyz":
+        for omega, phase in zip(rng.normal(0.0, 1.0 / length_mm, (k, 3)), rng.uniform(0.0, 360.0, k)):
+            size = float(np.linalg.norm(omega))
+            terms.append(CmmFieldTerm(axis=axis, amplitude_um=sigma_um * np.sqrt(2.0 / k), wavelength_mm=min(2 * np.pi / size, 1e6),
+                                      direction=tuple(float(v) for v in omega / size), phase_deg=float(phase - 270.0)))
+    return terms
+
+
 def lm_parameters(proc: LaserTracerMultistation) -> LMParameters:
     lm = proc.solver.lm
     return LMParameters(beta=lm.beta, sigma=lm.sigma, epsilon=lm.epsilon,
@@ -504,6 +524,8 @@ class MultistationMethod:
             "squareness_xy_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec)),
             "squareness_xz_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec)),
             "squareness_yz_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec))})
+        if u.cmm_field_um > 0:  # the stated field replaces the bench's
+            cmm = cmm.model_copy(update={"error_field": _random_field(u.cmm_field_um, u.cmm_field_length_mm, rng)})
         r, ax, t = em.radial_um / np.sqrt(2), em.axial_um / np.sqrt(2), em.tilt_arcsec / np.sqrt(2)
         stage = scenario.stage.model_copy(update={
             "radial_motion_x": _random_series(r, k, rng, LinearHarmonic), "radial_motion_y": _random_series(r, k, rng, LinearHarmonic),

@@ -38,6 +38,8 @@ from rtcal.solvers.station_budget import (
     bounded_components,
     radial_sensitivity_mm,
     sensor_noise_sources,
+    cmm_field_as_source,
+    cmm_field_root_mm,
     sensor_noise_variance_mm2,
     table_expansion_sources,
     cmm_matrix_derivatives,
@@ -675,6 +677,18 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(replace(src, effect=np.vstack([src.effect, np.zeros((len(zeros_pts), 1))])))
     for src in sensor_noise_sources(L_abs, radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, noise):
         sources.append(replace(src, effect=np.concatenate([src.effect, zeros_pts]), note=src.note + "; in the weights"))
+    if noise.cmm_field_um > 0:  # the CMM reports each point off by the field: in the points' rows, or the lengths'
+        root = cmm_field_root_mm(A, noise)
+        n_pts = len(root)
+        if lay.free_points:
+            F_pts = np.zeros((3 * n_pts, 3 * n_pts))
+            for c in range(3):
+                F_pts[c::3, c * n_pts:(c + 1) * n_pts] = root
+            F_field = np.vstack([np.zeros((N_len, 3 * n_pts)), F_pts])
+        else:
+            F_field = np.vstack([np.hstack([root[pi] * unit[:, c][:, None] for c in range(3)]),
+                                 np.zeros((len(zeros_pts), 3 * n_pts))])
+        sources.append(cmm_field_as_source(F_field, noise))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
     G_loc = np.zeros((4, lay.g))  # X0C, Y0C, A0C, B0C ← globals (c, a)

@@ -81,6 +81,8 @@ class StationNoiseModel:
     material_temperature_bound_k: float = 0.0  # without one: the table within 20 °C ± this over the run, uncorrected
     air_index_noise: float = 0.0  # the sensor's own noise per reading, as 1σ of index: independent from length to length
     material_temperature_noise_k: float = 0.0  # the table sensor's noise per reading, K (1σ), with the lengths corrected
+    cmm_field_um: float = 0.0  # the CMM's smooth geometric error beyond scales and squarenesses, 1σ per coordinate
+    cmm_field_length_mm: float = 150.0  # its correlation length
 
 
 @dataclass(frozen=True)
@@ -229,6 +231,8 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
     sources += table_expansion_sources(u, P, axis_center_mm, axis_direction, obs.material_offset_k, noise)
     sources += sensor_noise_sources(L, radial_sensitivity_mm(u, P, axis_center_mm, axis_direction), obs.material_offset_k,
                                     noise)
+    if noise.cmm_field_um > 0:
+        sources.append(cmm_field_source(u, obs.point, pts, noise))
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
         columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
@@ -236,6 +240,37 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         if sigma > 0:
             sources.append(Source(label, "B", np.column_stack(columns), sigma, unit, "each of three, as stated"))
     return sources
+
+
+CMM_FIELD_SOURCE = "CMM geometry beyond scales and squarenesses (smooth field)"
+
+
+def cmm_field_source(unit_mm: np.ndarray, point: np.ndarray, points_mm: np.ndarray, noise: StationNoiseModel) -> Source:
+    """The CMM's smooth geometric error (Type B): each coordinate's error over the volume a random field of
+    1σ ``cmm_field_um`` with correlation exp(−d²/2ℓ²) between points d apart, independent between
+    coordinates. Unlike the point noise it does not average out over points: neighbouring points are off
+    alike, which bends the point cloud the stations are fitted to — a distortion the stations and dead
+    paths partly take up, so the residuals barely show it while the angles carry it. Each length moves by
+    u·e(A) of its point's error."""
+    rows = cmm_field_root_mm(points_mm, noise)[np.asarray(point)]
+    F = np.hstack([rows * np.asarray(unit_mm, float)[:, c][:, None] for c in range(3)])
+    return cmm_field_as_source(F, noise)
+
+
+def cmm_field_root_mm(points_mm: np.ndarray, noise: StationNoiseModel) -> np.ndarray:
+    """(n, n) R with R·Rᵀ the covariance of one coordinate's field error over the points, mm² (K may be
+    singular for points close together: an eigen-root, not Cholesky)."""
+    pts = np.asarray(points_mm, float)
+    d2 = np.sum((pts[:, None, :] - pts[None, :, :]) ** 2, axis=2)
+    w, vec = np.linalg.eigh(np.exp(-0.5 * d2 / noise.cmm_field_length_mm**2))
+    return vec * np.sqrt(np.clip(w, 0.0, None))[None, :] * noise.cmm_field_um * 1e-3
+
+
+def cmm_field_as_source(effect: np.ndarray, noise: StationNoiseModel) -> Source:
+    """The field's budget line, ``effect`` its (N, 3n) effect on an estimator's residuals."""
+    return Source(CMM_FIELD_SOURCE, "B", effect, noise.cmm_field_um, "µm",
+                  f"1σ per coordinate as stated, correlated over {noise.cmm_field_length_mm:g} mm (exp(−d²/2ℓ²)), "
+                  "independent between coordinates; common to every station's length to a point and its neighbours")
 
 
 def radial_sensitivity_mm(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
