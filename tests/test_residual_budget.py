@@ -56,6 +56,9 @@ def test_the_warming_table_read_with_no_alpha_is_corrected_and_covered():
     r = out.results
     names = [c.source for c in getattr(r.estimates, r.recommended).uncertainty_budget.components]
     assert any("not stated, steel's 11.5 ± 2 ppm/K assumed" in n for n in names)
+    from rtcal.deliverables.multistation import MultistationOutputs
+
+    assert any(line.startswith("assumed: thermal expansion") for line in MultistationOutputs(r).summary())  # the console
     summary = _summary("warming_unstated", 2, 4242, "warming_sensor")
     assert summary["estimators"][summary["recommended"]]["overall"]["coverage_k2"] >= 0.8
 

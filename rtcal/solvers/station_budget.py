@@ -299,7 +299,7 @@ def table_expansion_sources(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_c
     s = radial_sensitivity_mm(unit_mm, stations_mm, axis_center_mm, axis_direction)
     dT = np.nan_to_num(np.asarray(material_offset_k, float))
     out = []
-    if noise.table_expansion_u_ppm_per_k > 0 and np.any(dT != 0):
+    if noise.table_expansion_u_ppm_per_k > 0 and (np.any(dT != 0) or noise.table_expansion_assumed):  # an assumed α: always said
         out.append(Source(thermal_source_name(noise), "B", (s * dT * noise.table_expansion_u_ppm_per_k * 1e-6)[:, None],
                           noise.table_expansion_u_ppm_per_k, "ppm/K",
                           f"the lengths corrected for the table's growth about the axis, α = {noise.table_expansion_ppm_per_k:g} "
