@@ -414,6 +414,31 @@ def bounded_components(influence: np.ndarray, distances_mm: np.ndarray, radial_m
     return out
 
 
+COURSE_KNOTS = 40  # the uncorrected air's or table's course: free between this many knots over the run, for the test
+
+
+def course_nuisance(distances_mm: np.ndarray, radial_mm: np.ndarray, run_fraction: np.ndarray,
+                    noise: StationNoiseModel) -> np.ndarray | None:
+    """(N, K): what an uncorrected air index or table temperature that takes ANY course over the run does to the
+    residuals, as K piecewise-linear (hat) functions of the run's time times each length's sensitivity (None: a
+    sensor corrects both). The bounded courses (:func:`bounded_course_component`) are no Gaussian: a step within
+    the stated range is as likely as a drift, and a χ² test against any covariance would call it an error. The
+    residual test takes these directions out as free unknowns (ν drops by K), so whatever course the quantity
+    took within the run (a step, a cycle) does not fail it; what is left is tested against the rest of the budget."""
+    sensitivities = []
+    if noise.air_index_bound > 0:
+        sensitivities.append(np.asarray(distances_mm, float) * noise.air_index_bound)
+    if noise.material_temperature_bound_k > 0 and noise.table_expansion_ppm_per_k > 0:
+        sensitivities.append(np.asarray(radial_mm, float) * noise.table_expansion_ppm_per_k * 1e-6
+                             * noise.material_temperature_bound_k)
+    if not sensitivities:
+        return None
+    t = np.nan_to_num(np.asarray(run_fraction, float))
+    knots = np.linspace(-1.0, 1.0, COURSE_KNOTS)
+    hats = np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / (knots[1] - knots[0]), 0.0, None)
+    return np.hstack([hats * s[:, None] for s in sensitivities])
+
+
 def air_drift_source(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel) -> Source:
     """The uncorrected air as a Type B source (:func:`air_drift_effect`), its σ in ppm of index."""
     return Source(AIR_DRIFT_SOURCE, "B", air_drift_effect(distances_mm, run_fraction, noise.air_index_bound),
@@ -493,5 +518,10 @@ def station_budget(
             for c in range(3):
                 D[np.arange(N), 3 * np.asarray(obs.station) + c] = -diff[:, c] / np.linalg.norm(diff, axis=1)
             V += sum(D @ cov @ D.T for *_, cov in motions)
-        check = residual_check(residuals, V, 0, jacobian=J)
+        P = np.asarray(stations_mm, float)[obs.station]
+        diff = np.asarray(obs.points_mm, float)[obs.point] - P
+        L = np.linalg.norm(diff, axis=1)
+        course = course_nuisance(L, radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction),
+                                 obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, N), noise)
+        check = residual_check(residuals, V, 0, jacobian=J if course is None else np.hstack([J, course]))
     return StationBudget(DeviationBudget(components), variances, sources, check)
