@@ -119,8 +119,8 @@ def test_the_warming_table_with_no_alpha_is_covered_campaign():
                                               ("air_step", ("paper", "shared_dead_path"))])
 def test_the_residual_test_false_alarm_rate_on_benches_as_budgeted_campaign(case, estimators):
     """Benches the budget models (a clean one; a step of the air within the stated range, no sensor): the share
-    of failed residual tests is the stated 1 % (≤ 5 % of 40 trials). The network on air_step is not yet (open:
-    docs/paper000.md)."""
+    of failed residual tests is the stated 1 % (≤ 5 % of 40 trials). The network without a sensor keeps the
+    stated-noise rule (open: docs/paper000.md)."""
     summary = _summary(case, 40, 4242, case)
     assert max(summary["estimators"][name]["residual_test_failed"] for name in estimators) <= 0.05
 

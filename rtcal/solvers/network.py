@@ -728,14 +728,12 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
             Ud = U.toarray()
             for *_, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
                 V0[:N_len, :N_len] += Ud @ cov @ Ud.T
-        course = course_nuisance(L_abs, radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), run_fraction, noise)
-        free = 0
-        if course is not None:  # any course of the uncorrected air or table: diffuse (free) in V₀, ν less by its rank
-            wide = np.vstack([course, np.zeros((len(zeros_pts), course.shape[1]))]) * 1e3
-            V0 += wide @ wide.T
-            free = int(np.linalg.matrix_rank(course))
-        tested = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]) + free)
-        check = None if tested is None else replace(tested, whole_budget=True)  # weighted: rᵀV₀⁻¹r is its χ²(ν)
+        tested = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
+        # weighted: rᵀV₀⁻¹r is its χ²(ν); an uncorrected air or table (no sensor) takes any course, which this V₀ does
+        # not hold (free knots as the station estimators' test has them did not take it up here: open, docs/paper000.md),
+        # so the network keeps the stated-noise rule there
+        uncorrected = course_nuisance(L_abs, L_abs, run_fraction, noise) is not None
+        check = None if tested is None else replace(tested, whole_budget=not uncorrected)
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     q_sigma = np.sqrt(np.clip(np.diag(S_inv)[lay.q], 0.0, None)) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])
