@@ -36,7 +36,7 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "counts_per_rev": (1, 2**40, True),
     "bytesize": (7, 8, True),  # serial framing: data bits
     "stopbits": (1, 2, True),
-    "home": (0, 1, True),  # a CMM (I++): 1 lets a run home an unhomed machine
+    "home": (0, 1, True),  # a CMM (I++) or a LinuxCNC joint: 1 lets rtcal home an unhomed machine (else refused)
     "joint": (0, 15, True),  # LinuxCNC: the rotary axis's joint number
     "move_timeout_s": (0.1, 3600, False),  # LinuxCNC: the longest wait for one move
 }

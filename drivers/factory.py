@@ -11,7 +11,7 @@ from typing import Any
 
 from drivers.addresses import Address, AddressError, parse_address, redact_tokens
 from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer, RotaryStage
-from drivers.fence import fenced
+from drivers.fence import fenced, refuse_unfit_class
 from drivers.models import Model, model_for
 
 # a procedure's instruments and the kind of each
@@ -48,6 +48,7 @@ def open_instrument(kind: str, address: str, timeout_s: float, **context: Any) -
     """The driver the address names, inside the fence every reading passes (drivers/fence.py)."""
     parsed, model = resolve(kind, address)
     cls = model.driver_class()
+    refuse_unfit_class(kind, model.name, model.plugin, model.target, cls)
     return fenced(kind, model.name, model.plugin, lambda: cls(parsed, timeout_s, **context))
 
 

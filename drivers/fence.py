@@ -14,6 +14,7 @@ from typing import Any, Callable, Collection, NoReturn
 
 import numpy as np
 
+from drivers.addresses import AddressError
 from drivers.errors import InstrumentError, InstrumentFault
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading, EnvironmentSensor,
                                 FieldDescription, Instrument, LaserTracer, LengthReading, ReadingOutsideDescription,
@@ -232,6 +233,23 @@ class FencedEnvironmentSensor(_Fenced, EnvironmentSensor):
 FENCES: dict[str, Callable[..., Instrument]] = {
     "stage": FencedStage, "cmm": FencedCmm, "laser_tracer": FencedLaserTracer, "encoder": FencedEncoder,
     "autocollimator": FencedAutocollimator, "dial_indicator": FencedDialIndicator, "environment": FencedEnvironmentSensor}
+INTERFACES: dict[str, type[Instrument]] = {
+    "stage": RotaryStage, "cmm": Cmm, "laser_tracer": LaserTracer, "encoder": Encoder, "autocollimator": Autocollimator,
+    "dial_indicator": DialIndicator, "environment": EnvironmentSensor}
+
+
+def refuse_unfit_class(kind: str, model: str, plugin: str, target: str, cls: Any) -> None:
+    """A driver class that does not subclass its kind's interface (drivers/interfaces.py) is refused
+    before it is built (AddressError, exit 2): nothing that is not a stage, say, may move the table —
+    its methods' meaning is the interface's contract, not a set of matching names."""
+    interface = INTERFACES[kind]
+    if isinstance(cls, type) and issubclass(cls, interface):
+        return
+    needed = sorted(getattr(interface, "__abstractmethods__", ())) + ["close", "identity"]
+    lacks = [m for m in needed if not callable(getattr(cls, m, None))]
+    what = f"lacks {', '.join(lacks)}" if lacks else f"has {', '.join(needed)} but does not subclass it"
+    raise AddressError(f"{what_plugin(model, plugin)} ({target}) is not a {interface.__name__} "
+                       f"(drivers.interfaces): it {what}; a {kind.replace('_', ' ')} driver subclasses {interface.__name__}")
 
 
 def fenced(kind: str, model: str, plugin: str, build: Callable[[], Instrument]) -> Instrument:

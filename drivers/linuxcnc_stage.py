@@ -4,10 +4,12 @@ Every command is one of linuxcncrsh(1)'s (docs/protocols/linuxcnc.md cites each)
 opens with ``hello EMC rtcal 1.0`` (the server's ``HELLO ACK <name> <version>`` is the
 identity), turns echo off and verbose on (so every ``set`` answers ``SET <CMD> ACK`` or ``NAK``),
 takes control with ``set enable EMCTOO``, makes every ``set`` wait until LinuxCNC has done it
-(``set set_wait done``), and brings the machine up: ``set estop off``, ``set machine on``,
-``set home <joint>`` in manual mode if the joint is not homed, ``set mode mdi``. Connecting is
-the operator's go-ahead, as starting a run is; an E-stop pressed during the run is never
-released by rtcal (the run stops, exit 1; `rtcal resume` connects again).
+(``set set_wait done``). It never changes the E-stop or the machine's power: a controller in
+E-stop (``get estop`` → ``ESTOP ON``) or switched off (``get machine`` → ``MACHINE OFF``) is
+refused with a fault naming it (release E-stop and switch the machine on at the controller; man:
+"E-stop "on" means the machine is in the estop state and won't run"). An unhomed joint is homed
+(``set mode manual``, ``set home <joint>``) only when the address says ``home=1``; else refused.
+Then ``set mode mdi``.
 
 A move is one MDI line, ``G0 C<deg>`` (``G1 … F<deg/min>`` with ``speed_deg_per_s``), answered
 once the motion is done. linuxcncrsh answers ACK also for a move that an E-stop or an abort cut
@@ -15,6 +17,21 @@ short, so every move is checked: E-stop off, machine on, no error queued (``get 
 axis's commanded and actual positions at the target. The approach direction and overshoot are
 the procedure's (rtcal.sequencer.motion): the driver goes where it is told, by the shortest
 way LinuxCNC takes for a linear (non-wrapped) joint.
+
+Errors queue: LinuxCNC's NML error channel (``emcError``) is a queue of errors, operator
+displays and texts, and emcrsh's ``getError``/``getOperatorDisplay``/``getOperatorText``
+(src/emc/usr_intf/emcrsh.cc) each take its next message, of whatever kind (shcom.cc
+``updateError()``), and answer their own kind's or ``OK``. A refused MDI line queues several (2.9, seen: "Linear
+move on line 0 would exceed C's positive limit", "… joint 0's positive limit", "invalid params in
+linear command"): the driver reads the queue empty after every refusal, so the next move starts
+clean; a refusal for a limit is ``OutOfLimits`` (nothing moved), any other a plain fault.
+
+Compensation type: the table's meaning depends on the INI's ``COMP_FILE_TYPE`` (0: nominal and
+measured positions; 1: nominal and trims; usrmotLoadComp, src/emc/motion/usrmotintf.cc), which
+linuxcncrsh does not report and which no position it reports shows (below). Where LinuxCNC runs
+on this host, the driver reads the INI ``get inifile`` names and the joint's table as LinuxCNC
+does; corrections beyond 1° mean a table of the other type (rtcal writes type 0): a fault naming
+the type. Elsewhere the identity says the type was not checked.
 
 LinuxCNC's positions (``get abs_act_pos``, ``get joint_pos``) are uncompensated: a joint's
 ``COMP_FILE`` shows only in HAL (``joint.N.motor-pos-cmd``). The feedback the checks compare is
@@ -24,11 +41,13 @@ the joint's actual position; the protocol prints six decimals, hence ``step_deg`
 from __future__ import annotations
 
 import math
+import re
 import socket
 import time
+from pathlib import Path
 
 from drivers.addresses import Address, AddressError
-from drivers.errors import InstrumentFault, InstrumentTimeout
+from drivers.errors import EmergencyStop, InstrumentFault, InstrumentTimeout, OutOfLimits
 from drivers.interfaces import RotaryStage
 from drivers.models import Framing
 
@@ -37,12 +56,17 @@ CONNECT_PASSWORD, ENABLE_PASSWORD = "EMC", "EMCTOO"  # linuxcncrsh's documented 
 MAX_LINE_BYTES = 4096
 POSITION_TOLERANCE_DEG = 2e-6  # two units of the six decimals linuxcncrsh prints
 MAX_STRAY = 4  # late extra reply lines skipped before a request's own reply
+MAX_QUEUED = 64  # rounds of reading LinuxCNC's message queue; a longer queue is a controller in trouble
+LIMIT_ERROR = re.compile(r"exceed .*limit", re.IGNORECASE)  # 2.9: "Linear move on line 0 would exceed C's positive limit"
+MAX_COMP_DEG = 1.0  # a rotary table's correction beyond this is a table read as the wrong COMP_FILE_TYPE
+LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
 
 
 class LinuxCncStage(RotaryStage):
     """``linuxcncrsh://HOST:PORT?axis=C&joint=0``: axis letter (default C), its joint number (default
     0; checked to be an angular joint in degrees), ``speed_deg_per_s`` (G1 at that feed; default G0,
-    the joint's rapid) and ``move_timeout_s`` (longest wait for one move, default 60)."""
+    the joint's rapid), ``move_timeout_s`` (longest wait for one move, default 60) and ``home=1``
+    (rtcal may home an unhomed joint; default: an unhomed joint is refused)."""
 
     name = "stage"
     framing: Framing | None
@@ -51,7 +75,8 @@ class LinuxCncStage(RotaryStage):
     step_deg = 1e-6
 
     def __init__(self, address: Address, timeout_s: float = 2.0, limits_deg: tuple[float, float] = (-360.0, 360.0),
-                 **_: object):
+                 may_move: bool = True, **_: object):
+        """``may_move=False`` (`rtcal probe`, `rtcal check`): never homes or changes the mode, whatever the address says."""
         self.address, self.timeout_s, self.limits_deg = address, timeout_s, limits_deg
         self.axis = address.text("axis", "C").upper()
         if self.axis not in AXES:
@@ -60,7 +85,10 @@ class LinuxCncStage(RotaryStage):
         self.joint = int(address.option("joint", 0))
         self.move_timeout_s = address.option("move_timeout_s", 60.0)
         self.feed_deg_per_min = 60.0 * address.option("speed_deg_per_s", 0.0)  # 0: G0, the joint's rapid
+        self.may_move = may_move
+        self.may_home = may_move and address.option("home", 0) == 1
         self.server = ""
+        self.compensation = "not checked"
         self.stray: list[str] = []
         self._buffer = b""
         try:
@@ -149,24 +177,29 @@ class LinuxCncStage(RotaryStage):
         try:
             facts = [f"E-stop {self.get('estop')[0].lower()}", f"machine {self.get('machine')[0].lower()}",
                      f"this session's control {self.get('enable')[0].lower()}"]
-            error = self.error()
+            errors = self._drain_errors()
         except InstrumentFault as exc:
             return f"(and asking why failed: {exc})"
-        return "; ".join(([f"LinuxCNC: {error}"] if error else []) + facts)
+        return "; ".join(([f"LinuxCNC: {'; '.join(errors)}"] if errors else []) + facts)
 
-    def error(self) -> str:
-        """LinuxCNC's next queued error text, or "" (``get error`` answers ``ERROR OK`` when none)."""
-        words = self.get("error")
+    def _message(self, item: str) -> str:
+        """``get error``/``operator_display``/``operator_text``: the text, or "" for ``<ITEM> OK``."""
+        words = self.get(item)
         return "" if [w.upper() for w in words] == ["OK"] else " ".join(words)
 
     def _drain_errors(self) -> list[str]:
-        errors = []
-        for _ in range(16):
-            text = self.error()
-            if not text:
-                break
-            errors.append(text)
-        return errors
+        """Every queued message, until a round of ``get error``, ``get operator_display`` and ``get
+        operator_text`` says OK: errors, operator displays and texts share one NML queue, and each of
+        these requests reads its next message whatever its kind (shcom.cc ``updateError``), so an
+        ``ERROR OK`` alone may hide an error queued behind a display message."""
+        messages: list[str] = []
+        for _ in range(MAX_QUEUED):
+            heard = [(item, self._message(item)) for item in ("error", "operator_display", "operator_text")]
+            if not any(text for _, text in heard):
+                return messages
+            messages += [text if item == "error" else f"{item.replace('_', ' ')}: {text}" for item, text in heard if text]
+        raise InstrumentFault(self.name, f"LinuxCNC's message queue does not empty ({len(messages)} messages, the last: "
+                                         f"{messages[-1]!r})")
 
     # -- session and machine state
     def _open_session(self) -> None:
@@ -190,9 +223,13 @@ class LinuxCncStage(RotaryStage):
                                              f"{' '.join(unit).lower() or '?'}, not an angular joint in degrees: "
                                              "give joint= the rotary axis's joint")
         self._drain_errors()  # what an earlier session left queued is not this run's
-        self.set("estop", "off", timeout_s=self.move_timeout_s)  # a LinuxCNC just started may take its time
-        self.set("machine", "on", timeout_s=self.move_timeout_s)
+        self._check_ready("connect")  # E-stop and power are the operator's: refused, never changed
+        self._check_compensation()
         if self.get("joint_homed", self.joint)[-1:] != ["YES"]:
+            if not self.may_home:
+                raise InstrumentFault(self.name, f"joint {self.joint} is not homed: home it at the controller"
+                                      + (", or add home=1 to the stage's address to let rtcal home it" if self.may_move
+                                         else " (a probe never homes)"))
             self.set("mode", "manual", timeout_s=self.move_timeout_s)
             self.set("home", self.joint, timeout_s=self.move_timeout_s)
             deadline = time.monotonic() + self.move_timeout_s  # set_wait done does not wait for homing to finish
@@ -200,7 +237,43 @@ class LinuxCncStage(RotaryStage):
                 if time.monotonic() > deadline:
                     raise InstrumentFault(self.name, f"joint {self.joint} did not home: {self._why()}")
                 time.sleep(0.05)
-        self.set("mode", "mdi", timeout_s=self.move_timeout_s)
+        if self.may_move:
+            self.set("mode", "mdi", timeout_s=self.move_timeout_s)
+
+    def _check_compensation(self) -> None:
+        """The joint's COMP_FILE read as LinuxCNC reads it with its COMP_FILE_TYPE, where the INI
+        ``get inifile`` names is this host's (linuxcncrsh reports neither the type nor any compensated
+        position): corrections beyond MAX_COMP_DEG are a fault naming the type."""
+        if self.address.host not in LOCAL_HOSTS:
+            self.compensation = "COMP_FILE_TYPE not checked (LinuxCNC runs on another host)"
+            return
+        words = self.get("inifile")
+        ini = Path(" ".join(words)) if words else None
+        try:
+            values = ini_section(ini.read_text(errors="replace"), f"JOINT_{self.joint}") if ini else None
+        except OSError:
+            values = None
+        if ini is None or values is None:
+            self.compensation = f"COMP_FILE_TYPE not checked (INI {ini} not readable here)"
+            return
+        if "COMP_FILE" not in values:
+            self.compensation = "no COMP_FILE"
+            return
+        table = ini.parent / values["COMP_FILE"]
+        kind = values.get("COMP_FILE_TYPE", "0").strip()
+        try:
+            rows = comp_rows(table.read_text(errors="replace"))
+        except OSError as exc:
+            raise InstrumentFault(self.name, f"joint {self.joint}'s COMP_FILE {table} cannot be read ({exc.strerror})") from None
+        corrections = [abs(c) for nominal, fwd, rev in rows
+                       for c in ((nominal - fwd, nominal - rev) if kind == "0" else (fwd, rev))]
+        worst = max(corrections, default=0.0)
+        if worst > MAX_COMP_DEG:
+            meant = "1 (nominal, forward trim, reverse trim)" if kind == "0" else "0 (nominal, measured forward, measured reverse)"
+            raise InstrumentFault(self.name, f"joint {self.joint}'s COMP_FILE {table.name} read as COMP_FILE_TYPE = {kind} "
+                                             f"corrects by up to {worst:.4f}°: a table of type {meant} (rtcal compensate "
+                                             "writes type 0); set COMP_FILE_TYPE in the INI and restart LinuxCNC")
+        self.compensation = f"COMP_FILE {table.name}, COMP_FILE_TYPE = {kind}, corrections up to {worst * 3600:.2f}″"
 
     def _mdi_mode(self, what: str) -> None:
         """MDI mode, entered and confirmed (``get mode``): LinuxCNC may leave it on its own, e.g. as homing ends."""
@@ -212,17 +285,20 @@ class LinuxCncStage(RotaryStage):
             time.sleep(0.02)
 
     def _check_ready(self, what: str) -> None:
-        """E-stop off, machine on, MDI mode, this session in control; else a fault saying which."""
+        """E-stop off, machine on, this session in control; else a fault saying which (emcrsh ``getEStop``:
+        ``ESTOP ON`` while the task is in its ESTOP state)."""
         if self.get("estop")[0].upper() != "OFF":
-            raise InstrumentFault(self.name, f"{what}: E-stop pressed on the controller (release it there; rtcal never does)")
+            raise EmergencyStop(self.name, f"{what}: E-stop is on at the controller (release it there and switch the "
+                                           "machine on; rtcal never does)")
         if self.get("machine")[0].upper() != "ON":
-            raise InstrumentFault(self.name, f"{what}: machine power is off")
+            raise InstrumentFault(self.name, f"{what}: the machine is off at the controller (switch it on there; rtcal "
+                                             "never does)")
         if self.get("enable")[0].upper() != "ON":
             raise InstrumentFault(self.name, f"{what}: another linuxcncrsh session took control of the machine")
 
     # -- the interface
     def identity(self) -> str:
-        return f"LinuxCNC linuxcncrsh server {self.server}; axis {self.axis}, joint {self.joint}"
+        return f"LinuxCNC linuxcncrsh server {self.server}; axis {self.axis}, joint {self.joint}; {self.compensation}"
 
     def move_to(self, angle_deg: float) -> None:
         self.check_target(angle_deg)
@@ -232,7 +308,7 @@ class LinuxCncStage(RotaryStage):
             raise InstrumentFault(self.name, f"{what}: LinuxCNC reported before the move: {'; '.join(stale)}")
         self._mdi_mode(what)
         word = f"G1 {self.axis}{angle_deg:.6f} F{self.feed_deg_per_min:.3f}" if self.feed_deg_per_min else f"G0 {self.axis}{angle_deg:.6f}"
-        self.set("mdi", word, timeout_s=self.move_timeout_s)
+        self._mdi(word, what)
         self._check_ready(what)
         errors = self._drain_errors()
         if errors:
@@ -250,6 +326,22 @@ class LinuxCncStage(RotaryStage):
                 raise InstrumentFault(self.name, f"{what}: the axis stopped at {actual:.6f}° (commanded {commanded:.6f}°): "
                                                  "the move was cut short (abort, E-stop or a limit)")
             time.sleep(0.01)
+
+    def _mdi(self, word: str, what: str) -> None:
+        """``set mdi WORD``; a NAK empties LinuxCNC's error queue (the next move starts clean) and is
+        OutOfLimits when LinuxCNC names a limit, else a fault with every queued message."""
+        line = f"set mdi {word}"
+        self._send(line)
+        reply = self._reply(line, ("SET MDI ",), self.move_timeout_s).upper()
+        if reply == "SET MDI ACK":
+            return
+        if reply != "SET MDI NAK":
+            raise InstrumentFault(self.name, f"{line!r}: unexpected reply {reply[:120]!r}")
+        errors = self._drain_errors()
+        if any(LIMIT_ERROR.search(e) for e in errors):
+            raise OutOfLimits(self.name, f"{what}: LinuxCNC refused it: {'; '.join(errors)}")
+        raise InstrumentFault(self.name, f"{what}: LinuxCNC refused {word!r}: {self._why()}"
+                                         + (f"; LinuxCNC: {'; '.join(errors)}" if errors else ""))
 
     def home(self) -> None:
         """The joint is homed in place when the session opens; homing here returns to the datum, 0°."""
@@ -297,3 +389,32 @@ class LinuxCncStage(RotaryStage):
                 sock.close()
             except OSError:
                 pass
+
+
+def ini_section(text: str, section: str) -> dict[str, str]:
+    """``KEY = value`` of one INI section as LinuxCNC's IniFile reads it (``#`` and ``;`` start comments;
+    the first of a repeated key counts)."""
+    values: dict[str, str] = {}
+    current = ""
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line or line[0] in "#;":
+            continue
+        if line.startswith("[") and "]" in line:
+            current = line[1:line.index("]")].strip()
+        elif current == section and "=" in line:
+            key, value = line.split("=", 1)
+            values.setdefault(key.strip(), value.strip())
+    return values
+
+
+def comp_rows(text: str) -> list[tuple[float, float, float]]:
+    """A COMP_FILE's triplets as usrmotLoadComp reads them: three numbers a line, up to the first line that is not."""
+    rows = []
+    for line in text.splitlines():
+        try:
+            nominal, fwd, rev = (float(w) for w in line.split()[:3])
+        except ValueError:
+            break
+        rows.append((nominal, fwd, rev))
+    return rows

@@ -12,9 +12,16 @@ axis is referenced (``FRF? 1``); an unreferenced axis is referenced (``FRF 1``, 
 reference switch) only when the address allows it (``home=1``), else refused naming referencing.
 A probe does neither: it asks ``POS? 1`` only.
 
-``move_to``: ``MOV``, ``ERR?`` (7: outside the controller's travel range; 5: servo off or not
-referenced), then ``ONT?`` until the axis is on target, with a deadline. ``stop``: ``HLT`` of the
-axis (a smooth halt; the controller sets error 10, which the driver reads off).
+``move_to``: ``POS?`` and ``VEL?`` (the closed-loop velocity, physical units per second: PI's
+C-863.12 manual MS249E, "VEL? (Get Closed-Loop Velocity)"), ``MOV``, ``ERR?`` (7: outside the
+controller's travel range; 5: servo off or not referenced), then ``ONT?`` and ``ERR?`` in turn
+until the axis is on target. The deadline is the move's own: twice distance / velocity, plus ten
+times the timeout for the start and the settling — a 350° turn at 10°/s is given 80 s, a step
+of 1° 10 s. ``ERR?`` while waiting is what tells a move that failed from one still going: error
+1024, "motion error: position error too large, servo is switched off automatically" (MS249E
+§8.7 "Error Codes"; pipython gcserror.py ``PI_CNTR_MOTION_ERROR``), leaves ``ONT?`` at 0 for
+ever, and is raised at once naming it. ``stop``: ``HLT`` of the axis (a smooth halt; the
+controller sets error 10, which the driver reads off).
 """
 
 from __future__ import annotations
@@ -34,8 +41,11 @@ log = logging.getLogger(__name__)
 
 # GCS error codes rtcal meets (pipython pidevice/gcserror.py)
 ERRORS = {1: "parameter syntax error", 2: "unknown command", 5: "move without reference or servo off",
-          7: "position out of limits", 10: "controller was stopped by command", 15: "invalid axis identifier"}
+          7: "position out of limits", 10: "controller was stopped by command", 15: "invalid axis identifier",
+          1024: "motion error: position error too large, servo is switched off automatically"}
 STOPPED = 10
+SETTLE_TIMEOUTS = 10.0  # timeouts allowed beyond the travel time for a move's start and settling
+TRAVEL_MARGIN = 2.0  # the travel time allowed, in units of distance / velocity (acceleration, a slower stage)
 MAX_POSITION_DEG = 1e6  # a rotation stage's position beyond this is no position
 
 
@@ -110,11 +120,29 @@ class PiGcsStage(RotaryStage):
     def _referenced(self) -> bool:
         return self._axis_value(f"FRF? {self.axis}") == "1"
 
-    def _wait(self, what: str, done) -> None:
-        deadline = time.monotonic() + max(self.timeout_s, 1.0) * 10
+    def _velocity_deg_per_s(self) -> float:
+        """``VEL?`` of the axis: the closed-loop velocity the move will run at."""
+        text = self._axis_value(f"VEL? {self.axis}")
+        try:
+            value = float(text)
+        except ValueError:
+            raise InstrumentFault(self.name, f"VEL?: {text[:40]!r} is no number") from None
+        if not (math.isfinite(value) and value > 0.0):
+            raise InstrumentFault(self.name, f"VEL?: {text[:40]!r} is no velocity a move can be timed by")
+        return value
+
+    def _wait(self, what: str, done, travel_s: float = 0.0) -> None:
+        """Until ``done()``, reading ``ERR?`` between polls: a motion error is raised when it happens,
+        not as a timeout; the deadline is the travel time given plus the settling allowance."""
+        allowed_s = TRAVEL_MARGIN * travel_s + max(self.timeout_s, 1.0) * SETTLE_TIMEOUTS
+        deadline = time.monotonic() + allowed_s
         while not done():
+            code = self._error_code()
+            if code:
+                raise InstrumentFault(self.name, f"{what}: GCS error {code} ({ERRORS.get(code, 'see the controller manual')})"
+                                                 f" at {self.position_deg():.6f}°")
             if time.monotonic() > deadline:
-                raise InstrumentTimeout(self.name, f"{what}: not on target in time")
+                raise InstrumentTimeout(self.name, f"{what}: not on target within {allowed_s:.0f} s")
             time.sleep(self.POLL_S)
 
     # -- the interface
@@ -122,14 +150,16 @@ class PiGcsStage(RotaryStage):
         return self._identity
 
     def home(self) -> None:
-        """``FRF`` (a reference move to the switch), then wait for ``FRF?`` = 1 and ``ONT?`` = 1."""
+        """``FRF`` (a reference move to the switch, at most a turn at ``VEL?``), then wait for ``FRF?`` = 1 and ``ONT?`` = 1."""
+        travel_s = 360.0 / self._velocity_deg_per_s()  # the switch is at most a turn away
         self._command(f"FRF {self.axis}")
-        self._wait("reference move", lambda: self._referenced() and self._axis_value(f"ONT? {self.axis}") == "1")
+        self._wait("reference move", lambda: self._referenced() and self._axis_value(f"ONT? {self.axis}") == "1", travel_s)
 
     def move_to(self, angle_deg: float) -> None:
         self.check_target(angle_deg)
+        travel_s = abs(angle_deg - self.position_deg()) / self._velocity_deg_per_s()
         self._command(f"MOV {self.axis} {angle_deg:.12g}")
-        self._wait(f"move to {angle_deg:.6f}°", lambda: self._axis_value(f"ONT? {self.axis}") == "1")
+        self._wait(f"move to {angle_deg:.6f}°", lambda: self._axis_value(f"ONT? {self.axis}") == "1", travel_s)
 
     def position_deg(self) -> float:
         text = self._axis_value(f"POS? {self.axis}")

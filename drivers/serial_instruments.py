@@ -14,6 +14,7 @@ The Vaisala environment sensors are in :mod:`drivers.vaisala`.
 from __future__ import annotations
 
 import re
+import time
 
 from drivers.addresses import Address
 from drivers.errors import InstrumentError, InstrumentFault, TrackingLost
@@ -116,6 +117,7 @@ class SylvacIndicator(SerialInstrument, DialIndicator):
     ERRORS = {"0": "sensor error", "3": "measuring range exceeded"}  # OPTO-RS manual; 1 and 2: see the instrument's manual
     RANGE_MM = 100.0  # the longest Sylvac stroke
     QUIET_S = 0.15  # after MM: whatever the indicator sends back (an echo) arrives within this
+    AFTER_MM_MAX_BYTES, AFTER_MM_MAX_S = 256, 1.0  # more, or longer, is an indicator sending on its own, not an echo
 
     def __init__(self, address: Address, timeout_s: float = 1.0, name: str = "dial_indicator", **_: object):
         self.name = name
@@ -130,10 +132,17 @@ class SylvacIndicator(SerialInstrument, DialIndicator):
         """``MM``, then ``UNI?`` must answer mm (the reply to a reading has no unit to check later)."""
         self.line.write(b"MM\r")
         port = self.line.port
+        start = time.monotonic()
+        received = 0
         try:
             port.timeout = self.QUIET_S
-            while port.read_until(b"\r", 64):  # an echo of MM, or an acknowledgement: not needed
-                pass
+            while chunk := port.read_until(b"\r", 64):  # an echo of MM, or an acknowledgement: not needed
+                received += len(chunk)
+                if received > self.AFTER_MM_MAX_BYTES or time.monotonic() - start > self.AFTER_MM_MAX_S:
+                    raise InstrumentFault(self.name, f"the indicator keeps sending after MM ({received} bytes in "
+                                                     f"{time.monotonic() - start:.1f} s; an echo of MM is 3): it "
+                                                     "transmits on its own — switch its continuous output off at the "
+                                                     "instrument (rtcal asks for each reading with ?)")
         finally:
             port.timeout = timeout_s
         unit = self._reply(b"UNI?\r").strip().upper()

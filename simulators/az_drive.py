@@ -16,6 +16,12 @@ where). A read of the feedback position draws the faults of another client movin
 A real drive starts a motion some milliseconds after the trigger, and until it does its status
 still shows the previous position's IN-POS: ``start_latency_s`` (wall-clock) holds a triggered
 motion back that long — it happens at the first register access after it.
+
+``wall_speed_deg_per_s`` makes a triggered motion take wall-clock time, as a real table's does: MOVE
+on and IN-POS off while the table turns at that speed (no ramps), the command and feedback positions
+between start and target. A STOP input then ends it where the table is (``stopped``: when, where,
+and the target it did not reach), as the drive's immediate stop does — what the tests of an abort
+or a signal mid-move look at.
 """
 
 from __future__ import annotations
@@ -32,10 +38,14 @@ ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE = 2, 3, 4  # Modbus exception cod
 class AzDriveModel:
     """Registers and state of one drive; ``steps_per_deg`` converts for the bench stage."""
 
-    def __init__(self, stage: SimStage, steps_per_deg: float, start_latency_s: float = 0.0):
+    def __init__(self, stage: SimStage, steps_per_deg: float, start_latency_s: float = 0.0,
+                 wall_speed_deg_per_s: float | None = None):
         self.stage = stage
         self.steps_per_deg = steps_per_deg
         self.start_latency_s = start_latency_s
+        self.wall_speed_deg_per_s = wall_speed_deg_per_s
+        self._moving: tuple[float, int, int] | None = None  # (wall start, from, to steps) of a motion under way
+        self.stopped: list[tuple[float, float, float]] = []  # (time.monotonic(), where °, target °) of each STOP mid-motion
         self._pending: tuple[float, int] | None = None  # (when, target steps) of a triggered motion not started yet
         self.direct = {az.OPERATION_DATA_NUMBER: 0, az.OPERATION_TYPE: 1, az.POSITION: 0, az.SPEED: 1000,
                        az.ACCELERATION: 1000, az.DECELERATION: 1000, az.CURRENT: 1000, az.TRIGGER: 0}
@@ -48,8 +58,15 @@ class AzDriveModel:
         self.feedback_steps = self.command_steps
         self.reply_fault: str | None = None  # "no_reply" or "crc_error" for the next reply frame
 
+    @property
+    def moving_to_deg(self) -> float | None:
+        """The target of the motion in wall time under way (None: at rest)."""
+        return None if self._moving is None else self._moving[2] / self.steps_per_deg
+
     # -- what the registers show
     def status(self) -> int:
+        if self._moving is not None:
+            return az.OUT_MOVE | (az.OUT_HOME_END if self.homed else 0)
         bits = az.OUT_IN_POS
         if self.alarm:
             bits |= az.OUT_ALM_A
@@ -72,11 +89,36 @@ class AzDriveModel:
             self._move_to_steps(self.command_steps + round(fault.offset_deg * self.steps_per_deg))
 
     def _advance(self) -> None:
-        """Start (and, in virtual time, finish) a triggered motion whose latency has passed."""
+        """Start (and, in virtual time, finish) a triggered motion whose latency has passed; a motion
+        in wall time goes on, or ends at its target."""
         if self._pending is not None and time.monotonic() >= self._pending[0]:
             target = self._pending[1]
             self._pending = None
-            self._move_to_steps(target)
+            self._start(target)
+        if self._moving is not None:
+            start_s, origin, target = self._moving
+            if self._wall_steps(start_s, origin, target) == target:
+                self._moving = None
+                self._move_to_steps(target)
+            else:
+                self.command_steps = self.feedback_steps = self._wall_steps(start_s, origin, target)
+
+    def _wall_steps(self, start_s: float, origin: int, target: int) -> int:
+        """Where a motion in wall time has the table now (steps)."""
+        assert self.wall_speed_deg_per_s is not None
+        done = (time.monotonic() - start_s) * self.wall_speed_deg_per_s * self.steps_per_deg
+        return target if done >= abs(target - origin) else origin + round(done) * (1 if target > origin else -1)
+
+    def _start(self, target: int) -> int | None:
+        """A motion begins: at once in virtual time, or turning in wall time."""
+        if self.wall_speed_deg_per_s is None or self.alarm or target == self.feedback_steps:
+            return self._move_to_steps(target)
+        lo, hi = self.stage.limits_deg
+        if not lo <= target / self.steps_per_deg <= hi:
+            return self._move_to_steps(target)  # the drive alarms
+        self.free = False
+        self._moving = (time.monotonic(), self.feedback_steps, int(target))
+        return None
 
     def read(self, address: int, count: int) -> list[int] | int:
         """Registers [address, address + count) or an exception code."""
@@ -133,6 +175,12 @@ class AzDriveModel:
             self.free = True
         if rising & az.IN_STOP:
             self.stops += 1  # counted: the tests check that every way a run ends stops the drive
+            self._pending = None
+            if self._moving is not None:  # stopped where it is: the table is there
+                target = self._moving[2]
+                self._moving = None
+                self.stopped.append((time.monotonic(), self.feedback_steps / self.steps_per_deg, target / self.steps_per_deg))
+                self._move_to_steps(self.feedback_steps)
             return None
         if rising & az.IN_ZHOME:
             return self._move_to_steps(0, homing=True)
@@ -170,7 +218,7 @@ class AzDriveModel:
             self._pending = (time.monotonic() + self.start_latency_s, int(target))  # IN-POS of where it was, for now
             code = None
         else:
-            code = self._move_to_steps(target)
+            code = self._start(int(target))
         if fault is not None and fault.kind in ("no_reply", "crc_error"):
             self.reply_fault = fault.kind
         return code

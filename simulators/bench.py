@@ -24,9 +24,9 @@ import numpy as np
 
 from rtcal.solvers.air import ciddor_n
 from rtcal.clock import Clock, VirtualClock
-from rtcal.compensation import get_format
 from rtcal.solvers.harmonics import evaluate
 from rtcal.units import arcsec_to_rad, um_to_mm
+from simulators.controllers import controller
 from simulators.faults import FaultInjector
 from simulators.scenario import Scenario
 
@@ -104,8 +104,10 @@ class Bench:
         st_ = scenario.stepper
         self.step_rad = 2 * math.pi / (st_.steps_per_revolution * st_.worm_ratio) if st_.steps_per_revolution else 0.0
         comp = scenario.stage.compensation
-        # the table as the controller applies it (the format's own reading: rtcal/compensation/)
-        self.compensation = get_format(comp.format).load(comp.text or "", comp.file or "compensation") if comp is not None else None
+        # the table as the controller applies it: read and applied as its manual says, apart from
+        # rtcal's writer (simulators/controllers.py)
+        self.compensation = (controller(comp.format, comp.text or "", comp.file or "compensation", comp.backlash_deg)
+                             if comp is not None else None)
         # state
         self.commanded_rad = 0.0  # where the motor was sent (the user's command plus any compensation)
         self.target_rad = 0.0  # the user's command, in whole steps: what the controller shows, moves start from

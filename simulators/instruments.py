@@ -293,11 +293,17 @@ class SimDialIndicator(_Injecting, DialIndicator):
         self.index = index
         self.name = f"dial_indicator_{index + 1}"
         self._rng = bench.rng(self.name)
+        self._creep_readings = 0
 
     def display(self) -> tuple[float, str]:
-        """The display: (value, "mm") or, set to inches, (value, "in")."""
+        """The display: (value, "mm") or, set to inches, (value, "in"); a creeping indicator (fault
+        ``creep``) adds ``creep_um_per_reading`` more at each display than at the one before."""
         di = self.bench.scenario.dial_indicators
-        y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + di.noise_um * self._rng.standard_normal()
+        creep_um = 0.0
+        if self.state_fault is not None and self.state_fault.kind == "creep":
+            self._creep_readings += 1
+            creep_um = self.state_fault.creep_um_per_reading * self._creep_readings
+        y_um = self.bench.shaft_y_mm(di.heights_mm[self.index]) * 1e3 + creep_um + di.noise_um * self._rng.standard_normal()
         if self.state_fault is not None and self.state_fault.kind == "inch":
             return _quantise(y_um / 25400.0, self.INCH_DIGIT), "in"
         return _quantise(y_um, di.resolution_um) / 1000.0, "mm"

@@ -27,6 +27,7 @@ from pydantic_core import PydanticCustomError
 from rtcal.compensation.registry import format_names
 from rtcal.solvers.harmonics import Harmonic
 from rtcal.units import arcsec_to_rad, um_to_mm
+from simulators.controllers import SINUMERIK
 
 # Bounds a person would accept for a bench (every number is also finite): angles of error up to
 # 1°, lengths of error up to 10 mm, positions within 1 km.
@@ -102,6 +103,10 @@ class CompensationScenario(_Strict):
                         json_schema_extra=_format_names_schema)
     file: str | None = Field(None, max_length=4096, description="the table file, relative to the scenario (e.g. c.comp)")
     text: str | None = Field(None, max_length=1_000_000, description="the table itself (filled from `file` when loaded)")
+    backlash_deg: float = Field(0.0, ge=-1.0, le=1.0, description=(
+        "SINUMERIK (siemens-lec, siemens-cec) only: the axis's backlash compensation MD32450 $MA_BACKLASH, deg; on each "
+        "reversal the control adds it to the travel in the new direction (808D Parameter Manual p. 228: positive when "
+        "the encoder leads the table); the axis counts as referenced in the positive direction (0: none)"))
 
     @field_validator("format", mode="before")
     @classmethod
@@ -119,6 +124,8 @@ class CompensationScenario(_Strict):
     def _one_source(self) -> "CompensationScenario":
         if (self.file is None) == (self.text is None):
             raise ValueError("file: give the table's file")
+        if self.backlash_deg and self.format not in SINUMERIK:
+            raise ValueError(f"backlash_deg: MD32450 is SINUMERIK machine data; a {self.format} control has none")
         return self
 
 
@@ -347,7 +354,7 @@ FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_ex
 STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop", "stuck", "short"}
 POSITION_READ_KINDS = {"moved"}  # counted on the instrument's position reads, not on its other requests
 # what goes wrong inside an instrument and stays wrong: from the request it is drawn at, every reading after
-STATE_KINDS = {"stale": ("autocollimator", "encoder"), "frozen": ("autocollimator", "encoder"), "creep": ("laser_tracer",),
+STATE_KINDS = {"stale": ("autocollimator", "encoder"), "frozen": ("autocollimator", "encoder"), "creep": ("laser_tracer", "dial_indicator_1", "dial_indicator_2"),
                "inch": ("dial_indicator_1", "dial_indicator_2")}
 
 
@@ -368,8 +375,9 @@ class FaultSpec(_Strict):
     stale, frozen, creep, inch: from the request drawn on, for the rest of the run (a restart of the
     instrument — a resume — clears it). stale (autocollimator, encoder): each reply is the reading
     taken at the previous request (a buffer one step behind); frozen: every reply repeats the last
-    reply before it (a frozen display); creep (laser_tracer): each length reads
-    ``creep_um_per_reading`` more than the one before (a slowly creeping count); inch (dial
+    reply before it (a frozen display); creep (laser_tracer, dial indicators): each length or
+    displacement reads ``creep_um_per_reading`` more than the one before (a slowly creeping count,
+    an indicator slipping on its stand); inch (dial
     indicator): the display shows inches — over the wire the Sylvac reply says ``in``; in process
     the simulated instrument stands for a reply without a unit, read as mm (25.4× too small).
     """
@@ -382,7 +390,7 @@ class FaultSpec(_Strict):
                                                                    "turns the table, deg (e.g. 0.003: three steps)")
     offset_mm: Vec3 = Field((0.5, 0.0, 0.0), description="for kind `moved` on the CMM: how far the other client moves the probe, mm")
     creep_um_per_reading: float = Field(0.5, gt=0.0, le=1000.0, description="for kind `creep`: how much each tracer length "
-                                                                         "adds to the one before, µm (e.g. 0.5)")
+                                                                         "or indicator reading adds to the one before, µm (e.g. 0.5)")
     probability: float = Field(0.0, ge=0.0, le=1.0, description="chance per request, 0..1 (e.g. 0.02)")
     at_request: list[Annotated[int, Field(le=1_000_000_000)]] = Field(
         [], max_length=10_000, description="the instrument's requests that fail, counted from 1 over the whole run (resumes go on counting)")

@@ -37,13 +37,28 @@ def seated(procedure: Path, seatings_deg: list[float], out: Path) -> Path:
     return out
 
 
+# what an engineer reads off a SINUMERIK file's `;` lines and enters as MD32450 (siemens-lec)
+MD32450 = re.compile(r"^; MD32450 \$MA_BACKLASH\[0,\w+\]: add ([+-]\d+\.\d+) deg to its present value", re.M)
+
+
+def md32450_deg(table_text: str) -> float:
+    """The change of MD32450 $MA_BACKLASH the file's `;` lines ask for, deg (0: none asked for);
+    the simulated axis starts with MD32450 = 0, so it becomes the machine datum."""
+    found = MD32450.findall(table_text)
+    assert len(found) <= 1, found
+    return float(found[0]) if found else 0.0
+
+
 def load_table(table: Path, fmt: str, bench: Path = BENCH) -> Path:
     """``bench`` with ``table`` loaded into the simulated controller (``stage.compensation``),
-    written beside the table (the scenario names it relative to itself)."""
+    and the machine data its `;` lines ask for (MD32450, ``backlash_deg``) entered, written
+    beside the table (the scenario names it relative to itself)."""
     text = bench.read_text()
     assert "\nstage:\n" in text, bench
     out = table.parent / f"{table.name}.bench.yaml"
-    out.write_text(text.replace("\nstage:\n", f"\nstage:\n  compensation: {{format: {fmt}, file: {table.name}}}\n", 1))
+    backlash = md32450_deg(table.read_text())
+    md = f", backlash_deg: {backlash!r}" if backlash else ""
+    out.write_text(text.replace("\nstage:\n", f"\nstage:\n  compensation: {{format: {fmt}, file: {table.name}{md}}}\n", 1))
     return out
 
 

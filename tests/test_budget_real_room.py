@@ -200,3 +200,8 @@ def test_an_estimator_whose_residuals_the_stated_noise_cannot_explain_says_so():
         test = getattr(r.estimates, name).residual_test
         assert test is not None and not test.passed and test.birge_ratio > 1.5
         assert "FAILS its residual test" in r.solver_status[name].message
+    # the recommended estimate (none passes) names what its U leaves out, as its message does
+    assert any("U is not a coverage interval" in n for n in getattr(r.estimates, r.recommended).uncertainty_budget.not_included)
+    from rtcal.deliverables.multistation import MultistationOutputs
+
+    assert any("FAILS its residual test" in line for line in MultistationOutputs(r).summary())

@@ -28,6 +28,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rtcal.compensation import write_table
+from rtcal.compensation.table import CompensationTable
 from rtcal.deliverables.compensation import parse_linuxcnc
 from rtcal.procedure.loader import load_scenario
 from rtcal.sequencer.motion import approach
@@ -177,18 +179,22 @@ def test_loop_calibrate_compensate_reload_verify(tmp_path):
     assert abs(e_after - predicted) <= 2.0, (e_after, predicted)
 
 
+def console(stage_address: str, *requests: str) -> list[str]:
+    """An operator at another linuxcncrsh console (simulators.servers.linuxcnc.console): the replies."""
+    from simulators.servers import linuxcnc
+
+    host, port = re.match(r"linuxcncrsh://([^:]+):(\d+)", stage_address).groups()
+    return linuxcnc.console(host, int(port), *requests)
+
+
 def _estop_from_another_console(stage_address: str, after_s: float, done: threading.Event) -> None:
     """An operator presses E-stop on another linuxcncrsh console ``after_s`` into the run."""
-    host, port = re.match(r"linuxcncrsh://([^:]+):(\d+)", stage_address).groups()
     time.sleep(after_s)
-    with socket.create_connection((host, int(port)), timeout=10) as s:
-        for line in ("hello EMC operator 1.0", "set enable EMCTOO", "set estop on"):
-            s.sendall(line.encode() + b"\r\n")
-            time.sleep(0.3)
+    console(stage_address, "set estop on")
     done.set()
 
 
-def test_estop_mid_run_is_an_instrument_fault_and_the_run_resumes(tmp_path):
+def test_estop_mid_run_is_an_instrument_fault_and_the_run_resumes_once_the_operator_releases_it(tmp_path):
     with linuxcnc_bench() as addresses:
         pressed = threading.Event()
         operator = threading.Thread(target=_estop_from_another_console, args=(addresses["stage"], 6.0, pressed))
@@ -198,11 +204,68 @@ def test_estop_mid_run_is_an_instrument_fault_and_the_run_resumes(tmp_path):
         assert pressed.is_set()
         assert code == 1, out + err
         assert "E-stop" in out + err, out + err
-        # the operator releases E-stop (rtcal never does); `rtcal resume` connects again and completes
+        # rtcal never releases it: a resume while E-stop is on is refused, naming it, and leaves it on
+        code, out, err = rtcal("resume", tmp_path / "run", "--instruments", json.dumps(addresses))
+        assert code == 1 and "E-stop is on" in out + err, out + err
+        assert console(addresses["stage"], "get estop", "get machine") == ["ESTOP ON", "MACHINE OFF"]
+        # the operator releases E-stop and switches the machine on; `rtcal resume` connects again and completes
+        assert console(addresses["stage"], "set estop off", "set machine on") == ["SET ESTOP ACK", "SET MACHINE ACK"]
         code, out, err = rtcal("resume", tmp_path / "run", "--instruments", json.dumps(addresses))
         assert code == 0, out + err
         result = json.loads((tmp_path / "run" / "results.json").read_text())
-        assert result["starts"] == 2 and result["evaluation"]["iso230_2"]["targets"] == 4
+        # three starts: the run, the resume refused while E-stop was on, the resume after its release
+        assert result["starts"] == 3 and result["evaluation"]["iso230_2"]["targets"] == 4
+
+
+def test_probe_refuses_an_estopped_linuxcnc_and_refused_moves_leave_no_trace():
+    """Issue 36 on the real controller: a probe while the operator holds E-stop is refused and E-stop stays
+    on; after two moves LinuxCNC refuses (beyond its ±400° joint limits), a legal one succeeds."""
+    from drivers.errors import OutOfLimits
+    from drivers.factory import open_stage
+
+    with linuxcnc_bench() as addresses:
+        stage_address = addresses["stage"]
+        assert console(stage_address, "set estop on") == ["SET ESTOP ACK"]
+        code, out, err = rtcal("probe", "stage", stage_address, "--timeout-s", "5")
+        assert code == 1 and "E-stop is on" in err, out + err
+        assert console(stage_address, "get estop", "get machine") == ["ESTOP ON", "MACHINE OFF"]
+        console(stage_address, "set estop off", "set machine on")
+        stage = open_stage(stage_address, (-1000.0, 1000.0), 5.0)
+        try:
+            for target in (500.0, -450.0):
+                with pytest.raises(OutOfLimits, match="limit"):
+                    stage.move_to(target)
+            stage.move_to(30.0)
+            assert abs(stage.position_deg() - 30.0) < 2e-6
+        finally:
+            stage.close()
+
+
+def test_a_type_0_table_loaded_as_type_1_is_refused_at_connect(tmp_path):
+    """Issue 36: rtcal's table (COMP_FILE_TYPE = 0) loaded with COMP_FILE_TYPE = 1 drives the motor far from
+    where every linuxcncrsh position says it is; the driver refuses the controller, naming the type."""
+    from drivers.errors import InstrumentFault
+    from drivers.factory import open_stage
+    from simulators.servers.linuxcnc import LinuxCncProcess
+
+    positions = np.arange(0.0, 361.0, 30.0)
+    trims = 5e-3 * np.sin(np.radians(positions))
+    table = tmp_path / "c.comp"
+    table.write_text(write_table("linuxcnc", CompensationTable(positions, trims, trims)))
+    with one_linuxcnc_at_a_time():
+        linuxcnc = LinuxCncProcess(comp_file=table, comp_type=1)
+        try:
+            port = linuxcnc.start()
+            address = f"linuxcncrsh://127.0.0.1:{port}?axis=C&joint=0"
+            with pytest.raises(InstrumentFault, match=r"COMP_FILE_TYPE = 1 corrects by up to .*type 0"):
+                open_stage(address, (-400.0, 400.0), 5.0)
+            # what the fault prevents: the operator's G0 C30 puts the motor near 60°, LinuxCNC shows 30°
+            console(address, "set mode mdi", "set mdi G0 C30")
+            time.sleep(0.1)
+            assert console(address, "get abs_act_pos 5") == ["ABS_ACT_POS 5 30.000000"]
+            assert abs(hal_motor_deg() - 30.0) > 20.0
+        finally:
+            linuxcnc.stop()
 
 
 @pytest.mark.campaign

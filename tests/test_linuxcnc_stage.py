@@ -9,10 +9,11 @@ import socket
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from drivers.addresses import AddressError, parse_address
-from drivers.errors import InstrumentFault
+from drivers.errors import InstrumentFault, OutOfLimits
 from drivers.factory import open_stage, resolve
 from rtcal.cli import main
 
@@ -21,17 +22,25 @@ AXES = "XYZABC"
 
 class FakeRsh:
     """One-session linuxcncrsh: hello, echo, verbose, enable, set_wait, estop, machine, mode, home,
-    mdi (G0/G1 C…), abort, and the gets the driver asks; ``cut_short_at`` makes the next move stop
-    there with E-stop on, yet answer ACK (as LinuxCNC 2.9 does)."""
+    mdi (G0/G1 C…), abort, and the gets the driver asks. As strict as LinuxCNC 2.9: the machine
+    starts as the operator left it (``estop``, ``machine``, ``homed``); ``set machine on`` is refused
+    in E-stop, MDI needs MDI mode, power and homing; a target beyond the joint's limits (±``limit``)
+    is refused with the three messages 2.9 queues. Errors, operator displays and texts share one
+    queue (``messages``, (kind, text)): ``get error``, ``get operator_display`` and ``get
+    operator_text`` each read the next message into its kind's string, then answer their own
+    string, or OK, and clear it (emcrsh ``getError``, shcom.cc ``updateError``). ``cut_short_at`` makes the next move stop there with E-stop on, yet
+    answer ACK (as LinuxCNC 2.9 does). ``inifile``: what ``get inifile`` answers."""
 
-    def __init__(self, joint_type: str = "ANGULAR", stray_after_ack: bool = True):
-        self.joint_type, self.stray_after_ack = joint_type, stray_after_ack
-        self.state = {"estop": "ON", "machine": "OFF", "mode": "MANUAL", "homed": "NO", "enable": "OFF"}
+    def __init__(self, joint_type: str = "ANGULAR", stray_after_ack: bool = True, estop: str = "OFF",
+                 machine: str = "ON", homed: str = "YES", limit: float = 400.0, inifile: str = "emc.ini"):
+        self.joint_type, self.stray_after_ack, self.limit, self.inifile = joint_type, stray_after_ack, limit, inifile
+        self.state = {"estop": estop, "machine": machine, "mode": "MANUAL", "homed": homed, "enable": "OFF"}
         self.pos = 0.0
         self.cut_short_at: float | None = None
         self.die_on_mdi = False  # the controller is killed while a move is under way: the connection closes
         self.requests: list[str] = []
-        self.errors: list[str] = []
+        self.messages: list[tuple[str, str]] = []
+        self.strings = {"ERROR": "", "OPERATOR_DISPLAY": "", "OPERATOR_TEXT": ""}
         self.server = socket.create_server(("127.0.0.1", 0))
         self.port = self.server.getsockname()[1]
         threading.Thread(target=self._serve, daemon=True).start()
@@ -60,10 +69,16 @@ class FakeRsh:
             return ""
         if w[0] == "get":
             item = w[1].upper()
-            if item == "ERROR":
-                return f"ERROR {self.errors.pop(0) if self.errors else 'OK'}\r\n"
+            if item in self.strings:
+                if self.messages:
+                    kind, text = self.messages.pop(0)
+                    self.strings[kind] = text
+                text, self.strings[item] = self.strings[item] or "OK", ""
+                return f"{item} {text}\r\n"
             if item in ("ESTOP", "MACHINE", "MODE", "ENABLE"):
                 return f"{item} {self.state[item.lower()]}\r\n"
+            if item == "INIFILE":
+                return f"INIFILE {self.inifile}\r\n"
             if item == "JOINT_TYPE":
                 return f"JOINT_TYPE {w[2]}  {self.joint_type}\r\n"
             if item == "JOINT_UNITS":
@@ -81,22 +96,30 @@ class FakeRsh:
             self.state["enable"] = "ON"
         elif item == "ESTOP":
             self.state["estop"] = w[2].upper()
+            self.state["machine"] = "OFF"  # E-stop, pressed or released, leaves the machine off
         elif item == "MACHINE":
             ok = self.state["estop"] == "OFF"
             self.state["machine"] = w[2].upper() if ok else "OFF"
         elif item == "MODE":
             self.state["mode"] = w[2].upper()
         elif item == "HOME":
-            self.state["homed"] = "YES"
+            ok = self.state["machine"] == "ON"
+            self.state["homed"] = "YES" if ok else self.state["homed"]
         elif item == "MDI":
-            ok = self.state["mode"] == "MDI" and self.state["machine"] == "ON"
+            ok = self.state["mode"] == "MDI" and self.state["machine"] == "ON" and self.state["homed"] == "YES"
+            target = float(w[3][1:])
             if not ok:
-                self.errors.append("Must be in MDI mode to issue MDI command")
+                self.messages.append(("ERROR", "Must be in MDI mode to issue MDI command"))
+            elif abs(target) > self.limit:
+                ok, side = False, "positive" if target > 0 else "negative"
+                self.messages += [("ERROR", f"Linear move on line 0 would exceed C's {side} limit"),
+                                  ("ERROR", f"Linear move on line 0 would exceed joint 0's {side} limit"),
+                                  ("ERROR", "invalid params in linear command")]
             elif self.cut_short_at is not None:
                 self.pos, self.cut_short_at = self.cut_short_at, None
                 self.state.update(estop="ON", machine="OFF")
             else:
-                self.pos = float(w[3][1:])
+                self.pos = target
         reply = f"SET {item} {'ACK' if ok else 'NAK'}"
         return reply + ("\n\r" if self.stray_after_ack else "\r\n")
 
@@ -118,7 +141,7 @@ def test_linuxcncrsh_address_is_a_linuxcnc_stage_without_model():
         parse_address("linuxcncrsh://127.0.0.1:5007?joint=99")
 
 
-def test_session_brings_the_machine_up_and_moves_by_mdi(rsh):
+def test_session_moves_by_mdi_and_never_touches_estop_power_or_homing(rsh):
     stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}?axis=C&joint=0", (-400, 400), 2.0)
     try:
         assert "EMCNETSVR 1.1" in stage.identity()
@@ -129,9 +152,107 @@ def test_session_brings_the_machine_up_and_moves_by_mdi(rsh):
         stage.close()
     r = rsh.requests
     assert r[:5] == ["hello EMC rtcal 1.0", "set echo off", "set verbose on", "set enable EMCTOO", "set set_wait done"]
-    for seq in (["set estop off", "set machine on"], ["set mode manual", "set home 0"]):
-        assert r.index(seq[0]) < r.index(seq[1])
+    assert not [q for q in r if q.startswith(("set estop", "set machine", "set home"))], r
     assert "set mdi G0 C-1.250000" in r and r[-1] == "set abort"
+
+
+@pytest.mark.parametrize("state, named", [({"estop": "ON", "machine": "OFF"}, "E-stop is on"),
+                                          ({"machine": "OFF"}, "the machine is off")])
+def test_probe_refuses_a_controller_in_estop_or_off_and_leaves_it_so(capsys, state, named):
+    """Issue 36: connecting released an operator's E-stop and switched the machine on."""
+    fake = FakeRsh(**state)
+    code = main(["probe", "stage", f"linuxcncrsh://127.0.0.1:{fake.port}?axis=C", "--timeout-s", "2"])
+    err = capsys.readouterr().err
+    assert code == 1 and named in err and "rtcal never does" in err, err
+    assert {k: fake.state[k] for k in state} == state
+    assert not [q for q in fake.requests if q.startswith(("set estop", "set machine"))], fake.requests
+
+
+def test_an_unhomed_joint_is_homed_only_when_the_address_says_home_1():
+    fake = FakeRsh(homed="NO")
+    with pytest.raises(InstrumentFault, match="not homed.*home=1"):
+        open_stage(f"linuxcncrsh://127.0.0.1:{fake.port}", (-400, 400), 2.0)
+    assert "set home 0" not in fake.requests and fake.state["homed"] == "NO"
+    fake = FakeRsh(homed="NO")
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{fake.port}?home=1", (-400, 400), 2.0)
+    stage.close()
+    r = fake.requests
+    assert fake.state["homed"] == "YES" and r.index("set mode manual") < r.index("set home 0") < r.index("set mode mdi")
+
+
+def test_a_probe_never_homes_even_with_home_1(capsys):
+    fake = FakeRsh(homed="NO")
+    code = main(["probe", "stage", f"linuxcncrsh://127.0.0.1:{fake.port}?home=1", "--timeout-s", "2"])
+    err = capsys.readouterr().err
+    assert code == 1 and "not homed" in err and "a probe never homes" in err, err
+    assert not [q for q in fake.requests if q.startswith(("set home", "set mode"))], fake.requests
+
+
+def test_after_refused_moves_the_next_legal_one_succeeds(rsh):
+    """Issue 36: LinuxCNC queues three messages for a refused MDI line; the driver read one, and the next
+    legal move failed ("reported before the move"). A refusal for a limit is OutOfLimits."""
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}", (-1000, 1000), 2.0)
+    try:
+        for target in (500.0, -450.0):
+            with pytest.raises(OutOfLimits, match="exceed .* limit.*invalid params"):
+                stage.move_to(target)
+        stage.move_to(30.0)
+        assert stage.position_deg() == pytest.approx(30.0) and rsh.messages == []
+    finally:
+        stage.close()
+
+
+def test_an_error_queued_behind_an_operator_display_is_read(rsh):
+    """Errors and operator messages share LinuxCNC's queue: `get error` that reads a display answers
+    ERROR OK though an error waits behind it; the driver reads on until every kind says OK."""
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}", (-400, 400), 2.0)
+    try:
+        rsh.messages += [("OPERATOR_DISPLAY", "check the clamp"), ("ERROR", "joint 0 following error")]
+        with pytest.raises(InstrumentFault, match="before the move: operator display: check the clamp; joint 0 following"):
+            stage.move_to(10.0)
+        stage.move_to(10.0)  # the fault was reported; the queue is empty
+        assert rsh.messages == [] and all(not text for text in rsh.strings.values())
+    finally:
+        stage.close()
+
+
+def _linuxcnc_ini(tmp_path: Path, table_text: str, comp_type: int) -> Path:
+    (tmp_path / "c.comp").write_text(table_text)
+    ini = tmp_path / "machine.ini"
+    ini.write_text(f"[JOINT_1]\nCOMP_FILE = other.comp\n[JOINT_0]\nTYPE = ANGULAR\n# a comment\n"
+                   f"COMP_FILE = c.comp\nCOMP_FILE_TYPE = {comp_type}\n")
+    return ini
+
+
+def _rtcal_type0_table() -> str:
+    from rtcal.compensation import write_table
+    from rtcal.compensation.table import CompensationTable
+
+    positions = np.arange(0.0, 361.0, 30.0)
+    trims = 5e-3 * np.sin(np.radians(positions))
+    return write_table("linuxcnc", CompensationTable(positions, trims, trims + 1e-3))
+
+
+def test_a_type_0_table_loaded_as_type_1_is_a_fault_naming_the_type(tmp_path):
+    """Issue 36: rtcal's type-0 table loaded with COMP_FILE_TYPE = 1 moved the motor to 55.3° for 30°,
+    unseen by every position linuxcncrsh reports."""
+    fake = FakeRsh(inifile=str(_linuxcnc_ini(tmp_path, _rtcal_type0_table(), 1)))
+    with pytest.raises(InstrumentFault, match="COMP_FILE_TYPE = 1 corrects by up to .*°.*type 0"):
+        open_stage(f"linuxcncrsh://127.0.0.1:{fake.port}", (-400, 400), 2.0)
+    fake = FakeRsh(inifile=str(_linuxcnc_ini(tmp_path, _rtcal_type0_table(), 0)))
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{fake.port}", (-400, 400), 2.0)
+    try:
+        assert "COMP_FILE c.comp, COMP_FILE_TYPE = 0, corrections up to 21.60″" in stage.identity()
+    finally:
+        stage.close()
+
+
+def test_an_unreadable_ini_says_the_type_was_not_checked(rsh):
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}", (-400, 400), 2.0)
+    try:
+        assert "COMP_FILE_TYPE not checked (INI emc.ini not readable here)" in stage.identity()
+    finally:
+        stage.close()
 
 
 def test_a_move_an_estop_cut_short_is_a_fault_though_linuxcncrsh_said_ack(rsh):

@@ -2,7 +2,7 @@
 protocols of `rtcal sim serve`, the page in headless Chromium (progress rising, Pause holding the run, Resume
 finishing it with the results of an uninterrupted run), a request without the token changing nothing, a
 remote abort ending like Ctrl-C (exit 130, `rtcal resume` finishes), and every way a run ends early
-stopping the drive (Ctrl-C, SIGTERM, a remote abort, a fault abort)."""
+stopping the drive (Ctrl-C, SIGTERM, SIGHUP, SIGQUIT, a remote abort, a fault abort)."""
 
 from __future__ import annotations
 
@@ -17,11 +17,13 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
 import yaml
 
+from rtcal.live.control import SOCKET_NAME
 from rtcal.results import read_results
 from rtcal.run.runner import run_procedure
 from simulators.servers.hub import SimulatorHub
@@ -47,12 +49,18 @@ def fast_iso(tmp_path: Path, settle_s: float = 0.05, runs: int = 5) -> Path:
     return path
 
 
-def start_run(*args: str) -> tuple[subprocess.Popen, dict[str, str]]:
-    """`rtcal ...` in a process; waits for its `live view:` (if any) and `control token:` lines."""
+def start_run(*args: str, preexec_fn: Callable[[], None] | None = None) -> tuple[subprocess.Popen, dict[str, str]]:
+    """`rtcal ...` in a process; with --live waits for its `live view:` and `control token:` lines,
+    without it for its control socket (such a run prints no token: "" stands for it)."""
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], cwd=REPO, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # no terminal: as under nohup
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=preexec_fn)  # no terminal: as under nohup
     seen: dict[str, str] = {}
     deadline = time.monotonic() + 60
+    if "--live" not in args:
+        run_dir = Path(args[args.index("--out") + 1])
+        wait_for(lambda: (run_dir / SOCKET_NAME).exists() or proc.poll() is not None, 60)  # a fault may end it first
+        return proc, {"control token": ""}
     while "control token" not in seen:
         ready, _, _ = select.select([proc.stderr], [], [], max(0.0, deadline - time.monotonic()))
         line = proc.stderr.readline() if ready else ""
@@ -158,6 +166,7 @@ def test_remote_abort_exits_130_and_resume_finishes(tmp_path):
         code, err = finish(proc)
         assert code == 130, err
         assert f"rtcal resume {tmp_path / 'run'}" in err
+        assert "control token" not in err  # without --live no token is printed: its user's `rtcal control` needs none
         resumed = subprocess.run([sys.executable, "-m", "rtcal.cli", "resume", str(tmp_path / "run"), "--instruments",
                                   json.dumps(addresses)], cwd=REPO, capture_output=True, text=True, timeout=180)
     assert resumed.returncode == 0, resumed.stderr
@@ -248,7 +257,7 @@ def end_early(tmp_path: Path, procedure: Path, scenario, how: str):
         return hub, err
 
 
-@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "abort", "fault"])
 def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
     """A seed-000 run over the Modbus drive and the I++ server: the drive receives STOP and the CMM `AbortE()`
     however the run ends early."""
@@ -282,3 +291,42 @@ def _scenario(tmp_path: Path, how: str, bench: Path = BENCH, faults: list | None
     path = tmp_path / "bench.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
     return load_scenario(path, path.read_text(encoding="utf-8"))
+
+
+def test_a_rehearsal_on_simulators_waits_for_a_person_then_the_simulated_operator_reseats(tmp_path, capsys):
+    """`rtcal run --rehearse`: the polygon's two seatings each wait for a person as on hardware (no terminal, a
+    --live run: the page and `rtcal control … confirm`); once confirmed the simulated operator re-seats the
+    polygon on the simulators, so the run finishes (without it the second seating finds no reflection), its
+    `certificate_arcsec: bench` handed over by the simulated operator; each seating is logged once done, after
+    its confirm. Without the simulated operator's address --rehearse is refused with why (exit 2)."""
+    from rtcal.cli import main
+
+    procedure = fast_iso(tmp_path, settle_s=0.05, runs=2)
+    data = yaml.safe_load(procedure.read_text(encoding="utf-8"))
+    data["polygon"]["seatings_deg"] = [0, 7.5]
+    procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    with SimulatorHub(_scenario(tmp_path, "none"), seed=1) as hub:
+        without = {k: v for k, v in hub.addresses.items() if k != "operator"}
+        assert main(["run", str(procedure), "--instruments", json.dumps(without), "--out", str(tmp_path / "x"),
+                     "--rehearse"]) == 2
+        assert "give its address (`operator` in --instruments" in capsys.readouterr().err
+        assert main(["run", str(procedure), "--instruments", json.dumps(without), "--out", str(tmp_path / "y")]) == 2
+        assert "this run has neither (its operator steps are a person's)" in capsys.readouterr().err  # why `bench` is refused
+        run_dir = tmp_path / "run"
+        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(dict(hub.addresses)), "--out",
+                               str(run_dir), "--live", "127.0.0.1:0", "--rehearse")
+        url, token = seen["live view"], seen["control token"]
+        try:
+            for step in (1, 2):
+                asked = wait_for(lambda: (s := state(url))["operator"] and s["operator"]["step"] == step and s)
+                assert "Seat the polygon" in asked["operator"]["instruction"]
+                assert main(["control", str(run_dir), "confirm", "--token", token, "--step", str(step)]) == 0
+            code, err = finish(proc)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert code == 0, err
+    results = read_results(run_dir)
+    kinds = [(e.kind, e.message) for e in results.events if e.kind in ("operator", "confirm")]
+    assert [k for k, _ in kinds] == ["confirm", "operator", "confirm", "operator"], kinds
+    assert "seated at 7.5°" in kinds[3][1]

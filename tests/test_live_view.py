@@ -53,7 +53,7 @@ class FakeEngine:
         if self.writer:
             self.writer.hold.clear()
 
-    def request_abort(self) -> None:
+    def request_abort(self, by: str = "") -> None:
         self.calls.append("abort")
         if self.writer:
             self.writer.halt.set()
@@ -543,10 +543,11 @@ def test_a_session_prints_the_two_lines_and_serves_both_ways(tmp_path):
     assert engine.calls == ["pause", "resume"]
     assert not os.path.lexists(tmp_path / SOCKET_NAME)
     out = io.StringIO()
-    with start_session(tmp_path, engine, None, out) as session:  # without --live: the token all the same
-        assert out.getvalue() == f"control token: {session.token}\n" and session.url is None
-        send_control(tmp_path, session.token, "abort")
-    assert engine.calls == ["pause", "resume", "abort"]
+    with start_session(tmp_path, engine, None, out) as session:  # without --live: no token, none printed
+        assert out.getvalue() == "" and session.token is None and session.url is None
+        send_control(tmp_path, "", "abort")  # the socket admits its own user's processes
+        send_control(tmp_path, "any-token-is-ignored", "resume")
+    assert engine.calls == ["pause", "resume", "abort", "resume"]
     with socket.socket() as busy, pytest.raises(OSError):
         busy.bind(("127.0.0.1", 0))
         busy.listen(1)

@@ -174,7 +174,7 @@ def test_the_engine_hands_the_confirm_to_the_waiting_operator():
     assert result == {"stored": 4}
     assert asked(docs)[1::2] == [None, None]
     kinds = [d["kind"] for n, d in docs if n == "event"]
-    assert kinds == ["operator", "confirm", "operator", "confirm"]
+    assert kinds == ["confirm", "operator", "confirm", "operator"]  # each step logged once done, after its confirm
     with pytest.raises(NothingToConfirm):  # nothing waits any more
         engine.request_confirm()
 
@@ -190,7 +190,7 @@ def test_a_fault_the_operator_clears_is_confirmed_remotely():
     thread.join(10)
     assert result == {"stored": 2}
     kinds = [d["kind"] for n, d in docs if n == "event"]
-    assert kinds == ["operator", "confirm", "fault", "pause", "confirm"]
+    assert kinds == ["confirm", "operator", "fault", "pause", "confirm"]
 
 
 def test_an_abort_while_the_operator_is_asked_stops_safe():

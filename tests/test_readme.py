@@ -1,4 +1,5 @@
-"""Every command README.md shows runs as written, in order, in a temporary copy of the repository.
+"""Every command README.md and docs/*.md show runs as written, in order, in a temporary copy of the
+repository (README in one copy, each document of docs/ in a fresh one of its own).
 
 The commands are the lines of README's ```sh blocks (a trailing ``\\`` joins lines; a line that is
 only a comment is skipped). They run in one bash script, block after block, so a command may use
@@ -11,6 +12,10 @@ A command opts out with a marker comment at its end, which README explains to it
 - ``# readme-test: skip (why)`` — it cannot run here: it installs packages, needs real
   instruments at the addresses it names, a browser or a running server, or is the test command;
 - ``# readme-test: long (why)`` — it runs, but takes minutes: only with ``pytest -m campaign``.
+
+A comment line carrying a marker opens a block: the marker applies to every command of it.
+Every certificate the commands write has its own number (``rtcal run`` warns of one beside another
+with the same number: the test fails on that warning).
 
 ``--trials N`` above TRIALS is run with TRIALS (unless ``--balanced``, whose minimum is the
 procedure's: such a line is marked long). The whole script is bounded by TIMEOUT_S (300 s;
@@ -31,6 +36,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
+DOCS = sorted(p for p in (REPO / "docs").glob("*.md") if "```sh" in p.read_text(encoding="utf-8"))
+SAME_NUMBER = re.compile(r"certificate number .*give (each certificate|it) its own")
 MARKER = re.compile(r"#\s*readme-test:\s*(skip|long)\b")
 TRIALS = 2
 # CI's bound is 3 min for the whole README (about 55 s of CPU: 60–70 s on 2 idle cores); on a machine
@@ -44,18 +51,21 @@ def readme_commands(text: str) -> list[tuple[int, str]]:
     """(line number, command) of every command in README's sh blocks, in order; a block's end is
     kept as an empty command so that background jobs can be told apart per block."""
     commands: list[tuple[int, str]] = []
-    in_block, pending, start = False, "", 0
+    in_block, pending, start, block_marker = False, "", 0, ""
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if not in_block:
-            in_block = stripped in ("```sh", "```bash", "```shell")
+            in_block, block_marker = stripped in ("```sh", "```bash", "```shell"), ""
             continue
         if stripped.startswith("```"):
             in_block = False
             commands.append((number, ""))
             continue
         if not pending and (not stripped or stripped.startswith("#")):
+            block_marker = stripped if MARKER.search(stripped) else block_marker
             continue
+        if block_marker and not MARKER.search(stripped):
+            stripped = f"{stripped}   {block_marker}" if not stripped.endswith("\\") else stripped
         if not pending:
             start = number
         if stripped.endswith("\\") and not MARKER.search(stripped):
@@ -78,7 +88,7 @@ def shrink_trials(command: str) -> str:
     return re.sub(r"--trials\s+(\d+)", lambda m: f"--trials {min(int(m.group(1)), TRIALS)}", command)
 
 
-def script(commands: list[tuple[int, str]], with_long: bool) -> tuple[str, list[str]]:
+def script(commands: list[tuple[int, str]], with_long: bool, name: str = "README.md") -> tuple[str, list[str]]:
     """The bash script that runs the commands, and the ones it leaves out (with their line)."""
     lines = ["set -u"]  # `kill %1` finds a background job without job control, and it stays in our process group
     left_out = []
@@ -87,15 +97,15 @@ def script(commands: list[tuple[int, str]], with_long: bool) -> tuple[str, list[
             continue
         kind = marker(command)
         if kind == "skip" or (kind == "long" and not with_long):
-            left_out.append(f"README.md:{number}: {command}")
+            left_out.append(f"{name}:{number}: {command}")
             continue
         command = shrink_trials(command)
-        shown = shlex.quote(f"README.md:{number}: {command}")
+        shown = shlex.quote(f"{name}:{number}: {command}")
         if command.rstrip().endswith("&"):  # a server for the commands after it: started, checked by them
             lines += [f"echo \"+ [$SECONDS s]\" {shown} >&2", command]
             continue
         lines += [f"echo \"+ [$SECONDS s]\" {shown} >&2",
-                  f"{{ {command}\n}} || {{ echo \"README command failed (exit $?): \"{shown} >&2; exit 1; }}"]
+                  f"{{ {command}\n}} || {{ echo \"command failed (exit $?): \"{shown} >&2; exit 1; }}"]
     return "\n".join(lines) + "\n", left_out
 
 
@@ -113,10 +123,10 @@ def environment(root: Path) -> dict[str, str]:
     return env
 
 
-def run_readme(tmp_path: Path, with_long: bool, timeout_s: float) -> subprocess.CompletedProcess:
+def run_readme(tmp_path: Path, with_long: bool, timeout_s: float, doc: Path = README) -> subprocess.CompletedProcess:
     root = tmp_path / "repo"
     shutil.copytree(REPO, root, ignore=COPY_IGNORE, symlinks=True)
-    text, _ = script(readme_commands(README.read_text(encoding="utf-8")), with_long)
+    text, _ = script(readme_commands(doc.read_text(encoding="utf-8")), with_long, str(doc.relative_to(REPO)))
     (root / ".readme.sh").write_text(text)
     proc = subprocess.Popen(["bash", ".readme.sh"], cwd=root, env=environment(root), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
@@ -125,7 +135,7 @@ def run_readme(tmp_path: Path, with_long: bool, timeout_s: float) -> subprocess.
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, 9)
         out, _ = proc.communicate()
-        pytest.fail(f"README's commands took longer than {timeout_s:.0f} s; the last ones:\n{out[-3000:]}")
+        pytest.fail(f"{doc.name}'s commands took longer than {timeout_s:.0f} s; the last ones:\n{out[-3000:]}")
     finally:
         try:
             os.killpg(proc.pid, 9)  # a server a block left running
@@ -146,6 +156,8 @@ def test_readme_commands_parse():
     assert shrink_trials(commands[1][1]).startswith(f"rtcal uncertainty p.yaml --trials {TRIALS} ")
     body, left_out = script(commands, with_long=False)
     assert "pip install" not in body and left_out == ["README.md:7: pip install -e .   # readme-test: skip (installs)"]
+    block = readme_commands("```sh\n# readme-test: skip (a server)\nserve &\nuse \\\n  it\n```\n")
+    assert [marker(c) for _, c in block if c] == ["skip", "skip"]  # a marker on a comment line: the whole block
 
 
 def test_readme_commands_run(tmp_path):
@@ -155,6 +167,17 @@ def test_readme_commands_run(tmp_path):
     assert len(runnable) >= 20, "README shows fewer runnable commands than expected: markers misplaced?"
     done = run_readme(tmp_path, with_long=False, timeout_s=TIMEOUT_S)
     assert done.returncode == 0, done.stdout[-4000:]
+    assert not SAME_NUMBER.search(done.stdout), SAME_NUMBER.search(done.stdout)[0]  # each certificate its own number
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("doc", DOCS, ids=[d.name for d in DOCS])
+def test_docs_commands_run(tmp_path, doc):
+    """Each document's commands, in order, in a fresh copy: each must exit 0 with what the
+    document itself made (none may rely on README's runs)."""
+    done = run_readme(tmp_path, with_long=False, timeout_s=TIMEOUT_S, doc=doc)
+    assert done.returncode == 0, done.stdout[-4000:]
+    assert not SAME_NUMBER.search(done.stdout), SAME_NUMBER.search(done.stdout)[0]
 
 
 @pytest.mark.campaign

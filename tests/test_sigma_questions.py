@@ -43,11 +43,12 @@ def _network_ratio(m: int, n: int, seeds: int) -> tuple[float, float, np.ndarray
     return float(pooled(np.arange(seeds))), float(np.std(boot)), np.sqrt(np.mean(u**2, 0) / np.mean(e**2, 0))
 
 
-def test_the_sparse_network_reports_the_sigma_of_its_errors():
-    """24 stations × 200 points, 40 seeds: the pooled ratio is known to about ±6 % (bootstrap, printed);
-    it must lie within 3σ of 1."""
-    ratio, sd, _ = _network_ratio(24, 200, 40)
-    print(f"24 × 200, 40 seeds: reported σ / RMS error {ratio:.3f} ± {sd:.3f}")
+@pytest.mark.parametrize("seeds", [pytest.param(16, id="16-seeds"), pytest.param(40, id="40-seeds", marks=pytest.mark.campaign)])
+def test_the_sparse_network_reports_the_sigma_of_its_errors(seeds):
+    """24 stations × 200 points: the pooled ratio over 40 seeds is known to about ±6 % (bootstrap,
+    printed), over 16 (CI's share: each solve takes seconds) to about ±10 %; it must lie within 3σ of 1."""
+    ratio, sd, _ = _network_ratio(24, 200, seeds)
+    print(f"24 × 200, {seeds} seeds: reported σ / RMS error {ratio:.3f} ± {sd:.3f}")
     assert abs(ratio - 1) < 3 * sd, (ratio, sd)
 
 

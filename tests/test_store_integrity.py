@@ -209,14 +209,14 @@ def test_disk_full_while_measuring(tmp_path, capsys, monkeypatch, reserve_helps)
 
 
 def test_disk_full_while_writing_the_report(tmp_path, capsys, monkeypatch):
-    import rtcal.run.runner
+    import rtcal.deliverables.report
 
     def full(*_):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     run = tmp_path / "run"
     with monkeypatch.context() as m:
-        m.setattr(rtcal.run.runner, "write_pdf", full)
+        m.setattr(rtcal.deliverables.report, "write_pdf", full)  # the runner imports it when it writes
         assert main(["run", str(ABBE), "--out", str(run)]) == 1
     err = capsys.readouterr().err
     assert f"the disk refused a write: in {run}: No space left on device" in err and f"`rtcal resume {run}`" in err

@@ -53,7 +53,7 @@ def _copy(run: Path, tmp_path: Path, name: str = "copy") -> Path:
 
 def test_results_and_store_record_each_others_digests_and_a_copied_run_stays_valid(solved, tmp_path, capsys):
     results = json.loads((solved / "results.json").read_text())
-    assert results["schema_version"] == "1.2"
+    assert results["schema_version"] == "1.3"
     d = results["digests"]
     with sqlite3.connect(solved / "run.sqlite") as db:
         readings = db.execute("SELECT COUNT(*) FROM readings").fetchone()[0]
@@ -66,7 +66,7 @@ def test_results_and_store_record_each_others_digests_and_a_copied_run_stays_val
     capsys.readouterr()
     assert main(["evaluate", str(copy)]) == 0
     assert main(["verify", str(copy)]) == 0
-    assert " agrees with the results recomputed" in capsys.readouterr().out
+    assert f"{copy} agrees: 0 differ of " in capsys.readouterr().out
 
 
 def _edit_results(run: Path, edit) -> None:

@@ -212,7 +212,8 @@ def cmd_uncertainty(args: argparse.Namespace) -> int:
         o = e.overall
         print(f"{name}{rec}: RMS error {o.rms_error_arcsec}″, RMS reported 1σ {o.rms_reported_sigma_arcsec}″,\n"
               f"  ratio per target {o.ratio_min}–{o.ratio_max} (each ± about {1 / (2 * e.trials) ** 0.5:.0%} from "
-              f"{e.trials} trials)")
+              f"{e.trials} trials); U (k = 2) covers {o.coverage_k2:.1%} of the errors"
+              + ("" if e.residual_test_failed is None else f"; residual test failed in {e.residual_test_failed:.0%} of the trials"))
         for line in montecarlo.table_lines(summary.targets, data["estimators"][name]):  # a row per target: any number fits
             print(line)
     print(f"results in {out}/ (uncertainty.json, uncertainty.png)")

@@ -41,13 +41,16 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     table, _ = read_deviation_table(args.source)
     try:
         comp = table_from_deviations(table, args.step_deg, args.max_gap_deg, args.allow_one_direction, args.format)
-        text = write_table(args.format, comp, **options_given(vars(args)))
+        options = options_given(vars(args))
+        text = write_table(args.format, comp, **options)
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
     out = write_output(Path(args.out), text)
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
           "(docs/compensation.md: the format's rules and sign)")
+    for step in get_format(args.format).instructions(comp, **options):  # what to do on the control
+        print(f"on the control: {step}")
     for warning in comp.warnings:
         where = "" if get_format(args.format).takes_comments else f" (not in {out}: a {args.format} file takes no comment)"
         print(f"rtcal: warning: {warning}{where}", file=sys.stderr)
@@ -120,11 +123,24 @@ def cmd_verify(args: argparse.Namespace) -> int:
               f"{str(recomputed)[:60]}", file=sys.stderr)
     if len(found.differences) > 10:
         print(f"rtcal: … and {len(found.differences) - 10} more differences", file=sys.stderr)
+    for name, status in found.altered_files:
+        print(f"rtcal: {run / name}: {status} — {ALTERED[status]}", file=sys.stderr)
+    same = found.compared - len(found.differences)
+    print(f"{run / 'results.json'}: {same} of {found.compared} values agree with the results recomputed from "
+          f"{found.readings} readings in {run / 'run.sqlite'} (to the digits stored)")
+    print(f"{run / 'results.json'} and {run / 'run.sqlite'}: digests {'match' if not found.integrity else 'do NOT match'} "
+          "(each records the other's)")
+    for name, status in found.files:
+        print(f"{run / name}: {status}")
     verdict = "agrees" if found.agrees else "does NOT agree"
-    print(f"{run / 'results.json'} {verdict} with the results recomputed from {found.readings} readings in "
-          f"{run / 'run.sqlite'} ({found.compared} values compared to the digits stored, "
-          f"{len(found.differences)} differ; digests {'match' if not found.integrity else 'do not match'})")
+    print(f"{run} {verdict}: {len(found.differences)} differ of {found.compared} values, {len(found.altered_files)} of {len(found.files)} "
+          f"deliverables changed, digests {'match' if not found.integrity else 'do not match'}")
     return EXIT_OK if found.agrees else EXIT_FAILED
+
+
+ALTERED = {"EDITED": "changed after the run wrote it: its SHA-256 is not the one results.json records for it",
+           "missing": "results.json records it as written by the run, and it is gone",
+           "not a regular file": "a link or a folder stands where the run wrote this file"}
 
 
 def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,
@@ -136,6 +152,12 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
 
     if found is None or left is None:
         raise UserError("--certificate: give two run directories (a certificate needs their results.json, not a CSV)")
+    if args.certificate_number is not None:  # a document of its own: its own number
+        left = left.model_copy(update={"metadata": left.metadata.model_copy(update={
+            "certificate_number": args.certificate_number})})
+    elif left.metadata.certificate_number:
+        print(f"rtcal: warning: {out / 'as_found_as_left.pdf'} carries {args.run_b}'s certificate number "
+              f"{left.metadata.certificate_number}: give it its own (--certificate-number NUMBER)", file=sys.stderr)
     model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]))
     with output_file(out / "as_found_as_left.pdf") as pdf:
         write_pdf(model, pdf)
@@ -222,6 +244,8 @@ def add_compensate(sub: Any) -> None:
 
 
 def add_compare(sub: Any) -> None:
+    from rtcal.cli.run import certificate_number
+
     cmp_ = sub.add_parser("compare", help="two runs of one axis side by side: change per target against the combined "
                                           "uncertainty, ISO 230-2 parameters of both, compare.png")
     cmp_.add_argument("run_a", help="the earlier run (directory or deviation CSV)")
@@ -230,6 +254,9 @@ def add_compare(sub: Any) -> None:
     cmp_.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     cmp_.add_argument("--certificate", action="store_true", help="also write the as-found (RUN_A) / as-left (RUN_B) "
                                                                  "certificate: as_found_as_left.pdf, .html and .json under --out")
+    cmp_.add_argument("--certificate-number", type=certificate_number, metavar="NUMBER",
+                      help="with --certificate: the as-found / as-left certificate's own number (default: the as-left "
+                           "run's, with a warning: each certificate needs its own)")
     cmp_.set_defaults(func=cmd_compare)
 
 
@@ -241,8 +268,10 @@ def add_export(sub: Any) -> None:
 
 
 def add_verify(sub: Any) -> None:
-    ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json and the "
-                                        "store's digests against them (exit 0: they agree, 1: they do not, 2: not a run "
-                                        "directory, or a results.json that is not rtcal's)")
+    ver = sub.add_parser("verify", help="recompute a run's results from its readings and check results.json, the store "
+                                        "and every deliverable (certificate, reports, CSV, figures) against their "
+                                        "digests; says each file's status (exit 0: all agree, 1: a value differs or a "
+                                        "file was edited, naming it; 2: not a run directory, or a results.json that is "
+                                        "not rtcal's)")
     ver.add_argument("run_dir", help="a run directory (its results.json and run.sqlite)")
     ver.set_defaults(func=cmd_verify)

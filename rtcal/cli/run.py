@@ -15,10 +15,6 @@ from rtcal.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED,
 from rtcal.outputs import OutputRefused, is_disk_failure
 
 
-def _interrupt(*_: object) -> None:
-    raise KeyboardInterrupt
-
-
 def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_failed: bool = False) -> str:
     """Where the readings are and the resume command for this run (rtcal/run/hint.py)."""
     from rtcal.run.hint import resume_hint
@@ -29,21 +25,35 @@ def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_fail
     return "nothing was measured"
 
 
+def out_of_descriptors(exc: BaseException) -> bool:
+    """The process (EMFILE) or the system (ENFILE) has no file descriptor left, anywhere in the chain of
+    causes: the computer's fault during a run, not the user's input."""
+    import errno
+
+    seen: set[int] = set()
+    found: BaseException | None = exc
+    while found is not None and id(found) not in seen:
+        seen.add(id(found))
+        if isinstance(found, OSError) and found.errno in (errno.EMFILE, errno.ENFILE):
+            return True
+        found = found.__cause__ or found.__context__
+    return False
+
+
 def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = None) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on (``instruments``: the
     --instruments text given, for the resume command)."""
-    import signal
-
     from rtcal.deliverables.method_outputs import outputs_for
     from rtcal.deliverables.report import console_lines
     from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
+    from rtcal.engine.signals import routed
     from rtcal.run.runner import IDEAL_BENCH, AnalysisFailed
 
-    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops like Ctrl-C: status recorded, run directory released
     try:
-        outcome = start()
+        with routed():  # `kill`, SIGHUP (a closed SSH session), SIGQUIT …: each stops like Ctrl-C, status recorded
+            outcome = start()
     except (FileExistsError, PreparationError, RunDirError, ResultsError, OutputRefused) as exc:
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
@@ -54,6 +64,11 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         print(f"rtcal: {_how_to_go_on(run_dir, instruments, instruments_failed=True)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
+        if out_of_descriptors(exc):
+            print(f"rtcal: this process ran out of file descriptors ({exc.strerror or exc}): close what holds them "
+                  "(`ulimit -n` is the limit)", file=sys.stderr)
+            print(f"rtcal: {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
+            return EXIT_FAILED
         if not is_disk_failure(exc):
             raise
         print(disk_failure(exc, run_dir), file=sys.stderr)
@@ -61,8 +76,13 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
             print(f"rtcal: {note}", file=sys.stderr)
         print(f"rtcal: {_how_to_go_on(run_dir, instruments)} once there is space", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt:
-        print(f"\nrtcal: interrupted; {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
+    except KeyboardInterrupt as exc:  # Ctrl-C, a signal, an abort from the page or `rtcal control`
+        why = str(exc) if str(exc).startswith(("interrupted by", "aborted by")) else "interrupted"
+        try:  # after SIGHUP the terminal may be gone: the status is recorded, the exit code still says it
+            print(f"\nrtcal: {why}; {_how_to_go_on(run_dir, instruments)}",
+                  file=sys.stderr, flush=True)
+        except OSError:
+            pass
         return EXIT_INTERRUPTED
     results = outcome.results
     if outcome.finished:
@@ -145,7 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     control = _run_control(args.live)
     return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
                                           virtual_clock=args.virtual_clock, large=args.large, on_engine=control,
-                                          certificate_number=args.certificate_number), out,
+                                          certificate_number=args.certificate_number, rehearse=args.rehearse), out,
                     args.instruments)
 
 
@@ -156,7 +176,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
     _real_controller_in_real_time(addresses, bool(args.virtual_clock))  # None: the run's own clock, checked there
     control = _run_control(args.live)
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
-                                       on_engine=control), args.run_dir, args.instruments)
+                                       on_engine=control, rehearse=args.rehearse), args.run_dir, args.instruments)
 
 
 def cmd_probe(args: argparse.Namespace) -> int:
@@ -214,6 +234,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     return EXIT_FAILED if failed else EXIT_OK
 
 
+REHEARSE_HELP = ("rehearse the operator steps on simulators: each waits for a person (Enter, the page's Done, "
+                 "`rtcal control RUN_DIR confirm`), then the simulated operator (`operator` in --instruments) does it")
+
+
 def add_run(sub: Any) -> None:
     run = sub.add_parser("run", help="run a procedure and write a run directory")
     run.add_argument("procedure", help="procedure YAML file")
@@ -231,6 +255,7 @@ def add_run(sub: Any) -> None:
     run.add_argument("--certificate-number", type=certificate_number, metavar="NUMBER",
                      help="this run's certificate number (replaces the procedure's metadata.certificate_number: a "
                           "procedure serves many runs, each certificate needs its own)")
+    run.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
     run.set_defaults(func=cmd_run)
 
 
@@ -244,6 +269,7 @@ def add_resume(sub: Any) -> None:
     clock.add_argument("--real-clock", dest="virtual_clock", action="store_false",
                        help="go on in real time although the run was started with --virtual-clock")
     resume.add_argument("--live", metavar="[HOST:]PORT", help="as for `run`")
+    resume.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
     resume.set_defaults(func=cmd_resume)
 
 

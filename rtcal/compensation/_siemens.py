@@ -8,13 +8,50 @@ import re
 
 import numpy as np
 
-from rtcal.compensation.base import axis_option
-from rtcal.compensation.table import CompensationError
+from rtcal.compensation.base import FormatOption, axis_option
+from rtcal.compensation.table import CompensationError, CompensationTable
 
 AXIS = axis_option(r"[A-Z][A-Z0-9_]{0,15}", "C1")
-MAX_POINTS = 1000
+# the table's size is machine data the machine builder sets (LEC: MD38000 MM_ENC_COMP_MAX_POINTS,
+# K3 03/2013 p. 242; CEC: MD18342 MM_CEC_MAX_POINTS[t], K3 p. 264), so no one number holds for
+# every 840D; the documented fixed limits are 200 points: 808D LEC "up to 200 interpolation
+# points (N = 0…199)" (808D p. 106) and 828D CEC "eight tables each with 200 interpolation points
+# … This cannot be extended!" (K3 p. 264). 200 is the default; --max-points takes the machine's
+# MD value, up to MAX_POINTS, the bound rtcal's parser reads (one turn at 0.01°)
+DEFAULT_POINTS = 200
+MAX_POINTS = 36001
+POINTS = FormatOption("max_points", "--max-points", "the most points the control's table takes (SINUMERIK: MD38000 "
+                      "for LEC, MD18342 for CEC)", f"default {DEFAULT_POINTS}, the 808D/828D limit (K3 p. 264)", type=int)
+
+
+def mean_from_reference(table: CompensationTable, reference_deg: float) -> np.ndarray:
+    """The mean of both directions' deviations (−trim), referred to 0 at ``reference_deg`` (the axis's
+    reference point): "the compensation value at the reference point [should be] zero. This prevents
+    position jumps occurring when the LEC is activated" (K3 03/2013 p. 238; 808D p. 106). A constant
+    offset of the whole curve changes no ISO 230-2 parameter."""
+    mean = -(np.asarray(table.trim_up_deg) + np.asarray(table.trim_down_deg)) / 2
+    return mean - float(np.interp(reference_deg, table.positions_deg, mean, period=360.0))
+
+
+def check_reference(reference_deg: float) -> float:
+    """--reference-deg within one turn (also false for NaN)."""
+    if not 0.0 <= reference_deg < 360.0:
+        raise CompensationError(f"--reference-deg {reference_deg:g}: the reference point's angle lies in [0, 360)")
+    return float(reference_deg)
+
+
+def check_size(max_points: int) -> None:
+    if not 3 <= max_points <= MAX_POINTS:
+        raise CompensationError(f"--max-points {max_points}: the control's table size, 3 … {MAX_POINTS}")
+
+
+def axis_name(value: str) -> str:
+    """An axis name as written, ``C1`` or ``(C1)`` (the manuals' examples write parentheses:
+    802D sl p. 222 ``=(AX2)``, K3 p. 268 ``= (XX)``)."""
+    value = value.strip()
+    return value[1:-1].strip() if value.startswith("(") and value.endswith(")") else value
 HEADER = {"AA_ENC_COMP": "%_N_AX_EEC_INI", "AN_CEC": "%_N_NC_CEC_INI"}
-LINE = re.compile(r"\$(AA_ENC_COMP|AN_CEC)(_[A-Z_]+)?\[([^\]]*)\]=(\S+)")
+LINE = re.compile(r"\$(AA_ENC_COMP|AN_CEC)(_[A-Z_]+)?\[([^\]]*)\]\s*=\s*(\S+|\(\s*\S+\s*\))")
 
 
 def values(text: str, where: str, name: str) -> tuple[dict[int, dict[int, float]], dict[int, dict[str, str]], dict]:

@@ -44,6 +44,7 @@ class FormatOption:
     pattern: str | None = None
     noun: str = "value"
     example: str = ""
+    flag_only: bool = False  # a switch (``--listing``): given or not, no value
 
     @property
     def dest(self) -> str:
@@ -86,6 +87,11 @@ class CompensationFormat:
     max_trim_arcsec: ClassVar[float] = DEFAULT_MAX_TRIM_ARCSEC
     wraps: ClassVar[bool] = True
 
+    def instructions(self, table: CompensationTable, **options: Any) -> list[str]:
+        """What the engineer must do on the control for the file to take effect (machine data,
+        POWER ON, reference point...), one line each: `rtcal compensate` prints them."""
+        return []
+
     # ``write(table, **options) -> str``: the file's text for ``table`` (trims, deg), each of the
     # format's ``options`` a keyword with its default (declared so a subclass names its own); it
     # calls ``self.check_points(table)`` first unless, like LinuxCNC's, it checks its lines itself
@@ -118,20 +124,22 @@ class CompensationFormat:
             lines.append(f"{start}{plain}{end}")
         return lines
 
-    def check_points(self, table: CompensationTable) -> None:
-        """The grid rule and the point limit: a fixed-pitch format takes only evenly spaced points
-        from 0° (the error names a --step-deg that keeps every measured target)."""
+    def check_points(self, table: CompensationTable, max_points: int | None = None) -> None:
+        """The grid rule and the point limit (``max_points``: the control's as configured, else the
+        format's): a fixed-pitch format takes only evenly spaced points from 0° (the error names a
+        --step-deg that keeps every measured target)."""
+        limit = self.max_points if max_points is None else max_points
         if self.fixed_pitch is not None and not table.evenly_spaced:
-            step = next((s for s in GRID_STEPS_DEG if 360.0 / s + 1 <= self.max_points
+            step = next((s for s in GRID_STEPS_DEG if 360.0 / s + 1 <= limit
                          and np.allclose(table.positions_deg / s, np.round(table.positions_deg / s), atol=1e-6)), None)
             hint = f"--step-deg {step:g} keeps every measured target" if step else "e.g. --step-deg 5"
             raise CompensationError(
                 f"{self.name}: the {table.measured_targets or len(table.positions_deg) - 1} measured targets are not evenly "
                 f"spaced from 0°, and the format holds points at one pitch ({self.fixed_pitch}): give --step-deg to resample "
                 f"them onto a grid ({hint}; the table then says so), or use a format that takes the measured targets (linuxcnc)")
-        if len(table.positions_deg) > self.max_points:
-            raise CompensationError(f"{self.name}: {len(table.positions_deg)} points; the format takes at most {self.max_points} "
-                                    "(choose a larger --step-deg)")
+        if len(table.positions_deg) > limit:
+            raise CompensationError(f"{self.name}: {len(table.positions_deg)} points; the {'format' if max_points is None else 'control'}"
+                                    f" takes at most {limit} (choose a larger --step-deg)")
 
     def check_trims(self, table: CompensationTable) -> None:
         """Every trim within ``max_trim_arcsec``; CompensationError naming the worst."""

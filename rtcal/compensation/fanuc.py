@@ -1,9 +1,14 @@
 """FANUC pitch error compensation for a rotary axis, bidirectional (docs/compensation.md):
-parameters 3605 … 3627 and one incremental value per compensation point."""
+parameters 3605 … 3627 and one incremental value per compensation point, as the control's I/O
+file (``%``, ``N…P…;`` records, ``%``) or, with --listing, a listing to key in. Sources: FANUC
+Series 0i-PB Parameter Manual B-63980EN/01 p. 100 (rotary example); Technical Report A-77810E
+(bidirectional pitch error compensation, table (a)); Series 15i Parameter Manual B-63330EN/03
+p. 25 (the I/O record format); the cnc.wiki setup guide (128 points, power cycle, N10000+k)."""
 
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import numpy as np
 
@@ -12,7 +17,14 @@ from rtcal.compensation.table import CompensationError, CompensationTable, regul
 
 FANUC_MAX_INCREMENT = 127  # a point's value, in detection units × magnification (−128 … 127)
 FANUC_MAX_POINT = 1023  # highest compensation point number (0i series)
-FANUC_LINE = re.compile(r"(\d+)( #0)? = ([+-]?\d+)(?:\s+\(.*\))?")
+FANUC_GUIDE_POINTS = 128  # "maximum of 128 compensation points between extremes" (cnc.wiki setup guide)
+PITCH_BASE = 10000  # pitch error data in the I/O file: N10000+k P…; (15i p. 25, cnc.wiki)
+# series whose 3624/3625 are integers in detection units; the others take real values in the
+# machine unit (deg) — 0i-D/0i-F, 30i/31i/32i (docs/compensation.md: [general], check the series)
+INTEGER_SERIES = ("16i", "18i", "21i", "0i-a", "0i-b", "0i-c", "0i-pb")
+REAL_SERIES = ("0i-d", "0i-f", "30i", "31i", "32i")
+LISTING_LINE = re.compile(r"(\d+)( #0)? = ([+-]?\d+(?:\.\d*)?)(?:\s+\(.*\))?")
+RECORD = re.compile(r"N(\d{5})(?:A(\d+))?P([+-]?\d+(?:\.\d*)?);")
 
 
 class FanucFormat(CompensationFormat):
@@ -20,35 +32,50 @@ class FanucFormat(CompensationFormat):
     max_points = 1024
     fixed_pitch = "parameter 3624"
     sign = ("increments of the trim, detection units × magnification (3623): point k holds the trim's change over the "
-            "interval ending at it; positive and negative travel tables")
-    comment = ("(", ")")
+            "interval ending at it; positive and negative travel tables (A-77810E)")
+    comment = None  # the I/O file holds records only between its two '%' (15i p. 25); --listing takes (comments)
     one_direction = ("the negative-travel table would repeat the positive one with 3627 = 0: the bidirectional pitch error "
                      "compensation then compensates no reversal, and the unmeasured direction is assumed to follow the "
                      "measured one")
     options = (FormatOption("unit_deg", "--detection-unit-deg", "the axis's detection unit",
                             "default 0.0001, IS-C; 0.001 for IS-B", type=float),
                FormatOption("first_point", "--first-point", "number of the reference position's point, 3620",
-                            "default 0", type=int))
+                            "default 0", type=int),
+               FormatOption("series", "--series", "the control's series: the unit of 3624/3625 (integer detection units "
+                            f"on {', '.join(INTEGER_SERIES)}; real degrees on {', '.join(REAL_SERIES)})", "default 0i-f",
+                            pattern="|".join(re.escape(s) for s in INTEGER_SERIES + REAL_SERIES), noun="series",
+                            example="0i-f"),
+               FormatOption("reference_return", "--reference-return", "the direction of the axis's reference return "
+                            "(1006#5 ZMI): 3627 belongs to the opposite approach", "default +",
+                            pattern=r"[+-]", noun="direction (+ or -)", example="+"),
+               FormatOption("axis_number", "--axis-number", "the axis's number in the I/O file's axis-type records (A<n>)",
+                            "default 4", type=int),
+               FormatOption("listing", "--listing", "write a listing to key in (3620 = 0  (comment)) instead of the I/O "
+                            "file", flag_only=True))
 
-    def write(self, table: CompensationTable, unit_deg: float = 0.0001, first_point: int = 0) -> str:
-        """Pitch error compensation, bidirectional (parameter 3605#0 = 1), as a parameter listing.
-
-        Values are incremental, in detection units (``unit_deg``) × magnification (3623, the smallest
-        that keeps every value within ±127): point k holds the change of the trim over the interval
-        ending at it; over one turn they sum to zero, and the reference point (0°) holds the same
-        value as the last (360°, the same position). The positive-travel table is 3621 = 3620 …
-        3622; the negative-travel table follows it, 3626 being its farthest point on the − side (its
-        first, at 0°), and 3627 its absolute value at the reference position."""
+    def write(self, table: CompensationTable, unit_deg: float = 0.0001, first_point: int = 0, series: str = "0i-f",
+              reference_return: str = "+", axis_number: int = 4, listing: bool = False) -> str:
+        """Pitch error compensation, bidirectional (3605#0 = 1). Values are incremental, in detection
+        units (``unit_deg``) × magnification (3623, the smallest that keeps every value within ±127):
+        point k holds the change of the trim over the interval ending at it; over one turn they sum
+        to zero and the reference point holds the same value as the last — "the No. of the farthest
+        compensation position in the negative direction for the rotation axis is always equal to
+        the compensation position No. of the reference position … For compensation position 60, set
+        the same compensation value as for 68" (0i-PB p. 100). The positive-travel table is 3621 =
+        3620 … 3622; the negative-travel table follows it, 3626 its farthest − point (A-77810E);
+        3627 is the absolute value at the reference position of the approach opposite to the
+        reference return (0i-D wording, A-77810E)."""
         self.check_points(table)
         if not unit_deg > 0 or abs(table.step_deg / unit_deg - round(table.step_deg / unit_deg)) > 1e-6:
             raise CompensationError(f"--detection-unit-deg {unit_deg:g}: must be positive and divide the {table.step_deg:g}° step")
+        if not 1 <= axis_number <= 32:
+            raise CompensationError(f"--axis-number {axis_number}: the axis's number, 1 … 32")
         n = len(table.positions_deg) - 1
         up_points = list(range(first_point, first_point + n + 1))
         down_points = list(range(first_point + n + 1, first_point + 2 * n + 2))
         if first_point < 0 or down_points[-1] > FANUC_MAX_POINT:
             raise CompensationError(f"compensation points {first_point} … {down_points[-1]} do not fit 0 … {FANUC_MAX_POINT}: "
                                     "choose --first-point")
-
         for magnification in range(1, 101):
             unit = unit_deg * magnification
             cum_up = np.round(table.trim_up_deg / unit).astype(int)  # quantise the running trim, then difference: Σ = 0
@@ -58,82 +85,159 @@ class FanucFormat(CompensationFormat):
                 break
         else:
             raise CompensationError(f"fanuc: increments exceed ±{FANUC_MAX_INCREMENT} even at magnification 100")
+        # 3627: the other approach's absolute value at the reference position, that approach's table
+        # being relative to the one the reference return sets
+        at_reference = int(cum_down[0] - cum_up[0]) if reference_return == "+" else int(cum_up[0] - cum_down[0])
+        real = series in REAL_SERIES
+        interval = f"{table.step_deg:.4f}" if real else str(round(table.step_deg / unit_deg))
+        per_rev = "360.0" if real else str(round(360.0 / unit_deg))
+        unit_text = "deg" if real else "detection units"
+        params = [(3620, str(first_point), "compensation point of the reference position"),
+                  (3621, str(up_points[0]), "farthest point on the - side, positive travel"),
+                  (3622, str(up_points[-1]), "farthest point on the + side, positive travel"),
+                  (3623, str(magnification), "magnification"),
+                  (3624, interval, f"interval, {unit_text}"),
+                  (3625, per_rev, f"travel per revolution, {unit_text}"),
+                  (3626, str(down_points[0]), "farthest point on the - side, negative travel"),
+                  (3627, str(at_reference), f"absolute value at the reference position, approach "
+                                            f"{'negative' if reference_return == '+' else 'positive'}")]
 
         def values(inc: np.ndarray) -> list[int]:
             return [int(inc[-1])] + [int(v) for v in inc]  # the first point (0°) is the last (360°)
 
-        lines = [f"(FANUC pitch error compensation for the rotary axis; detection unit {unit_deg:g} deg; written by rtcal)",
-                 *self.comment_lines(table), "3605 #0 = 1  (bidirectional pitch error compensation)",
-                 f"3620 = {first_point}  (compensation point of the reference position)",
-                 f"3621 = {up_points[0]}  (farthest point on the - side, positive travel)",
-                 f"3622 = {up_points[-1]}  (farthest point on the + side, positive travel)",
-                 f"3623 = {magnification}  (magnification)",
-                 f"3624 = {round(table.step_deg / unit_deg)}  (interval, detection units)",
-                 f"3625 = {round(360.0 / unit_deg)}  (travel per revolution, detection units)",
-                 f"3626 = {down_points[0]}  (farthest point on the - side, negative travel)",
-                 f"3627 = {int(cum_down[0] - cum_up[0])}  (absolute value at the reference position, negative travel)"]
-        lines += [f"{p} = {v:+d}" for p, v in zip(up_points, values(inc_up))]
-        lines += [f"{p} = {v:+d}" for p, v in zip(down_points, values(inc_down))]
+        points = list(zip(up_points, values(inc_up))) + list(zip(down_points, values(inc_down)))
+        if listing:
+            lines = [f"(FANUC pitch error compensation for the rotary axis; detection unit {unit_deg:g} deg; series {series}; "
+                     "written by rtcal)", *(f"({line})" for line in self._plain(table)),
+                     "3605 #0 = 1  (bidirectional pitch error compensation)"]
+            lines += [f"{k} = {v}  ({what})" for k, v, what in params]
+            lines += [f"{p} = {v:+d}" for p, v in points]
+            return "\n".join(lines) + "\n"
+        lines = ["%", f"N03605A{axis_number}P00000001;"]  # a bit parameter: 8 bits, #7 … #0 (15i p. 25)
+        lines += [f"N{k:05d}A{axis_number}P{v};" for k, v, _ in params]
+        lines += [f"N{PITCH_BASE + p:05d}P{v:+d};" for p, v in points]
+        lines.append("%")
         return "\n".join(lines) + "\n"
 
-    def parse(self, text: str, where: str = "<fanuc>") -> CompensationTable:
-        """The listing back to trims, as the control applies it: the running sum of the increments
-        from the reference position, times the detection unit (360° / 3625) and the magnification;
-        the negative-travel table starts from 3627."""
-        values: dict[int, int] = {}
-        line_of: dict[int, int] = {}
-        for line_no, line in enumerate(text.splitlines(), start=1):
-            line = line.strip()
-            if not line or line.startswith("("):
-                continue
-            m = FANUC_LINE.fullmatch(line)
-            if not m or (m.group(2) and m.group(1) != "3605"):
-                raise CompensationError(f"{where}:{line_no}: expected `number = integer` (or `3605 #0 = 1`): {line[:60]!r}")
-            key = int(m.group(1))
-            if key in values:
-                raise CompensationError(f"{where}:{line_no}: {key} is given twice")
-            values[key], line_of[key] = int(m.group(3)), line_no
+    def _plain(self, table: CompensationTable) -> list[str]:
+        """The table's warnings in ASCII without parentheses (they would end a FANUC comment)."""
+        from rtcal.compensation.base import ASCII
+        return ["".join(ASCII.get(c, c) for c in f"rtcal warning: {w}").encode("ascii", "replace").decode()
+                .replace("(", "[").replace(")", "]") for w in table.warnings]
+
+    def instructions(self, table: CompensationTable, **options: Any) -> list[str]:
+        n = len(table.positions_deg)
+        series, ret = options.get("series", "0i-f"), options.get("reference_return", "+")
+        lines = [("key the listing in" if options.get("listing") else "read the file in (I/O, EDIT mode)")
+                 + " with parameter write enabled (PWE = 1); 3605 is written with only bit #0 (bidirectional) set: keep "
+                 "its other bits as the machine has them",
+                 f"3627 assumes the reference return in the {ret} direction (1006#5 ZMI = {0 if ret == '+' else 1}; "
+                 "--reference-return); 3624/3625 in "
+                 + ("degrees" if series in REAL_SERIES else "detection units") + f" for series {series} (--series)",
+                 "power the control off and on, then return the axis to its reference position (G28): the table acts "
+                 "only after both (alarm PW1102 otherwise; cnc.wiki setup guide)"]
+        if n > FANUC_GUIDE_POINTS:
+            lines.append(f"warning: {n} points in each direction's table; a FANUC setup guide gives at most "
+                         f"{FANUC_GUIDE_POINTS} between the extremes: check the control's manual or choose a larger --step-deg")
+        return lines
+
+    def parse(self, text: str, where: str = "<fanuc>", unit_deg: float = 0.0001) -> CompensationTable:
+        """The I/O file (or the listing) back to trims, as the control applies it: the running sum
+        of the increments from the reference position, times the detection unit (360° / 3625 when
+        3625 is an integer; ``unit_deg`` when it is in degrees, as the file does not say) and the
+        magnification; the table of the approach opposite to the reference return starts from 3627
+        (in a listing or I/O file rtcal reads the reference return as positive)."""
+        values, line_of = self._records(text, where)
+        degrees = values.pop(-3625, None) is not None  # 3625 in degrees (a real-unit series)
         try:
             ref, first, last, magnification, interval, per_rev = (values[k] for k in (3620, 3621, 3622, 3623, 3624, 3625))
         except KeyError as exc:
             raise CompensationError(f"{where}: parameter {exc.args[0]} is missing") from None
         if first != ref:
             raise CompensationError(f"{where}:{line_of[3621]}: a rotary axis's farthest − point (3621) is its reference point (3620)")
-        n = last - first
-        if n < 2 or interval <= 0 or magnification <= 0 or n * interval != per_rev:
-            raise CompensationError(f"{where}:{line_of[3622]}: 3622 − 3621 = {n} intervals of {interval} units must make one turn "
-                                    f"of {per_rev} (3625), with magnification 3623 > 0")
-        unit = 360.0 / per_rev * magnification
-        bidirectional = values.get(3605) == 1
+        n = int(last - first)
+        if n < 2 or n >= self.max_points or interval <= 0 or magnification <= 0 or abs(n * interval - per_rev) > 1e-6 * per_rev:
+            raise CompensationError(f"{where}:{line_of[3622]}: 3622 − 3621 = {n} intervals of {interval:g} must make one turn "
+                                    f"of {per_rev:g} (3625), with magnification 3623 > 0")
+        step = 360.0 / n
+        unit = unit_deg if degrees else 360.0 / per_rev
+        bidirectional = int(values.get(3605, 0)) & 1 == 1
+        ints = {k: int(v) for k, v in values.items() if k < 3605 or k > 3627}
 
         def trims(start: int, offset: int, what: str) -> np.ndarray:
             points = range(start, start + n + 1)
-            missing = [p for p in points if p not in values]
+            missing = [p for p in points if p not in ints]
             if missing:
                 raise CompensationError(f"{where}: {what}: compensation point {missing[0]} is missing")
-            inc = np.array([values[p] for p in points])
+            inc = np.array([ints[p] for p in points])
             if np.abs(inc).max() > FANUC_MAX_INCREMENT + 1:
                 raise CompensationError(f"{where}:{line_of[points[int(np.argmax(np.abs(inc)))]]}: {what}: a value beyond "
                                         f"-128 … {FANUC_MAX_INCREMENT}")
             if inc[1:].sum() != 0 or inc[0] != inc[-1]:
                 raise CompensationError(f"{where}:{line_of[points[-1]]}: {what}: a rotary table's increments must sum to zero "
                                         "over the turn, and its first and last points (the same position) hold one value")
-            return (offset + np.concatenate([[0], np.cumsum(inc[1:])])) * unit
+            return (offset + np.concatenate([[0], np.cumsum(inc[1:])])) * unit * magnification
 
-        positions = np.arange(n + 1) * interval * 360.0 / per_rev
-        up = trims(first, 0, "positive travel")
-        used = set(range(first, last + 1))
+        positions = np.arange(n + 1) * step
+        up = trims(int(first), 0, "positive travel")
+        used = set(range(int(first), int(last) + 1))
         if bidirectional:
             if 3626 not in values:
                 raise CompensationError(f"{where}: bidirectional (3605 #0 = 1) needs 3626, the negative-travel table's first point")
-            start = values[3626]
+            start = int(values[3626])
             if used & set(range(start, start + n + 1)):
                 raise CompensationError(f"{where}:{line_of[3626]}: the negative-travel table ({start} …) overlaps the positive one")
-            down = trims(start, values.get(3627, 0), "negative travel")
+            down = trims(start, int(values.get(3627, 0)), "negative travel")
             used |= set(range(start, start + n + 1))
         else:
             down = up
-        stray = sorted(k for k in values if k not in used and not 3605 <= k <= 3627)
+        stray = sorted(k for k in ints if k not in used)
         if stray:
             raise CompensationError(f"{where}:{line_of[stray[0]]}: point {stray[0]} belongs to no table")
         return regular_table(positions, up, down, where, self.max_points)
+
+    @staticmethod
+    def _records(text: str, where: str) -> tuple[dict[int, float], dict[int, int]]:
+        """Parameters (by number) and compensation points (by point number) of an I/O file — '%',
+        ``N…P…;`` records, '%' (15i p. 25; pitch data N10000+k, cnc.wiki) — or of a listing
+        (``3620 = 0  (comment)``). Key -3625 marks a 3625 written with a decimal point."""
+        values: dict[int, float] = {}
+        line_of: dict[int, int] = {}
+        lines = text.splitlines()
+        body = [(i, line.strip()) for i, line in enumerate(lines, start=1) if line.strip()]
+        io_file = bool(body) and body[0][1] == "%"
+        if io_file:
+            if body[-1][1] != "%" or len(body) < 2:
+                raise CompensationError(f"{where}:{body[-1][0]}: an I/O file ends with '%' (15i p. 25)")
+            body = body[1:-1]
+        for line_no, line in body:
+            if io_file:
+                m = RECORD.fullmatch(line.split("(", 1)[0].strip())  # the manual's example comments: ignored
+                if not m:
+                    raise CompensationError(f"{where}:{line_no}: expected a record N<number>[A<axis>]P<value>;: {line[:60]!r}")
+                number, raw = int(m.group(1)), m.group(3)
+                if number >= PITCH_BASE:
+                    key = number - PITCH_BASE
+                elif number == 3605:  # a bit parameter: #7 … #0
+                    if not re.fullmatch(r"[01]{1,8}", raw):
+                        raise CompensationError(f"{where}:{line_no}: 3605 is a bit parameter, e.g. P00000001")
+                    key, raw = 3605, str(int(raw, 2))
+                elif 3620 <= number <= 3627:
+                    key = number
+                else:
+                    raise CompensationError(f"{where}:{line_no}: parameter {number} is not one of pitch error compensation's")
+            else:
+                if line.startswith("("):
+                    continue
+                lm = LISTING_LINE.fullmatch(line)
+                if not lm or (lm.group(2) and lm.group(1) != "3605"):
+                    raise CompensationError(f"{where}:{line_no}: expected `number = value` (or `3605 #0 = 1`): {line[:60]!r}")
+                key, raw = int(lm.group(1)), lm.group(3)
+            if key in values:
+                raise CompensationError(f"{where}:{line_no}: {key} is given twice")
+            if "." in raw and key not in (3624, 3625):
+                raise CompensationError(f"{where}:{line_no}: {key} takes an integer")
+            values[key], line_of[key] = float(raw), line_no
+            if key == 3625 and "." in raw:
+                values[-3625] = 1.0
+        return values, line_of

@@ -1,7 +1,13 @@
 """LinuxCNC, COMP_FILE_TYPE = 0 (docs/compensation.md, docs/protocols/linuxcnc.md): per line
-``nominal forward_actual reverse_actual``, degrees; any spacing; the table does not wrap."""
+``nominal forward_actual reverse_actual``, degrees; any spacing; the table does not wrap. The
+type is stated after the table, in ``#`` lines: LinuxCNC (usrmotLoadComp, usrmotintf.cc) reads
+triplets up to the first line that is not three numbers, so a footer is never read, whereas a
+header would end the table before its first line."""
 
 from __future__ import annotations
+
+import re
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -18,10 +24,17 @@ class LinuxCncFormat(CompensationFormat):
     options = (FormatOption("range_deg", "--range-deg", "the joint's travel to cover",
                             "default 0 360; LinuxCNC does not wrap a table", type=float, nargs=2, metavar=("LO", "HI")),)
     wraps = False
+    loading: ClassVar[str] = ("load it with COMP_FILE_TYPE = 0 in the joint's INI section (nominal, measured forward, measured reverse); "
+               "read as type 1 (trims) it would move the joint by about its own position")
+    footer = "# rtcal: "
+
+    def instructions(self, table: CompensationTable, **options: Any) -> list[str]:
+        return [self.loading]
 
     def write(self, table: CompensationTable, range_deg: tuple[float, float] = (0.0, 360.0)) -> str:
-        """COMP_FILE_TYPE = 0: ``nominal forward_actual reverse_actual`` per line, degrees, ascending;
-        no header or comment (LinuxCNC stops reading at the first line that is not three numbers).
+        """COMP_FILE_TYPE = 0: ``nominal forward_actual reverse_actual`` per line, degrees, ascending,
+        then a ``#`` footer saying the type (LinuxCNC stops reading at the first line that is not three
+        numbers: a footer is never read, a header would end the table).
         Lines at the table's points (measured targets or grid, any spacing) repeated every turn over
         ``range_deg``, the joint's travel (default one turn), and at its two ends: LinuxCNC does not
         wrap a table, so a joint that travels −145 … 155° needs lines there."""
@@ -42,15 +55,22 @@ class LinuxCncFormat(CompensationFormat):
                                     f"{self.max_points} (fewer targets, a larger --step-deg or a narrower --range-deg)")
         up = np.array([table.trim_deg(a, +1) for a in nominal])
         down = np.array([table.trim_deg(a, -1) for a in nominal])
-        return "".join(f"{p:.6f} {p - u:.8f} {p - d:.8f}\n" for p, u, d in zip(nominal, up, down))
+        rows = "".join(f"{p:.6f} {p - u:.8f} {p - d:.8f}\n" for p, u, d in zip(nominal, up, down))
+        return (rows + f"{self.footer}COMP_FILE_TYPE = 0: {self.loading}\n"
+                f"{self.footer}LinuxCNC stops reading at the first line that is not three numbers (this one)\n")
 
     def parse(self, text: str, where: str = "<linuxcnc>") -> CompensationTable:
         """As LinuxCNC reads it (usrmotintf.cc): three numbers a line, trims = nominal − actual; but
         what LinuxCNC would silently drop (everything after a line that is not three numbers, a
-        blank one included) is an error here, with its line."""
+        blank one included) is an error here, with its line. A footer of ``#`` lines (and blank
+        ones) ends the table as rtcal writes it; a footer that says another type is refused."""
         lines = text.splitlines()
-        while lines and not lines[-1].strip():
-            lines.pop()  # trailing blank lines end the table where it ends anyway
+        while lines and (not lines[-1].strip() or lines[-1].lstrip().startswith("#")):
+            line = lines.pop()  # a footer (and trailing blank lines) ends the table where it ends anyway
+            kind = re.search(r"COMP_FILE_TYPE\s*=\s*(\d+)", line)
+            if kind and kind.group(1) != "0":
+                raise CompensationError(f"{where}: its comment says COMP_FILE_TYPE = {kind.group(1)}; rtcal reads and writes "
+                                        "type 0 (nominal, measured forward, measured reverse)")
         rows = []
         for line_no, line in enumerate(lines, start=1):
             parts = line.split()

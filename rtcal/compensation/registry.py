@@ -42,7 +42,8 @@ def _check(fmt: CompensationFormat, known: list[CompensationFormat]) -> None:
         if not option.flag.startswith("--") or option.flag in RESERVED_FLAGS or not option.keyword.isidentifier():
             raise ValueError(f"option {option.flag!r} ({option.keyword!r}): a --flag of its own and a keyword")
         other = taken.get(option.flag)
-        if other is not None and (other.keyword, other.type, other.nargs) != (option.keyword, option.type, option.nargs):
+        if other is not None and ((other.keyword, other.type, other.nargs, other.flag_only)
+                                  != (option.keyword, option.type, option.nargs, option.flag_only)):
             raise ValueError(f"option {option.flag} means something else for another format")
 
 
@@ -111,12 +112,15 @@ class CliOption:
     nargs: int | None
     metavar: tuple[str, ...] | str | None
     formats: tuple[str, ...]
+    flag_only: bool = False
 
     @property
     def dest(self) -> str:
         return self.flag.lstrip("-").replace("-", "_")
 
     def argparse_kwargs(self) -> dict[str, Any]:
+        if self.flag_only:
+            return {"help": self.help, "action": "store_const", "const": True, "default": None}
         kwargs: dict[str, Any] = {"help": self.help, "type": self.type}
         if self.nargs is not None:
             kwargs["nargs"] = self.nargs
@@ -141,7 +145,7 @@ def cli_options() -> tuple[CliOption, ...]:
             defaults.setdefault(option.default, []).append(name)
         parts = [f"{'/'.join(names)}{f' ({default})' if default else ''}" for default, names in defaults.items()]
         result.append(CliOption(flag, first.keyword, f"{first.help}: {', '.join(parts)}", first.type, first.nargs,
-                                first.metavar, tuple(name for name, _ in uses)))
+                                first.metavar, tuple(name for name, _ in uses), first.flag_only))
     return tuple(result)
 
 

@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rtcal.deliverables.deviations import PositioningDeviations
+if TYPE_CHECKING:  # only a type here: `rtcal evaluate --help` lists STANDARDS without loading the results model
+    from rtcal.deliverables.deviations import PositioningDeviations
 
 STANDARDS = ("iso230-2", "iso230-2:1988", "vdi3441")
 ALIASES = {"iso230-2:2014": "iso230-2", "iso230-2:2006": "iso230-2", "iso230-2:1997": "iso230-2"}

@@ -318,6 +318,11 @@ class MultistationOutputs:
             cum = ", ".join(fmt(v, "+.2f") for v in e.cumulative_deviation_arcsec)
             lines.append(f"cumulative positioning deviation ECC (arcsec, {r.recommended}, recommended): {cum}")
             lines.append(f"expanded uncertainty U (k = 2) up to {u_text(largest(e.cumulative_expanded_uncertainty_arcsec))}″")
+            lines += [f"assumed: {c.source}" for c in e.uncertainty_budget.components if c.source.endswith("assumed")]
+            test = getattr(e, "residual_test", None)
+            if test is not None and not test.passed:  # none passed: quoted, with what its U leaves out
+                lines.append(f"{r.recommended} FAILS its residual test (p = {test.p_value:.2g}, no estimate passes): "
+                             "its U is not a coverage interval for the error the residuals show")
         for name, est in r.estimates.items():
             if name != r.recommended:
                 lines.append(f"also {name}: U (k = 2) up to {u_text(largest(est.cumulative_expanded_uncertainty_arcsec))}″")

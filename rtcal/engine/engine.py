@@ -14,14 +14,19 @@ Written once here, for every method:
   segment; a new group, a lost beam or a pause leaves it without one.
 - **pause, resume, abort** — requested from any thread (the control socket, the live view): a
   pause takes effect at the next checkpoint, with the reading in hand committed and the machines
-  still; resume approaches anew; abort stops like Ctrl-C.
+  still; resume approaches anew; abort stops like Ctrl-C, at once: it interrupts the motion or
+  reading in progress (:mod:`rtcal.engine.signals`), and an abort acknowledged before the run
+  finished measuring never ends in results. Once measuring has finished an abort is refused.
 - **confirm** — an operator step (or a fault the operator must clear) waits in the operator object;
   a remote confirm is handed to it when it is :class:`~rtcal.sequencer.operator.Confirmable`
   (refused with NothingToConfirm when nothing waits), and an abort ends the wait. What the
   operator is asked is published as an ``operator`` document, its answer as a ``confirm`` event.
 - **one safe-state path** — however a run ends early (a fault abort, a remote abort, Ctrl-C,
-  SIGTERM, an unexpected error) every device the engine moved is stopped before the exception
-  goes on to the caller, which records the status and closes the connections.
+  SIGTERM, SIGHUP, SIGQUIT or any other signal that would end the process, an unexpected error)
+  every device the engine moved is stopped before the exception goes on to the caller, which
+  records the status and closes the connections; a second signal does not cut the stop short.
+  Each abort and interruption is an ``abort`` event naming who asked (the live page, `rtcal
+  control`, the signal).
 
 Documents (``subscriber(name, doc)``, called in the engine's thread, in order): ``start``,
 ``state``, ``attempt``, ``readings``, ``event``, ``operator``, ``done``, ``stop``. The store writer, the console
@@ -40,6 +45,7 @@ import numpy as np
 from drivers.errors import InstrumentError, TrackingLost
 from drivers.interfaces import Instrument
 from rtcal.clock import Clock, VirtualClock
+from rtcal.engine import signals
 from rtcal.engine.walk import Motion, Timing
 from rtcal.engine.faults import RETAKE, FaultHandler, RunAborted, Skip
 from rtcal.engine.plan import Attempt, Entry, Plan
@@ -56,7 +62,17 @@ STATES = ("starting", "running", "paused", "stopping", "finished", "failed", "ab
 
 
 class AbortRequested(KeyboardInterrupt):
-    """A remote abort: the run stops as Ctrl-C stops it (safe state, status recorded, resumable)."""
+    """A remote abort: the run stops as Ctrl-C stops it (safe state, status recorded, resumable);
+    ``by`` names who asked (the live page, `rtcal control`)."""
+
+    def __init__(self, by: str = "a remote request", when: str = ""):
+        super().__init__(f"aborted by {by}{when}")
+        self.by = by
+
+
+class MeasuringFinished(RuntimeError):
+    """An abort after the last reading was stored: nothing moves any more, the results are being
+    written; refused (the run ends as it would have)."""
 
 
 class Engine:
@@ -80,6 +96,10 @@ class Engine:
         self._safe = False
         self._pause = threading.Event()
         self._abort = threading.Event()
+        self._abort_by = ""
+        self._requests = threading.Lock()  # an abort is either taken by the run or refused, never lost
+        self._measured = False
+        self._thread: threading.Thread | None = None  # the one running the plan: what an abort interrupts
         self._wake = threading.Event()
         self._plan: Plan | None = None
         self._faults: FaultHandler | None = None
@@ -100,11 +120,28 @@ class Engine:
         self._pause.clear()
         self._wake.set()
 
-    def request_abort(self) -> None:
-        self._abort.set()
+    def request_abort(self, by: str = "a remote request") -> None:
+        """Stop the run now, as Ctrl-C does: the motion or reading in progress is interrupted (the
+        engine's thread is the main thread: every `rtcal run`), else the next step does not begin.
+        MeasuringFinished once the last reading is stored."""
+        with self._requests:
+            if self._measured:
+                raise MeasuringFinished("the run has finished measuring: nothing moves, its results are being written")
+            first = not self._abort.is_set()
+            if first:
+                self._abort_by = by
+            self._abort.set()
         self._wake.set()
         if isinstance(self.operator, Confirmable):  # an operator step waiting ends now
             self.operator.cancel()
+        if first and self._thread is not None:
+            signals.interrupt(AbortRequested(by), self._thread)
+
+    def _check_abort(self, when: str = "") -> None:
+        """Between steps: an abort requested (and not yet delivered into a blocking call) stops the run here."""
+        if self._abort.is_set():
+            signals.taken()
+            raise AbortRequested(self._abort_by, when)
 
     def request_confirm(self, step: int | None = None) -> None:
         """Confirm the operator step (or the fault to clear) that waits — only wait ``step`` when given;
@@ -115,8 +152,9 @@ class Engine:
 
     # ---- documents ----------------------------------------------------------------------------
     def emit(self, name: str, **doc: Any) -> None:
-        for subscriber in self.subscribers:
-            subscriber(name, doc)
+        with signals.held():  # a commit is whole: an interruption waits for it
+            for subscriber in self.subscribers:
+                subscriber(name, doc)
 
     def _event(self, kind: str, instrument: str | None, message: str) -> None:
         if kind == "fault":
@@ -145,18 +183,39 @@ class Engine:
         self.emit("start", method=plan.method, planned=len(plan.entries), done=len(done), t_s=self.clock.now_s(),
                   descriptions=[d for rows in self._described.values() for d in rows])
         self._set_state("running")
-        try:
-            for step in plan.prologue():
-                self._execute(step, {}, [])
-            stored = self._pass(plan, pending, len(done))
-        except BaseException as exc:
-            if not self._safe:
-                self._safe_state()
-            self._set_state("failed" if isinstance(exc, RunAborted) or not isinstance(exc, KeyboardInterrupt) else "aborted")
-            self.emit("stop", state=self.state, reason=str(exc) or type(exc).__name__, t_s=self.clock.now_s())
-            raise
+        with signals.routed():  # a signal that would end the process, or an abort, interrupts what runs now
+            try:
+                self._thread = threading.current_thread()
+                self._check_abort()
+                for step in plan.prologue():
+                    self._execute(step, {}, [])
+                stored = self._pass(plan, pending, len(done))
+                with self._requests:  # the last reading is stored: an abort acknowledged until now is taken
+                    self._check_abort(" as the last readings finished")
+                    self._measured = True
+            except BaseException as exc:
+                with signals.held():  # nothing cuts the stop short; what comes meanwhile is raised after it
+                    if not self._safe:
+                        self._safe_state()
+                    if isinstance(exc, KeyboardInterrupt):
+                        self._event("abort", None, f"{self._why(exc)}: every machine the run moved was stopped; "
+                                                   "`rtcal resume` goes on")
+                    self._set_state("failed" if isinstance(exc, RunAborted) or not isinstance(exc, KeyboardInterrupt)
+                                    else "aborted")
+                    self.emit("stop", state=self.state, reason=str(exc) or type(exc).__name__, t_s=self.clock.now_s())
+                raise
+            finally:
+                self._thread = None
         self.emit("stop", state="measured", reason="", t_s=self.clock.now_s())
         return stored
+
+    def _why(self, exc: KeyboardInterrupt) -> str:
+        """Who ended the run: the remote abort's sender, the signal, or Ctrl-C."""
+        if isinstance(exc, (AbortRequested, signals.Interrupted)):
+            return str(exc)
+        if self._abort.is_set():  # the operator's wait ended by the abort
+            return f"aborted by {self._abort_by}"
+        return "interrupted by SIGINT (Ctrl-C)"
 
     def _pass(self, plan: Plan, pending: list[Entry], done_count: int) -> int:
         stored, skipped = 0, []  # type: tuple[int, list[Entry]]
@@ -241,8 +300,7 @@ class Engine:
 
     def _checkpoint(self) -> None:
         """Between attempts: honour a pause (machines still, state `paused`) or an abort."""
-        if self._abort.is_set():
-            raise AbortRequested("aborted by a remote request")
+        self._check_abort()
         if not self._pause.is_set():
             return
         self._set_state("paused")
@@ -250,8 +308,7 @@ class Engine:
         while self._pause.is_set() and not self._abort.is_set():
             self._wake.wait(0.2)
             self._wake.clear()
-        if self._abort.is_set():
-            raise AbortRequested("aborted by a remote request while paused")
+        self._check_abort(" while paused")
         self._event("resume", None, "resumed by a remote request: the next reading approaches its targets anew")
         assert self._plan is not None
         self._plan.positions_unknown()
@@ -316,7 +373,7 @@ class Engine:
                 return False
             if self._abort.is_set():
                 attempt.close()
-                raise AbortRequested("aborted by a remote request")
+                self._check_abort()
             answer, thrown = None, None
             try:
                 answer = self._execute(step, context, readings)
@@ -351,9 +408,9 @@ class Engine:
             self._policy(step.instrument, lambda: self._reference(step.instrument, step.where, step.why, step.seconds),
                          step.why, context, readings)
             return True
-        if isinstance(step, OperatorStep):
-            self._event("operator", step.instrument, step.message)
+        if isinstance(step, OperatorStep):  # logged once done ("polygon seated at …"), not when asked
             getattr(self.operator, step.action)(*step.args)
+            self._event("operator", step.instrument, step.message)
             self._spend(step.seconds)
             return None
         raise TypeError(f"not a step: {step!r}")
@@ -495,15 +552,19 @@ class Engine:
         """Stop every device this engine moved; a device that cannot be stopped is an event, and the
         others are still stopped."""
         self._safe = True
-        self._set_state("stopping")
-        for name in self._moved:
-            try:
-                self.devices[name].stop()
-            except Exception as exc:  # noqa: BLE001 — a half-dead transport must not keep the others moving
+        with signals.held():  # a second signal, or an abort, does not cut the stop short
+            failed: list[tuple[str, Exception]] = []
+            for name in self._moved:  # first the machines, then the records
                 try:
-                    self._event("fault", name, f"while stopping: {exc}")
-                except Exception:  # the store is gone too: nothing more to record
-                    pass
+                    self.devices[name].stop()
+                except Exception as exc:  # noqa: BLE001 — a half-dead transport must not keep the others moving
+                    failed.append((name, exc))
+            try:
+                self._set_state("stopping")
+                for name, error in failed:
+                    self._event("fault", name, f"while stopping: {error}")
+            except Exception:  # the store is gone too: nothing more to record
+                pass
 
 
 def _describes(device: Any) -> bool:

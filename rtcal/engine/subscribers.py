@@ -17,6 +17,67 @@ from typing import Any, Callable, TextIO
 from rtcal.run.store import RunStore
 
 OPERATOR_WAITING = "operator_waiting"  # the store's meta key the live view reads
+ETA_KEY = "eta_s"  # the store's meta key of the time left (the live view shows what the log says)
+
+
+class Eta:
+    """The time left: one estimate for the console's log and the live page (through the store).
+
+    The plan's remaining machine time as the walk counts it (:attr:`PlanWalk.entry_s`: motions,
+    settles, samples, and each operator step at its stated duration), the machine part scaled by
+    the pace this start has kept against the walk once it has ``MIN_BASIS_S`` of it. Time paused and
+    an operator's wait for a person are no machine time and not counted; a resume walks only
+    the entries still to take."""
+
+    MIN_BASIS_S = 30.0
+
+    def __init__(self, entry_s: dict[int, tuple[float, float]], virtual_clock: bool):
+        self.entry_s = entry_s
+        self.virtual_clock = virtual_clock  # a virtual clock counts an operator step's stated time itself
+        self.pending = set(entry_s)
+        self.machine_s = 0.0  # measured machine time of the entries done in this start …
+        self.walked_s = 0.0  # … and the walk's for them
+        self._t_s: float | None = None
+        self._excluded_s = 0.0
+        self._paused_at: float | None = None
+        self._asked_at: float | None = None
+
+    def _resumed(self, t_s: float, since: float | None) -> None:
+        if since is not None:
+            self._excluded_s += max(0.0, t_s - since)
+
+    def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        if name == "start":
+            self._t_s = doc["t_s"]
+        elif name == "state":
+            if doc["state"] == "paused" and self._paused_at is None:
+                self._paused_at = doc["t_s"]
+            elif doc["state"] != "paused":
+                self._resumed(doc["t_s"], self._paused_at)
+                self._paused_at = None
+        elif name == "operator":
+            if doc["instruction"]:
+                self._asked_at = doc["t_s"]
+            else:
+                self._resumed(doc["t_s"], self._asked_at)
+                self._asked_at = None
+        elif name == "done":
+            k = doc["index"]
+            if k in self.pending and self._t_s is not None:
+                self.pending.discard(k)
+                total, operator = self.entry_s[k]
+                spent = doc["t_s"] - self._t_s - self._excluded_s - (operator if self.virtual_clock else 0.0)
+                self.machine_s += max(0.0, spent)
+                self.walked_s += total - operator
+            self._t_s, self._excluded_s = doc["t_s"], 0.0
+
+    def eta_s(self) -> float:
+        pace = 1.0
+        if self.walked_s >= self.MIN_BASIS_S and self.machine_s > 0:
+            pace = min(max(self.machine_s / self.walked_s, 0.2), 5.0)
+        machine = sum(self.entry_s[k][0] - self.entry_s[k][1] for k in self.pending)
+        operator = sum(self.entry_s[k][1] for k in self.pending)
+        return pace * machine + operator
 
 
 class StoreWriter:
@@ -24,8 +85,9 @@ class StoreWriter:
     and keeps ``engine_state``, ``planned_readings``, ``current`` and ``operator_waiting`` (what the
     operator is asked now, as JSON ``{"instruction", "t_s"}``; empty when nothing waits) in its metadata."""
 
-    def __init__(self, store: RunStore):
+    def __init__(self, store: RunStore, eta: Eta | None = None):
         self.store = store
+        self.eta = eta  # subscribed before this writer: the time left it keeps in the store's meta
         self.current: dict[str, Any] = {}
         store.keep_meta_also(lambda: {"current": json.dumps(self.current, sort_keys=True)})
 
@@ -40,18 +102,31 @@ class StoreWriter:
             generation = self.store.meta().get("generation", "0")
             if "t_s" in doc and generation.isdigit():  # which attempt this start (0, +1 per resume) begins with
                 self.store.add_start(int(generation), doc["t_s"])
-            self.store.set_meta({"planned_readings": str(doc["planned"])})
+            self.store.set_meta({"planned_readings": str(doc["planned"]),
+                                 ETA_KEY: f"{self.eta.eta_s():.1f}" if self.eta is not None else ""})
             if self.store.meta().get(OPERATOR_WAITING):  # a run killed while it waited: nothing waits now
                 self.store.set_meta({OPERATOR_WAITING: ""})
         elif name == "state":
             self.store.set_meta({"engine_state": doc["state"]})
         elif name == "attempt":
             self.current = {**doc["label"], "plan_index": doc["index"]}
+        elif name == "done" and self.eta is not None:
+            self.store.set_meta({ETA_KEY: f"{self.eta.eta_s():.1f}"})
         elif name == "operator":
             asked = doc["instruction"]
             self.store.set_meta({OPERATOR_WAITING: json.dumps({"instruction": asked, "t_s": doc["t_s"], "step": doc.get("step")},
                                                                 ensure_ascii=False)
                                  if asked else ""})
+
+
+class _Gone:
+    """Where the progress goes once the console is gone: nowhere."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+    def flush(self) -> None:
+        pass
 
 
 def _hms(seconds: float) -> str:
@@ -76,7 +151,8 @@ class ConsoleProgress:
     time have passed, and one at the end."""
 
     def __init__(self, stream: TextIO | None = None, bar: bool | None = None, every_s: float = 60.0,
-                 now: Callable[[], float] = time.monotonic, virtual_clock: bool = False):
+                 now: Callable[[], float] = time.monotonic, virtual_clock: bool = False, eta: Eta | None = None):
+        self.eta = eta  # the walk's estimate (what the live page shows); None: the rate of this start
         self.stream = stream if stream is not None else sys.stderr
         self.virtual_clock = virtual_clock  # the time left is the bench's, not the wall's: said so
         self.bar = self.stream.isatty() if bar is None else bar
@@ -94,7 +170,10 @@ class ConsoleProgress:
         self._shown_done = -1  # the done count of the last line written (a log's last line is not repeated)
 
     def eta_s(self) -> float | None:
-        """Time left at the rate of this start (the run's own clock: virtual for a simulated run)."""
+        """Time left: the walk's estimate, else at the rate of this start (the run's own clock:
+        virtual for a simulated run)."""
+        if self.eta is not None:
+            return self.eta.eta_s()
         taken = self.done - self._first_done
         if self._t0_s is None or taken <= 0:
             return None
@@ -110,6 +189,12 @@ class ConsoleProgress:
                 + f" · {self.faults} fault{'' if self.faults == 1 else 's'}")
 
     def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        try:
+            self._update(name, doc)
+        except OSError:  # the terminal is gone (SIGHUP, a closed SSH session: EIO): the store has it all
+            self.stream = _Gone()
+
+    def _update(self, name: str, doc: dict[str, Any]) -> None:
         if name == "start":
             self.planned, self.done = doc["planned"], doc["done"]
             self._first_done, self._t0_s = doc["done"], doc["t_s"]

@@ -46,6 +46,9 @@ class PlanWalk:
     steps: dict[str, int] = field(default_factory=dict)
     listing: list[Step] | None = None
     """Every step in order, when the walk was asked to keep them (`walk(..., listing=True)`)."""
+    entry_s: dict[int, tuple[float, float]] = field(default_factory=dict)
+    """Per plan entry walked: (seconds, of which an operator's stated steps) it adds to the run, the steps
+    before it since the last entry (a set-up, a re-seat) and, for the last, the steps after it counted in."""
 
 
 class Motion:
@@ -161,6 +164,9 @@ def walk(plan: Plan, timing: Timing, done: Iterable[int] = (), listing: bool = F
     walker.run(plan.prologue())
     group: int | None = None
     first = True
+    w = walker.walk
+    mark = (0.0, 0.0)
+    last: int | None = None
     for entry in plan.entries:
         if entry.index in done:
             continue
@@ -170,7 +176,12 @@ def walk(plan: Plan, timing: Timing, done: Iterable[int] = (), listing: bool = F
             walker.run(plan.enter_group(entry, first))
             group, first, walker.tracking = entry.group, False, False
         walker.drive(plan.attempt(entry))
-        walker.walk.planned_readings += 1
+        w.planned_readings += 1
+        w.entry_s[entry.index] = (w.duration_s - mark[0], w.operator_s - mark[1])
+        mark, last = (w.duration_s, w.operator_s), entry.index
     if group is not None:
         walker.leave(plan, group)
-    return walker.walk
+    if last is not None:  # what follows the last entry is the last entry's to finish
+        total, operator = w.entry_s[last]
+        w.entry_s[last] = (total + w.duration_s - mark[0], operator + w.operator_s - mark[1])
+    return w

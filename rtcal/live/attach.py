@@ -1,10 +1,10 @@
 """Every run's remote control, and with ``--live`` its web page, attached to the run's engine.
 
-Every run (in process or wired) gets a control token, printed once on the console before the
-first motion and written nowhere else, and serves its control socket in the run directory, so
-`rtcal control` reaches it whether or not it was started with ``--live``. With ``--live`` the same
-process serves the live view, whose Pause / Resume / Abort buttons (and Done, when an operator step
-waits) need that token.
+Every run (in process or wired) serves its control socket in the run directory, so `rtcal control`
+reaches it whether or not it was started with ``--live``. With ``--live`` the same process serves the
+live view, whose Pause / Resume / Abort buttons (and Done, when an operator step waits) need the
+run's control token: printed once on the console before the first motion, written nowhere else,
+and only then (without ``--live`` the owner-only socket admits its user's processes alone).
 """
 
 from __future__ import annotations

@@ -50,10 +50,7 @@ def control(run_dir: str, command: str, token: str | None, step: int | None = No
     (a wrong token; a confirm when no operator step waits)."""
     if command not in COMMANDS:
         return _fail(f"unknown command {command!r}: one of {', '.join(COMMANDS)}", EXIT_USAGE)
-    token = token if token is not None else os.environ.get(TOKEN_ENV)
-    if not token:
-        return _fail(f"the run's control token is needed: --token TOKEN or the environment variable {TOKEN_ENV}",
-                     EXIT_USAGE)
+    token = token if token is not None else os.environ.get(TOKEN_ENV, "")  # a run without --live needs none
     if not Path(run_dir).is_dir():
         return _fail(f"{run_dir}: no such run directory", EXIT_USAGE)
     try:
@@ -61,6 +58,9 @@ def control(run_dir: str, command: str, token: str | None, step: int | None = No
     except NoEngine as exc:
         return _fail(str(exc), EXIT_FAILED)
     except ControlRefused as exc:
+        if exc.reason == "token" and not token:
+            return _fail(f"the run was started with --live: its control token is needed (--token TOKEN or the "
+                         f"environment variable {TOKEN_ENV})", EXIT_USAGE)
         return _fail(str(exc), EXIT_USAGE if exc.reason in ("token", "command", "request", "nothing") else EXIT_FAILED)
     print(f"{command}: accepted by the engine of {run_dir}", file=sys.stderr)
     return EXIT_OK

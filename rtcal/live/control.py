@@ -5,10 +5,14 @@ The engine (a :class:`Controllable`) serves ``RUN_DIR/.rtcal-control.sock`` thro
 control token. A socket file rather than a TCP port: it needs no free port, it is found from the
 run directory alone, and the file mode (0600) keeps other users out before the token is even
 read. The token itself is compared in constant time and never written to any file or log.
+A run without ``--live`` has no token (none is printed: nothing but the socket can reach it): its
+server admits a request only from a process of its own user (the peer's credentials, SO_PEERCRED,
+where the system gives them; elsewhere the 0600 socket alone), and any token sent is ignored.
 
 Protocol: one JSON line per connection, ``{"token": "...", "command": "pause"|"resume"|"abort"|"confirm"}``,
 answered by one JSON line, ``{"ok": true}`` or ``{"ok": false, "error": "token"|"command"|"request"|"nothing"|"failed"}``
-("nothing": a confirm when no operator step waits; nothing changed).
+("nothing": a confirm when no operator step waits; nothing changed; "failed" comes with the engine's
+``message``, e.g. an abort once the run has finished measuring).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import os
 import secrets
 import socket
 import stat
+import struct
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -31,6 +36,7 @@ COMMANDS = ("pause", "resume", "abort", "confirm")
 MAX_LINE_BYTES = 4096  # a request is ~100 bytes; anything longer is refused unread
 CONNECTION_TIMEOUT_S = 2.0  # a client that sends nothing cannot hold the server
 TOKEN_ENV = "RTCAL_CONTROL_TOKEN"
+BY_CONTROL = "`rtcal control`"  # who sent a request through the socket (the live page's are its own)
 _SUN_PATH_MAX = 100  # sockaddr_un holds 108 bytes with its NUL; longer paths go through /proc/self/fd
 
 
@@ -51,7 +57,8 @@ class Controllable(Protocol):
 
     def request_resume(self) -> None: ...
 
-    def request_abort(self) -> None: ...
+    def request_abort(self, by: str = "a remote request") -> None:
+        """Stop the run at once, as Ctrl-C does; ``by`` (the live page, `rtcal control`) is recorded."""
 
     def request_confirm(self, step: int | None = None) -> None:
         """Confirm the operator step that waits (only wait ``step`` when given); NothingToConfirm if none does."""
@@ -78,12 +85,15 @@ def token_matches(given: object, token: str) -> bool:
     return isinstance(given, str) and hmac.compare_digest(given.encode("utf-8", "surrogatepass"), token.encode("utf-8"))
 
 
-def dispatch(target: Controllable, command: str, step: int | None = None) -> None:
-    """Hand ``command`` (one of COMMANDS) to the engine; a confirm names the wait it answers (``step``)."""
+def dispatch(target: Controllable, command: str, step: int | None = None, by: str = "the live page") -> None:
+    """Hand ``command`` (one of COMMANDS) to the engine; a confirm names the wait it answers (``step``),
+    an abort who sent it (``by``: the live page, or `rtcal control` through the socket)."""
     if command not in COMMANDS:
         raise ValueError(f"unknown command {command!r}")
     if command == "confirm":
         target.request_confirm(step)
+    elif command == "abort":
+        target.request_abort(by)
     else:
         getattr(target, f"request_{command}")()
 
@@ -179,16 +189,27 @@ def send_control(run_dir: Path, token: str, command: str, timeout_s: float = 5, 
         messages = {"token": "the engine refused the control token", "command": f"the engine does not know `{command}`",
                     "nothing": "nothing to confirm: " + ("no operator step waits now" if step is None else
                                                          f"operator step {step} does not wait now") + " (nothing was changed)",
-                    "failed": f"the engine could not {command}"}
+                    "failed": f"the engine could not {command}" + (f": {reply['message']}" if isinstance(reply, dict)
+                                                                   and isinstance(reply.get("message"), str) else "")}
         raise ControlRefused(reason, messages.get(reason, "the engine refused the request"))
+
+
+def _peer_is_owner(conn: socket.socket) -> bool:
+    """A tokenless server's check: the connecting process runs as this one's user (Linux's
+    SO_PEERCRED; where the system has no such option, the socket's 0600 mode already ensured it)."""
+    option = getattr(socket, "SO_PEERCRED", None)
+    if option is None:
+        return True
+    _pid, uid, _gid = struct.unpack("3i", conn.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i")))
+    return uid == os.geteuid()
 
 
 class ControlServer:
     """Serves the engine's control socket in a thread: one request per connection, checked
     against the token, handed to ``target``. :meth:`close` stops it and removes the socket."""
 
-    def __init__(self, run_dir: Path, token: str, target: Controllable):
-        if len(token) < 16:
+    def __init__(self, run_dir: Path, token: str | None, target: Controllable):
+        if token is not None and len(token) < 16:
             raise ValueError("a control token needs at least 128 random bits (use new_token())")
         self.run_dir = Path(run_dir)
         self.path = socket_path(self.run_dir)
@@ -265,7 +286,7 @@ class ControlServer:
             request = None
         if not isinstance(request, dict):
             reply = {"ok": False, "error": "request"}
-        elif not token_matches(request.get("token"), self._token):
+        elif not (token_matches(request.get("token"), self._token) if self._token is not None else _peer_is_owner(conn)):
             reply = {"ok": False, "error": "token"}
         elif request.get("command") not in COMMANDS:
             reply = {"ok": False, "error": "command"}
@@ -273,12 +294,12 @@ class ControlServer:
             reply = {"ok": False, "error": "request"}
         else:
             try:
-                dispatch(self._target, str(request["command"]), step_of(request.get("step")))
+                dispatch(self._target, str(request["command"]), step_of(request.get("step")), by=BY_CONTROL)
                 reply = {"ok": True}
             except NothingToConfirm:
                 reply = {"ok": False, "error": "nothing"}
-            except Exception:  # the engine refused (e.g. finished already): the run goes on as it was
-                reply = {"ok": False, "error": "failed"}
+            except Exception as exc:  # the engine refused (e.g. finished measuring): the run goes on as it was
+                reply = {"ok": False, "error": "failed", "message": str(exc)[:200]}
         conn.sendall(json.dumps(reply).encode() + b"\n")
 
     def close(self) -> None:

@@ -31,6 +31,7 @@ from typing import Any, AsyncIterator, Callable
 
 import anyio
 import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
@@ -39,7 +40,7 @@ from starlette.responses import FileResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Route
 
 from rtcal.live.control import COMMANDS, Controllable, dispatch, step_of, token_matches
-from rtcal.live.storeview import REPORT_FILES, StoreView
+from rtcal.live.storeview import FINAL_STATES, REPORT_FILES, StoreView
 from rtcal.sequencer.operator import NothingToConfirm
 
 DEFAULT_PORT = 8765
@@ -57,6 +58,48 @@ SECURITY_HEADERS = {
 REPORT_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": ("default-src 'none'; style-src 'unsafe-inline'; "
                                                                  "img-src data:; frame-ancestors 'none'; base-uri 'none'")}
 MAX_LAST_EVENT_ID = 2**63 - 1
+MAX_CONNECTIONS = 64
+"""Connections served at once (a browser opens about six): one more is closed as it is accepted, so
+idle connections from anyone on the computer can never take the run's process to its descriptor
+limit (1,024 by default), which the store and the instruments need."""
+IDLE_S = 10.0  # a connection that sends no request this long is closed
+FINISHED_LINGER_S = 3.0  # how long a finished run's page is still served so every stream ends with `finished`
+
+
+class _CappedH11(H11Protocol):
+    """uvicorn's HTTP/1.1 protocol with a cap on open connections and an idle timeout before the
+    first request (uvicorn's own keep-alive timeout starts only after a response)."""
+
+    cap = MAX_CONNECTIONS
+    idle_s = IDLE_S
+
+    def connection_made(self, transport: Any) -> None:  # type: ignore[override]
+        self._refused = len(self.connections) >= self.cap
+        self._idle: Any = None
+        if self._refused:  # closed at once, quietly: the descriptor comes back before the next accept
+            transport.abort()
+            return
+        super().connection_made(transport)
+        self._idle = self.loop.call_later(self.idle_s, self._idle_timeout)
+
+    def _idle_timeout(self) -> None:
+        self._idle = None
+        if self.cycle is None:  # nothing asked yet
+            self.transport.close()
+
+    def data_received(self, data: bytes) -> None:
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        super().data_received(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._refused:
+            return
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        super().connection_lost(exc)
 
 
 class LiveSpecError(ValueError):
@@ -136,12 +179,14 @@ class _Feed:
         self._events: list[tuple[int, str]] = []
         self.last_id: int | None = None  # None: not yet placed at the store's end
         self.state_text: str | None = None
+        self.final = False  # the state read last is a run's end (finished, failed, aborted)
         self._at = -1e9
 
-    def refresh(self) -> None:
-        """Read what the store added since the last refresh (at most once per poll, whoever asks)."""
+    def refresh(self, now: bool = False) -> None:
+        """Read what the store added since the last refresh (at most once per poll, whoever asks;
+        ``now``: whenever asked)."""
         with self._lock:
-            if time.monotonic() - self._at < 0.8 * self.poll_s:
+            if not now and time.monotonic() - self._at < 0.8 * self.poll_s:
                 return
             try:
                 self._read()
@@ -168,6 +213,7 @@ class _Feed:
         after = self._events[-1][0] if self._events else 0
         self._events += [(e["id"], _sse("log", e)) for e in self.view.events_after(after)]
         self.state_text = json.dumps({**state, "control": self.control()}, allow_nan=False, ensure_ascii=False)
+        self.final = state.get("state") in FINAL_STATES
 
     def readings_since(self, after: int) -> list[tuple[int, str]] | None:
         """The encoded readings after ``after``; None if they begin before the feed's window."""
@@ -206,6 +252,9 @@ class LiveServer:
         self._thread: threading.Thread | None = None
         self._sock: socket.socket | None = None
         self._stopping = threading.Event()
+        self._finishing = threading.Event()  # the run has ended: each stream ends once it has sent the final state
+        self._streams = 0
+        self._streams_lock = threading.Lock()
         self.url: str | None = None
 
     # -- the application ----------------------------------------------------------------------
@@ -245,7 +294,18 @@ class LiveServer:
         """Readings after ``after`` (each with its store id), the events table, and the state
         whenever it changes; a comment every 15 s keeps proxies from closing a quiet stream.
         Every viewer takes the same encoded events from one shared :class:`_Feed`; one that is
-        further behind than the feed keeps reads its own way up from the store first."""
+        further behind than the feed keeps reads its own way up from the store first. Once the run
+        has ended (:meth:`stop` with a linger) the stream ends with the run's final state."""
+        with self._streams_lock:
+            self._streams += 1
+        try:
+            async for chunk in self._stream_parts(request, after):
+                yield chunk
+        finally:
+            with self._streams_lock:
+                self._streams -= 1
+
+    async def _stream_parts(self, request: Request, after: int) -> AsyncIterator[str]:
         yield "retry: 2000\n\n"
         feed = self._feed
         last_event = 0
@@ -263,7 +323,8 @@ class LiveServer:
             if events:
                 last_event = events[-1][0]
             chunk = "".join(text for _, text in parts) + "".join(text for _, text in events)
-            state = feed.state_text
+            with feed._lock:
+                state, final = feed.state_text, feed.final
             if state is not None and state != last_state:
                 chunk += f"event: state\ndata: {state}\n\n"
                 last_state = state
@@ -273,6 +334,8 @@ class LiveServer:
             elif time.monotonic() - quiet_since > 15:
                 quiet_since = time.monotonic()
                 yield ": still here\n\n"
+            if self._finishing.is_set() and final and len(parts) < CATCH_UP_BATCH:
+                return  # the run's end was sent: the page keeps it, nothing follows
             if len(parts) < CATCH_UP_BATCH:
                 await anyio.sleep(self.poll_s)
 
@@ -323,8 +386,9 @@ class LiveServer:
             sock.close()
             raise
         port = sock.getsockname()[1]
-        config = uvicorn.Config(self.app(), log_level="warning", access_log=False, lifespan="off",
-                                timeout_graceful_shutdown=2, server_header=False)
+        config = uvicorn.Config(self.app(), log_level="warning", access_log=False, lifespan="off", http=_CappedH11,
+                                timeout_graceful_shutdown=2, server_header=False,
+                                backlog=MAX_CONNECTIONS)  # asyncio accepts up to `backlog` at a time before any is served
         self._server = uvicorn.Server(config)
         self._thread = threading.Thread(target=self._server.run, kwargs={"sockets": [sock]}, name="rtcal-live",
                                         daemon=True)
@@ -339,8 +403,20 @@ class LiveServer:
         self.url = f"http://{shown}:{port}/"
         return self.url
 
-    def stop(self) -> None:
-        """End every stream and shut the server down (within a few seconds)."""
+    def stop(self, linger_s: float = 0.0) -> None:
+        """End every stream and shut the server down (within a few seconds). ``linger_s``: the run
+        has ended; serve its final state (and the result) that long at most, until every open
+        stream has sent it, so no page is left showing a run still running."""
+        if linger_s > 0 and self._thread is not None and self._thread.is_alive():
+            self.view.finish()
+            self._feed.refresh(now=True)
+            self._finishing.set()
+            deadline = time.monotonic() + linger_s
+            while time.monotonic() < deadline:
+                with self._streams_lock:
+                    if self._streams == 0:
+                        break
+                time.sleep(0.05)
         self._stopping.set()
         if self._server is not None:
             self._server.should_exit = True

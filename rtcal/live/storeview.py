@@ -150,7 +150,7 @@ class StoreView:
             "method": meta.get("method"),
             "planned_readings": planned,
             "done_readings": done,
-            "eta_s": self._eta_s(state, planned, done),
+            "eta_s": self._eta_s(state, planned, done, meta.get("eta_s")),
             "faults": faults,
             "current": current_of(meta, last),
             "name": _procedure_name(meta),
@@ -201,13 +201,20 @@ class StoreView:
             acc.newest_t_s = float(newest)
         acc.last_id = hi
 
-    def _eta_s(self, state: str, planned: int | None, done: int) -> float | None:
-        """Time left at the rate of the last completions (s per planned reading, on the run's
-        clock); null until two completions on one clock give a rate."""
+    def _eta_s(self, state: str, planned: int | None, done: int, stored: str | None = None) -> float | None:
+        """Time left: the engine's estimate (the one its log prints, rtcal.engine.subscribers.Eta),
+        else at the rate of the last completions (s per planned reading, on the run's clock); null
+        until two completions on one clock give a rate."""
         if state == "finished":
             return 0.0
         if state in ("failed", "aborted") or planned is None:
             return None
+        try:
+            eta = float(stored or "nan")
+        except ValueError:
+            eta = math.nan
+        if math.isfinite(eta) and eta >= 0:
+            return round(eta, 1)
         tail = list(self._acc.completions)
         start = len(tail) - 1
         while start > 0 and tail[start - 1][1] <= tail[start][1]:  # a resumed run's clock may start again at 0
@@ -293,6 +300,21 @@ class StoreView:
 
             threading.Thread(target=solve, name="rtcal-live-result", daemon=True).start()
         return cached[1] if cached is not None else None
+
+    def finish(self) -> None:
+        """The run has ended: its next state is read afresh, with the result solved now (not aside),
+        so the last state a page gets carries it."""
+        path = self.run_dir / "results.json"
+        try:
+            st = path.stat()
+        except OSError:
+            st = None
+        if st is not None:
+            stamp = (st.st_mtime_ns, st.st_size)
+            if self._result_cache is None or self._result_cache[0] != stamp:
+                self._result_cache, self._result_stamp = (stamp, result_brief(self.run_dir)), stamp
+        with self._lock:
+            self._state_at = -1e9
 
     # -- what the event stream sends -------------------------------------------------------------
     def readings_after(self, last_id: int, limit: int = 2000) -> list[dict[str, Any]]:
@@ -419,4 +441,27 @@ def result_brief(run_dir: Path) -> dict[str, Any] | None:
                       "run": table.run, "deviation_arcsec": table.deviation_arcsec,
                       "U_arcsec": [None if u is None else 2.0 * u for u in table.uncertainty_arcsec]}
     files = [f for f in REPORT_FILES if os.path.isfile(run_dir / f) and not os.path.islink(run_dir / f)]
-    return {"error": None, "lines": lines, "deviations": deviations, "files": files}
+    return {"error": None, "headline": headline(results, lines), "lines": lines, "deviations": deviations,
+            "files": files}
+
+
+def headline(results: Any, lines: list[str]) -> str:
+    """The result in a lab's words: the axis' positioning error E with its U (k = 2) and the
+    verdict against the limit under the procedure's decision rule; a method without ISO 230-2
+    parameters says its first summary line."""
+    from rtcal.deliverables.conformity import parameter_uncertainties
+
+    iso = results.evaluation.iso230_2 if results.evaluation else None
+    if iso is None or iso.E is None:
+        return lines[0] if lines else "measured and solved"
+    u = parameter_uncertainties(results).get("E")
+    text = f"Positioning error of the axis E = {iso.E:.2f}″" + (f" (U = {u:.2f}″, k = 2)" if u is not None else "")
+    c = results.conformity
+    if c is None:
+        return text + "; the procedure states no acceptance limit."
+    limit = c.per_limit.get("E")
+    n = len(c.per_limit)
+    which = (f"its {n} acceptance limits (E ≤ {limit.limit_arcsec:g}″ among them)" if n > 1 and limit is not None
+             else f"its acceptance limit E ≤ {limit.limit_arcsec:g}″" if limit is not None else "its acceptance limits")
+    rule = "guarded acceptance, ISO 14253-1" if c.decision_rule == "guarded" else "simple acceptance, ILAC-G8"
+    return f"{text}. Against {which}: {c.verdict.upper()} ({rule})."

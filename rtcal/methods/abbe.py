@@ -74,8 +74,11 @@ def resolve_certificate(proc: EncoderAbbeError, operator: Operator) -> list[floa
     if cert == "bench":
         values = operator.polygon_certificate_arcsec()
         if values is None:
-            raise CertificateUnavailable("polygon.certificate_arcsec: `bench` takes a simulated polygon's certificate; "
-                                         f"on hardware list the certificate's {proc.polygon.faces} face errors (arcsec)")
+            raise CertificateUnavailable(
+                "polygon.certificate_arcsec: `bench` takes the simulated polygon's certificate from the simulated bench "
+                "or its simulated operator, and this run has neither (its operator steps are a person's): give the "
+                "`operator` address `rtcal sim serve` printed in --instruments, or list the certificate's "
+                f"{proc.polygon.faces} face errors (arcsec), or write `none` (closure)")
         if len(values) != proc.polygon.faces:
             raise CertificateUnavailable(f"the bench's polygon has {len(values)} faces, the procedure {proc.polygon.faces}")
         return [float(v) for v in values]

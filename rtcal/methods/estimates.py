@@ -77,6 +77,16 @@ def with_residual_test(message: str, check: ResidualCheck | None) -> str:
     return message if check is None else f"{message}; {check.words()}"
 
 
+def not_covered(not_included: list[str], check: ResidualCheck | None) -> list[str]:
+    """The budget's ``not_included`` and, when its residual test failed, the error it failed on: a certificate
+    that quotes the estimate (none passed) then says its U leaves that error out, as the message does."""
+    if check is None or check.passed:
+        return not_included
+    return [*not_included, f"a systematic error the residuals show and the budget does not model (its residual test "
+            f"failed: χ² = {check.chi2:.0f} for {check.dof} degrees of freedom, p = {check.p_value:.2g}): U is not a "
+            "coverage interval for it"]
+
+
 def choose_recommended(estimates: dict[str, E], status: dict[str, SolverStatus]) -> str | None:
     """The estimate a certificate should quote: converged first, then one whose residuals pass its own
     noise model's test (one that fails it never, while another passes), then the smallest RMS uncertainty."""

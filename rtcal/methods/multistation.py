@@ -18,7 +18,8 @@ from rtcal.run.dataset import multistation_data
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.procedure.models import LaserTracerMultistation
 from rtcal.engine.walk import Timing, walk
-from rtcal.methods.estimates import choose_recommended, deviation_block, residual_test, run_estimators, with_residual_test
+from rtcal.methods.estimates import (choose_recommended, deviation_block, not_covered, residual_test, run_estimators,
+                                     with_residual_test)
 from rtcal.methods.protocol import address_of
 from rtcal.results import model as rm
 from rtcal.sequencer.operator import Operator
@@ -42,7 +43,7 @@ from simulators.instruments import (
     SimLaserTracer,
     SimStage,
 )
-from simulators.scenario import AngularHarmonic, LinearHarmonic, Scenario
+from simulators.scenario import AngularHarmonic, CmmFieldTerm, LinearHarmonic, Scenario
 from simulators.truth import station_truth
 
 if TYPE_CHECKING:
@@ -69,16 +70,38 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         error_motion_radial_um=em.radial_um, error_motion_axial_um=em.axial_um, error_motion_tilt_arcsec=em.tilt_arcsec,
         error_motion_max_order=em.max_order, tilt_center_z_mm=em.tilt_center_z_mm, estimate=estimate,
         air_index_sigma=air_index_sigma(proc), air_index_bound=air_index_bound(proc)[0], air_note=air_index_bound(proc)[1],
-        table_expansion_ppm_per_k=u.table_expansion_ppm_per_k, table_expansion_u_ppm_per_k=u.table_expansion_u_ppm_per_k,
+        table_expansion_ppm_per_k=table_expansion(proc)[0], table_expansion_u_ppm_per_k=table_expansion(proc)[1],
+        table_expansion_assumed=table_expansion(proc)[2],
         material_temperature_sigma_k=u.environment.material_temperature_k if table_sensor(proc) else 0.0,
         material_temperature_bound_k=stated_table_range(proc), air_index_noise=air_index_noise(proc),
-        material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0)
+        material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0,
+        cmm_field_um=u.cmm_field_um, cmm_field_length_mm=u.cmm_field_length_mm)
 
 
 def table_sensor(proc: LaserTracerMultistation) -> bool:
     """Whether an environment sensor reads the table's temperature with the lengths (the simulated one
     does; a real one whose readings carry no material temperature is treated as without, at analysis)."""
     return proc.instruments.environment is not None
+
+
+# The coefficient a table read by the sensor is corrected with when the procedure states none: a steel table
+# (and the tracer's steel mount on it). Steels span about 10–13 ppm/K at 20 °C (carbon and low-alloy 11–12.5,
+# cast iron 9–11; austenitic stainless 16–17 is outside and must be stated); 11.5 ± 2 ppm/K (1σ) covers them.
+DEFAULT_TABLE_MATERIAL = "steel"
+DEFAULT_TABLE_EXPANSION_PPM_PER_K = 11.5
+DEFAULT_TABLE_EXPANSION_U_PPM_PER_K = 2.0
+
+
+def table_expansion(proc: LaserTracerMultistation) -> tuple[float, float, str]:
+    """(α, u(α), the material assumed or ""): as stated; with a sensor reading the table's temperature and no
+    α stated, the default for a steel table — a table read warm and never corrected would leave its growth
+    (1 K/h: about 1″ over a run) outside the budget. ``table_expansion_ppm_per_k: 0`` states a table that does not grow."""
+    u = proc.uncertainty
+    if "table_expansion_ppm_per_k" in u.model_fields_set or not table_sensor(proc):
+        return float(u.table_expansion_ppm_per_k), float(u.table_expansion_u_ppm_per_k), ""
+    stated_u = "table_expansion_u_ppm_per_k" in u.model_fields_set
+    return (DEFAULT_TABLE_EXPANSION_PPM_PER_K, float(u.table_expansion_u_ppm_per_k) if stated_u
+            else DEFAULT_TABLE_EXPANSION_U_PPM_PER_K, DEFAULT_TABLE_MATERIAL)
 
 
 def stated_table_range(proc: LaserTracerMultistation) -> float:
@@ -94,7 +117,7 @@ def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistatio
     """The lengths as if the table were at 20 °C: each station, grown by g = α·(T − 20 °C) about the
     axis when its length was read (T the sensor's table temperature then), moved the length by
     −g·u·ρ (u from station to point, ρ the station's distance vector from the axis), which is added back."""
-    alpha = proc.uncertainty.table_expansion_ppm_per_k * 1e-6
+    alpha = table_expansion(proc)[0] * 1e-6
     offsets = data.material_offsets_k()
     if alpha == 0 or offsets is None:
         return data
@@ -185,7 +208,7 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
     u = proc.uncertainty
     out = []
     measured = table_sensor(proc) and (data is None or data.material_offsets_k() is not None)
-    if u.table_expansion_ppm_per_k == 0:
+    if table_expansion(proc)[0] == 0 and "table_expansion_ppm_per_k" not in u.model_fields_set:
         out.append("thermal expansion of the table: no coefficient stated (uncertainty.table_expansion_ppm_per_k); the table "
                    "and the tracer on it grow about the axis with its temperature (steel: 11.5 ppm/K), which moves the "
                    "stations between readings")
@@ -202,9 +225,11 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
         if unstated:
             out.append(f"error motions {', '.join(unstated)}: no bound stated while the others are "
                        "(uncertainty.error_motions); taken as zero, which a table rarely is")
-    out.append("CMM geometry beyond its three scales and three squarenesses (a smooth error field): not modelled and "
-               "not excluded; each estimate's residual test (Birge ratio against the stated noise) shows a field only "
-               "where it exceeds the point noise")
+    if u.cmm_field_um == 0:
+        out.append("CMM geometry beyond its three scales and three squarenesses (a smooth error field): not stated "
+                   "(uncertainty.cmm_field_um); each estimate's residual test (against the whole budget) shows a field "
+                   "only where the stations and dead paths cannot take it up: a smooth 1 µm field passes it unseen "
+                   "while it moves the angles")
     if u.cmm_scale_ppm == 0 and u.cmm_squareness_arcsec == 0:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
@@ -229,7 +254,8 @@ def _estimated_sigma(budget: StationBudget, source: str) -> float:
 def chain_fields(ch: StationChain, budget: StationBudget, omitted: list[str]) -> dict[str, object]:
     """What every station-based estimator reports: the deviations and their budget, eq. 34 and 36, the chain."""
     return {
-        **dict(deviation_block(ch.cumulative_deviation_arcsec, budget.cumulative, not_included=omitted)),
+        **dict(deviation_block(ch.cumulative_deviation_arcsec, budget.cumulative,
+                               not_included=not_covered(omitted, budget.residual_check))),
         "eq34_sigma_arcsec": round(float(ch.sigma_arcsec), 4),
         "algorithm_error_arcsec": float(ch.algorithm_error_arcsec),
         "estimated_noise": rm.EstimatedNoise(tracer_length_noise_um_at_1m=_estimated_sigma(budget, "tracer length noise"),
@@ -298,7 +324,7 @@ def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEsti
     cmm = {name: rm.CmmError(value=round(float(v), 4), sigma=round(float(s), 4) if np.isfinite(s) else None)
            for name, v, s in zip(CMM_NAMES, est.cmm_errors, est.cmm_errors_sigma)}
     return rm.NetworkEstimate(
-        **dict(deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=omitted)),
+        **dict(deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=not_covered(omitted, est.residual_check))),
         estimated_noise=rm.EstimatedNoise(tracer_length_noise_um_at_1m=round(est.sigma_length_um, 5),
                                           cmm_point_noise_um=round(est.sigma_point_um, 5)),
         cmm_errors=rm.CmmErrors(**cmm),
@@ -348,6 +374,23 @@ def _random_series(sigma: float, max_order: int, rng: np.random.Generator, cls):
     key = "amplitude_um" if cls is LinearHarmonic else "amplitude_arcsec"
     return [cls(order=k + 1, **{key: float(np.hypot(a[k], b[k]))}, phase_deg=float(np.degrees(np.arctan2(b[k], a[k]))))
             for k in range(max_order)]
+
+
+FIELD_TERMS_PER_AXIS = 30  # the scenario holds at most 100 terms
+
+
+def _random_field(sigma_um: float, length_mm: float, rng: np.random.Generator) -> list[CmmFieldTerm]:
+    """A CMM error field as the budget models it (:func:`rtcal.solvers.station_budget.cmm_field_source`), per
+    coordinate K plane waves of random wave vectors ω ~ N(0, I/ℓ²), phases uniform and amplitude σ·√(2/K):
+    E[e(p)·e(p')] = σ²·E[cos ω·(p − p')] = σ²·exp(−|p − p'|²/2ℓ²) (random Fourier features)."""
+    k = FIELD_TERMS_PER_AXIS
+    terms = []
+    for axis in "xyz":
+        for omega, phase in zip(rng.normal(0.0, 1.0 / length_mm, (k, 3)), rng.uniform(0.0, 360.0, k)):
+            size = float(np.linalg.norm(omega))
+            terms.append(CmmFieldTerm(axis=axis, amplitude_um=sigma_um * np.sqrt(2.0 / k), wavelength_mm=min(2 * np.pi / size, 1e6),
+                                      direction=tuple(float(v) for v in omega / size), phase_deg=float(phase - 270.0)))
+    return terms
 
 
 def lm_parameters(proc: LaserTracerMultistation) -> LMParameters:
@@ -481,6 +524,8 @@ class MultistationMethod:
             "squareness_xy_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec)),
             "squareness_xz_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec)),
             "squareness_yz_arcsec": float(rng.normal(0.0, u.cmm_squareness_arcsec))})
+        if u.cmm_field_um > 0:  # the stated field replaces the bench's
+            cmm = cmm.model_copy(update={"error_field": _random_field(u.cmm_field_um, u.cmm_field_length_mm, rng)})
         r, ax, t = em.radial_um / np.sqrt(2), em.axial_um / np.sqrt(2), em.tilt_arcsec / np.sqrt(2)
         stage = scenario.stage.model_copy(update={
             "radial_motion_x": _random_series(r, k, rng, LinearHarmonic), "radial_motion_y": _random_series(r, k, rng, LinearHarmonic),

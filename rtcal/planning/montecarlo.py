@@ -145,7 +145,10 @@ def run_trial(spec: TrialSpec, single_thread: bool = True) -> dict[str, Any]:
             u = np.array([np.nan if v is None else v for v in est.cumulative_uncertainty_arcsec], float)
             if len(cum) != len(truth):  # an estimate on other targets than the truth's (none today)
                 continue
-            per_estimator[name] = {"error": (cum - truth).tolist(), "u": u.tolist(), "status": r.solver_status[name].status}
+            test = getattr(est, "residual_test", None)
+            per_estimator[name] = {"error": (cum - truth).tolist(), "u": u.tolist(), "status": r.solver_status[name].status,
+                                   "residual_test_passed": None if test is None else bool(test.passed),
+                                   "residual_test": None if test is None else test.model_dump()}
         return {"index": spec.index, "recommended": r.recommended, "per_estimator": per_estimator,
                 "labels": r.target_labels()}
     finally:
@@ -193,8 +196,11 @@ def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[st
         with np.errstate(invalid="ignore"):
             covered = np.abs(err[:, inner]) <= 2.0 * u[:, inner]  # U (k = 2) covers the error
         counted = np.isfinite(err[:, inner]) & np.isfinite(u[:, inner])
+        tested = [r["residual_test_passed"] for r in rows if r.get("residual_test_passed") is not None]
         out["estimators"][name] = {
             "trials": len(rows),
+            # the share of trials whose residual test failed (on a bench as the budget models it: its false-alarm rate)
+            "residual_test_failed": round(1.0 - sum(tested) / len(tested), 4) if tested else None,
             "not_converged": sum(r["status"] != "converged" for r in rows),
             "rms_error_arcsec": _r(rms_err), "rms_reported_sigma_arcsec": _r(rms_u), "ratio": _r(ratio, 3),
             # its 1σ from the number of trials (an RMS of N normal errors is known to ±1/√(2N))

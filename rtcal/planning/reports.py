@@ -184,6 +184,9 @@ class EstimatorTrials(_Document):
 
     trials: int = Field(description="trials that gave this estimator")
     not_converged: int = Field(description="of them, how many did not converge")
+    residual_test_failed: float | None = Field(None, description=(
+        "share of the trials whose residual test failed (null: none tested); on a bench the budget models, the "
+        "test's false-alarm rate (rtcal.solvers.uncertainty.FALSE_ALARM_RATE)"))
     rms_error_arcsec: list[float | None] = Field(description="RMS error against truth per target, arcsec")
     rms_reported_sigma_arcsec: list[float | None] = Field(description="RMS of the reported 1σ per target, arcsec")
     ratio: list[float | None] = Field(description="their ratio per target")

@@ -15,13 +15,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
+import numpy as np
+
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage, recorded
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
 from rtcal.plans.conditions import environment_read
 from rtcal.procedure.models import EncoderAbbeError
 from rtcal.run.store import Reading
-from rtcal.sequencer.checks import EncoderCheck, MotionChecks, abbe_cross_checks, check_abbe_visit, check_face
+from rtcal.sequencer.checks import (EncoderCheck, MotionChecks, abbe_cross_checks, check_abbe_visit, check_face,
+                                    combined_sigma)
 
 
 # what a visit reads, named and united by each kind's description (drivers/interfaces.py)
@@ -96,7 +99,9 @@ class AbbePlan:
         self.visits = planned_visits(proc)
         self.policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
         self.checks = MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
-        self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
+        u = proc.uncertainty
+        self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec, proc.polygon.pitch_deg, 5.0 * np.sqrt(2.0) * (
+            combined_sigma((u.autocollimator_noise_arcsec, u.autocollimator_resolution_arcsec)) or 0.3))
         self.cross = abbe_cross_checks(proc)  # instruments against each other: autocollimator vs encoder, indicators
         self.last_seating = self.visits[max(done)].seating if done else None  # where the polygon was left
         self.entries = [
@@ -151,10 +156,12 @@ class AbbePlan:
                     continue  # marked in the visit; the other instruments are still read
                 values.append((instrument, quantities[0][0], float(value)))
         tolerance = proc.verification.autocollimator_tolerance_arcsec
-        seen = any(q == FACE[0][0] and abs(x) <= tolerance for _, q, x in values)  # the table turned: an encoder that disagrees misreads
+        faces = [x for _, q, x in values if q == FACE[0][0]]
+        seen = any(abs(x) <= tolerance for x in faces)  # the table turned (or did not turn at all): see EncoderCheck
+        face = float(np.mean(faces)) if faces else None
         for _, quantity, value in values:
             if quantity == ENCODER[0][0]:
-                self.encoder_moves.check(value, angle, table_seen=seen)
+                self.encoder_moves.check(value, angle, table_seen=seen, face_arcsec=face)
             elif quantity == FACE[0][0]:
                 check_face(value, tolerance, angle)
         check_abbe_visit(*self.cross, [Reading(0.0, i, q, x, "") for i, q, x in values], angle, v.seating, v.run,

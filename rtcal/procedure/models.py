@@ -441,9 +441,15 @@ class MultistationUncertainty(_Strict):
     environment: EnvironmentUncertainty = Field(EnvironmentUncertainty(), description="the air: with an environment "
                                                 "instrument its sensor's uncertainty (1σ); without one the range the air may "
                                                 "take during the run")
+    cmm_field_um: float = Field(0.0, ge=0.0, le=1000.0, description=(
+        "the CMM's smooth geometric error beyond its three scales and three squarenesses (its error map's residue), "
+        "µm: 1σ per coordinate anywhere in the volume (Type B, e.g. 0.5; 0: not stated, named in not_included)"))
+    cmm_field_length_mm: float = Field(150.0, gt=0.0, le=100000.0, description=(
+        "that field's correlation length, mm: points this far apart share e^-1/2 of it (a wave of length λ: about λ/2π)"))
     table_expansion_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
         "how much the table top and the tracer mounted on it grow radially about the axis per K above 20 °C, ppm/K "
-        "(e.g. 11.5 for steel; 0: not stated, named in the budget's not_included)"))
+        "(e.g. 11.5 for steel; with a sensor reading the table and none stated, steel's 11.5 ± 2 is assumed and the "
+        "budget says so; 0: a table that does not grow)"))
     table_expansion_u_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
         "standard uncertainty of that coefficient, ppm/K (e.g. 1.0)"))
 
@@ -499,6 +505,10 @@ class AbbeVerification(_Verification):
     indicator_range_um: float = Field(
         1000.0, gt=0.0, le=100_000.0, description="how far the dial indicators may read from zero: the shaft's radial and "
                                                   "tilt motion at them, µm (e.g. 1000)")
+    indicator_drift_um: float = Field(
+        1.0, ge=0.0, le=100_000.0, description="how far a dial indicator's reading at one target may drift during the run "
+                                               "beyond 5σ of its stated noise and a digit (thermal drift of its stand), µm "
+                                               "(e.g. 1)")
 
 
 class MultistationDurations(_Strict):

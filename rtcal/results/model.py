@@ -18,7 +18,11 @@ from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-SCHEMA_VERSION = "1.2"
+SCHEMA_VERSION = "1.3"
+# the first schema_version whose files carry each digest: a file of that version or later without it
+# was not written by rtcal (rtcal/run/integrity.py refuses it)
+STORE_DIGESTS_SINCE = (1, 2)
+DELIVERABLE_DIGESTS_SINCE = (1, 3)
 
 # -- bounded numbers ------------------------------------------------------------------------------
 Arcsec = Annotated[float, Field(ge=-1e7, le=1e7)]
@@ -59,7 +63,7 @@ class ResultsModel(BaseModel):
     that does not apply), as against a null the file always carries (a value that is missing).
     """
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True, defer_build=True)
     OPTIONAL_KEYS: ClassVar[frozenset[str]] = frozenset()
 
     @model_serializer(mode="wrap")
@@ -792,7 +796,11 @@ class Control(ResultsModel):
 class Digests(ResultsModel):
     """What binds results.json to its run's store (rtcal/run/integrity.py): digests of the store's
     readings and events and of the procedure, bench and seed the results were computed from. The
-    store in turn records the digest of this file; neither covers a path (a copied run stays valid)."""
+    store in turn records the digest of this file; neither covers a path (a copied run stays valid).
+    The deliverables' digests are taken after they are written and before results.json is: the
+    certificate never shows them, and results.json covers every other file of the run."""
+
+    OPTIONAL_KEYS = frozenset({"deliverables_sha256"})
 
     algorithm: Literal["sha256"] = Field(description="the digest algorithm (1.2)")
     readings_sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")] = Field(
@@ -804,6 +812,12 @@ class Digests(ResultsModel):
     procedure_sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")] = Field(
         description="of the stored method, procedure text, instrument section (tokens redacted), bench scenario and "
                     "seed (1.2)")
+    deliverables_sha256: dict[Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]{0,199}(/[A-Za-z0-9][A-Za-z0-9._-]{0,199}){0,3}$")],
+                              Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]] | None = Field(
+        None, max_length=10_000,
+        description="per file the run wrote beside results.json (certificate.json, report.md/.html/.pdf, "
+                    "positioning_deviations.csv, the figures, …; its path in the run directory): the SHA-256 of its "
+                    "bytes as written; `rtcal verify` checks each (1.3)")
 
 
 class RunLog(ResultsModel):

@@ -44,7 +44,8 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
         access["operator"] = "token: the simulated operator of `rtcal sim serve` obeys only requests carrying its printed token"
     else:
         access["operator"] = ("a person: asked before each operator step, who confirms it at this terminal or remotely "
-                              "(the live page's Done or `rtcal control RUN_DIR confirm`, with the run's control token)")
+                              "(the live page's Done or `rtcal control RUN_DIR confirm`, with the run's control token; without "
+                              "--live, `rtcal control` from the run's own user)")
     return Control(instruments=access, exclusive=exclusive, checks=checks_text(proc), rejected_attempts=rejected_attempts)
 
 

@@ -46,9 +46,36 @@ def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResu
             return table, results
         table = PositioningDeviations.read_csv(path)
         table.check_plausible(str(path))
+        _same_as_its_run(table, path)
         return table, None
     except DeviationTableError as exc:
         raise UserError(str(exc)) from None
+
+
+def _same_as_its_run(table: PositioningDeviations, path: Path) -> None:
+    """A run's own positioning_deviations.csv (a results.json beside it) must hold the run's table:
+    an edited copy is refused (UserError naming both files), not compensated or certified."""
+    from rtcal.deliverables.deviations import PositioningDeviations
+    from rtcal.results import ResultsError, read_results
+    from rtcal.run.integrity import check_run
+
+    beside = path.parent / "results.json"
+    if path.name != RUN_CSV or not beside.is_file():
+        return
+    try:
+        results = read_results(path.parent)
+        check_run(path.parent, results)  # the run's own results, as its store records them
+    except ResultsError as exc:
+        raise UserError(f"{path} lies beside {beside}, which cannot be checked against: {exc}") from None
+    if results.positioning_deviations is None:
+        raise UserError(f"{path} lies beside {beside}, which holds no positioning_deviations: not that run's table")
+    run_table = PositioningDeviations.from_model(results.positioning_deviations, str(beside))
+    if table.to_csv() != run_table.to_csv():
+        raise UserError(f"{path} does not hold the positioning deviations of {beside} beside it: it was edited after "
+                        f"the run; give the run directory ({path.parent}) to use the run's table")
+
+
+RUN_CSV = "positioning_deviations.csv"  # what every run writes beside its results.json
 
 
 def read_stations_csv(path: Path) -> np.ndarray:

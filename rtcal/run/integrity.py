@@ -4,7 +4,11 @@ results.json records (``digests``) a SHA-256 of the store's readings and events 
 procedure, bench and seed the results were computed from; the store records (meta
 ``results_sha256``) the SHA-256 of the results.json the run wrote. An edit to either file is
 found by every command that reads a run (:func:`check_run`), and ``rtcal verify`` recomputes the
-results from the store. No digest covers a path: a run directory copied elsewhere stays valid.
+results from the store. results.json also records (``digests.deliverables_sha256``, schema 1.3) the
+SHA-256 of every other file the run wrote — certificate.json, report.md/.html/.pdf,
+positioning_deviations.csv, the figures — taken after they were written and before results.json
+was: ``rtcal verify`` checks each (:func:`check_deliverables`). No digest covers a path: a run
+directory copied elsewhere stays valid.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from urllib.parse import quote
 
 from drivers.addresses import redact_tokens
 from rtcal.results.io import FILENAME as RESULTS_FILENAME, ResultsError, results_json
-from rtcal.results.model import Digests, RunResults
+from rtcal.results.model import DELIVERABLE_DIGESTS_SINCE, STORE_DIGESTS_SINCE, Digests, RunResults
 from rtcal.run.store import EVENT_COLUMNS, READING_COLUMNS, RunStore
 
 RESULTS_DIGEST_KEY = "results_sha256"  # store meta: the digest of the results.json the run wrote
@@ -63,6 +67,63 @@ def results_digest(results: RunResults) -> str:
     return hashlib.sha256(results_json(results).encode("utf-8")).hexdigest()
 
 
+def _file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def deliverable_digests(folder: Path) -> dict[str, str]:
+    """The SHA-256 of every file written into ``folder`` (its path there, ``/``-separated) but
+    results.json, which records them: what the run's deliverables are, as written."""
+    folder = Path(folder)
+    found = {}
+    for path in sorted(folder.rglob("*")):
+        name = path.relative_to(folder).as_posix()
+        if path.is_file() and not path.is_symlink() and name != RESULTS_FILENAME:
+            found[name] = _file_sha256(path)
+    return found
+
+
+def check_deliverables(run_dir: str | Path, results: RunResults) -> list[tuple[str, str]]:
+    """Each deliverable results.json records a digest of, and what it is now: ``as written``,
+    ``EDITED`` (its bytes are not those the run wrote), ``missing`` or ``not a regular file``
+    (a link or a folder in its place). Empty when the file records no deliverables (before 1.3)."""
+    run_dir = Path(run_dir)
+    recorded = results.digests.deliverables_sha256 if results.digests is not None else None
+    status = []
+    for name, digest in sorted((recorded or {}).items()):
+        path = run_dir / name
+        if not os.path.lexists(path):
+            status.append((name, "missing"))
+        elif path.is_symlink() or not path.is_file():
+            status.append((name, "not a regular file"))
+        else:
+            status.append((name, "as written" if _file_sha256(path) == digest else "EDITED"))
+    return status
+
+
+def _version(results: RunResults) -> tuple[int, int]:
+    major, _, minor = results.schema_version.partition(".")
+    return int(major), int(minor)
+
+
+def missing_digests(results: RunResults, path: Path) -> str:
+    """Why a results.json that should carry digests but carries none is not rtcal's, or "": a file
+    of schema 1.2 or later always records its store's, one of 1.3 or later its deliverables'."""
+    version = results.schema_version
+    if results.digests is None and _version(results) >= STORE_DIGESTS_SINCE:
+        return (f"{path}: records no digests of its run's store, yet its schema_version {version} is one rtcal always "
+                "writes them in: not a file rtcal wrote")
+    if results.digests is not None and results.digests.deliverables_sha256 is None \
+            and _version(results) >= DELIVERABLE_DIGESTS_SINCE:
+        return (f"{path}: records no digests of its certificate, reports and CSV, yet its schema_version {version} is "
+                "one rtcal always writes them in: not a file rtcal wrote")
+    return ""
+
+
 def _read_only(path: Path) -> sqlite3.Connection:
     """The store opened read-only: checking a run changes no byte of it."""
     mode = "mode=ro" if os.path.lexists(f"{path}-wal") else "immutable=1"
@@ -75,6 +136,8 @@ def check_run(run_dir: str | Path, results: RunResults) -> list[str]:
     run_dir = Path(run_dir)
     path, store_path = run_dir / RESULTS_FILENAME, run_dir / RunStore.FILENAME
     if not store_path.is_file() or store_path.is_symlink():
+        if missing_digests(results, path):
+            raise IntegrityError(missing_digests(results, path))
         if results.digests is not None:
             raise IntegrityError(f"{path}: records digests of its run's store, but {store_path} is missing: the results "
                                  "cannot be checked against the readings (copy the whole run directory)")
@@ -91,6 +154,8 @@ def check_run(run_dir: str | Path, results: RunResults) -> list[str]:
         if results.digests is not None:
             raise IntegrityError(f"{store_path}: holds no digest of the results.json its run wrote, yet {path} records "
                                  "digests: the store was edited or belongs to another run")
+        if missing_digests(results, path):
+            raise IntegrityError(missing_digests(results, path))
         return [f"{path} was written before schema 1.2: it carries no digests and is not checked against {store_path}"]
     if recorded[0] != actual:
         raise IntegrityError(f"{path}: does not match the digest {store_path} recorded when the run wrote it "
@@ -98,6 +163,8 @@ def check_run(run_dir: str | Path, results: RunResults) -> list[str]:
                              f"`rtcal verify {run_dir}` recomputes the results from the readings")
     if results.digests is None:
         raise IntegrityError(f"{path}: records no digests of the store, which recorded this file's: not a file rtcal wrote")
+    if missing_digests(results, path):
+        raise IntegrityError(missing_digests(results, path))
     mismatch = compare_digests(results.digests, found)
     if mismatch:
         raise IntegrityError(f"{store_path}: {mismatch} do not match the digest {path} records: the store was edited "

@@ -10,6 +10,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import sqlite3
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,16 +21,13 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from rtcal import __version__
-from rtcal.deliverables.certificate import build_certificate, write_certificate_json
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
-from rtcal.deliverables.method_outputs import outputs_for
 from rtcal.methods import METHODS
 from rtcal.methods.protocol import DataContradiction
 from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
 from rtcal.procedure.models import Procedure, plan_outside_limits
-from rtcal.deliverables.report import write_html, write_markdown, write_pdf
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
 from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
                                  RunMetadata, VdiEvaluation, assemble)
@@ -38,15 +36,15 @@ from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
-from rtcal.engine.subscribers import ConsoleProgress, StoreWriter
-from rtcal.engine.walk import Timing
-from rtcal.sequencer.operator import BenchOperator, RemoteSimOperator, WaitingOperator
+from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
+from rtcal.engine.walk import Timing, walk
+from rtcal.sequencer.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
 from rtcal.run.store import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 from drivers.addresses import REDACTED, redact_tokens
-from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, digests_of, results_digest
+from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, deliverable_digests, digests_of, results_digest
 from rtcal.run.hint import OPERATOR_TOKEN_ENV, resume_hint
 
 OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
@@ -190,14 +188,23 @@ def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenari
 
 
 def _operator(bench: Bench | None, addresses: dict[str, str] | None, on_engine: OnEngine | None = None,
-              run_dir: Path | None = None):
+              run_dir: Path | None = None, rehearse: bool = False):
     """The simulated bench, the simulated operator of `rtcal sim serve`, or a person: at the terminal
-    and by a remote confirm, which without a terminal is waited for only when the run serves its page."""
+    and by a remote confirm, which without a terminal is waited for only when the run serves its page.
+    ``rehearse``: a person confirms each step, then the simulated bench or operator carries it out."""
+    remote = bool(getattr(on_engine, "remote_operator", False))
+    simulated: BenchOperator | RemoteSimOperator | None = None
     if bench:
-        return BenchOperator(bench)
-    if addresses and "operator" in addresses:
-        return RemoteSimOperator(addresses["operator"])
-    return WaitingOperator(remote=bool(getattr(on_engine, "remote_operator", False)), run_dir=run_dir)
+        simulated = BenchOperator(bench)
+    elif addresses and "operator" in addresses:
+        simulated = RemoteSimOperator(addresses["operator"])
+    if rehearse:
+        if simulated is None:
+            raise RunDirError("--rehearse: a person confirms each operator step and the simulated operator then does "
+                              "it on the simulators: give its address (`operator` in --instruments, as `rtcal sim "
+                              "serve` printed it); on hardware leave --rehearse out")
+        return RehearsalOperator(simulated, remote=remote, run_dir=run_dir)
+    return simulated if simulated is not None else WaitingOperator(remote=remote, run_dir=run_dir)
 
 
 def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
@@ -244,6 +251,7 @@ def run_procedure(
     estimate_noise: bool = True,
     on_engine: OnEngine | None = None,
     certificate_number: str | None = None,
+    rehearse: bool = False,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
     results.json, figures or report — for Monte Carlo trials). ``certificate_number`` replaces the
@@ -273,9 +281,10 @@ def run_procedure(
         check_plan_on_bench(procedure_path, proc, scenario)
         seed = scenario.seed if seed is None else int(seed)
         bench = Bench(scenario, VirtualClock(), seed)
-    motion_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated and virtual_clock else None
+    bench_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated else None
+    motion_timing = bench_timing if virtual_clock else None
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
-    operator = _operator(bench, addresses, on_engine, run_dir)
+    operator = _operator(bench, addresses, on_engine, run_dir, rehearse)
     prepared = method.prepare(proc, operator)
     lock = claim_new_run_dir(run_dir)
     try:
@@ -290,7 +299,7 @@ def run_procedure(
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
-                                  estimate_noise, on_engine, motion_timing)
+                                  estimate_noise, on_engine, motion_timing, bench_timing)
     finally:
         lock.release()
 
@@ -301,6 +310,7 @@ def resume_run(
     virtual_clock: bool | None = None,
     show_progress: bool | None = None,
     on_engine: OnEngine | None = None,
+    rehearse: bool = False,
 ) -> RunOutcome:
     """Continue an interrupted run from its store: every planned reading not yet stored, once.
 
@@ -378,10 +388,11 @@ def resume_run(
             store.add_event(store.last_time_s(), "resume", f"resumed (start {generation + 1}): {done} of "
                             f"{planned} planned readings were already stored")
             _record_clock(store, meta.get(CLOCK_KEY), virtual_clock)
-        motion_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
-                         if not simulated and virtual_clock else None)  # as `run` counts them (from the procedure's bench)
-        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir), virtual_clock, show_progress, generation,
-                                  on_engine=on_engine, motion_timing=motion_timing)
+        bench_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
+                        if not simulated else None)  # as `run` counts them (from the procedure's bench)
+        motion_timing = bench_timing if virtual_clock else None
+        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir, rehearse), virtual_clock, show_progress, generation,
+                                  on_engine=on_engine, motion_timing=motion_timing, eta_timing=bench_timing)
     finally:
         lock.release()
 
@@ -507,9 +518,10 @@ def _wired_motion_timing(procedure_path: Path, proc: Procedure, scenario_path: s
 def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True, on_engine: OnEngine | None = None,
-                       motion_timing: Timing | None = None) -> RunOutcome:
+                       motion_timing: Timing | None = None, eta_timing: Timing | None = None) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs
-    (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds)."""
+    (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds;
+    ``eta_timing``: the speeds the time left is walked at, a simulated bench's own by default)."""
     method = METHODS[proc.method]
     simulated = bench is not None
     goes_on_s = store.last_time_s()  # a resume's clock goes on where the run stopped: times only grow
@@ -518,14 +530,22 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
-        _stop(store, "not started", exc)
+        if isinstance(exc, KeyboardInterrupt):  # nothing moved yet
+            _record_interruption(store, goes_on_s, exc, "not started", "while the instruments were opened: nothing moved")
+        else:
+            _stop(store, "not started", exc)
         raise
     done = store.done_plan_indices()
     devices = inst.devices()
-    plan = method.plan(proc, done, generation, float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0))
-    subscribers: list = [StoreWriter(store)]
+    step_deg = float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0)
+    plan = method.plan(proc, done, generation, step_deg)
+    shown = show_progress is not False or on_engine is not None  # a Monte Carlo trial shows no one the time left
+    timing = (eta_timing or (Timing.of_scenario(bench.scenario) if bench is not None else None)) if shown else None
+    virtual = not isinstance(clock, RealClock)
+    eta = Eta(walk(method.plan(proc, done, generation, step_deg), timing, done).entry_s, virtual) if timing else None
+    subscribers: list = ([eta] if eta else []) + [StoreWriter(store, eta)]  # the estimate first: both read it
     if show_progress is not False:
-        subscribers.append(ConsoleProgress(virtual_clock=not isinstance(clock, RealClock)))
+        subscribers.append(ConsoleProgress(virtual_clock=virtual, eta=eta))
     engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1, motion_timing)
     detach = None
     try:
@@ -539,8 +559,12 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
             raise
         finally:
             inst.close()
-        outcome = _solve_and_write(proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
-        return outcome
+        try:
+            return _solve_and_write(proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
+        except KeyboardInterrupt as exc:  # a signal while solving or writing: no results, recorded as any stop
+            _record_interruption(store, clock.now_s(), exc, "interrupted", "while the results were computed: none were "
+                                 "written; `rtcal resume` computes them again")
+            raise
     finally:
         if detach is not None:  # the live view showed the run to its end
             detach()
@@ -604,10 +628,14 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
         store.set_meta({"status": "solved"})
         store.close()
         return RunOutcome(run_dir, results, counted)
+    # the documents' modules load here, not at import: `rtcal validate` imports this module
+    from rtcal.deliverables.certificate import build_certificate, write_certificate_json
+    from rtcal.deliverables.method_outputs import outputs_for
+    from rtcal.deliverables.report import write_html, write_markdown, write_pdf
+
     method_outputs = outputs_for(results)
     try:
         with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
-            write_results(out, results)
             if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
                 PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
             method_outputs.write_files(out)
@@ -616,13 +644,37 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
             write_html(certificate, out / "report.html")
             write_pdf(certificate, out / "report.pdf")
             write_certificate_json(certificate, out / "certificate.json")
+            # last: results.json records the digest of every file above as written (the certificate shows none)
+            results = with_deliverable_digests(results, deliverable_digests(out))
+            write_results(out, results)
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
-        _stop(store, "measured", exc)
+        if not isinstance(exc, KeyboardInterrupt):  # (an interruption is recorded by the caller)
+            _stop(store, "measured", exc)
         raise
     # only now: `resume` of a solved run changes nothing; the store records which results.json it has
     store.set_meta({"status": "solved", "engine_state": "finished", RESULTS_DIGEST_KEY: results_digest(results)})
     store.close()
     return RunOutcome(run_dir, results, counted)
+
+
+def _record_interruption(store: RunStore, t_s: float, exc: KeyboardInterrupt, status: str, when: str) -> None:
+    """Ctrl-C, a signal, outside the engine (which records its own): an ``abort`` event saying
+    ``when``, and ``status``; the store closed."""
+    try:
+        store.add_event(t_s, "abort", f"{exc or 'interrupted by SIGINT (Ctrl-C)'} {when}")
+    except Exception:  # noqa: BLE001 — the disk refused it (or the store was closed): the status still tries
+        pass
+    try:
+        _stop(store, status, exc)
+    except sqlite3.ProgrammingError:  # closed: the results were written whole just before
+        pass
+
+
+def with_deliverable_digests(results: RunResults, digests: dict[str, str]) -> RunResults:
+    """``results`` whose ``digests`` also record the deliverables' (validated as the file will be read)."""
+    assert results.digests is not None  # a run's results always carry its store's digests
+    block = results.digests.model_copy(update={"deliverables_sha256": digests})
+    return type(results).model_validate({**dict(results), "digests": type(block).model_validate(block.model_dump())})
 
 
 def _stop(store: RunStore, status: str, exc: BaseException) -> None:

@@ -4,7 +4,8 @@ The store holds the procedure, the bench and the seed a run was made with and ev
 the method's ``analyse`` (what the run itself called) gives the estimates again, the runner's
 evaluation and verdict follow from them, and each number is compared to the digits results.json
 stores. The digests (rtcal/run/integrity.py) are checked too: a run whose numbers were edited
-back into agreement but whose file differs from what the run wrote is still found.
+back into agreement but whose file differs from what the run wrote is still found, and so is
+every deliverable (certificate, reports, CSV, figures) whose bytes are not those the run wrote.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 
 from rtcal.results import read_results
 from rtcal.results.model import RunResults
-from rtcal.run.integrity import IntegrityError, _read_only, check_run
+from rtcal.run.integrity import IntegrityError, _read_only, check_deliverables, check_run, missing_digests
 from rtcal.run.store import RunStore
 
 # what a run's results hold that its store determines (paths, times and versions apart)
@@ -37,10 +38,16 @@ class Verification:
     integrity: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     differences: list[tuple[str, Any, Any]] = field(default_factory=list)
+    files: list[tuple[str, str]] = field(default_factory=list)
+    """Each deliverable results.json records a digest of, and its status (integrity.check_deliverables)."""
+
+    @property
+    def altered_files(self) -> list[tuple[str, str]]:
+        return [(name, status) for name, status in self.files if status != "as written"]
 
     @property
     def agrees(self) -> bool:
-        return not self.integrity and not self.differences
+        return not self.integrity and not self.differences and not self.altered_files
 
 
 def _decimals(value: float) -> int:
@@ -134,11 +141,17 @@ def verify(run_dir: str | Path) -> Verification:
     FileProblems: a run directory that cannot be verified at all)."""
     run_dir = Path(run_dir)
     results, recomputed, readings = recompute(run_dir)
+    if missing_digests(results, run_dir / "results.json"):  # exit 2: not a results.json rtcal wrote
+        raise IntegrityError(missing_digests(results, run_dir / "results.json"))
     out = Verification(readings=readings)
     try:
         out.warnings += check_run(run_dir, results)
     except IntegrityError as exc:
         out.integrity.append(str(exc))
+    out.files = check_deliverables(run_dir, results)
+    if results.digests is not None and results.digests.deliverables_sha256 is None and not out.integrity:
+        out.warnings.append(f"{run_dir / 'results.json'} (schema {results.schema_version}) records no digests of the "
+                            "certificate, reports and CSV (rtcal writes them since schema 1.3): those files are not checked")
     stored = results.model_dump(mode="json")
     for key in RECOMPUTED:
         compare(stored.get(key), recomputed.get(key), key, out)

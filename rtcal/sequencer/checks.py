@@ -105,19 +105,44 @@ class EncoderCheck:
     """The encoder moves as commanded: its reading minus the command stays within a tolerance of
     what it was at the start's first visit (an incremental counter's zero is arbitrary)."""
 
-    def __init__(self, tolerance_arcsec: float):
+    def __init__(self, tolerance_arcsec: float, pitch_deg: float = 0.0, face_still_arcsec: float = 0.0):
+        """``pitch_deg``: the polygon's, ``face_still_arcsec``: how far apart two readings of one face by
+        an autocollimator that did not move may be (its noise): together they say when a face seen
+        square is no evidence that the table turned (item 7 of issue 36)."""
         self.tolerance_arcsec = tolerance_arcsec
+        self.pitch_deg, self.face_still_arcsec = pitch_deg, face_still_arcsec
         self.offset_deg: float | None = None
         self.first_command_deg = 0.0
-        self.previous: tuple[float, float] | None = None  # the last request's (encoder, command)
+        self.previous: tuple[float, float, float | None] | None = None  # the last request's (encoder, command, face)
         self.suspect: str | None = None  # stale or frozen, found once (issue 26)
+        self.came_from: tuple[float, float, float | None] | None = None  # the last request at another command
 
-    def check(self, encoder_deg: float, command_deg: float, table_seen: bool = False) -> None:
+    def _nothing_turned(self, face_arcsec: float | None, command_deg: float,
+                        previous: tuple[float, float, float | None]) -> str:
+        """Why the table may not have turned at all ("" if the autocollimator shows it did): the step
+        is whole faces — a face square in view whether the table turned or not — and the face reads
+        what it read at the previous request, within its noise."""
+        step = abs(command_deg - previous[1]) / self.pitch_deg if self.pitch_deg > 0 else 0.5
+        x_before = previous[2]
+        if face_arcsec is None or x_before is None or abs(step - round(step)) > 1e-6:
+            return ""
+        if not abs(face_arcsec - x_before) <= self.face_still_arcsec:
+            return ""
+        return (f"the encoder and the autocollimator both read what they read at {previous[1]:g}°, the target before (the "
+                f"face {face_arcsec - x_before:+.2f}″ from it): the table did not turn — a face square to the "
+                f"autocollimator cannot tell a {abs(command_deg - previous[1]):g}° turn from none ({self.pitch_deg:g}° "
+                "faces). The drive did not move the table (stuck, or not enabled) — or it did, the encoder's count is "
+                "frozen or stale, and this face happens to read as the last one")
+
+    def check(self, encoder_deg: float, command_deg: float, table_seen: bool = False, face_arcsec: float | None = None) -> None:
         """``table_seen``: the autocollimator saw the face the command puts in view square, so the
         table did turn; an encoder that disagrees is then the encoder's fault, and one that fits
-        the previous request (stale) or repeats itself (frozen) stays suspect for the run."""
+        the previous request (stale) or repeats itself (frozen) stays suspect for the run — unless
+        the face reads as it did then too (``face_arcsec``): then nothing turned, and the stage is named."""
         offset = encoder_deg - command_deg
-        previous, self.previous = self.previous, (encoder_deg, command_deg)
+        previous, self.previous = self.previous, (encoder_deg, command_deg, face_arcsec)
+        if previous is not None and previous[1] != command_deg:  # a retried visit comes from where the one before came
+            self.came_from = previous
         if self.suspect is not None:
             raise Contradiction("encoder", f"at {command_deg:g}°: {self.suspect}")
         if self.offset_deg is None:
@@ -126,6 +151,10 @@ class EncoderCheck:
         apart_deg = (offset - self.offset_deg + 180.0) % 360.0 - 180.0
         if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec and table_seen and previous is not None:
             lag_deg = (encoder_deg - previous[1] - self.offset_deg + 180.0) % 360.0 - 180.0
+            stood = encoder_deg == previous[0] or abs(lag_deg) * 3600.0 <= self.tolerance_arcsec
+            why = self._nothing_turned(face_arcsec, command_deg, self.came_from) if stood and self.came_from else ""
+            if why:
+                raise Contradiction("stage", f"at {command_deg:g}°: {why}")
             if encoder_deg == previous[0]:
                 self.suspect = (f"the encoder repeats {encoder_deg:.6f}° while the table turned (the autocollimator sees the "
                                 "commanded face square): a frozen counter or buffer")
@@ -332,6 +361,37 @@ class IndicatorCheck:
                                             "(25.4× too small); set it to mm")
 
 
+class IndicatorRepeatCheck:
+    """Each dial indicator at a target already seen (another run, the other direction, another
+    seating of the polygon: the indicators touch the shaft, not the polygon) reads what it read there within ``tolerance_um(n)``: 5σ of the difference (its
+    stated noise and digit), a digit (two roundings), plus the stated ``drift_um``. The shaft's
+    radial and tilt motion is a function of the angle, the same at each visit; an indicator that
+    creeps or slips on its stand is not — and the encoder error predicted from both indicators
+    would carry its creep into the certificate's Abbe part, so it is checked here as the
+    autocollimator is (:class:`AutocollimatorEncoderCheck`)."""
+
+    def __init__(self, sigma_um: float, digit_um: float, drift_um: float):
+        self.sigma_um, self.digit_um, self.drift_um = sigma_um, digit_um, drift_um
+        self.seen: dict[tuple[str, float], dict[int, float]] = {}  # (indicator, target) → {visit: mean}
+
+    def tolerance_um(self, n: int) -> float:
+        """Against the mean of n earlier visits of the target."""
+        return 5.0 * self.sigma_um * float(np.sqrt(1.0 + 1.0 / n)) + self.digit_um + self.drift_um
+
+    def check(self, instrument: str, y_um: float, command_deg: float, visit: int) -> None:
+        key = (instrument, round(command_deg % 360.0, 6))  # the shaft's, whatever the polygon's seating
+        earlier = {k: v for k, v in self.seen.get(key, {}).items() if k != visit}  # a retaken visit replaces its own
+        if earlier:
+            ref, tol = float(np.mean(list(earlier.values()))), self.tolerance_um(len(earlier))
+            if not abs(y_um - ref) <= tol:
+                raise Contradiction(instrument, f"at {command_deg:g}° reads {y_um:+.2f} µm, {y_um - ref:+.2f} µm from its "
+                                                f"{len(earlier)} earlier visit(s) of this target (tolerance {tol:.2g} µm: 5σ "
+                                                "of its stated noise, a digit, verification.indicator_drift_um): the "
+                                                "indicator creeps or slipped on its stand; the tilt and radial motion — "
+                                                "and the encoder error predicted from them — would be wrong")
+        self.seen.setdefault(key, {})[visit] = y_um
+
+
 class TracerReturnCheck:
     """The tracer's length where its tracking segment was referenced, measured again (at the end
     of each pass, before the tracer is moved, before a stop): a count that drifted or creeps shows
@@ -368,24 +428,30 @@ class TracerReturnCheck:
                                                 "count drifts or creeps; every length of the segment is suspect")
 
 
-def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck]:
+def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck, IndicatorRepeatCheck]:
     """The cross-checks of an encoder Abbe-error (or ISO 230-2) procedure, with its stated figures."""
     v, u = proc.verification, proc.uncertainty
     sigma = v.cross_check_noise_arcsec or combined_sigma((u.autocollimator_noise_arcsec, u.autocollimator_resolution_arcsec),
                                                          (u.encoder_noise_arcsec, u.encoder_resolution_arcsec)) or 0.3
+    indicator_sigma = combined_sigma((u.indicator_noise_um, u.indicator_resolution_um)) or 0.3
     return (AutocollimatorEncoderCheck(sigma, v.cross_check_drift_arcsec, v.encoder_error_bound_arcsec, v.face_error_bound_arcsec),
-            IndicatorCheck(v.indicator_range_um, u.indicator_resolution_um))
+            IndicatorCheck(v.indicator_range_um, u.indicator_resolution_um),
+            IndicatorRepeatCheck(indicator_sigma, u.indicator_resolution_um, v.indicator_drift_um))
 
 
-def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, readings: list[Reading], command_deg: float,
-                     seating: int, run: int, direction: int, visit: int) -> None:
+def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, repeats: IndicatorRepeatCheck,
+                     readings: list[Reading], command_deg: float, seating: int, run: int, direction: int, visit: int) -> None:
     """One visit's readings (the store's Reading objects) through the cross-checks; each quantity as
     its kind's description names it (drivers/interfaces.py)."""
     displacement = DESCRIPTIONS["dial_indicator"]["y_um"].quantity()
     face, angle = DESCRIPTIONS["autocollimator"]["x_arcsec"].quantity(), DESCRIPTIONS["encoder"]["angle_deg"].quantity()
+    shaft: dict[str, list[float]] = {}
     for r in readings:
         if r.quantity == displacement:
             indicators.check(r.instrument, r.value)
+            shaft.setdefault(r.instrument, []).append(r.value)
+    for instrument, values in sorted(shaft.items()):
+        repeats.check(instrument, float(np.mean(values)), command_deg, visit)
     x = [r.value for r in readings if r.quantity == face]
     encoder = [r.value for r in readings if r.quantity == angle]
     if x and encoder:  # the mean of the encoder's samples, across 0°/360° too

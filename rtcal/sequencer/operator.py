@@ -14,7 +14,7 @@ import select
 import sys
 import threading
 from pathlib import Path
-from typing import Callable, Protocol, TextIO, runtime_checkable
+from typing import Any, Callable, Protocol, TextIO, runtime_checkable
 
 from drivers.addresses import redact_tokens
 from drivers.errors import InstrumentError
@@ -234,7 +234,8 @@ class WaitingOperator:
 
     def _remote_hint(self) -> str:
         where = f"`rtcal control {self.run_dir if self.run_dir is not None else 'RUN_DIR'} confirm --step {self.step}`"
-        return ("Done on the live page, or " if self.remote else "") + where + " with the run's control token"
+        return ("Done on the live page, or " + where + " with the run's control token" if self.remote
+                else where + " (from your user: without --live the run has no token)")
 
     def _until_confirmed(self, confirmed: threading.Event, fd: int | None, unavailable: str) -> str:
         while True:
@@ -342,3 +343,29 @@ class RemoteSimOperator:
         if not all(math.isfinite(v) and abs(v) <= 3600 for v in values):
             raise OperatorUnavailable("the simulated operator's certificate holds values that are no face errors")
         return values
+
+
+class RehearsalOperator(WaitingOperator):
+    """A rehearsal of a run's operator steps on `rtcal sim serve`: each step waits for a person as on
+    hardware (Enter, the live page's Done, `rtcal control … confirm`), and once confirmed the
+    simulated operator carries it out on the simulated bench (there is no polygon to seat by hand);
+    the simulated polygon's certificate comes from it too."""
+
+    def __init__(self, simulated: "RemoteSimOperator | BenchOperator", **waiting: Any):
+        super().__init__(**waiting)
+        self.simulated = simulated
+
+    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
+        super().reseat_polygon(offset_deg, face_pitch_deg, resumed)
+        self.simulated.reseat_polygon(offset_deg, face_pitch_deg, resumed)
+
+    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
+        super().move_tracer(mount, where, resumed)
+        self.simulated.move_tracer(mount, where, resumed)
+
+    def clear_fault(self, message: str) -> None:
+        super().clear_fault(message)
+        self.simulated.clear_fault(message)
+
+    def polygon_certificate_arcsec(self) -> list[float] | None:
+        return self.simulated.polygon_certificate_arcsec()

@@ -51,10 +51,6 @@ from dataclasses import dataclass, field
 from typing import Iterable
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
-from scipy.stats import f as f_dist
-from scipy.stats import norm
-from scipy.stats import t as t_dist
 
 
 @dataclass(frozen=True)
@@ -188,6 +184,9 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
     k = len(orders)
     tested = k + (aliased_order is not None)
     p_each = alpha / max(tested, 1)
+    # scipy.stats here, not at import: importing it costs every rtcal command about 0.4 s
+    from scipy.stats import chi2 as chi2_dist, f as f_dist, norm, t as t_dist
+
     z = float(np.sqrt(2.0 * f_dist.isf(p_each, 2, dof))) if estimated else float(np.sqrt(2.0 * np.log(1.0 / p_each)))
     terms = []
     for i, n in enumerate(orders):

@@ -27,9 +27,12 @@ radius, angles, dead paths, CMM) are a few dozen.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
+
+if TYPE_CHECKING:  # scipy.sparse loads where it is used: at import it costs every command 0.1 s
+    import scipy.sparse as sp
 
 from rtcal.solvers.station_budget import (
     AIR_DRIFT_SOURCE,
@@ -38,6 +41,9 @@ from rtcal.solvers.station_budget import (
     bounded_components,
     radial_sensitivity_mm,
     sensor_noise_sources,
+    cmm_field_as_source,
+    course_nuisance,
+    cmm_field_root_mm,
     sensor_noise_variance_mm2,
     table_expansion_sources,
     cmm_matrix_derivatives,
@@ -301,6 +307,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
 
 def _point_jacobian(Jp_rows: np.ndarray, point_of_row: np.ndarray, n: int) -> sp.csr_matrix:
     """The lengths' Jacobian with respect to the points as a sparse N×3n matrix (3 entries a row)."""
+    import scipy.sparse as sp
+
     N = len(point_of_row)
     cols = 3 * point_of_row[:, None] + np.arange(3)
     return sp.csr_matrix((Jp_rows.ravel(), (np.repeat(np.arange(N), 3), cols.ravel())), shape=(N, 3 * n))
@@ -675,6 +683,18 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(replace(src, effect=np.vstack([src.effect, np.zeros((len(zeros_pts), 1))])))
     for src in sensor_noise_sources(L_abs, radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, noise):
         sources.append(replace(src, effect=np.concatenate([src.effect, zeros_pts]), note=src.note + "; in the weights"))
+    if noise.cmm_field_um > 0:  # the CMM reports each point off by the field: in the points' rows, or the lengths'
+        root = cmm_field_root_mm(A, noise)
+        n_pts = len(root)
+        if lay.free_points:
+            F_pts = np.zeros((3 * n_pts, 3 * n_pts))
+            for c in range(3):
+                F_pts[c::3, c * n_pts:(c + 1) * n_pts] = root
+            F_field = np.vstack([np.zeros((N_len, 3 * n_pts)), F_pts])
+        else:
+            F_field = np.vstack([np.hstack([root[pi] * unit[:, c][:, None] for c in range(3)]),
+                                 np.zeros((len(zeros_pts), 3 * n_pts))])
+        sources.append(cmm_field_as_source(F_field, noise))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
     G_loc = np.zeros((4, lay.g))  # X0C, Y0C, A0C, B0C ← globals (c, a)
@@ -691,6 +711,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
+        import scipy.sparse as sp
+
         U = sp.csr_matrix((-e.ravel(), (np.repeat(np.arange(N_len), 3), (3 * st[:, None] + np.arange(3)).ravel())),
                           shape=(N_len, 3 * m))
         T = (U.T @ (G @ H_len).T).T  # cumulative ← station displacements
@@ -713,7 +735,12 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
             Ud = U.toarray()
             for *_, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
                 V0[:N_len, :N_len] += Ud @ cov @ Ud.T
-        check = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
+        tested = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
+        # weighted: rᵀV₀⁻¹r is its χ²(ν); an uncorrected air or table (no sensor) takes any course, which this V₀ does
+        # not hold (free knots as the station estimators' test has them did not take it up here: open, docs/paper000.md),
+        # so the network keeps the stated-noise rule there
+        uncorrected = course_nuisance(L_abs, L_abs, run_fraction, noise) is not None
+        check = None if tested is None else replace(tested, whole_budget=not uncorrected)
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
     q_sigma = np.sqrt(np.clip(np.diag(S_inv)[lay.q], 0.0, None)) if lay.q.stop > lay.q.start else np.full(6, np.nan)
     a, _, _ = axis_basis(*x[lay.a])

@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from rtcal.solvers.lm import LMParameters, LMResult, levenberg_marquardt
 
@@ -87,6 +86,8 @@ def solve_station_scipy(points_mm: np.ndarray, lengths_mm: np.ndarray, x0: np.nd
     """The same problem solved by scipy's MINPACK LM: the independent cross-check."""
     points_mm = np.asarray(points_mm, dtype=float)
     lengths_mm = np.asarray(lengths_mm, dtype=float)
+    from scipy.optimize import least_squares  # here: scipy.optimize costs every command 0.2 s at import
+
     sol = least_squares(
         station_residuals,
         np.asarray(x0, dtype=float),

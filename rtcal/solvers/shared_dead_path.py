@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from rtcal.solvers.paper000 import (
     StationChain,
@@ -82,6 +81,8 @@ def solve_shared_dead_path(
             J[rows, 3 * sj + c] = unit[:, c]
         J[rows, 3 * m + seg_index] = -1.0
         return J
+
+    from scipy.optimize import least_squares  # here: scipy.optimize costs every command 0.2 s at import
 
     sol = least_squares(residuals, x0, jac=jacobian, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     centers = sol.x[: 3 * m].reshape(m, 3)

@@ -76,10 +76,13 @@ class StationNoiseModel:
     air_note: str = ""  # what the bound is made of (the stated ranges), for the budget's note
     table_expansion_ppm_per_k: float = 0.0  # the table's (and the mounted tracer's) radial growth about the axis per K
     table_expansion_u_ppm_per_k: float = 0.0  # its standard uncertainty
+    table_expansion_assumed: str = ""  # the material whose default α is used, none being stated ("": α as stated)
     material_temperature_sigma_k: float = 0.0  # with a sensor reading the table: its 1σ (the lengths are corrected)
     material_temperature_bound_k: float = 0.0  # without one: the table within 20 °C ± this over the run, uncorrected
     air_index_noise: float = 0.0  # the sensor's own noise per reading, as 1σ of index: independent from length to length
     material_temperature_noise_k: float = 0.0  # the table sensor's noise per reading, K (1σ), with the lengths corrected
+    cmm_field_um: float = 0.0  # the CMM's smooth geometric error beyond scales and squarenesses, 1σ per coordinate
+    cmm_field_length_mm: float = 150.0  # its correlation length
 
 
 @dataclass(frozen=True)
@@ -228,6 +231,8 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
     sources += table_expansion_sources(u, P, axis_center_mm, axis_direction, obs.material_offset_k, noise)
     sources += sensor_noise_sources(L, radial_sensitivity_mm(u, P, axis_center_mm, axis_direction), obs.material_offset_k,
                                     noise)
+    if noise.cmm_field_um > 0:
+        sources.append(cmm_field_source(u, obs.point, pts, noise))
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
         columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
@@ -235,6 +240,37 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         if sigma > 0:
             sources.append(Source(label, "B", np.column_stack(columns), sigma, unit, "each of three, as stated"))
     return sources
+
+
+CMM_FIELD_SOURCE = "CMM geometry beyond scales and squarenesses (smooth field)"
+
+
+def cmm_field_source(unit_mm: np.ndarray, point: np.ndarray, points_mm: np.ndarray, noise: StationNoiseModel) -> Source:
+    """The CMM's smooth geometric error (Type B): each coordinate's error over the volume a random field of
+    1σ ``cmm_field_um`` with correlation exp(−d²/2ℓ²) between points d apart, independent between
+    coordinates. Unlike the point noise it does not average out over points: neighbouring points are off
+    alike, which bends the point cloud the stations are fitted to — a distortion the stations and dead
+    paths partly take up, so the residuals barely show it while the angles carry it. Each length moves by
+    u·e(A) of its point's error."""
+    rows = cmm_field_root_mm(points_mm, noise)[np.asarray(point)]
+    F = np.hstack([rows * np.asarray(unit_mm, float)[:, c][:, None] for c in range(3)])
+    return cmm_field_as_source(F, noise)
+
+
+def cmm_field_root_mm(points_mm: np.ndarray, noise: StationNoiseModel) -> np.ndarray:
+    """(n, n) R with R·Rᵀ the covariance of one coordinate's field error over the points, mm² (K may be
+    singular for points close together: an eigen-root, not Cholesky)."""
+    pts = np.asarray(points_mm, float)
+    d2 = np.sum((pts[:, None, :] - pts[None, :, :]) ** 2, axis=2)
+    w, vec = np.linalg.eigh(np.exp(-0.5 * d2 / noise.cmm_field_length_mm**2))
+    return vec * np.sqrt(np.clip(w, 0.0, None))[None, :] * noise.cmm_field_um * 1e-3
+
+
+def cmm_field_as_source(effect: np.ndarray, noise: StationNoiseModel) -> Source:
+    """The field's budget line, ``effect`` its (N, 3n) effect on an estimator's residuals."""
+    return Source(CMM_FIELD_SOURCE, "B", effect, noise.cmm_field_um, "µm",
+                  f"1σ per coordinate as stated, correlated over {noise.cmm_field_length_mm:g} mm (exp(−d²/2ℓ²)), "
+                  "independent between coordinates; common to every station's length to a point and its neighbours")
 
 
 def radial_sensitivity_mm(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
@@ -263,18 +299,29 @@ def table_expansion_sources(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_c
     s = radial_sensitivity_mm(unit_mm, stations_mm, axis_center_mm, axis_direction)
     dT = np.nan_to_num(np.asarray(material_offset_k, float))
     out = []
-    if noise.table_expansion_u_ppm_per_k > 0 and np.any(dT != 0):
-        out.append(Source(THERMAL_SOURCE, "B", (s * dT * noise.table_expansion_u_ppm_per_k * 1e-6)[:, None],
+    if noise.table_expansion_u_ppm_per_k > 0 and (np.any(dT != 0) or noise.table_expansion_assumed):  # an assumed α: always said
+        out.append(Source(thermal_source_name(noise), "B", (s * dT * noise.table_expansion_u_ppm_per_k * 1e-6)[:, None],
                           noise.table_expansion_u_ppm_per_k, "ppm/K",
                           f"the lengths corrected for the table's growth about the axis, α = {noise.table_expansion_ppm_per_k:g} "
                           f"ppm/K, with the measured table temperature ({float(np.min(dT)) + 20:.2f}…{float(np.max(dT)) + 20:.2f} °C);"
-                          " α's standard uncertainty as stated"))
+                          + (f" α not stated: the default for a {noise.table_expansion_assumed} table, its uncertainty "
+                             f"{noise.table_expansion_u_ppm_per_k:g} ppm/K (state uncertainty.table_expansion_ppm_per_k; "
+                             "0 for a table that does not grow)" if noise.table_expansion_assumed
+                             else " α's standard uncertainty as stated")))
     if noise.table_expansion_ppm_per_k > 0 and noise.material_temperature_sigma_k > 0:
         out.append(Source(THERMAL_SENSOR_SOURCE, "B",
                           (s * noise.table_expansion_ppm_per_k * 1e-6 * noise.material_temperature_sigma_k)[:, None],
                           noise.material_temperature_sigma_k, "K",
                           "the table temperature's sensor uncertainty as stated, one error for the run, times α"))
     return out
+
+
+def thermal_source_name(noise: StationNoiseModel) -> str:
+    """The coefficient's budget line; it says when α is a default, not stated (every table and certificate shows it)."""
+    if not noise.table_expansion_assumed:
+        return THERMAL_SOURCE
+    return (f"{THERMAL_SOURCE}: not stated, {noise.table_expansion_assumed}'s {noise.table_expansion_ppm_per_k:g} ± "
+            f"{noise.table_expansion_u_ppm_per_k:g} ppm/K assumed")
 
 
 AIR_NOISE_SOURCE = "air refractive index: sensor noise per reading"
@@ -367,6 +414,31 @@ def bounded_components(influence: np.ndarray, distances_mm: np.ndarray, radial_m
     return out
 
 
+COURSE_KNOTS = 40  # the uncorrected air's or table's course: free between this many knots over the run, for the test
+
+
+def course_nuisance(distances_mm: np.ndarray, radial_mm: np.ndarray, run_fraction: np.ndarray,
+                    noise: StationNoiseModel) -> np.ndarray | None:
+    """(N, K): what an uncorrected air index or table temperature that takes ANY course over the run does to the
+    residuals, as K piecewise-linear (hat) functions of the run's time times each length's sensitivity (None: a
+    sensor corrects both). The bounded courses (:func:`bounded_course_component`) are no Gaussian: a step within
+    the stated range is as likely as a drift, and a χ² test against any covariance would call it an error. The
+    residual test takes these directions out as free unknowns (ν drops by K), so whatever course the quantity
+    took within the run (a step, a cycle) does not fail it; what is left is tested against the rest of the budget."""
+    sensitivities = []
+    if noise.air_index_bound > 0:
+        sensitivities.append(np.asarray(distances_mm, float) * noise.air_index_bound)
+    if noise.material_temperature_bound_k > 0 and noise.table_expansion_ppm_per_k > 0:
+        sensitivities.append(np.asarray(radial_mm, float) * noise.table_expansion_ppm_per_k * 1e-6
+                             * noise.material_temperature_bound_k)
+    if not sensitivities:
+        return None
+    t = np.nan_to_num(np.asarray(run_fraction, float))
+    knots = np.linspace(-1.0, 1.0, COURSE_KNOTS)
+    hats = np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / (knots[1] - knots[0]), 0.0, None)
+    return np.hstack([hats * s[:, None] for s in sensitivities])
+
+
 def air_drift_source(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel) -> Source:
     """The uncorrected air as a Type B source (:func:`air_drift_effect`), its σ in ppm of index."""
     return Source(AIR_DRIFT_SOURCE, "B", air_drift_effect(distances_mm, run_fraction, noise.air_index_bound),
@@ -430,13 +502,26 @@ def station_budget(
         radial = radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction)
         components += bounded_components(G @ influence, L, radial, obs.run_fraction if obs.run_fraction is not None
                                          else np.linspace(-1, 1, len(L)), noise)
-    for name, bound, unit, cov in error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise):
+    motions = error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise)
+    for name, bound, unit, cov in motions:
         components.append(BudgetComponent(name, "B", bound, unit, G @ cov @ G.T, False,
                                           f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
                                           "mount cannot separate them from the rotation"))
     check = None
     stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
-    if not stated_zero:  # the noise as stated (Type A at θ = 1) and the Type B sources that act on the residuals
-        check = residual_check(residuals, stated_covariance(sources, len(np.asarray(residuals))),
-                               np.linalg.matrix_rank(J))
+    if not stated_zero:  # the whole budget as stated (Type A at θ = 1), every source that moves the residuals
+        N = len(np.asarray(residuals))
+        V = stated_covariance(sources, N)
+        if motions:  # the error motions move the stations: each length by −u·δP of its station
+            diff = np.asarray(obs.points_mm, float)[obs.point] - np.asarray(stations_mm, float)[obs.station]
+            D = np.zeros((N, 3 * len(stations_mm)))
+            for c in range(3):
+                D[np.arange(N), 3 * np.asarray(obs.station) + c] = -diff[:, c] / np.linalg.norm(diff, axis=1)
+            V += sum(D @ cov @ D.T for *_, cov in motions)
+        P = np.asarray(stations_mm, float)[obs.station]
+        diff = np.asarray(obs.points_mm, float)[obs.point] - P
+        L = np.linalg.norm(diff, axis=1)
+        course = course_nuisance(L, radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction),
+                                 obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, N), noise)
+        check = residual_check(residuals, V, 0, jacobian=J if course is None else np.hstack([J, course]))
     return StationBudget(DeviationBudget(components), variances, sources, check)

@@ -153,6 +153,7 @@ class SimulatorHub:
     pace_serial: bool = False  # serial replies at the product's baud rate (4800 baud: ~2 ms a character)
     echo: bool = True  # serial products that echo commands do (the Vaisala from the factory, a Sylvac on UniCal)
     stage_start_latency_s: float = 0.005  # the drive starts a motion this long after the trigger
+    stage_wall_speed_deg_per_s: float | None = None  # the drive's motions take wall time at this speed (None: at once)
     sylvac_inch: bool = True  # the indicators start with an inch display: the driver must switch them to mm
     addresses: dict[str, str] = field(default_factory=dict)
     ipp_idle_timeout_s: float = IPP_IDLE_TIMEOUT_S  # an I++ session silent this long is released
@@ -169,7 +170,7 @@ class SimulatorHub:
         self.gear = stepper.worm_ratio if stepper.steps_per_revolution else DEFAULT_GEAR
         # the instruments inject no faults themselves: the protocol ends do, on the wire
         self.drive = AzDriveModel(SimStage(b, inject=False), steps_per_degree(self.steps_per_rev, self.gear),
-                                  self.stage_start_latency_s)
+                                  self.stage_start_latency_s, self.stage_wall_speed_deg_per_s)
         self.cmm = SimCmm(b, inject=False)
         self.ipp_machine = IppMachine(homed=self.cmm_homed)
         res = self.scenario.encoder.resolution_arcsec

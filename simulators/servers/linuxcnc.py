@@ -4,7 +4,8 @@
 sets linuxcncrsh's port, adds ``COMP_FILE``/``COMP_FILE_TYPE`` to the joint when a table is
 given (LinuxCNC reads it only at start), and runs ``linuxcnc`` in its own process group, with
 the bench feed's address in ``RTCAL_BENCH_FEED``. It returns once linuxcncrsh answers
-``hello``. ``stop()`` sends SIGTERM to the group (the ``linuxcnc`` script's trap then runs its
+``hello`` and the simulated operator has brought the machine up at a console of its own (E-stop
+released, machine on, joint homed: ``operator()``), which rtcal never does itself. ``stop()`` sends SIGTERM to the group (the ``linuxcnc`` script's trap then runs its
 cleanup: displays, tasks, HAL, realtime), waits, and kills what is left; it is idempotent and
 registered with atexit, so no LinuxCNC outlives its starter.
 
@@ -52,6 +53,38 @@ def with_comp(ini_text: str, comp_file: Path, comp_type: int = 0, joint: int = 0
     if head not in ini_text:
         raise ValueError(f"the INI has no {head.strip()}")
     return ini_text.replace(head, f"{head}COMP_FILE = {comp_file}\nCOMP_FILE_TYPE = {comp_type}\n", 1)
+
+
+def console(host: str, port: int, *requests: str, timeout_s: float = 30.0) -> list[str]:
+    """An operator at a linuxcncrsh console of their own: ``requests`` (e.g. ``set estop off``, ``set
+    machine on``, ``set home 0``, ``get estop``), each answered before the next (``set_wait done``);
+    their replies. A refused ``set`` is tried again (seen: ``set machine on`` or ``set mode manual``
+    refused just after the step before it), RuntimeError if it is still refused after ``timeout_s``;
+    after ``set home`` it waits until the joint is homed."""
+    replies = []
+    with socket.create_connection((host, port), timeout=timeout_s) as s, s.makefile("rb") as lines:
+        def ask(line: str) -> str:
+            s.sendall(line.encode() + b"\r\n")
+            while True:
+                reply = lines.readline().decode(errors="replace").strip()
+                if reply:
+                    return reply
+        for line in ("hello EMC rtcal-operator 1.0", "set echo off"):
+            ask(line)
+        for line in ("set verbose on", "set enable EMCTOO", "set set_wait done", *requests):
+            deadline = time.monotonic() + timeout_s
+            reply = ask(line)
+            while line.startswith("set") and reply.upper().endswith("NAK"):
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"LinuxCNC refused the operator's {line!r}: {ask('get error')}")
+                time.sleep(0.1)
+                reply = ask(line)
+            replies.append(reply)
+            while line.startswith("set home") and not ask("get joint_homed 0").upper().endswith("YES"):
+                if time.monotonic() > deadline:
+                    raise RuntimeError("LinuxCNC's joint 0 did not home")
+                time.sleep(0.05)
+    return replies[3:]
 
 
 class LinuxCncProcess:
@@ -130,6 +163,7 @@ class LinuxCncProcess:
                 self.stop()
                 raise RuntimeError(f"LinuxCNC exited at start ({code}): {tail}")
             if self._hello():
+                self.operator("set estop off", "set machine on", "set mode manual", "set home 0")
                 return self.port
             time.sleep(0.2)
         tail = self.tail()
@@ -143,6 +177,10 @@ class LinuxCncProcess:
                 return s.recv(64).startswith(b"HELLO ACK")
         except OSError:
             return False
+
+    def operator(self, *requests: str, timeout_s: float = 30.0) -> list[str]:
+        """The operator at a console of their own (``console``) on this LinuxCNC."""
+        return console(self.host, self.port, *requests, timeout_s=timeout_s)
 
     def tail(self, lines: int = 8) -> str:
         try:

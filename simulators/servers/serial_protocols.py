@@ -363,15 +363,23 @@ class PiGcsHandler:
     (answers the last error and clears it), ``STP``/``HLT`` (error 10). Requests and answers end in
     LF; a query answers ``1=<value>``; other commands answer nothing. A move needs the servo on and
     the axis referenced (else error 5) and a target inside the travel range (else 7); it is done
-    in virtual time, but ``ONT?`` answers 0 once after each move, as a stage still settling would."""
+    in virtual time, but ``ONT?`` answers 0 once after each move, as a stage still settling would.
+    ``VEL?`` answers the scenario's table speed. ``motion_error_moves``: the moves (counted from 1)
+    that fail half-way as a real controller's do when the position error grows too large — the
+    table stops there, the servo switches off, ``ERR?`` answers 1024 (PI's MS249E §8.7) and ``ONT?``
+    stays 0."""
 
     reply_terminator = b"\n"
     terminator = b"\n"
     IDN = "(c)2026 Physik Instrumente (PI) GmbH & Co. KG, C-863.11, SIM0000001, 01.00.00"
     AXIS = "1"
 
-    def __init__(self, stage: SimStage, referenced: bool = False):
+    MOTION_ERROR = 1024
+
+    def __init__(self, stage: SimStage, referenced: bool = False, motion_error_moves: tuple[int, ...] = ()):
         self.stage = stage
+        self.motion_error_moves, self.moves = set(motion_error_moves), 0
+        self.motion_error_pending = False
         self.servo = False
         self.referenced = referenced
         self.error = 0
@@ -402,7 +410,7 @@ class PiGcsHandler:
             return self._fail(10)
         queries = {"SVO?": lambda: int(self.servo), "FRF?": lambda: int(self.referenced),
                    "POS?": lambda: f"{self.stage.position_deg():.9f}", "MOV?": lambda: f"{self.target_deg:.9f}",
-                   "ONT?": self._on_target}
+                   "ONT?": self._on_target, "VEL?": lambda: f"{self.stage.bench.scenario.stage.speed_deg_per_s:.6f}"}
         if command in queries:
             if args and args != [self.AXIS]:
                 return self._fail(15) or b""
@@ -431,6 +439,11 @@ class PiGcsHandler:
         return self._fail(2)
 
     def _on_target(self) -> int:
+        if self.settling < 0:  # stopped by a motion error: never on target
+            if self.motion_error_pending:
+                self.motion_error_pending = False
+                self._fail(self.MOTION_ERROR)
+            return 0
         if self.settling:
             self.settling -= 1
             return 0
@@ -442,12 +455,17 @@ class PiGcsHandler:
         lo, hi = self.stage.limits_deg
         if not (lo <= target_deg <= hi and target_deg == target_deg):
             return self._fail(7)
+        self.moves += 0 if referencing else 1
+        failing = self.moves in self.motion_error_moves and not referencing
         try:
-            self.stage.move_to(target_deg)
+            self.stage.move_to((self.stage.position_deg() + target_deg) / 2.0 if failing else target_deg)
         except OutOfLimits:
             return self._fail(7)
         except InstrumentFault:
             return self._fail(5)
         self.target_deg = target_deg
+        if failing:  # found by the controller while the move runs: after the ERR? that follows MOV
+            self.servo, self.settling, self.motion_error_pending = False, -1, True
+            return b""
         self.settling = 1
         return b""

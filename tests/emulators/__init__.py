@@ -218,27 +218,52 @@ def ipp_answer(first_get_fails: bool = True, homed: bool = True, coordinate_syst
 
 # -- PI GCS: one axis, LF-ended lines, queries answer "1=<value>", ERR? after commands --------------
 
-def pi_gcs(position_deg: float = 0.0, referenced: bool = True, travel_deg: float = 180.0) -> Callable[[bytes, dict], bytes]:
+def pi_gcs(position_deg: float = 0.0, referenced: bool = True, travel_deg: float = 180.0,
+           velocity_deg_per_s: float | None = None, motion_error_after_s: float | None = None,
+           clock: Callable[[], float] = time.monotonic) -> Callable[[bytes, dict], bytes]:
     """A PI controller with rotation axis 1 as pipython talks to it (gcsbasecommands.py, gcsmessages.py,
     gcserror.py): ``*IDN?``; ``SVO 1 1``; ``FRF 1`` / ``FRF? 1``; ``MOV 1 <deg>`` (error 5 without servo
     or reference, 7 outside the travel range); ``POS? 1``, ``ONT? 1`` (0 for two polls after a move);
-    ``ERR?`` answers the error code and clears it; ``HLT 1`` / ``STP`` set error 10. Commands answer
-    nothing. ``state`` (the returned function's attribute) outlives a connection."""
-    state = {"pos": position_deg, "servo": False, "referenced": referenced, "error": 0, "settle": 0, "ont_polls": 0}
+    ``VEL? 1``; ``ERR?`` answers the error code and clears it; ``HLT 1`` / ``STP`` set error 10.
+    Commands answer nothing. ``velocity_deg_per_s``: a move takes distance / velocity on ``clock``
+    (``POS?`` on the way, ``ONT?`` 0 until it arrives; else a move is done at once);
+    ``motion_error_after_s``: each timed move stops that long after it starts with the servo off and
+    error 1024 (MS249E §8.7: position error too large, servo switched off), never on target. ``state``
+    (the returned function's attribute) outlives a connection."""
+    state = {"pos": position_deg, "servo": False, "referenced": referenced, "error": 0, "settle": 0, "ont_polls": 0,
+             "move": None}
 
     def fail(code: int) -> bytes:
         state["error"] = state["error"] or code
         return b""
 
+    def advance() -> None:
+        """Where a timed move has got to (and a motion error, once its time has come)."""
+        if state["move"] is None:
+            return
+        start_s, start_deg, target_deg = state["move"]
+        elapsed_s = clock() - start_s
+        if motion_error_after_s is not None and elapsed_s >= motion_error_after_s:
+            elapsed_s = motion_error_after_s
+            state["servo"], state["move"], state["settle"] = False, None, -1  # -1: never on target
+            fail(1024)
+        travel_deg = target_deg - start_deg
+        done = min(1.0, elapsed_s * velocity_deg_per_s / abs(travel_deg)) if travel_deg else 1.0
+        state["pos"] = start_deg + done * travel_deg
+        if done >= 1.0:
+            state["move"] = None
+
     def answer(line: bytes, _: dict) -> bytes:
         words = line.decode().split()
         cmd, args = words[0], words[1:]
+        advance()
         if cmd == "*IDN?":
             return b"(c)2019 Physik Instrumente (PI) GmbH & Co. KG, C-884.4DC, 119012345, 2.0.1\n"
         if cmd == "ERR?":
             code, state["error"] = state["error"], 0
             return f"{code}\n".encode()
         if cmd in ("HLT", "STP"):
+            state["move"] = None
             return fail(10)
         if cmd == "SVO" and args[:1] == ["1"]:
             state["servo"] = args[1] == "1"
@@ -254,15 +279,21 @@ def pi_gcs(position_deg: float = 0.0, referenced: bool = True, travel_deg: float
             target = float(args[1])
             if abs(target) > travel_deg:
                 return fail(7)
-            state["pos"], state["settle"] = target, 2
+            if velocity_deg_per_s is None:
+                state["pos"] = target
+            else:
+                state["move"] = (clock(), state["pos"], target)
+            state["settle"] = 2
             return b""
         if cmd.endswith("?") and args == ["1"]:
             if cmd == "ONT?":
                 state["ont_polls"] += 1
-                on = state["settle"] == 0
-                state["settle"] = max(0, state["settle"] - 1)
+                on = state["settle"] == 0 and state["move"] is None
+                if state["settle"] > 0:
+                    state["settle"] -= 1
                 return f"1={int(on)}\n".encode()
-            value = {"POS?": f"{state['pos']:.6f}", "FRF?": str(int(state["referenced"])), "SVO?": str(int(state["servo"]))}.get(cmd)
+            value = {"POS?": f"{state['pos']:.6f}", "FRF?": str(int(state["referenced"])), "SVO?": str(int(state["servo"])),
+                     "VEL?": f"{velocity_deg_per_s or 10.0:.6f}"}.get(cmd)
             if value is not None:
                 return f"1={value.rstrip('0').rstrip('.') if '.' in value else value}\n".encode()
         return fail(2)

@@ -3,7 +3,12 @@
 "use strict";
 
 const MARKERS = new Set(["skipped", "rejected"]);
-const COLORS = ["#1b63c6", "#d1495b", "#2e933c", "#8e44ad", "#e07a00", "#00838f", "#6d4c41", "#c2185b", "#546e7a", "#7cb342"];
+// Okabe & Ito's eight colours, told apart with every colour vision; beyond eight a dash pattern too
+const COLORS = ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000", "#8C7A00"];
+const DASHES = ["none", "2 3", "8 3 2 3", "1 2"];
+const FINAL = new Set(["finished", "failed", "aborted"]);
+const UNITS = { um: "µm", degC: "°C", arcsec: "″", deg: "°", pct: "%", percent: "%" };
+function unitText(u) { return u in UNITS ? UNITS[u] : (u || ""); }
 const S = {
   token: null,
   state: null,
@@ -36,6 +41,7 @@ function connect() {
   S.source = es;
   es.addEventListener("open", () => setConn("live"));
   es.addEventListener("error", () => {
+    if (S.ended) return;
     if (es.readyState === EventSource.CLOSED) { // the browser gave up: start again from the last reading seen
       setConn("reconnecting…");
       setTimeout(connect, 2000);
@@ -59,6 +65,11 @@ function connect() {
   });
   es.addEventListener("state", (ev) => {
     S.state = JSON.parse(ev.data);
+    if (FINAL.has(S.state.state) && (S.state.state !== "finished" || S.state.result)) { // nothing more will come
+      es.close();
+      S.ended = true;
+      setConn("the run has ended: this page keeps its last state");
+    }
     touched();
   });
 }
@@ -96,7 +107,7 @@ function addReading(r) {
 }
 
 function plotLabel(q, unit) {  // an angle (its unit, from the store) is plotted as its departure from the command
-  return unit === "deg" ? q + " − command (arcsec)" : q + " (" + unit + ")";
+  return unit === "deg" ? q + " − command (″)" : q + " (" + unitText(unit) + ")";
 }
 
 // ---- formatting ------------------------------------------------------------------------------
@@ -147,9 +158,10 @@ function renderState(st) {
   $("bar-fill").style.width = pct.toFixed(1) + "%";
   $("bar").setAttribute("aria-valuenow", pct.toFixed(0));
   $("percent").textContent = st.planned_readings ? pct.toFixed(0) + " %" : "";
-  $("eta").textContent = st.state === "finished" ? "done" : st.operator ? "– (waiting for the operator)"
-    : st.eta_s === null ? "– (no rate yet)" : fmtDuration(st.eta_s);
-  $("current").textContent = fmtCurrent(st.current);
+  $("eta").textContent = st.state === "finished" ? "done" : st.eta_s === null
+    ? (st.operator ? "– (waiting for the operator)" : "– (no rate yet)")
+    : fmtDuration(st.eta_s) + (st.operator ? " once the operator's step is done" : "");
+  $("current").textContent = FINAL.has(st.state) ? "–" : fmtCurrent(st.current);
   $("faults").textContent = st.faults;
   $("faults").className = st.faults ? "has" : "";
   renderOperator(st);
@@ -189,7 +201,13 @@ function renderGrid(st) {
   const box = $("grid");
   if (!p) return;
   $("grid-axis").textContent = p.axis === "target" ? "target, run and direction" : "point and station";
-  const cur = st.current || {};
+  const ended = FINAL.has(st.state);
+  const cur = ended ? {} : (st.current || {}); // a run that has ended is nowhere now
+  // a finished run took every planned reading: a cell it has not is no target of that row (another seating's)
+  const unseen = st.state === "finished" ? "none" : ended ? "unmeasured" : "pending";
+  $("legend-pending").textContent = CELL_WORDS[unseen];
+  $("legend-pending-cell").className = "cell " + unseen;
+  $("legend-now").hidden = ended;
   const table = document.createElement("table");
   table.className = "grid";
   const head = table.createTHead().insertRow();
@@ -204,14 +222,18 @@ function renderGrid(st) {
       const td = tr.insertCell();
       const span = document.createElement("span");
       const isCurrent = status !== "done" && isCurrentCell(cur, row.label, p.columns[i], p.axis);
-      span.className = "cell " + (isCurrent ? "current" : status);
-      span.title = row.label + ", " + p.columns[i] + ": " + (isCurrent ? "now" : status);
+      const shown = isCurrent ? "current" : status === "pending" ? unseen : status;
+      span.className = "cell " + shown;
+      span.title = row.label + ", " + p.columns[i] + ": " + CELL_WORDS[shown];
       td.appendChild(span);
     });
     const n = tr.insertCell(); n.textContent = row.done; n.className = "num";
   }
   box.replaceChildren(table);
 }
+
+const CELL_WORDS = { done: "done", current: "now", rejected: "rejected", skipped: "skipped", pending: "to do",
+  unmeasured: "not measured", none: "not planned in this row" };
 
 function isCurrentCell(cur, rowLabel, column, axis) {
   if (axis !== "target" || cur.target_deg === undefined || cur.run === undefined) return false;
@@ -228,8 +250,8 @@ function renderLatest(latest) {
     const conditions = r.kind === "environment";  // the store's description of the quantity says what it is
     if (r.what) tr.title = r.what;
     const cells = conditions
-      ? [r.quantity, fmtNum(r.value, 2) + " " + r.unit, r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"]
-      : [r.instrument, r.quantity, fmtNum(r.value) + " " + r.unit, r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"];
+      ? [r.quantity, fmtNum(r.value, 2) + " " + unitText(r.unit), r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"]
+      : [r.instrument, r.quantity, fmtNum(r.value) + " " + unitText(r.unit), r.age_s === null ? "–" : fmtNum(r.age_s, 1) + " s"];
     cells.forEach((text, i) => {
       const td = tr.insertCell();
       td.textContent = text;
@@ -267,7 +289,9 @@ function renderResult(result) {
     const a = document.createElement("a"); a.href = "files/" + f; a.textContent = f; a.target = "_blank"; a.rel = "noopener";
     const span = document.createElement("span"); span.append(a, "  "); return span;
   }));
-  $("result-lines").textContent = result.error ? result.error : (result.lines || []).join("\n");
+  $("result-headline").textContent = result.error ? result.error : (result.headline || "");
+  $("result-details").hidden = !!result.error || !(result.lines || []).length;
+  $("result-lines").textContent = (result.lines || []).join("\n");
   const d = result.deviations;
   if (!d) { $("result-plot").replaceChildren(); return; }
   const series = new Map();
@@ -278,7 +302,7 @@ function renderResult(result) {
     if (!series.has(key)) series.set(key, { label: key, run: d.run[i], dir: d.direction[i], points: [] });
     series.get(key).points.push({ x: x, y: y, err: d.U_arcsec[i] });
   });
-  drawPlot($("result-plot"), $("result-legend"), [...series.values()], "target (°)", "deviation (arcsec), bars: U (k = 2)");
+  drawPlot($("result-plot"), $("result-legend"), [...series.values()], "target (°)", "deviation (″), bars: U (k = 2)");
   $("result-note").textContent = "positioning deviations of the recommended estimate (" + d.estimator +
     "), relative to the first target of the first direction; bars ± U (k = 2)";
 }
@@ -315,7 +339,7 @@ function renderPlot() {
   }
   const unit = S.quantities.get(q);
   drawPlot($("plot"), $("legend"), [...series.values()], "commanded angle (°)",
-    deg ? q + " − command (arcsec)" : q + " (" + unit + ")");
+    deg ? q + " − command (″)" : q + " (" + unitText(unit) + ")");
   $("plot-note").textContent = (q === "autocollimator.x_arcsec"
     ? "The autocollimator's reading of the polygon face in front: the table's deviation plus that face's error and a constant per seating. "
     : "") + "One point per planned reading (mean of its samples); rejected and skipped attempts are left out.";
@@ -381,11 +405,12 @@ function drawPlot(svg, legend, series, xLabel, yLabel) {
     transform: `rotate(-90 14 ${(m.t + H - m.b) / 2})` }, yLabel));
   series.sort((a, b) => a.run - b.run || b.dir - a.dir);
   const items = [];
-  series.forEach((s) => {
-    const color = COLORS[(Math.max(s.run, 1) - 1) % COLORS.length];
+  series.forEach((s, k) => {
+    const color = COLORS[k % COLORS.length];
+    const dash = s.dir < 0 ? "5 3" : DASHES[Math.floor(k / COLORS.length) % DASHES.length];
     const p = s.points.slice().sort((a, b) => a.x - b.x);
     svg.appendChild(el("polyline", { points: p.map((q) => X(q.x) + "," + Y(q.y)).join(" "), fill: "none", stroke: color,
-      "stroke-width": 1.4, "stroke-dasharray": s.dir < 0 ? "5 3" : "none", opacity: 0.8 }));
+      "stroke-width": 1.4, "stroke-dasharray": dash, opacity: 0.85 }));
     for (const q of p) {
       if (q.err) svg.appendChild(el("line", { x1: X(q.x), x2: X(q.x), y1: Y(q.y - q.err), y2: Y(q.y + q.err), stroke: color, "stroke-width": 1.2, opacity: 0.7 }));
       const mk = marker(X(q.x), Y(q.y), s.dir, color);
