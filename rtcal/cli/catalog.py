@@ -94,7 +94,7 @@ def _plot(rows: list[dict[str, Any]], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.dates import AutoDateFormatter, AutoDateLocator, date2num
+    from matplotlib.dates import AutoDateLocator, ConciseDateFormatter, date2num
 
     from rtcal.catalog.history import _time
 
@@ -108,11 +108,11 @@ def _plot(rows: list[dict[str, Any]], path: Path) -> None:
             ax.axhline(limits[-1], color="red", linestyle="--", label=f"axis {axis}: E's limit {limits[-1]:g}″")
     locator = AutoDateLocator()
     ax.xaxis.set_major_locator(locator)
-    ax.xaxis.set_major_formatter(AutoDateFormatter(locator))
+    ax.xaxis.set_major_formatter(ConciseDateFormatter(locator))  # dates a person reads, minutes to decades
     ax.set_ylabel("E (arcsec)")
+    ax.set_xlabel("measured (UTC)")
     ax.set_title(f"{rows[0]['serial_number']}: ISO 230-2 E over time")
     ax.legend()
-    fig.autofmt_xdate()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
