@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-HEAVY = ("scipy.stats", "scipy.optimize", "scipy.sparse", "matplotlib", "reportlab", "jinja2", "starlette")
+HEAVY = ("scipy.stats", "scipy.optimize", "scipy.sparse", "matplotlib", "reportlab", "jinja2", "starlette", "sqlalchemy",
+         "alembic", "asyncua", "psycopg")
 PROBE = """
 import json, runpy, sys
 sys.argv = ["rtcal", *sys.argv[1:]]
@@ -21,7 +22,7 @@ try:
     runpy.run_module("rtcal.cli", run_name="__main__")
 except SystemExit:
     pass
-print(json.dumps(sorted(m for m in sys.modules if m.split(".")[0] in {"scipy", "matplotlib", "reportlab", "jinja2", "starlette"})), file=sys.stderr)
+print(json.dumps(sorted(m for m in sys.modules if m.split(".")[0] in {"scipy", "matplotlib", "reportlab", "jinja2", "starlette", "sqlalchemy", "alembic", "asyncua", "psycopg"})), file=sys.stderr)
 """
 
 
