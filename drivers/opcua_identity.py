@@ -1,10 +1,11 @@
 """A machine's identification over OPC UA (OPC 40001-1 Machinery, Basic Building Blocks): wires only.
 
-OPC 40001-1 §8: the server's ``Objects`` holds ``Machines`` (BrowseName in the Machinery namespace
-``http://opcfoundation.org/UA/Machinery/``), one object per machine, each with an ``Identification``
-object whose properties are Manufacturer, Model, SerialNumber, SoftwareRevision (OPC 10000-100 DI
-namespace) and YearOfConstruction (Machinery). The namespace index is looked up by URI on each
-connection (servers number their namespaces as they please); the properties are found by name."""
+OPC 40001-1 use cases 5.1 and 5.2 (docs/protocols/opcua.md): the server's ``Objects`` holds
+``Machines`` (BrowseName in the Machinery namespace ``http://opcfoundation.org/UA/Machinery/``), one
+object per machine, each with an ``Identification`` object whose properties are Manufacturer, Model,
+SerialNumber, SoftwareRevision (OPC 10000-100 DI) and YearOfConstruction (Machinery). The namespace
+index is looked up by URI on each connection (servers number their namespaces as they please); the
+properties are found by name."""
 
 from __future__ import annotations
 
