@@ -18,6 +18,9 @@ import pytest
 from rtcal.catalog.history import next_due, pairs, trend
 from rtcal.catalog.store import Catalog
 from rtcal.cli import main
+from rtcal.deliverables.conformity import parameter_uncertainties
+from rtcal.deliverables.rounding import u_text, value_text
+from rtcal.results import read_results
 from tests.postgres_server import PostgresServer, binaries
 
 REPO = Path(__file__).resolve().parents[1]
@@ -221,7 +224,9 @@ def test_the_catalog_page_shows_the_fleet_and_a_machines_history_in_chromium(fin
             page.click(f"text={SERIAL}")
             page.wait_for_selector("#history tr.run")
             assert page.locator("#history tr.run").count() == 1
-            assert str(results["evaluation"]["iso230_2"]["E"]) in page.locator("#history").inner_text()
+            u_e = parameter_uncertainties(read_results(finished_run))["E"]  # E ± U as the certificate rounds them
+            shown = f'{value_text(results["evaluation"]["iso230_2"]["E"], u_e)} ± {u_text(u_e)}'
+            assert shown in page.locator("#history").inner_text(), shown
             page.screenshot(path=str(tmp_path / "catalog.png"), full_page=True)
             browser.close()
     finally:

@@ -18,6 +18,7 @@ from datetime import datetime, timedelta, timezone
 from typing import Any
 
 from rtcal.catalog.schema import PARAMETERS
+from rtcal.deliverables.rounding import u_text, value_text
 
 PAIR_WINDOW_DAYS = 14.0
 INTERVAL_DAYS = 365.0  # the recalibration interval when the trend says nothing sooner
@@ -25,6 +26,14 @@ YEAR_DAYS = 365.25
 METHOD = ("weighted linear fit of E over time (weights 1/u², u = U/2) through every run except the as-left run of an "
           f"as-found/as-left pair (two runs within {PAIR_WINDOW_DAYS:g} days: the second follows a compensation and "
           "shows no drift); U of the trend 2·sqrt(Var(b)); limit date where the line reaches E's limit")
+
+
+def e_text(row: dict[str, Any]) -> str:
+    """E ± U as the certificate states them (U rounded up to two digits, E to its place): one
+    string for the console and the page."""
+    if row.get("E_arcsec") is None:
+        return "–"
+    return f"{value_text(row['E_arcsec'], row.get('E_U_arcsec'))} ± {u_text(row.get('E_U_arcsec'))}"
 
 
 def _time(text: str) -> datetime:

@@ -17,7 +17,7 @@ from starlette.requests import Request
 from starlette.responses import HTMLResponse, JSONResponse
 from starlette.routing import Route
 
-from rtcal.catalog.history import fleet, trend
+from rtcal.catalog.history import e_text, fleet, trend
 from rtcal.catalog.store import Catalog
 
 STYLE = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #bbb;"
@@ -37,15 +37,14 @@ def _page(location: str | None, serial: str | None) -> str:
         f'<tr class="machine"><td><a href="?serial={html.escape(m["serial_number"])}">{_cell(m["serial_number"])}</a></td>'
         f'<td>{_cell(m["axis"])}</td><td>{_cell(m["machine"])}</td><td>{m["calibrations"]}</td>'
         f'<td>{_cell(m["last_utc"][:10])}</td><td class="{html.escape(m["verdict"])}">{_cell(m["verdict"])}</td>'
-        f'<td>{_cell(m["E_arcsec"])} ± {_cell(m["E_U_arcsec"] and round(m["E_U_arcsec"], 2))}</td>'
+        f'<td>{html.escape(e_text(m))}</td>'
         f'<td class="due">{_cell(m["next_due"])}</td></tr>' for m in machines)
-    body = (f"<h1>Calibration catalogue</h1><p>{html.escape(name)}: {len(machines)} machine axes</p>"
+    body = (f"<h1>Calibration catalogue</h1><p>{html.escape(name)}: {len(machines)} machine {'axis' if len(machines) == 1 else 'axes'}</p>"
             "<table id=\"fleet\"><tr><th>serial number</th><th>axis</th><th>machine</th><th>calibrations</th>"
             f"<th>last</th><th>verdict</th><th>E ± U (″)</th><th>next due</th></tr>{rows}</table>")
     if serial:
         hist = "".join(f'<tr class="run"><td>{_cell(r["measured_utc"][:19])}</td><td>{_cell(r["axis"])}</td>'
-                       f'<td>{_cell(r["method"])}</td><td>{_cell(r["E_arcsec"])} ± '
-                       f'{_cell(r["E_U_arcsec"] and round(r["E_U_arcsec"], 2))}</td>'
+                       f'<td>{_cell(r["method"])}</td><td>{html.escape(e_text(r))}</td>'
                        f'<td class="{html.escape(r["verdict"])}">{_cell(r["verdict"])}</td>'
                        f'<td>{_cell(r["certificate_number"])}</td></tr>' for r in history)
         axes = sorted({r["axis"] for r in history})

@@ -49,6 +49,7 @@ def _add(args: argparse.Namespace) -> int:
 
 
 def _history(args: argparse.Namespace) -> int:
+    from rtcal.catalog.history import e_text as history_e_text
     from rtcal.catalog.history import entry_json, history_document
 
     with _open(args) as cat:
@@ -71,7 +72,7 @@ def _history(args: argparse.Namespace) -> int:
         return EXIT_OK
     print(f"{'measured (UTC)':26} {'axis':5} {'method':22} {'E ± U (″)':>16} {'verdict':10} certificate")
     for r in rows:
-        e_text = "–" if r["E_arcsec"] is None else f"{r['E_arcsec']:.2f} ± {r['E_U_arcsec'] or 0:.2f}"
+        e_text = history_e_text(r)
         print(f"{r['measured_utc'][:25]:26} {r['axis']:5} {r['method'][:22]:22} {e_text:>16} {r['verdict']:10} "
               f"{r['certificate_number']}")
     for axis, d in doc.items():
