@@ -15,7 +15,7 @@ A move is one MDI line, ``G0 C<deg>`` (``G1 … F<deg/min>`` with ``speed_deg_pe
 once the motion is done. linuxcncrsh answers ACK also for a move that an E-stop or an abort cut
 short, so every move is checked: E-stop off, machine on, no error queued (``get error``), the
 axis's commanded and actual positions at the target. The approach direction and overshoot are
-the procedure's (rtcal.sequencer.motion): the driver goes where it is told, by the shortest
+the procedure's (rtcal.engine.motion): the driver goes where it is told, by the shortest
 way LinuxCNC takes for a linear (non-wrapped) joint.
 
 Errors queue: LinuxCNC's NML error channel (``emcError``) is a queue of errors, operator

@@ -7,10 +7,10 @@ import math
 import threading
 from pathlib import Path
 
-from rtcal.procedure.loader import load_procedure
-from rtcal.run.store import REJECTED, SKIPPED, Reading, RunStore
-from rtcal.plans.abbe import planned_visits
-from rtcal.sequencer.operator import reseat_instruction
+from rtcal.methods import load_procedure
+from rtcal.store.runstore import REJECTED, SKIPPED, Reading, RunStore
+from rtcal.methods.abbe.plan import planned_visits
+from rtcal.engine.operator import reseat_instruction
 
 PROCEDURE = Path(__file__).resolve().parents[1] / "procedures" / "iso230_2_polygon.yaml"
 
@@ -30,7 +30,7 @@ def deviation_arcsec(angle_deg: float, run: int) -> float:
 
 
 def visit_readings(store: RunStore, k: int, v, t_s: float) -> list[Reading]:
-    """One visit's rows as the Abbe plan (rtcal/plans/abbe.py) stores them (one sample, an environment sensor)."""
+    """One visit's rows as the Abbe plan (rtcal/methods/abbe/plan.py) stores them (one sample, an environment sensor)."""
     state = dict(station=v.step, seating=v.seating, run=v.run, direction=v.direction, commanded_angle_deg=v.angle_deg,
                  plan_index=k, segment=0, attempt=store.new_attempt())
     dev = deviation_arcsec(v.angle_deg, v.run)
@@ -66,7 +66,7 @@ class StoreWriter(threading.Thread):
         self.hold = threading.Event()
         self.written = 0
         self.ask_at: int | None = None
-        self.instruction = reseat_instruction(45.0, 15.0)  # what the waiting operator asks (rtcal/sequencer/operator.py)
+        self.instruction = reseat_instruction(45.0, 15.0)  # what the waiting operator asks (rtcal/engine/operator.py)
         self.asking = False
         self.confirmed = threading.Event()
         store, self.visits = create_store(run_dir)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rtcal.procedure.models import GridPlan
+from rtcal.methods.multistation.procedure import GridPlan
 from rtcal.solvers.station_data import MultistationData
 from rtcal.units import arcsec_to_rad
 

@@ -31,8 +31,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rtcal.methods.multistation import not_included
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods.multistation.method import not_included
+from rtcal.methods import load_procedure
 from rtcal.run.runner import run_procedure
 from rtcal.solvers.station_budget import AIR_DRIFT_SOURCE
 

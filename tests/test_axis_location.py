@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtcal.procedure.models import GridPlan
+from rtcal.methods.multistation.procedure import GridPlan
 from rtcal.solvers.location import location_from_axis, location_jacobian
 from rtcal.solvers.network import NetworkOptions, _without_fundamental, cmm_matrix, solve_network
 from rtcal.solvers.station_budget import StationNoiseModel

@@ -11,7 +11,7 @@ import yaml
 from rtcal.cli import main
 from rtcal.methods import METHODS
 from rtcal.planning.montecarlo import ScriptedNormals, balanced_normals, plan_trials
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.run.runner import resolve_scenario
 
 REPO = Path(__file__).resolve().parents[1]

@@ -19,7 +19,7 @@ import yaml
 
 from rtcal.clock import VirtualClock
 from rtcal.planning.montecarlo import plan_trials, run_trial, summarize
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.solvers.station_budget import bounded_course_component
 from rtcal.solvers.uncertainty import residual_check
 from simulators.bench import Bench
@@ -168,7 +168,7 @@ def test_a_smooth_cmm_field_is_covered_or_named_campaign():
 
 
 def test_a_partial_error_motion_bound_and_the_cmm_geometry_are_named():
-    from rtcal.methods.multistation import not_included
+    from rtcal.methods.multistation.method import not_included
 
     notes = not_included(load_procedure(Path(__file__).parents[1] / "procedures" / "laser_tracer_multistation.yaml"))
     assert any("axial (EZC)" in n and "no bound stated while the others are" in n for n in notes)
@@ -202,6 +202,6 @@ def test_an_estimator_whose_residuals_the_stated_noise_cannot_explain_says_so():
         assert "FAILS its residual test" in r.solver_status[name].message
     # the recommended estimate (none passes) names what its U leaves out, as its message does
     assert any("U is not a coverage interval" in n for n in getattr(r.estimates, r.recommended).uncertainty_budget.not_included)
-    from rtcal.deliverables.multistation import MultistationOutputs
+    from rtcal.methods.multistation.outputs import MultistationOutputs
 
     assert any("FAILS its residual test" in line for line in MultistationOutputs(r).summary())

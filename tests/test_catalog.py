@@ -20,7 +20,7 @@ from rtcal.catalog.store import Catalog
 from rtcal.cli import main
 from rtcal.deliverables.conformity import parameter_uncertainties
 from rtcal.deliverables.rounding import u_text, value_text
-from rtcal.results import read_results
+from rtcal.methods import read_results
 from tests.postgres_server import PostgresServer, binaries
 
 REPO = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from rtcal.cli import main
-from rtcal.results import read_results
+from rtcal.methods import read_results
 
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURES = REPO / "procedures"

@@ -18,7 +18,7 @@ from rtcal.cli import main
 from rtcal.deliverables import report
 from rtcal.deliverables.certificate import (SECTION_BUILDERS, Certificate, build_certificate, certificate_schema)
 from rtcal.deliverables.rounding import u_text, value_text
-from rtcal.results import read_results
+from rtcal.methods import METHODS, read_results
 
 PROCEDURES = Path(__file__).resolve().parents[1] / "procedures"
 
@@ -48,7 +48,7 @@ def _render(cert: Certificate, run_dir: Path, into: Path) -> tuple[str, str, str
 def test_certificate_json_is_the_document_the_run_rendered(iso_run):
     """certificate.json reads back as the document build_certificate makes from results.json."""
     written = Certificate.model_validate_json((iso_run / "certificate.json").read_text())
-    rebuilt = build_certificate(read_results(iso_run), iso_run)
+    rebuilt = build_certificate(read_results(iso_run), iso_run, METHODS["encoder_abbe_error"])
     assert written.model_dump() == rebuilt.model_dump() and written.figures and written.conformity is not None
     html = (iso_run / "report.html").read_text()
     assert all(str(escape(f.caption)) in html for f in written.figures)
@@ -58,7 +58,7 @@ def test_a_number_reads_the_same_in_all_three(iso_run):
     """Each limit's value and U: the strings rounding.py makes from results.json, in report.md's
     table, the HTML's and the PDF's, one row each."""
     results = read_results(iso_run)
-    cert = build_certificate(results, iso_run)
+    cert = build_certificate(results, iso_run, METHODS["encoder_abbe_error"])
     md, html, pdf = (iso_run / "report.md").read_text(), (iso_run / "report.html").read_text(), _flat(
         "\n".join(p.get_text() for p in pymupdf.open(iso_run / "report.pdf").pages()))
     assert cert.conformity is not None and len(cert.conformity.rows) == len(results.conformity.per_limit) >= 5
@@ -73,7 +73,7 @@ def test_a_number_reads_the_same_in_all_three(iso_run):
 
 def test_the_renderers_take_every_number_from_the_document(iso_run, tmp_path):
     """A document with numbers no rounding could make: each renderer shows them, none recomputes."""
-    cert = build_certificate(read_results(iso_run), iso_run)
+    cert = build_certificate(read_results(iso_run), iso_run, METHODS["encoder_abbe_error"])
     assert cert.conformity is not None and cert.parameters is not None
     rows = [r.model_copy(update={"value_arcsec": f"77.{i}{i}1", "expanded_uncertainty_arcsec": f"0.{i}{i}3"})
             for i, r in enumerate(cert.conformity.rows, start=1)]
@@ -90,7 +90,7 @@ def test_the_renderers_take_every_number_from_the_document(iso_run, tmp_path):
 def test_a_missing_section_is_missing_alike(iso_run, tmp_path):
     """Without conformity, parameters and budget no renderer shows their headings (with them, each
     does); a report that is not a certificate says so in the HTML and the PDF in one wording."""
-    cert = build_certificate(read_results(iso_run), iso_run)
+    cert = build_certificate(read_results(iso_run), iso_run, METHODS["encoder_abbe_error"])
     assert cert.conformity and cert.parameters and cert.budget
     headings = {"conformity": cert.conformity.heading + ":", "parameters": cert.parameters.heading,
                 "budget": cert.budget.heading}

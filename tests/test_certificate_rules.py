@@ -24,9 +24,9 @@ import pytest
 import yaml
 
 from rtcal.cli import main
-from rtcal.deliverables.report import plural
+from rtcal.deliverables.certificate import plural
 from rtcal.deliverables.rounding import round_up, u_text
-from rtcal.results import read_results
+from rtcal.methods import read_results
 
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURES = REPO / "procedures"

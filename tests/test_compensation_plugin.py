@@ -138,7 +138,7 @@ def test_an_installed_format_writes_a_table_the_simulated_controller_applies(toy
     python, tmp, before = toy_venv
     with pytest.raises(CompensationError, match="unknown format 'toy-csv'"):  # this process has no such plugin
         registry.get_format("toy-csv")
-    write = ("import sys\nfrom rtcal.results import read_results\n"
+    write = ("import sys\nfrom rtcal.methods import read_results\n"
              "from rtcal.deliverables.deviations import PositioningDeviations\n"
              "from rtcal.deliverables.compensation import table_from_deviations, write_table\n"
              "r = read_results(sys.argv[1]); t = PositioningDeviations.from_model(r.positioning_deviations, sys.argv[1])\n"

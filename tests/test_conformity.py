@@ -20,7 +20,7 @@ import yaml
 from rtcal.cli import main
 from rtcal.deliverables.conformity import decide, means_of, parameter_form
 from rtcal.deliverables.deviations import PositioningDeviations
-from rtcal.results import read_results
+from rtcal.methods import read_results
 from rtcal.run.runner import run_procedure
 
 REPO = Path(__file__).resolve().parents[1]

@@ -18,9 +18,10 @@ import pytest
 import yaml
 
 from rtcal.run.runner import resume_run, run_procedure
-from rtcal.run.store import RunStore
-from rtcal.sequencer.checks import (AutocollimatorEncoderCheck, Contradiction, EncoderCheck, IndicatorCheck,
-                                    TracerReturnCheck, combined_sigma)
+from rtcal.store.runstore import RunStore
+from rtcal.engine.checks import Contradiction, EncoderCheck, combined_sigma
+from rtcal.methods.abbe.checks import AutocollimatorEncoderCheck, IndicatorCheck
+from rtcal.methods.multistation.checks import TracerReturnCheck
 from rtcal.engine.faults import RunAborted
 from simulators.bench import Bench
 from simulators.instruments import SimAutocollimator, SimDialIndicator, SimLaserTracer

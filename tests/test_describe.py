@@ -26,9 +26,9 @@ from rtcal.engine.engine import Engine
 from rtcal.engine.plan import Entry
 from rtcal.engine.steps import Read
 from rtcal.procedure.models import FaultPolicy
-from rtcal.run.dataset import abbe_visits
-from rtcal.run.salvage import _READING_TYPES, _REAL_COLUMNS
-from rtcal.run.store import READING_COLUMN_TYPES, READING_COLUMNS, SCHEMA, RunStore
+from rtcal.store.dataset import abbe_visits
+from rtcal.store.salvage import _READING_TYPES, _REAL_COLUMNS
+from rtcal.store.runstore import READING_COLUMN_TYPES, READING_COLUMNS, SCHEMA, RunStore
 
 REPO = Path(__file__).resolve().parents[1]
 ABBE = REPO / "procedures" / "encoder_abbe_error.yaml"

@@ -18,9 +18,9 @@ from rtcal.engine.plan import Entry
 from rtcal.engine.steps import Move, OperatorStep, Read, Settle, Validate
 from rtcal.engine.walk import Timing, walk
 from rtcal.methods import METHODS
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.procedure.models import FaultPolicy
-from rtcal.sequencer.checks import Contradiction
+from rtcal.engine.checks import Contradiction
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -332,7 +332,7 @@ def test_store_writer_keeps_where_the_engine_is(tmp_path):
     import json
 
     from rtcal.engine.subscribers import StoreWriter
-    from rtcal.run.store import Reading, RunStore
+    from rtcal.store.runstore import Reading, RunStore
 
     store = RunStore.create(tmp_path, {"method": "test"})
     writer = StoreWriter(store)

@@ -13,7 +13,7 @@ import yaml
 
 from rtcal.engine.engine import AbortRequested
 from rtcal.live.storeview import StoreView
-from rtcal.results import read_results
+from rtcal.methods import read_results
 from rtcal.run.runner import resume_run, run_procedure
 
 REPO = Path(__file__).resolve().parents[1]

@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.run.runner import METHODS, AnalysisFailed, resume_run, run_procedure
 from rtcal.engine.faults import RunAborted
 from simulators.scenario import FaultSpec, Scenario

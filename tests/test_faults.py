@@ -12,7 +12,7 @@ import pytest
 
 from rtcal.run.runner import resume_run, run_procedure
 from rtcal.engine.faults import RunAborted
-from rtcal.run.store import RunStore
+from rtcal.store.runstore import RunStore
 from simulators.scenario import FaultSpec, Scenario
 from simulators.servers.hub import SimulatorHub
 
@@ -315,7 +315,7 @@ def test_seed001_counts_whole_visits_as_readings(tmp_path):
 def test_an_operator_who_cannot_be_reached_is_a_typed_error():
     """No terminal, or a simulated operator gone: OperatorUnavailable (an InstrumentError the fault
     policies stop safely on and the command line reports), not a RuntimeError's traceback."""
-    from rtcal.sequencer.operator import ConsoleOperator, OperatorUnavailable, RemoteSimOperator
+    from rtcal.engine.operator import ConsoleOperator, OperatorUnavailable, RemoteSimOperator
     from simulators.servers.hub import free_port
 
     gone = RemoteSimOperator(f"sim-operator://127.0.0.1:{free_port('127.0.0.1')}", timeout_s=0.5)

@@ -112,7 +112,8 @@ def test_every_field_is_described():
     """Every property of the procedure and scenario JSON Schemas carries a description."""
     import json
 
-    from rtcal.procedure.loader import procedure_schema, scenario_schema
+    from rtcal.methods import procedure_schema
+    from rtcal.procedure.loader import scenario_schema
 
     missing = []
 

@@ -32,7 +32,7 @@ from rtcal.compensation import write_table
 from rtcal.compensation.table import CompensationTable
 from rtcal.deliverables.compensation import parse_linuxcnc
 from rtcal.procedure.loader import load_scenario
-from rtcal.sequencer.motion import approach
+from rtcal.engine.motion import approach
 from simulators.bench import Bench
 from simulators.servers.linuxcnc import available
 from tests.compensation_loop import AFTER_SEED, ISO, VERIFY, load_table, rtcal

@@ -24,7 +24,7 @@ import pytest
 import yaml
 
 from rtcal.live.control import SOCKET_NAME
-from rtcal.results import read_results
+from rtcal.methods import read_results
 from rtcal.run.runner import run_procedure
 from simulators.servers.hub import SimulatorHub
 from tests.test_transport_end_to_end import sim_serve
@@ -183,7 +183,7 @@ def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path
     aborted while it waits stops like Ctrl-C (exit 130)."""
     from rtcal.cli import main
     from rtcal.live.control import send_control
-    from rtcal.sequencer.operator import RemoteSimOperator
+    from rtcal.engine.operator import RemoteSimOperator
 
     procedure = fast_iso(tmp_path, settle_s=0.05, runs=2)
     with SimulatorHub(_scenario(tmp_path, "none"), seed=1) as hub:

@@ -59,7 +59,7 @@ class FakeEngine:
             self.writer.halt.set()
 
     def request_confirm(self, step: int | None = None) -> None:
-        from rtcal.sequencer.operator import NothingToConfirm
+        from rtcal.engine.operator import NothingToConfirm
 
         if self.writer is None or not self.writer.asking or self.writer.confirmed.is_set() or step not in (None, 1):
             raise NothingToConfirm("nothing to confirm: no operator step waits now")
@@ -87,7 +87,7 @@ def post(url: str, token: str | None = None) -> int:
 
 def planned_of_procedure() -> int:
     from rtcal.methods import METHODS
-    from rtcal.procedure.loader import load_procedure
+    from rtcal.methods import load_procedure
 
     proc = load_procedure(PROCEDURE, False, PROCEDURE.read_text())
     return METHODS[proc.method].plan_length(proc)

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from rtcal.cli import main
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.run.runner import with_machine_identity
 from simulators.opcua_machine import DEFAULT_IDENTITY, OpcUaMachine
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import rtcal.methods as methods
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.procedure.yamlfile import FileProblems
 from tests.test_plugins import venv_with_plugin
 
@@ -90,7 +90,7 @@ def test_without_the_plugin_the_method_is_unknown(tmp_path):
 
 @pytest.mark.slow
 def test_a_plugin_method_runs_reports_and_verifies_in_process(toy_registry, tmp_path):
-    from rtcal.results import read_results
+    from rtcal.methods import read_results
     from rtcal.run.runner import run_procedure
     from rtcal.run.verify import verify
 
@@ -98,7 +98,7 @@ def test_a_plugin_method_runs_reports_and_verifies_in_process(toy_registry, tmp_
     outcome = run_procedure(tmp_path / "p.yaml", BENCH, out_dir=tmp_path / "run", show_progress=False)
     _check_results(json.loads((tmp_path / "run" / "results.json").read_text()), tmp_path / "run")
     assert type(read_results(tmp_path / "run")).__name__ == "EncoderResults" == type(outcome.results).__name__
-    found = verify(tmp_path / "run")
+    found = verify(tmp_path / "run", methods.METHODS)
     assert found.compared > 100 and not found.differences and not found.integrity
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from drivers.interfaces import RotaryStage
-from rtcal.sequencer.motion import approach
+from rtcal.engine.motion import approach
 
 
 class RecordingStage(RotaryStage):

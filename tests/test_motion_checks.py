@@ -1,5 +1,5 @@
 """No certificate for a table that did not move: every motion and reading checked against the
-command and the other instruments (rtcal/sequencer/checks.py), in process and over the wires.
+command and the other instruments (rtcal/engine/checks.py), in process and over the wires.
 
 Each fault is a physical one the simulators play: a drive that says "in position" and echoes the
 command but never turns (`stuck`), one that stops short and says so (`short`), and another client
@@ -23,7 +23,7 @@ from pymodbus.client import ModbusTcpClient
 from drivers import az_registers as az
 from drivers.addresses import parse_address
 from rtcal.run.runner import resume_run, run_procedure
-from rtcal.run.store import REJECTED, RunStore
+from rtcal.store.runstore import REJECTED, RunStore
 from rtcal.engine.faults import RunAborted
 from simulators.scenario import FaultSpec, Scenario
 from simulators.servers.hub import SimulatorHub

@@ -68,7 +68,7 @@ def _two_mount_data(noise_um: float, rng: np.random.Generator):
     130 mm at 80°) on a bench with 0.5 µm radial and 1″ tilt error motions (orders 1–3)."""
     import math
 
-    from rtcal.procedure.models import GridPlan
+    from rtcal.methods.multistation.procedure import GridPlan
     from rtcal.solvers.station_data import MountReadings, MultistationData
     from simulators.bench import Bench
     from simulators.scenario import Scenario

@@ -17,7 +17,7 @@ from rtcal.engine.engine import Engine
 from rtcal.engine.steps import OperatorStep
 from rtcal.live.control import ControlRefused, ControlServer, new_token, send_control
 from rtcal.procedure.models import FaultPolicy
-from rtcal.sequencer.operator import (ConsoleOperator, NothingToConfirm, OperatorCancelled, OperatorUnavailable,
+from rtcal.engine.operator import (ConsoleOperator, NothingToConfirm, OperatorCancelled, OperatorUnavailable,
                                       WaitingOperator)
 from tests.test_engine import FakeProbe, FakeStage, TwoDevicePlan
 from tests.polling import wait_for as poll_until

@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtcal.procedure.models import MultistationDurations
+from rtcal.methods.multistation.procedure import MultistationDurations
 
 from rtcal.cli import main
+from rtcal.methods.planner import Candidate
 from rtcal.planning import levers as lv
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.run.runner import resolve_scenario
 
 REPO = Path(__file__).resolve().parents[1]
@@ -117,7 +118,7 @@ def test_the_proposal_is_verified_by_200_balanced_runs(proposal, tmp_path):
     assert all(0.8 <= r <= 1.25 for r in e["ratio"][1:]), e["ratio"]
 
 
-def _fake_outcome(plan: lv.Plan) -> lv.Outcome:
+def _fake_outcome(plan: Candidate) -> lv.Outcome:
     """A stand-in prediction: U falls with points and a second mount, time grows with the readings."""
     layers = plan.procedure.get("points", {}).get("layers", 4)
     mounts = 2 if "second_mount" in plan.procedure else 1

@@ -18,9 +18,11 @@ import pytest
 import yaml
 
 from rtcal.cli import main
+from rtcal.methods.multistation import planner as msp
+from rtcal.methods.planner import Candidate
 from rtcal.planning import levers as lv
-from rtcal.procedure.loader import load_procedure
-from rtcal.procedure.models import LaserTracerMultistation, MultistationDurations
+from rtcal.methods import load_procedure
+from rtcal.methods.multistation.procedure import LaserTracerMultistation, MultistationDurations
 from simulators.scenario import Scenario
 
 REPO = Path(__file__).resolve().parents[1]
@@ -29,7 +31,7 @@ WARMING = Path(__file__).parent / "data" / "plan" / "warming_bench.yaml"
 TWO_HOURS_S = 7200.0
 
 
-def _base() -> tuple[lv.Plan, LaserTracerMultistation]:
+def _base() -> tuple[Candidate, LaserTracerMultistation]:
     proc = load_procedure(SHIPPED)
     assert isinstance(proc, LaserTracerMultistation)
     scenario = Scenario.model_validate(yaml.safe_load(WARMING.read_text(encoding="utf-8")))
@@ -40,18 +42,18 @@ def test_the_walk_counts_what_the_simulated_clock_counts_operator_steps_included
     """The search orders its candidates by the walked machine time: it must be the simulated run's (the
     time a plan is proposed with), and a second mount must cost the operator's move and a new reference."""
     base, proc = _base()
-    one = lv.station_major(lv.concurrent_motions(lv.shortest_point_path(lv.point_layers(base, 2))))
-    two = lv.station_major(lv.concurrent_motions(lv.shortest_point_path(lv.point_layers(lv.second_mount(base, proc), 2))))
+    one = msp.station_major(msp.concurrent_motions(msp.shortest_point_path(msp.point_layers(base, 2))))
+    two = msp.station_major(msp.concurrent_motions(msp.shortest_point_path(msp.point_layers(msp.second_mount(base, proc), 2))))
     walked_one, walked_two = lv.walked_duration_s(one), lv.walked_duration_s(two)
     d = MultistationDurations()
     # the operator moves the tracer, then references it anew (the machines' first approach counted once: ≤ 60 s)
     assert walked_two == pytest.approx(2 * walked_one + d.move_tracer_s, abs=60.0)
     assert walked_two > 2 * walked_one + 0.9 * d.move_tracer_s
-    assert lv.walked_duration_s(lv.more_samples(one, 4)) - walked_one == pytest.approx(
+    assert lv.walked_duration_s(msp.more_samples(one, 4)) - walked_one == pytest.approx(
         3 * d.tracer_sample_s * (32 * proc.stations.count + 1), rel=1e-6)  # every sample takes its time (+1: the
     #                                                               length read again where the tracer was referenced)
-    grid = lv.point_layers(base, 2)
-    assert lv.walked_duration_s(lv.shortest_point_path(grid)) < lv.walked_duration_s(grid)  # the CMM's path is shorter
+    grid = msp.point_layers(base, 2)
+    assert lv.walked_duration_s(msp.shortest_point_path(grid)) < lv.walked_duration_s(grid)  # the CMM's path is shorter
     simulated = lv.evaluate(two)
     assert simulated.duration_s == pytest.approx(walked_two, abs=1.0)
 

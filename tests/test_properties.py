@@ -21,7 +21,7 @@ from drivers.ipp_cmm import IppCmm
 from drivers.modbus_stage import ModbusStage
 from drivers.serial_instruments import ElcomatAutocollimator, LineLaserTracer, QsbEncoder, SylvacIndicator
 from drivers.serial_line import SerialLine
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.procedure.yamlfile import FileProblems, validate_text
 from simulators.az_drive import AzDriveModel
 from simulators.bench import Bench
@@ -368,7 +368,7 @@ def _small_store() -> tuple[bytes, dict[int, tuple], dict[int, tuple]]:
     import sqlite3
     import tempfile
 
-    from rtcal.run.store import Reading, RunStore
+    from rtcal.store.runstore import Reading, RunStore
 
     folder = Path(tempfile.mkdtemp(prefix="prop-store-"))
     store = RunStore.create(folder, {"method": "encoder_abbe_error", "procedure_yaml": "x" * 3000})
@@ -401,8 +401,8 @@ def test_damaged_store_readers(tmp_path, damage, length):
     """Pages zeroed, filled with noise or overwritten by another page, and the file cut short
     anywhere: the store's readers answer with a verdict, never another exception; every reading
     salvaged is one that was stored, as it was; `export` exits 0, 1 or 2."""
-    from rtcal.run.salvage import salvage_store
-    from rtcal.run.store import RunStore, StoreUnusable, check_store
+    from rtcal.store.salvage import salvage_store
+    from rtcal.store.runstore import RunStore, StoreUnusable, check_store
 
     data = bytearray(STORE_BYTES)
     for page, kind, source, noise in damage:

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import yaml
 
-from rtcal.methods.multistation import noise_model, not_included
+from rtcal.methods.multistation.method import noise_model, not_included
 from rtcal.planning.montecarlo import plan_trials, run_trial, summarize
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.solvers.uncertainty import FALSE_ALARM_RATE, residual_check
 from simulators.scenario import Scenario
 
@@ -56,7 +56,7 @@ def test_the_warming_table_read_with_no_alpha_is_corrected_and_covered():
     r = out.results
     names = [c.source for c in getattr(r.estimates, r.recommended).uncertainty_budget.components]
     assert any("not stated, steel's 11.5 ± 2 ppm/K assumed" in n for n in names)
-    from rtcal.deliverables.multistation import MultistationOutputs
+    from rtcal.methods.multistation.outputs import MultistationOutputs
 
     assert any(line.startswith("assumed: thermal expansion") for line in MultistationOutputs(r).summary())  # the console
     summary = _summary("warming_unstated", 2, 4242, "warming_sensor")
@@ -127,7 +127,7 @@ def test_the_residual_test_false_alarm_rate_on_benches_as_budgeted_campaign(case
 
 def test_a_stated_cmm_field_is_drawn_as_the_budget_models_it():
     """The Monte Carlo's drawn field (random Fourier features) has the budget's covariance σ²·exp(−d²/2ℓ²)."""
-    from rtcal.methods.multistation import _random_field
+    from rtcal.methods.multistation.method import _random_field
 
     rng = np.random.default_rng(7)
     p, q = np.zeros(3), np.array([120.0, 60.0, -40.0])

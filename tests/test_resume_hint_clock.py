@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from rtcal.clock import RealClock
-from rtcal.run.hint import OPERATOR_TOKEN_ENV, PLACEHOLDER, resume_hint
-from rtcal.run.store import RunStore
+from rtcal.store.hint import OPERATOR_TOKEN_ENV, PLACEHOLDER, resume_hint
+from rtcal.store.runstore import RunStore
 from tests.polling import stored_plan_indices
 
 REPO = Path(__file__).resolve().parents[1]

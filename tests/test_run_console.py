@@ -8,7 +8,7 @@ from pathlib import Path
 import yaml
 
 from rtcal.cli import main
-from rtcal.results import read_results
+from rtcal.methods import read_results
 
 REPO = Path(__file__).resolve().parents[1]
 ISO = REPO / "procedures" / "iso230_2_polygon.yaml"

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rtcal.methods.multistation import air_index_noise, noise_model
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods.multistation.method import air_index_noise, noise_model
+from rtcal.methods import load_procedure
 from rtcal.run.runner import run_procedure
 from rtcal.solvers.air import ciddor_n
 from rtcal.solvers.station_budget import (

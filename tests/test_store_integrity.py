@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from rtcal.cli import main
-from rtcal.run.store import SCHEMA, RunStore
+from rtcal.store.runstore import SCHEMA, RunStore
 from tests.test_crash_resume import _check_store
 
 REPO = Path(__file__).resolve().parents[1]

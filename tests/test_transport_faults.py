@@ -27,9 +27,9 @@ from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout
 from drivers.ipp_cmm import IppCmm
 from drivers.modbus_stage import ModbusStage
 from drivers.serial_instruments import ElcomatAutocollimator, LineLaserTracer, QsbEncoder
-from rtcal.procedure.loader import load_procedure
+from rtcal.methods import load_procedure
 from rtcal.run.runner import METHODS
-from rtcal.sequencer.operator import OperatorUnavailable, RemoteSimOperator
+from rtcal.engine.operator import OperatorUnavailable, RemoteSimOperator
 from simulators.scenario import Scenario
 from simulators.servers.hub import SimulatorHub
 from tests.polling import stored_plan_indices

@@ -253,7 +253,7 @@ def test_no_token_is_stored_and_a_resume_asks_for_it(tmp_path, monkeypatch):
     from drivers.addresses import redact_tokens
     from rtcal.run.rundir import RunDirError, RunLock
     from rtcal.run.runner import _stored_operator
-    from rtcal.run.store import RunStore
+    from rtcal.store.runstore import RunStore
 
     token = "s3cretTOKEN_abcdef"
     address = f"sim-operator://127.0.0.1:4000?token={token}"

@@ -10,7 +10,7 @@ from typing import Any
 
 from rtcal.catalog.schema import PARAMETERS, VDI
 from rtcal.catalog.store import dumps, now_utc
-from rtcal.results import read_results
+from rtcal.methods import read_results
 from rtcal.results.model import RunResults
 
 
@@ -35,12 +35,13 @@ def verified_results(run_dir: Path) -> RunResults:
     from rtcal.procedure.yamlfile import FileProblems
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
+    from rtcal.methods import METHODS
     from rtcal.run.verify import verify
 
     if not run_dir.is_dir():
         raise RunRefused(f"{run_dir}: not a run directory", 2)
     try:
-        found = verify(run_dir)
+        found = verify(run_dir, METHODS)
     except (ResultsError, RunDirError) as exc:
         raise RunRefused(" ".join(str(exc).split()), 2) from None
     except FileProblems as exc:

@@ -15,7 +15,8 @@ from rtcal.procedure.yamlfile import FileProblems
 def cmd_validate(args: argparse.Namespace) -> int:
     """Everything `run` checks before the first motion: the file, and the plan against the bench
     it would run on (the procedure's `bench`, or --scenario) — limits, CMM volume, polygon."""
-    from rtcal.procedure.loader import bench_path, is_procedure_text, load_procedure, load_scenario
+    from rtcal.methods import load_procedure
+    from rtcal.procedure.loader import bench_path, is_procedure_text, load_scenario
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
     from rtcal.procedure.yamlfile import read_text
 
@@ -65,8 +66,9 @@ def _due_date_problems(path: Path, proc: Any) -> list:
 def cmd_schema(args: argparse.Namespace) -> int:
     from rtcal.deliverables.certificate import certificate_schema
     from rtcal.planning.reports import plan_schema, uncertainty_schema
-    from rtcal.procedure.loader import procedure_schema, scenario_schema
-    from rtcal.results import results_schema
+    from rtcal.methods import procedure_schema
+    from rtcal.procedure.loader import scenario_schema
+    from rtcal.methods import results_schema
 
     chosen = [(flag, schema) for flag, schema in (("--scenario", scenario_schema), ("--results", results_schema),
                                                   ("--plan", plan_schema), ("--uncertainty", uncertainty_schema),

@@ -23,7 +23,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     """Predicted 1σ per target and the duration of a procedure, before anything moves; what its
     uncertainty is made of and what each lever would do; the shortest plan for a target U."""
     from rtcal.planning.reports import optimize_refusal, plan_prediction, plan_proposal
-    from rtcal.procedure.loader import load_procedure
+    from rtcal.methods import load_procedure
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
 
     path = Path(args.procedure)
@@ -76,6 +76,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _print_plan(path: Path, plan: PlanPrediction, lever_outcomes: list[Outcome]) -> None:
+    from rtcal.methods.planner import Candidate
     from rtcal.planning import levers as lv
 
     hours = plan.measurement_duration_s / 3600
@@ -92,7 +93,7 @@ def _print_plan(path: Path, plan: PlanPrediction, lever_outcomes: list[Outcome])
     print(f"U (k = 2) of {plan.recommended}: at most {plan.expanded_uncertainty_max_arcsec:.2f}″; its variance: {top}")
     if lever_outcomes:
         print("levers, each alone (predicted the same way):")
-        as_written = lv.Outcome(lv.Plan({}, {}), plan.recommended, plan.expanded_uncertainty_max_arcsec,
+        as_written = lv.Outcome(Candidate({}, {}), plan.recommended, plan.expanded_uncertainty_max_arcsec,
                                 plan.measurement_duration_s, plan.raw_readings)
         for line in lv.table_lines([("as written", as_written)] + [("; ".join(o.plan.changes), o) for o in lever_outcomes]):
             print(line)
@@ -160,7 +161,7 @@ def cmd_uncertainty(args: argparse.Namespace) -> int:
 
     from rtcal.planning import montecarlo
     from rtcal.planning.reports import uncertainty_summary
-    from rtcal.procedure.loader import load_procedure
+    from rtcal.methods import load_procedure
     from rtcal.run.runner import check_plan_on_bench, default_run_dir, resolve_scenario
 
     if not 2 <= args.trials <= 100_000:

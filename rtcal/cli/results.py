@@ -97,6 +97,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     """Recompute a run's results from its store and say whether results.json agrees (exit 0 / 1)."""
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
+    from rtcal.methods import METHODS
     from rtcal.run.verify import verify
 
     run = Path(args.run_dir)
@@ -105,7 +106,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     import sqlite3
 
     try:
-        found = verify(run)
+        found = verify(run, METHODS)
     except (ResultsError, RunDirError) as exc:
         raise UserError(str(exc)) from None
     except sqlite3.DatabaseError as exc:
@@ -158,7 +159,9 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
     elif left.metadata.certificate_number:
         print(f"rtcal: warning: {out / 'as_found_as_left.pdf'} carries {args.run_b}'s certificate number "
               f"{left.metadata.certificate_number}: give it its own (--certificate-number NUMBER)", file=sys.stderr)
-    model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]))
+    from rtcal.methods import METHODS
+
+    model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]), METHODS[left.method])
     with output_file(out / "as_found_as_left.pdf") as pdf:
         write_pdf(model, pdf)
     with output_file(out / "as_found_as_left.html") as html:
@@ -171,8 +174,8 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
 def cmd_export(args: argparse.Namespace) -> int:
     """Every raw reading and event of a run as CSV, for spreadsheets; from a damaged store, every
     one that can still be read (exit 1: the store is damaged, and the count of what is lost)."""
-    from rtcal.run.salvage import salvage_store
-    from rtcal.run.store import EVENT_COLUMNS, READING_COLUMNS, RunStore, check_store, write_csv
+    from rtcal.store.salvage import salvage_store
+    from rtcal.store.runstore import EVENT_COLUMNS, READING_COLUMNS, RunStore, check_store, write_csv
 
     run = Path(args.run_dir)
     path = run / RunStore.FILENAME
@@ -193,7 +196,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             rows, events = store.export_csv(out)
         finally:
             store.close()
-        from rtcal.deliverables.report import plural
+        from rtcal.deliverables.certificate import plural
 
         markers = f" and {plural(rows - instrument, 'skip marker')}" if rows > instrument else ""
         print(f"{plural(instrument, 'instrument reading')}{markers} ({plural(planned, 'planned reading')} taken) → "
@@ -203,7 +206,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
     write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
     write_csv(events_csv, ("id",) + EVENT_COLUMNS, ((i, *saved.events[i]) for i in sorted(saved.events)))
-    from rtcal.deliverables.report import plural
+    from rtcal.deliverables.certificate import plural
 
     print(f"{plural(len(saved.readings), 'salvaged reading')} → {readings_csv}, {plural(len(saved.events), 'salvaged event')} "
           f"→ {events_csv}")

@@ -16,8 +16,8 @@ from rtcal.outputs import OutputRefused, is_disk_failure
 
 
 def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_failed: bool = False) -> str:
-    """Where the readings are and the resume command for this run (rtcal/run/hint.py)."""
-    from rtcal.run.hint import resume_hint
+    """Where the readings are and the resume command for this run (rtcal/store/hint.py)."""
+    from rtcal.store.hint import resume_hint
 
     if (Path(run_dir) / "run.sqlite").is_file():
         return (f"every reading taken so far is in {run_dir}/run.sqlite; "
@@ -43,7 +43,7 @@ def out_of_descriptors(exc: BaseException) -> bool:
 def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = None) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on (``instruments``: the
     --instruments text given, for the resume command)."""
-    from rtcal.deliverables.method_outputs import outputs_for
+    from rtcal.methods import METHODS
     from rtcal.deliverables.report import console_lines
     from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
@@ -94,7 +94,7 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
               "readings stored")
     if results.bench == IDEAL_BENCH:
         print(f"note: {IDEAL_BENCH}")
-    for line in outputs_for(results).summary() + console_lines(results):
+    for line in METHODS[results.method].outputs(results).summary() + console_lines(results):
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")
@@ -216,7 +216,7 @@ def _probe_machine(args: argparse.Namespace) -> int:
 
 def cmd_check(args: argparse.Namespace) -> int:
     """Probe every instrument a procedure needs and check the readings against its ranges."""
-    from rtcal.procedure.loader import load_procedure
+    from rtcal.methods import load_procedure
     from rtcal.run.commission import check, format_table
     from rtcal.run.runner import with_addresses
 

@@ -13,10 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from rtcal.deliverables.certificate import Certificate, Item, KeyResult, ParameterRow, Table, build_certificate
+from rtcal.deliverables.certificate import (ISO_KEYS, ISO_MEANING, ISO_SYMBOL, Certificate, CertifiedMethod, Item, KeyResult,
+                                           ParameterRow, Table, build_certificate, iso_departures, measurement_dates)
 from rtcal.deliverables.conformity import parameter_uncertainties
-from rtcal.deliverables.method_outputs import outputs_for
-from rtcal.deliverables.report import ISO_KEYS, ISO_MEANING, ISO_SYMBOL, iso_departures, measurement_dates
 from rtcal.deliverables.rounding import u_text, value_text
 from rtcal.results.model import RunResults
 
@@ -28,11 +27,11 @@ def _value(v: float | None, u: float | None) -> str:
 
 
 def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict[str, Any], out_dir: Path,
-                           figure: str, labels: tuple[str, str]) -> Certificate:
-    """The certificate: the as-left run's, its results replaced by both runs' side by side."""
+                           figure: str, labels: tuple[str, str], method: CertifiedMethod) -> Certificate:
+    """The certificate: the as-left run's (of ``method``), its results replaced by both runs' side by side."""
     caption = ("mean positioning deviation per target and direction as found (A) and as left (B), each with its U band "
                "(k = 2).")
-    cert = build_certificate(left, out_dir, outputs_for(left), [(figure, caption)])
+    cert = build_certificate(left, out_dir, method, [(figure, caption)])
     identification = []
     for item in cert.identification.items:
         if item.label == "Date of measurement":

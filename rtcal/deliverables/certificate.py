@@ -8,8 +8,8 @@ Markdown. Uncertainties go through :mod:`rtcal.deliverables.rounding` as everywh
 A section is a typed model (a field of :class:`Certificate`) and one entry of
 :data:`SECTION_BUILDERS`, a function of the run (:class:`Sources`) that returns it, or None where
 the run has nothing for it (no acceptance limits: no conformity section). What is particular to a
-method comes from its outputs (:func:`rtcal.deliverables.method_outputs.outputs_for`), never from
-the results' class. The document is also written as certificate.json beside the report.
+method comes from the method object the caller passes (its outputs, conditions and roles), never
+from the results' class. The document is also written as certificate.json beside the report.
 """
 
 from __future__ import annotations
@@ -19,23 +19,286 @@ import datetime as _dt
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, cast
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
 
 from rtcal.deliverables.comparison import mean_curve
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import UNCONFIRMED
-from rtcal.deliverables.method_outputs import MethodOutputs, outputs_for
-from rtcal.deliverables.report import (CERTIFICATE_NEEDS, DECISION_STANDARDS, ISO_KEYS, ISO_MEANING, ISO_SYMBOL,
-                                       NOTABLE_EVENTS, RELATES_STATEMENT, SIGNING_STATEMENT, STANDARDS,
-                                       UNCERTAINTY_STATEMENT, VDI_KEYS, _fmt, conditions, conditions_in_brief, connections,
-                                       control_lines, estimate_name, instrument_rows, iso_departures, key_results, largest,
-                                       measurement_dates, plural, traceability)
-from rtcal.deliverables.rounding import u_text, value_text
-from rtcal.results.model import RunResults
+from rtcal.deliverables.departures import departures, parameters_label
+from rtcal.deliverables.method_outputs import MethodOutputs
+from rtcal.deliverables.rounding import fmt, u_text, value_text
+from rtcal.results.model import EnvironmentSummary, InstrumentRecord, RunResults
 
 SCHEMA_VERSION = "1.0"
+
+
+class CertifiedMethod(Protocol):
+    """What the certificate needs of the run's method (:class:`rtcal.methods.protocol.Method` has it):
+    its procedure model (which instruments it has), the conditions and roles it states, its outputs."""
+
+    @property
+    def procedure_model(self) -> type[BaseModel]: ...
+
+    def conditions(self, results: RunResults) -> EnvironmentSummary | None: ...
+
+    def instrument_roles(self, results: RunResults) -> dict[str, str]: ...
+
+    def outputs(self, results: RunResults) -> MethodOutputs: ...
+
+
+
+ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, positive approach"),
+            ("E_down", "E↓", "unidirectional systematic positional deviation, negative approach"),
+            ("E", "E", "bidirectional systematic positional deviation"),
+            ("M", "M", "range of the mean bidirectional positional deviation"),
+            ("B", "B", "reversal value (max |B_i|)"), ("B_mean", "B mean", "mean reversal value"),
+            ("R_up", "R↑", "unidirectional repeatability, positive"), ("R_down", "R↓", "unidirectional repeatability, negative"),
+            ("R", "R", "bidirectional repeatability"), ("A_up", "A↑", "unidirectional accuracy, positive"),
+            ("A_down", "A↓", "unidirectional accuracy, negative"), ("A", "A", "bidirectional accuracy"))
+
+
+ISO_SYMBOL = {key: sym for key, sym, _ in ISO_KEYS} | {"band": "band"}
+
+
+ISO_MEANING = {key: desc for key, _, desc in ISO_KEYS} | {"band": "every mean deviation x̄↑, x̄↓ within ±limit"}
+
+
+VDI_KEYS = (("Pa", "Pa", "position deviation"), ("P", "P", "position uncertainty (VDI's term: a span of the data, not "
+                                                               "a measurement uncertainty)"),
+            ("Ps_max", "Ps max", "positional scatter, max"),
+            ("Ps_mean", "Ps mean", "positional scatter, mean"), ("U_max", "U max", "reversal span, max (VDI's U, not an "
+                                                                                  "uncertainty)"),
+            ("U_mean", "U mean", "reversal span, mean (VDI's U)"))
+
+
+STANDARDS = (
+    "ISO 230-2:2014 (E, M, B, R, A)",
+    "VDI/DGQ 3441:1977 (Pa, P, Ps, U)",
+    "JCGM 100:2008 (GUM: uncertainty)",
+)
+
+
+DECISION_STANDARDS = {"simple": "ILAC-G8:09/2019 (decision rule: simple acceptance)",
+                      "guarded": "ISO 14253-1:2017 (decision rule: guarded acceptance)"}
+
+
+UNCERTAINTY_STATEMENT = (
+    "The expanded uncertainty U is the standard uncertainty u multiplied by the coverage factor k = 2, which for a "
+    "normal distribution corresponds to a coverage probability of about 95 %. The standard uncertainty was determined "
+    "in accordance with the GUM (JCGM 100:2008) from the budget listed in this {doc}; rtcal's uncertainty "
+    "model is validated against the errors of Monte Carlo simulations of the measurement.")
+
+
+SIGNING_STATEMENT = (
+    "This {doc} is issued in electronic form. It was approved for issue electronically by {approver} on {date} in the "
+    "laboratory's records; it carries no handwritten signature.")
+
+
+RELATES_STATEMENT = (
+    "The results relate only to the item calibrated, at the time and under the conditions of the measurement stated. "
+    "This {doc} shall not be reproduced except in full without the written approval of the issuing laboratory.")
+
+
+CERTIFICATE_NEEDS = (("laboratory", "the laboratory (metadata.laboratory)"),
+                     ("certificate_number", "a certificate number (metadata.certificate_number)"),
+                     ("approved_by", "who approved it (metadata.approved_by)"))
+
+
+ROLES = {"polygon": "reference standard: angle (face errors from its certificate)",
+         "autocollimator": "reference standard: angle", "laser_tracer": "reference standard: length",
+         "environment": "measuring instrument: conditions", "cmm": "positions the reflector",
+         "encoder": "the item's encoder (analysed)", "dial_indicator_1": "measuring instrument: shaft motion",
+         "dial_indicator_2": "measuring instrument: shaft motion", "stage": "the item's drive (commanded)"}
+
+
+REFERENCE_STANDARDS = ("polygon", "autocollimator", "laser_tracer")
+
+
+def _fmt(v: float | None, digits: int = 2) -> str:
+    return fmt(v, f".{digits}f")
+
+
+def largest(values: list[float | None]) -> float | None:
+    """The largest of the values present (None: none is)."""
+    present = [v for v in values if v is not None]
+    return max(present) if present else None
+
+
+def smallest(values: list[float | None]) -> float | None:
+    """The smallest of the values present (None: none is)."""
+    present = [v for v in values if v is not None]
+    return min(present) if present else None
+
+
+def status_lines(results: RunResults) -> list[str]:
+    """One line per estimator that did not converge or could not run (empty when all is well)."""
+    return [f"estimator {name} {st.status}: {st.message}" for name, st in results.solver_status.items()
+            if st.status != "converged"]
+
+
+def _when(stamp: str | None) -> str:
+    """An ISO 8601 UTC time as ``YYYY-MM-DD HH:MM`` ("?" when unknown)."""
+    if not stamp:
+        return "?"
+    try:
+        return _dt.datetime.fromisoformat(stamp).astimezone(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M")
+    except ValueError:
+        return stamp[:40]
+
+
+def measurement_dates(results: RunResults) -> str:
+    """From the first to the last reading, UTC (one day written once)."""
+    start, end = _when(results.started_utc), _when(results.finished_utc)
+    simulated = " (simulated measurement: virtual clock)" if results.clock == "virtual" else ""
+    if start[:10] == end[:10] and start != "?":
+        return f"{start} – {end[11:]} UTC{simulated}"
+    return f"{start} – {end} UTC{simulated}"
+
+
+def environment_of(results: RunResults, method: CertifiedMethod) -> EnvironmentSummary | None:
+    """The conditions the environment sensor recorded (None: no sensor), as the results' method reads them."""
+    return method.conditions(results)
+
+
+def condition_label(name: str) -> str:
+    """A condition's human label with its unit, from the results model's description: "air temperature / °C"."""
+    text = EnvironmentSummary.model_fields[name].description or name
+    quantity, _, unit = text.rpartition(", ")
+    return f"{quantity} / {unit}" if quantity else text
+
+
+def conditions(results: RunResults, method: CertifiedMethod) -> list[tuple[str, str]]:
+    """(label, "min … max (mean …)") per recorded condition; one "not recorded" row without a sensor."""
+    env = environment_of(results, method)
+    if env is None:
+        return [("air and table", "not recorded (the procedure has no environment instrument)")]
+    return [(condition_label(name), _range(v.min, v.max) + f" (mean {v.mean:g})") for name, v in env.items()]
+
+
+def _range(lo: float, hi: float, sep: str = " – ") -> str:
+    """A condition's range as min – max, also when it did not change (20 – 20: read, and constant)."""
+    return f"{lo:g}{sep}{hi:g}"
+
+
+def conditions_in_brief(results: RunResults, method: CertifiedMethod) -> str:
+    env = environment_of(results, method)
+    if env is None:
+        return "not recorded (no environment sensor)"
+    return "; ".join(f"{condition_label(n).split(' / ')[0]} {_range(v.min, v.max)} {condition_label(n).split(' / ')[-1]}"
+                     for n, v in env.items())
+
+
+def instruments_used(results: RunResults, method: CertifiedMethod) -> list[str]:
+    """The procedure's instruments this run used, then its reference standards (from the procedure
+    models: one truth of which instruments a method has; the optional sensor when it recorded)."""
+    model = method.procedure_model
+    names = []
+    instruments = cast("type[BaseModel]", model.model_fields["instruments"].annotation)  # each method's Instruments model
+    for name, field in instruments.model_fields.items():
+        optional = field.default is None
+        if not optional or (name == "environment" and environment_of(results, method) is not None) or (
+                isinstance(results.instruments, dict) and name in results.instruments):
+            names.append(name)
+    names += [n for n in getattr(model, "REFERENCE_STANDARDS", ())]
+    return names + [n for n in results.metadata.instruments if n not in names]
+
+
+def instrument_rows(results: RunResults, method: CertifiedMethod) -> list[tuple[str, ...]]:
+    """(instrument, role, id, its certificate, calibrated by, due) per instrument and standard."""
+    records = results.metadata.instruments
+    none = InstrumentRecord(id="", calibration_due="")
+    roles = dict(ROLES)
+    roles.update(method.instrument_roles(results))  # a method's own, e.g. a polygon separated by closure
+    return [(name.replace("_", " "), roles.get(name, ""), records.get(name, none).id or "not recorded",
+             records.get(name, none).certificate_number or "–", records.get(name, none).calibrated_by or "–",
+             records.get(name, none).calibration_due or "–") for name in instruments_used(results, method)]
+
+
+def connections(results: RunResults) -> str:
+    """Where the instruments were reached."""
+    if isinstance(results.instruments, dict):
+        return "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in results.instruments.items())
+    return f"every instrument simulated in process (bench {Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed})"
+
+
+def traceability(results: RunResults, method: CertifiedMethod) -> str:
+    """The metadata's statement, else one made from the reference standards' certificates, else "not stated"."""
+    meta = results.metadata
+    if meta.traceability:
+        return meta.traceability
+    used = set(instruments_used(results, method))
+    cited = [(n, meta.instruments[n]) for n in REFERENCE_STANDARDS if n in used and n in meta.instruments
+             and meta.instruments[n].certificate_number]
+    if not cited:
+        return ("Not stated: the procedure's metadata gives no traceability statement and no certificate of a reference "
+                "standard (metadata.traceability, metadata.instruments.<name>.certificate_number).")
+    refs = "; ".join(f"{n.replace('_', ' ')} {r.id or ''} (certificate {r.certificate_number}"
+                     + (f", {r.calibrated_by}" if r.calibrated_by else "") + ")" for n, r in cited)
+    return (f"The results are traceable to the SI through the reference standards used: {refs}. Their "
+            "certificates state their own traceability to national standards.")
+
+
+def control_lines(results: RunResults) -> tuple[str, list[str]]:
+    """(one line for page 1, the details) of the run's control of the machine and its checks."""
+    c = results.control
+    if c is None:
+        return "not recorded (results written before schema 1.1)", []
+    how = "; ".join(f"{k.replace('_', ' ')}: {v.split(':')[0]}" for k, v in c.instruments.items())
+    brief = (f"{'exclusive' if c.exclusive else 'exclusive control not known from every protocol'} ({how}); every "
+             f"motion and reading checked against the commands: "
+             + (f"{plural(c.rejected_attempts, 'reading')} contradicted them, rejected and taken again" if c.rejected_attempts
+                else "none contradicted them"))
+    details = [f"{k}: {v}" for k, v in c.instruments.items()] + [f"check — {t}" for t in c.checks]
+    return brief, details
+
+
+def iso_departures(results: RunResults) -> list[str]:
+    """How the run's positioning test departs from ISO 230-2's (empty: it follows it, or there is none)."""
+    if results.positioning_deviations is None:
+        return []
+    return departures(PositioningDeviations.from_model(results.positioning_deviations))
+
+
+def estimate_name(outputs: MethodOutputs) -> str:
+    """The recommended estimate in words (the method's outputs name it), never its key."""
+    return getattr(outputs, "estimate_words", lambda: "the recommended estimate")()
+
+
+def key_results(results: RunResults, uncertainties: dict[str, float | None]) -> list[tuple[str, str, str]]:
+    """The result in brief: the deviation's range and U, and the main ISO 230-2 parameters with U
+    (labelled as ISO 230-2's only when the test follows it)."""
+    rows = []
+    e = results.recommended_estimate()
+    if e is not None:
+        cum = e.cumulative_deviation_arcsec
+        pd = results.positioning_deviations
+        targets = len({round(t, 6) for t in pd.target_deg}) if pd else len(cum)
+        dirs = len(set(pd.direction)) if pd else 1
+        U = largest(e.cumulative_expanded_uncertainty_arcsec)
+        rows.append(("positioning deviation ECC (mean per target and direction)",
+                     f"{value_text(smallest(cum), U, '+')}″ … {value_text(largest(cum), U, '+')}″ over {targets} targets"
+                     + (" in both directions" if dirs == 2 else " in one direction"), f"U ≤ {u_text(U)}″"))
+    iso = results.evaluation.iso230_2 if results.evaluation else None
+    if iso is not None:
+        label = parameters_label(iso_departures(results))
+        prefix = "" if label.startswith("ISO") else "as ISO 230-2 defines it, not an ISO 230-2 result (see Departures): "
+        for key in ("E", "M", "B", "R", "A", "E_up", "E_down"):
+            value = getattr(iso, key)
+            if value is None or (key in ("E_up", "E_down") and iso.E is not None):
+                continue
+            u = uncertainties.get(key)
+            rows.append((f"{ISO_SYMBOL[key]}: {prefix}{ISO_MEANING[key]}", f"{value_text(value, u)}″", "U " + u_text(u) + "″"))
+    return rows
+
+
+def plural(n: int, noun: str) -> str:
+    """"1 event", "2 events", "0 events"."""
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+NOTABLE_EVENTS = ("fault", "retry", "reacquire", "skip", "pause", "abort", "resume")
 
 
 class Part(BaseModel):
@@ -281,6 +544,7 @@ class Sources:
 
     results: RunResults
     run_dir: Path
+    method: CertifiedMethod
     outputs: MethodOutputs
     figures: list[tuple[str, str]]
     issued: str
@@ -326,7 +590,7 @@ def _identification(s: Sources) -> Identification:
         ("Standards applied", "; ".join(standards)),
         ("Departures from the method", ("; ".join(s.departed) + ". The parameters are computed as ISO 230-2 defines them; "
                                         "they are not ISO 230-2 results.") if s.departed else "none"),
-        ("Conditions during the measurement", conditions_in_brief(results)),
+        ("Conditions during the measurement", conditions_in_brief(results, s.method)),
         ("Control of the machine", control_lines(results)[0]),
     ]
     if isinstance(results.instruments, str):
@@ -371,7 +635,7 @@ def _conformity(s: Sources) -> Conformity | None:
 
 
 def _traceability(s: Sources) -> Traceability:
-    return Traceability(statement=traceability(s.results), relates=RELATES_STATEMENT.format(doc=s.doc))
+    return Traceability(statement=traceability(s.results, s.method), relates=RELATES_STATEMENT.format(doc=s.doc))
 
 
 def _sign_off(s: Sources) -> SignOff:
@@ -395,7 +659,7 @@ def _deviations(s: Sources) -> Table | None:
             x, u = curve[key]
             rows.append([f"{key[0]:g}", "↑" if key[1] > 0 else "↓", value_text(x, 2 * u, "+"), u_text(u), u_text(2 * u),
                          str(counts.get(key, ""))])
-    words = estimate_name(results)
+    words = estimate_name(s.outputs)
     return Table(heading="Result: positioning deviation per target and direction",
                  note=("Deviation = actual − commanded angle (arcsec), relative to the first target of the first direction; "
                        "u standard uncertainty, U = 2u expanded uncertainty (k = 2, about 95 %). Estimate: "
@@ -458,11 +722,11 @@ def _method(s: Sources) -> Method:
 
 def _standards(s: Sources) -> Standards:
     return Standards(rows=[Instrument(instrument=r[0], role=r[1], id=r[2], certificate=r[3], calibrated_by=r[4], due=r[5])
-                           for r in instrument_rows(s.results)], connections=connections(s.results))
+                           for r in instrument_rows(s.results, s.method)], connections=connections(s.results))
 
 
 def _conditions(s: Sources) -> Conditions:
-    return Conditions(rows=[Item(label=k, value=v) for k, v in conditions(s.results)], brief=conditions_in_brief(s.results))
+    return Conditions(rows=[Item(label=k, value=v) for k, v in conditions(s.results, s.method)], brief=conditions_in_brief(s.results, s.method))
 
 
 def _control(s: Sources) -> Control:
@@ -512,13 +776,13 @@ SECTION_BUILDERS: list[tuple[str, Callable[[Sources], Any]]] = [
 ]
 
 
-def build_certificate(results: RunResults, run_dir: Path, outputs: MethodOutputs | None = None,
+def build_certificate(results: RunResults, run_dir: Path, method: CertifiedMethod,
                       figures: list[tuple[str, str]] | None = None) -> Certificate:
-    """The document, once, from the results and their metadata; ``figures`` (file, caption) default
-    to the method's own, shown only when the file is in ``run_dir``."""
-    outputs = outputs or outputs_for(results)
+    """The document, once, from the results, their metadata and the ``method`` they are of; ``figures``
+    (file, caption) default to the method's own, shown only when the file is in ``run_dir``."""
+    outputs = method.outputs(results)
     meta = results.metadata
-    sources = Sources(results=results, run_dir=run_dir, outputs=outputs,
+    sources = Sources(results=results, run_dir=run_dir, method=method, outputs=outputs,
                       figures=list(outputs.certificate_figures() if figures is None else figures),
                       issued=meta.date_of_issue or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"),
                       missing=[what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)],

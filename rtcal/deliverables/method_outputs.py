@@ -1,6 +1,5 @@
 """Each method's own outputs (its files, report sections and console lines), from the typed
-results they are made from: the method object (:data:`rtcal.methods.METHODS`, by the results'
-``method``) makes them. The files every run has (results.json, the positioning deviations,
+results they are made from: the method object makes them (``Method.outputs``). The files every run has (results.json, the positioning deviations,
 report.md/html/pdf) are written around them by the runner."""
 
 from __future__ import annotations
@@ -8,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Protocol
 
-from rtcal.results.model import RunResults
+
 
 
 class MethodOutputs(Protocol):
@@ -41,10 +40,3 @@ class MethodOutputs(Protocol):
     def certificate_tables(self) -> list[dict[str, Any]]:
         """The method's own tables on the certificate: each a heading, a note, a header and rows."""
         ...
-
-
-def outputs_for(results: RunResults) -> MethodOutputs:
-    """The outputs of the method the results are of."""
-    from rtcal.methods import METHODS
-
-    return METHODS[results.method].outputs(results)

@@ -50,3 +50,8 @@ def value_text(value: float | None, uncertainty: float | None, sign: str = "") -
         return "–"
     places = decimals(round_up(uncertainty)) if uncertainty is not None and uncertainty > 0 else 2
     return format(value, f"{sign}.{places}f")
+
+
+def fmt(v: float | None, spec: str) -> str:
+    """A value as ``format(v, spec)``; "–" for a missing one."""
+    return "–" if v is None else format(v, spec)

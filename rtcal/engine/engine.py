@@ -18,7 +18,7 @@ Written once here, for every method:
   reading in progress (:mod:`rtcal.engine.signals`), and an abort acknowledged before the run
   finished measuring never ends in results. Once measuring has finished an abort is refused.
 - **confirm** — an operator step (or a fault the operator must clear) waits in the operator object;
-  a remote confirm is handed to it when it is :class:`~rtcal.sequencer.operator.Confirmable`
+  a remote confirm is handed to it when it is :class:`~rtcal.engine.operator.Confirmable`
   (refused with NothingToConfirm when nothing waits), and an abort ends the wait. What the
   operator is asked is published as an ``operator`` document, its answer as a ``confirm`` event.
 - **one safe-state path** — however a run ends early (a fault abort, a remote abort, Ctrl-C,
@@ -51,10 +51,10 @@ from rtcal.engine.faults import RETAKE, FaultHandler, RunAborted, Skip
 from rtcal.engine.plan import Attempt, Entry, Plan
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Samples, Settle,
                                 Skipped, Step, Validate)
-from rtcal.run.store import REJECTED, SKIPPED, Reading, descriptions_of
-from rtcal.sequencer.checks import Contradiction
-from rtcal.sequencer.motion import approach
-from rtcal.sequencer.operator import Confirmable, NothingToConfirm
+from rtcal.store.runstore import REJECTED, SKIPPED, Reading, descriptions_of
+from rtcal.engine.checks import Contradiction
+from rtcal.engine.motion import approach
+from rtcal.engine.operator import Confirmable, NothingToConfirm
 
 Subscriber = Callable[[str, dict[str, Any]], None]
 

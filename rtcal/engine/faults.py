@@ -18,7 +18,7 @@ from typing import Any, Callable, Protocol
 from drivers.errors import InstrumentError, TrackingLost
 from rtcal.clock import Clock
 from rtcal.procedure.models import FaultPolicy
-from rtcal.sequencer.checks import Contradiction, UncommandedMotion
+from rtcal.engine.checks import Contradiction, UncommandedMotion
 
 SKIPPED = object()
 RETAKE = object()

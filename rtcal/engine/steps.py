@@ -75,7 +75,7 @@ class Recover:
 @dataclass(frozen=True)
 class Read:
     """One reading: ``measure(device)`` gives a value (a number, or a sequence of numbers, one per
-    quantity) and raises :class:`~rtcal.sequencer.checks.Contradiction` where the method's check
+    quantity) and raises :class:`~rtcal.engine.checks.Contradiction` where the method's check
     fails. Each value is stored as a reading of its (quantity, unit); non-finite values are not
     stored (a sensor's "not measured"). ``redo`` runs before a retry (e.g. approach and settle
     again); ``optional`` readings (conditions) never hold up the attempt they accompany."""

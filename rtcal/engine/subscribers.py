@@ -14,7 +14,7 @@ import sys
 import time
 from typing import Any, Callable, TextIO
 
-from rtcal.run.store import RunStore
+from rtcal.store.runstore import RunStore
 
 OPERATOR_WAITING = "operator_waiting"  # the store's meta key the live view reads
 ETA_KEY = "eta_s"  # the store's meta key of the time left (the live view shows what the log says)

@@ -62,7 +62,7 @@ class Motion:
 
     def _stage_time(self, move: Move) -> float:
         """The table's travel: through the overshoot when it would arrive the other way (as
-        :func:`rtcal.sequencer.motion.approach`), at the stage's speed."""
+        :func:`rtcal.engine.motion.approach`), at the stage's speed."""
         target = float(move.target)
         legs = []
         if move.direction:

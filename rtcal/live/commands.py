@@ -10,7 +10,7 @@ from pathlib import Path
 
 from rtcal.live.control import COMMANDS, TOKEN_ENV, ControlRefused, NoEngine, send_control
 from rtcal.live.server import LiveSpecError, parse_live_spec, serve_view
-from rtcal.run.store import RunStore
+from rtcal.store.runstore import RunStore
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 

@@ -29,7 +29,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Protocol, runtime_checkable
 
-from rtcal.sequencer.operator import NothingToConfirm
+from rtcal.engine.operator import NothingToConfirm
 
 SOCKET_NAME = ".rtcal-control.sock"
 COMMANDS = ("pause", "resume", "abort", "confirm")

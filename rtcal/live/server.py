@@ -41,7 +41,7 @@ from starlette.routing import Route
 
 from rtcal.live.control import COMMANDS, Controllable, dispatch, step_of, token_matches
 from rtcal.live.storeview import FINAL_STATES, REPORT_FILES, StoreView
-from rtcal.sequencer.operator import NothingToConfirm
+from rtcal.engine.operator import NothingToConfirm
 
 DEFAULT_PORT = 8765
 LOOPBACK = "127.0.0.1"

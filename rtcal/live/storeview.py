@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
-from rtcal.run.store import MARKERS, REJECTED, RunStore, StoredDescription, described_in
+from rtcal.store.runstore import MARKERS, REJECTED, RunStore, StoredDescription, described_in
 
 STATES = ("starting", "running", "paused", "stopping", "finished", "failed", "aborted")
 FINAL_STATES = ("finished", "failed", "aborted")
@@ -47,7 +47,7 @@ def open_read_only(path: Path) -> sqlite3.Connection:
 
     While a writer has the store open (its -wal and -shm beside it) ``mode=ro`` reads through
     them; without them ``mode=ro`` would create both, so a closed store is read as ``immutable``
-    (as :func:`rtcal.run.store.check_store` does). A poll that races a writer opening the store
+    (as :func:`rtcal.store.runstore.check_store` does). A poll that races a writer opening the store
     reads a moment's old snapshot; the next poll opens afresh."""
     live = os.path.lexists(f"{path}-wal") and os.path.lexists(f"{path}-shm")
     mode = "mode=ro" if live else "immutable=1"
@@ -425,13 +425,13 @@ def planned_from_procedure(meta: dict[str, str]) -> int | None:
 def result_brief(run_dir: Path) -> dict[str, Any] | None:
     """The lines `rtcal run` prints at the end, the deviation table with U (k = 2) and the report
     files present, from the run's validated results.json."""
-    from rtcal.deliverables.method_outputs import outputs_for
     from rtcal.deliverables.report import console_lines
-    from rtcal.results import ResultsError, read_results
+    from rtcal.methods import METHODS, read_results
+    from rtcal.results import ResultsError
 
     try:
         results = read_results(run_dir)
-        lines = outputs_for(results).summary() + console_lines(results)
+        lines = METHODS[results.method].outputs(results).summary() + console_lines(results)
     except (ResultsError, ValueError, KeyError, OSError) as exc:
         return {"error": f"results.json cannot be read: {exc}"[:300], "lines": [], "deviations": None, "files": []}
     table = results.positioning_deviations

@@ -10,14 +10,18 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from importlib.metadata import entry_points
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rtcal.methods.abbe import AbbeMethod
-from rtcal.methods.multistation import MultistationMethod
+from rtcal.methods.abbe.method import AbbeMethod
+from rtcal.methods.multistation.method import MultistationMethod
 from rtcal.methods.protocol import Method
-from rtcal.procedure.models import EncoderAbbeError, LaserTracerMultistation
-from rtcal.plans.abbe import AbbeInstrumentSet
-from rtcal.plans.multistation import MultistationInstrumentSet
+from rtcal.procedure import loader
+from rtcal.procedure.models import Procedure
+from rtcal.methods.abbe.procedure import EncoderAbbeError
+from rtcal.methods.multistation.procedure import LaserTracerMultistation
+from rtcal.methods.abbe.plan import AbbeInstrumentSet
+from rtcal.methods.multistation.plan import MultistationInstrumentSet
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -84,3 +88,34 @@ class MethodRegistry(Mapping[str, "Method[Any, Any]"]):
 
 METHODS = MethodRegistry(BUILTIN)
 """Every method, by the procedure's ``method:`` (built in, and installed plugins')."""
+
+
+def load_procedure(path: str | Path, large: bool = False, text: str | None = None) -> Procedure:
+    """A procedure file validated by the model of the method its ``method:`` names (file:line:field errors)."""
+    return loader.load_procedure(path, METHODS.procedure_models(), large, text, METHODS.broken)
+
+
+def procedure_schema() -> str:
+    """The JSON Schema of every method's procedure files."""
+    return loader.procedure_schema(METHODS.procedure_models())
+
+
+def read_results(path: str | Path) -> RunResults:
+    """A run's results.json validated by the results model of the method it names."""
+    from rtcal.results import io
+
+    return io.read_results(path, METHODS.results_models())
+
+
+def parse_results(data: bytes | str, where: str = "results.json") -> RunResults:
+    """The text of a results.json validated by the results model of the method it names."""
+    from rtcal.results import io
+
+    return io.parse_results(data, METHODS.results_models(), where)
+
+
+def results_schema() -> str:
+    """The JSON Schema of results.json, every method's results."""
+    from rtcal.results import io
+
+    return io.results_schema(METHODS.results_models())

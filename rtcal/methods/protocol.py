@@ -24,8 +24,8 @@ if TYPE_CHECKING:
 
     from rtcal.engine.plan import Plan
     from rtcal.results.model import Analysis, EnvironmentSummary, RunResults
-    from rtcal.run.store import RunStore
-    from rtcal.sequencer.operator import Operator
+    from rtcal.store.runstore import RunStore
+    from rtcal.engine.operator import Operator
     from simulators.bench import Bench
     from simulators.scenario import Scenario
 

@@ -255,11 +255,16 @@ def optimize_refusal(path: Path, proc: Procedure) -> str | None:
 
 def optimized_points(path: Path, proc: Procedure, scenario: Any, out: Path) -> str:
     """`rtcal plan --optimize OUT`: points chosen by the method's planner (for the multi-station method,
-    CMM points: rtcal/planning/design.py), the procedure with them written to ``out``; what was done, in
+    CMM points: rtcal/methods/multistation/design.py), the procedure with them written to ``out``; what was done, in
     words. ValueError: it cannot be done (the method's planner says why)."""
     from rtcal.methods import METHODS
 
     planner = METHODS[proc.method].planner
     if planner is None:
         raise ValueError(optimize_refusal(path, proc))
-    return str(planner.choose_points(path, proc, scenario, out))
+    from rtcal.run.runner import run_procedure
+
+    def simulate(procedure: Path, bench: Path, run_dir: Path) -> None:
+        run_procedure(procedure, bench, out_dir=run_dir, show_progress=False, outputs=False, estimate_noise=False)
+
+    return str(planner.choose_points(path, proc, scenario, out, simulate))

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["LaserTracerMultistation", "Procedure", "load_procedure", "load_scenario", "procedure_schema"]
+__all__ = ["Procedure", "load_procedure", "load_scenario", "procedure_schema"]
 
 
 def __getattr__(name: str) -> Any:
@@ -15,7 +15,7 @@ def __getattr__(name: str) -> Any:
         from rtcal.procedure import loader
 
         return getattr(loader, name)
-    if name in ("LaserTracerMultistation", "Procedure"):
+    if name == "Procedure":
         from rtcal.procedure import models
 
         return getattr(models, name)

@@ -6,9 +6,10 @@ import json
 import os
 from pathlib import Path
 
+from collections.abc import Mapping
 from typing import Annotated, Any, Union, cast
 
-from pydantic import Field, TypeAdapter
+from pydantic import BaseModel, Field, TypeAdapter
 
 from rtcal.procedure.models import Procedure
 from rtcal.compensation import CompensationError, get_format
@@ -16,13 +17,13 @@ from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, p
 from simulators.scenario import Scenario
 
 
-def load_procedure(path: str | Path, large: bool = False, text: str | None = None) -> Procedure:
-    """Validate a procedure file (or its ``text``, already read); raises :class:`FileProblems`
-    naming file, line and field. ``large`` accepts plans beyond the default size limits
-    (``rtcal run --large``). The model is the one the ``method:`` names in the registry of methods."""
-    from rtcal.methods import METHODS
-
-    models = METHODS.procedure_models()
+def load_procedure(path: str | Path, models: Mapping[str, type[BaseModel]], large: bool = False, text: str | None = None,
+                   broken: Mapping[str, str] | None = None) -> Procedure:
+    """Validate a procedure file (or its ``text``, already read) with the model its ``method:`` names
+    in ``models``; raises :class:`FileProblems` naming file, line and field. ``large`` accepts plans
+    beyond the default size limits (``rtcal run --large``); ``broken`` names the plugins that failed to
+    load, for the "unknown method" message. The registry of methods passes both
+    (:func:`rtcal.methods.load_procedure`)."""
     path = Path(path)
     text = read_text(path) if text is None else text
     data, locations = load_yaml(text, str(path))
@@ -37,12 +38,11 @@ def load_procedure(path: str | Path, large: bool = False, text: str | None = Non
             raise FileProblems([Problem(str(path), line, col, "(document)", "this is a bench scenario, not a procedure: "
                                         "give it with `--scenario` (e.g. `rtcal run PROCEDURE.yaml --scenario "
                                         f"{path}`)")])
-        broken = METHODS.broken.get(method) if isinstance(method, str) else None
-        if broken:
-            msg += f" (its plugin failed to load: {broken})"
+        failed = (broken or {}).get(method) if isinstance(method, str) else None
+        if failed:
+            msg += f" (its plugin failed to load: {failed})"
         raise FileProblems([Problem(str(path), line, col, "method", f"{msg}; one of: {known}")])
-    # typed as the built-in union: a plugin's model (a ProcedureBase) reaches only code that goes
-    # through its method object, never the built-ins' attributes (docs/architecture.md, "Adding a method")
+    # typed as the base: a method's own attributes are read only by its own code (docs/architecture.md)
     return cast(Procedure, validate_text(text, models[method], str(path), context={"large": large}))
 
 
@@ -114,11 +114,9 @@ def is_procedure_text(text: str) -> bool:
     return isinstance(data, dict) and ("method" in data or "instruments" in data)
 
 
-def procedure_schema() -> str:
-    """JSON Schema of procedure files (one branch per ``method``), for editors."""
-    from rtcal.methods import METHODS
-
-    union: Any = Annotated[Union[tuple(METHODS.procedure_models().values())], Field(discriminator="method")]
+def procedure_schema(models: Mapping[str, type[BaseModel]]) -> str:
+    """JSON Schema of procedure files (one branch per ``method`` of ``models``), for editors."""
+    union: Any = Annotated[Union[tuple(models.values())], Field(discriminator="method")]
     schema = TypeAdapter(union).json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "rtcal procedure"

@@ -3,7 +3,8 @@
 Reading is bounded (file size; pydantic's JSON parser limits nesting and refuses NaN and
 numbers out of range) and every problem is one :class:`ResultsError` line naming the file and
 the offending field's path, e.g. ``runs/x/results.json: estimates.network.radius_mm: …``. The model
-is the results model of the method the file's ``method`` names (:data:`rtcal.methods.METHODS`).
+is the results model of the method the file's ``method`` names, among the ``models`` the caller
+passes (the registry of methods does: :func:`rtcal.methods.read_results`).
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ import json
 import os
 import re
 import stat
-from pathlib import Path
+from collections.abc import Mapping
 from functools import lru_cache
+from pathlib import Path
 from typing import Annotated, Any, Union
 
 from pydantic import Field, TypeAdapter, ValidationError
@@ -25,11 +27,13 @@ FILENAME = "results.json"
 MAX_RESULTS_BYTES = 200_000_000  # read whole: bounded
 
 
-def _adapter() -> TypeAdapter[RunResults]:
-    """results.json as one of the registered methods' results, told apart by ``method``."""
-    from rtcal.methods import METHODS
+ResultsModels = Mapping[str, type[RunResults]]
+"""Each method's results model, by the ``method`` results.json names."""
 
-    return _adapter_of(tuple(METHODS.results_models().values()))
+
+def _adapter(models: ResultsModels) -> TypeAdapter[RunResults]:
+    """results.json as one of ``models``, told apart by ``method``."""
+    return _adapter_of(tuple(models.values()))
 
 
 @lru_cache(maxsize=4)
@@ -53,7 +57,7 @@ def write_results(run_dir: Path, results: RunResults) -> Path:
     return path
 
 
-def read_results(run_dir: str | Path) -> RunResults:
+def read_results(run_dir: str | Path, models: ResultsModels) -> RunResults:
     """The validated results of a run directory; :class:`ResultsError` names what is wrong."""
     path = Path(run_dir) / FILENAME
     try:
@@ -73,15 +77,15 @@ def read_results(run_dir: str | Path) -> RunResults:
             raise ResultsError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if len(data) > MAX_RESULTS_BYTES:
         raise ResultsError(f"{path}: larger than {MAX_RESULTS_BYTES // 1_000_000} MB: not a results file rtcal wrote")
-    return parse_results(data, str(path))
+    return parse_results(data, models, str(path))
 
 
-def parse_results(data: bytes | str, where: str = FILENAME) -> RunResults:
+def parse_results(data: bytes | str, models: ResultsModels, where: str = FILENAME) -> RunResults:
     """Validate the text of a results.json (``where`` names it in messages)."""
     try:
-        return _adapter().validate_json(data, strict=True)
+        return _adapter(models).validate_json(data, strict=True)
     except ValidationError as exc:
-        raise ResultsError(f"{where}: {_printable(_first_problem(exc.errors(), data))}") from None
+        raise ResultsError(f"{where}: {_printable(_first_problem(exc.errors(), data, models))}") from None
 
 
 def _printable(text: str, limit: int = 400) -> str:
@@ -90,13 +94,11 @@ def _printable(text: str, limit: int = 400) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
-def _first_problem(errors: list[ErrorDetails], data: bytes | str) -> str:
+def _first_problem(errors: list[ErrorDetails], data: bytes | str, models: ResultsModels) -> str:
     e = errors[0]
     more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
     loc = list(e["loc"])
-    from rtcal.methods import METHODS
-
-    if loc and loc[0] in METHODS:
+    if loc and loc[0] in models:
         loc = loc[1:]  # the method the file is told apart by, not a key of it
     msg = str(e["msg"]).removeprefix("Value error, ")
     if e["type"] == "json_invalid":
@@ -152,9 +154,9 @@ def path_at(text: str, offset: int, max_parts: int = 12) -> str:
     return ".".join(parts)
 
 
-def results_schema() -> str:
+def results_schema(models: ResultsModels) -> str:
     """JSON Schema (draft 2020-12) of results.json, every field described."""
-    schema = _adapter().json_schema()
+    schema = _adapter(models).json_schema()
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "rtcal results.json"
     schema["description"] = ("The results of one rtcal run (schema_version 1.x): its metadata, every estimate with "

@@ -171,7 +171,7 @@ def check(proc, addresses: dict[str, str] | None = None, operator_address: str =
         problem = _in_range(name, choice, result.reading)
         rows.append(CheckRow(name, model, "FAILED" if problem else "ready", problem or _summary(result.reading), result.identity))
     if operator_address:
-        from rtcal.sequencer.operator import OperatorUnavailable, RemoteSimOperator
+        from rtcal.engine.operator import OperatorUnavailable, RemoteSimOperator
 
         try:
             RemoteSimOperator(operator_address, timeout_s=2.0).polygon_certificate_arcsec()

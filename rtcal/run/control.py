@@ -5,14 +5,20 @@ evidence that nobody else moved the machine."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from drivers.factory import resolve
 from rtcal.procedure.models import Procedure
 from rtcal.results.model import Control
 
+if TYPE_CHECKING:
+    from rtcal.methods.protocol import Method
+
 MOVING = {"stage": "stage", "cmm": "cmm"}  # the instruments another client could move, and their kinds
 
 
-def control_record(proc: Procedure, simulated: bool, operator_address: str, rejected_attempts: int) -> Control:
+def control_record(proc: Procedure, method: Method[Any, Any], simulated: bool, operator_address: str,
+                   rejected_attempts: int) -> Control:
     """The run's control of its machine and its checks, from the procedure and how it was wired."""
     access: dict[str, str] = {}
     exclusive: bool | None = True
@@ -34,9 +40,7 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
                                 "another client could reach it; "
                                 "the checks of every motion and reading would have seen it move")
                 exclusive = None
-    from rtcal.methods import METHODS
-
-    if not METHODS[proc.method].operator_steps:
+    if not method.operator_steps:
         access["operator"] = "none: the method's plan has no operator step"
     elif simulated:
         access["operator"] = "in process: the simulated bench re-seats its own polygon or tracer"
@@ -46,10 +50,10 @@ def control_record(proc: Procedure, simulated: bool, operator_address: str, reje
         access["operator"] = ("a person: asked before each operator step, who confirms it at this terminal or remotely "
                               "(the live page's Done or `rtcal control RUN_DIR confirm`, with the run's control token; without "
                               "--live, `rtcal control` from the run's own user)")
-    return Control(instruments=access, exclusive=exclusive, checks=checks_text(proc), rejected_attempts=rejected_attempts)
+    return Control(instruments=access, exclusive=exclusive, checks=checks_text(proc, method), rejected_attempts=rejected_attempts)
 
 
-def checks_text(proc: Procedure) -> list[str]:
+def checks_text(proc: Procedure, method: Method[Any, Any]) -> list[str]:
     """What the sequencer checked at every motion and reading, with the procedure's tolerances: the
     stage's (every method's), then the method's own instruments' (its ``checks_text``)."""
     v = proc.verification
@@ -57,9 +61,7 @@ def checks_text(proc: Procedure) -> list[str]:
              else "two steps of the drive (the default stage tolerance)")
     out = [f"stage: the drive's feedback position read after settling and again after the readings: within {stage} "
            "of the command, and unmoved while reading"]
-    from rtcal.methods import METHODS
-
-    out += METHODS[proc.method].checks_text(proc)  # each method states its own instruments' checks
+    out += method.checks_text(proc)  # each method states its own instruments' checks
     out.append("a reading the checks contradict is kept, marked rejected and never used; a table or probe that moves "
                "while nothing is commanded stops the run without a certificate")
     return out

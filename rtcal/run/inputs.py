@@ -24,7 +24,8 @@ def read_deviation_table(path_text: str) -> tuple[PositioningDeviations, RunResu
     """A run directory's positioning deviations (its results.json, validated) or a deviation CSV;
     mistakes are UserErrors naming the file and, in results.json, the field."""
     from rtcal.deliverables.deviations import DeviationTableError, PositioningDeviations
-    from rtcal.results import ResultsError, read_results
+    from rtcal.methods import read_results
+    from rtcal.results import ResultsError
 
     path = Path(path_text)
     try:
@@ -56,7 +57,8 @@ def _same_as_its_run(table: PositioningDeviations, path: Path) -> None:
     """A run's own positioning_deviations.csv (a results.json beside it) must hold the run's table:
     an edited copy is refused (UserError naming both files), not compensated or certified."""
     from rtcal.deliverables.deviations import PositioningDeviations
-    from rtcal.results import ResultsError, read_results
+    from rtcal.methods import read_results
+    from rtcal.results import ResultsError
     from rtcal.run.integrity import check_run
 
     beside = path.parent / "results.json"

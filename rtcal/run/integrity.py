@@ -25,7 +25,7 @@ from urllib.parse import quote
 from drivers.addresses import redact_tokens
 from rtcal.results.io import FILENAME as RESULTS_FILENAME, ResultsError, results_json
 from rtcal.results.model import DELIVERABLE_DIGESTS_SINCE, STORE_DIGESTS_SINCE, Digests, RunResults
-from rtcal.run.store import EVENT_COLUMNS, READING_COLUMNS, RunStore
+from rtcal.store.runstore import EVENT_COLUMNS, READING_COLUMNS, RunStore
 
 RESULTS_DIGEST_KEY = "results_sha256"  # store meta: the digest of the results.json the run wrote
 # what of the store's metadata the results were computed from (paths and times are left out: a copy stays valid)

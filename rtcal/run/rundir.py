@@ -22,9 +22,10 @@ from pathlib import Path
 
 from rtcal.outputs import STAGING_PREFIX, remove_stale_staging, staged_outputs  # noqa: F401 — staged_outputs: the runner's
 from drivers.addresses import redact_tokens
-from rtcal.results import RunResults, read_results
-from rtcal.run.store import RunStore, check_store
-from rtcal.run.hint import resume_hint
+from rtcal.methods import read_results
+from rtcal.results import RunResults
+from rtcal.store.runstore import RunStore, check_store
+from rtcal.store.hint import resume_hint
 
 LOCK_NAME = ".rtcal.lock"
 

@@ -24,9 +24,9 @@ from rtcal import __version__
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
-from rtcal.methods import METHODS
+from rtcal.methods import METHODS, load_procedure
 from rtcal.methods.protocol import DataContradiction
-from rtcal.procedure.loader import bench_path, load_procedure, load_scenario
+from rtcal.procedure.loader import bench_path, load_scenario
 from rtcal.procedure.models import Procedure, plan_outside_limits
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
 from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
@@ -38,14 +38,14 @@ from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
 from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
 from rtcal.engine.walk import Timing, walk
-from rtcal.sequencer.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
-from rtcal.run.store import RunStore, StoreUnusable
+from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
+from rtcal.store.runstore import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 from drivers.addresses import REDACTED, redact_tokens
 from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, deliverable_digests, digests_of, results_digest
-from rtcal.run.hint import OPERATOR_TOKEN_ENV, resume_hint
+from rtcal.store.hint import OPERATOR_TOKEN_ENV, resume_hint
 
 OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
 """Called with the engine and the run directory before the first motion (remote control, the live
@@ -615,7 +615,7 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
         log = RunLog(evaluation=evaluation, skipped_readings=len(store.skipped_plan_indices()),
                      faults=sum(1 for e in events if e.kind == "fault"), events=events,
                      conformity=conformity_of(proc, analysis, evaluation),
-                     control=control_record(proc, simulated, meta.get("operator_address", ""), len(store.rejected_attempts())),
+                     control=control_record(proc, METHODS[proc.method], simulated, meta.get("operator_address", ""), len(store.rejected_attempts())),
                      digests=digests_of(store))
         results = assemble(info, analysis, log, method.results_model)
     except ValidationError as exc:  # a value beyond what results.json admits: the readings stay, the file is not written
@@ -630,16 +630,16 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
         return RunOutcome(run_dir, results, counted)
     # the documents' modules load here, not at import: `rtcal validate` imports this module
     from rtcal.deliverables.certificate import build_certificate, write_certificate_json
-    from rtcal.deliverables.method_outputs import outputs_for
     from rtcal.deliverables.report import write_html, write_markdown, write_pdf
 
-    method_outputs = outputs_for(results)
+    method = METHODS[results.method]
+    method_outputs = method.outputs(results)
     try:
         with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed
             if results.positioning_deviations is not None:  # the table every method hands downstream, for spreadsheets too
                 PositioningDeviations.from_model(results.positioning_deviations).write_csv(out / "positioning_deviations.csv")
             method_outputs.write_files(out)
-            certificate = build_certificate(results, out, method_outputs)  # one document, laid out three times
+            certificate = build_certificate(results, out, method)  # one document, laid out three times
             write_markdown(certificate, out / "report.md")
             write_html(certificate, out / "report.html")
             write_pdf(certificate, out / "report.pdf")

@@ -14,13 +14,17 @@ import json
 import math
 from contextlib import closing
 from dataclasses import dataclass, field
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from rtcal.results import read_results
+from rtcal.results.io import read_results
 from rtcal.results.model import RunResults
 from rtcal.run.integrity import IntegrityError, _read_only, check_deliverables, check_run, missing_digests
-from rtcal.run.store import RunStore
+from rtcal.store.runstore import RunStore
+
+if TYPE_CHECKING:
+    from rtcal.methods.protocol import Method
 
 # what a run's results hold that its store determines (paths, times and versions apart)
 # (``truth`` is what a simulated bench had, not what its readings give: it is not recomputed)
@@ -95,15 +99,15 @@ def compare(stored: Any, recomputed: Any, path: str, out: Verification) -> None:
         out.differences.append((path, stored, recomputed))
 
 
-def recompute(run_dir: Path) -> tuple[RunResults, dict[str, Any], int]:
-    """results.json as read, the parts of it the store determines recomputed, and the readings used."""
-    from rtcal.methods import METHODS
+def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]]) -> tuple[RunResults, dict[str, Any], int]:
+    """results.json as read, the parts of it the store determines recomputed, and the readings used
+    (``methods``: the known methods, by name: the store names the run's)."""
     from rtcal.procedure.yamlfile import validate_text
     from rtcal.results.model import Event
     from rtcal.run.rundir import RunDirError
     from rtcal.run.runner import conformity_of, evaluation_of
 
-    results = read_results(run_dir)
+    results = read_results(run_dir, {name: m.results_model for name, m in methods.items()})
     path = run_dir / RunStore.FILENAME
     if not path.is_file():
         raise RunDirError(f"{run_dir}: no {RunStore.FILENAME}: nothing to recompute the results from")
@@ -112,15 +116,15 @@ def recompute(run_dir: Path) -> tuple[RunResults, dict[str, Any], int]:
         meta = store.meta()
         where = f"{path} (stored procedure)"
         method = meta.get("method", "")
-        if method not in METHODS:
+        if method not in methods:
             raise RunDirError(f"{path}: its `method` is {method[:40]!r}, not one rtcal knows: the store was edited")
-        proc: Any = validate_text(meta.get("procedure_yaml", ""), METHODS[method].procedure_model, where,
+        proc: Any = validate_text(meta.get("procedure_yaml", ""), methods[method].procedure_model, where,
                              context={"large": bool(meta.get("large"))})
         try:
             proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta.get("instruments", ""))})
         except ValueError:
             raise RunDirError(f"{path}: its `instruments` is not the procedure's instrument section: the store was edited") from None
-        analysis = METHODS[proc.method].analyse(proc, store, None, True)  # no bench: truth is the simulator's, not the readings'
+        analysis = methods[proc.method].analyse(proc, store, None, True)  # no bench: truth is the simulator's, not the readings'
 
         evaluation = evaluation_of(analysis)
         events = [Event(**e) for e in store.events()]
@@ -136,11 +140,11 @@ def recompute(run_dir: Path) -> tuple[RunResults, dict[str, Any], int]:
     return results, recomputed, readings
 
 
-def verify(run_dir: str | Path) -> Verification:
+def verify(run_dir: str | Path, methods: Mapping[str, Method[Any, Any]]) -> Verification:
     """Digests checked, results recomputed from the store and compared (ResultsError, RunDirError,
-    FileProblems: a run directory that cannot be verified at all)."""
+    FileProblems: a run directory that cannot be verified at all); ``methods``: the known methods."""
     run_dir = Path(run_dir)
-    results, recomputed, readings = recompute(run_dir)
+    results, recomputed, readings = recompute(run_dir, methods)
     if missing_digests(results, run_dir / "results.json"):  # exit 2: not a results.json rtcal wrote
         raise IntegrityError(missing_digests(results, run_dir / "results.json"))
     out = Verification(readings=readings)

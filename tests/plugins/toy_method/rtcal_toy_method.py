@@ -31,8 +31,8 @@ from rtcal.methods.protocol import address_of
 from rtcal.procedure.models import (FaultPolicy, InstrumentChoice, InstrumentsBase, ProcedureBase, StageChoice, StrictModel,
                                     VerificationBase, plan_outside_limits, plan_size_problem)
 from rtcal.results import model as rm
-from rtcal.run.store import MARKERS, SKIPPED, RunStore
-from rtcal.sequencer.checks import EncoderCheck, MotionChecks
+from rtcal.store.runstore import MARKERS, SKIPPED, RunStore
+from rtcal.engine.checks import EncoderCheck, MotionChecks
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
 from simulators.bench import Bench
 from simulators.instruments import SimEncoder, SimStage

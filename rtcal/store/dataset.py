@@ -10,7 +10,7 @@ import numpy as np
 from rtcal.solvers.air import ciddor_n
 from rtcal.solvers.abbe import AbbeVisits
 from rtcal.solvers.station_data import MountReadings, MultistationData
-from rtcal.run.store import MARKERS, SKIPPED, RunStore, StoredDescription
+from rtcal.store.runstore import MARKERS, SKIPPED, RunStore, StoredDescription
 
 
 def _quantity(described: dict[tuple[str, str], StoredDescription], instrument: str, field: str, purpose: str = "") -> str:

@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 
 from rtcal.deliverables.figures import legend_below, plt
-from rtcal.deliverables.report import fmt, largest, status_lines
+from rtcal.deliverables.certificate import largest, status_lines
+from rtcal.deliverables.rounding import fmt
 from rtcal.deliverables.rounding import decimals, round_up, u_text
 from rtcal.results.model import (
     AXIS_CONVENTION,

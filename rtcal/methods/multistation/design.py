@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from rtcal.outputs import write_output
-from rtcal.procedure.models import LaserTracerMultistation
+from rtcal.methods.multistation.procedure import LaserTracerMultistation
 from rtcal.solvers.network import _Layout, _model, solve_network
 from rtcal.units import ARCSEC_PER_RAD
 from rtcal.procedure.yamlfile import load_yaml, read_text
@@ -110,19 +110,19 @@ def keep_bench(procedure_path: Path, data_yaml: dict, out_path: Path) -> Path | 
 
 
 def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenario, out_path: Path,
-                    grid: int = 7) -> str:
-    """Write ``out_path``: the procedure with an optimised point list; returns a summary line."""
-    from rtcal.run.dataset import multistation_data
-    from rtcal.methods.multistation import noise_model
-    from rtcal.run.runner import run_procedure
-    from rtcal.run.store import RunStore
+                    simulate: Callable[[Path, Path, Path], None], grid: int = 7) -> str:
+    """Write ``out_path``: the procedure with an optimised point list; returns a summary line.
+    ``simulate(procedure, bench, run_dir)`` runs the procedure on the noise-free bench (the runner's)."""
+    from rtcal.store.dataset import multistation_data
+    from rtcal.methods.multistation.noise import noise_model
+    from rtcal.store.runstore import RunStore
 
     noise = noise_model(proc, estimate=False)
     tmp = Path(tempfile.mkdtemp(prefix="design-"))
     try:
         bench = tmp / "bench.yaml"
         bench.write_text(yaml.safe_dump(scenario.without_noise().model_dump(mode="json"), sort_keys=False), encoding="utf-8")
-        run_procedure(procedure_path, bench, out_dir=tmp / "run", show_progress=False, outputs=False, estimate_noise=False)
+        simulate(procedure_path, bench, tmp / "run")
         store = RunStore.open(tmp / "run")
         data = multistation_data(store, proc.stations.angles_deg(), len(proc.points_array()))
         store.close()

@@ -4,7 +4,7 @@ Point-major (the paper): for each CMM point, the table indexes through every sta
 Station-major: for each station, the CMM visits every point. Either way each reading — the
 CMM's reported position at each visit, every tracer sample — is committed before the next motion.
 
-Every reading is checked (:mod:`rtcal.sequencer.checks`): the stage's feedback and the CMM's
+Every reading is checked (:mod:`rtcal.engine.checks`, :mod:`rtcal.methods.multistation.checks`): the stage's feedback and the CMM's
 reported position against the commands before the tracer is read and unchanged after it, the
 lengths against the nominal geometry. A moved tracer (a second mount) is referenced again.
 """
@@ -20,9 +20,10 @@ from drivers.interfaces import DESCRIPTIONS, Cmm, EnvironmentSensor, LaserTracer
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Settle, Skipped,
                                 Step, Validate)
-from rtcal.plans.conditions import environment_read
-from rtcal.procedure.models import LaserTracerMultistation
-from rtcal.sequencer.checks import Contradiction, MotionChecks, TracerCheck, TracerReturnCheck
+from rtcal.methods.conditions import environment_read
+from rtcal.methods.multistation.procedure import LaserTracerMultistation
+from rtcal.engine.checks import Contradiction, MotionChecks
+from rtcal.methods.multistation.checks import TracerCheck, TracerReturnCheck
 
 # what a reading stores, named and united by each kind's description (drivers/interfaces.py)
 CMM_POSITION = tuple(DESCRIPTIONS["cmm"])  # x, y, z in the description's order

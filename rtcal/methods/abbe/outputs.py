@@ -13,7 +13,8 @@ from matplotlib.axes import Axes
 
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.rounding import u_text
-from rtcal.deliverables.report import fmt, largest, smallest, status_lines
+from rtcal.deliverables.certificate import largest, smallest, status_lines
+from rtcal.deliverables.rounding import fmt
 from rtcal.results.model import AbbeEstimate, AbbeResults, ClosureEstimate, Estimate, HarmonicTerm, TargetedEstimate
 
 ARROW = {1: "↑", -1: "↓"}

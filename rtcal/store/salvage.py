@@ -16,7 +16,7 @@ import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rtcal.run.store import LAST_READING_ID, NOT_NULL, READING_COLUMN_TYPES, READING_COLUMNS
+from rtcal.store.runstore import LAST_READING_ID, NOT_NULL, READING_COLUMN_TYPES, READING_COLUMNS
 
 MAGIC = b"SQLite format 3\x00"
 WAL_MAGIC = (0x377F0682, 0x377F0683)

@@ -13,7 +13,7 @@ attempt stored it without a skip.
 
 A store is never deleted or overwritten unless it is proven empty (:func:`check_store`): one
 that SQLite cannot read whole is damaged, left as it is, and its readings are salvaged page by
-page (rtcal.run.salvage, `rtcal export`). A write the disk refuses (full, I/O error) is a
+page (rtcal.store.salvage, `rtcal export`). A write the disk refuses (full, I/O error) is a
 :class:`StoreWriteError` — an OSError, so the command exits 1 with the resume hint — and the
 run's last status is written into space reserved for it when the run started.
 """
@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterable, Iterator
 from urllib.parse import quote
 
 from drivers.addresses import redact_tokens
-from rtcal.run.hint import resume_hint
+from rtcal.store.hint import resume_hint
 
 # what every stored (instrument, quantity) is: its field of the instrument's description
 # (drivers/interfaces.py), why it was read (purpose) and its unit; and which attempt each start of the run

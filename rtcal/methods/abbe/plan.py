@@ -4,7 +4,7 @@ For each polygon seating (an operator step), each run and each direction: a full
 steps; at each step the encoder, both dial indicators and — where a polygon face is in front —
 the autocollimator are read, and committed before the next motion.
 
-Every visit is checked (:mod:`rtcal.sequencer.checks`): the stage's feedback against the
+Every visit is checked (:mod:`rtcal.engine.checks`, :mod:`rtcal.methods.abbe.checks`): the stage's feedback against the
 command before the readings and unchanged after them, the encoder's motion against the
 commanded motion, the face in view seen near square. A visit that skipped a reading stays
 pending (a resume takes it again whole); its readings are kept.
@@ -20,11 +20,11 @@ import numpy as np
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage, recorded
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
-from rtcal.plans.conditions import environment_read
-from rtcal.procedure.models import EncoderAbbeError
-from rtcal.run.store import Reading
-from rtcal.sequencer.checks import (EncoderCheck, MotionChecks, abbe_cross_checks, check_abbe_visit, check_face,
-                                    combined_sigma)
+from rtcal.methods.conditions import environment_read
+from rtcal.methods.abbe.procedure import EncoderAbbeError
+from rtcal.store.runstore import Reading
+from rtcal.engine.checks import EncoderCheck, MotionChecks, combined_sigma
+from rtcal.methods.abbe.checks import abbe_cross_checks, check_abbe_visit, check_face
 
 
 # what a visit reads, named and united by each kind's description (drivers/interfaces.py)

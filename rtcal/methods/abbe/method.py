@@ -2,7 +2,7 @@
 
 :class:`AbbeMethod` implements :class:`rtcal.methods.protocol.Method`; its analysis is a typed
 :class:`rtcal.results.model.AbbeAnalysis`. Its files, figures (seed 001's Figures 9–12) and report
-sections are the output layer's (:mod:`rtcal.deliverables.abbe`).
+sections are the output layer's (:mod:`rtcal.methods.abbe.outputs`).
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from drivers import factory
-from rtcal.run.dataset import abbe_conditions, abbe_visits
+from rtcal.store.dataset import abbe_conditions, abbe_visits
 from rtcal.deliverables.deviations import PositioningDeviations
-from rtcal.procedure.models import EncoderAbbeError
+from rtcal.methods.abbe.procedure import EncoderAbbeError
 from rtcal.methods.estimates import (
     choose_recommended,
     deviation_block,
@@ -26,8 +26,8 @@ from rtcal.methods.estimates import (
 )
 from rtcal.methods.protocol import DataContradiction, PreparationError, address_of
 from rtcal.results import model as rm
-from rtcal.plans.abbe import AbbeInstrumentSet, AbbePlan, planned_visits
-from rtcal.sequencer.operator import Operator
+from rtcal.methods.abbe.plan import AbbeInstrumentSet, AbbePlan, planned_visits
+from rtcal.engine.operator import Operator
 from rtcal.solvers.abbe import (
     AbbeEstimate,
     AbbeNoise,
@@ -37,7 +37,7 @@ from rtcal.solvers.abbe import (
 )
 from rtcal.solvers.harmonics import HarmonicFit
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
-from rtcal.run.store import RunStore
+from rtcal.store.runstore import RunStore
 from simulators.bench import Bench
 from simulators.instruments import (
     SimAutocollimator,
@@ -50,8 +50,8 @@ from simulators.scenario import Scenario
 from simulators.truth import abbe_truth
 
 if TYPE_CHECKING:
-    from rtcal.planning.levers import AbbePlanner
-    from rtcal.deliverables.abbe import AbbeOutputs
+    from rtcal.methods.abbe.planner import AbbePlanner
+    from rtcal.methods.abbe.outputs import AbbeOutputs
 
 NOTES = (
     "Seed 001's equations (1) and (2) are missing from its text; rtcal uses the model its words give: "
@@ -225,12 +225,12 @@ class AbbeMethod:
 
     @property
     def planner(self) -> AbbePlanner:
-        from rtcal.planning.levers import AbbePlanner
+        from rtcal.methods.abbe.planner import AbbePlanner
 
         return AbbePlanner()
 
     def outputs(self, results: rm.RunResults) -> AbbeOutputs:
-        from rtcal.deliverables.abbe import AbbeOutputs
+        from rtcal.methods.abbe.outputs import AbbeOutputs
 
         if not isinstance(results, rm.AbbeResults):
             raise TypeError(f"encoder Abbe-error outputs need its results, not {type(results).__name__}")

@@ -1,0 +1,1 @@
+"""The laser-tracer multi-station method (seed 000): everything that is this method's."""
