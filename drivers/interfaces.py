@@ -112,6 +112,11 @@ def recorded(kind: str, *names: str, purpose: str = "") -> tuple[tuple[str, str]
     return tuple((table[n].quantity(purpose), table[n].unit) for n in names)
 
 
+def a_kind(kind: str) -> str:
+    """``kind`` as a message names one instrument of it: "an inclinometer", "a dial indicator"."""
+    return ("an " if kind[:1] in "aeiou" else "a ") + kind.replace("_", " ")
+
+
 class ReadingOutsideDescription(ValueError):
     """A reading that is not what its instrument's description says (a name, a unit, NaN)."""
 
@@ -150,8 +155,8 @@ def check_values(kind: str, values: Mapping[str, object], fields: Collection[str
             raise ReadingOutsideDescription(f"{name} is {float(number)}: its description says a whole number")
         lo, hi = f.physical_range or (-math.inf, math.inf)
         if not lo <= float(number) <= hi and not math.isnan(float(number)):
-            raise ReadingOutsideDescription(f"{name} {float(number):.9g} {f.unit} is outside what a {kind.replace('_', ' ')} "
-                                            f"can read ({lo:g} … {hi:g} {f.unit})")
+            raise ReadingOutsideDescription(f"{name} {float(number):.9g} {f.unit} is outside what {a_kind(kind)} can read "
+                                            f"({lo:g} … {hi:g} {f.unit})")
         out[name] = Value(float(number), f.unit)
     return out
 

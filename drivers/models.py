@@ -15,6 +15,7 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from drivers.addresses import AddressError
+from drivers.interfaces import a_kind
 
 ENTRY_POINT_GROUP = "rtcal.drivers"
 
@@ -140,6 +141,6 @@ def _installed_model_of(kind: str) -> Model:
     """An installed kind has no built-in model: the address names one with ``model=``, unless one is installed."""
     models = sorted(m.name for m in plugins().values() if m.kind == kind)
     if len(models) != 1:
-        raise AddressError(f"a {kind.replace('_', ' ')} has no built-in model: name its model with model= "
+        raise AddressError(f"{a_kind(kind)} has no built-in model: name its model with model= "
                            f"({'installed: ' + ', '.join(models) if models else 'none is installed'})")
     return find_model(models[0])
