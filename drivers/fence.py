@@ -253,7 +253,7 @@ class FencedKind(_Fenced):
                                              f"reading raised {type(exc).__name__}: {shown_identity(str(exc))}") from None
 
 
-_KIND_FENCES: dict[str, type[Instrument]] = {}
+_KIND_FENCES: dict[type[Instrument], type[Instrument]] = {}  # per installed kind's interface
 
 
 def _forwarded(method: str) -> Callable[..., Any]:
@@ -269,13 +269,13 @@ def fence_class(kind: str) -> Callable[..., Instrument]:
     (each public method it adds to Instrument forwarded, so that the driver's own are what run)."""
     if kind in FENCES:
         return FENCES[kind]
-    if kind not in _KIND_FENCES:
-        interface = KINDS[kind].interface
+    interface = KINDS[kind].interface
+    if interface not in _KIND_FENCES:
         own = {name for c in interface.__mro__ if issubclass(c, Instrument) and c is not Instrument
                for name, v in vars(c).items() if not name.startswith("_") and inspect.isfunction(v)}
-        _KIND_FENCES[kind] = type(f"Fenced{interface.__name__}", (FencedKind, interface),
-                                  {name: _forwarded(name) for name in sorted(own - set(vars(_Fenced)))})
-    return _KIND_FENCES[kind]
+        _KIND_FENCES[interface] = type(f"Fenced{interface.__name__}", (FencedKind, interface),
+                                       {name: _forwarded(name) for name in sorted(own - set(vars(_Fenced)))})
+    return _KIND_FENCES[interface]
 
 
 def reading_unit(kind: str) -> str:

@@ -184,6 +184,34 @@ def test_the_fence_passes_a_good_reading_and_refuses_a_driver_of_another_kind(to
         refuse_unfit_class("inclinometer", "toy-level", "rtcal-toy-level", "x:Level", type("Level", (), {}))
 
 
+def test_probe_reads_an_installed_kinds_instrument_through_its_installed_model(toy_kinds, monkeypatch):
+    """`rtcal probe inclinometer ADDRESS` as the command calls it: the kind's one installed model (a driver of
+    another package, rtcal.drivers) is opened inside the fence, identified and read by its description."""
+    import sys
+
+    import drivers.models as models
+    from rtcal.run.commission import probe
+
+    class ConstantLevel(_level_driver((1.5, -0.8))):  # type: ignore[misc]
+        def __init__(self, address, timeout_s, **context):
+            self.address = address
+
+        def identity(self):
+            return "toy level 1"
+
+    monkeypatch.setattr(sys.modules[__name__], "ConstantLevel", ConstantLevel, raising=False)
+    level = models.Model("toy-level", "inclinometer", f"{__name__}:ConstantLevel", ("serial",), plugin="rtcal-toy-level")
+    monkeypatch.setattr(models, "_plugins", {"toy-level": level})
+    for address in ("socket://bench:4001", "socket://bench:4001?model=toy-level"):
+        result = probe("inclinometer", address)
+        assert (result.model, result.identity, result.reading) == (
+            "toy-level", "toy level 1", {"tilt_x_arcsec": 1.5, "tilt_y_arcsec": -0.8})
+    monkeypatch.setattr(models, "_plugins", {})
+    with pytest.raises(AddressError, match="an inclinometer has no built-in model: name its model with model= "
+                                           r"\(none is installed\)"):
+        probe("inclinometer", "socket://bench:4001")
+
+
 def test_a_procedure_names_the_inclinometer_only_where_its_kind_is_installed(toy_method, monkeypatch, tmp_path):
     path = tmp_path / "p.yaml"
     path.write_text(PROCEDURE)
