@@ -249,8 +249,9 @@ class FencedKind(_Fenced):
         except InstrumentError:
             raise
         except Exception as exc:  # noqa: BLE001 — see _Fenced._call
-            raise InstrumentFault(self.name, f"{what_plugin(self._model_name, self._plugin)}: its {self._kind.replace('_', ' ')}'s "
-                                             f"reading raised {type(exc).__name__}: {shown_identity(str(exc))}") from None
+            raise InstrumentFault(self.name, f"{what_plugin(self._model_name, self._plugin)}: its "
+                                             f"{self._kind.replace('_', ' ')}'s reading raised {type(exc).__name__}: "
+                                             f"{shown_identity(str(exc))}") from None
 
 
 _KIND_FENCES: dict[type[Instrument], type[Instrument]] = {}  # per installed kind's interface

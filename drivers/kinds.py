@@ -145,4 +145,3 @@ class KindRegistry(Mapping[str, Kind]):
 
 KINDS = KindRegistry(BUILTIN)
 """Every instrument kind, by name (built in, and installed plugins')."""
-
