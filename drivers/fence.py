@@ -62,9 +62,9 @@ class _Fenced:
     def __getattr__(self, attr: str) -> Any:  # what only this driver has (its line, its client)
         return getattr(self._inner, attr)
 
-    def _call(self, method: str, *args: Any) -> Any:
+    def _call(self, method: str, *args: Any, **kwargs: Any) -> Any:
         try:
-            return getattr(self._inner, method)(*args)
+            return getattr(self._inner, method)(*args, **kwargs)
         except InstrumentError:
             raise
         except Exception as exc:  # noqa: BLE001 — a plugin's failure is the instrument's, named, never a traceback
@@ -258,8 +258,8 @@ _KIND_FENCES: dict[type[Instrument], type[Instrument]] = {}  # per installed kin
 
 
 def _forwarded(method: str) -> Callable[..., Any]:
-    def forward(self: _Fenced, *args: Any) -> Any:
-        return self._call(method, *args)
+    def forward(self: _Fenced, *args: Any, **kwargs: Any) -> Any:
+        return self._call(method, *args, **kwargs)
 
     forward.__name__ = forward.__qualname__ = method
     return forward

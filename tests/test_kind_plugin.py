@@ -180,6 +180,14 @@ def test_the_fence_passes_a_good_reading_and_refuses_a_driver_of_another_kind(to
 
     with pytest.raises(InstrumentFault, match="tilt_x_arcsec in 'deg'; its description says 'arcsec'"):
         fenced("inclinometer", "toy-level", "rtcal-toy-level", OwnUnits).read_values()
+
+    class Failing(_level_driver((1.5, -0.8))):  # type: ignore[misc]
+        def read_tilt_arcsec(self, averaged: int = 1):
+            raise RuntimeError(f"no level on the bus ({averaged} samples)")
+
+    with pytest.raises(InstrumentFault, match=r"model toy-level of plugin rtcal-toy-level: read_tilt_arcsec raised "
+                                              r"RuntimeError: no level on the bus \(4 samples\)"):
+        fenced("inclinometer", "toy-level", "rtcal-toy-level", Failing).read_tilt_arcsec(averaged=4)
     with pytest.raises(AddressError, match="is not a Inclinometer .* it lacks read_tilt_arcsec"):
         refuse_unfit_class("inclinometer", "toy-level", "rtcal-toy-level", "x:Level", type("Level", (), {}))
 
