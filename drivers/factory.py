@@ -12,12 +12,23 @@ from typing import Any
 from drivers.addresses import Address, AddressError, parse_address, redact_tokens
 from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer, RotaryStage
 from drivers.fence import fenced, refuse_unfit_class
+from drivers.kinds import KINDS
 from drivers.models import Model, model_for
 
-# a procedure's instruments and the kind of each
+# a procedure's instruments and the kind of each (an instrument named after an installed kind is of it: kind_of)
 KIND_OF = {"stage": "stage", "cmm": "cmm", "laser_tracer": "laser_tracer", "encoder": "encoder",
            "autocollimator": "autocollimator", "dial_indicator_1": "dial_indicator", "dial_indicator_2": "dial_indicator",
            "environment": "environment"}
+
+
+def kind_of(instrument: str) -> str:
+    """The kind of a procedure's instrument: KIND_OF's, else the installed kind it is named after
+    (AddressError naming the kind's broken plugin, or the known kinds)."""
+    if instrument in KIND_OF:
+        return KIND_OF[instrument]
+    if instrument in KINDS:
+        return instrument
+    raise AddressError(KINDS.unknown(instrument))
 
 
 class SchemeMismatch(AddressError):
@@ -41,7 +52,7 @@ def resolve(kind: str, address: str) -> tuple[Address, Model]:
 
 def check_address(name: str, address: str) -> None:
     """What procedure validation asks: the address suits the instrument ``name`` (AddressError if not)."""
-    resolve(KIND_OF[name], address)
+    resolve(kind_of(name), address)
 
 
 def open_instrument(kind: str, address: str, timeout_s: float, **context: Any) -> Instrument:

@@ -9,6 +9,7 @@ shown characters; a plugin whose constructor or method raises anything but the t
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import Any, Callable, Collection, NoReturn
 
@@ -19,6 +20,7 @@ from drivers.errors import InstrumentError, InstrumentFault
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading, EnvironmentSensor,
                                 FieldDescription, Instrument, LaserTracer, LengthReading, ReadingOutsideDescription,
                                 RotaryStage, Value, check_values, describe_kind)
+from drivers.kinds import KINDS
 
 MAX_IDENTITY_CHARS = 200
 # per kind: the unit its readings are in (what a driver class's ``reading_unit`` must say, if it says one)
@@ -60,9 +62,9 @@ class _Fenced:
     def __getattr__(self, attr: str) -> Any:  # what only this driver has (its line, its client)
         return getattr(self._inner, attr)
 
-    def _call(self, method: str, *args: Any) -> Any:
+    def _call(self, method: str, *args: Any, **kwargs: Any) -> Any:
         try:
-            return getattr(self._inner, method)(*args)
+            return getattr(self._inner, method)(*args, **kwargs)
         except InstrumentError:
             raise
         except Exception as exc:  # noqa: BLE001 — a plugin's failure is the instrument's, named, never a traceback
@@ -233,16 +235,61 @@ class FencedEnvironmentSensor(_Fenced, EnvironmentSensor):
 FENCES: dict[str, Callable[..., Instrument]] = {
     "stage": FencedStage, "cmm": FencedCmm, "laser_tracer": FencedLaserTracer, "encoder": FencedEncoder,
     "autocollimator": FencedAutocollimator, "dial_indicator": FencedDialIndicator, "environment": FencedEnvironmentSensor}
-INTERFACES: dict[str, type[Instrument]] = {
-    "stage": RotaryStage, "cmm": Cmm, "laser_tracer": LaserTracer, "encoder": Encoder, "autocollimator": Autocollimator,
-    "dial_indicator": DialIndicator, "environment": EnvironmentSensor}
+
+
+class FencedKind(_Fenced):
+    """An installed kind's fence (drivers/kinds.py): its interface's own methods reach the driver through
+    :meth:`_Fenced._call`, and its readings are checked where they become values: :meth:`read_values`
+    against the kind's description (names, units, finite, within each field's physical range); whatever
+    else its adapter raises is the plugin's fault, named."""
+
+    def read_values(self, fields: Collection[str] | None = None) -> dict[str, Value]:
+        try:
+            return super().read_values(fields)
+        except InstrumentError:
+            raise
+        except Exception as exc:  # noqa: BLE001 — see _Fenced._call
+            raise InstrumentFault(self.name, f"{what_plugin(self._model_name, self._plugin)}: its "
+                                             f"{self._kind.replace('_', ' ')}'s reading raised {type(exc).__name__}: "
+                                             f"{shown_identity(str(exc))}") from None
+
+
+_KIND_FENCES: dict[type[Instrument], type[Instrument]] = {}  # per installed kind's interface
+
+
+def _forwarded(method: str) -> Callable[..., Any]:
+    def forward(self: _Fenced, *args: Any, **kwargs: Any) -> Any:
+        return self._call(method, *args, **kwargs)
+
+    forward.__name__ = forward.__qualname__ = method
+    return forward
+
+
+def fence_class(kind: str) -> Callable[..., Instrument]:
+    """The fence of ``kind``: a built-in kind's own, else one made once from an installed kind's interface
+    (each public method it adds to Instrument forwarded, so that the driver's own are what run)."""
+    if kind in FENCES:
+        return FENCES[kind]
+    interface = KINDS[kind].interface
+    if interface not in _KIND_FENCES:
+        own = {name for c in interface.__mro__ if issubclass(c, Instrument) and c is not Instrument
+               for name, v in vars(c).items() if not name.startswith("_") and inspect.isfunction(v)}
+        _KIND_FENCES[interface] = type(f"Fenced{interface.__name__}", (FencedKind, interface),
+                                       {name: _forwarded(name) for name in sorted(own - set(vars(_Fenced)))})
+    return _KIND_FENCES[interface]
+
+
+def reading_unit(kind: str) -> str:
+    """The unit a driver class of ``kind`` may declare as its ``reading_unit``: UNITS', or an installed kind's
+    fields' units."""
+    return UNITS.get(kind) or ", ".join(dict.fromkeys(f.unit for f in describe_kind(kind).values()))
 
 
 def refuse_unfit_class(kind: str, model: str, plugin: str, target: str, cls: Any) -> None:
     """A driver class that does not subclass its kind's interface (drivers/interfaces.py) is refused
     before it is built (AddressError, exit 2): nothing that is not a stage, say, may move the table —
     its methods' meaning is the interface's contract, not a set of matching names."""
-    interface = INTERFACES[kind]
+    interface = KINDS[kind].interface
     if isinstance(cls, type) and issubclass(cls, interface):
         return
     needed = sorted(getattr(interface, "__abstractmethods__", ())) + ["close", "identity"]
@@ -264,14 +311,14 @@ def fenced(kind: str, model: str, plugin: str, build: Callable[[], Instrument]) 
         raise InstrumentFault(kind, f"{what_plugin(model, plugin)}: could not be opened: its constructor raised "
                                     f"{type(exc).__name__}: {shown_identity(str(exc))}") from None
     unit = getattr(type(inner), "reading_unit", None)  # a plugin may declare the unit its readings are in
-    if unit is not None and unit != UNITS[kind]:
+    if unit is not None and unit != reading_unit(kind):
         _refuse(inner, kind, f"{what_plugin(model, plugin)} declares its readings in {shown_identity(str(unit))[:20]!r}; "
-                             f"a {kind.replace('_', ' ')} reads {UNITS[kind]}")
+                             f"a {kind.replace('_', ' ')} reads {reading_unit(kind)}")
     refused = _described_otherwise(kind, inner)
     if refused:
         _refuse(inner, kind, f"{what_plugin(model, plugin)} describes its readings otherwise than a "
                              f"{kind.replace('_', ' ')} reads: {shown_identity(refused)[:120]}")
-    return FENCES[kind](inner, kind, model, plugin)
+    return fence_class(kind)(inner, kind, model, plugin)
 
 
 def _refuse(inner: Any, kind: str, message: str) -> NoReturn:

@@ -41,6 +41,9 @@ class FieldDescription:
     probe_key: str | None = ""
     probe_divisor: float = 1.0
     probe_nan: str = "keep"  # "null", "omit" or "keep"
+    # (lowest, highest) no instrument of the kind can read beyond: a value outside is refused, not stored
+    # (None: the built-in kinds' fences in drivers/fence.py hold their ranges)
+    physical_range: tuple[float, float] | None = None
 
     def quantity(self, purpose: str = "") -> str:
         """The quantity a reading of this field taken for ``purpose`` is stored under."""
@@ -89,15 +92,29 @@ DESCRIPTIONS: dict[str, dict[str, FieldDescription]] = {
 }
 
 
+def _table(kind: str) -> Mapping[str, FieldDescription]:
+    """The kind's description: its table above, or an installed kind's fields (drivers/kinds.py)."""
+    if kind in DESCRIPTIONS:
+        return DESCRIPTIONS[kind]
+    from drivers.kinds import KINDS  # the registry imports this module
+
+    return KINDS[kind].fields
+
+
 def describe_kind(kind: str) -> dict[str, FieldDescription]:
     """The description of every instrument of ``kind`` (KeyError for a kind rtcal does not know)."""
-    return dict(DESCRIPTIONS[kind])
+    return dict(_table(kind))
 
 
 def recorded(kind: str, *names: str, purpose: str = "") -> tuple[tuple[str, str], ...]:
     """(quantity, unit) of each named field of ``kind`` read for ``purpose``: what a plan's Read stores."""
-    table = DESCRIPTIONS[kind]
+    table = _table(kind)
     return tuple((table[n].quantity(purpose), table[n].unit) for n in names)
+
+
+def a_kind(kind: str) -> str:
+    """``kind`` as a message names one instrument of it: "an inclinometer", "a dial indicator"."""
+    return ("an " if kind[:1] in "aeiou" else "a ") + kind.replace("_", " ")
 
 
 class ReadingOutsideDescription(ValueError):
@@ -106,8 +123,9 @@ class ReadingOutsideDescription(ValueError):
 
 def check_values(kind: str, values: Mapping[str, object], fields: Collection[str] | None = None) -> dict[str, Value]:
     """``values`` as the kind's description says they must be: every described name (of ``fields``, if
-    given), no other, each a :class:`Value` in the described unit, finite unless the field may be NaN."""
-    table = DESCRIPTIONS[kind]
+    given), no other, each a :class:`Value` in the described unit, finite unless the field may be NaN, and
+    within the field's physical range if it states one."""
+    table = _table(kind)
     if fields is not None:
         unknown = sorted(set(fields) - set(table))
         if unknown:
@@ -135,6 +153,10 @@ def check_values(kind: str, values: Mapping[str, object], fields: Collection[str
             raise ReadingOutsideDescription(f"{name} is {float(number)}: not a reading")
         if f.dtype == "integer" and not float(number).is_integer():
             raise ReadingOutsideDescription(f"{name} is {float(number)}: its description says a whole number")
+        lo, hi = f.physical_range or (-math.inf, math.inf)
+        if not lo <= float(number) <= hi and not math.isnan(float(number)):
+            raise ReadingOutsideDescription(f"{name} {float(number):.9g} {f.unit} is outside what {a_kind(kind)} can read "
+                                            f"({lo:g} … {hi:g} {f.unit})")
         out[name] = Value(float(number), f.unit)
     return out
 
@@ -145,7 +167,7 @@ class Instrument(ABC):
     Every kind also reads uniformly: :meth:`describe` (its kind's table, once per device) and
     :meth:`read_values` (named values with units), adapters over the kind's own read methods."""
 
-    kind: str = ""  # which table of DESCRIPTIONS describes it
+    kind: str = ""  # which table of DESCRIPTIONS (or installed kind, drivers/kinds.py) describes it
     name: str = "instrument"
     model: str = ""  # the product whose protocol a real-transport driver speaks (drivers/models.py)
     # how the protocol keeps other clients out while rtcal holds the instrument, as a certificate

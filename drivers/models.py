@@ -15,9 +15,11 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from drivers.addresses import AddressError
+from drivers.interfaces import a_kind
 
 ENTRY_POINT_GROUP = "rtcal.drivers"
 
+# the built-in kinds; drivers.kinds.KINDS is every kind, installed ones too
 KINDS = ("stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator", "environment")
 
 
@@ -123,7 +125,9 @@ def find_model(name: str) -> Model:
 def model_for(kind: str, options: dict[str, str], scheme: str = "") -> Model:
     """The model an address names for an instrument of ``kind`` (without ``model=``: the kind's
     default, or the one built-in model of the kind that speaks the address's ``scheme``)."""
-    name = options.get("model", DEFAULT_MODEL[kind])
+    if kind not in DEFAULT_MODEL and "model" not in options:  # an installed kind: its one installed model
+        return _installed_model_of(kind)
+    name = options.get("model", DEFAULT_MODEL.get(kind, ""))
     if "model" not in options and scheme and scheme not in BUILTIN[name].schemes:
         speaking = [m.name for m in BUILTIN.values() if m.kind == kind and scheme in m.schemes]
         name = speaking[0] if len(speaking) == 1 else name
@@ -131,3 +135,12 @@ def model_for(kind: str, options: dict[str, str], scheme: str = "") -> Model:
     if model.kind != kind:
         raise AddressError(f"model {model.name!r} is a {model.kind.replace('_', ' ')}, not a {kind.replace('_', ' ')}")
     return model
+
+
+def _installed_model_of(kind: str) -> Model:
+    """An installed kind has no built-in model: the address names one with ``model=``, unless one is installed."""
+    models = sorted(m.name for m in plugins().values() if m.kind == kind)
+    if len(models) != 1:
+        raise AddressError(f"{a_kind(kind)} has no built-in model: name its model with model= "
+                           f"({'installed: ' + ', '.join(models) if models else 'none is installed'})")
+    return find_model(models[0])

@@ -85,9 +85,9 @@ def _wheel(package: Path, out: Path) -> Path:
     return wheel
 
 
-def venv_with_plugin(package: Path, tmp: Path) -> Path:
+def venv_with_plugin(package: Path, tmp: Path, *more: Path) -> Path:
     """A fresh venv that sees rtcal (and its dependencies) but not the tests' process, with ``package``
-    (one of tests/plugins/) installed into it by pip from its wheel; its python."""
+    (one of tests/plugins/, and any ``more``) installed into it by pip from its wheel; its python."""
     fresh = tmp / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(fresh)], check=True, timeout=60)
     python = fresh / "bin" / "python"
@@ -95,8 +95,8 @@ def venv_with_plugin(package: Path, tmp: Path) -> Path:
                                capture_output=True, text=True, check=True).stdout.strip())
     (site / "rtcal_base.pth").write_text(f"import site; site.addsitedir({sysconfig.get_paths()['purelib']!r})\n")
     install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "--no-compile", "--quiet",
-                              "--prefix", str(fresh), str(_wheel(package, tmp))], capture_output=True, text=True,
-                             timeout=120)
+                              "--prefix", str(fresh), *(str(_wheel(p, tmp)) for p in (package, *more))],
+                             capture_output=True, text=True, timeout=120)
     assert install.returncode == 0, install.stderr
     return python
 

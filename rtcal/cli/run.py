@@ -274,11 +274,11 @@ def add_resume(sub: Any) -> None:
 
 
 def add_probe(sub: Any) -> None:
-    from drivers.models import KINDS
+    from drivers.kinds import KINDS
 
     pr = sub.add_parser("probe", help="connect to one instrument, identify it where its protocol allows, take one "
                                       "reading and print it; exit 1 if it does not answer or answers wrongly")
-    pr.add_argument("kind", choices=(*KINDS, "machine"), help="the kind of instrument (machine: the machine's OPC "
+    pr.add_argument("kind", choices=(*KINDS.names(), "machine"), help="the kind of instrument (machine: the machine's OPC "
                                                                "40001-1 identification at opc.tcp://HOST:PORT)")
     pr.add_argument("address", help="its address, e.g. socket://10.0.0.5:4001?model=sylvac or ipp://cmm:1294 "
                                     "(model= picks the product; docs/protocols/)")

@@ -22,7 +22,7 @@ from drivers.addresses import AddressError
 from drivers.errors import InstrumentError, TrackingLost
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer,
                                 RotaryStage)
-from drivers.models import KINDS
+from drivers.kinds import KINDS
 
 
 
@@ -82,7 +82,7 @@ def read_once(kind: str, instrument: Instrument) -> dict[str, float | None]:
 def probe(kind: str, address: str, timeout_s: float = 2.0, **context: Any) -> ProbeResult:
     """Open, identify, read once, close. AddressError for a malformed address; InstrumentError else."""
     if kind not in KINDS:
-        raise AddressError(f"unknown kind {kind!r} (known: {', '.join(KINDS)})")
+        raise AddressError(KINDS.unknown(kind))
     _, model = factory.resolve(kind, address)
     if kind == "dial_indicator":
         context.setdefault("name", "dial_indicator")
@@ -158,7 +158,7 @@ def check(proc, addresses: dict[str, str] | None = None, operator_address: str =
     rows: list[CheckRow] = []
     for name in instruments.present():
         choice = getattr(instruments, name)
-        kind = factory.KIND_OF[name]
+        kind = factory.kind_of(name)
         if choice.is_sim:
             rows.append(CheckRow(name, "sim", "simulated", "in process, on the bench"))
             continue

@@ -22,6 +22,7 @@ from pydantic import Field, ValidationInfo, model_validator
 
 from drivers import factory
 from drivers.interfaces import Encoder, RotaryStage
+from drivers.interfaces import Instrument, recorded
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.engine.plan import Attempt, Entry
@@ -40,17 +41,32 @@ from simulators.scenario import Scenario
 from simulators.truth import abbe_truth
 
 NAME = "encoder_vs_command"
+# the optional inclinometer: an installed instrument kind (tests/plugins/toy_kind), taken by its name
+INCLINOMETER = "inclinometer"
+TILT_FIELDS = ("tilt_x_arcsec", "tilt_y_arcsec")
 
 
 # -- the procedure ------------------------------------------------------------------------------------
 class Instruments(InstrumentsBase):
     stage: StageChoice = Field(StageChoice(), description="the rotary table's drive")
     encoder: InstrumentChoice = Field(InstrumentChoice(), description="the counter of the table's own encoder")
+    inclinometer: InstrumentChoice | None = Field(None, description=(
+        "an electronic level on the table (kind `inclinometer`, package rtcal-toy-kind), read once per visit after "
+        "the encoder (e.g. {backend: sim})"))
+
+    @model_validator(mode="after")
+    def _inclinometer_installed(self) -> "Instruments":
+        from drivers.kinds import KINDS
+
+        if self.inclinometer is not None and INCLINOMETER not in KINDS:
+            raise ValueError(f"inclinometer: {KINDS.unknown(INCLINOMETER)}; install rtcal-toy-kind")
+        return self
 
 
 class OnFault(StrictModel):
     stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
     encoder: FaultPolicy = Field(FaultPolicy(), description="when the encoder counter fails")
+    inclinometer: FaultPolicy = Field(FaultPolicy(), description="when the inclinometer fails")
 
 
 class Verification(VerificationBase):
@@ -139,13 +155,16 @@ def planned_visits(proc: EncoderVsCommand) -> list[Visit]:
 class InstrumentSet:
     stage: RotaryStage
     encoder: Encoder
+    inclinometer: Instrument | None = None
 
     def devices(self) -> dict[str, Any]:
-        return {"stage": self.stage, "encoder": self.encoder}
+        return {"stage": self.stage, "encoder": self.encoder, **({INCLINOMETER: self.inclinometer} if self.inclinometer else {})}
 
     def close(self) -> None:
         self.stage.close()
         self.encoder.close()
+        if self.inclinometer is not None:
+            self.inclinometer.close()
 
 
 class EncoderPlan:
@@ -160,6 +179,8 @@ class EncoderPlan:
         self.policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
         self.checks = MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
         self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
+        # the inclinometer's quantities as its kind describes them (None: no inclinometer)
+        self.tilt = recorded(INCLINOMETER, *TILT_FIELDS) if proc.instruments.inclinometer is not None else None
         self.entries = [
             Entry(k, 0, {"station": v.step, "run": v.run, "direction": v.direction, "commanded_angle_deg": v.angle_deg,
                          "plan_index": k, "segment": generation},
@@ -192,8 +213,16 @@ class EncoderPlan:
             value = yield Read("encoder", (("angle_deg", "deg"),), lambda encoder: encoder.read_angle_deg(), angle,
                                f"reading at {angle:g}°", sample=s)
             self.encoder_moves.check(float(value), angle)
+        if self.tilt is not None:
+            yield Read(INCLINOMETER, self.tilt, read_tilt, angle, f"tilt at {angle:g}°")
         yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: self.checks.stage_still(stage, feedback), angle,
                    f"position at {angle:g}°")
+
+
+def read_tilt(level: Instrument) -> list[float]:
+    """The inclinometer's reading through its kind's described values (what the fence checks)."""
+    values = level.read_values(TILT_FIELDS)
+    return [values[n].value for n in TILT_FIELDS]
 
 
 # -- results -----------------------------------------------------------------------------------------
@@ -385,12 +414,19 @@ class EncoderVsCommandMethod:
         return len(planned_visits(proc))
 
     def sim_instruments(self, proc: EncoderVsCommand, bench: Bench) -> InstrumentSet:
-        return InstrumentSet(SimStage(bench), SimEncoder(bench))
+        level = None
+        if proc.instruments.inclinometer is not None:
+            from rtcal_toy_kind import SimInclinometer  # the kind's package brings its simulation (extra `inclinometer`)
+
+            level = SimInclinometer(bench)
+        return InstrumentSet(SimStage(bench), SimEncoder(bench), level)
 
     def transport_instruments(self, proc: EncoderVsCommand) -> InstrumentSet:
         i = proc.instruments
+        level = (factory.open_instrument(INCLINOMETER, address_of(i.inclinometer), i.inclinometer.timeout_s)
+                 if i.inclinometer is not None else None)
         return InstrumentSet(factory.open_stage(address_of(i.stage), i.stage.soft_limits_deg, i.stage.timeout_s),
-                             factory.open_encoder(address_of(i.encoder), i.encoder.timeout_s))
+                             factory.open_encoder(address_of(i.encoder), i.encoder.timeout_s), level)
 
     def prepare(self, proc: EncoderVsCommand, operator: Any) -> dict[str, str]:
         return {}
@@ -416,7 +452,8 @@ class EncoderVsCommandMethod:
         return None
 
     def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
-        return {"encoder": "measuring instrument: the table's own encoder, read against the command (not a reference standard)"}
+        return {"encoder": "measuring instrument: the table's own encoder, read against the command (not a reference standard)",
+                INCLINOMETER: "monitor: the table's tilt at each visit, recorded, not used in the result"}
 
     def outputs(self, results: rm.RunResults) -> EncoderOutputs:
         if not isinstance(results, EncoderResults):
