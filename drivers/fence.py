@@ -19,7 +19,8 @@ from drivers.addresses import AddressError
 from drivers.errors import InstrumentError, InstrumentFault
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading, EnvironmentSensor,
                                 FieldDescription, Instrument, LaserTracer, LengthReading, ReadingOutsideDescription,
-                                RotaryStage, Value, check_values, describe_kind)
+                                RotaryStage, Value)
+from drivers.kinds import check_values, describe_kind
 from drivers.kinds import KINDS
 
 MAX_IDENTITY_CHARS = 200

@@ -92,26 +92,6 @@ DESCRIPTIONS: dict[str, dict[str, FieldDescription]] = {
 }
 
 
-def _table(kind: str) -> Mapping[str, FieldDescription]:
-    """The kind's description: its table above, or an installed kind's fields (drivers/kinds.py)."""
-    if kind in DESCRIPTIONS:
-        return DESCRIPTIONS[kind]
-    from drivers.kinds import KINDS  # the registry imports this module
-
-    return KINDS[kind].fields
-
-
-def describe_kind(kind: str) -> dict[str, FieldDescription]:
-    """The description of every instrument of ``kind`` (KeyError for a kind rtcal does not know)."""
-    return dict(_table(kind))
-
-
-def recorded(kind: str, *names: str, purpose: str = "") -> tuple[tuple[str, str], ...]:
-    """(quantity, unit) of each named field of ``kind`` read for ``purpose``: what a plan's Read stores."""
-    table = _table(kind)
-    return tuple((table[n].quantity(purpose), table[n].unit) for n in names)
-
-
 def a_kind(kind: str) -> str:
     """``kind`` as a message names one instrument of it: "an inclinometer", "a dial indicator"."""
     return ("an " if kind[:1] in "aeiou" else "a ") + kind.replace("_", " ")
@@ -121,11 +101,11 @@ class ReadingOutsideDescription(ValueError):
     """A reading that is not what its instrument's description says (a name, a unit, NaN)."""
 
 
-def check_values(kind: str, values: Mapping[str, object], fields: Collection[str] | None = None) -> dict[str, Value]:
-    """``values`` as the kind's description says they must be: every described name (of ``fields``, if
-    given), no other, each a :class:`Value` in the described unit, finite unless the field may be NaN, and
-    within the field's physical range if it states one."""
-    table = _table(kind)
+def check_described(kind: str, table: Mapping[str, FieldDescription], values: Mapping[str, object],
+                    fields: Collection[str] | None = None) -> dict[str, Value]:
+    """``values`` as the kind's description ``table`` says they must be: every described name (of
+    ``fields``, if given), no other, each a :class:`Value` in the described unit, finite unless the field
+    may be NaN, and within the field's physical range if it states one (by kind name: drivers/kinds.py)."""
     if fields is not None:
         unknown = sorted(set(fields) - set(table))
         if unknown:
@@ -167,7 +147,7 @@ class Instrument(ABC):
     Every kind also reads uniformly: :meth:`describe` (its kind's table, once per device) and
     :meth:`read_values` (named values with units), adapters over the kind's own read methods."""
 
-    kind: str = ""  # which table of DESCRIPTIONS (or installed kind, drivers/kinds.py) describes it
+    kind: str = ""  # which table of DESCRIPTIONS describes it (an installed kind declares ``fields``: drivers/kinds.py)
     name: str = "instrument"
     model: str = ""  # the product whose protocol a real-transport driver speaks (drivers/models.py)
     # how the protocol keeps other clients out while rtcal holds the instrument, as a certificate
@@ -185,16 +165,24 @@ class Instrument(ABC):
         """Clear what the instrument latched after an error (a drive alarm, a CMM's error state)
         so that the next request can succeed; the fault policies call it before a retry."""
 
+    @classmethod
+    def described_fields(cls) -> dict[str, FieldDescription]:
+        """The kind's one table: a built-in kind's in DESCRIPTIONS, an installed kind's ``fields``."""
+        declared = getattr(cls, "fields", None)
+        if isinstance(declared, tuple):
+            return {f.name: f for f in declared}
+        return dict(DESCRIPTIONS[cls.kind])
+
     def describe(self) -> dict[str, FieldDescription]:
         """Name → description of every value :meth:`read_values` gives (the kind's one table)."""
-        return describe_kind(self.kind)
+        return type(self).described_fields()
 
     def read_values(self, fields: Collection[str] | None = None) -> dict[str, Value]:
         """One reading as named values with units (every described field, or those named), checked
         against :meth:`describe`."""
         wanted = frozenset(self.describe() if fields is None else fields)
         values = self._raw_values(wanted)
-        return check_values(self.kind, {n: v for n, v in values.items() if n in wanted}, wanted)
+        return check_described(self.kind, self.describe(), {n: v for n, v in values.items() if n in wanted}, wanted)
 
     def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         """The kind's adapter: its own read methods, called once each for what ``wanted`` needs."""

@@ -19,13 +19,13 @@ a plugin that fails to load or is malformed is left out and named in :attr:`Kind
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
 
 from drivers.interfaces import (DESCRIPTIONS, PURPOSES, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor,
-                                FieldDescription, Instrument, LaserTracer, RotaryStage)
+                                FieldDescription, Instrument, LaserTracer, RotaryStage, Value, check_described)
 
 ENTRY_POINT_GROUP = "rtcal.instrument_kinds"
 # the store's marker quantities (rtcal/run/store.py MARKERS): no described field may be stored under them
@@ -145,3 +145,19 @@ class KindRegistry(Mapping[str, Kind]):
 
 KINDS = KindRegistry(BUILTIN)
 """Every instrument kind, by name (built in, and installed plugins')."""
+
+
+def describe_kind(kind: str) -> dict[str, FieldDescription]:
+    """The description of every instrument of ``kind`` (KeyError for a kind rtcal does not know)."""
+    return dict(KINDS[kind].fields)
+
+
+def recorded(kind: str, *names: str, purpose: str = "") -> tuple[tuple[str, str], ...]:
+    """(quantity, unit) of each named field of ``kind`` read for ``purpose``: what a plan's Read stores."""
+    table = KINDS[kind].fields
+    return tuple((table[n].quantity(purpose), table[n].unit) for n in names)
+
+
+def check_values(kind: str, values: Mapping[str, object], fields: Collection[str] | None = None) -> dict[str, Value]:
+    """``values`` as the kind's description says they must be (:func:`drivers.interfaces.check_described`)."""
+    return check_described(kind, KINDS[kind].fields, values, fields)

@@ -18,7 +18,8 @@ import pytest
 from drivers.errors import InstrumentFault
 from drivers.fence import fenced
 from drivers.interfaces import (DESCRIPTIONS, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading,
-                                EnvironmentSensor, LaserTracer, LengthReading, RotaryStage, Value, describe_kind, recorded)
+                                EnvironmentSensor, LaserTracer, LengthReading, RotaryStage, Value)
+from drivers.kinds import describe_kind, recorded
 from drivers.models import KINDS
 from rtcal.clock import VirtualClock
 from rtcal.cli import main

@@ -21,8 +21,9 @@ from drivers import factory
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentFault
 from drivers.fence import fenced, refuse_unfit_class
-from drivers.interfaces import FieldDescription, Instrument, Value, describe_kind, recorded
-from rtcal.procedure.loader import load_procedure
+from drivers.interfaces import FieldDescription, Instrument, Value
+from drivers.kinds import describe_kind, recorded
+from rtcal.methods import load_procedure
 from rtcal.procedure.yamlfile import FileProblems
 from tests.test_plugins import venv_with_plugin
 

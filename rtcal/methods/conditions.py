@@ -3,7 +3,8 @@ readings it accompanies, never holding them up (an optional step)."""
 
 from __future__ import annotations
 
-from drivers.interfaces import DESCRIPTIONS, EnvironmentSensor, recorded
+from drivers.interfaces import DESCRIPTIONS, EnvironmentSensor
+from drivers.kinds import recorded
 from rtcal.engine.steps import Read
 
 ENVIRONMENT_FIELDS = tuple(DESCRIPTIONS["environment"])

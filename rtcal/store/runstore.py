@@ -241,7 +241,7 @@ def described_in(db: sqlite3.Connection) -> dict[tuple[str, str], StoredDescript
     written before them does not describe — the kind tables (drivers/interfaces.py) of the instruments
     a procedure names (the same names and units: the plans have always stored them so)."""
     from drivers.factory import KIND_OF
-    from drivers.interfaces import describe_kind
+    from drivers.kinds import describe_kind
 
     found = {(d.instrument, d.quantity): d for name, kind in KIND_OF.items()
              for d in descriptions_of(name, kind, describe_kind(kind).values())}

@@ -17,7 +17,8 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage, recorded
+from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage
+from drivers.kinds import recorded
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
 from rtcal.methods.conditions import environment_read

@@ -16,7 +16,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from drivers.interfaces import DESCRIPTIONS, Cmm, EnvironmentSensor, LaserTracer, RotaryStage, recorded
+from drivers.interfaces import DESCRIPTIONS, Cmm, EnvironmentSensor, LaserTracer, RotaryStage
+from drivers.kinds import recorded
 from rtcal.engine.plan import Attempt, Entry
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Settle, Skipped,
                                 Step, Validate)

@@ -22,7 +22,8 @@ from pydantic import Field, ValidationInfo, model_validator
 
 from drivers import factory
 from drivers.interfaces import Encoder, RotaryStage
-from drivers.interfaces import Instrument, recorded
+from drivers.interfaces import Instrument
+from drivers.kinds import recorded
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.engine.plan import Attempt, Entry
