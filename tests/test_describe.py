@@ -221,8 +221,8 @@ class OneReadPlan:
     method = "test_describe"
     retake_skipped = False
 
-    def __init__(self, quantities):
-        self.quantities = quantities
+    def __init__(self, fields):
+        self.fields = fields
         self.policies = {"encoder": FaultPolicy(retries=0, backoff_s=0.0)}
         self.entries = [Entry(0, 0, {"plan_index": 0}, {}, "one reading")]
 
@@ -239,18 +239,19 @@ class OneReadPlan:
         return None
 
     def attempt(self, entry):
-        yield Read("encoder", self.quantities, lambda encoder: encoder.read_angle_deg(), 0.0, "reading")
+        yield Read("encoder", self.fields, None, 0.0, "reading")
 
 
-def test_the_engine_refuses_a_quantity_its_device_does_not_describe_and_publishes_the_descriptions():
+def test_the_engine_refuses_a_field_its_device_does_not_describe_and_publishes_the_descriptions():
+    """A plan names fields; what is stored, and in which unit, is the device's description's."""
     docs: list = []
     engine = Engine({"encoder": Counter()}, VirtualClock(), None, [lambda n, d: docs.append((n, d))])
-    assert engine.run(OneReadPlan(recorded("encoder", "angle_deg"))) == 1
+    assert engine.run(OneReadPlan(("angle_deg",))) == 1
     start = dict(docs)["start"]
     assert {(d.instrument, d.quantity, d.unit) for d in start["descriptions"]} >= {("encoder", "angle_deg", "deg")}
     readings = [r for n, d in docs if n == "readings" for r in d["readings"]]
     assert [(r.quantity, r.value, r.unit) for r in readings] == [("angle_deg", 45.0001, "deg")]
-    for wrong in ((("angle_rad", "rad"),), (("angle_deg", "rad"),)):
+    for wrong in (("angle_rad",), ("angle_deg", "x_arcsec")):
         with pytest.raises(TypeError, match="is not in its description"):
             Engine({"encoder": Counter()}, VirtualClock(), None).run(OneReadPlan(wrong))
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from drivers.errors import InstrumentFault
+from drivers.interfaces import FieldDescription, Instrument, Value
 from rtcal.clock import VirtualClock
 from rtcal.engine.engine import AbortRequested, Engine
 from rtcal.engine.faults import RunAborted
@@ -54,8 +55,12 @@ class FakeStage:
         self.stopped += 1
 
 
-class FakeProbe:
-    """Reads the stage's angle times two; scripted calls fault, or read a value the plan's check refuses."""
+class FakeProbe(Instrument):
+    """Reads the stage's angle times two; scripted calls fault, or read a value the plan's check refuses.
+    It describes its one value, as every instrument does: the engine reads through ``read_values``."""
+
+    kind = "probe"
+    fields = (FieldDescription("twice_deg", "deg", "the stage's angle, twice"),)
 
     def __init__(self, stage: FakeStage, faults: dict[int, str] | None = None):
         self.stage, self.faults, self.calls = stage, faults or {}, 0
@@ -71,6 +76,9 @@ class FakeProbe:
 
     def recover(self) -> None:
         pass
+
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        return {"twice_deg": Value(self.read(), "deg")}
 
 
 class TwoDevicePlan:
@@ -105,7 +113,7 @@ class TwoDevicePlan:
         yield Move("stage", target, what=f"move to {target}")
         yield Settle(1.0)
         for s in range(2):
-            value = yield Read("probe", (("twice_deg", "deg"),), lambda probe: probe.read(), 2 * target, "probe", sample=s)
+            value = yield Read("probe", ("twice_deg",), None, 2 * target, "probe", sample=s)
             if abs(value - 2 * target) > 1e-9:
                 raise Contradiction("probe", f"read {value} where {2 * target} was expected")
 

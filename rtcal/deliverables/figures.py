@@ -7,7 +7,9 @@ import textwrap
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402,F401  (re-exported for the modules that plot)
+import matplotlib.pyplot as plt  # noqa: E402  (re-exported for the modules that plot)
+
+__all__ = ["legend_below", "plt"]
 
 
 def legend_below(fig, ncol: int = 2) -> None:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.errors import InstrumentFault
-from drivers.interfaces import Cmm, RotaryStage
 
 FLOOR_DEG = 1e-6  # a drive without steps still reports its position in floating point
 
@@ -38,7 +37,8 @@ def _arcsec(deg: float) -> str:
 
 
 class MotionChecks:
-    """The stage's and the CMM's positions against their commands and against themselves."""
+    """The stage's and the CMM's positions against their commands and against themselves: relations on
+    the values read (the engine reads; these only judge)."""
 
     def __init__(self, stage_step_deg: float, stage_tolerance_deg: float | None, cmm_tolerance_mm: float | None = None):
         self.stage_tolerance_deg = stage_tolerance_deg or max(2 * stage_step_deg, FLOOR_DEG)
@@ -49,18 +49,16 @@ class MotionChecks:
         source = "verification.stage_tolerance_deg" if self.stated else "two steps of the drive; verification.stage_tolerance_deg"
         return f"tolerance {self.stage_tolerance_deg * 3600:.3g}″, {source}"
 
-    def stage_at(self, stage: RotaryStage, command_deg: float) -> float:
+    def stage_at(self, feedback: float, command_deg: float) -> float:
         """The feedback position after settling, or Contradiction when it is not the command."""
-        feedback = stage.feedback_deg()
         off = feedback - command_deg
         if not abs(off) <= self.stage_tolerance_deg:
             raise Contradiction("stage", f"feedback position {feedback:.6f}° where {command_deg:.6f}° was commanded: "
                                          f"{_arcsec(off)} off ({self._stage_tolerance()})")
         return feedback
 
-    def stage_still(self, stage: RotaryStage, before_deg: float) -> float:
+    def stage_still(self, feedback: float, before_deg: float) -> float:
         """The feedback position after a reading, or UncommandedMotion when the table turned during it."""
-        feedback = stage.feedback_deg()
         if not abs(feedback - before_deg) <= self.stage_tolerance_deg:
             raise UncommandedMotion("stage", f"the table turned {_arcsec(feedback - before_deg)} during a reading while "
                                              f"nothing was commanded ({self._stage_tolerance()}): another client or a hand "
@@ -72,10 +70,10 @@ class MotionChecks:
             raise ValueError("these motion checks were made without a CMM tolerance: they check no CMM")
         return self.cmm_tolerance_mm
 
-    def cmm_at(self, cmm: Cmm, point_mm: np.ndarray) -> np.ndarray:
+    def cmm_at(self, position_mm: tuple[float, float, float], point_mm: np.ndarray) -> np.ndarray:
         """The CMM's reported position, or Contradiction when it is not the commanded point."""
         tolerance_mm = self._cmm_tolerance()
-        xyz = np.asarray(cmm.position_mm(), float)
+        xyz = np.asarray(position_mm, float)
         off = float(np.linalg.norm(xyz - point_mm))
         if not off <= tolerance_mm:
             raise Contradiction("cmm", f"reported position {np.round(xyz, 4).tolist()} mm where "
@@ -83,10 +81,10 @@ class MotionChecks:
                                        f"(tolerance {tolerance_mm:g} mm, verification.cmm_tolerance_mm)")
         return xyz
 
-    def cmm_still(self, cmm: Cmm, before_mm: np.ndarray) -> np.ndarray:
+    def cmm_still(self, position_mm: tuple[float, float, float], before_mm: np.ndarray) -> np.ndarray:
         """The reported position after a reading, or UncommandedMotion when the probe moved during it."""
         tolerance_mm = self._cmm_tolerance()
-        xyz = np.asarray(cmm.position_mm(), float)
+        xyz = np.asarray(position_mm, float)
         moved = float(np.linalg.norm(xyz - before_mm))
         if not moved <= tolerance_mm:
             raise UncommandedMotion("cmm", f"the probe moved {moved:.4f} mm during a reading while nothing was commanded "

@@ -38,12 +38,12 @@ from __future__ import annotations
 import math
 import threading
 from functools import partial
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any, Callable, Collection, Iterable, Mapping, Protocol, Sequence, TypeGuard, runtime_checkable
 
 import numpy as np
 
-from drivers.errors import InstrumentError, TrackingLost
-from drivers.interfaces import Instrument
+from drivers.errors import InstrumentError, InstrumentFault, TrackingLost
+from drivers.interfaces import FieldDescription, Instrument, Value
 from rtcal.clock import Clock, VirtualClock
 from rtcal.engine import signals
 from rtcal.engine.walk import Motion, Timing
@@ -53,10 +53,46 @@ from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples,
                                 Skipped, Step, Validate)
 from rtcal.store.runstore import REJECTED, SKIPPED, Reading, descriptions_of
 from rtcal.engine.checks import Contradiction
-from rtcal.engine.motion import approach
+from rtcal.engine.motion import Turning, approach
 from rtcal.engine.operator import Confirmable, NothingToConfirm
 
 Subscriber = Callable[[str, dict[str, Any]], None]
+
+
+class Device(Protocol):
+    """What the engine asks of every device: reset what it latched (the kinds' interfaces, drivers/interfaces.py)."""
+
+    def recover(self) -> None: ...
+
+
+@runtime_checkable
+class Mover(Device, Protocol):
+    """A device the engine moves (a stage, a CMM): it checks targets, moves, reports where it is, and stops
+    (what the one safe-state path asks of everything moved)."""
+
+    def check_target(self, target: Any, /) -> None: ...
+
+    def move_to(self, target: Any, /) -> None: ...
+
+    def stop(self) -> None: ...
+
+
+@runtime_checkable
+class Reader(Device, Protocol):
+    """A device the engine reads: its described values (every reading goes through ``read_values``)."""
+
+    kind: str
+
+    def describe(self) -> dict[str, FieldDescription]: ...
+
+    def read_values(self, fields: Collection[str] | None = None) -> dict[str, Value]: ...
+
+
+@runtime_checkable
+class Tracker(Reader, Protocol):
+    """A tracking instrument (a laser tracer): referenced to start a segment."""
+
+    def reference(self) -> int: ...
 
 STATES = ("starting", "running", "paused", "stopping", "finished", "failed", "aborted")
 
@@ -78,7 +114,7 @@ class MeasuringFinished(RuntimeError):
 class Engine:
     """Executes plans against ``devices`` (name → driver) on ``clock``; see the module docstring."""
 
-    def __init__(self, devices: Mapping[str, Any], clock: Clock, operator: Any, subscribers: Sequence[Subscriber] = (),
+    def __init__(self, devices: Mapping[str, Device], clock: Clock, operator: Any, subscribers: Sequence[Subscriber] = (),
                  new_attempt: Callable[[], int] | None = None, next_segment: int = 0, motion_timing: Timing | None = None):
         self.devices = dict(devices)
         # a wired run on a virtual clock: its simulators move in their own processes, off this clock; each
@@ -92,7 +128,7 @@ class Engine:
         self.segment: int | None = None  # the tracking instrument's current segment; None: reference first
         self.state = "starting"
         self.faults_seen = 0
-        self._moved: list[str] = []  # devices this engine has commanded, in order: what a safe stop stops
+        self._moved: dict[str, Mover] = {}  # devices this engine has commanded, in order: what a safe stop stops
         self._safe = False
         self._pause = threading.Event()
         self._abort = threading.Event()
@@ -105,9 +141,9 @@ class Engine:
         self._faults: FaultHandler | None = None
         self._in_segment: dict[int, list[dict[str, Any]]] = {}  # tracking segment → contexts of the whole attempts in it
         self._tracking: set[str] = set()  # instruments read in tracking segments (ReadSamples)
-        self._described = {name: descriptions_of(name, d.kind, d.describe().values())
-                           for name, d in self.devices.items() if _describes(d)}
-        self._quantities = {name: {(r.quantity, r.unit) for r in rows} for name, rows in self._described.items()}
+        readers = {name: d for name, d in self.devices.items() if _describes(d)}
+        self._fields = {name: d.describe() for name, d in readers.items()}
+        self._described = {name: descriptions_of(name, d.kind, self._fields[name].values()) for name, d in readers.items()}
         if isinstance(operator, Confirmable):
             operator.listen(self._operator_asked)
 
@@ -278,13 +314,12 @@ class Engine:
             self._raw(step)
             return None
         if isinstance(step, ReadSamples):
-            device = self.devices[step.instrument]
-            self._check_described(step.instrument, ((step.quantity, step.unit),))
+            ((quantity, unit),) = self._recorded(step.instrument, (step.field,), step.purpose)
             values = []
             for n in range(step.count):
-                values.append(float(step.measure(device)))
+                values.append(self._values(step.instrument, (step.field,)))
                 self._spend(step.sample_s)
-                readings.append(Reading(self.clock.now_s(), step.instrument, step.quantity, values[-1], step.unit, sample=n,
+                readings.append(Reading(self.clock.now_s(), step.instrument, quantity, values[-1], unit, sample=n,
                                         segment=self.segment, **context))
             return Samples(tuple(values), False, self.segment)
         raise TypeError(f"not a step a check may take: {step!r}")
@@ -377,15 +412,35 @@ class Engine:
             answer, thrown = None, None
             try:
                 answer = self._execute(step, context, readings)
-            except Skipped as exc:
+            except (Skipped, Contradiction) as exc:  # the plan hears it (where its machines are is then unknown)
                 thrown = exc
         return all(r.quantity != SKIPPED for r in readings)
 
     # ---- steps ---------------------------------------------------------------------------------
+    def _mover(self, name: str) -> Mover:
+        """The device ``name`` as a step that moves it needs it (a plan that asks a device for what it cannot
+        do is a programming error, said before anything happens to it)."""
+        device = self.devices[name]
+        if not isinstance(device, Mover):
+            raise TypeError(_not_a(name, device, "moved (check_target, move_to, stop)"))
+        return device
+
+    def _reader(self, name: str) -> Reader:
+        device = self.devices[name]
+        if not _describes(device):
+            raise TypeError(_not_a(name, device, "read (describe, read_values)"))
+        return device
+
+    def _tracker(self, name: str) -> Tracker:
+        device = self.devices[name]
+        if not isinstance(device, Tracker):
+            raise TypeError(_not_a(name, device, "referenced (reference)"))
+        return device
+
     def _execute(self, step: Step, context: dict[str, Any], readings: list[Reading]) -> Any:
         if isinstance(step, Validate):
             for target in step.targets:
-                self.devices[step.instrument].check_target(target)
+                self._mover(step.instrument).check_target(target)
             return None
         if isinstance(step, Settle):
             self.clock.sleep(step.seconds)
@@ -431,11 +486,11 @@ class Engine:
         return result
 
     def _move(self, step: Move) -> None:
-        device = self.devices[step.instrument]
-        if step.instrument not in self._moved:
-            self._moved.append(step.instrument)
+        device = self._moved.setdefault(step.instrument, self._mover(step.instrument))
         start_s = self.clock.now_s()
         if step.direction:
+            if not isinstance(device, Turning):
+                raise TypeError(_not_a(step.instrument, device, "approached from one side (position_deg)"))
             approach(device, float(step.target), step.direction, step.overshoot_deg)
         else:
             device.move_to(step.target)
@@ -475,32 +530,43 @@ class Engine:
         for move in failed:  # the fault is recorded and retried as a motion of its own
             self._execute(move, context, readings)
 
-    def _check_described(self, instrument: str, quantities: Sequence[tuple[str, str]]) -> None:
-        """A plan stores only what its instrument's description names, in the described unit."""
-        known = self._quantities.get(instrument)
-        wrong = [q for q in quantities if known is not None and tuple(q) not in known]
-        if wrong:
-            raise TypeError(f"{instrument}: {wrong} is not in its description {sorted(known or ())}")
+    def _recorded(self, instrument: str, fields: Sequence[str], purpose: str) -> list[tuple[str, str]]:
+        """(quantity, unit) each field is stored as: what the instrument's description says (a plan names
+        fields, never a quantity or a unit)."""
+        described = self._fields.get(instrument)
+        if described is None:
+            raise TypeError(f"{instrument}: it does not describe its readings (describe(), read_values())")
+        unknown = [f for f in fields if f not in described]
+        if unknown:
+            raise TypeError(f"{instrument}: {unknown} is not in its description {sorted(described)}")
+        return [(described[f].quantity(purpose), described[f].unit) for f in fields]
+
+    def _values(self, instrument: str, fields: tuple[str, ...], optional: bool = False) -> Any:
+        """One reading of ``fields`` through the instrument's ``read_values``: a number, or a tuple in field
+        order. A value the instrument reports as not measured (NaN) is a fault of a reading the plan needs."""
+        read = self._reader(instrument).read_values(fields)
+        values = tuple(read[f].value for f in fields)
+        missing = [f for f, v in zip(fields, values) if math.isnan(v)]
+        if missing and not optional:
+            raise InstrumentFault(instrument, f"{', '.join(missing)} not measured (the instrument reports it invalid)")
+        return values[0] if len(values) == 1 else values
 
     def _read(self, step: Read, context: dict[str, Any], readings: list[Reading]) -> Any:
-        device = self.devices.get(step.instrument)
-        if device is None:
+        if step.instrument not in self.devices:
             return None
-        self._check_described(step.instrument, step.quantities)
-        redo = (lambda: self._raw_all(step.redo)) if step.redo else None
-        value = self._policy(step.instrument, lambda: step.measure(device), step.what, context, readings,
-                             recover=redo, optional=step.optional, sample=step.sample)
+        recorded = self._recorded(step.instrument, step.fields, step.purpose)
+        value = self._policy(step.instrument, lambda: self._values(step.instrument, step.fields, step.optional), step.what, context,
+                             readings, optional=step.optional, sample=step.sample)
         if value is None:
             return None
         t = self.clock.now_s()
-        values = _as_values(value, len(step.quantities))
         readings.extend(Reading(t, step.instrument, q, v, unit, sample=step.sample, **context)
-                        for (q, unit), v in zip(step.quantities, values) if math.isfinite(v))
-        return value
+                        for (q, unit), v in zip(recorded, _as_values(value, len(recorded))) if math.isfinite(v))
+        # every reading is kept as taken; one its relation contradicts rejects the attempt (thrown into the plan)
+        return value if step.check is None else step.check(value)
 
     def _samples(self, step: ReadSamples, context: dict[str, Any], readings: list[Reading]) -> Samples:
-        device = self.devices[step.instrument]
-        self._check_described(step.instrument, ((step.quantity, step.unit),))
+        ((quantity, unit),) = self._recorded(step.instrument, (step.field,), step.purpose)
         self._tracking.add(step.instrument)
         reacquired = [False]
 
@@ -511,19 +577,15 @@ class Engine:
         taken: list[Reading] = []
         any_reacquired = False
         while len(taken) < step.count:
-            value = self._policy(step.instrument, lambda: step.measure(device), step.what, context, readings,
-                                 reacquire=reacquire)
+            value = self._policy(step.instrument, lambda: self._values(step.instrument, (step.field,)), step.what,
+                                 context, readings, reacquire=reacquire)
             self._spend(step.sample_s)
             if reacquired[0]:  # a reading never mixes two tracking segments
                 taken, reacquired[0], any_reacquired = [], False, True
-            taken.append(Reading(self.clock.now_s(), step.instrument, step.quantity, float(value), step.unit,
+            taken.append(Reading(self.clock.now_s(), step.instrument, quantity, float(value), unit,
                                  sample=len(taken), segment=self.segment, **context))
         readings.extend(taken)
         return Samples(tuple(r.value for r in taken), any_reacquired, self.segment)
-
-    def _raw_all(self, steps: Sequence[Step]) -> None:
-        for step in steps:
-            self._raw(step)
 
     def _raw(self, step: Step) -> None:
         """A step of a recovery, outside the policies (the call it precedes is under its policy)."""
@@ -543,7 +605,7 @@ class Engine:
             self.clock.sleep(seconds)
 
     def _reference(self, instrument: str, where: str, why: str, seconds: float = 0.0) -> None:
-        self.devices[instrument].reference()
+        self._tracker(instrument).reference()
         self._spend(seconds)
         self.segment, self._next_segment = self._next_segment, self._next_segment + 1
         self._event(why, instrument, f"tracking segment {self.segment} referenced at {where}")
@@ -554,9 +616,9 @@ class Engine:
         self._safe = True
         with signals.held():  # a second signal, or an abort, does not cut the stop short
             failed: list[tuple[str, Exception]] = []
-            for name in self._moved:  # first the machines, then the records
+            for name, device in self._moved.items():  # first the machines, then the records
                 try:
-                    self.devices[name].stop()
+                    device.stop()
                 except Exception as exc:  # noqa: BLE001 — a half-dead transport must not keep the others moving
                     failed.append((name, exc))
             try:
@@ -567,7 +629,11 @@ class Engine:
                 pass
 
 
-def _describes(device: Any) -> bool:
+def _not_a(name: str, device: Device, what: str) -> str:
+    return f"{name}: a {type(device).__name__} cannot be {what}, as the plan's step asks"
+
+
+def _describes(device: Device) -> TypeGuard[Reader]:
     """A device that describes its readings (every rtcal instrument; a test's scripted stand-in may not)."""
     return isinstance(device, Instrument) and bool(device.kind)
 

@@ -13,10 +13,11 @@ An operator who cannot be reached (no terminal) is a fault too: the run stops sa
 
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Mapping, Protocol
 
 from drivers.errors import InstrumentError, TrackingLost
 from rtcal.clock import Clock
+from rtcal.engine.operator import Operator
 from rtcal.procedure.models import FaultPolicy
 from rtcal.engine.checks import Contradiction, UncommandedMotion
 
@@ -42,7 +43,7 @@ class RunAborted(InstrumentError):
 
 
 class FaultHandler:
-    def __init__(self, policies: dict[str, FaultPolicy], events: EventSink, clock: Clock, operator,
+    def __init__(self, policies: Mapping[str, FaultPolicy], events: EventSink, clock: Clock, operator: Operator,
                  safe_state: Callable[[], None]):
         self.policies = policies
         self.events = events
@@ -110,6 +111,8 @@ class FaultHandler:
         retaken after the pass and on resume), or abort; the policy of the instrument named decides."""
         policy = self.policies[exc.instrument]
         self.event("fault", exc.instrument, f"{what}: {exc}" if what else str(exc))
+        if isinstance(exc, UncommandedMotion):  # no retake gives rtcal its machine back
+            self.abort(exc.instrument, exc, "the machine moved while nothing was commanded")
         if tries < policy.retries:
             self.clock.sleep(policy.backoff_s * 2**tries)
             self.event("retry", exc.instrument, f"retry {tries + 1} of {policy.retries}: the reading taken again")

@@ -2,10 +2,19 @@
 
 from __future__ import annotations
 
-from drivers.interfaces import RotaryStage
+from typing import Protocol, runtime_checkable
 
 
-def approach(stage: RotaryStage, target_deg: float, direction: int, overshoot_deg: float) -> None:
+@runtime_checkable
+class Turning(Protocol):
+    """What an approach needs of a table: where it is, and a move (a rotary stage's interface has both)."""
+
+    def position_deg(self) -> float: ...
+
+    def move_to(self, angle_deg: float, /) -> None: ...
+
+
+def approach(stage: Turning, target_deg: float, direction: int, overshoot_deg: float) -> None:
     """Move so that the target is reached moving in ``direction`` (+1/−1), as ISO 230-2 asks.
 
     A move that would arrive the other way first passes the target by ``overshoot_deg``; so

@@ -1,5 +1,5 @@
 """Operator steps: what a person must do mid-run (re-seat the polygon, move the tracer). On hardware the
-sequencer pauses with a prompt; on the simulated bench the bench does it itself.
+engine pauses with a prompt; on the simulated bench the bench does it itself.
 
 On hardware the person confirms at the run's terminal (Enter) or, with :class:`WaitingOperator`,
 also from elsewhere: the live page's Done button or `rtcal control RUN_DIR confirm` reach the
@@ -14,10 +14,13 @@ import select
 import sys
 import threading
 from pathlib import Path
-from typing import Any, Callable, Protocol, TextIO, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Protocol, TextIO, runtime_checkable
 
 from drivers.addresses import redact_tokens
 from drivers.errors import InstrumentError
+
+if TYPE_CHECKING:
+    from simulators.bench import Bench
 
 
 class OperatorUnavailable(InstrumentError):
@@ -279,7 +282,7 @@ def _drain(fd: int) -> None:
 class BenchOperator:
     """The simulated bench re-seats its own polygon."""
 
-    def __init__(self, bench) -> None:
+    def __init__(self, bench: Bench) -> None:
         self.bench = bench
 
     def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:

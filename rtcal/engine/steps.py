@@ -1,15 +1,17 @@
 """The vocabulary a plan speaks: small frozen steps the engine executes, and what it answers.
 
-A plan (:mod:`rtcal.plans`) is data and order: which device moves where, what is read and how
+A plan (each method's ``plan.py`` under :mod:`rtcal.methods`) is data and order: which device moves where, what is read and how
 it is checked. It does no I/O itself. The engine (:mod:`rtcal.engine.engine`) executes every
 step under the procedure's fault policies and records what it reads; walking a plan with a
 timing model (:mod:`rtcal.engine.walk`) gives its duration without any instrument.
 
 A step that reads or moves names its instrument; the device is looked up by that name in the
-run's instruments. Where a reading must be checked against the command, the step carries the
-method's own check (``measure``): a plan knows what to expect, the engine knows how to ride out
-a fault. Each reading step also carries ``nominal``, what an ideal bench would give, which the
-walker answers in its place.
+run's instruments. A reading names the described fields it takes (never a driver method): the
+engine does every read through the instrument's ``read_values`` and stores what its description
+says. Where a reading must be checked against the command, the step carries the relation the
+values must satisfy (``check``, pure: no I/O): a plan knows what to expect, the engine reads and
+rides out a fault. Each reading step also carries ``nominal``, what an ideal bench would give,
+which the walker answers in its place.
 """
 
 from __future__ import annotations
@@ -18,9 +20,6 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Union
 
 from drivers.errors import InstrumentError
-
-Target = Union[float, tuple[float, float, float]]
-
 
 class Skipped(Exception):
     """Thrown into a plan where an instrument's ``on_fault`` policy skipped a step: the attempt
@@ -72,42 +71,50 @@ class Recover:
     instrument: str
 
 
+Relation = Callable[[Any], Any]
+"""What a reading's values must satisfy: a pure function of the values read (a number, or a tuple in the
+step's field order) that returns them as the plan takes them, or raises
+:class:`~rtcal.engine.checks.Contradiction` (or an instrument fault: an axis the instrument reports
+invalid). It does no I/O: the engine reads, the relation only judges."""
+
+
 @dataclass(frozen=True)
 class Read:
-    """One reading: ``measure(device)`` gives a value (a number, or a sequence of numbers, one per
-    quantity) and raises :class:`~rtcal.engine.checks.Contradiction` where the method's check
-    fails. Each value is stored as a reading of its (quantity, unit); non-finite values are not
-    stored (a sensor's "not measured"). ``redo`` runs before a retry (e.g. approach and settle
-    again); ``optional`` readings (conditions) never hold up the attempt they accompany."""
+    """One reading of ``fields`` of the instrument, named as its kind's description names them, taken for
+    ``purpose`` (drivers/interfaces.py PURPOSES: the stored quantity and unit follow from the description).
+    The engine reads them with ``read_values`` under the instrument's fault policy, stores each finite
+    value (NaN: "not measured"), then checks ``check``: a contradiction rejects the attempt, which the
+    policy of the instrument named retakes, skips or aborts (the one path of every failed check). The
+    plan receives the checked value (one field: a number; several: a tuple). ``optional`` readings
+    (conditions) never hold up the attempt they accompany; ``nominal`` is what the walker answers."""
 
     instrument: str
-    quantities: tuple[tuple[str, str], ...]
-    measure: Callable[[Any], Any] = field(compare=False)
+    fields: tuple[str, ...]
+    check: Relation | None = field(default=None, compare=False)
     nominal: Any = field(default=None, compare=False)
     what: str = ""
-    redo: tuple[Any, ...] = ()
+    purpose: str = ""
     sample: int | None = None
     optional: bool = False
 
 
 @dataclass(frozen=True)
 class ReadSamples:
-    """``count`` samples of a tracking instrument (a laser tracer), stamped with its tracking segment.
-    A lost beam is re-acquired where the policy says so, and the samples start again: an attempt
+    """``count`` samples of ``field`` of a tracking instrument (a laser tracer), stamped with its tracking
+    segment. A lost beam is re-acquired where the policy says so, and the samples start again: an attempt
     never mixes two tracking segments."""
 
     instrument: str
-    quantity: str
-    unit: str
+    field: str
     count: int
-    measure: Callable[[Any], float] = field(compare=False)
-    nominal: float = field(default=0.0, compare=False)
+    nominal: float = 0.0
     where: str = ""
     what: str = ""
     sample_s: float = 0.0
     """What one sample takes (integration, transfer): counted by the walker and by a simulated run's clock."""
     reference_s: float = 0.0
     """What re-acquiring the beam takes."""
+    purpose: str = ""
 
 
 @dataclass(frozen=True)

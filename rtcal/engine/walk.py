@@ -114,7 +114,7 @@ class _Walker:
             return None
         if isinstance(step, Read):
             if not step.optional:
-                w.instrument_readings += len(step.quantities)
+                w.instrument_readings += len(step.fields)
             return step.nominal
         if isinstance(step, ReadSamples):
             w.instrument_readings += step.count

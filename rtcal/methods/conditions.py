@@ -3,19 +3,13 @@ readings it accompanies, never holding them up (an optional step)."""
 
 from __future__ import annotations
 
-from drivers.interfaces import DESCRIPTIONS, EnvironmentSensor
-from drivers.kinds import recorded
+from drivers.interfaces import DESCRIPTIONS
 from rtcal.engine.steps import Read
 
 ENVIRONMENT_FIELDS = tuple(DESCRIPTIONS["environment"])
-ENVIRONMENT_QUANTITIES = recorded("environment", *ENVIRONMENT_FIELDS)
 
 
 def environment_read(what: str) -> Read:
-    """The conditions beside a reading (every method): never holds up the reading it accompanies."""
-    return Read("environment", ENVIRONMENT_QUANTITIES, _environment_values, None, what, optional=True)
-
-
-def _environment_values(sensor: EnvironmentSensor) -> list[float]:
-    env = sensor.read()
-    return [float(getattr(env, name)) for name in ENVIRONMENT_FIELDS]  # NaN: not measured, not stored
+    """The conditions beside a reading (every method): never holds up the reading it accompanies; what the
+    sensor does not measure (NaN) is not stored."""
+    return Read("environment", ENVIRONMENT_FIELDS, None, None, what, optional=True)

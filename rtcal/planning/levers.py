@@ -287,7 +287,7 @@ def write_proposal(procedure_path: Path, base: Candidate, outcome: Outcome, out_
     """Write the proposed procedure to ``out_path`` (and, when the plan moves the tracer or the prediction ran
     on a ``--scenario``, its bench beside it); returns every file written."""
     from rtcal.outputs import write_output
-    from rtcal.methods.multistation.design import bench_file_beside, keep_bench
+    from rtcal.methods.planner import bench_file_beside, keep_bench
 
     data = copy.deepcopy(outcome.plan.procedure)
     written = []

@@ -13,14 +13,14 @@ pending (a resume takes it again whole); its readings are kept.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator
+from functools import partial
+from typing import Any, Iterator
 
 import numpy as np
 
 from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage
-from drivers.kinds import recorded
 from rtcal.engine.plan import Attempt, Entry
-from rtcal.engine.steps import Move, OperatorStep, Read, Recover, Settle, Skipped, Step, Validate
+from rtcal.engine.steps import Move, OperatorStep, Read, Settle, Skipped, Step, Validate
 from rtcal.methods.conditions import environment_read
 from rtcal.methods.abbe.procedure import EncoderAbbeError
 from rtcal.store.runstore import Reading
@@ -28,10 +28,10 @@ from rtcal.engine.checks import EncoderCheck, MotionChecks, combined_sigma
 from rtcal.methods.abbe.checks import abbe_cross_checks, check_abbe_visit, check_face
 
 
-# what a visit reads, named and united by each kind's description (drivers/interfaces.py)
-ENCODER = recorded("encoder", "angle_deg")
-FACE = recorded("autocollimator", "x_arcsec")  # about the table axis: the face's angle
-INDICATOR = recorded("dial_indicator", "y_um")
+# what a visit reads: each kind's field, named by its description (drivers/interfaces.py), stored under its name
+ENCODER = "angle_deg"
+FACE = "x_arcsec"  # about the table axis: the face's angle
+INDICATOR = "y_um"
 
 
 @dataclass(frozen=True)
@@ -139,33 +139,32 @@ class AbbePlan:
         to_target = Move("stage", angle, v.direction, proc.steps.overshoot_deg, what=f"move to {angle:g}°")
         yield to_target
         yield Settle(proc.settle_time_s)
-        feedback = yield Read("stage", recorded("stage", "feedback_deg"), lambda stage: self.checks.stage_at(stage, angle), angle,
-                              f"position at {angle:g}°", redo=(Recover("stage"), to_target, Settle(proc.settle_time_s)))
+        feedback = yield Read("stage", ("feedback_deg",), partial(self.checks.stage_at, command_deg=angle), angle,
+                              f"position at {angle:g}°")
         if proc.instruments.environment is not None:
             yield environment_read(f"environment at {angle:g}°")
-        taken: list[tuple[str, tuple[tuple[str, str], ...], Callable[[Any], float], float]] = [
-            ("encoder", ENCODER, lambda encoder: encoder.read_angle_deg(), angle)]
+        taken: list[tuple[str, str, float]] = [("encoder", ENCODER, angle)]
         if v.face_in_front:
-            taken.append(("autocollimator", FACE, lambda ac: ac.read_arcsec()[0], 0.0))
-        taken += [(f"dial_indicator_{n + 1}", INDICATOR, lambda indicator: indicator.read_um(), 0.0) for n in range(2)]
+            taken.append(("autocollimator", FACE, 0.0))
+        taken += [(f"dial_indicator_{n + 1}", INDICATOR, 0.0) for n in range(2)]
         values: list[tuple[str, str, float]] = []
         for s in range(proc.samples_per_reading):
-            for instrument, quantities, measure, nominal in taken:
+            for instrument, name, nominal in taken:
                 try:
-                    value = yield Read(instrument, quantities, measure, nominal, f"reading at {angle:g}°", sample=s)
+                    value = yield Read(instrument, (name,), None, nominal, f"reading at {angle:g}°", sample=s)
                 except Skipped:
                     continue  # marked in the visit; the other instruments are still read
-                values.append((instrument, quantities[0][0], float(value)))
+                values.append((instrument, name, float(value)))
         tolerance = proc.verification.autocollimator_tolerance_arcsec
-        faces = [x for _, q, x in values if q == FACE[0][0]]
+        faces = [x for _, q, x in values if q == FACE]
         seen = any(abs(x) <= tolerance for x in faces)  # the table turned (or did not turn at all): see EncoderCheck
         face = float(np.mean(faces)) if faces else None
         for _, quantity, value in values:
-            if quantity == ENCODER[0][0]:
+            if quantity == ENCODER:
                 self.encoder_moves.check(value, angle, table_seen=seen, face_arcsec=face)
-            elif quantity == FACE[0][0]:
+            elif quantity == FACE:
                 check_face(value, tolerance, angle)
         check_abbe_visit(*self.cross, [Reading(0.0, i, q, x, "") for i, q, x in values], angle, v.seating, v.run,
                          v.direction, entry.index)
-        yield Read("stage", recorded("stage", "feedback_deg", purpose="after"), lambda stage: self.checks.stage_still(stage, feedback), angle,
-                   f"position at {angle:g}°")
+        yield Read("stage", ("feedback_deg",), partial(self.checks.stage_still, before_deg=feedback), angle,
+                   f"position at {angle:g}°", "after")

@@ -12,20 +12,23 @@ plan's closest point are excluded (the table and the tracer are there).
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import yaml
 
+from rtcal.methods.planner import keep_bench
 from rtcal.outputs import write_output
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
 from rtcal.solvers.network import _Layout, _model, solve_network
 from rtcal.units import ARCSEC_PER_RAD
 from rtcal.procedure.yamlfile import load_yaml, read_text
+
+if TYPE_CHECKING:
+    from simulators.scenario import Scenario
 
 
 def point_information(x_globals: np.ndarray, lay_template: _Layout, points_mm: np.ndarray,
@@ -49,7 +52,8 @@ def point_information(x_globals: np.ndarray, lay_template: _Layout, points_mm: n
     Ngg += np.einsum("ika,ikb->iab", Jgp, Jgp) * w_point
     Ngp += np.einsum("ika,kb->iab", Jgp, Minv) * w_point
     Npp += np.einsum("ka,kb->ab", Minv, Minv)[None] * w_point
-    return Ngg - np.einsum("kab,kbc,kdc->kad", Ngp, np.linalg.inv(Npp), Ngp)
+    info: np.ndarray = Ngg - np.einsum("kab,kbc,kdc->kad", Ngp, np.linalg.inv(Npp), Ngp)
+    return info
 
 
 def _criterion(info: np.ndarray, G: np.ndarray) -> float:
@@ -88,28 +92,7 @@ def exchange(current: np.ndarray, candidates: np.ndarray, G: np.ndarray, passes:
     return np.array(chosen), before, best
 
 
-def bench_file_beside(out_path: Path) -> Path:
-    """Where a procedure written to ``out_path`` gets its own bench: ``<stem>.bench.yaml`` beside it."""
-    return out_path.with_name(f"{out_path.stem}.bench.yaml")
-
-
-def keep_bench(procedure_path: Path, data_yaml: dict, out_path: Path) -> Path | None:
-    """Point ``data_yaml["bench"]`` (read from ``procedure_path``) at the same bench from ``out_path``'s
-    folder (a procedure reads no bench outside its folder): a relative path when the bench is inside
-    that folder, else a copy beside the new file, which is returned (to be named on the console)."""
-    if not data_yaml.get("bench"):
-        return None
-    bench_file = (procedure_path.parent / data_yaml["bench"]).resolve()
-    folder = out_path.resolve().parent
-    if os.path.commonpath([folder, bench_file]) == str(folder):
-        data_yaml["bench"] = os.path.relpath(bench_file, folder)
-        return None
-    copy = write_output(bench_file_beside(out_path), read_text(bench_file))
-    data_yaml["bench"] = copy.name
-    return copy
-
-
-def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenario, out_path: Path,
+def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenario: Scenario, out_path: Path,
                     simulate: Callable[[Path, Path, Path], None], grid: int = 7) -> str:
     """Write ``out_path``: the procedure with an optimised point list; returns a summary line.
     ``simulate(procedure, bench, run_dir)`` runs the procedure on the noise-free bench (the runner's)."""

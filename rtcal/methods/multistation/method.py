@@ -1,7 +1,7 @@
 """The laser-tracer multi-station method (seed 000): plan, instruments, measurement, analysis.
 
 :class:`MultistationMethod` implements :class:`rtcal.methods.protocol.Method`; its analysis is a
-typed :class:`rtcal.results.model.MultistationAnalysis`. Its files, figures and report sections
+typed :class:`rtcal.results.msr.MultistationAnalysis`. Its files, figures and report sections
 are the output layer's (:mod:`rtcal.methods.multistation.outputs`).
 """
 
@@ -22,6 +22,7 @@ from rtcal.methods.estimates import (choose_recommended, deviation_block, not_co
                                      with_residual_test)
 from rtcal.methods.protocol import address_of
 from rtcal.results import model as rm
+from rtcal.methods.multistation import results as msr
 from rtcal.engine.operator import Operator
 from rtcal.methods.multistation.plan import MultistationInstrumentSet, MultistationPlan, planned_readings
 from rtcal.solvers.air import correct_lengths
@@ -43,7 +44,7 @@ from simulators.instruments import (
     SimLaserTracer,
     SimStage,
 )
-from simulators.scenario import AngularHarmonic, CmmFieldTerm, LinearHarmonic, Scenario
+from simulators.scenario import AngularHarmonic, CmmFieldTerm, EnvironmentScenario, LinearHarmonic, Scenario
 from simulators.truth import station_truth
 
 from rtcal.methods.multistation.noise import (AIR_QUANTITIES, DEFAULT_TABLE_EXPANSION_PPM_PER_K, DEFAULT_TABLE_EXPANSION_U_PPM_PER_K,
@@ -79,7 +80,8 @@ def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistatio
         unit = diff / np.linalg.norm(diff, axis=2)[..., None]
         rho = stations - axis
         rho[:, 2] = 0.0
-        return lengths + alpha * offset * np.einsum("ijk,jk->ij", unit, rho)
+        grown: np.ndarray = lengths + alpha * offset * np.einsum("ijk,jk->ij", unit, rho)
+        return grown
 
     second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
     others = tuple(replace(o, lengths_mm=fix(o.lengths_mm, off, second)) for o, off in zip(data.other_mounts, offsets[1:]))
@@ -268,7 +270,8 @@ def error_motion_targets(est: NetworkEstimate, angles_deg: Sequence[float] | np.
             for j, a in enumerate(angles_deg)]
 
 
-def _random_series(sigma: float, max_order: int, rng: np.random.Generator, cls):
+def _random_series(sigma: float, max_order: int, rng: np.random.Generator,
+                   cls: type[LinearHarmonic] | type[AngularHarmonic]) -> list[LinearHarmonic | AngularHarmonic]:
     """A random Fourier series of orders 1..K with σ at every angle: coefficients N(0, σ²/K)."""
     if sigma <= 0:
         return []
@@ -306,7 +309,7 @@ class MultistationMethod:
 
     name = "laser_tracer_multistation"
     procedure_model = LaserTracerMultistation
-    results_model = rm.MultistationResults
+    results_model = msr.MultistationResults
     operator_steps = True  # the tracer's reference point, a second mount
 
     def plan_length(self, proc: LaserTracerMultistation) -> int:
@@ -323,7 +326,7 @@ class MultistationMethod:
                 f"laser tracer: each length within {v.tracer_tolerance_mm:g} mm of what the nominal geometry expects"]
 
     def conditions(self, results: rm.RunResults) -> rm.EnvironmentSummary | None:
-        return results.environment if isinstance(results, rm.MultistationResults) else None
+        return results.environment if isinstance(results, msr.MultistationResults) else None
 
     def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
         return {}
@@ -337,7 +340,7 @@ class MultistationMethod:
     def outputs(self, results: rm.RunResults) -> MultistationOutputs:
         from rtcal.methods.multistation.outputs import MultistationOutputs
 
-        if not isinstance(results, rm.MultistationResults):
+        if not isinstance(results, msr.MultistationResults):
             raise TypeError(f"multi-station outputs need multi-station results, not {type(results).__name__}")
         return MultistationOutputs(results)
 
@@ -364,7 +367,7 @@ class MultistationMethod:
         return MultistationPlan(proc, stage_step_deg)
 
     def analyse(self, proc: LaserTracerMultistation, store: RunStore, bench: Bench | None,
-                estimate_noise: bool = True) -> rm.MultistationAnalysis:
+                estimate_noise: bool = True) -> msr.MultistationAnalysis:
         """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
         recommended one, its positioning-deviation table, and the truth of a simulated run."""
         angles = proc.stations.angles_deg()
@@ -400,15 +403,15 @@ class MultistationMethod:
             table = PositioningDeviations(np.asarray(angles, float), np.full(len(angles), direction), np.ones(len(angles), int),
                                           np.array(e.cumulative_deviation_arcsec, float),
                                           np.array(e.cumulative_uncertainty_arcsec, float), estimator=recommended).to_model()
-        return rm.MultistationAnalysis(
+        return msr.MultistationAnalysis(
             nominal_angles_deg=[float(a) for a in angles],
             raw_readings=data.raw_readings,
             environment=None if data.environment is None else rm.EnvironmentSummary.model_validate(data.environment),
             recommended=recommended,
             solver_status=status,
-            estimates=rm.MultistationEstimates(**estimates),
+            estimates=msr.MultistationEstimates(**estimates),
             positioning_deviations=table,
-            truth=None if bench is None else rm.StationTruth.model_validate(station_truth(bench, angles, direction)),
+            truth=None if bench is None else msr.StationTruth.model_validate(station_truth(bench, angles, direction)),
             axis_location=axis_location(solved["network"]) if "network" in estimates and "network" in solved else None,
             error_motions=error_motion_targets(solved["network"], angles) if "network" in estimates and "network" in solved
             else None,
@@ -440,7 +443,8 @@ class MultistationMethod:
             update["environment"] = self._drawn_air(proc, scenario, ranges, rng)
         return scenario.model_copy(update=update)
 
-    def _drawn_air(self, proc: LaserTracerMultistation, scenario: Scenario, ranges: dict[str, float], rng: np.random.Generator):
+    def _drawn_air(self, proc: LaserTracerMultistation, scenario: Scenario, ranges: dict[str, float],
+                   rng: np.random.Generator) -> EnvironmentScenario:
         """The air as the budget models it without a sensor (:func:`rtcal.solvers.station_budget.air_drift_effect`):
         each stated quantity at the run's start and end independently uniform within ± its range about standard
         air, changing linearly over the planned run's duration."""

@@ -12,24 +12,21 @@ lengths against the nominal geometry. A moved tracer (a second mount) is referen
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Iterator
 
 import numpy as np
 
 from drivers.interfaces import DESCRIPTIONS, Cmm, EnvironmentSensor, LaserTracer, RotaryStage
-from drivers.kinds import recorded
 from rtcal.engine.plan import Attempt, Entry
-from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Settle, Skipped,
-                                Step, Validate)
+from rtcal.engine.steps import Move, OperatorStep, Parallel, Read, ReadSamples, Reference, Settle, Skipped, Step, Validate
 from rtcal.methods.conditions import environment_read
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
 from rtcal.engine.checks import Contradiction, MotionChecks
 from rtcal.methods.multistation.checks import TracerCheck, TracerReturnCheck
 
-# what a reading stores, named and united by each kind's description (drivers/interfaces.py)
+# what a reading takes, named by each kind's description (drivers/interfaces.py), which also names and unites what is stored
 CMM_POSITION = tuple(DESCRIPTIONS["cmm"])  # x, y, z in the description's order
-LENGTH = recorded("laser_tracer", "length_mm")[0]
-LENGTH_BACK = recorded("laser_tracer", "length_mm", purpose="return")[0]  # at the segment's reference point
 
 
 @dataclass(frozen=True)
@@ -135,9 +132,9 @@ class MultistationPlan:
             yield Move("cmm", point, what=f"move to point {i + 1}")
             self.at_point, self.at_station = i, j
             yield Settle(self.proc.settle_time_s)
-            samples = yield ReadSamples("laser_tracer", *LENGTH_BACK, self.proc.samples_per_reading,
-                                        lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(group, i, j),
-                                        where, f"length back at {where}", self.proc.durations.tracer_sample_s)
+            samples = yield ReadSamples("laser_tracer", "length_mm", self.proc.samples_per_reading,
+                                        self.expected_length_mm(group, i, j), where, f"length back at {where}",
+                                        self.proc.durations.tracer_sample_s, purpose="return")
             self.returns.check(segment, list(samples.values), float(self.lengths.distance_mm[group][i, j]), where)
 
         return context, steps()
@@ -186,12 +183,11 @@ class MultistationPlan:
                 self.at_point = i
         if stage_moved or cmm_moved:
             yield Settle(proc.settle_time_s)
-        settle = Settle(proc.settle_time_s)
-        feedback = yield Read("stage", recorded("stage", "feedback_deg"), lambda stage: checks.stage_at(stage, angle), angle,
-                              f"position at station {j + 1}", redo=(Recover("stage"), to_station, settle))
+        feedback = yield Read("stage", ("feedback_deg",), partial(checks.stage_at, command_deg=angle), angle,
+                              f"position at station {j + 1}")
         purpose = "" if cmm_moved else "check"  # the solvers average one position per visit of the point
-        xyz = yield Read("cmm", recorded("cmm", *CMM_POSITION, purpose=purpose), lambda cmm: checks.cmm_at(cmm, point),
-                         point, f"position at point {i + 1}", redo=(Recover("cmm"), to_point, settle))
+        xyz = yield Read("cmm", CMM_POSITION, partial(checks.cmm_at, point_mm=point), point,
+                         f"position at point {i + 1}", purpose)
         where = f"point {i + 1}, station {j + 1}"
         durations = proc.durations
         referenced_here = yield Reference("laser_tracer", where, seconds=durations.reference_tracer_s)
@@ -199,8 +195,7 @@ class MultistationPlan:
             self.lengths.referenced(mk, i, j)
         if proc.instruments.environment is not None:  # the air the lengths are counted in, read just before them
             yield environment_read(f"environment at point {i + 1}, station {j + 1}")
-        samples = yield ReadSamples("laser_tracer", *LENGTH, proc.samples_per_reading,
-                                    lambda tracer: tracer.read_length().length_mm, self.expected_length_mm(mk, i, j),
+        samples = yield ReadSamples("laser_tracer", "length_mm", proc.samples_per_reading, self.expected_length_mm(mk, i, j),
                                     where, f"length at {where}", durations.tracer_sample_s, durations.reference_tracer_s)
         if samples.reacquired:
             self.lengths.referenced(mk, i, j)
@@ -209,9 +204,8 @@ class MultistationPlan:
         for value in samples.values:
             self.lengths.check(value, mk, i, j)
         # the table and the probe stood still while the tracer counted: read both again
-        yield Read("stage", recorded("stage", "feedback_deg", purpose="after"), lambda stage: checks.stage_still(stage, feedback), angle,
-                   f"position at station {j + 1}")
-        yield Read("cmm", recorded("cmm", *CMM_POSITION, purpose="after"),
-                   lambda cmm: checks.cmm_still(cmm, xyz), point, f"position at point {i + 1}", redo=(Recover("cmm"),))
+        yield Read("stage", ("feedback_deg",), partial(checks.stage_still, before_deg=feedback), angle,
+                   f"position at station {j + 1}", "after")
+        yield Read("cmm", CMM_POSITION, partial(checks.cmm_still, before_mm=xyz), point, f"position at point {i + 1}", "after")
         if samples.segment is not None and self.segment_ref.get(samples.segment) == (i, j):  # the segment's first reading
             self.returns.referenced(samples.segment, list(samples.values))                 # at its reference point

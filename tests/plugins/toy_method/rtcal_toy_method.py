@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Iterator, Literal
 
@@ -23,11 +24,10 @@ from pydantic import Field, ValidationInfo, model_validator
 from drivers import factory
 from drivers.interfaces import Encoder, RotaryStage
 from drivers.interfaces import Instrument
-from drivers.kinds import recorded
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.engine.plan import Attempt, Entry
-from rtcal.engine.steps import Move, Read, Recover, Settle, Step, Validate
+from rtcal.engine.steps import Move, Read, Settle, Step, Validate
 from rtcal.methods.estimates import choose_recommended, deviation_block, run_estimators
 from rtcal.methods.protocol import address_of
 from rtcal.procedure.models import (FaultPolicy, InstrumentChoice, InstrumentsBase, ProcedureBase, StageChoice, StrictModel,
@@ -181,7 +181,7 @@ class EncoderPlan:
         self.checks = MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
         self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
         # the inclinometer's quantities as its kind describes them (None: no inclinometer)
-        self.tilt = recorded(INCLINOMETER, *TILT_FIELDS) if proc.instruments.inclinometer is not None else None
+        self.tilt = proc.instruments.inclinometer is not None
         self.entries = [
             Entry(k, 0, {"station": v.step, "run": v.run, "direction": v.direction, "commanded_angle_deg": v.angle_deg,
                          "plan_index": k, "segment": generation},
@@ -208,22 +208,15 @@ class EncoderPlan:
         to_target = Move("stage", angle, v.direction, proc.steps.overshoot_deg, what=f"move to {angle:g}°")
         yield to_target
         yield Settle(proc.settle_time_s)
-        feedback = yield Read("stage", (("feedback_deg", "deg"),), lambda stage: self.checks.stage_at(stage, angle), angle,
-                              f"position at {angle:g}°", redo=(Recover("stage"), to_target, Settle(proc.settle_time_s)))
+        feedback = yield Read("stage", ("feedback_deg",), partial(self.checks.stage_at, command_deg=angle), angle,
+                              f"position at {angle:g}°")
         for s in range(proc.samples_per_reading):
-            value = yield Read("encoder", (("angle_deg", "deg"),), lambda encoder: encoder.read_angle_deg(), angle,
-                               f"reading at {angle:g}°", sample=s)
+            value = yield Read("encoder", ("angle_deg",), None, angle, f"reading at {angle:g}°", sample=s)
             self.encoder_moves.check(float(value), angle)
-        if self.tilt is not None:
-            yield Read(INCLINOMETER, self.tilt, read_tilt, angle, f"tilt at {angle:g}°")
-        yield Read("stage", (("feedback_after_deg", "deg"),), lambda stage: self.checks.stage_still(stage, feedback), angle,
-                   f"position at {angle:g}°")
-
-
-def read_tilt(level: Instrument) -> list[float]:
-    """The inclinometer's reading through its kind's described values (what the fence checks)."""
-    values = level.read_values(TILT_FIELDS)
-    return [values[n].value for n in TILT_FIELDS]
+        if self.tilt:
+            yield Read(INCLINOMETER, TILT_FIELDS, None, (0.0, 0.0), f"tilt at {angle:g}°")
+        yield Read("stage", ("feedback_deg",), partial(self.checks.stage_still, before_deg=feedback), angle,
+                   f"position at {angle:g}°", "after")
 
 
 # -- results -----------------------------------------------------------------------------------------
