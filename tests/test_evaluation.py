@@ -403,7 +403,7 @@ def test_cli_on_csv_and_run_directory(tmp_path, capsys):
 def results_json_with(table: PositioningDeviations) -> str:
     """A valid results.json (a run validates as a whole) whose positioning deviations are ``table``."""
     from rtcal.results.io import results_json
-    from rtcal.results.model import MultistationResults
+    from rtcal.methods.multistation.results import MultistationResults
 
     budget = {"components": [], "combined_arcsec": [0.0], "expanded_arcsec": [0.0], "coverage_factor": 2.0, "not_included": []}
     estimate = {"deviation_arcsec": [], "uncertainty_arcsec": [], "cumulative_deviation_arcsec": [0.0],

@@ -325,31 +325,11 @@ class ErrorMotionTarget(ResultsModel):
     ebc_arcsec_u: SigmaArcsec = Field(description="standard uncertainty (1σ) of EBC, arcsec (as EAC's)")
 
 
-class MultistationEstimates(NamedSet[Estimate]):
-    """``estimates`` of the multi-station method: every estimator the procedure asked for that could run."""
-
-
-    paper: PaperEstimate | None = Field(None, description="the printed method: one dead path per station")
-    shared_dead_path: SharedDeadPathEstimate | None = Field(
-        None, description="all stations solved together, one dead path per tracking segment")
-    network: NetworkEstimate | None = Field(
-        None, description="one adjustment of everything: stations on one circle, CMM points and geometry")
-
-
 class Truth(ResultsModel):
     """What the simulated bench really had (a simulated run only), signed as the estimates."""
 
     cumulative_deviation_arcsec: list[Arcsec] = Field(
         description="true εz at the targets relative to the first target, arcsec (what the estimates' ECC estimates)")
-
-
-class StationTruth(Truth):
-    """What the simulated stations really had (a simulated run only), signed as the estimates."""
-
-    deviation_arcsec: list[Arcsec] = Field(description="true per-step deviation (systematic part), arcsec")
-    realized_deviation_arcsec: list[Arcsec] = Field(
-        description="true per-step deviation of the mean actual angle of every visit (includes the repeatability drawn), arcsec")
-    positioning_error_arcsec: list[Arcsec] = Field(description="true εz (actual − commanded) per station, arcsec")
 
 
 class Range(ResultsModel):
@@ -446,35 +426,6 @@ class AbbeEstimate(TargetedEstimate):
     harmonics: HarmonicSeries = Field(description="harmonic analysis of the per-step series")
     harmonic_warnings: HarmonicWarnings = Field(description="what the sampling cannot resolve, per series")
     notes: list[Text] = Field(description="the model's assumptions and sign conventions")
-
-
-class ClosureEstimate(TargetedEstimate):
-    """``estimates.closure``: table and polygon errors separated by re-seating the polygon."""
-
-    table_angle_deg: list[Deg] = Field(description="table angle of each table error, degrees")
-    direction: list[Direction] = Field(description="approach of each table error: 1 positive, −1 negative")
-    table_error_arcsec: list[Arcsec | None] = Field(description="the table's error εz per angle and direction, arcsec")
-    table_uncertainty_arcsec: list[SigmaArcsec | None] = Field(description="its 1σ, arcsec")
-    face_error_arcsec: list[Arcsec | None] = Field(description="the polygon's face errors, arcsec")
-    face_uncertainty_arcsec: list[SigmaArcsec | None] = Field(description="their 1σ, arcsec")
-    seating_offset_arcsec: list[Arcsec | None] = Field(description="the zero of each seating, arcsec")
-    residual_rms_arcsec: SigmaArcsec = Field(description="RMS of the closure residuals, arcsec")
-
-
-class AbbeEstimates(NamedSet[Estimate]):
-    """``estimates`` of the encoder Abbe-error method."""
-
-
-    abbe: AbbeEstimate | None = Field(None, description="εz and the encoder's Abbe analysis (absent: it could not run)")
-    closure: ClosureEstimate | None = Field(None, description="table and polygon separated by closure (no certificate)")
-
-
-class AbbeTruth(Truth):
-    """What the simulated bench really had (a simulated run only), arcsec."""
-
-    encoder_error_arcsec: list[Arcsec] = Field(description="true systematic encoder error per step, arcsec")
-    positioning_error_arcsec: list[Arcsec] = Field(description="true εz per step, arcsec")
-    face_error_arcsec: list[Arcsec] = Field(description="the polygon's true face errors, arcsec")
 
 
 # -- what every run has ----------------------------------------------------------------------------
@@ -715,40 +666,6 @@ class Analysis(ResultsModel):
         return [f"{t:g}{'↑' if d > 0 else '↓'}" for t, d in pairs]
 
 
-class MultistationAnalysis(Analysis):
-    """The multi-station method's analysis."""
-
-    recommended: MultistationEstimator | None = Field(
-        description="the estimate to quote: converged, and the smallest uncertainty among those that did")
-    estimates: MultistationEstimates = Field(description="every estimate that could run, by estimator")
-    truth: StationTruth | None = Field(None, description="what the simulated stations really had (absent: on instruments)")
-    environment: EnvironmentSummary | None = Field(
-        description="the air and table conditions recorded with the lengths (null: no environment sensor)")
-    axis_location: AxisLocation | None = Field(
-        None, description="the axis's location errors X0C, Y0C, A0C, B0C from the network (absent: no network estimate) (1.2)")
-    error_motions: list[ErrorMotionTarget] | None = Field(
-        None, description="per target EXC, EYC, EAC, EBC with u, from a second tracer mount (absent: one mount) (1.2)")
-
-    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | {"axis_location", "error_motions"}
-
-
-class AbbeAnalysis(Analysis):
-    """The encoder Abbe-error method's analysis."""
-
-    recommended: AbbeEstimator | None = Field(
-        description="the estimate to quote: converged, and the smallest uncertainty among those that did")
-    estimates: AbbeEstimates = Field(description="every estimate that could run, by estimator")
-    truth: AbbeTruth | None = Field(None, description="what the simulated bench really had (absent: on instruments)")
-    environment: EnvironmentSummary | None = Field(
-        None, description="the air and table conditions recorded at the visits (null: no environment sensor) (1.1)")
-
-    @model_validator(mode="after")
-    def _closure_from_abbe(self) -> AbbeAnalysis:
-        if self.estimates.closure is not None and self.estimates.abbe is None:
-            raise ValueError("estimates.closure is separated from the readings estimates.abbe analyses: abbe is missing")
-        return self
-
-
 Verdict = Literal["pass", "fail", "undecided"]
 
 
@@ -849,20 +766,6 @@ class RunResults(RunLog, Analysis, RunInfo):
             raise ValueError("recommended: a run's results name the estimate to quote (null only in a failed analysis, "
                              "which writes no results)")
         return self
-
-
-class MultistationResults(MultistationAnalysis, RunResults):
-    """results.json of the laser-tracer multi-station method (seed 000)."""
-
-    method: Literal["laser_tracer_multistation"] = Field(description="the calibration method")
-
-    OPTIONAL_KEYS = RunResults.OPTIONAL_KEYS | MultistationAnalysis.OPTIONAL_KEYS
-
-
-class AbbeResults(AbbeAnalysis, RunResults):
-    """results.json of the encoder Abbe-error method (seed 001)."""
-
-    method: Literal["encoder_abbe_error"] = Field(description="the calibration method")
 
 
 def assemble(info: RunInfo, analysis: Analysis, log: RunLog, model: type[RunResults]) -> RunResults:

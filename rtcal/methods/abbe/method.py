@@ -1,7 +1,7 @@
 """The encoder Abbe-error method (seed 001): plan, instruments, measurement, analysis.
 
 :class:`AbbeMethod` implements :class:`rtcal.methods.protocol.Method`; its analysis is a typed
-:class:`rtcal.results.model.AbbeAnalysis`. Its files, figures (seed 001's Figures 9–12) and report
+:class:`rtcal.results.abr.AbbeAnalysis`. Its files, figures (seed 001's Figures 9–12) and report
 sections are the output layer's (:mod:`rtcal.methods.abbe.outputs`).
 """
 
@@ -26,6 +26,7 @@ from rtcal.methods.estimates import (
 )
 from rtcal.methods.protocol import DataContradiction, PreparationError, address_of
 from rtcal.results import model as rm
+from rtcal.methods.abbe import results as abr
 from rtcal.methods.abbe.plan import AbbeInstrumentSet, AbbePlan, planned_visits
 from rtcal.engine.operator import Operator
 from rtcal.solvers.abbe import (
@@ -157,7 +158,7 @@ def abbe_estimate(est: AbbeEstimate, source: str, omitted: list[str]) -> rm.Abbe
     )
 
 
-def closure_estimate(est: AbbeEstimate) -> rm.ClosureEstimate:
+def closure_estimate(est: AbbeEstimate) -> abr.ClosureEstimate:
     """The closure's own table errors, referred to the first target like every estimate (with the
     per-visit random error the analysis used: the closure residuals', or the stated one)."""
     c, angles, dirs = est.closure, est.closure_table_angle_deg, est.closure_table_direction
@@ -173,7 +174,7 @@ def closure_estimate(est: AbbeEstimate) -> rm.ClosureEstimate:
                                               "autocollimator and stage, as stated", "A" if estimated else "B", sigma, "″",
                                               cov, estimated, "per reading")])
     dirs = np.asarray(dirs)
-    return rm.ClosureEstimate(
+    return abr.ClosureEstimate(
         target_deg=[round(float(a), 6) for a in angles],
         target_direction=[int(d) for d in dirs],
         **dict(deviation_block(R @ c.table_error, budget, steps_within_directions(dirs))),
@@ -196,7 +197,7 @@ class AbbeMethod:
 
     name = "encoder_abbe_error"
     procedure_model = EncoderAbbeError
-    results_model = rm.AbbeResults
+    results_model = abr.AbbeResults
     operator_steps = True  # the polygon's seatings
 
     def plan_length(self, proc: EncoderAbbeError) -> int:
@@ -214,11 +215,11 @@ class AbbeMethod:
                 f"autocollimator: the face the commanded angle puts in view read within ±{v.autocollimator_tolerance_arcsec:g}″"]
 
     def conditions(self, results: rm.RunResults) -> rm.EnvironmentSummary | None:
-        return results.environment if isinstance(results, rm.AbbeResults) else None
+        return results.environment if isinstance(results, abr.AbbeResults) else None
 
     def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
         """A polygon whose face errors this run separated by closure is an artefact, not a reference standard."""
-        abbe = results.estimates.abbe if isinstance(results, rm.AbbeResults) else None
+        abbe = results.estimates.abbe if isinstance(results, abr.AbbeResults) else None
         if abbe is not None and abbe.polygon_source == "closure":
             return {"polygon": "artefact: its face errors separated from the table's by closure in this run"}
         return {}
@@ -232,7 +233,7 @@ class AbbeMethod:
     def outputs(self, results: rm.RunResults) -> AbbeOutputs:
         from rtcal.methods.abbe.outputs import AbbeOutputs
 
-        if not isinstance(results, rm.AbbeResults):
+        if not isinstance(results, abr.AbbeResults):
             raise TypeError(f"encoder Abbe-error outputs need its results, not {type(results).__name__}")
         return AbbeOutputs(results)
 
@@ -260,7 +261,7 @@ class AbbeMethod:
         return AbbePlan(proc, done, generation, stage_step_deg)
 
     def analyse(self, proc: EncoderAbbeError, store: RunStore, bench: Bench | None,
-                estimate_noise: bool = True) -> rm.AbbeAnalysis:
+                estimate_noise: bool = True) -> abr.AbbeAnalysis:
         visits = abbe_visits(store, proc.polygon.seatings_deg)
         recorded = json.loads(store.meta().get("polygon_certificate_arcsec", "null"))
         cert = None if recorded is None else np.asarray(recorded, float)
@@ -292,14 +293,14 @@ class AbbeMethod:
                 estimator="abbe", notes=(f"εz from the autocollimator on the polygon ({source}), "
                                          "relative to the first target of the first direction",)).to_model()
         if bench is not None and a is not None:
-            truth = rm.AbbeTruth.model_validate(abbe_truth(bench, np.array(a.angle_deg), np.array(a.direction),
+            truth = abr.AbbeTruth.model_validate(abbe_truth(bench, np.array(a.angle_deg), np.array(a.direction),
                                                            np.array(a.target_deg), np.array(a.target_direction)))
-        return rm.AbbeAnalysis(
+        return abr.AbbeAnalysis(
             nominal_angles_deg=[] if a is None else a.angle_deg,
             raw_readings=len(store.done_plan_indices()),  # visits taken whole (as multistation counts); skipped ones apart
             recommended=recommended,
             solver_status=status,
-            estimates=rm.AbbeEstimates(**estimates),
+            estimates=abr.AbbeEstimates(**estimates),
             positioning_deviations=table,
             truth=truth,
             environment=None if (conditions := abbe_conditions(store)) is None else rm.EnvironmentSummary.model_validate(conditions),

@@ -15,7 +15,8 @@ from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.rounding import u_text
 from rtcal.deliverables.certificate import largest, smallest, status_lines
 from rtcal.deliverables.rounding import fmt
-from rtcal.results.model import AbbeEstimate, AbbeResults, ClosureEstimate, Estimate, HarmonicTerm, TargetedEstimate
+from rtcal.methods.abbe.results import AbbeResults, ClosureEstimate
+from rtcal.results.model import AbbeEstimate, Estimate, HarmonicTerm, TargetedEstimate
 
 ARROW = {1: "↑", -1: "↓"}
 # ↑ filled circles, ↓ larger hollow squares: where the two directions agree, both stay visible

@@ -44,7 +44,7 @@ class TracerCheck:
 
 
 # -- Instruments checked against each other (issue 26): pure objects fed each visit's readings with
-# their context; a sequencer calls them where it calls the checks above.
+# their context; a plan calls them where it checks its readings.
 
 
 

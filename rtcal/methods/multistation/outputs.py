@@ -14,14 +14,8 @@ from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.certificate import largest, status_lines
 from rtcal.deliverables.rounding import fmt
 from rtcal.deliverables.rounding import decimals, round_up, u_text
-from rtcal.results.model import (
-    AXIS_CONVENTION,
-    Estimate,
-    MultistationResults,
-    NetworkEstimate,
-    PaperEstimate,
-    StationChainEstimate,
-)
+from rtcal.methods.multistation.results import MultistationResults
+from rtcal.results.model import AXIS_CONVENTION, Estimate, NetworkEstimate, PaperEstimate, StationChainEstimate
 
 ESTIMATOR_LABELS = {
     "paper": "each station alone (as first published)",
