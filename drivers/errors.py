@@ -1,4 +1,4 @@
-"""Typed instrument errors: the contract between drivers and the sequencer's fault policies."""
+"""Typed instrument errors: the contract between drivers and the engine's fault policies."""
 
 from __future__ import annotations
 

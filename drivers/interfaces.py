@@ -1,7 +1,7 @@
 """The instrument interfaces. Units live in names; every method may raise :mod:`drivers.errors`.
 
 A backend (in-process simulation, Modbus drive, serial ASCII instrument, TCP CMM) implements
-one of these; the sequencer sees nothing else. Motions block until in position.
+one of these; the engine sees nothing else. Motions block until in position.
 """
 
 from __future__ import annotations

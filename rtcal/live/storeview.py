@@ -61,7 +61,7 @@ def open_read_only(path: Path) -> sqlite3.Connection:
 
 
 @dataclass
-class _Plan:
+class _Planned:
     """What is known of one planned reading: its labels and whether an attempt stored it whole."""
 
     run: int | None
@@ -76,7 +76,7 @@ class _Plan:
 @dataclass
 class _Accumulated:
     last_id: int = 0
-    plans: dict[int, _Plan] = field(default_factory=dict)
+    plans: dict[int, _Planned] = field(default_factory=dict)
     completions: deque = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))  # (reading id, t_s)
     latest: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
     newest_t_s: float | None = None
@@ -180,7 +180,7 @@ class StoreView:
         for k, _attempt, markers, rejected, max_id, max_t, run, direction, target, point, station, seating in rows:
             plan = acc.plans.get(k)
             if plan is None:
-                plan = acc.plans[k] = _Plan(run, direction, target, point, station, seating)
+                plan = acc.plans[k] = _Planned(run, direction, target, point, station, seating)
             if plan.status == "done":
                 continue
             if not markers:

@@ -8,7 +8,7 @@ CMM's scales and squareness, the table's error motions within their bounds). Eac
 every estimate is compared with the bench's truth; per target the RMS error over the trials
 is set beside the RMS of the 1σ the estimates reported.
 
-A trial is a whole run — sequencer, SQLite store, dataset, solvers — in its own directory,
+A trial is a whole run — engine, SQLite store, dataset, solvers — in its own directory,
 so what is checked is what a user runs. Trials run on a process pool by default, or on an
 existing Dask cluster (``scheduler`` address), with a progress bar.
 """

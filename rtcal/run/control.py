@@ -54,7 +54,7 @@ def control_record(proc: Procedure, method: Method[Any, Any], simulated: bool, o
 
 
 def checks_text(proc: Procedure, method: Method[Any, Any]) -> list[str]:
-    """What the sequencer checked at every motion and reading, with the procedure's tolerances: the
+    """What the engine checked at every motion and reading, with the procedure's tolerances: the
     stage's (every method's), then the method's own instruments' (its ``checks_text``)."""
     v = proc.verification
     stage = (f"{v.stage_tolerance_deg * 3600:g}″ (the procedure's stage tolerance)" if v.stage_tolerance_deg

@@ -1,4 +1,4 @@
-"""A run end to end: procedure → instruments → sequencer → store → dataset → solvers → results.
+"""A run end to end: procedure → instruments → engine → store → dataset → solvers → results.
 
 The methods (:mod:`rtcal.methods`, each a :class:`~rtcal.methods.protocol.Method`) hold what
 differs between methods; this module holds what every run shares: the run directory, the

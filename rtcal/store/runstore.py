@@ -1,6 +1,6 @@
 """The run store: one SQLite file per run holding every raw reading as it was taken.
 
-Each reading is committed (WAL journal, synchronous=FULL) before the sequencer commands the
+Each reading is committed (WAL journal, synchronous=FULL) before the engine commands the
 next motion, so a run killed at any point keeps every reading already taken. The store also
 keeps the procedure and scenario text, the seed and the software version, so a run directory
 says how it was made.
@@ -198,7 +198,7 @@ class Reading:
     seating: int | None = None
     run: int | None = None
     direction: int | None = None
-    plan_index: int | None = None  # the planned reading this belongs to (see the sequencers)
+    plan_index: int | None = None  # the planned reading this belongs to (see each method's plan)
     attempt: int | None = None  # readings of one attempt at a planned reading share it (None: stores before attempts)
 
 
