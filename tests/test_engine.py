@@ -16,7 +16,7 @@ from rtcal.clock import VirtualClock
 from rtcal.engine.engine import AbortRequested, Engine
 from rtcal.engine.faults import RunAborted
 from rtcal.engine.plan import Entry
-from rtcal.engine.steps import Move, OperatorStep, Read, Settle, Validate
+from rtcal.engine.steps import Move, OperatorStep, Read, ReadSamples, Settle, Validate
 from rtcal.engine.walk import Timing, walk
 from rtcal.methods import METHODS
 from rtcal.methods import load_procedure
@@ -155,6 +155,27 @@ def test_plan_lists_its_steps_without_instruments():
     assert (w.planned_readings, w.instrument_readings) == (3, 6)
     assert w.steps == {"Validate": 1, "OperatorStep": 1, "Move": 3, "Settle": 3, "Read": 6}
     assert w.duration_s == pytest.approx(2.0 + 3.0 + 30.0)  # 20° at 10°/s, three settles, the set-up
+
+
+@pytest.mark.parametrize("name", ["laser_tracer_multistation", "encoder_abbe_error", "iso230_2_polygon"])
+def test_a_shipped_plan_is_data_listed_without_instruments(name):
+    """Every step of a shipped plan is a frozen value naming its instrument; every reading names fields its
+    instrument's kind describes, so the engine can read it through ``read_values`` (no step carries a driver call)."""
+    from dataclasses import FrozenInstanceError, fields
+
+    from drivers.factory import kind_of
+    from drivers.kinds import describe_kind
+
+    proc = load_procedure(ROOT / "procedures" / f"{name}.yaml")
+    w = walk(METHODS[proc.method].plan(proc, set()), Timing(stage_speed_deg_per_s=10.0), listing=True)
+    reads = [s for s in w.listing if isinstance(s, (Read, ReadSamples))]
+    assert len(reads) >= w.planned_readings
+    for step in reads:
+        named = step.fields if isinstance(step, Read) else (step.field,)
+        assert set(named) <= set(describe_kind(kind_of(step.instrument))), step
+        assert not any(callable(getattr(step, f.name)) for f in fields(step) if f.name != "check"), step
+    with pytest.raises(FrozenInstanceError):
+        reads[0].instrument = "somewhere else"  # type: ignore[misc]
 
 
 def test_clean_run_commits_each_attempt_and_emits_documents():

@@ -15,7 +15,7 @@ from rtcal.procedure.yamlfile import FileProblems
 def cmd_validate(args: argparse.Namespace) -> int:
     """Everything `run` checks before the first motion: the file, and the plan against the bench
     it would run on (the procedure's `bench`, or --scenario) — limits, CMM volume, polygon."""
-    from rtcal.methods import load_procedure
+    from rtcal.methods import METHODS, load_procedure
     from rtcal.procedure.loader import bench_path, is_procedure_text, load_scenario
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
     from rtcal.procedure.yamlfile import read_text
@@ -31,7 +31,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
                 try:
                     if proc.instruments.all_sim() or args.scenario:
                         scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
-                        check_plan_on_bench(path, proc, scenario)
+                        check_plan_on_bench(path, proc, scenario, METHODS[proc.method])
                     elif (bench := bench_path(path, proc)) is not None:  # None: the procedure names no bench
                         load_scenario(bench)
                 except FileProblems as exc:

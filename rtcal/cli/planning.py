@@ -23,7 +23,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     """Predicted 1σ per target and the duration of a procedure, before anything moves; what its
     uncertainty is made of and what each lever would do; the shortest plan for a target U."""
     from rtcal.planning.reports import optimize_refusal, plan_prediction, plan_proposal
-    from rtcal.methods import load_procedure
+    from rtcal.methods import METHODS, load_procedure
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
 
     path = Path(args.procedure)
@@ -52,7 +52,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if refusal:
         raise UserError(f"--optimize: {refusal}")
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
-    check_plan_on_bench(path, proc, scenario)
+    check_plan_on_bench(path, proc, scenario, METHODS[proc.method])
     plan, lever_outcomes = plan_prediction(path, proc, scenario, levers=not args.no_levers,
                                            max_radius_mm=args.max_radius_mm)
     proposal = written = None
@@ -161,7 +161,7 @@ def cmd_uncertainty(args: argparse.Namespace) -> int:
 
     from rtcal.planning import montecarlo
     from rtcal.planning.reports import uncertainty_summary
-    from rtcal.methods import load_procedure
+    from rtcal.methods import METHODS, load_procedure
     from rtcal.run.runner import check_plan_on_bench, default_run_dir, resolve_scenario
 
     if not 2 <= args.trials <= 100_000:
@@ -174,7 +174,7 @@ def cmd_uncertainty(args: argparse.Namespace) -> int:
     if not proc.instruments.all_sim():
         raise UserError(f"{path}: the Monte Carlo runs on the simulated bench: every instrument must be `backend: sim`")
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
-    check_plan_on_bench(path, proc, scenario)
+    check_plan_on_bench(path, proc, scenario, METHODS[proc.method])
     out = Path(args.out) if args.out else default_run_dir("uncertainty")
     trial_seed = scenario.seed if args.seed is None else args.seed
     if args.balanced and args.fixed_systematics:

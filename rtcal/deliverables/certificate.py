@@ -48,7 +48,6 @@ class CertifiedMethod(Protocol):
     def outputs(self, results: RunResults) -> MethodOutputs: ...
 
 
-
 ISO_KEYS = (("E_up", "E↑", "unidirectional systematic positional deviation, positive approach"),
             ("E_down", "E↓", "unidirectional systematic positional deviation, negative approach"),
             ("E", "E", "bidirectional systematic positional deviation"),

@@ -8,8 +8,6 @@ from pathlib import Path
 from typing import Any, Protocol
 
 
-
-
 class MethodOutputs(Protocol):
     """What a method adds to a run directory, the report and the console, from its results alone."""
 

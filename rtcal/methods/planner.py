@@ -27,7 +27,6 @@ def bench_file_beside(out_path: Path) -> Path:
     return out_path.with_name(f"{out_path.stem}.bench.yaml")
 
 
-
 def keep_bench(procedure_path: Path, data_yaml: dict[str, Any], out_path: Path) -> Path | None:
     """Point ``data_yaml["bench"]`` (read from ``procedure_path``) at the same bench from ``out_path``'s
     folder (a procedure reads no bench outside its folder): a relative path when the bench is inside

@@ -1,2 +1,3 @@
-"""Before anything moves: a plan's predicted uncertainty and duration, a better choice of CMM points,
-and the Monte Carlo of whole simulated runs that checks the reported uncertainty."""
+"""Before anything moves: a plan's predicted uncertainty and duration, the levers of its method's planner
+and the shortest plan for a target U, and the Monte Carlo of whole simulated runs that checks the
+reported uncertainty."""

@@ -234,8 +234,6 @@ class FaultPolicy(_Strict):
                                          "persists (an emergency stop, a lost beam): stop safely instead; resume retakes them")
 
 
-
-
 class _Verification(_Strict):
     """What every motion and reading is checked against: no reading is trusted alone. A
     disagreement is a fault of the instrument named, under its `on_fault` policy; a table or probe

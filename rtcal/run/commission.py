@@ -25,7 +25,6 @@ from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, Env
 from drivers.kinds import KINDS
 
 
-
 class CheckInputError(Exception):
     """A mistake in what ``rtcal check`` was given (exit 2)."""
 

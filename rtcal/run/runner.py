@@ -25,7 +25,7 @@ from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
 from rtcal.methods import METHODS, load_procedure
-from rtcal.methods.protocol import DataContradiction
+from rtcal.methods.protocol import DataContradiction, Method
 from rtcal.procedure.loader import bench_path, load_scenario
 from rtcal.procedure.models import Procedure, plan_outside_limits
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
@@ -174,7 +174,7 @@ def with_addresses(proc: Procedure, addresses: dict[str, str]) -> Procedure:
     return proc.model_copy(update={"instruments": instruments})
 
 
-def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenario) -> None:
+def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenario, method: Method[Any, Any]) -> None:
     """Refuse, before anything moves, a plan the simulated bench cannot do: stage limits, CMM
     volume, and what the method itself refuses (a polygon of another face count). `rtcal validate` runs
     the same check."""
@@ -182,7 +182,7 @@ def check_plan_on_bench(procedure_path: Path, proc: Procedure, scenario: Scenari
     if problem:
         field, _, message = problem.partition(": ")
         raise FileProblems([problem_at(procedure_path, (field,), f"{message} (the simulated bench's limits)")])
-    refused = METHODS[proc.method].scenario_problem(proc, scenario)
+    refused = method.scenario_problem(proc, scenario)
     if refused is not None:
         raise FileProblems([problem_at(procedure_path, refused[0], refused[1])])
 
@@ -278,7 +278,7 @@ def run_procedure(
     bench, scenario_text = None, ""
     if simulated:  # a run over transports has no bench here: the instruments are elsewhere
         scenario, scenario_text = resolve_scenario(procedure_path, proc, Path(scenario_path) if scenario_path else None)
-        check_plan_on_bench(procedure_path, proc, scenario)
+        check_plan_on_bench(procedure_path, proc, scenario, method)
         seed = scenario.seed if seed is None else int(seed)
         bench = Bench(scenario, VirtualClock(), seed)
     bench_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated else None
@@ -298,7 +298,7 @@ def run_procedure(
             CLOCK_KEY: "virtual" if simulated or virtual_clock else "real",
         })
         _keep_fault_counters(store, bench)
-        return _measure_and_solve(proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
+        return _measure_and_solve(method, proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
                                   estimate_noise, on_engine, motion_timing, bench_timing)
     finally:
         lock.release()
@@ -336,8 +336,9 @@ def resume_run(
             raise RunDirError(f"cannot resume: {exc}") from None
         meta = store.meta()
         where = f"{run_dir / RunStore.FILENAME}"
-        model = METHODS[_stored(meta, "method", lambda v: v if v in METHODS else None, run_dir,
-                                f"one of {', '.join(METHODS)}")].procedure_model
+        method = METHODS[_stored(meta, "method", lambda v: v if v in METHODS else None, run_dir,
+                                 f"one of {', '.join(METHODS)}")]  # the registry chooses, once, by the stored name
+        model = method.procedure_model
         proc = cast(Procedure, validate_text(_stored(meta, "procedure_yaml", str, run_dir, "the procedure's text"), model,
                                              f"{where} (stored procedure)", context={"large": bool(meta.get("large"))}))  # as load_procedure
         instruments = _stored(meta, "instruments", type(proc.instruments).model_validate_json, run_dir,
@@ -349,7 +350,7 @@ def resume_run(
             raise RunDirError(f"cannot resume: {where} holds {twice} readings more than once (the same instrument, "
                               "quantity and sample of one attempt at a planned reading): the store was edited or "
                               f"merged, and its results would count them twice; `rtcal export {run_dir}` writes them all")
-        complete = len(store.done_plan_indices()) >= METHODS[proc.method].plan_length(proc)
+        complete = len(store.done_plan_indices()) >= method.plan_length(proc)
         finished = stored_results(run_dir) if meta.get("status") == "solved" and complete else None
         if finished is not None:  # nothing to take, nothing to count: the run stays as it is
             counted = store.instrument_readings()
@@ -361,7 +362,7 @@ def resume_run(
             proc = with_addresses(proc, addresses)
         simulated = proc.instruments.all_sim()
         done = len(store.done_plan_indices())
-        planned = METHODS[proc.method].plan_length(proc)
+        planned = method.plan_length(proc)
         operator_address = (addresses or {}).get("operator") or (
             _stored_operator(meta, run_dir) if done < planned else "")
         if operator_address:  # a wired run goes on with the simulated operator it had
@@ -391,8 +392,9 @@ def resume_run(
         bench_timing = (_wired_motion_timing(Path(meta.get("procedure_path") or "."), proc, None)
                         if not simulated else None)  # as `run` counts them (from the procedure's bench)
         motion_timing = bench_timing if virtual_clock else None
-        return _measure_and_solve(proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir, rehearse), virtual_clock, show_progress, generation,
-                                  on_engine=on_engine, motion_timing=motion_timing, eta_timing=bench_timing)
+        return _measure_and_solve(method, proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir, rehearse),
+                                  virtual_clock, show_progress, generation, on_engine=on_engine, motion_timing=motion_timing,
+                                  eta_timing=bench_timing)
     finally:
         lock.release()
 
@@ -515,15 +517,13 @@ def _wired_motion_timing(procedure_path: Path, proc: Procedure, scenario_path: s
     return Timing.of_scenario(scenario)
 
 
-def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
+def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True, on_engine: OnEngine | None = None,
                        motion_timing: Timing | None = None, eta_timing: Timing | None = None) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs
     (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds;
     ``eta_timing``: the speeds the time left is walked at, a simulated bench's own by default)."""
-    method = METHODS[proc.method]
-    simulated = bench is not None
     goes_on_s = store.last_time_s()  # a resume's clock goes on where the run stopped: times only grow
     clock = bench.clock if bench else (VirtualClock(goes_on_s) if virtual_clock else RealClock(goes_on_s))
     try:
@@ -560,7 +560,7 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
         finally:
             inst.close()
         try:
-            return _solve_and_write(proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
+            return _solve_and_write(method, proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
         except KeyboardInterrupt as exc:  # a signal while solving or writing: no results, recorded as any stop
             _record_interruption(store, clock.now_s(), exc, "interrupted", "while the results were computed: none were "
                                  "written; `rtcal resume` computes them again")
@@ -570,10 +570,9 @@ def _measure_and_solve(proc: Procedure, run_dir: Path, store: RunStore, bench: B
             detach()
 
 
-def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, clock: Any, generation: int,
-                     outputs: bool, estimate_noise: bool) -> RunOutcome:
+def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None,
+                     clock: Any, generation: int, outputs: bool, estimate_noise: bool) -> RunOutcome:
     """The measured run's analysis, its typed results and every output file."""
-    method = METHODS[proc.method]
     simulated = bench is not None
     store.set_meta({"status": "measured", "finished_utc": _now()})
     meta = store.meta()
@@ -615,7 +614,8 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
         log = RunLog(evaluation=evaluation, skipped_readings=len(store.skipped_plan_indices()),
                      faults=sum(1 for e in events if e.kind == "fault"), events=events,
                      conformity=conformity_of(proc, analysis, evaluation),
-                     control=control_record(proc, METHODS[proc.method], simulated, meta.get("operator_address", ""), len(store.rejected_attempts())),
+                     control=control_record(proc, method, simulated, meta.get("operator_address", ""),
+                                            len(store.rejected_attempts())),
                      digests=digests_of(store))
         results = assemble(info, analysis, log, method.results_model)
     except ValidationError as exc:  # a value beyond what results.json admits: the readings stay, the file is not written
@@ -632,7 +632,6 @@ def _solve_and_write(proc: Procedure, run_dir: Path, store: RunStore, bench: Ben
     from rtcal.deliverables.certificate import build_certificate, write_certificate_json
     from rtcal.deliverables.report import write_html, write_markdown, write_pdf
 
-    method = METHODS[results.method]
     method_outputs = method.outputs(results)
     try:
         with staged_outputs(run_dir) as out:  # written aside, renamed into place: planted links are replaced, not followed

@@ -47,7 +47,6 @@ class Source:
     note: str = ""
 
 
-
 @dataclass(frozen=True)
 class VarianceEstimate:
     """REML scales of the Type A sources (1 = as stated) with their standard errors."""

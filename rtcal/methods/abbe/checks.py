@@ -24,11 +24,11 @@ def check_face(x_arcsec: float, tolerance_arcsec: float, command_deg: float) -> 
                                               "table is not where it was commanded, or the polygon is not seated as stated")
 
 
-
+# -- Instruments checked against each other (issue 26): pure objects fed each visit's readings with
+# their context; the plan calls them where it checks a visit's readings.
 def _wrap_arcsec(deg: float) -> float:
     """An angle difference in (−180°, 180°], in arcsec."""
     return ((deg + 180.0) % 360.0 - 180.0) * 3600.0
-
 
 
 class AutocollimatorEncoderCheck:
@@ -117,7 +117,6 @@ class AutocollimatorEncoderCheck:
         self.last_in_pass[pass_key] = (command_deg, d)
 
 
-
 def inch_digit_um(digit_um: float) -> float:
     """What one digit of the same indicator set to inches reads as when its number is taken for mm,
     µm: its inch digit is the 1-2-5 step at or above the mm digit / 25.4 (1 µm → 0.00005 in → 0.05)."""
@@ -125,7 +124,6 @@ def inch_digit_um(digit_um: float) -> float:
     decade = 10.0 ** np.floor(np.log10(inches))
     step = next(k for k in (1.0, 2.0, 5.0, 10.0) if k * decade >= inches * (1 - 1e-9))
     return float(step * decade * 1e3)
-
 
 
 class IndicatorCheck:
@@ -165,7 +163,6 @@ class IndicatorCheck:
                                             "(25.4× too small); set it to mm")
 
 
-
 class IndicatorRepeatCheck:
     """Each dial indicator at a target already seen (another run, the other direction, another
     seating of the polygon: the indicators touch the shaft, not the polygon) reads what it read there within ``tolerance_um(n)``: 5σ of the difference (its
@@ -197,7 +194,6 @@ class IndicatorRepeatCheck:
         self.seen.setdefault(key, {})[visit] = y_um
 
 
-
 def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderCheck, IndicatorCheck, IndicatorRepeatCheck]:
     """The cross-checks of an encoder Abbe-error (or ISO 230-2) procedure, with its stated figures."""
     v, u = proc.verification, proc.uncertainty
@@ -207,7 +203,6 @@ def abbe_cross_checks(proc: EncoderAbbeError) -> tuple[AutocollimatorEncoderChec
     return (AutocollimatorEncoderCheck(sigma, v.cross_check_drift_arcsec, v.encoder_error_bound_arcsec, v.face_error_bound_arcsec),
             IndicatorCheck(v.indicator_range_um, u.indicator_resolution_um),
             IndicatorRepeatCheck(indicator_sigma, u.indicator_resolution_um, v.indicator_drift_um))
-
 
 
 def check_abbe_visit(ac: AutocollimatorEncoderCheck, indicators: IndicatorCheck, repeats: IndicatorRepeatCheck,

@@ -16,7 +16,6 @@ def more_runs(plan: Candidate, runs: int) -> Candidate:
     return Candidate(data, plan.bench, plan.changes + (f"{runs} runs",))
 
 
-
 class AbbePlanner:
     """What `rtcal plan` may vary in an encoder Abbe-error plan: its runs."""
 
@@ -39,7 +38,6 @@ class AbbePlanner:
     def choose_points(self, path: Path, proc: EncoderAbbeError, scenario: Any, out: Path,
                       simulate: Callable[[Path, Path, Path], None]) -> str:
         raise ValueError(self.points_refusal(path, proc))
-
 
 
 def abbe_candidates(plan: Candidate, proc: EncoderAbbeError) -> list[tuple[int, Candidate]]:

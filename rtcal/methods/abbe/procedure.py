@@ -30,7 +30,6 @@ class AbbeOnFault(_Strict):
         return self
 
 
-
 class AbbeVerification(_Verification):
     __doc__ = _Verification.__doc__
     encoder_tolerance_arcsec: float = Field(
@@ -62,13 +61,11 @@ class AbbeVerification(_Verification):
                                                "(e.g. 1)")
 
 
-
 class AbbeDurations(_Strict):
     """What takes time besides the motions and settling (see MultistationDurations)."""
 
     reseat_polygon_s: float = Field(600.0, ge=0.0, le=86400.0, description="time the operator takes to seat the polygon "
                                                                            "anew and align it to the autocollimator, s")
-
 
 
 class AbbeInstruments(_Instruments):
@@ -80,7 +77,6 @@ class AbbeInstruments(_Instruments):
     environment: InstrumentChoice | None = Field(
         None, description="an air and material sensor, read at every visit: the conditions during the measurement, "
                           "summarised in results.json and the certificate (e.g. {backend: sim})")
-
 
 
 class AbbeSteps(_Strict):
@@ -116,7 +112,6 @@ class AbbeSteps(_Strict):
         if len(set(self.directions)) != len(self.directions):
             raise ValueError("directions: a direction repeats (for more approaches raise `runs`)")
         return self
-
 
 
 class PolygonSetup(_Strict):
@@ -163,9 +158,7 @@ class PolygonSetup(_Strict):
         return self
 
 
-
 MIN_ENCODER_RADIUS_MM = 1.0  # the smallest rotary encoder discs are a few mm across
-
 
 
 class AbbeGeometry(_Strict):
@@ -192,7 +185,6 @@ class AbbeGeometry(_Strict):
         return self
 
 
-
 class AbbeUncertainty(_Strict):
     """The instruments' stated noise and resolution (1σ), for the uncertainty budget.
 
@@ -214,7 +206,6 @@ class AbbeUncertainty(_Strict):
         "expanded uncertainty (k = 2) of an indication from the autocollimator's calibration certificate, arcsec (e.g. 0.1)"))
     indicator_scale_u_ppm: float = Field(0.0, ge=0.0, le=1e5, description=(
         "standard uncertainty of each dial indicator's scale, from its calibration certificate, ppm (e.g. 5000)"))
-
 
 
 class EncoderAbbeError(_Procedure):

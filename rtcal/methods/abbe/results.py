@@ -24,7 +24,6 @@ class ClosureEstimate(TargetedEstimate):
     residual_rms_arcsec: SigmaArcsec = Field(description="RMS of the closure residuals, arcsec")
 
 
-
 class AbbeEstimates(NamedSet[Estimate]):
     """``estimates`` of the encoder Abbe-error method."""
 
@@ -33,14 +32,12 @@ class AbbeEstimates(NamedSet[Estimate]):
     closure: ClosureEstimate | None = Field(None, description="table and polygon separated by closure (no certificate)")
 
 
-
 class AbbeTruth(Truth):
     """What the simulated bench really had (a simulated run only), arcsec."""
 
     encoder_error_arcsec: list[Arcsec] = Field(description="true systematic encoder error per step, arcsec")
     positioning_error_arcsec: list[Arcsec] = Field(description="true εz per step, arcsec")
     face_error_arcsec: list[Arcsec] = Field(description="the polygon's true face errors, arcsec")
-
 
 
 class AbbeAnalysis(Analysis):
@@ -58,7 +55,6 @@ class AbbeAnalysis(Analysis):
         if self.estimates.closure is not None and self.estimates.abbe is None:
             raise ValueError("estimates.closure is separated from the readings estimates.abbe analyses: abbe is missing")
         return self
-
 
 
 class AbbeResults(AbbeAnalysis, RunResults):

@@ -43,11 +43,6 @@ class TracerCheck:
                                          "commanded, or solver.first_station_guess_mm does not describe this set-up")
 
 
-# -- Instruments checked against each other (issue 26): pure objects fed each visit's readings with
-# their context; a plan calls them where it checks its readings.
-
-
-
 class TracerReturnCheck:
     """The tracer's length where its tracking segment was referenced, measured again (at the end
     of each pass, before the tracer is moved, before a stop): a count that drifted or creeps shows

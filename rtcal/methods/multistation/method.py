@@ -62,7 +62,6 @@ def _round(values: Iterable[float] | np.ndarray, digits: int = 6) -> list[float]
     return rounded
 
 
-
 def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
     """The lengths as if the table were at 20 °C: each station, grown by g = α·(T − 20 °C) about the
     axis when its length was read (T the sensor's table temperature then), moved the length by

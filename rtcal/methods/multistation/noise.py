@@ -38,10 +38,8 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         cmm_field_um=u.cmm_field_um, cmm_field_length_mm=u.cmm_field_length_mm)
 
 
-
 AIR_QUANTITIES = (("air_temperature_k", "temperature", "K", 0), ("air_pressure_pa", "pressure", "Pa", 1),
                   ("humidity_pct", "humidity", "% RH", 2))
-
 
 
 def stated_air_ranges(proc: LaserTracerMultistation) -> dict[str, float]:
@@ -59,7 +57,6 @@ def table_sensor(proc: LaserTracerMultistation) -> bool:
     return proc.instruments.environment is not None
 
 
-
 def table_expansion(proc: LaserTracerMultistation) -> tuple[float, float, str]:
     """(α, u(α), the material assumed or ""): as stated; with a sensor reading the table's temperature and no
     α stated, the default for a steel table — a table read warm and never corrected would leave its growth
@@ -72,7 +69,6 @@ def table_expansion(proc: LaserTracerMultistation) -> tuple[float, float, str]:
             else DEFAULT_TABLE_EXPANSION_U_PPM_PER_K, DEFAULT_TABLE_MATERIAL)
 
 
-
 def stated_table_range(proc: LaserTracerMultistation) -> float:
     """Without a sensor: the table's temperature range ± about 20 °C the procedure states (0: none stated)."""
     u = proc.uncertainty
@@ -80,7 +76,6 @@ def stated_table_range(proc: LaserTracerMultistation) -> float:
             "material_temperature_k" not in u.environment.model_fields_set:
         return 0.0
     return float(u.environment.material_temperature_k)
-
 
 
 def air_index_sigma(proc: LaserTracerMultistation) -> float:
@@ -92,7 +87,6 @@ def air_index_sigma(proc: LaserTracerMultistation) -> float:
     return float(np.sqrt((dT * e.air_temperature_k) ** 2 + (dp * e.air_pressure_pa) ** 2 + (dh * e.humidity_pct) ** 2))
 
 
-
 def air_index_noise(proc: LaserTracerMultistation) -> float:
     """1σ of the index each length is corrected with from the sensor's own noise per reading (independent
     from length to length, unlike :func:`air_index_sigma`'s common error; 0: no sensor)."""
@@ -102,7 +96,6 @@ def air_index_noise(proc: LaserTracerMultistation) -> float:
     dT, dp, dh = index_sensitivity()
     return float(np.sqrt((dT * e.air_temperature_noise_k) ** 2 + (dp * e.air_pressure_noise_pa) ** 2
                          + (dh * e.humidity_noise_pct) ** 2))
-
 
 
 def air_index_bound(proc: LaserTracerMultistation) -> tuple[float, str]:

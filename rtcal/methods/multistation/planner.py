@@ -25,11 +25,9 @@ def _tracer_polar(data: dict[str, Any], proc: LaserTracerMultistation) -> tuple[
     return axis, float(np.hypot(*rel)), float(np.arctan2(rel[1], rel[0])), float(guess[2])
 
 
-
 def _at(axis: np.ndarray, radius: float, angle: float, height: float) -> list[float]:
     return [round(float(axis[0] + radius * math.cos(angle)), 4), round(float(axis[1] + radius * math.sin(angle)), 4),
             round(height, 4)]
-
 
 
 def tracer_radius(plan: Candidate, proc: LaserTracerMultistation, factor: float) -> Candidate:
@@ -47,7 +45,6 @@ def tracer_radius(plan: Candidate, proc: LaserTracerMultistation, factor: float)
     return Candidate(data, bench, plan.changes + (f"tracer {radius * factor:.0f} mm from the axis (×{factor:.3g})",))
 
 
-
 def second_mount(plan: Candidate, proc: LaserTracerMultistation) -> Candidate:
     """A second tracer mount opposite the first (same radius and height, 180° round the table): the plan
     is measured from both, and the network separates the error motions from the rotation. Opposite,
@@ -63,7 +60,6 @@ def second_mount(plan: Candidate, proc: LaserTracerMultistation) -> Candidate:
     return Candidate(data, bench, plan.changes + ("a second tracer mount opposite the first",))
 
 
-
 def point_layers(plan: Candidate, layers: int) -> Candidate:
     data = copy.deepcopy(plan.procedure)
     points = data.setdefault("points", {"kind": "grid"})
@@ -71,7 +67,6 @@ def point_layers(plan: Candidate, layers: int) -> Candidate:
     points["layers"] = layers
     n = layers * int(points.get("columns", GridPlan().columns)) * int(points.get("rows", GridPlan().rows))
     return Candidate(data, plan.bench, plan.changes + (f"{n} CMM points ({layers} layers instead of {old})",))
-
 
 
 def more_stations(plan: Candidate, proc: LaserTracerMultistation) -> Candidate:
@@ -82,12 +77,10 @@ def more_stations(plan: Candidate, proc: LaserTracerMultistation) -> Candidate:
                                                   "every target kept, one between each)",))
 
 
-
 def more_samples(plan: Candidate, samples: int, note: str = "") -> Candidate:
     data = copy.deepcopy(plan.procedure)
     data["samples_per_reading"] = samples
     return Candidate(data, plan.bench, plan.changes + (f"{samples} samples per reading{note}",))
-
 
 
 def environment_sensor(plan: Candidate, proc: LaserTracerMultistation) -> Candidate:
@@ -103,9 +96,7 @@ def environment_sensor(plan: Candidate, proc: LaserTracerMultistation) -> Candid
         "1σ): each length corrected for the air of its moment" + ("" if proc.instruments.all_sim() else " (give its address)"),))
 
 
-
 SAMPLE_NOTE = " (each sample the time `durations.tracer_sample_s` states)"
-
 
 
 def station_major(plan: Candidate) -> Candidate:
@@ -117,13 +108,11 @@ def station_major(plan: Candidate) -> Candidate:
     return Candidate(data, plan.bench, plan.changes + ("station-major order (for each station, every point)",))
 
 
-
 def concurrent_motions(plan: Candidate) -> Candidate:
     """The table and the CMM start together where both move (the engine's ``Parallel``): time only."""
     data = copy.deepcopy(plan.procedure)
     data["concurrent_motions"] = True
     return Candidate(data, plan.bench, plan.changes + ("the table and the CMM moving together",))
-
 
 
 def shortest_point_path(plan: Candidate) -> Candidate:
@@ -133,7 +122,6 @@ def shortest_point_path(plan: Candidate) -> Candidate:
     data.setdefault("points", {"kind": "grid"})["layer_order"] = "alternate"
     return Candidate(data, plan.bench, plan.changes + ("the CMM's shortest path through the points (every other layer "
                                                   "backwards)",))
-
 
 
 def stated_expansion(plan: Candidate, alpha_ppm_per_k: float) -> Candidate:
@@ -149,14 +137,12 @@ def stated_expansion(plan: Candidate, alpha_ppm_per_k: float) -> Candidate:
         "your table's): each length corrected for its growth with the temperature the sensor reads",))
 
 
-
 def expansion_to_state(plan: Candidate, proc: LaserTracerMultistation) -> float:
     """The bench's expansion coefficient when the table grows, a sensor reads its temperature and the
     procedure states none (else 0: nothing to state, or no temperature to correct with)."""
     alpha = float(plan.bench.get("stage", {}).get("thermal_expansion_ppm_per_k") or 0.0)
     sensor = proc.instruments.environment is not None or "environment" in plan.procedure.get("instruments", {})
     return alpha if alpha > 0 and sensor and proc.uncertainty.table_expansion_ppm_per_k == 0 else 0.0
-
 
 
 def radius_factors(plan: Candidate, proc: LaserTracerMultistation, max_radius_mm: float | None) -> list[float]:
@@ -166,7 +152,6 @@ def radius_factors(plan: Candidate, proc: LaserTracerMultistation, max_radius_mm
         return [1.5, 2.0]
     furthest = max_radius_mm / radius
     return sorted({round(f, 4) for f in (min(1.5, furthest), furthest) if f > 1.0 + 1e-9})
-
 
 
 class MultistationPlanner:
@@ -227,10 +212,8 @@ class MultistationPlanner:
         return optimize_points(path, proc, scenario, out, simulate)
 
 
-
 # -- the search ----------------------------------------------------------------------------------------------
 SAMPLE_FACTORS = (1, 2, 4)  # samples per reading the search tries, × the procedure's
-
 
 
 def multistation_candidates(plan: Candidate, proc: LaserTracerMultistation, max_radius_mm: float | None,
@@ -283,7 +266,6 @@ def multistation_candidates(plan: Candidate, proc: LaserTracerMultistation, max_
                         chains[id(chain[-1])] = tuple(chain)
                     out.append((round(duration_s(chain[-1]), 1), chain[-1]))
     return sorted(out, key=lambda c: c[0])
-
 
 
 def _config(plan: Candidate) -> tuple[bool, Any, str]:

@@ -23,7 +23,6 @@ class MultistationInstruments(_Instruments):
                           "refractive index of the air of the moment (e.g. {backend: sim})")
 
 
-
 class MultistationOnFault(_Strict):
     stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
     cmm: FaultPolicy = Field(FaultPolicy(), description="when the CMM fails")
@@ -36,7 +35,6 @@ class MultistationOnFault(_Strict):
             if getattr(self, name).then == "reacquire":
                 raise ValueError(f"{name}.then: only the laser_tracer can be re-acquired")
         return self
-
 
 
 class Stations(_Strict):
@@ -53,7 +51,6 @@ class Stations(_Strict):
     def angles_deg(self) -> np.ndarray:
         sign = 1.0 if self.approach == "positive" else -1.0
         return self.first_angle_deg + sign * self.step_deg * np.arange(self.count)
-
 
 
 class GridPlan(_Strict):
@@ -85,7 +82,6 @@ class GridPlan(_Strict):
         return np.array([(x, y, z) for k, z in enumerate(zs) for x, y in (layer[::-1] if back and k % 2 else layer)])
 
 
-
 class ListPlan(_Strict):
     """An explicit list of CMM points (mm, CMM frame), measured in the order given."""
 
@@ -95,7 +91,6 @@ class ListPlan(_Strict):
 
     def points_mm_array(self) -> np.ndarray:
         return np.array(self.points_mm, dtype=float)
-
 
 
 class LMSettings(_Strict):
@@ -109,14 +104,12 @@ class LMSettings(_Strict):
     max_iterations: int = Field(200, ge=1, le=10_000, description="iterations per station before giving up (e.g. 200)")
 
 
-
 def _turned_guess(first_angle_deg: float, axis_point_mm: tuple[float, float, float]) -> list[float]:
     """The paper's station 1 turned about the vertical axis through ``axis_point_mm`` to another first angle."""
     a = math.radians(first_angle_deg - PAPER_STATION_1_DEG)
     x, y = PAPER_STATION_1_MM[0] - axis_point_mm[0], PAPER_STATION_1_MM[1] - axis_point_mm[1]
     return [round(math.cos(a) * x - math.sin(a) * y + axis_point_mm[0], 4),
             round(math.sin(a) * x + math.cos(a) * y + axis_point_mm[1], 4), PAPER_STATION_1_MM[2]]
-
 
 
 class MultistationSolver(_Strict):
@@ -139,7 +132,6 @@ class MultistationSolver(_Strict):
         return self
 
 
-
 class ErrorMotionBounds(_Strict):
     """Bounds of the table's error motions (ISO 230-7), for the uncertainty budget (Type B).
 
@@ -156,7 +148,6 @@ class ErrorMotionBounds(_Strict):
     max_order: int = Field(6, ge=1, le=360, description="highest harmonic order (per turn) the error motions may have (e.g. 6)")
     tilt_center_z_mm: float = Field(0.0, ge=-1e4, le=1e4, description="height of the tilt centre in the CMM frame, mm "
                                     "(0: on the table at the CMM origin, as in seed 000)")
-
 
 
 class EnvironmentUncertainty(_Strict):
@@ -192,7 +183,6 @@ class EnvironmentUncertainty(_Strict):
         "with a sensor reading the table: its noise per reading, K (1σ, e.g. 0.03: a one-decimal thermometer's 0.1/√12)"))
 
 
-
 class MultistationUncertainty(_Strict):
     """What the lab knows about its instruments (1σ unless a bound): the uncertainty budget's inputs.
 
@@ -222,7 +212,6 @@ class MultistationUncertainty(_Strict):
         "standard uncertainty of that coefficient, ppm/K (e.g. 1.0)"))
 
 
-
 class MultistationVerification(_Verification):
     __doc__ = _Verification.__doc__
     cmm_tolerance_mm: float = Field(0.05, gt=0.0, le=1000.0, description="how far the CMM's reported position may be from the "
@@ -238,7 +227,6 @@ class MultistationVerification(_Verification):
                                                "drift; e.g. 2)")
 
 
-
 class MultistationDurations(_Strict):
     """What takes time besides the motions and settling: the planned and the simulated clock count it
     (a run on hardware takes what it takes)."""
@@ -250,7 +238,6 @@ class MultistationDurations(_Strict):
                                                                         "another mount and fix it, s")
 
 
-
 class SecondMount(_Strict):
     """Measure the whole plan again with the tracer moved to a second place on the table: the
     network estimator then separates the table's error motions from its rotation (one mount
@@ -259,7 +246,6 @@ class SecondMount(_Strict):
 
     first_station_guess_mm: Vec3 = Field(description="the tracer's centre at the first station once moved, CMM frame, "
                                                       "mm (nominal, for the solver's start; e.g. [-22.6, 128.0, 122.5])")
-
 
 
 class LaserTracerMultistation(_Procedure):

@@ -23,7 +23,6 @@ class MultistationEstimates(NamedSet[Estimate]):
         None, description="one adjustment of everything: stations on one circle, CMM points and geometry")
 
 
-
 class StationTruth(Truth):
     """What the simulated stations really had (a simulated run only), signed as the estimates."""
 
@@ -31,7 +30,6 @@ class StationTruth(Truth):
     realized_deviation_arcsec: list[Arcsec] = Field(
         description="true per-step deviation of the mean actual angle of every visit (includes the repeatability drawn), arcsec")
     positioning_error_arcsec: list[Arcsec] = Field(description="true εz (actual − commanded) per station, arcsec")
-
 
 
 class MultistationAnalysis(Analysis):
@@ -49,7 +47,6 @@ class MultistationAnalysis(Analysis):
         None, description="per target EXC, EYC, EAC, EBC with u, from a second tracer mount (absent: one mount) (1.2)")
 
     OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | {"axis_location", "error_motions"}
-
 
 
 class MultistationResults(MultistationAnalysis, RunResults):
