@@ -19,8 +19,6 @@ from typing import Any, Callable, Union
 
 from drivers.errors import InstrumentError
 
-Target = Union[float, tuple[float, float, float]]
-
 
 class Skipped(Exception):
     """Thrown into a plan where an instrument's ``on_fault`` policy skipped a step: the attempt

@@ -25,11 +25,6 @@ from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, Env
 from drivers.models import KINDS
 
 
-
-class CheckInputError(Exception):
-    """A mistake in what ``rtcal check`` was given (exit 2)."""
-
-
 @dataclass
 class ProbeResult:
     kind: str

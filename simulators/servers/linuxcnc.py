@@ -189,9 +189,6 @@ class LinuxCncProcess:
             text = ""
         return " | ".join(text.strip().splitlines()[-lines:])
 
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
     def kill(self) -> None:
         """Kill LinuxCNC at once (SIGKILL to its process group): a controller that dies mid-run."""
         if self.proc is not None:
