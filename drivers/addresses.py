@@ -20,10 +20,8 @@ import re
 from dataclasses import dataclass, field
 from urllib.parse import parse_qsl, urlsplit
 
-
-class AddressError(ValueError):
-    """An address string that cannot be understood."""
-
+from drivers.errors import AddressError
+from drivers.models import find_model
 
 # every option an address may carry: (lowest, highest, whole number) — a person's bounds, checked
 # when the address is parsed so a procedure fails validation, not the drive set-up mid-run
@@ -98,8 +96,6 @@ def _model_option(options: dict[str, str], name: str) -> tuple[float, float, boo
     """The bounds of an option the address's model declares for itself (a plugin's own options)."""
     if "model" not in options:
         return None
-    from drivers.models import find_model  # the registry imports this module
-
     try:
         return find_model(options["model"]).options.get(name)
     except AddressError:
@@ -115,8 +111,6 @@ def _options(query: str) -> dict[str, str]:
     if len(options) != len(pairs):
         raise AddressError(f"options {redact_tokens(query[:80])!r}: an option given twice")
     if "model" in options:
-        from drivers.models import find_model
-
         check_text("model", options["model"])
         find_model(options["model"])  # an unknown model is refused here, where the address is read
     for name, text in options.items():

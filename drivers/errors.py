@@ -1,6 +1,13 @@
-"""Typed instrument errors: the contract between drivers and the engine's fault policies."""
+"""Typed instrument errors: the contract between drivers and the engine's fault policies; and
+the error of an address that cannot be understood."""
 
 from __future__ import annotations
+
+
+class AddressError(ValueError):
+    """An address string that cannot be understood. Defined here, below the address parser
+    (drivers/addresses.py, which re-exports it) and the model registry (drivers/models.py), so that
+    the registry need not import the parser that imports it."""
 
 
 class InstrumentError(Exception):

@@ -28,7 +28,7 @@ from drivers.interfaces import (DESCRIPTIONS, PURPOSES, Autocollimator, Cmm, Dia
                                 FieldDescription, Instrument, LaserTracer, RotaryStage, Value, check_described)
 
 ENTRY_POINT_GROUP = "rtcal.instrument_kinds"
-# the store's marker quantities (rtcal/run/store.py MARKERS): no described field may be stored under them
+# the store's marker quantities (rtcal/store/runstore.py MARKERS): no described field may be stored under them
 RESERVED_QUANTITIES = ("skipped", "rejected")
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any
 
-from drivers.addresses import AddressError
+from drivers.errors import AddressError
 from drivers.interfaces import a_kind
 
 ENTRY_POINT_GROUP = "rtcal.drivers"

@@ -142,3 +142,26 @@ def test_mbpoll_reads_feedback_position_and_status(hub):
     assert out.returncode == 0, out.stderr
     value = int(out.stdout.split(f"[{az.OUTPUT_STATUS + 2}]:")[1].split()[0], 16)
     assert value & az.OUT_READY and value & az.OUT_IN_POS
+
+
+def test_each_connection_has_its_own_frame_hook():
+    """pymodbus asks the server for each accepted connection's handler (``callback_new_connection``,
+    overridden): what one client asks decides nothing about another's replies. Client A asks unit 5
+    (no such drive: no reply), client B unit 1; A's reply is still dropped and B's still sent."""
+    import asyncio
+
+    from simulators.servers import modbus_stage
+
+    def request(unit: int) -> bytes:  # MBAP (transaction 1, protocol 0, 6 bytes follow), read 2 holding registers
+        return bytes([0, 1, 0, 0, 0, 6, unit, 3, 0, 0, 0, 2])
+
+    reply = bytes([0, 1, 0, 0, 0, 7, 1, 3, 4, 0, 0, 0, 0])
+
+    async def connections() -> tuple[bytes, bytes]:
+        server = modbus_stage.tcp_server(_model(), "127.0.0.1", 0)
+        a, b = server.handle_new_connection(), server.handle_new_connection()
+        a.trace_packet(False, request(5))
+        b.trace_packet(False, request(1))
+        return a.trace_packet(True, reply), b.trace_packet(True, reply)
+
+    assert asyncio.run(connections()) == (b"", reply)

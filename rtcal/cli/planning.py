@@ -16,7 +16,10 @@ from rtcal.outputs import output_file, write_output
 
 if TYPE_CHECKING:
     from rtcal.planning.levers import Outcome, Proposal
-    from rtcal.planning.reports import PlanPrediction
+    from rtcal.planning.montecarlo import TrialSpec
+    from rtcal.planning.reports import PlanPrediction, UncertaintySummary
+    from rtcal.procedure.models import Procedure
+    from simulators.scenario import Scenario
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -157,57 +160,105 @@ def check_scheduler(address: str) -> None:
 
 def cmd_uncertainty(args: argparse.Namespace) -> int:
     """Monte Carlo of the procedure on the simulated bench: reported 1σ against the errors made."""
-    from tqdm import tqdm
-
-    from rtcal.planning import montecarlo
     from rtcal.planning.reports import uncertainty_summary
-    from rtcal.methods import METHODS, load_procedure
-    from rtcal.run.runner import check_plan_on_bench, default_run_dir, resolve_scenario
+    from rtcal.run.runner import default_run_dir
 
+    n_workers = _uncertainty_workers(args)
+    path, proc, scenario = _simulated_procedure(args)
+    out = Path(args.out) if args.out else default_run_dir("uncertainty")
+    trial_seed = scenario.seed if args.seed is None else args.seed
+    specs = _trial_specs(args, path, proc, scenario, trial_seed, out)
+    make_folder(out, "--out")
+    trials = _run_trials(specs, n_workers, args.scheduler)
+    ok = [t for t in trials if "failed" not in t]
+    if not ok:
+        print(f"rtcal: every trial failed; the first: {trials[0]['failed']}", file=sys.stderr)
+        return EXIT_FAILED
+    summary = uncertainty_summary(trials, path, proc, args.scenario, trial_seed, not args.fixed_systematics, args.balanced)
+    data = summary.model_dump()
+    _write_uncertainty(out, summary, data, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} "
+                       "simulated runs")
+    _print_uncertainty(summary, data, len(ok), out)
+    return EXIT_OK
+
+
+def _uncertainty_workers(args: argparse.Namespace) -> int:
+    """The options that need no file, checked first so that a mistake costs no loading: --trials,
+    --workers (returned: how many), --scheduler."""
     if not 2 <= args.trials <= 100_000:
         raise UserError("--trials must lie in 2..100000")
     n_workers = workers(args.workers, args.large)
     if args.scheduler:
         check_scheduler(args.scheduler)
+    return n_workers
+
+
+def _simulated_procedure(args: argparse.Namespace) -> tuple[Path, Procedure, Scenario]:
+    """The procedure and its bench, refused before any trial unless every instrument is simulated
+    (the Monte Carlo knows the truth only on the simulated bench) and the plan fits the bench."""
+    from rtcal.methods import METHODS, load_procedure
+    from rtcal.run.runner import check_plan_on_bench, resolve_scenario
+
     path = Path(args.procedure)
     proc = load_procedure(path)
     if not proc.instruments.all_sim():
         raise UserError(f"{path}: the Monte Carlo runs on the simulated bench: every instrument must be `backend: sim`")
     scenario, _ = resolve_scenario(path, proc, Path(args.scenario) if args.scenario else None)
     check_plan_on_bench(path, proc, scenario, METHODS[proc.method])
-    out = Path(args.out) if args.out else default_run_dir("uncertainty")
-    trial_seed = scenario.seed if args.seed is None else args.seed
+    return path, proc, scenario
+
+
+def _trial_specs(args: argparse.Namespace, path: Path, proc: Procedure, scenario: Scenario, trial_seed: int,
+                 out: Path) -> list[TrialSpec]:
+    """Every trial's spec, drawn before any runs: a --balanced draw that cannot be made is the
+    user's mistake (exit 2), not a failed trial."""
+    from rtcal.planning import montecarlo
+
     if args.balanced and args.fixed_systematics:
         raise UserError("--balanced and --fixed-systematics: choose one (--balanced is how the systematic errors are drawn)")
     try:
-        specs = montecarlo.plan_trials(path, proc, scenario, args.trials, trial_seed, out, not args.fixed_systematics,
-                                       args.balanced)
+        return montecarlo.plan_trials(path, proc, scenario, args.trials, trial_seed, out, not args.fixed_systematics,
+                                      args.balanced)
     except ValueError as exc:
         raise UserError(f"--balanced: {exc}") from None
-    make_folder(out, "--out")
+
+
+def _run_trials(specs: list[TrialSpec], n_workers: int, scheduler: str | None) -> list[dict[str, Any]]:
+    """The trials' results, with a bar on a terminal; a Dask scheduler that cannot be reached is the
+    user's address to correct (exit 2), a local OSError is not."""
+    from tqdm import tqdm
+
+    from rtcal.planning import montecarlo
+
     trials = []
     bar = tqdm(total=len(specs), desc="trials", unit="trial", disable=not sys.stderr.isatty(), file=sys.stderr)
     try:
-        for result in montecarlo.run_trials(specs, n_workers, args.scheduler):
+        for result in montecarlo.run_trials(specs, n_workers, scheduler):
             trials.append(result)
             bar.update()
     except OSError as exc:
-        if not args.scheduler:
+        if not scheduler:
             raise
-        raise UserError(f"--scheduler {args.scheduler}: cannot reach the Dask scheduler: {exc}") from None
+        raise UserError(f"--scheduler {scheduler}: cannot reach the Dask scheduler: {exc}") from None
     finally:
         bar.close()
-    ok = [t for t in trials if "failed" not in t]
-    if not ok:
-        print(f"rtcal: every trial failed; the first: {trials[0]['failed']}", file=sys.stderr)
-        return EXIT_FAILED
-    summary = uncertainty_summary(trials, path, proc, args.scenario, trial_seed, not args.fixed_systematics, args.balanced)
+    return trials
+
+
+def _write_uncertainty(out: Path, summary: UncertaintySummary, data: dict[str, Any], title: str) -> None:
+    """uncertainty.json and uncertainty.png, each written whole or not at all (:func:`write_output`)."""
+    from rtcal.planning import montecarlo
+
     write_output(out / "uncertainty.json", summary.to_json())
-    data = summary.model_dump()
     with output_file(out / "uncertainty.png") as png:
-        montecarlo.plot_summary(data, f"{proc.name or path.stem}: reported 1σ against the errors of {len(ok)} "
-                                "simulated runs", png)
-    print(f"{len(ok)} trials ({summary.failed_trials} failed), systematics {summary.systematics}")
+        montecarlo.plot_summary(data, title, png)
+
+
+def _print_uncertainty(summary: UncertaintySummary, data: dict[str, Any], n_ok: int, out: Path) -> None:
+    """Per estimator the overall figures, then a row per target (any number of targets fits)."""
+    from rtcal.planning import montecarlo
+
+    print(f"{n_ok} trials ({summary.failed_trials} failed), systematics {summary.systematics}")
     for name, e in summary.estimators.items():
         rec = " (recommended)" if name == summary.recommended else ""
         o = e.overall
@@ -215,10 +266,9 @@ def cmd_uncertainty(args: argparse.Namespace) -> int:
               f"  ratio per target {o.ratio_min}–{o.ratio_max} (each ± about {1 / (2 * e.trials) ** 0.5:.0%} from "
               f"{e.trials} trials); U (k = 2) covers {o.coverage_k2:.1%} of the errors"
               + ("" if e.residual_test_failed is None else f"; residual test failed in {e.residual_test_failed:.0%} of the trials"))
-        for line in montecarlo.table_lines(summary.targets, data["estimators"][name]):  # a row per target: any number fits
+        for line in montecarlo.table_lines(summary.targets, data["estimators"][name]):
             print(line)
     print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
-    return EXIT_OK
 
 
 def cmd_solve_stations(args: argparse.Namespace) -> int:

@@ -21,6 +21,7 @@ from typing import Any, Callable, Union
 
 from drivers.errors import InstrumentError
 
+
 class Skipped(Exception):
     """Thrown into a plan where an instrument's ``on_fault`` policy skipped a step: the attempt
     ends as not whole (resume and the retake pass take it again) unless the plan catches it."""

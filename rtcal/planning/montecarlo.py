@@ -155,8 +155,8 @@ def run_trial(spec: TrialSpec, single_thread: bool = True) -> dict[str, Any]:
         shutil.rmtree(trial_dir, ignore_errors=True)
 
 
-def run_trials(specs: list[TrialSpec], workers: int | None = None, scheduler: str | None = None,
-               progress=None) -> Iterator[dict[str, Any]]:
+def run_trials(specs: list[TrialSpec], workers: int | None = None,
+               scheduler: str | None = None) -> Iterator[dict[str, Any]]:
     """Trials as they complete: on a local process pool, in this process (workers = 1), or on Dask."""
     if scheduler:
         from distributed import Client, as_completed as dask_completed

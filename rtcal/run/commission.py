@@ -24,11 +24,6 @@ from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, Env
                                 RotaryStage)
 from drivers.kinds import KINDS
 
-
-class CheckInputError(Exception):
-    """A mistake in what ``rtcal check`` was given (exit 2)."""
-
-
 @dataclass
 class ProbeResult:
     kind: str

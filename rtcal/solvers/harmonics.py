@@ -204,8 +204,8 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
     warnings: list[str] = []
     if alternatives_up_to is not None:
         crit = 2.0 * float(f_dist.isf(p_each, 2, dof)) if estimated else float(chi2_dist.isf(p_each, 2))
-        terms = _separability(theta, y, groups, terms, aliased_order, theta0, float(resid @ resid),
-                              sigma_eff, crit, alternatives_up_to, warnings)
+        terms = _separability(theta, y, groups, terms, aliased_order, theta0, sigma_eff, crit,
+                              alternatives_up_to, warnings)
     if aliased_order is None and max_order is not None and orders and max_order > orders[-1]:
         d = distinct_angles(theta)
         gaps = np.diff(np.concatenate([d, [d[0] + 2 * np.pi]]))
@@ -231,11 +231,10 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
 
 
 def _separability(theta: np.ndarray, y: np.ndarray, groups: np.ndarray | None, terms: list[HarmonicTerm],
-                  aliased_order: int | None, theta0: float, rss_full: float, sigma: float, crit: float, up_to: int,
+                  aliased_order: int | None, theta0: float, sigma: float, crit: float, up_to: int,
                   warnings: list[str]) -> list[HarmonicTerm]:
     """Each significant order against every unmodelled order m ≤ ``up_to`` (module docstring): not
-    significant, with the orders it cannot be told from, where m in the model takes its share.
-    (``rss_full``: unused since the test is nested; kept for the callers.)"""
+    significant, with the orders it cannot be told from, where m in the model takes its share."""
     g = np.zeros(len(y), int) if groups is None else np.asarray(groups)
     fitted = {t.order for t in terms if not t.aliased} | ({aliased_order} if aliased_order is not None else set())
     candidates = [m for m in range(1, up_to + 1) if m not in fitted]

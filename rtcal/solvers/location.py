@@ -19,8 +19,6 @@ import numpy as np
 from rtcal.solvers.station_budget import StationNoiseModel, harmonic_correlation
 from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
 
-LOCATION_NAMES = ("x0c_mm", "y0c_mm", "a0c_arcsec", "b0c_arcsec")
-
 
 def location_from_axis(point_mm: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """(X0C mm, Y0C mm, A0C ″, B0C ″) of the line through ``point_mm`` along ``direction`` (either sense)."""

@@ -19,7 +19,6 @@ import hmac
 import math
 import os
 import secrets
-import socket
 import threading
 import tty
 from dataclasses import dataclass, field
@@ -43,6 +42,7 @@ from simulators.instruments import (
 from simulators.scenario import Scenario
 from simulators.servers import modbus_stage
 from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, IppMachine, serve_ipp
+from simulators.servers.ports import free_port  # importable from here too (tests)
 
 if TYPE_CHECKING:  # imported when a LinuxCNC hub starts
     from simulators.servers.linuxcnc import LinuxCncProcess
@@ -125,12 +125,6 @@ class PacedSender:
             self.loop.call_later(self.char_s * min(self.CHUNK, len(self.queue)), self._tick)
         else:
             self.busy = False
-
-
-def free_port(host: str) -> int:
-    with socket.socket() as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
 
 
 def raw_pty() -> tuple[int, int, str]:

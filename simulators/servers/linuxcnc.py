@@ -30,6 +30,8 @@ import time
 import uuid
 from pathlib import Path
 
+from simulators.servers.ports import free_port
+
 CONFIG = Path(__file__).resolve().parents[1] / "linuxcnc"
 INI, HAL, FEED = "rtcal_c.ini", "rtcal_c.hal", "rtcal_bench_feed.py"
 SYSTEM_PYTHON = "/usr/bin/python3"  # LinuxCNC's hal module is built for it alone
@@ -141,8 +143,6 @@ class LinuxCncProcess:
         why = available()
         if why:
             raise RuntimeError(why)
-        from simulators.servers.hub import free_port
-
         self._take_machine()
         self.port = free_port(self.host)
         folder = self._write_config()
@@ -188,9 +188,6 @@ class LinuxCncProcess:
         except OSError:
             text = ""
         return " | ".join(text.strip().splitlines()[-lines:])
-
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
 
     def kill(self) -> None:
         """Kill LinuxCNC at once (SIGKILL to its process group): a controller that dies mid-run."""

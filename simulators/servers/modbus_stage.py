@@ -96,6 +96,8 @@ class PerConnectionTcpServer(ModbusTcpServer):
         self._hook_factory = hook_factory
 
     def callback_new_connection(self) -> ServerRequestHandler:
+        """pymodbus's hook, called for each accepted connection (``ModbusProtocol.handle_new_connection``):
+        the override that gives the connection its own frame hook."""
         return ServerRequestHandler(self, self._hook_factory(), self.trace_pdu, self.trace_connect)
 
 
