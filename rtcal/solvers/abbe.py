@@ -320,265 +320,423 @@ def _residual_check(noise: AbbeNoise, pooled: tuple[float, int] | None, closure,
     return ResidualCheck(float(chi2), int(dof), float(sigma / s0), float(chi2_dist.sf(chi2, dof)))
 
 
-def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
-    """Seed 001's analysis: tilt/radial separation, predicted vs measured encoder error, εz from
-    the polygon with its budget, reversal, repeatability and harmonics."""
-    noise = setup.noise
+@dataclass(frozen=True)
+class _Steps:
+    """The distinct (direction, angle) of the visits, positive direction first: the rows of every
+    per-step result, so that both directions of one angle stay apart (reversal)."""
+
+    index: np.ndarray  # each visit's step
+    angle_deg: np.ndarray
+    direction: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.angle_deg)
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        """Mean over the visits of each step (NaN where none is finite)."""
+        ok = np.isfinite(x)
+        out = np.full(self.n, np.nan)
+        sums = np.bincount(self.index[ok], x[ok], self.n)
+        counts = np.bincount(self.index[ok], minlength=self.n)
+        out[counts > 0] = sums[counts > 0] / counts[counts > 0]
+        return out
+
+
+def _steps(direction: np.ndarray, angle_deg: np.ndarray) -> _Steps:
+    """Each visit's step among the distinct (direction, angle), sorted positive direction first."""
+    steps = sorted({(int(d), float(a)) for d, a in zip(direction, angle_deg)}, key=lambda k: (-k[0], k[1]))
+    key_of = {k: i for i, k in enumerate(steps)}
+    index = np.array([key_of[(int(d), float(a))] for d, a in zip(direction, angle_deg)])
+    return _Steps(index, np.array([k[1] for k in steps]), np.array([k[0] for k in steps]))
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """The visits as every phase reads them: where the stage was, which face and seating, the
+    shaft's motion from the indicators and the encoder's reading against the command."""
+
+    angle_deg: np.ndarray  # commanded, in [0, 360)
+    run: np.ndarray
+    n_runs: int
+    seating: np.ndarray
+    face: np.ndarray  # the polygon face in front
+    has_ac: np.ndarray  # a reference reading was taken
+    group: np.ndarray  # harmonic fits: one offset per seating and direction
+    tilt_rad: np.ndarray
+    radial_mm: np.ndarray
+    a_fac: float  # extrapolation factor (Zs − L1)/(L2 − L1)
+    arcsec_per_um: float  # a tangential µm at the grating as the encoder's ″
+    predicted_arcsec: np.ndarray  # per visit
+    enc_vs_cmd_arcsec: np.ndarray
+    steps: _Steps
+    key: np.ndarray  # (seating, step) per visit: what a digit rounds the same way in every run
+
+
+def _visit_geometry(v: AbbeVisits, setup: AbbeSetup) -> _Geometry:
+    """Tilt/radial separation and the predicted encoder error per visit (the model of the module
+    docstring), and the bookkeeping (faces, seatings, runs, steps) every later phase indexes by."""
     pitch = 360.0 / setup.faces
     l1, l2 = setup.indicator_heights_mm
     cmd = np.asarray(v.commanded_deg, float)
-    n_v = len(cmd)
-    run = np.zeros(n_v, int) if v.run is None else np.asarray(v.run, int)
+    run = np.zeros(len(cmd), int) if v.run is None else np.asarray(v.run, int)
     angle = np.round(np.mod(cmd, 360.0), 9) % 360.0
     has_ac = np.isfinite(v.autocollimator_arcsec)
     if not has_ac.any():
         raise ValueError("no autocollimator reading: no polygon face was in front at any visit")
-    face = np.mod(np.round((cmd - v.seating_deg) / pitch).astype(int), setup.faces)
     seating = np.asarray(v.seating_index, int)
-    group = seating * 2 + (v.direction < 0)  # harmonic fits: one offset per seating and direction
-
     tilt_rad, radial_mm = separate_tilt_radial(v.indicator1_um * 1e-3, v.indicator2_um * 1e-3, l1, l2)
-    a_fac = extrapolation_factor(l1, l2, setup.grating_offset_mm)
     shift = grating_shift_mm(v.indicator1_um * 1e-3, v.indicator2_um * 1e-3, l1, l2, setup.grating_offset_mm)
-    predicted = predicted_encoder_error_arcsec(shift, setup.encoder_radius_mm)
-    enc_vs_cmd = _wrap_arcsec(v.encoder_deg - cmd) * 3600.0
+    steps = _steps(v.direction, angle)
+    return _Geometry(
+        angle_deg=angle, run=run, n_runs=len(np.unique(run)), seating=seating,
+        face=np.mod(np.round((cmd - v.seating_deg) / pitch).astype(int), setup.faces), has_ac=has_ac,
+        group=seating * 2 + (v.direction < 0), tilt_rad=tilt_rad, radial_mm=radial_mm,
+        a_fac=extrapolation_factor(l1, l2, setup.grating_offset_mm),
+        arcsec_per_um=1e-3 / setup.encoder_radius_mm * ARCSEC_PER_RAD,
+        predicted_arcsec=predicted_encoder_error_arcsec(shift, setup.encoder_radius_mm),
+        enc_vs_cmd_arcsec=_wrap_arcsec(v.encoder_deg - cmd) * 3600.0, steps=steps,
+        key=seating * steps.n + steps.index)
 
-    # steps: distinct (direction, angle), positive direction first
-    steps = sorted({(int(d), float(a)) for d, a in zip(v.direction, angle)}, key=lambda k: (-k[0], k[1]))
-    key_of = {k: i for i, k in enumerate(steps)}
-    step_idx = np.array([key_of[(int(d), float(a))] for d, a in zip(v.direction, angle)])
-    s_dir = np.array([k[0] for k in steps])
-    s_angle = np.array([k[1] for k in steps])
-    n_s = len(steps)
 
-    # --- face errors: the certificate, or closure from the whole-face seatings ---------------
-    ac = np.flatnonzero(has_ac)  # the visits with a reference reading
+@dataclass(frozen=True)
+class _FaceErrors:
+    """The face visits' readings and the face errors they are corrected by: ε̂ = to_eps·y exactly,
+    the linear map the covariances propagate through."""
+
+    ac: np.ndarray  # the visits with a reference reading
+    y: np.ndarray  # their autocollimator readings
+    B: np.ndarray  # face visit × face: 1 where that face was in front
+    face_error: np.ndarray  # used: the certificate or the closure result
+    to_eps: np.ndarray  # ε̂ ← y
+    eps: np.ndarray  # εz + the seating's constant, per face visit
+    closure: ClosureResult | None
+    closure_angles_deg: np.ndarray | None
+    closure_dirs: np.ndarray | None
+    n_closure: int  # face visits the closure used (0: the certificate)
+
+
+def _closure(v: AbbeVisits, setup: AbbeSetup, g: _Geometry, ac: np.ndarray, y: np.ndarray
+             ) -> tuple[ClosureResult, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Face errors by closure from the seatings at whole multiples of the pitch (only there does
+    every target meet a face), and K_f, the map from the face visits' readings to them."""
+    pitch = 360.0 / setup.faces
+    angle = g.angle_deg
+    whole_v = g.has_ac & (np.abs((v.seating_deg / pitch) - np.round(v.seating_deg / pitch)) < 1e-9)
+    whole = np.flatnonzero(whole_v[ac])  # positions within ac
+    keys = sorted({(int(d), int(round(a / pitch)) % setup.faces) for d, a in zip(v.direction[ac][whole], angle[ac][whole])},
+                  key=lambda k: (-k[0], k[1]))
+    index = {k: i for i, k in enumerate(keys)}
+    t_idx = [index[(int(d), int(round(a / pitch)) % setup.faces)] for d, a in zip(v.direction[ac][whole], angle[ac][whole])]
+    closure = solve_closure(y[whole], np.array(t_idx), g.face[ac][whole], np.unique(g.seating[ac][whole], return_inverse=True)[1],
+                            np.array([k[0] for k in keys]), setup.faces)
+    n_t = len(keys)
+    K_f = np.zeros((setup.faces, len(ac)))
+    K_f[:, whole] = closure.solution_map[n_t : n_t + setup.faces]
+    return closure, K_f, np.array([k[1] * pitch for k in keys]), np.array([k[0] for k in keys]), len(whole)
+
+
+def _face_errors(v: AbbeVisits, setup: AbbeSetup, g: _Geometry) -> _FaceErrors:
+    """The polygon's face errors — the certificate's, or closure's — taken out of the readings,
+    leaving εz plus one constant per seating at each face visit."""
+    ac = np.flatnonzero(g.has_ac)
     y = v.autocollimator_arcsec[ac]
     B = np.zeros((len(ac), setup.faces))
-    B[np.arange(len(ac)), face[ac]] = 1.0
-    closure = None
-    closure_angles = closure_dirs = None
+    B[np.arange(len(ac)), g.face[ac]] = 1.0
     if setup.certificate_arcsec is None:
-        whole_v = has_ac & (np.abs((v.seating_deg / pitch) - np.round(v.seating_deg / pitch)) < 1e-9)
-        whole = np.flatnonzero(whole_v[ac])  # positions within ac
-        keys = sorted({(int(d), int(round(a / pitch)) % setup.faces) for d, a in zip(v.direction[ac][whole], angle[ac][whole])},
-                      key=lambda k: (-k[0], k[1]))
-        index = {k: i for i, k in enumerate(keys)}
-        t_idx = [index[(int(d), int(round(a / pitch)) % setup.faces)] for d, a in zip(v.direction[ac][whole], angle[ac][whole])]
-        closure = solve_closure(y[whole], np.array(t_idx), face[ac][whole], np.unique(seating[ac][whole], return_inverse=True)[1],
-                                np.array([k[0] for k in keys]), setup.faces)
+        closure, K_f, angles, dirs, n_closure = _closure(v, setup, g, ac, y)
         face_error = closure.face_error
-        n_t = len(keys)
-        K_f = np.zeros((setup.faces, len(ac)))
-        K_f[:, whole] = closure.solution_map[n_t : n_t + setup.faces]
-        closure_angles = np.array([k[1] * pitch for k in keys])
-        closure_dirs = np.array([k[0] for k in keys])
         to_eps = np.eye(len(ac)) - B @ K_f  # ε̂ = (I − B·K_f)·y
-    else:
-        face_error = np.asarray(setup.certificate_arcsec, float)
-        to_eps = np.eye(len(ac))
-    eps = y - B @ face_error  # εz + the seating's constant, per visit
+        return _FaceErrors(ac, y, B, face_error, to_eps, y - B @ face_error, closure, angles, dirs, n_closure)
+    face_error = np.asarray(setup.certificate_arcsec, float)
+    return _FaceErrors(ac, y, B, face_error, np.eye(len(ac)), y - B @ face_error, None, None, None, 0)
 
-    # --- εz per step: seating constants removed (mean over the seating's visits), averaged, referred
-    centre = _centring_operator(seating[ac], np.ones(len(ac), bool))
-    M = _mean_operator(step_idx[ac], n_s)
+
+@dataclass(frozen=True)
+class _EpsOperators:
+    """εz per step and per (step, run) row as linear maps of ε̂ per face visit: seating constants
+    removed (mean over the seating's visits), averaged, referred to the first target of the first
+    direction (ECC) — linear, so that the budget is T·Σ·Tᵀ."""
+
+    centre: np.ndarray  # face visits ← ε̂, each seating's mean removed
+    T_eps: np.ndarray  # steps ← ε̂ per face visit
+    face_steps: np.ndarray  # the steps with a reference reading
+    eps_steps: np.ndarray  # εz per step, NaN off the faces
+    row_keys: list[tuple[int, int]]  # (step, run)
+    T_rows: np.ndarray  # rows ← ε̂ per face visit
+
+
+def _eps_operators(g: _Geometry, f: _FaceErrors) -> _EpsOperators:
+    """The maps of :class:`_EpsOperators`; each run's rows referred to the same zero (the mean
+    over runs at the first target), so that runs stay comparable."""
+    n_s, step_idx = g.steps.n, g.steps.index
+    centre = _centring_operator(g.seating[f.ac], np.ones(len(f.ac), bool))
+    M = _mean_operator(step_idx[f.ac], n_s)
     face_steps = np.flatnonzero(M.sum(axis=1) > 0)
     ref_step = face_steps[0]  # the first target of the first direction
     R = np.eye(n_s) - np.outer(np.ones(n_s), np.eye(n_s)[ref_step])
-    T_eps = R @ M @ centre  # steps ← ε̂ per visit
-    eps_steps = T_eps @ eps
+    T_eps = R @ M @ centre
+    eps_steps = T_eps @ f.eps
     eps_steps[np.setdiff1d(np.arange(n_s), face_steps)] = np.nan
-
-    # per run: (step, run) rows referred to the same zero (the mean over runs at the first target)
-    row_keys = sorted({(int(step_idx[i]), int(run[i])) for i in ac})
+    row_keys = sorted({(int(step_idx[i]), int(g.run[i])) for i in f.ac})
     row_of = {k: r for r, k in enumerate(row_keys)}
-    M_rows = _mean_operator(np.array([row_of[(int(step_idx[i]), int(run[i]))] for i in ac]), len(row_keys))
+    M_rows = _mean_operator(np.array([row_of[(int(step_idx[i]), int(g.run[i]))] for i in f.ac]), len(row_keys))
     T_rows = (M_rows - np.outer(np.ones(len(row_keys)), M[ref_step])) @ centre
+    return _EpsOperators(centre, T_eps, face_steps, eps_steps, row_keys, T_rows)
 
-    # random per-visit error of ε̂: from the closure residuals, repeated runs, or as stated
-    pooled = _pooled_sigma(eps, seating[ac] * n_s + step_idx[ac]) if len(np.unique(run)) > 1 else None
-    random_parts: list[tuple[str, SourceType, float, str]]
+
+_RandomPart = tuple[str, SourceType, float, str]  # name, GUM type, 1σ per visit (″), note
+
+
+def _random_parts(noise: AbbeNoise, closure: ClosureResult | None, pooled: tuple[float, int] | None,
+                  n_runs: int) -> tuple[list[_RandomPart], str]:
+    """The per-visit random error of ε̂ and where its size came from: the closure residuals or
+    repeated runs when they can tell (Type A), else the stated instrument noise (Type B)."""
     if closure is not None and noise.estimate:
-        random_parts = [("closure residuals (autocollimator, repeatability)", "A", closure.sigma,
-                         "per visit, from the closure fit's residuals")]
-        source = "closure residuals"
-    elif pooled is not None and noise.estimate:
-        random_parts = [("repeatability over runs (autocollimator and stage)", "A", pooled[0],
-                         f"per visit, pooled over {len(np.unique(run))} runs ({pooled[1]} degrees of freedom)")]
-        source = f"{len(np.unique(run))} runs"
-    else:
-        random_parts = [("autocollimator noise", "B", noise.autocollimator_noise_arcsec, "per reading, as stated"),
-                        ("autocollimator resolution", "B", noise.autocollimator_resolution_arcsec / np.sqrt(12),
-                         f"{noise.autocollimator_resolution_arcsec:g}″ digit, uniform (q/√12)"),
-                        ("stage repeatability", "B", noise.stage_repeatability_arcsec, "per visit, as stated")]
-        source = "stated instrument noise" + (" (one run)" if pooled is None else "")
-    random_variance = sum(sigma**2 for _, _, sigma, _ in random_parts)
-    T_y = T_eps @ to_eps
-    components = [BudgetComponent(name, typ, sigma, "″", _cov(T_y[face_steps], sigma**2), typ == "A", note)
+        return ([("closure residuals (autocollimator, repeatability)", "A", closure.sigma,
+                  "per visit, from the closure fit's residuals")], "closure residuals")
+    if pooled is not None and noise.estimate:
+        return ([("repeatability over runs (autocollimator and stage)", "A", pooled[0],
+                  f"per visit, pooled over {n_runs} runs ({pooled[1]} degrees of freedom)")], f"{n_runs} runs")
+    return ([("autocollimator noise", "B", noise.autocollimator_noise_arcsec, "per reading, as stated"),
+             ("autocollimator resolution", "B", noise.autocollimator_resolution_arcsec / np.sqrt(12),
+              f"{noise.autocollimator_resolution_arcsec:g}″ digit, uniform (q/√12)"),
+             ("stage repeatability", "B", noise.stage_repeatability_arcsec, "per visit, as stated")],
+            "stated instrument noise" + (" (one run)" if pooled is None else ""))
+
+
+def _budget_components(noise: AbbeNoise, g: _Geometry, f: _FaceErrors, ops: _EpsOperators,
+                       random_parts: list[_RandomPart], pooled: tuple[float, int] | None) -> list[BudgetComponent]:
+    """εz's budget, one component per independent source, each its covariance over the face steps:
+    the random parts, then what repeats run after run (a digit, the certificates) and the scale."""
+    fs, T_y = ops.face_steps, ops.T_eps @ f.to_eps
+    components = [BudgetComponent(name, typ, sigma, "″", _cov(T_y[fs], sigma**2), typ == "A", note)
                   for name, typ, sigma, note in random_parts if sigma > 0]
-    if closure is None and pooled is not None and noise.estimate and noise.autocollimator_resolution_arcsec > 0:
-        E_ac = _per_key(seating[ac] * n_s + step_idx[ac])  # a digit rounds the same value the same way every run
+    if f.closure is None and pooled is not None and noise.estimate and noise.autocollimator_resolution_arcsec > 0:
+        E_ac = _per_key(g.key[f.ac])  # a digit rounds the same value the same way every run
         components.append(BudgetComponent("autocollimator resolution", "B", noise.autocollimator_resolution_arcsec / np.sqrt(12),
-                                          "″", _cov((T_y @ E_ac)[face_steps], noise.autocollimator_resolution_arcsec**2 / 12),
+                                          "″", _cov((T_y @ E_ac)[fs], noise.autocollimator_resolution_arcsec**2 / 12),
                                           False, "digit q, uniform (q/√12), the same at a target in every run"))
-    if closure is None and noise.certificate_uncertainty_arcsec > 0:
-        T_f = -(T_eps @ B)[face_steps]
+    if f.closure is None and noise.certificate_uncertainty_arcsec > 0:
+        T_f = -(ops.T_eps @ f.B)[fs]
         components.append(BudgetComponent("polygon certificate", "B", noise.certificate_uncertainty_arcsec, "″",
                                           _cov(T_f, noise.certificate_uncertainty_arcsec**2), False,
                                           "per face, common to every visit of that face"))
     if noise.autocollimator_scale_u_ppm > 0:  # a scale error s reads s·y too: ε̂ moves by T·(s·y)
-        g = (T_y @ np.nan_to_num(y))[face_steps] * noise.autocollimator_scale_u_ppm * 1e-6
+        s = (T_y @ np.nan_to_num(f.y))[fs] * noise.autocollimator_scale_u_ppm * 1e-6
         components.append(BudgetComponent("autocollimator calibration (scale)", "B", noise.autocollimator_scale_u_ppm, "ppm",
-                                          np.outer(g, g), False, "its scale's standard uncertainty from its calibration "
+                                          np.outer(s, s), False, "its scale's standard uncertainty from its calibration "
                                           "certificate, times each reading (one error for every reading)"))
     if noise.autocollimator_calibration_u_arcsec > 0:
-        E_cal = _per_key(seating[ac] * n_s + step_idx[ac])  # the same indication error at a target in every run
+        E_cal = _per_key(g.key[f.ac])  # the same indication error at a target in every run
         components.append(BudgetComponent("autocollimator calibration (certificate U)", "B",
                                           noise.autocollimator_calibration_u_arcsec / 2, "″",
-                                          _cov((T_y @ E_cal)[face_steps], (noise.autocollimator_calibration_u_arcsec / 2) ** 2),
+                                          _cov((T_y @ E_cal)[fs], (noise.autocollimator_calibration_u_arcsec / 2) ** 2),
                                           False, "its certificate's expanded uncertainty of an indication (k = 2), "
                                           "the same at a target in every run"))
     if not components:
-        components.append(BudgetComponent("none stated", "B", 0.0, "″", np.zeros((len(face_steps), len(face_steps))), False,
+        components.append(BudgetComponent("none stated", "B", 0.0, "″", np.zeros((len(fs), len(fs))), False,
                                           "no noise stated for the instruments and only one run"))
-    row_var = sum(sigma**2 * np.sum((T_rows @ to_eps) ** 2, axis=1) for _, _, sigma, _ in random_parts)
-    if closure is None:
-        row_var = row_var + noise.certificate_uncertainty_arcsec**2 * np.sum((T_rows @ B) ** 2, axis=1)
-    eps_sigma = np.full(n_s, np.nan)
-    budget = DeviationBudget(components)
-    eps_sigma[face_steps] = budget.uncertainty_arcsec
-    reference = ReferenceDeviation(
-        s_angle[face_steps], s_dir[face_steps], eps_steps[face_steps], budget, steps_within_directions(s_dir[face_steps]),
-        s_angle[[k[0] for k in row_keys]], s_dir[[k[0] for k in row_keys]], np.array([k[1] + 1 for k in row_keys]),
-        T_rows @ eps, np.sqrt(row_var), source)
+    return components
 
-    # --- measured and predicted encoder error: one constant per seating (over the face visits).
-    # A skipped reading (NaN) leaves its visit out of the operators, not the whole series.
+
+def _reference_deviation(noise: AbbeNoise, g: _Geometry, f: _FaceErrors, ops: _EpsOperators, random_parts: list[_RandomPart],
+                         source: str, pooled: tuple[float, int] | None) -> tuple[ReferenceDeviation, np.ndarray]:
+    """εz per step with its budget, and per run with each row's own 1σ (random parts and, with a
+    certificate, its uncertainty); and εz's 1σ per step (NaN off the faces)."""
+    budget = DeviationBudget(_budget_components(noise, g, f, ops, random_parts, pooled))
+    row_var = sum(sigma**2 * np.sum((ops.T_rows @ f.to_eps) ** 2, axis=1) for _, _, sigma, _ in random_parts)
+    if f.closure is None:
+        row_var = row_var + noise.certificate_uncertainty_arcsec**2 * np.sum((ops.T_rows @ f.B) ** 2, axis=1)
+    eps_sigma = np.full(g.steps.n, np.nan)
+    eps_sigma[ops.face_steps] = budget.uncertainty_arcsec
+    s_angle, s_dir, fs, rows = g.steps.angle_deg, g.steps.direction, ops.face_steps, ops.row_keys
+    reference = ReferenceDeviation(
+        s_angle[fs], s_dir[fs], ops.eps_steps[fs], budget, steps_within_directions(s_dir[fs]),
+        s_angle[[k[0] for k in rows]], s_dir[[k[0] for k in rows]], np.array([k[1] + 1 for k in rows]),
+        ops.T_rows @ f.eps, np.sqrt(row_var), source)
+    return reference, eps_sigma
+
+
+def _measured(noise: AbbeNoise, g: _Geometry, f: _FaceErrors, ops: _EpsOperators,
+              random_variance: float) -> tuple[np.ndarray, np.ndarray]:
+    """The measured encoder error per step (encoder − command − εz, one constant per seating over
+    the face visits) and its covariance; a skipped reading (NaN) leaves its visit out of the
+    operators, not the whole series."""
+    n_s, step_idx, ac = g.steps.n, g.steps.index, f.ac
     ac_res2 = noise.autocollimator_resolution_arcsec**2 / 12
     enc_res2 = noise.encoder_resolution_arcsec**2 / 12
-    key_m = (seating[ac] * n_s + step_idx[ac])
-    meas_visit = enc_vs_cmd[ac] - eps
+    key_m = g.key[ac]
+    meas_visit = g.enc_vs_cmd_arcsec[ac] - f.eps
     fm = np.isfinite(meas_visit)
-    T_meas = _mean_operator(step_idx[ac][fm], n_s) @ _centring_operator(seating[ac][fm], np.ones(int(fm.sum()), bool))
+    T_meas = _mean_operator(step_idx[ac][fm], n_s) @ _centring_operator(g.seating[ac][fm], np.ones(int(fm.sum()), bool))
     meas_steps = T_meas @ meas_visit[fm]
     meas_steps[T_meas.any(axis=1) == 0] = np.nan
-    pooled_m = _pooled_sigma(meas_visit[fm], (seating[ac] * n_s + step_idx[ac])[fm]) if len(np.unique(run)) > 1 and noise.estimate else None
-    if closure is None:
+    pooled_m = _pooled_sigma(meas_visit[fm], key_m[fm]) if g.n_runs > 1 and noise.estimate else None
+    if f.closure is None:
         # the stage's repeatability cancels (encoder and autocollimator see the same angle); a digit's rounding
         # repeats run after run, so repeated runs cannot see it: it stays Type B beside their scatter
         noise_m = pooled_m[0] ** 2 if pooled_m else noise.encoder_noise_arcsec**2 + noise.autocollimator_noise_arcsec**2
         meas_cov = (_cov(T_meas, noise_m) + _cov(T_meas @ _per_key(key_m[fm]), ac_res2 + enc_res2)
-                    + _cov(T_meas @ B[fm], noise.certificate_uncertainty_arcsec**2))
+                    + _cov(T_meas @ f.B[fm], noise.certificate_uncertainty_arcsec**2))
     else:
         # measured = encoder error − (I − B·K_f)·n + B·K_f·s: the autocollimator noise n through the whole map, the
         # repeatability s only through the face errors the closure estimated from every visit
         rep2 = noise.stage_repeatability_arcsec**2
         ac2 = max(random_variance - rep2, 0.0) if noise.estimate else noise.autocollimator_noise_arcsec**2 + ac_res2
-        BK = np.eye(len(ac)) - to_eps
-        meas_cov = (_cov(T_meas @ to_eps[fm], ac2) + _cov(T_meas @ BK[fm], rep2)
+        BK = np.eye(len(ac)) - f.to_eps
+        meas_cov = (_cov(T_meas @ f.to_eps[fm], ac2) + _cov(T_meas @ BK[fm], rep2)
                     + _cov(T_meas, noise.encoder_noise_arcsec**2 + enc_res2))
-    meas_steps[np.setdiff1d(np.arange(n_s), face_steps)] = np.nan
+    meas_steps[np.setdiff1d(np.arange(n_s), ops.face_steps)] = np.nan
+    return meas_steps, meas_cov
 
-    per_um = 1e-3 / setup.encoder_radius_mm * ARCSEC_PER_RAD
+
+@dataclass(frozen=True)
+class _Prediction:
+    """The predicted encoder error per step, its covariance, and the map from the visits (the
+    finite ones) that made it — the rounding thresholds go through the same map."""
+
+    steps_arcsec: np.ndarray
+    cov: np.ndarray
+    T: np.ndarray  # steps ← predicted per finite visit
+    finite: np.ndarray  # the visits with both indicator readings
+
+
+def _predicted(v: AbbeVisits, noise: AbbeNoise, g: _Geometry) -> _Prediction:
+    """The indicators' prediction per step, one constant per seating over its face visits (the
+    measured error's zero), with the indicators' noise, digit and scale through it."""
+    n_s, step_idx, a_fac, per_um = g.steps.n, g.steps.index, g.a_fac, g.arcsec_per_um
     through = ((1 - a_fac) ** 2 + a_fac**2) * per_um**2  # an indicator's µm² into the prediction's ″²
-    fp = np.isfinite(predicted)
-    T_pred = _mean_operator(step_idx[fp], n_s) @ _centring_operator(seating[fp], has_ac[fp])  # reference: the face visits
-    pred_steps = T_pred @ predicted[fp]
+    fp = np.isfinite(g.predicted_arcsec)
+    T_pred = _mean_operator(step_idx[fp], n_s) @ _centring_operator(g.seating[fp], g.has_ac[fp])  # reference: the face visits
+    pred_steps = T_pred @ g.predicted_arcsec[fp]
     pred_steps[T_pred.any(axis=1) == 0] = np.nan
-    pooled_p = _pooled_sigma(predicted[fp], (seating * n_s + step_idx)[fp]) if len(np.unique(run)) > 1 and noise.estimate else None
+    pooled_p = _pooled_sigma(g.predicted_arcsec[fp], g.key[fp]) if g.n_runs > 1 and noise.estimate else None
     noise_p = pooled_p[0] ** 2 if pooled_p else through * noise.indicator_noise_um**2
     pred_cov = (_cov(T_pred, noise_p)
-                + _cov(T_pred @ _per_key((seating * n_s + step_idx)[fp]), through * noise.indicator_resolution_um**2 / 12))
+                + _cov(T_pred @ _per_key(g.key[fp]), through * noise.indicator_resolution_um**2 / 12))
     if noise.indicator_scale_u_ppm > 0:  # each indicator's scale error scales its share of the prediction
         for share, reading in ((1 - a_fac, v.indicator1_um), (a_fac, v.indicator2_um)):
-            g = T_pred @ (share * reading * per_um)[fp] * noise.indicator_scale_u_ppm * 1e-6
-            pred_cov = pred_cov + np.outer(np.nan_to_num(g), np.nan_to_num(g))
-    residual = meas_steps - pred_steps
-    res_var = np.diag(meas_cov) + np.diag(pred_cov)
+            s = T_pred @ (share * reading * per_um)[fp] * noise.indicator_scale_u_ppm * 1e-6
+            pred_cov = pred_cov + np.outer(np.nan_to_num(s), np.nan_to_num(s))
+    return _Prediction(pred_steps, pred_cov, T_pred, fp)
 
-    def per_step(x: np.ndarray) -> np.ndarray:
-        """Mean over the visits of each step (NaN where none is finite)."""
-        ok = np.isfinite(x)
-        out = np.full(n_s, np.nan)
-        sums = np.bincount(step_idx[ok], x[ok], n_s)
-        counts = np.bincount(step_idx[ok], minlength=n_s)
-        out[counts > 0] = sums[counts > 0] / counts[counts > 0]
-        return out
 
-    e_cmd = per_step(enc_vs_cmd)
-    reversal = reversal_ref = None
-    if set(np.unique(s_dir)) == {-1, 1}:
-        up = {a: e for a, e, d in zip(s_angle, e_cmd, s_dir) if d > 0 and np.isfinite(e)}  # skipped steps have none
-        common = [(up[a] - e) for a, e, d in zip(s_angle, e_cmd, s_dir) if d < 0 and a in up and np.isfinite(e)]
-        reversal = float(np.mean(common)) if common else None
-        up_r = {a: e for a, e, d in zip(s_angle, eps_steps, s_dir) if d > 0 and np.isfinite(e)}
-        common_r = [(up_r[a] - e) for a, e, d in zip(s_angle, eps_steps, s_dir) if d < 0 and a in up_r and np.isfinite(e)]
-        reversal_ref = float(np.mean(common_r)) if common_r else None
+def _reversal(steps: _Steps, values: np.ndarray) -> float | None:
+    """Mean ↑ − ↓ of a per-step series over the angles both directions reached (None: one direction,
+    or no angle in common — skipped steps have no value)."""
+    if set(np.unique(steps.direction)) != {-1, 1}:
+        return None
+    triples = list(zip(steps.angle_deg, values, steps.direction))
+    up = {a: e for a, e, d in triples if d > 0 and np.isfinite(e)}
+    common = [(up[a] - e) for a, e, d in triples if d < 0 and a in up and np.isfinite(e)]
+    return float(np.mean(common)) if common else None
 
-    rad = np.deg2rad
-    harmonics: dict[str, HarmonicFit] = {}
 
-    def add(name: str, angles_deg: np.ndarray, values: np.ndarray, groups: np.ndarray, floor: float,
-            rounding: list[np.ndarray] | None = None) -> None:
-        """Fit a series; ``rounding``: simulated errors of quantisation alone, for per-order thresholds."""
-        ok = np.isfinite(values)
-        th = rad(angles_deg[ok])
-        orders = resolvable_orders(th, setup.max_order, len(np.unique(groups[ok])))
-        nyq = nyquist_order(th)
-        nyq = nyq if nyq is not None and nyq <= setup.max_order and (not orders or nyq == orders[-1] + 1) else None
-        if orders:
-            qthr = None
-            if rounding:
-                amps = np.max(harmonic_amplitudes(th, np.column_stack([e[ok] for e in rounding]), orders, groups[ok]), axis=0)
-                qthr = dict(zip(orders, amps.tolist()))
-            harmonics[name] = fit_harmonics(th, values[ok], orders, groups[ok], floor_sigma=floor, aliased_order=nyq,
-                                            max_order=setup.max_order, quantisation_threshold=qthr,
-                                            alternatives_up_to=grid_nyquist(th, setup.max_order))
-
-    # what rounding the indicators to their digit does to a smooth shaft motion, for random zeros
+def _indicator_rounding(v: AbbeVisits, setup: AbbeSetup, g: _Geometry, pred: _Prediction) -> dict[str, list[np.ndarray]]:
+    """What rounding the indicators to their digit does to a smooth shaft motion, for random zeros:
+    200 simulated error series of tilt, radial motion and prediction, from which the harmonic fits
+    take per-order thresholds (a digit's pattern is not the shaft's)."""
     rounding: dict[str, list[np.ndarray]] = {k: [] for k in ("tilt", "radial", "predicted")}
-    q = noise.indicator_resolution_um
-    if q > 0:
-        th_v, dgroup = rad(angle), (v.direction < 0).astype(int)
-        # the motion's smooth part (low orders only: a fit of every order would reproduce the rounding itself)
-        orders_v = resolvable_orders(th_v, SMOOTH_MOTION_ORDERS, 2)
-        smooth = [smooth_values(th_v, r, orders_v, dgroup) for r in (v.indicator1_um, v.indicator2_um)]
-        rng = np.random.default_rng(0)  # a fixed draw: the thresholds are a property of the setup, not of chance
-        for _ in range(200):
-            e1, e2 = (q * np.round((s_ + o) / q) - (s_ + o) for s_, o in zip(smooth, rng.uniform(0, q, 2)))
-            tilt_e = (e2 - e1) / (l2 - l1)  # µm per mm = mrad
-            rounding["tilt"].append(per_step(tilt_e * 1e-3 * ARCSEC_PER_RAD))
-            rounding["radial"].append(per_step(e1 - tilt_e * l1))
-            rounding["predicted"].append(T_pred @ (((1 - a_fac) * e1 + a_fac * e2) * per_um)[fp])
+    q = setup.noise.indicator_resolution_um
+    if q <= 0:
+        return rounding
+    l1, l2 = setup.indicator_heights_mm
+    a_fac, per_um = g.a_fac, g.arcsec_per_um
+    th_v, dgroup = np.deg2rad(g.angle_deg), (v.direction < 0).astype(int)
+    # the motion's smooth part (low orders only: a fit of every order would reproduce the rounding itself)
+    orders_v = resolvable_orders(th_v, SMOOTH_MOTION_ORDERS, 2)
+    smooth = [smooth_values(th_v, r, orders_v, dgroup) for r in (v.indicator1_um, v.indicator2_um)]
+    rng = np.random.default_rng(0)  # a fixed draw: the thresholds are a property of the setup, not of chance
+    for _ in range(200):
+        e1, e2 = (q * np.round((s_ + o) / q) - (s_ + o) for s_, o in zip(smooth, rng.uniform(0, q, 2)))
+        tilt_e = (e2 - e1) / (l2 - l1)  # µm per mm = mrad
+        rounding["tilt"].append(g.steps.mean(tilt_e * 1e-3 * ARCSEC_PER_RAD))
+        rounding["radial"].append(g.steps.mean(e1 - tilt_e * l1))
+        rounding["predicted"].append(pred.T @ (((1 - a_fac) * e1 + a_fac * e2) * per_um)[pred.finite])
+    return rounding
 
+
+def _fit_series(max_order: int, angles_deg: np.ndarray, values: np.ndarray, groups: np.ndarray, floor: float,
+                rounding: list[np.ndarray] | None = None) -> HarmonicFit | None:
+    """The harmonic fit of one series over the orders its angles resolve (None: none); ``rounding``:
+    simulated errors of quantisation alone, for per-order thresholds."""
+    ok = np.isfinite(values)
+    th = np.deg2rad(angles_deg[ok])
+    orders = resolvable_orders(th, max_order, len(np.unique(groups[ok])))
+    nyq = nyquist_order(th)
+    nyq = nyq if nyq is not None and nyq <= max_order and (not orders or nyq == orders[-1] + 1) else None
+    if not orders:
+        return None
+    qthr = None
+    if rounding:
+        amps = np.max(harmonic_amplitudes(th, np.column_stack([e[ok] for e in rounding]), orders, groups[ok]), axis=0)
+        qthr = dict(zip(orders, amps.tolist()))
+    return fit_harmonics(th, values[ok], orders, groups[ok], floor_sigma=floor, aliased_order=nyq, max_order=max_order,
+                         quantisation_threshold=qthr, alternatives_up_to=grid_nyquist(th, max_order))
+
+
+def _harmonic_fits(v: AbbeVisits, setup: AbbeSetup, g: _Geometry, eps_visit: np.ndarray, series: dict[str, np.ndarray],
+                   rounding: dict[str, list[np.ndarray]]) -> dict[str, HarmonicFit]:
+    """Every series' harmonics, each with the floor its instruments' digits set (an amplitude below
+    it is no evidence) and, for the indicators' series, the simulated rounding thresholds."""
+    noise, (l1, l2), a_fac = setup.noise, setup.indicator_heights_mm, g.a_fac
     ac_floor = noise.autocollimator_resolution_arcsec / np.sqrt(12)
     enc_floor = noise.encoder_resolution_arcsec / np.sqrt(12)
-    pred_floor = np.sqrt((1 - a_fac) ** 2 + a_fac**2) * noise.indicator_resolution_um / np.sqrt(12) * per_um
-    eps_visit = np.full(n_v, np.nan)
-    eps_visit[ac] = centre @ eps
-    add("positioning_error_arcsec", angle, eps_visit, group, ac_floor)
-    add("encoder_vs_command_arcsec", angle, enc_vs_cmd, (v.direction < 0).astype(int), enc_floor)
-    add("measured_encoder_error_arcsec", s_angle, meas_steps, (s_dir < 0).astype(int), np.hypot(ac_floor, enc_floor))
-    add("predicted_encoder_error_arcsec", s_angle, pred_steps, (s_dir < 0).astype(int), pred_floor, rounding["predicted"])
-    add("residual_arcsec", s_angle, residual, (s_dir < 0).astype(int), np.sqrt(ac_floor**2 + enc_floor**2 + pred_floor**2),
-        rounding["predicted"])
-    add("tilt_x_arcsec", s_angle, per_step(tilt_rad * ARCSEC_PER_RAD), (s_dir < 0).astype(int),
-        np.sqrt(2) * noise.indicator_resolution_um / np.sqrt(12) * 1e-3 / abs(l2 - l1) * ARCSEC_PER_RAD, rounding["tilt"])
-    add("radial_y_um", s_angle, per_step(radial_mm * 1e3), (s_dir < 0).astype(int),
-        np.hypot(1 + l1 / (l2 - l1), l1 / (l2 - l1)) * noise.indicator_resolution_um / np.sqrt(12), rounding["radial"])
+    pred_floor = np.sqrt((1 - a_fac) ** 2 + a_fac**2) * noise.indicator_resolution_um / np.sqrt(12) * g.arcsec_per_um
+    visit_dir, step_dir = (v.direction < 0).astype(int), (g.steps.direction < 0).astype(int)
+    per_visit = [("positioning_error_arcsec", eps_visit, g.group, ac_floor, None),
+                 ("encoder_vs_command_arcsec", g.enc_vs_cmd_arcsec, visit_dir, enc_floor, None)]
+    per_step = [
+        ("measured_encoder_error_arcsec", np.hypot(ac_floor, enc_floor), None),
+        ("predicted_encoder_error_arcsec", pred_floor, rounding["predicted"]),
+        ("residual_arcsec", np.sqrt(ac_floor**2 + enc_floor**2 + pred_floor**2), rounding["predicted"]),
+        ("tilt_x_arcsec", np.sqrt(2) * noise.indicator_resolution_um / np.sqrt(12) * 1e-3 / abs(l2 - l1) * ARCSEC_PER_RAD,
+         rounding["tilt"]),
+        ("radial_y_um", np.hypot(1 + l1 / (l2 - l1), l1 / (l2 - l1)) * noise.indicator_resolution_um / np.sqrt(12),
+         rounding["radial"])]
+    fits = [(name, _fit_series(setup.max_order, g.angle_deg, values, groups, floor, rnd))
+            for name, values, groups, floor, rnd in per_visit]
+    fits += [(name, _fit_series(setup.max_order, g.steps.angle_deg, series[name], step_dir, floor, rnd))
+             for name, floor, rnd in per_step]
+    return {name: fit for name, fit in fits if fit is not None}
 
+
+def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
+    """Seed 001's analysis: tilt/radial separation, predicted vs measured encoder error, εz from
+    the polygon with its budget, reversal, repeatability and harmonics — one phase each."""
+    noise = setup.noise
+    g = _visit_geometry(v, setup)
+    f = _face_errors(v, setup, g)
+    ops = _eps_operators(g, f)
+    pooled = _pooled_sigma(f.eps, g.key[f.ac]) if g.n_runs > 1 else None
+    random_parts, source = _random_parts(noise, f.closure, pooled, g.n_runs)
+    random_variance = sum(sigma**2 for _, _, sigma, _ in random_parts)
+    reference, eps_sigma = _reference_deviation(noise, g, f, ops, random_parts, source, pooled)
+    meas_steps, meas_cov = _measured(noise, g, f, ops, random_variance)
+    pred = _predicted(v, noise, g)
+    residual = meas_steps - pred.steps_arcsec
+    res_var = np.diag(meas_cov) + np.diag(pred.cov)
+    series = {"measured_encoder_error_arcsec": meas_steps, "predicted_encoder_error_arcsec": pred.steps_arcsec,
+              "residual_arcsec": residual, "tilt_x_arcsec": g.steps.mean(g.tilt_rad * ARCSEC_PER_RAD),
+              "radial_y_um": g.steps.mean(g.radial_mm * 1e3)}
+    e_cmd = g.steps.mean(g.enc_vs_cmd_arcsec)
+    eps_visit = np.full(len(g.angle_deg), np.nan)
+    eps_visit[f.ac] = ops.centre @ f.eps
+    harmonics = _harmonic_fits(v, setup, g, eps_visit, series, _indicator_rounding(v, setup, g, pred))
     return AbbeEstimate(
-        angle_deg=s_angle, direction=s_dir,
-        tilt_x_arcsec=per_step(tilt_rad * ARCSEC_PER_RAD), radial_y_um=per_step(radial_mm * 1e3),
-        predicted_encoder_error_arcsec=pred_steps, predicted_sigma_arcsec=np.sqrt(np.diag(pred_cov)),
+        angle_deg=g.steps.angle_deg, direction=g.steps.direction,
+        tilt_x_arcsec=series["tilt_x_arcsec"], radial_y_um=series["radial_y_um"],
+        predicted_encoder_error_arcsec=pred.steps_arcsec, predicted_sigma_arcsec=np.sqrt(np.diag(pred.cov)),
         measured_encoder_error_arcsec=meas_steps, measured_sigma_arcsec=np.where(np.isfinite(meas_steps), np.sqrt(np.diag(meas_cov)), np.nan),
         residual_arcsec=residual, residual_sigma_arcsec=np.where(np.isfinite(residual), np.sqrt(res_var), np.nan),
-        positioning_error_arcsec=eps_steps, positioning_sigma_arcsec=eps_sigma, encoder_vs_command_arcsec=e_cmd,
-        face_error_arcsec=face_error, closure=closure, closure_table_angle_deg=closure_angles,
-        closure_table_direction=closure_dirs, reversal_arcsec=reversal, reversal_reference_arcsec=reversal_ref,
+        positioning_error_arcsec=ops.eps_steps, positioning_sigma_arcsec=eps_sigma,
+        encoder_vs_command_arcsec=e_cmd,
+        face_error_arcsec=f.face_error, closure=f.closure, closure_table_angle_deg=f.closure_angles_deg,
+        closure_table_direction=f.closure_dirs, reversal_arcsec=_reversal(g.steps, e_cmd),
+        reversal_reference_arcsec=_reversal(g.steps, ops.eps_steps),
         repeatability_arcsec=None if pooled is None else pooled[0], harmonics=harmonics,
-        extrapolation_factor=a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
-        random_sigma_type=random_parts[0][1],
-        residual_check=_residual_check(noise, pooled, closure, len(whole) if closure is not None else 0),
-        scale_check=scale_check(s_angle, meas_steps, pred_steps, np.sqrt(res_var), np.sqrt(np.diag(pred_cov))),
+        extrapolation_factor=g.a_fac, reference=reference, random_sigma_arcsec=float(np.sqrt(random_variance)),
+        random_sigma_type=random_parts[0][1], residual_check=_residual_check(noise, pooled, f.closure, f.n_closure),
+        scale_check=scale_check(g.steps.angle_deg, meas_steps, pred.steps_arcsec, np.sqrt(res_var), np.sqrt(np.diag(pred.cov))),
     )
