@@ -1,9 +1,10 @@
-"""One class per calibration method, each implementing :class:`rtcal.methods.protocol.Method`:
-its procedure and results models, plan, instruments, measurement, analysis into typed results,
-certificate statements, outputs and Monte Carlo draws. The runner, loader, results reader,
-planning, deliverables and the CLI know a method only through that protocol and :data:`METHODS`,
-the one registry: the built-in methods and those installed packages register in the entry-point
-group ``rtcal.methods`` (read once per process, on first use).
+"""The registry of calibration methods, above one folder per method (``multistation/``, ``abbe/``: each
+holds everything that is its method's) and what methods share (the :class:`~rtcal.methods.protocol.Method`
+protocol, the estimate block, the environment read, a planner's candidate). :data:`METHODS` holds the
+built-in methods and those installed packages register in the entry-point group ``rtcal.methods``
+(read once per process, on first use). Only the registry and the command line choose a method by the
+procedure's ``method:``; :func:`load_procedure`, :func:`read_results` and the schemas here hand the
+lower layers the registry's models.
 """
 
 from __future__ import annotations
