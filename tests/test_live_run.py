@@ -236,8 +236,9 @@ def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path
         assert f"rtcal resume {aborted}" in err
 
 
-def end_early(tmp_path: Path, procedure: Path, scenario, how: str):
-    """Start a wired run against an in-process hub, end it early as ``how`` says; the hub, to look at."""
+def end_early(tmp_path: Path, procedure: Path, scenario, how: str, cmm: bool = False):
+    """Start a wired run against an in-process hub, end it early as ``how`` says, once the drive (and the
+    CMM, with ``cmm``) has been commanded — a safe stop stops what the run moved; the hub, to look at."""
     with SimulatorHub(scenario, seed=1) as hub:
         proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(dict(hub.addresses)), "--out",
                                str(tmp_path / "run"))
@@ -245,7 +246,7 @@ def end_early(tmp_path: Path, procedure: Path, scenario, how: str):
             code, err = finish(proc)
             assert code == 1, err
         else:
-            wait_for(lambda: hub.drive.command_steps != 0, 60)  # it has moved
+            wait_for(lambda: hub.drive.command_steps != 0 and (not cmm or hub.ipp_machine.motions != 0), 60)  # moved
             if how == "abort":
                 subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(tmp_path / "run"), "abort", "--token",
                                 seen["control token"]], cwd=REPO, check=True, capture_output=True, timeout=30)
@@ -268,7 +269,7 @@ def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
     procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
     faults = [{"instrument": "laser_tracer", "kind": "no_reply", "at_request": list(range(8, 60))}] if how == "fault" else []
     hub, err = end_early(tmp_path, procedure, _scenario(tmp_path, "none", REPO / "procedures" / "scenarios" /
-                                                        "paper000_bench.yaml", faults), how)
+                                                        "paper000_bench.yaml", faults), how, cmm=True)
     assert hub.drive.stops >= 1, err
     assert hub.ipp_machine.aborts >= 1, err
 

@@ -149,10 +149,15 @@ def test_a_drive_that_never_turns_over_modbus_gives_no_certificate(tmp_path):
 
 
 def test_a_drive_that_stops_short_over_modbus_rtu_gives_no_certificate(tmp_path):
+    """The feedback check finds the table short of the target; the attempt is rejected and retaken, and the
+    retake's move (0.01° to the same target) does not start either: the run stops, the stage named."""
     scenario = Scenario(faults=[FaultSpec(instrument="stage", kind="short", shortfall_deg=0.01, probability=1.0)])
     with SimulatorHub(scenario, seed=3, modbus="rtu") as hub:
-        message, _ = _aborted(tmp_path, SMALL, addresses=hub.addresses)
-    assert "feedback position" in message
+        message, store = _aborted(tmp_path, SMALL, addresses=hub.addresses)
+    assert message.startswith("stage: run aborted")
+    faults = [e["message"] for e in store.events() if e["kind"] == "fault"]
+    assert "feedback position" in faults[0] and "commanded" in faults[0], faults
+    assert any(r.quantity == REJECTED for r in store.readings())
 
 
 def test_a_second_modbus_client_nudging_the_drive_stops_the_run(tmp_path):
