@@ -20,8 +20,7 @@ from drivers.errors import InstrumentError, InstrumentFault
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading, EnvironmentSensor,
                                 FieldDescription, Instrument, LaserTracer, LengthReading, ReadingOutsideDescription,
                                 RotaryStage, Value)
-from drivers.kinds import check_values, describe_kind
-from drivers.kinds import KINDS
+from drivers.kinds import KINDS, check_values, describe_kind
 
 MAX_IDENTITY_CHARS = 200
 # per kind: the unit its readings are in (what a driver class's ``reading_unit`` must say, if it says one)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
 
-from drivers.interfaces import (DESCRIPTIONS, PURPOSES, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor,
+from drivers.interfaces import (PURPOSES, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor,
                                 FieldDescription, Instrument, LaserTracer, RotaryStage, Value, check_described)
 
 ENTRY_POINT_GROUP = "rtcal.instrument_kinds"
@@ -42,7 +42,7 @@ class Kind:
     plugin: str = ""  # the distribution that registered it; "" for a built-in
 
 
-BUILTIN: dict[str, Kind] = {c.kind: Kind(c.kind, c, DESCRIPTIONS[c.kind]) for c in (
+BUILTIN: dict[str, Kind] = {c.kind: Kind(c.kind, c, c.described_fields()) for c in (
     RotaryStage, Cmm, LaserTracer, Encoder, Autocollimator, DialIndicator, EnvironmentSensor)}
 
 
@@ -87,7 +87,7 @@ def kind_from(name: str, interface: Any, plugin: str) -> Kind:
         raise ValueError(f"its fields: {', '.join(clash)} stored twice or under a marker's name")
     if interface._raw_values is Instrument._raw_values:
         raise TypeError("it lacks _raw_values (its adapter from its read methods to the described values)")
-    return Kind(name, interface, {f.name: f for f in declared}, plugin)
+    return Kind(name, interface, interface.described_fields(), plugin)
 
 
 class KindRegistry(Mapping[str, Kind]):

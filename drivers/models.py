@@ -19,8 +19,6 @@ from drivers.interfaces import a_kind
 
 ENTRY_POINT_GROUP = "rtcal.drivers"
 
-# the built-in kinds; drivers.kinds.KINDS is every kind, installed ones too
-KINDS = ("stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator", "environment")
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from drivers.fence import fenced
 from drivers.interfaces import (DESCRIPTIONS, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading,
                                 EnvironmentSensor, LaserTracer, LengthReading, RotaryStage, Value)
 from drivers.kinds import describe_kind, recorded
-from drivers.models import KINDS
+from drivers.kinds import BUILTIN
 from rtcal.clock import VirtualClock
 from rtcal.cli import main
 from rtcal.engine.engine import Engine
@@ -102,7 +102,7 @@ class Weather(EnvironmentSensor):
 def test_every_kind_describes_itself_by_its_one_table_and_reads_named_values_with_units():
     devices = {"stage": Stage(10.0, 10.002), "cmm": Probe(), "laser_tracer": Tracer(), "encoder": Counter(),
                "autocollimator": Elcomat(), "dial_indicator": Dial(), "environment": Weather()}
-    assert sorted(devices) == sorted(KINDS) == sorted(DESCRIPTIONS)
+    assert sorted(devices) == sorted(BUILTIN) == sorted(DESCRIPTIONS)
     for kind, device in devices.items():
         assert device.kind == kind and device.describe() == describe_kind(kind)
         values = device.read_values()

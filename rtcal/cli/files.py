@@ -66,9 +66,8 @@ def _due_date_problems(path: Path, proc: Any) -> list:
 def cmd_schema(args: argparse.Namespace) -> int:
     from rtcal.deliverables.certificate import certificate_schema
     from rtcal.planning.reports import plan_schema, uncertainty_schema
-    from rtcal.methods import procedure_schema
+    from rtcal.methods import procedure_schema, results_schema
     from rtcal.procedure.loader import scenario_schema
-    from rtcal.methods import results_schema
 
     chosen = [(flag, schema) for flag, schema in (("--scenario", scenario_schema), ("--results", results_schema),
                                                   ("--plan", plan_schema), ("--uncertainty", uncertainty_schema),

@@ -49,8 +49,8 @@ from rtcal.engine import signals
 from rtcal.engine.walk import Motion, Timing
 from rtcal.engine.faults import RETAKE, FaultHandler, RunAborted, Skip
 from rtcal.engine.plan import Attempt, Entry, Plan
-from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Samples, Settle,
-                                Skipped, Step, Validate)
+from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Reference, Samples, Settle, Skipped,
+                                Step, Validate)
 from rtcal.store.runstore import REJECTED, SKIPPED, Reading, descriptions_of
 from rtcal.engine.checks import Contradiction
 from rtcal.engine.motion import Turning, approach
@@ -67,8 +67,8 @@ class Device(Protocol):
 
 @runtime_checkable
 class Mover(Device, Protocol):
-    """A device the engine moves (a stage, a CMM): it checks targets, moves, reports where it is, and stops
-    (what the one safe-state path asks of everything moved)."""
+    """A device the engine moves (a stage, a CMM): it checks targets, moves, and stops (what the one
+    safe-state path asks of everything moved)."""
 
     def check_target(self, target: Any, /) -> None: ...
 
@@ -77,7 +77,6 @@ class Mover(Device, Protocol):
     def stop(self) -> None: ...
 
 
-@runtime_checkable
 class Reader(Device, Protocol):
     """A device the engine reads: its described values (every reading goes through ``read_values``)."""
 
@@ -310,8 +309,8 @@ class Engine:
         if isinstance(step, Move):
             self._move(step)
             return None
-        if isinstance(step, (Settle, Recover)):
-            self._raw(step)
+        if isinstance(step, Settle):
+            self.clock.sleep(step.seconds)
             return None
         if isinstance(step, ReadSamples):
             ((quantity, unit),) = self._recorded(step.instrument, (step.field,), step.purpose)
@@ -445,9 +444,6 @@ class Engine:
         if isinstance(step, Settle):
             self.clock.sleep(step.seconds)
             return None
-        if isinstance(step, Recover):
-            self.devices[step.instrument].recover()
-            return None
         if isinstance(step, Move):
             return self._policy(step.instrument, lambda: self._move(step), step.what, context, readings,
                                 recover=self.devices[step.instrument].recover)
@@ -486,7 +482,9 @@ class Engine:
         return result
 
     def _move(self, step: Move) -> None:
-        device = self._moved.setdefault(step.instrument, self._mover(step.instrument))
+        device = self._moved.get(step.instrument)
+        if device is None:  # registered before it is commanded: a stop mid-motion stops it too
+            device = self._moved[step.instrument] = self._mover(step.instrument)
         start_s = self.clock.now_s()
         if step.direction:
             if not isinstance(device, Turning):
@@ -586,17 +584,6 @@ class Engine:
                                  sample=len(taken), segment=self.segment, **context))
         readings.extend(taken)
         return Samples(tuple(r.value for r in taken), any_reacquired, self.segment)
-
-    def _raw(self, step: Step) -> None:
-        """A step of a recovery, outside the policies (the call it precedes is under its policy)."""
-        if isinstance(step, Move):
-            self._move(step)
-        elif isinstance(step, Settle):
-            self.clock.sleep(step.seconds)
-        elif isinstance(step, Recover):
-            self.devices[step.instrument].recover()
-        else:
-            raise TypeError(f"not a recovery step: {step!r}")
 
     def _spend(self, seconds: float) -> None:
         """Time a step takes beyond the devices' own (an operator, a tracer's integration): a simulated run's

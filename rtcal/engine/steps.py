@@ -65,13 +65,6 @@ class Settle:
     seconds: float
 
 
-@dataclass(frozen=True)
-class Recover:
-    """Reset what a device latched (a drive alarm, a CMM's error state)."""
-
-    instrument: str
-
-
 Relation = Callable[[Any], Any]
 """What a reading's values must satisfy: a pure function of the values read (a number, or a tuple in the
 step's field order) that returns them as the plan takes them, or raises
@@ -151,4 +144,4 @@ class OperatorStep:
     seconds: float = 0.0
 
 
-Step = Union[Validate, Move, Parallel, Settle, Recover, Read, ReadSamples, Reference, OperatorStep]
+Step = Union[Validate, Move, Parallel, Settle, Read, ReadSamples, Reference, OperatorStep]

@@ -15,7 +15,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from rtcal.engine.plan import Plan
-from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Recover, Reference, Samples, Settle,
+from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Reference, Samples, Settle,
                                 Step, Validate)
 
 
@@ -132,7 +132,7 @@ class _Walker:
             w.duration_s += step.seconds
             self.tracking = False
             return None
-        if isinstance(step, (Validate, Recover)):
+        if isinstance(step, Validate):
             return None
         raise TypeError(f"not a step: {step!r}")
 
