@@ -19,8 +19,8 @@ import yaml
 
 from rtcal.run.runner import resume_run, run_procedure
 from rtcal.store.runstore import RunStore
-from rtcal.engine.checks import Contradiction, EncoderCheck, combined_sigma
-from rtcal.methods.abbe.checks import AutocollimatorEncoderCheck, IndicatorCheck
+from rtcal.engine.checks import Contradiction, combined_sigma
+from rtcal.methods.abbe.checks import AutocollimatorEncoderCheck, EncoderCheck, IndicatorCheck
 from rtcal.methods.multistation.checks import TracerReturnCheck
 from rtcal.engine.faults import RunAborted
 from simulators.bench import Bench

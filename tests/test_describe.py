@@ -27,7 +27,7 @@ from rtcal.engine.engine import Engine
 from rtcal.engine.plan import Entry
 from rtcal.engine.steps import Read
 from rtcal.procedure.models import FaultPolicy
-from rtcal.store.dataset import abbe_visits
+from rtcal.methods.abbe.dataset import abbe_visits
 from rtcal.store.salvage import _READING_TYPES, _REAL_COLUMNS
 from rtcal.store.runstore import READING_COLUMN_TYPES, READING_COLUMNS, SCHEMA, RunStore
 

@@ -105,14 +105,26 @@ CERTIFICATE_NEEDS = (("laboratory", "the laboratory (metadata.laboratory)"),
                      ("approved_by", "who approved it (metadata.approved_by)"))
 
 
-ROLES = {"polygon": "reference standard: angle (face errors from its certificate)",
-         "autocollimator": "reference standard: angle", "laser_tracer": "reference standard: length",
-         "environment": "measuring instrument: conditions", "cmm": "positions the reflector",
-         "encoder": "the item's encoder (analysed)", "dial_indicator_1": "measuring instrument: shaft motion",
-         "dial_indicator_2": "measuring instrument: shaft motion", "stage": "the item's drive (commanded)"}
+def __getattr__(name: str) -> object:
+    """Deprecated: ``ROLES`` and ``REFERENCE_STANDARDS`` are the methods' (each method's ``instrument_roles``,
+    rtcal/methods/<method>/method.py); the old names go in the next release."""
+    if name not in ("ROLES", "REFERENCE_STANDARDS"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import warnings
+
+    warnings.warn(f"rtcal.deliverables.certificate.{name} moved: a method's instrument_roles() states every role",
+                  DeprecationWarning, stacklevel=2)
+    return ({"polygon": "reference standard: angle (face errors from its certificate)",
+             "autocollimator": "reference standard: angle", "laser_tracer": "reference standard: length",
+             "environment": "measuring instrument: conditions", "cmm": "positions the reflector",
+             "encoder": "the item's encoder (analysed)", "dial_indicator_1": "measuring instrument: shaft motion",
+             "dial_indicator_2": "measuring instrument: shaft motion", "stage": "the item's drive (commanded)"}
+            if name == "ROLES" else ("polygon", "autocollimator", "laser_tracer"))
 
 
-REFERENCE_STANDARDS = ("polygon", "autocollimator", "laser_tracer")
+REFERENCE_STANDARD = "reference standard"
+"""How a method's role of an instrument begins when the instrument is a reference standard (the
+traceability statement cites its certificate)."""
 
 
 def _fmt(v: float | None, digits: int = 2) -> str:
@@ -208,8 +220,7 @@ def instrument_rows(results: RunResults, method: CertifiedMethod) -> list[tuple[
     """(instrument, role, id, its certificate, calibrated by, due) per instrument and standard."""
     records = results.metadata.instruments
     none = InstrumentRecord(id="", calibration_due="")
-    roles = dict(ROLES)
-    roles.update(method.instrument_roles(results))  # a method's own, e.g. a polygon separated by closure
+    roles = method.instrument_roles(results)  # the method's words, e.g. a polygon separated by closure
     return [(name.replace("_", " "), roles.get(name, ""), records.get(name, none).id or "not recorded",
              records.get(name, none).certificate_number or "–", records.get(name, none).calibrated_by or "–",
              records.get(name, none).calibration_due or "–") for name in instruments_used(results, method)]
@@ -228,7 +239,8 @@ def traceability(results: RunResults, method: CertifiedMethod) -> str:
     if meta.traceability:
         return meta.traceability
     used = set(instruments_used(results, method))
-    cited = [(n, meta.instruments[n]) for n in REFERENCE_STANDARDS if n in used and n in meta.instruments
+    cited = [(n, meta.instruments[n]) for n, role in method.instrument_roles(results).items()
+             if role.startswith(REFERENCE_STANDARD) and n in used and n in meta.instruments
              and meta.instruments[n].certificate_number]
     if not cited:
         return ("Not stated: the procedure's metadata gives no traceability statement and no certificate of a reference "

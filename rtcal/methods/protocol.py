@@ -140,8 +140,9 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
         ...
 
     def instrument_roles(self, results: RunResults) -> dict[str, str]:
-        """The certificate's role of an instrument where this method's differs from the usual one
-        (rtcal/deliverables/report.py's ROLES), e.g. a polygon separated by closure."""
+        """The certificate's role of each instrument and standard of this run, e.g. "reference standard:
+        angle" (a reference standard's role begins with those words: the traceability statement cites its
+        certificate), or "artefact: …" for a polygon separated by closure."""
         ...
 
     def outputs(self, results: RunResults) -> MethodOutputs:

@@ -248,6 +248,14 @@ def described_in(db: sqlite3.Connection) -> dict[tuple[str, str], StoredDescript
     return {**found, **stored_descriptions(db)}
 
 
+def stored_quantity(described: dict[tuple[str, str], StoredDescription], instrument: str, field: str, purpose: str = "") -> str:
+    """The quantity ``instrument``'s ``field`` read for ``purpose`` is stored under."""
+    for d in described.values():
+        if d.instrument == instrument and d.field == field and d.purpose == purpose:
+            return d.quantity
+    raise KeyError(f"{instrument}.{field} ({purpose or 'reading'}) is not described in the store")
+
+
 class RunStore:
     """A run's database file. Use :meth:`create` for a new run and :meth:`open` to read one."""
 

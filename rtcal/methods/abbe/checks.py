@@ -1,6 +1,6 @@
-"""The Abbe method's own checks (seed 001): the face in view seen near square, the autocollimator
-against the encoder, the two dial indicators against each other and against themselves. A failure
-is a :class:`~rtcal.engine.checks.Contradiction`, never a result."""
+"""The Abbe method's own checks (seed 001): the encoder against the commanded motion, the face in view
+seen near square, the autocollimator against the encoder, the two dial indicators against each other
+and against themselves. A failure is a :class:`~rtcal.engine.checks.Contradiction`, never a result."""
 
 from __future__ import annotations
 
@@ -22,6 +22,79 @@ def check_face(x_arcsec: float, tolerance_arcsec: float, command_deg: float) -> 
         raise Contradiction("autocollimator", f"the face at {command_deg:g}° is seen {x_arcsec:+.1f}″ from square (tolerance "
                                               f"{tolerance_arcsec:g}″, verification.autocollimator_tolerance_arcsec): the "
                                               "table is not where it was commanded, or the polygon is not seated as stated")
+
+
+class EncoderCheck:
+    """The encoder moves as commanded: its reading minus the command stays within a tolerance of
+    what it was at the start's first visit (an incremental counter's zero is arbitrary)."""
+
+    def __init__(self, tolerance_arcsec: float, pitch_deg: float = 0.0, face_still_arcsec: float = 0.0):
+        """``pitch_deg``: the polygon's, ``face_still_arcsec``: how far apart two readings of one face by
+        an autocollimator that did not move may be (its noise): together they say when a face seen
+        square is no evidence that the table turned (item 7 of issue 36)."""
+        self.tolerance_arcsec = tolerance_arcsec
+        self.pitch_deg, self.face_still_arcsec = pitch_deg, face_still_arcsec
+        self.offset_deg: float | None = None
+        self.first_command_deg = 0.0
+        self.previous: tuple[float, float, float | None] | None = None  # the last request's (encoder, command, face)
+        self.suspect: str | None = None  # stale or frozen, found once (issue 26)
+        self.came_from: tuple[float, float, float | None] | None = None  # the last request at another command
+
+    def _nothing_turned(self, face_arcsec: float | None, command_deg: float,
+                        previous: tuple[float, float, float | None]) -> str:
+        """Why the table may not have turned at all ("" if the autocollimator shows it did): the step
+        is whole faces — a face square in view whether the table turned or not — and the face reads
+        what it read at the previous request, within its noise."""
+        step = abs(command_deg - previous[1]) / self.pitch_deg if self.pitch_deg > 0 else 0.5
+        x_before = previous[2]
+        if face_arcsec is None or x_before is None or abs(step - round(step)) > 1e-6:
+            return ""
+        if not abs(face_arcsec - x_before) <= self.face_still_arcsec:
+            return ""
+        return (f"the encoder and the autocollimator both read what they read at {previous[1]:g}°, the target before (the "
+                f"face {face_arcsec - x_before:+.2f}″ from it): the table did not turn — a face square to the "
+                f"autocollimator cannot tell a {abs(command_deg - previous[1]):g}° turn from none ({self.pitch_deg:g}° "
+                "faces). The drive did not move the table (stuck, or not enabled) — or it did, the encoder's count is "
+                "frozen or stale, and this face happens to read as the last one")
+
+    def check(self, encoder_deg: float, command_deg: float, table_seen: bool = False, face_arcsec: float | None = None) -> None:
+        """``table_seen``: the autocollimator saw the face the command puts in view square, so the
+        table did turn; an encoder that disagrees is then the encoder's fault, and one that fits
+        the previous request (stale) or repeats itself (frozen) stays suspect for the run — unless
+        the face reads as it did then too (``face_arcsec``): then nothing turned, and the stage is named."""
+        offset = encoder_deg - command_deg
+        previous, self.previous = self.previous, (encoder_deg, command_deg, face_arcsec)
+        if previous is not None and previous[1] != command_deg:  # a retried visit comes from where the one before came
+            self.came_from = previous
+        if self.suspect is not None:
+            raise Contradiction("encoder", f"at {command_deg:g}°: {self.suspect}")
+        if self.offset_deg is None:
+            self.offset_deg, self.first_command_deg = offset, command_deg
+            return
+        apart_deg = (offset - self.offset_deg + 180.0) % 360.0 - 180.0
+        if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec and table_seen and previous is not None:
+            lag_deg = (encoder_deg - previous[1] - self.offset_deg + 180.0) % 360.0 - 180.0
+            stood = encoder_deg == previous[0] or abs(lag_deg) * 3600.0 <= self.tolerance_arcsec
+            why = self._nothing_turned(face_arcsec, command_deg, self.came_from) if stood and self.came_from else ""
+            if why:
+                raise Contradiction("stage", f"at {command_deg:g}°: {why}")
+            if encoder_deg == previous[0]:
+                self.suspect = (f"the encoder repeats {encoder_deg:.6f}° while the table turned (the autocollimator sees the "
+                                "commanded face square): a frozen counter or buffer")
+            elif abs(lag_deg) * 3600.0 <= self.tolerance_arcsec:
+                self.suspect = (f"the encoder reads where the previous request was ({lag_deg * 3600:+.0f}″ from it) while the "
+                                "autocollimator sees the commanded face square: its replies are one request behind (stale)")
+            if self.suspect is not None:
+                raise Contradiction("encoder", f"at {command_deg:g}°: {self.suspect}")
+            raise Contradiction("encoder", f"the encoder is {apart_deg * 3600:+.0f}″ from the commanded motion while the "
+                                           "autocollimator sees the commanded face square (tolerance "
+                                           f"{self.tolerance_arcsec:g}″, verification.encoder_tolerance_arcsec): it misreads")
+        if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec:
+            commanded = command_deg - self.first_command_deg
+            raise Contradiction("stage", f"the encoder turned {commanded + apart_deg:.4f}° where {commanded:.4f}° was "
+                                         f"commanded since the first visit: {apart_deg * 3600:+.0f}″ apart (tolerance "
+                                         f"{self.tolerance_arcsec:g}″, verification.encoder_tolerance_arcsec): the table is "
+                                         "not where it was commanded, or the encoder misreads")
 
 
 # -- Instruments checked against each other (issue 26): pure objects fed each visit's readings with

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from drivers import factory
-from rtcal.store.dataset import abbe_conditions, abbe_visits
+from rtcal.methods.abbe.dataset import abbe_conditions, abbe_visits
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.methods.abbe.procedure import EncoderAbbeError
 from rtcal.methods.estimates import (
@@ -61,6 +61,13 @@ NOTES = (
     "errors are given up to one constant per seating (mean over the faces removed, the same for both directions); "
     "εz relative to the first target of the first direction, so that the reversal between directions shows.",
 )
+
+
+ROLES = {"polygon": "reference standard: angle (face errors from its certificate)",
+         "autocollimator": "reference standard: angle", "environment": "measuring instrument: conditions",
+         "encoder": "the item's encoder (analysed)", "dial_indicator_1": "measuring instrument: shaft motion",
+         "dial_indicator_2": "measuring instrument: shaft motion", "stage": "the item's drive (commanded)"}
+"""The certificate's role of each instrument and standard (a reference standard's begins with those words)."""
 
 
 class CertificateUnavailable(PreparationError):
@@ -218,11 +225,12 @@ class AbbeMethod:
         return results.environment if isinstance(results, abr.AbbeResults) else None
 
     def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
-        """A polygon whose face errors this run separated by closure is an artefact, not a reference standard."""
+        """Each instrument's role on the certificate (reference standards first, in the order the traceability
+        statement cites them); a polygon whose face errors this run separated by closure is an artefact."""
         abbe = results.estimates.abbe if isinstance(results, abr.AbbeResults) else None
         if abbe is not None and abbe.polygon_source == "closure":
-            return {"polygon": "artefact: its face errors separated from the table's by closure in this run"}
-        return {}
+            return {**ROLES, "polygon": "artefact: its face errors separated from the table's by closure in this run"}
+        return dict(ROLES)
 
     @property
     def planner(self) -> AbbePlanner:

@@ -24,8 +24,8 @@ from rtcal.engine.steps import Move, OperatorStep, Read, Settle, Skipped, Step, 
 from rtcal.methods.conditions import environment_read
 from rtcal.methods.abbe.procedure import EncoderAbbeError
 from rtcal.store.runstore import Reading
-from rtcal.engine.checks import EncoderCheck, MotionChecks, combined_sigma
-from rtcal.methods.abbe.checks import abbe_cross_checks, check_abbe_visit, check_face
+from rtcal.engine.checks import MotionChecks, combined_sigma
+from rtcal.methods.abbe.checks import EncoderCheck, abbe_cross_checks, check_abbe_visit, check_face
 
 
 # what a visit reads: each kind's field, named by its description (drivers/interfaces.py), stored under its name

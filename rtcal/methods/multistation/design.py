@@ -96,7 +96,7 @@ def optimize_points(procedure_path: Path, proc: LaserTracerMultistation, scenari
                     simulate: Callable[[Path, Path, Path], None], grid: int = 7) -> str:
     """Write ``out_path``: the procedure with an optimised point list; returns a summary line.
     ``simulate(procedure, bench, run_dir)`` runs the procedure on the noise-free bench (the runner's)."""
-    from rtcal.store.dataset import multistation_data
+    from rtcal.methods.multistation.dataset import multistation_data
     from rtcal.methods.multistation.noise import noise_model
     from rtcal.store.runstore import RunStore
 

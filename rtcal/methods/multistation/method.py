@@ -14,7 +14,7 @@ import numpy as np
 
 from drivers import factory
 from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
-from rtcal.store.dataset import multistation_data
+from rtcal.methods.multistation.dataset import multistation_data
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
 from rtcal.engine.walk import Timing, walk
@@ -303,6 +303,11 @@ def lm_parameters(proc: LaserTracerMultistation) -> LMParameters:
                         mu0=None if lm.mu0 == "residual_norm" else float(lm.mu0), max_iterations=lm.max_iterations)
 
 
+ROLES = {"laser_tracer": "reference standard: length", "environment": "measuring instrument: conditions",
+         "cmm": "positions the reflector", "stage": "the item's drive (commanded)"}
+"""The certificate's role of each instrument (a reference standard's begins with those words)."""
+
+
 class MultistationMethod:
     """Seed 000's laser-tracer multi-station method (:class:`rtcal.methods.protocol.Method`)."""
 
@@ -328,7 +333,8 @@ class MultistationMethod:
         return results.environment if isinstance(results, msr.MultistationResults) else None
 
     def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
-        return {}
+        """Each instrument's role on the certificate (a reference standard's begins with those words)."""
+        return dict(ROLES)
 
     @property
     def planner(self) -> MultistationPlanner:

@@ -446,7 +446,8 @@ class EncoderVsCommandMethod:
         return None
 
     def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
-        return {"encoder": "measuring instrument: the table's own encoder, read against the command (not a reference standard)",
+        return {"stage": "the item's drive (commanded)",
+                "encoder": "measuring instrument: the table's own encoder, read against the command (not a reference standard)",
                 INCLINOMETER: "monitor: the table's tilt at each visit, recorded, not used in the result"}
 
     def outputs(self, results: rm.RunResults) -> EncoderOutputs:
