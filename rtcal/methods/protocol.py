@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
     from rtcal.engine.plan import Plan
     from rtcal.results.model import Analysis, EnvironmentSummary, RunResults
-    from rtcal.store.runstore import RunStore
+    from rtcal.store.runstore import RunReadings
     from rtcal.engine.operator import Operator
     from simulators.bench import Bench
     from simulators.scenario import Scenario
@@ -116,9 +116,10 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
         (``done``) and the run's start number; ``stage_step_deg`` bounds the stage's feedback check."""
         ...
 
-    def analyse(self, proc: ProcedureT, store: RunStore, bench: Bench | None, estimate_noise: bool = True) -> Analysis:
-        """The logged readings → every estimate that can run, the recommended one, its positioning
-        deviations, and the truth of a simulated run (``estimate_noise`` False: noise as stated)."""
+    def analyse(self, proc: ProcedureT, store: RunReadings, bench: Bench | None, estimate_noise: bool = True) -> Analysis:
+        """The logged readings (read-only; :meth:`~rtcal.store.runstore.RunReadings.counted` says which count) →
+        every estimate that can run, the recommended one, its positioning deviations, and the truth of a
+        simulated run (``estimate_noise`` False: noise as stated)."""
         ...
 
     def draw_systematics(self, proc: ProcedureT, scenario: Scenario, rng: np.random.Generator) -> Scenario:

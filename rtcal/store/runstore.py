@@ -27,7 +27,7 @@ import sqlite3
 from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Protocol
 from urllib.parse import quote
 
 from drivers.addresses import redact_tokens
@@ -256,6 +256,55 @@ def stored_quantity(described: dict[tuple[str, str], StoredDescription], instrum
     raise KeyError(f"{instrument}.{field} ({purpose or 'reading'}) is not described in the store")
 
 
+class RunReadings(Protocol):
+    """A run's store as a method's analysis reads it (read-only): its readings, which of them count, what
+    each stored quantity is, its metadata. :class:`RunStore` is one; rtcal.api names it for plugins."""
+
+    def readings(self, instrument: str | None = None, quantity: str | None = None) -> Iterator[Reading]:
+        """Every row as stored (markers, rejected and superseded attempts included), in store order."""
+        ...
+
+    def counted(self, instrument: str | None = None, field: str | None = None, purpose: str = "",
+                whole_only: bool = False) -> list[Reading]:
+        """The readings that count (:func:`counted_attempts`), in store order; ``field`` (with its ``purpose``)
+        names the described field of ``instrument`` they were stored for."""
+        ...
+
+    def quantity_of(self, instrument: str, field: str, purpose: str = "") -> str:
+        """The quantity ``instrument``'s ``field`` read for ``purpose`` is stored under."""
+        ...
+
+    def described(self) -> dict[tuple[str, str], StoredDescription]: ...
+
+    def done_plan_indices(self) -> set[int]: ...
+
+    def meta(self) -> dict[str, str]: ...
+
+
+def counted_attempts(attempts: Iterable[tuple[int | None, int | None, bool, bool]]) -> dict[int | None, tuple[int | None, bool]]:
+    """The one rule of which readings count, from every stored attempt's (plan index, attempt, skipped
+    something, rejected): per planned reading, one attempt — the last stored whole (nothing skipped, not
+    rejected), else the last not rejected (what it took before a skip: an instrument that read still counts);
+    a rejected attempt's readings (they contradicted the commands) never count. Returns plan index → (its
+    counted attempt, whether that attempt is whole). A planned reading retaken after a partial attempt
+    counts once, never averaged with it."""
+    whole: dict[int | None, int | None] = {}
+    partial: dict[int | None, int | None] = {}
+
+    def later(a: int | None, b: int | None) -> bool:
+        return (-1 if a is None else a) > (-1 if b is None else b)
+
+    for plan_index, attempt, skipped, rejected in attempts:
+        if rejected:
+            continue
+        chosen = partial if skipped else whole
+        if plan_index not in chosen or later(attempt, chosen[plan_index]):
+            chosen[plan_index] = attempt
+    counted = {k: (a, False) for k, a in partial.items()}
+    counted.update({k: (a, True) for k, a in whole.items()})
+    return counted
+
+
 class RunStore:
     """A run's database file. Use :meth:`create` for a new run and :meth:`open` to read one."""
 
@@ -476,6 +525,22 @@ class RunStore:
             sql += " WHERE " + " AND ".join(clauses)
         for row in self._db.execute(sql + " ORDER BY id", args):
             yield Reading(*row)
+
+    def counted(self, instrument: str | None = None, field: str | None = None, purpose: str = "",
+                whole_only: bool = False) -> list[Reading]:
+        """The readings that count (:func:`counted_attempts`: per planned reading the last attempt stored whole,
+        else the last not rejected), markers left out, in store order; ``whole_only``: only those of an attempt
+        stored whole. ``field`` (with its ``purpose``) names the described field of ``instrument``."""
+        quantity = None if field is None or instrument is None else self.quantity_of(instrument, field, purpose)
+        chosen = counted_attempts((k, a, bool(s), bool(r)) for k, a, s, r in self._db.execute(
+            "SELECT plan_index, attempt, MAX(quantity = ?), MAX(quantity = ?) FROM readings GROUP BY plan_index, attempt",
+            (SKIPPED, REJECTED)))
+        return [r for r in self.readings(instrument, quantity) if r.quantity not in MARKERS
+                and (c := chosen.get(r.plan_index)) is not None and c[0] == r.attempt and (c[1] or not whole_only)]
+
+    def quantity_of(self, instrument: str, field: str, purpose: str = "") -> str:
+        """The quantity ``instrument``'s ``field`` read for ``purpose`` is stored under (KeyError: not described)."""
+        return stored_quantity(self.described(), instrument, field, purpose)
 
     def done_plan_indices(self) -> set[int]:
         """Planned readings stored by an attempt that skipped nothing and was not rejected (each

@@ -38,7 +38,7 @@ from rtcal.solvers.abbe import (
 )
 from rtcal.solvers.harmonics import HarmonicFit
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
-from rtcal.store.runstore import RunStore
+from rtcal.store.runstore import RunReadings
 from simulators.bench import Bench
 from simulators.instruments import (
     SimAutocollimator,
@@ -268,7 +268,7 @@ class AbbeMethod:
     def plan(self, proc: EncoderAbbeError, done: set[int], generation: int = 0, stage_step_deg: float = 0.0) -> AbbePlan:
         return AbbePlan(proc, done, generation, stage_step_deg)
 
-    def analyse(self, proc: EncoderAbbeError, store: RunStore, bench: Bench | None,
+    def analyse(self, proc: EncoderAbbeError, store: RunReadings, bench: Bench | None,
                 estimate_noise: bool = True) -> abr.AbbeAnalysis:
         visits = abbe_visits(store, proc.polygon.seatings_deg)
         recorded = json.loads(store.meta().get("polygon_certificate_arcsec", "null"))

@@ -9,33 +9,32 @@ import numpy as np
 from rtcal.methods.conditions import summarise_conditions
 from rtcal.solvers.air import ciddor_n
 from rtcal.solvers.station_data import MountReadings, MultistationData
-from rtcal.store.runstore import SKIPPED, RunStore, stored_quantity as _quantity
+from rtcal.store.runstore import RunReadings
 
 
-def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:
+def multistation_data(store: RunReadings, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:
     """Lengths per point and station (samples averaged), per tracer mount (the readings' seating),
-    with their tracking segments and stage visits; CMM positions averaged over every visit. The
-    readings of a rejected attempt (they contradicted the commands) are kept in the store and used
-    nowhere; lengths count only from an attempt that was stored whole."""
+    with their tracking segments and stage visits; CMM positions averaged over every visit. Only the
+    readings that count are used (the store's one rule: the attempt of each planned reading stored
+    whole, else its last one not rejected); a length counts only from an attempt stored whole (the
+    table and the probe were seen still after it)."""
     m = len(nominal_angles_deg)
     described = store.described()
-    rejected = store.rejected_attempts()
-    unfinished = rejected | {(r.plan_index, r.attempt) for r in store.readings(quantity=SKIPPED)}
     pos_sum = np.zeros((n_points, 3))
     pos_count = np.zeros((n_points, 3))
-    axes = {_quantity(described, "cmm", f"position_{a}_mm"): k for k, a in enumerate("xyz")}  # a position read on arrival
-    for r in store.readings(instrument="cmm"):
-        if r.quantity not in axes or (r.plan_index, r.attempt) in rejected:
+    axes = {store.quantity_of("cmm", f"position_{a}_mm"): k for k, a in enumerate("xyz")}  # a position read on arrival
+    for r in store.counted("cmm"):
+        if r.quantity not in axes or r.point is None:
             continue
         axis = axes[r.quantity]
         pos_sum[r.point, axis] += r.value
         pos_count[r.point, axis] += 1
     env: dict[tuple[int, int, int], dict[str, list[float]]] = {}
-    for r in store.readings(instrument="environment"):
+    for r in store.counted("environment"):
         if r.point is None or r.station is None:  # not taken at a length: no length's air
             continue
         d = described.get((r.instrument, r.quantity))
-        if d is not None and not d.purpose and (r.plan_index, r.attempt) not in rejected:
+        if d is not None and not d.purpose:
             env.setdefault((r.seating or 0, r.point, r.station), {}).setdefault(d.field, []).append(r.value)
     len_sum = np.zeros((mounts, n_points, m))
     len_count = np.zeros((mounts, n_points, m))
@@ -43,8 +42,8 @@ def multistation_data(store: RunStore, nominal_angles_deg: np.ndarray, n_points:
     segments = np.full((mounts, n_points, m), -1)
     visits = np.full((mounts, n_points, m), -1)
     visit, last = -1, None
-    for r in store.readings(instrument="laser_tracer", quantity=_quantity(described, "laser_tracer", "length_mm")):
-        if (r.plan_index, r.attempt) in unfinished:
+    for r in store.counted("laser_tracer", "length_mm", whole_only=True):
+        if r.point is None or r.station is None:
             continue
         k = r.seating or 0
         len_sum[k, r.point, r.station] += r.value

@@ -36,7 +36,7 @@ from rtcal.solvers.shared_dead_path import (
 )
 from rtcal.solvers.station_budget import StationBudget, StationNoiseModel
 from rtcal.solvers.station_data import MultistationData
-from rtcal.store.runstore import RunStore
+from rtcal.store.runstore import RunReadings
 from simulators.bench import Bench
 from simulators.instruments import (
     SimCmm,
@@ -371,7 +371,7 @@ class MultistationMethod:
              stage_step_deg: float = 0.0) -> MultistationPlan:
         return MultistationPlan(proc, stage_step_deg)
 
-    def analyse(self, proc: LaserTracerMultistation, store: RunStore, bench: Bench | None,
+    def analyse(self, proc: LaserTracerMultistation, store: RunReadings, bench: Bench | None,
                 estimate_noise: bool = True) -> msr.MultistationAnalysis:
         """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
         recommended one, its positioning-deviation table, and the truth of a simulated run."""

@@ -33,7 +33,7 @@ from rtcal.methods.protocol import address_of
 from rtcal.procedure.models import (FaultPolicy, InstrumentChoice, InstrumentsBase, ProcedureBase, StageChoice, StrictModel,
                                     VerificationBase, plan_outside_limits, plan_size_problem)
 from rtcal.results import model as rm
-from rtcal.store.runstore import MARKERS, SKIPPED, RunStore
+from rtcal.store.runstore import RunReadings as RunStore
 from rtcal.engine.checks import EncoderCheck, MotionChecks
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
 from simulators.bench import Bench
@@ -241,13 +241,12 @@ class EncoderResults(EncoderAnalysis, rm.RunResults):
 
 
 def encoder_means(store: RunStore, proc: EncoderVsCommand) -> tuple[np.ndarray, np.ndarray]:
-    """Per planned visit: mean of encoder − command (arcsec, wrapped to ±180°) and its sample count;
-    readings of a rejected or incomplete attempt are used nowhere."""
-    unfinished = store.rejected_attempts() | {(r.plan_index, r.attempt) for r in store.readings(quantity=SKIPPED)}
+    """Per planned visit: mean of encoder − command (arcsec, wrapped to ±180°) and its sample count; only the
+    readings that count (the store's rule), and of those only an attempt stored whole."""
     visits = planned_visits(proc)
     total, count = np.zeros(len(visits)), np.zeros(len(visits))
-    for r in store.readings(instrument="encoder", quantity="angle_deg"):
-        if r.quantity in MARKERS or (r.plan_index, r.attempt) in unfinished or r.plan_index is None:
+    for r in store.counted("encoder", "angle_deg", whole_only=True):
+        if r.plan_index is None:
             continue
         off = (r.value - visits[r.plan_index].angle_deg + 180.0) % 360.0 - 180.0
         total[r.plan_index] += off * 3600.0
