@@ -118,6 +118,7 @@ class Bench:
         self.first_reading_s: float | None = None  # when the run's first reading was taken (the profiles' time 0)
         self.beam_broken = False  # the tracer's beam was interrupted since its last reference
         self.emergency_stop = False  # pressed: no motion until an operator releases it
+        self.artefacts: dict[str, np.ndarray] = {}  # what an operator mounted on the table, at its point of the table
         self.truth = Truth()
         self.faults = FaultInjector(scenario.faults, self.rng)
 
@@ -242,6 +243,30 @@ class Bench:
             self.tracer_in_table_mm = self._mount_point(index)
             self.beam_broken = True
 
+    # -- what an operator mounts on the table (a test ball, a sphere): its position turns with the table
+    def mount_artefact(self, name: str, on_table_mm: tuple[float, float, float] | list[float]) -> None:
+        """The operator mounts the artefact ``name`` at a point of the table (its own frame, mm): from now on
+        :meth:`artefact_mm` says where the table's motion carries it."""
+        where = np.asarray(on_table_mm, dtype=float)
+        if where.shape != (3,) or not np.all(np.isfinite(where)) or np.any(np.abs(where) > 1e4):
+            raise ValueError(f"{name}: a point on the table is three finite coordinates within 10 m, not {on_table_mm!r}")
+        self.artefacts[str(name)] = where
+
+    def artefact_mm(self, name: str) -> np.ndarray | None:
+        """Where the artefact ``name`` is now, in the housing frame (origin on the axis, z along it), mm; None:
+        nothing of that name is mounted."""
+        where = self.artefacts.get(name)
+        return None if where is None else self.table_point_in_axis_frame(where)
+
+    def release_emergency_stop(self) -> None:
+        """The operator releases the emergency stop (the run may move again)."""
+        self.emergency_stop = False
+
+    OPERATOR_ACTIONS = ("reseat_polygon", "mount_tracer", "mount_artefact", "polygon_certificate_arcsec",
+                        "release_emergency_stop")
+    """What the simulated operator of `rtcal sim serve` does on request (``DO <name> <JSON arguments>``): the
+    bench's hands as a method's operator step uses them, nothing else."""
+
     # -- air and material
     def reading(self) -> None:
         """An instrument takes a reading now: the first one starts the profiles' time."""
@@ -296,6 +321,10 @@ class Bench:
         after a software restart: the polygon did not move because the program died."""
         err = arcsec_to_rad(self.scenario.polygon.seating_error_arcsec) * self.persistent_rng(f"seating {offset_deg!r}").standard_normal()
         self.polygon_rotation_rad = math.radians(offset_deg) + err
+
+    def polygon_certificate_arcsec(self) -> list[float]:
+        """The simulated polygon's calibration certificate (its face errors, arcsec), as the operator hands it over."""
+        return [float(v) for v in self.face_certificate_arcsec]
 
     def autocollimator_true(self) -> tuple[float, int]:
         """(deflection about the axis, rad; index of the face in front) for a noise-free autocollimator."""

@@ -10,7 +10,7 @@ from pathlib import Path
 from rtcal.methods import load_procedure
 from rtcal.store.runstore import REJECTED, SKIPPED, Reading, RunStore
 from rtcal.methods.abbe.plan import planned_visits
-from rtcal.engine.operator import reseat_instruction
+from rtcal.methods.abbe.plan import reseat_instruction
 
 PROCEDURE = Path(__file__).resolve().parents[1] / "procedures" / "iso230_2_polygon.yaml"
 
@@ -66,7 +66,7 @@ class StoreWriter(threading.Thread):
         self.hold = threading.Event()
         self.written = 0
         self.ask_at: int | None = None
-        self.instruction = reseat_instruction(45.0, 15.0)  # what the waiting operator asks (rtcal/engine/operator.py)
+        self.instruction = reseat_instruction(45.0, 15.0)  # what the waiting operator asks (the Abbe plan's words)
         self.asking = False
         self.confirmed = threading.Event()
         store, self.visits = create_store(run_dir)

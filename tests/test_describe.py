@@ -29,7 +29,7 @@ from rtcal.engine.steps import Read
 from rtcal.procedure.models import FaultPolicy
 from rtcal.methods.abbe.dataset import abbe_visits
 from rtcal.store.salvage import _READING_TYPES, _REAL_COLUMNS
-from rtcal.store.runstore import READING_COLUMN_TYPES, READING_COLUMNS, SCHEMA, RunStore
+from rtcal.store.runstore import CONTEXT, READING_COLUMN_TYPES, READING_COLUMNS, SCHEMA, RunStore
 
 REPO = Path(__file__).resolve().parents[1]
 ABBE = REPO / "procedures" / "encoder_abbe_error.yaml"
@@ -264,7 +264,8 @@ def test_the_column_types_are_the_schemas_and_salvage_decodes_by_them():
         if statement.strip():
             db.execute(statement)
     declared = [(row[1], row[2]) for row in db.execute("PRAGMA table_info(readings)")][1:]
-    assert declared == list(READING_COLUMN_TYPES.items()) and tuple(READING_COLUMN_TYPES) == READING_COLUMNS
+    assert declared[:-1] == list(READING_COLUMN_TYPES.items()) and tuple(READING_COLUMN_TYPES) == READING_COLUMNS
+    assert declared[-1] == (CONTEXT, "TEXT"), "the method's declared context, last"
     assert {k for k, c in enumerate(READING_COLUMNS) if READING_COLUMN_TYPES[c] == "REAL"} == _REAL_COLUMNS
     assert _READING_TYPES[READING_COLUMNS.index("instrument")] == (str,)
     assert type(None) in _READING_TYPES[READING_COLUMNS.index("segment")]

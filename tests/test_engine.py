@@ -100,7 +100,8 @@ class TwoDevicePlan:
         yield Validate("stage", tuple(self.targets))
 
     def enter_group(self, entry, first):
-        yield OperatorStep("set_up", (entry.group,), f"set-up {entry.group}", seconds=30.0)
+        yield OperatorStep(f"set up group {entry.group}", f"set-up {entry.group}",
+                           lambda hands, group=entry.group: hands.set_up(group), "set up", seconds=30.0)
 
     def positions_unknown(self):
         self.forgot += 1
@@ -119,8 +120,17 @@ class TwoDevicePlan:
 
 
 class Operator:
+    """The simulated operator of the tests' bench: it carries each step out with its own hands."""
+
     def __init__(self):
         self.steps: list[tuple] = []
+
+    def perform(self, step: OperatorStep) -> None:
+        if step.simulate is not None:
+            step.simulate(self)
+
+    def hands(self):
+        return self
 
     def set_up(self, group: int) -> None:
         self.steps.append(("set_up", group))

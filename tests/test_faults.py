@@ -316,11 +316,13 @@ def test_an_operator_who_cannot_be_reached_is_a_typed_error():
     """No terminal, or a simulated operator gone: OperatorUnavailable (an InstrumentError the fault
     policies stop safely on and the command line reports), not a RuntimeError's traceback."""
     from rtcal.engine.operator import ConsoleOperator, OperatorUnavailable, RemoteSimOperator
+    from rtcal.engine.steps import OperatorStep
     from simulators.servers.hub import free_port
 
     gone = RemoteSimOperator(f"sim-operator://127.0.0.1:{free_port('127.0.0.1')}", timeout_s=0.5)
-    for step in (lambda: gone.clear_fault("stage: e-stop"), lambda: gone.reseat_polygon(15.0, 15.0),
-                 lambda: gone.move_tracer(1, "mount 2"), gone.polygon_certificate_arcsec):
+    seat = OperatorStep("Seat the polygon.", "seated", lambda hands: hands.reseat_polygon(15.0), "re-seat the polygon")
+    for step in (lambda: gone.clear_fault("stage: e-stop"), lambda: gone.perform(seat), gone.ping,
+                 lambda: gone.hands().polygon_certificate_arcsec()):
         with pytest.raises(OperatorUnavailable, match="does not answer"):
             step()
     with pytest.raises(OperatorUnavailable, match="no terminal"):  # pytest's stdin is no terminal

@@ -189,7 +189,7 @@ def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path
     with SimulatorHub(_scenario(tmp_path, "none"), seed=1) as hub:
         addresses = {k: v for k, v in hub.addresses.items() if k != "operator"}  # a person, not the simulated one
         data = yaml.safe_load(procedure.read_text(encoding="utf-8"))  # who then gives the polygon's certificate
-        data["polygon"]["certificate_arcsec"] = RemoteSimOperator(hub.addresses["operator"]).polygon_certificate_arcsec()
+        data["polygon"]["certificate_arcsec"] = RemoteSimOperator(hub.addresses["operator"]).hands().polygon_certificate_arcsec()
         procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
         run_dir = tmp_path / "run"
         proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(run_dir),
@@ -202,7 +202,7 @@ def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path
             assert proc.poll() is None and state(url)["done_readings"] == 0  # it waits, nothing measured
             assert post(url, "confirm", None) == 401 and main(["control", str(run_dir), "confirm", "--token", "x" + token]) == 2
             assert state(url)["operator"] is not None  # refused: still waiting
-            RemoteSimOperator(hub.addresses["operator"]).reseat_polygon(0.0, 15.0)  # the person seats the polygon …
+            RemoteSimOperator(hub.addresses["operator"]).hands().reseat_polygon(0.0)  # the person seats the polygon …
             confirm = subprocess.run([sys.executable, "-m", "rtcal.cli", "control", str(run_dir), "confirm", "--token",
                                       token], cwd=REPO, capture_output=True, text=True, timeout=60)  # … and confirms
             assert confirm.returncode == 0, confirm.stderr

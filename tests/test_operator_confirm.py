@@ -15,12 +15,19 @@ import pytest
 from rtcal.clock import VirtualClock
 from rtcal.engine.engine import Engine
 from rtcal.engine.steps import OperatorStep
+from rtcal.methods.abbe.plan import reseat_step
+from rtcal.methods.multistation.plan import tracer_instruction
 from rtcal.live.control import ControlRefused, ControlServer, new_token, send_control
 from rtcal.procedure.models import FaultPolicy
 from rtcal.engine.operator import (ConsoleOperator, NothingToConfirm, OperatorCancelled, OperatorUnavailable,
                                       WaitingOperator)
 from tests.test_engine import FakeProbe, FakeStage, TwoDevicePlan
 from tests.polling import wait_for as poll_until
+
+
+def reseat(offset_deg: float, message: str = "seated") -> OperatorStep:
+    """The Abbe method's polygon seating as its plan asks a person for it (15° faces)."""
+    return reseat_step(offset_deg, 15.0, False, message, 0.0)
 
 
 def wait_for(predicate, timeout_s: float = 10.0):
@@ -31,7 +38,7 @@ def wait_for(predicate, timeout_s: float = 10.0):
 class Waiting(threading.Thread):
     """One operator step of ``operator`` in a thread of its own (as the engine's thread waits in it)."""
 
-    def __init__(self, operator: WaitingOperator, step=lambda op: op.reseat_polygon(15.0, 15.0)):
+    def __init__(self, operator: WaitingOperator, step=lambda op: op.perform(reseat(15.0))):
         super().__init__(daemon=True)
         self.operator, self.step, self.error = operator, step, None
         self.start()
@@ -91,7 +98,7 @@ def test_enter_at_the_terminal_continues_and_an_early_enter_does_not():
     try:
         op, heard = operator(terminal=lambda: r, out=out)  # not remote: the terminal alone would do
         os.write(w, b"\n")  # pressed before the instruction was shown
-        t = Waiting(op, lambda o: o.move_tracer(1, "the second mount"))
+        t = Waiting(op, lambda o: o.perform(OperatorStep(tracer_instruction(1, "the second mount"), "moved", task="move the laser tracer")))
         wait_for(lambda: "press Enter" in out.getvalue())
         time.sleep(0.15)
         assert t.is_alive()  # the early Enter confirmed nothing
@@ -114,9 +121,9 @@ def test_enter_at_the_terminal_continues_and_an_early_enter_does_not():
 def test_without_a_terminal_it_waits_only_when_the_run_can_be_reached():
     op, heard = operator(remote=False)
     with pytest.raises(OperatorUnavailable) as unreachable:
-        op.reseat_polygon(0.0, 15.0)
+        op.perform(reseat(0.0))
     with pytest.raises(OperatorUnavailable) as console:  # the same message as before (pytest's stdin is no terminal)
-        ConsoleOperator().reseat_polygon(0.0, 15.0)
+        ConsoleOperator().perform(reseat(0.0))
     assert str(unreachable.value) == str(console.value) and "no terminal" in str(console.value)
     with pytest.raises(OperatorUnavailable, match="no terminal"):
         op.clear_fault("stage: e-stop")
@@ -138,7 +145,7 @@ class ReseatPlan(TwoDevicePlan):
     """The engine's test plan with the polygon seated by a person before each group."""
 
     def enter_group(self, entry, first):
-        yield OperatorStep("reseat_polygon", (15.0 * entry.group, 15.0, False), f"polygon seated (seating {entry.group + 1})")
+        yield reseat(15.0 * entry.group, f"polygon seated (seating {entry.group + 1})")
 
 
 def engine_run(plan, op, probe_faults=None):

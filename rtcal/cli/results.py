@@ -175,7 +175,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     """Every raw reading and event of a run as CSV, for spreadsheets; from a damaged store, every
     one that can still be read (exit 1: the store is damaged, and the count of what is lost)."""
     from rtcal.store.salvage import salvage_store
-    from rtcal.store.runstore import EVENT_COLUMNS, READING_COLUMNS, RunStore, check_store, write_csv
+    from rtcal.store.runstore import CONTEXT, EVENT_COLUMNS, READING_COLUMNS, RunStore, check_store, write_csv
 
     run = Path(args.run_dir)
     path = run / RunStore.FILENAME
@@ -204,7 +204,7 @@ def cmd_export(args: argparse.Namespace) -> int:
               f"{out / 'descriptions.csv'}")
         return EXIT_OK
     saved = salvage_store(path)  # damaged, or readings without a procedure: read page by page
-    write_csv(readings_csv, ("id",) + READING_COLUMNS, ((i, *saved.readings[i]) for i in sorted(saved.readings)))
+    write_csv(readings_csv, ("id",) + READING_COLUMNS + (CONTEXT,), ((i, *saved.readings[i]) for i in sorted(saved.readings)))
     write_csv(events_csv, ("id",) + EVENT_COLUMNS, ((i, *saved.events[i]) for i in sorted(saved.events)))
     from rtcal.deliverables.certificate import plural
 

@@ -48,6 +48,7 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
     from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
+    from rtcal.engine.engine import PlanError
     from rtcal.engine.signals import routed
     from rtcal.run.runner import IDEAL_BENCH, AnalysisFailed
 
@@ -58,6 +59,10 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         raise UserError(str(exc)) from None
     except AnalysisFailed as exc:
         print(f"rtcal: {redact_tokens(str(exc))}", file=sys.stderr)
+        return EXIT_FAILED
+    except PlanError as exc:  # the method's mistake: the run stopped safely, `failed`, with an event saying it
+        print(f"rtcal: the method's plan cannot be carried out: {redact_tokens(str(exc))}; every reading taken is in "
+              f"{run_dir}; the run's method must be fixed before it can go on", file=sys.stderr)
         return EXIT_FAILED
     except InstrumentError as exc:
         print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)

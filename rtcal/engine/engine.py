@@ -51,7 +51,7 @@ from rtcal.engine.faults import RETAKE, FaultHandler, RunAborted, Skip
 from rtcal.engine.plan import Attempt, Entry, Plan
 from rtcal.engine.steps import (Move, OperatorStep, Parallel, Read, ReadSamples, Reference, Samples, Settle, Skipped,
                                 Step, Validate)
-from rtcal.store.runstore import REJECTED, SKIPPED, Reading, descriptions_of
+from rtcal.store.runstore import REJECTED, SKIPPED, Reading, descriptions_of, row_context
 from rtcal.engine.checks import Contradiction
 from rtcal.engine.motion import Turning, approach
 from rtcal.engine.operator import Confirmable, NothingToConfirm
@@ -93,6 +93,7 @@ class Tracker(Reader, Protocol):
 
     def reference(self) -> int: ...
 
+STEP_NAMES = ("Validate", "Move", "Parallel", "Settle", "Read", "ReadSamples", "Reference", "OperatorStep")
 STATES = ("starting", "running", "paused", "stopping", "finished", "failed", "aborted")
 
 
@@ -105,6 +106,11 @@ class AbortRequested(KeyboardInterrupt):
         self.by = by
 
 
+class PlanError(TypeError):
+    """A method's plan asks the engine for what it cannot do (a step it does not know, a context with no column
+    to go into): the method's mistake, said in one line; the run stops safely as ``failed``, with an event."""
+
+
 class MeasuringFinished(RuntimeError):
     """An abort after the last reading was stored: nothing moves any more, the results are being
     written; refused (the run ends as it would have)."""
@@ -114,8 +120,10 @@ class Engine:
     """Executes plans against ``devices`` (name → driver) on ``clock``; see the module docstring."""
 
     def __init__(self, devices: Mapping[str, Device], clock: Clock, operator: Any, subscribers: Sequence[Subscriber] = (),
-                 new_attempt: Callable[[], int] | None = None, next_segment: int = 0, motion_timing: Timing | None = None):
+                 new_attempt: Callable[[], int] | None = None, next_segment: int = 0, motion_timing: Timing | None = None,
+                 context_columns: Collection[str] = ()):
         self.devices = dict(devices)
+        self.context_columns = frozenset(context_columns)  # the method's own context, stored in the readings' `context`
         # a wired run on a virtual clock: its simulators move in their own processes, off this clock; each
         # motion then takes on it the time the walk gives it (at the bench's speeds), as an in-process one does
         self._motion = Motion(motion_timing) if motion_timing is not None and isinstance(clock, VirtualClock) else None
@@ -222,6 +230,7 @@ class Engine:
             try:
                 self._thread = threading.current_thread()
                 self._check_abort()
+                self._check_contexts(plan, pending)
                 for step in plan.prologue():
                     self._execute(step, {}, [])
                 stored = self._pass(plan, pending, len(done))
@@ -235,6 +244,8 @@ class Engine:
                     if isinstance(exc, KeyboardInterrupt):
                         self._event("abort", None, f"{self._why(exc)}: every machine the run moved was stopped; "
                                                    "`rtcal resume` goes on")
+                    elif not isinstance(exc, RunAborted):  # a policy's abort said why already; anything else says it here
+                        self._event("abort", None, f"{_what_stopped(exc)}: every machine the run moved was stopped")
                     self._set_state("failed" if isinstance(exc, RunAborted) or not isinstance(exc, KeyboardInterrupt)
                                     else "aborted")
                     self.emit("stop", state=self.state, reason=str(exc) or type(exc).__name__, t_s=self.clock.now_s())
@@ -243,6 +254,15 @@ class Engine:
                 self._thread = None
         self.emit("stop", state="measured", reason="", t_s=self.clock.now_s())
         return stored
+
+    def _check_contexts(self, plan: Plan, pending: list[Entry]) -> None:
+        """Before anything moves: every entry's context has a column to go into (PlanError naming the first that
+        has not)."""
+        for entry in pending:
+            try:
+                row_context(entry.context, self.context_columns)
+            except ValueError as exc:
+                raise PlanError(f"{plan.method}: planned reading {entry.index}: {exc}") from None
 
     def _why(self, exc: KeyboardInterrupt) -> str:
         """Who ended the run: the remote abort's sender, the signal, or Ctrl-C."""
@@ -281,7 +301,7 @@ class Engine:
         found = plan.leave_group(group, self.segment)
         if found is None:
             return
-        context, steps = dict(found[0]), found[1]
+        context, steps = row_context(found[0], self.context_columns), found[1]
         readings: list[Reading] = []
         answer: Any = None
         try:
@@ -321,7 +341,8 @@ class Engine:
                 readings.append(Reading(self.clock.now_s(), step.instrument, quantity, values[-1], unit, sample=n,
                                         segment=self.segment, **context))
             return Samples(tuple(values), False, self.segment)
-        raise TypeError(f"not a step a check may take: {step!r}")
+        raise PlanError(f"{type(step).__name__} is not a step a check before leaving a group may take (Move, Settle, "
+                        "ReadSamples)")
 
     def _retake(self, skipped: list[Entry], done_count: int) -> int:
         """Once more, now that the fault may have passed."""
@@ -353,7 +374,7 @@ class Engine:
         assert self._plan is not None and self._faults is not None
         tries = 0
         while True:
-            context = {**entry.context, "attempt": self._attempts()}
+            context = row_context({**entry.context, "attempt": self._attempts()}, self.context_columns)
             self.emit("attempt", index=entry.index, label=dict(entry.label), attempt=context["attempt"], t_s=self.clock.now_s())
             readings: list[Reading] = []
             try:
@@ -460,11 +481,12 @@ class Engine:
                          step.why, context, readings)
             return True
         if isinstance(step, OperatorStep):  # logged once done ("polygon seated at …"), not when asked
-            getattr(self.operator, step.action)(*step.args)
+            self.operator.perform(step)
             self._event("operator", step.instrument, step.message)
             self._spend(step.seconds)
             return None
-        raise TypeError(f"not a step: {step!r}")
+        raise PlanError(f"{type(step).__name__} is not a step the engine knows ({', '.join(STEP_NAMES)}): a plan yields "
+                        "only these (rtcal.api)")
 
     def _policy(self, instrument: str, action: Callable[[], Any], what: str, context: dict[str, Any],
                 readings: list[Reading], recover: Callable[[], None] | None = None,
@@ -614,6 +636,13 @@ class Engine:
                     self._event("fault", name, f"while stopping: {error}")
             except Exception:  # the store is gone too: nothing more to record
                 pass
+
+
+def _what_stopped(exc: BaseException) -> str:
+    """An error that ended a run, in one line: a plan's mistake as it says it, anything else with its type."""
+    if isinstance(exc, PlanError):
+        return f"the method's plan: {exc}"
+    return f"{type(exc).__name__}: {str(exc)[:300]}"
 
 
 def _not_a(name: str, device: Device, what: str) -> str:

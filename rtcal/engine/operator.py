@@ -1,5 +1,7 @@
-"""Operator steps: what a person must do mid-run (re-seat the polygon, move the tracer). On hardware the
-engine pauses with a prompt; on the simulated bench the bench does it itself.
+"""Operator steps: what a person must do mid-run (re-seat the polygon, move the tracer, mount a test ball).
+The engine asks, waits, confirms or cancels; the words and what the simulated operator does instead are the
+method's (:class:`~rtcal.engine.steps.OperatorStep`). On hardware the engine pauses with a prompt; on the
+simulated bench the simulated operator carries the step out.
 
 On hardware the person confirms at the run's terminal (Enter) or, with :class:`WaitingOperator`,
 also from elsewhere: the live page's Done button or `rtcal control RUN_DIR confirm` reach the
@@ -8,19 +10,17 @@ engine's control channel, which hands the confirm to the operator object — the
 
 from __future__ import annotations
 
-import math
+import json
 import os
 import select
 import sys
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Protocol, TextIO, runtime_checkable
+from typing import Any, Callable, Protocol, TextIO, runtime_checkable
 
 from drivers.addresses import redact_tokens
 from drivers.errors import InstrumentError
-
-if TYPE_CHECKING:
-    from simulators.bench import Bench
+from rtcal.engine.steps import OperatorStep
 
 
 class OperatorUnavailable(InstrumentError):
@@ -31,36 +31,21 @@ class OperatorUnavailable(InstrumentError):
 
 
 class Operator(Protocol):
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None: ...
-
-    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
-        """Move the laser tracer to mount ``mount`` (0: the first) on the table."""
-
-    def polygon_certificate_arcsec(self) -> list[float] | None:
-        """A simulated polygon's certificate (the operator hands it over); None on hardware."""
+    def perform(self, step: OperatorStep) -> None:
+        """Have ``step`` done: a person is asked its instruction and confirms it, or the simulated operator
+        carries it out (its ``simulate``) on the simulated bench."""
 
     def clear_fault(self, message: str) -> None:
         """The run pauses: the operator clears the fault (releases an e-stop, frees the beam)."""
 
-
-def reseat_instruction(offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> str:
-    """What the person is asked before a polygon seating (the console and the live page say the same)."""
-    faces = offset_deg / face_pitch_deg
-    what = f"{faces:g} face(s)" if abs(faces - round(faces)) < 1e-9 else f"{offset_deg:g}°"
-    if resumed:
-        return (f"The run resumes with the polygon seated turned by {what}. Do not move it; "
-                "if it was moved, abort and start the seating again.")
-    return (f"Seat the polygon turned by {what} from its home seating "
-            f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
-            "and align it to the autocollimator within its range.")
+    def hands(self) -> Any:
+        """The simulated bench's hands as a method's ``simulate`` gets them (rtcal.api's ``SimBench``), e.g. to hand
+        over a simulated polygon's certificate; None when a person does the steps (hardware)."""
 
 
-def tracer_instruction(mount: int, where: str, resumed: bool = False) -> str:
-    """What the person is asked before the laser tracer's mount ``mount`` (0: the first)."""
-    if resumed:
-        return f"The run resumes with the laser tracer on mount {mount + 1}. Do not move it."
-    return (f"Move the laser tracer to mount {mount + 1} ({where}), at the same height as before, and fix it "
-            "(rtcal then re-references the beam).")
+def no_terminal(task: str) -> str:
+    """Why a step cannot be asked without a terminal (the console's and the waiting operator's words)."""
+    return f"the procedure needs an operator to {task} but there is no terminal; run it from a terminal"
 
 
 def fault_instruction(message: str) -> str:
@@ -75,31 +60,19 @@ class ConsoleOperator:
     def __init__(self, ask: Callable[[str], str] = input):
         self._ask = ask
 
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
-        message = "\nOperator: " + reseat_instruction(offset_deg, face_pitch_deg, resumed) + " Then press Enter."
+    def perform(self, step: OperatorStep) -> None:
+        message = "\nOperator: " + step.instruction + " Then press Enter."
         if not sys.stdin.isatty() and self._ask is input:
-            raise OperatorUnavailable(NO_TERMINAL_RESEAT)
+            raise OperatorUnavailable(no_terminal(step.task))
         self._ask(message + " ")
 
-    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
-        message = "\nOperator: " + tracer_instruction(mount, where, resumed) + " Then press Enter."
-        if not sys.stdin.isatty() and self._ask is input:
-            raise OperatorUnavailable(NO_TERMINAL_TRACER)
-        self._ask(message + " ")
-
-    def polygon_certificate_arcsec(self) -> list[float] | None:
+    def hands(self) -> Any:
         return None
 
     def clear_fault(self, message: str) -> None:
         if not sys.stdin.isatty() and self._ask is input:
             raise OperatorUnavailable(no_terminal_fault(message))
         self._ask(f"\nOperator: {message}. Clear the fault, then press Enter to try again. ")
-
-
-NO_TERMINAL_RESEAT = ("the procedure needs an operator to re-seat the polygon but there is no terminal; "
-                      "run it from a terminal")
-NO_TERMINAL_TRACER = ("the procedure needs an operator to move the laser tracer but there is no terminal; "
-                      "run it from a terminal")
 
 
 def no_terminal_fault(message: str) -> str:
@@ -191,13 +164,10 @@ class WaitingOperator:
         self._listeners.append(asked)
 
     # ---- the operator's steps (the engine's thread) -------------------------------------------
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
-        self._wait(reseat_instruction(offset_deg, face_pitch_deg, resumed), NO_TERMINAL_RESEAT)
+    def perform(self, step: OperatorStep) -> None:
+        self._wait(step.instruction, no_terminal(step.task))
 
-    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
-        self._wait(tracer_instruction(mount, where, resumed), NO_TERMINAL_TRACER)
-
-    def polygon_certificate_arcsec(self) -> list[float] | None:
+    def hands(self) -> Any:
         return None
 
     def clear_fault(self, message: str) -> None:
@@ -280,22 +250,46 @@ def _drain(fd: int) -> None:
 
 
 class BenchOperator:
-    """The simulated bench re-seats its own polygon."""
+    """The simulated operator of a simulated bench in this process: it carries out each step's ``simulate`` on
+    the bench (re-seats its polygon, moves its tracer, mounts an artefact) and hands over what the bench has."""
 
-    def __init__(self, bench: Bench) -> None:
+    def __init__(self, bench: Any) -> None:
         self.bench = bench
 
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
-        self.bench.reseat_polygon(offset_deg)  # deterministic per seating: a resume finds it as it was
+    def perform(self, step: OperatorStep) -> None:
+        if step.simulate is not None:
+            step.simulate(self.bench)  # deterministic per step: a resume finds the bench as it was
 
-    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
-        self.bench.mount_tracer(mount)
-
-    def polygon_certificate_arcsec(self) -> list[float] | None:
-        return [float(v) for v in self.bench.face_certificate_arcsec]
+    def hands(self) -> Any:
+        return self.bench
 
     def clear_fault(self, message: str) -> None:
-        self.bench.emergency_stop = False
+        self.bench.release_emergency_stop()
+
+
+class RemoteHands:
+    """The simulated bench's hands at a protocol-simulator hub: each call is one request to its simulated
+    operator, ``DO <name> <JSON arguments>``, answered ``OK <JSON result>`` (the hub does only what its bench
+    lists in ``OPERATOR_ACTIONS``); a refusal is OperatorUnavailable."""
+
+    def __init__(self, operator: "RemoteSimOperator"):
+        self._operator = operator
+
+    def __getattr__(self, name: str) -> Callable[..., Any]:
+        if name.startswith("_"):
+            raise AttributeError(name)
+
+        def call(*args: Any) -> Any:
+            reply = self._operator._ask(f"DO {name} {json.dumps(list(args), allow_nan=False)}")
+            word, _, result = reply.partition(" ")
+            if word != "OK":
+                raise OperatorUnavailable(f"the simulated operator refused {name}: {reply[:80]!r}")
+            try:
+                return json.loads(result) if result else None
+            except ValueError:
+                raise OperatorUnavailable(f"the simulated operator's answer to {name} is not JSON: {result[:80]!r}") from None
+
+        return call
 
 
 class RemoteSimOperator:
@@ -321,54 +315,56 @@ class RemoteSimOperator:
             raise OperatorUnavailable(f"the simulated operator at {self.where[0]}:{self.where[1]} does not answer "
                                       f"({exc}); is `rtcal sim serve` still running?") from None
 
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
-        reply = self._ask(f"RESEAT {offset_deg!r}")
-        if reply != "OK":
-            raise OperatorUnavailable(f"the simulated operator refused to re-seat the polygon: {reply[:80]!r}")
+    def perform(self, step: OperatorStep) -> None:
+        if step.simulate is not None:
+            step.simulate(self.hands())
 
-    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
-        reply = self._ask(f"MOUNT {int(mount)}")
+    def hands(self) -> RemoteHands:
+        return RemoteHands(self)
+
+    def ping(self) -> None:
+        """The simulated operator answers and lets this run in (OperatorUnavailable if not)."""
+        reply = self._ask("PING")
         if reply != "OK":
-            raise OperatorUnavailable(f"the simulated operator refused to move the tracer: {reply[:80]!r}")
+            raise OperatorUnavailable(f"the simulated operator does not let this run in: {reply[:80]!r}")
 
     def clear_fault(self, message: str) -> None:
         if self._ask("CLEAR") != "OK":
             raise OperatorUnavailable("the simulated operator could not clear the fault")
-
-    def polygon_certificate_arcsec(self) -> list[float] | None:
-        words = self._ask("CERT?").split()
-        try:
-            if not words or words[0] != "CERT":
-                raise ValueError
-            values = [float(w) for w in words[1:]]
-        except ValueError:
-            raise OperatorUnavailable(f"the simulated operator has no certificate: {' '.join(words)[:80]!r}") from None
-        if not all(math.isfinite(v) and abs(v) <= 3600 for v in values):
-            raise OperatorUnavailable("the simulated operator's certificate holds values that are no face errors")
-        return values
 
 
 class RehearsalOperator(WaitingOperator):
     """A rehearsal of a run's operator steps on `rtcal sim serve`: each step waits for a person as on
     hardware (Enter, the live page's Done, `rtcal control … confirm`), and once confirmed the
     simulated operator carries it out on the simulated bench (there is no polygon to seat by hand);
-    the simulated polygon's certificate comes from it too."""
+    what the bench hands over (a simulated polygon's certificate) comes from it too."""
 
     def __init__(self, simulated: "RemoteSimOperator | BenchOperator", **waiting: Any):
         super().__init__(**waiting)
         self.simulated = simulated
 
-    def reseat_polygon(self, offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> None:
-        super().reseat_polygon(offset_deg, face_pitch_deg, resumed)
-        self.simulated.reseat_polygon(offset_deg, face_pitch_deg, resumed)
-
-    def move_tracer(self, mount: int, where: str, resumed: bool = False) -> None:
-        super().move_tracer(mount, where, resumed)
-        self.simulated.move_tracer(mount, where, resumed)
+    def perform(self, step: OperatorStep) -> None:
+        super().perform(step)
+        self.simulated.perform(step)
 
     def clear_fault(self, message: str) -> None:
         super().clear_fault(message)
         self.simulated.clear_fault(message)
 
-    def polygon_certificate_arcsec(self) -> list[float] | None:
-        return self.simulated.polygon_certificate_arcsec()
+    def hands(self) -> Any:
+        return self.simulated.hands()
+
+
+MOVED = {"reseat_instruction": "rtcal.methods.abbe.plan", "tracer_instruction": "rtcal.methods.multistation.plan"}
+
+
+def __getattr__(name: str) -> Any:
+    """Deprecated: the polygon's and the tracer's instructions are their methods' (the old names go in the next release)."""
+    if name not in MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    import warnings
+
+    warnings.warn(f"rtcal.engine.operator.{name} moved to {MOVED[name]}.{name}; the old name goes in the next release",
+                  DeprecationWarning, stacklevel=2)
+    return getattr(importlib.import_module(MOVED[name]), name)

@@ -131,17 +131,35 @@ class Reference:
     seconds: float = 0.0
 
 
+SimulatedAction = Callable[[Any], None]
+"""What the simulated operator does in a person's place, given the simulated bench's hands (rtcal.api's
+``SimBench``: its polygon re-seated, its tracer moved, an artefact mounted): in a run on the bench in this
+process, on the bench itself; in a run on `rtcal sim serve`, each call is sent to its simulated operator."""
+
+
 @dataclass(frozen=True)
 class OperatorStep:
-    """A person's step (re-seat the polygon, move the tracer): an ``operator`` event, then the
-    operator's ``action(*args)``. ``seconds`` is what it takes: the walker counts it, and so does a
-    simulated run's clock (on hardware it takes what it takes)."""
+    """A person's step mid-run (re-seat the polygon, move the tracer, mount a test ball), as bluesky's ``input``
+    message: ``instruction`` is what the person is asked (at the terminal and on the live page) and confirms
+    (Enter, the page's Done, `rtcal control … confirm`); ``simulate`` is what the simulated operator does
+    instead (None: nothing to do on a simulated bench); ``task`` the step in a few words, for "the procedure
+    needs an operator to <task>". Once done it is logged as an ``operator`` event saying ``message``. ``seconds``
+    is what it takes: the walker counts it, and so does a simulated run's clock (on hardware it takes what it
+    takes). The engine only asks, waits, confirms or cancels: the words and the action are the method's."""
 
-    action: str
-    args: tuple[Any, ...]
+    instruction: str
     message: str
+    simulate: SimulatedAction | None = field(default=None, compare=False)
+    task: str = "carry out a set-up step"
     instrument: str | None = None
     seconds: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.instruction, str) and isinstance(self.message, str) and isinstance(self.task, str)) \
+                or (self.simulate is not None and not callable(self.simulate)):
+            raise TypeError("OperatorStep(instruction, message, simulate=…, task=…): the words the person is asked, the "
+                            "event once done, what the simulated operator does (a function of the bench's hands) — an "
+                            "operator step names no operator method (rtcal.api)")
 
 
 Step = Union[Validate, Move, Parallel, Settle, Read, ReadSamples, Reference, OperatorStep]

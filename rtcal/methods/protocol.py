@@ -14,7 +14,7 @@ by an installed package's entry point in the group ``rtcal.methods`` (docs/archi
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, Mapping, Protocol, TypeVar, runtime_checkable
 
 if TYPE_CHECKING:
     import numpy as np
@@ -86,6 +86,14 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
     def operator_steps(self) -> bool:
         """Whether the plan has operator steps (re-seating a polygon, moving a tracer): the control
         statement then says who carried them out."""
+        ...
+
+    @property
+    def context_columns(self) -> Mapping[str, str]:
+        """What this method's plan entries carry beyond the store's own columns (point, station, seating, run,
+        direction, commanded_*, …), each name (its unit in it, e.g. ``ball_height_mm``) with what it is: stored
+        with every reading of the entry in the readings' ``context`` column; an undeclared name stops the plan
+        before anything moves."""
         ...
 
     @property

@@ -168,7 +168,7 @@ def check(proc, addresses: dict[str, str] | None = None, operator_address: str =
         from rtcal.engine.operator import OperatorUnavailable, RemoteSimOperator
 
         try:
-            RemoteSimOperator(operator_address, timeout_s=2.0).polygon_certificate_arcsec()
+            RemoteSimOperator(operator_address, timeout_s=2.0).ping()
             rows.append(CheckRow("operator", "sim-operator", "ready", "answers, and let us in"))
         except OperatorUnavailable as exc:
             rows.append(CheckRow("operator", "sim-operator", "FAILED", str(exc).removeprefix("operator: ")))

@@ -25,7 +25,7 @@ from urllib.parse import quote
 from drivers.addresses import redact_tokens
 from rtcal.results.io import FILENAME as RESULTS_FILENAME, ResultsError, results_json
 from rtcal.results.model import DELIVERABLE_DIGESTS_SINCE, STORE_DIGESTS_SINCE, Digests, RunResults
-from rtcal.store.runstore import EVENT_COLUMNS, READING_COLUMNS, RunStore
+from rtcal.store.runstore import CONTEXT, EVENT_COLUMNS, READING_COLUMNS, RunStore
 
 RESULTS_DIGEST_KEY = "results_sha256"  # store meta: the digest of the results.json the run wrote
 # what of the store's metadata the results were computed from (paths and times are left out: a copy stays valid)
@@ -48,8 +48,12 @@ def _rows_digest(rows: Iterable[tuple], count: list[int]) -> str:
 def store_digests(db: sqlite3.Connection) -> Digests:
     """The digests of a store's readings, events and procedure, through any connection to it."""
     readings, events = [0], [0]
-    reading_rows = db.execute(f"SELECT {', '.join(READING_COLUMNS)} FROM readings ORDER BY id")
-    readings_sha = _rows_digest(reading_rows, readings)
+    has_context = any(row[1] == CONTEXT for row in db.execute("PRAGMA table_info(readings)"))
+    reading_rows = db.execute(f"SELECT {', '.join(READING_COLUMNS)}{', ' + CONTEXT if has_context else ''} FROM readings "
+                              "ORDER BY id")
+    # a row's declared context is covered where it has one; a row without (every row before context columns) is
+    # digested as it always was, so a run's digest does not change with the store's schema
+    readings_sha = _rows_digest((row[:-1] if has_context and row[-1] is None else row for row in reading_rows), readings)
     events_sha = _rows_digest(db.execute(f"SELECT {', '.join(EVENT_COLUMNS)} FROM events ORDER BY id"), events)
     meta = dict(db.execute("SELECT key, value FROM meta"))
     procedure = {k: redact_tokens(meta.get(k, "")) for k in PROCEDURE_KEYS}

@@ -34,12 +34,12 @@ from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230
 from rtcal.deliverables.conformity import assess
 from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
-from rtcal.engine.engine import Engine
+from rtcal.engine.engine import Engine, PlanError
 from rtcal.engine.faults import RunAborted
 from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
 from rtcal.engine.walk import Timing, walk
 from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
-from rtcal.store.runstore import RunStore, StoreUnusable
+from rtcal.store.runstore import CONTEXT_COLUMNS_KEY, RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
@@ -296,6 +296,7 @@ def run_procedure(
             "started_utc": _now(), "status": "not started", "generation": "0", "large": "1" if large else "",
             "operator_address": (addresses or {}).get("operator", ""),
             CLOCK_KEY: "virtual" if simulated or virtual_clock else "real",
+            **({CONTEXT_COLUMNS_KEY: json.dumps(dict(method.context_columns))} if method.context_columns else {}),
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(method, proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
@@ -546,7 +547,8 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
     subscribers: list = ([eta] if eta else []) + [StoreWriter(store, eta)]  # the estimate first: both read it
     if show_progress is not False:
         subscribers.append(ConsoleProgress(virtual_clock=virtual, eta=eta))
-    engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1, motion_timing)
+    engine = Engine(devices, clock, operator, subscribers, store.new_attempt, store.max_segment() + 1, motion_timing,
+                    method.context_columns)
     detach = None
     try:
         try:
@@ -555,7 +557,8 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
             store.set_meta({"status": "running"})
             engine.run(plan, done)
         except BaseException as exc:  # the engine has stopped every machine it moved
-            _stop(store, "aborted" if isinstance(exc, RunAborted) else "interrupted", exc)
+            _stop(store, "aborted" if isinstance(exc, RunAborted) else "failed" if isinstance(exc, PlanError) else
+                  "interrupted", exc)
             raise
         finally:
             inst.close()

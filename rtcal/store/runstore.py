@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import csv
 import errno
+import json
 import os
 import sqlite3
 from contextlib import closing, contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Protocol
+from typing import Any, Callable, Collection, Iterable, Iterator, Mapping, Protocol
 from urllib.parse import quote
 
 from drivers.addresses import redact_tokens
@@ -75,7 +76,8 @@ CREATE TABLE IF NOT EXISTS readings (
     run INTEGER,
     direction INTEGER,
     plan_index INTEGER,
-    attempt INTEGER
+    attempt INTEGER,
+    context TEXT
 );
 CREATE INDEX IF NOT EXISTS readings_by_plan ON readings(plan_index, attempt);
 CREATE TABLE IF NOT EXISTS events (
@@ -99,6 +101,11 @@ READING_COLUMN_TYPES = {"t_s": "REAL", "instrument": "TEXT", "quantity": "TEXT",
                         "commanded_z_mm": "REAL", "seating": "INTEGER", "run": "INTEGER", "direction": "INTEGER",
                         "plan_index": "INTEGER", "attempt": "INTEGER"}
 NOT_NULL = ("t_s", "instrument", "quantity", "value", "unit")
+CONTEXT = "context"
+"""The readings table's last column: a JSON object of what the method's plan declared beyond the columns above
+(its context columns, e.g. ``{"ball_height_mm": 42.0}``), NULL when it declared none (every reading before it).
+The store's meta ``context_columns`` says what each name is (docs/store.md)."""
+CONTEXT_COLUMNS_KEY = "context_columns"
 SKIPPED = "skipped"  # the quantity of a marker row: this attempt skipped the instrument's reading
 REJECTED = "rejected"  # the quantity of a marker row: this attempt's readings contradict the commands; none is used
 MARKERS = (SKIPPED, REJECTED)
@@ -200,6 +207,37 @@ class Reading:
     direction: int | None = None
     plan_index: int | None = None  # the planned reading this belongs to (see each method's plan)
     attempt: int | None = None  # readings of one attempt at a planned reading share it (None: stores before attempts)
+    context: Mapping[str, Any] | None = field(default=None, compare=False, hash=False)
+    """The method's declared context columns' values (None: it declared none), as the store's ``context`` column."""
+
+
+FIXED_CONTEXT = frozenset(READING_COLUMNS[5:]) | {CONTEXT}
+"""The keys of a plan entry's context that are the readings table's own columns; every other key is one of the
+method's declared context columns and goes into ``context`` (:func:`row_context`)."""
+
+
+def row_context(context: Mapping[str, Any], declared: Collection[str] = ()) -> dict[str, Any]:
+    """A plan's context as the keyword arguments of :class:`Reading`: the store's own columns as they are, the
+    method's ``declared`` context columns gathered under ``context`` (sorted, so a store's rows never differ by
+    the order a plan wrote them in). A key that is neither is a ValueError naming it: a plan's mistake."""
+    extra = {k: v for k, v in context.items() if k not in FIXED_CONTEXT}
+    undeclared = sorted(k for k in extra if k not in declared)
+    if undeclared:
+        raise ValueError(f"the plan's context names {', '.join(map(repr, undeclared))}, which is neither a column of the "
+                         f"store ({', '.join(sorted(FIXED_CONTEXT - {CONTEXT}))}) nor one of the method's declared "
+                         f"context_columns ({', '.join(sorted(declared)) or 'none'})")
+    fixed = {k: v for k, v in context.items() if k in FIXED_CONTEXT}
+    if extra:
+        fixed[CONTEXT] = {**(fixed.get(CONTEXT) or {}), **{k: extra[k] for k in sorted(extra)}}
+    return fixed
+
+
+def _context_json(context: Mapping[str, Any] | None) -> str | None:
+    return None if not context else json.dumps(dict(context), sort_keys=True, allow_nan=False)
+
+
+def _context_of(text: str | None) -> dict[str, Any] | None:
+    return None if text is None else json.loads(text)
 
 
 DESCRIPTION_COLUMNS = ("instrument", "kind", "quantity", "field", "purpose", "unit", "dtype", "what")
@@ -375,6 +413,8 @@ class RunStore:
             if "attempt" not in columns:  # a store from before attempts: each planned reading was attempted once
                 db.execute("ALTER TABLE readings ADD COLUMN attempt INTEGER")
                 db.execute("CREATE INDEX IF NOT EXISTS readings_by_plan ON readings(plan_index, attempt)")
+            if CONTEXT not in columns:  # a store from before context columns: its readings declared none (NULL)
+                db.execute(f"ALTER TABLE readings ADD COLUMN {CONTEXT} TEXT")
             tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
             if "descriptions" not in tables:  # a store from before descriptions: a resume describes its instruments
                 for statement in DESCRIPTIONS_SCHEMA.split(";"):
@@ -459,10 +499,11 @@ class RunStore:
 
     def add_readings(self, readings: Iterable[Reading]) -> None:
         """Append readings in one durable transaction (call before the next motion)."""
-        rows = [tuple(getattr(r, c) for c in READING_COLUMNS) for r in readings]
-        placeholders = ", ".join("?" for _ in READING_COLUMNS)
+        rows = [(*(getattr(r, c) for c in READING_COLUMNS), _context_json(r.context)) for r in readings]
+        placeholders = ", ".join("?" for _ in range(len(READING_COLUMNS) + 1))
         with self._transaction():
-            self._db.executemany(f"INSERT INTO readings({', '.join(READING_COLUMNS)}) VALUES ({placeholders})", rows)
+            self._db.executemany(f"INSERT INTO readings({', '.join(READING_COLUMNS)}, {CONTEXT}) VALUES ({placeholders})",
+                                 rows)
             # how many readings there are, where a damaged store's salvage can still find it (ids run 1, 2, …)
             self._db.execute(f"INSERT OR REPLACE INTO meta(key, value) VALUES ('{LAST_READING_ID}', "
                              "(SELECT MAX(id) FROM readings))")
@@ -513,7 +554,7 @@ class RunStore:
             self._upsert_meta(provider())
 
     def readings(self, instrument: str | None = None, quantity: str | None = None) -> Iterator[Reading]:
-        sql = f"SELECT {', '.join(READING_COLUMNS)} FROM readings"
+        sql = f"SELECT {', '.join(READING_COLUMNS)}, {CONTEXT} FROM readings"
         clauses, args = [], []
         if instrument is not None:
             clauses.append("instrument = ?")
@@ -524,7 +565,7 @@ class RunStore:
         if clauses:
             sql += " WHERE " + " AND ".join(clauses)
         for row in self._db.execute(sql + " ORDER BY id", args):
-            yield Reading(*row)
+            yield Reading(*row[:-1], context=_context_of(row[-1]))  # type: ignore[misc]  # the columns, then context
 
     def counted(self, instrument: str | None = None, field: str | None = None, purpose: str = "",
                 whole_only: bool = False) -> list[Reading]:
@@ -588,9 +629,9 @@ class RunStore:
     def export_csv(self, directory: Path) -> tuple[int, int]:
         """readings.csv (every column), events.csv and descriptions.csv (what each stored quantity is:
         docs/store.md), streamed row by row; returns the readings' and events' row counts."""
-        readings = self._db.execute(f"SELECT id, {', '.join(READING_COLUMNS)} FROM readings ORDER BY id")
+        readings = self._db.execute(f"SELECT id, {', '.join(READING_COLUMNS)}, {CONTEXT} FROM readings ORDER BY id")
         events = self._db.execute(f"SELECT id, {', '.join(EVENT_COLUMNS)} FROM events ORDER BY id")
-        counts = write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS, readings), \
+        counts = write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS + (CONTEXT,), readings), \
             write_csv(directory / "events.csv", ("id",) + EVENT_COLUMNS, events)
         stored = {(i, q) for i, q in self._db.execute("SELECT DISTINCT instrument, quantity FROM readings")}
         described = [d for key, d in sorted(self.described().items()) if key in stored]

@@ -34,7 +34,7 @@ _REAL_COLUMNS = {k for k, c in enumerate(READING_COLUMNS) if READING_COLUMN_TYPE
 class Salvage:
     """What could be read: readings and events by id, with their columns as the store has them."""
 
-    readings: dict[int, tuple] = field(default_factory=dict)
+    readings: dict[int, tuple] = field(default_factory=dict)  # READING_COLUMNS, then the context (JSON or None)
     events: dict[int, tuple] = field(default_factory=dict)
     last_reading_id: int | None = None
     highest_key: int = 0  # the highest id the readings tree's interior pages name (ids up to it were stored)
@@ -266,11 +266,12 @@ def _record(payload: bytes) -> list[int | float | str | bytes | None]:
 
 
 def _classify(rowid: int, values: list, out: Salvage) -> None:
-    """A reading (id, then READING_COLUMNS; a store from before attempts has one column fewer),
-    an event (id, t_s, kind, instrument, message), or the meta row with the last reading's id."""
-    if len(values) in (len(READING_COLUMNS), len(READING_COLUMNS) + 1) and values[0] is None:
-        row = values[1:] + [None] * (len(READING_COLUMNS) + 1 - len(values))
-        if all(isinstance(v, types) for v, types in zip(row, _READING_TYPES)):
+    """A reading (id, then READING_COLUMNS and its context; a store from before attempts has two columns fewer,
+    one from before context columns one), an event (id, t_s, kind, instrument, message), or the meta row with
+    the last reading's id."""
+    if len(READING_COLUMNS) <= len(values) <= len(READING_COLUMNS) + 2 and values[0] is None:
+        row = values[1:] + [None] * (len(READING_COLUMNS) + 2 - len(values))
+        if all(isinstance(v, types) for v, types in zip(row, _READING_TYPES + [(str, type(None))])):
             out.readings.setdefault(rowid, tuple(float(v) if k in _REAL_COLUMNS and v is not None else v
                                                  for k, v in enumerate(row)))
     elif len(values) == 5 and values[0] is None and isinstance(values[1], NUMERIC) and isinstance(values[2], str) \

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import errno
 import hmac
+import json
 import math
 import os
 import secrets
@@ -447,12 +448,30 @@ class SimulatorHub:
             buffer = b""  # a line this long is garbage; drop it
         return buffer
 
+    def _operator_action(self, name: str, rest: list[str]) -> bytes:
+        """``DO <name> <JSON list of arguments>``: one of the bench's OPERATOR_ACTIONS (a method's operator step,
+        e.g. ``DO mount_artefact ["test_ball", [0, 0, 40]]``), answered ``OK <JSON result>``; anything else ``ERR``."""
+        if name not in Bench.OPERATOR_ACTIONS:
+            return b"ERR CMD\n"
+        try:
+            args = json.loads(rest[0]) if rest else []
+            if not isinstance(args, list):
+                raise ValueError("not a list of arguments")
+            result = getattr(self.bench, name)(*args)
+            if name == "release_emergency_stop":
+                self.ipp_machine.release_emergency_stop()
+            return f"OK {json.dumps(result, allow_nan=False)}\n".encode()
+        except (ValueError, TypeError, RecursionError):
+            return b"ERR ARG\n"
+
     async def _operator_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """The simulated operator, for the run given its address: every line is ``AUTH <token> <command>``
         (the token of the address ``rtcal sim serve`` printed); without it, ``ERR AUTH`` and nothing
-        done. ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>`` moves the laser
-        tracer to its first or second mount; ``CERT?`` hands over the polygon's calibration
-        certificate (face errors, arcsec); ``CLEAR`` releases an emergency stop (the drive's and the CMM's)."""
+        done. ``DO <action> <JSON arguments>`` does one of the bench's OPERATOR_ACTIONS (what a method's
+        operator step asks of the simulated operator) and answers ``OK <JSON result>``; ``PING`` answers ``OK``.
+        The older lines still work: ``RESEAT <deg>`` re-seats the polygon on the bench; ``MOUNT <0|1>`` moves the
+        laser tracer to its first or second mount; ``CERT?`` hands over the polygon's calibration certificate
+        (face errors, arcsec); ``CLEAR`` releases an emergency stop (the drive's and the CMM's)."""
         try:
             while line := await reader.readline():
                 words = line.decode(errors="replace").split()
@@ -482,6 +501,10 @@ class SimulatorHub:
                 elif words == ["CERT?"]:
                     values = " ".join(f"{v:.6f}" for v in self.bench.face_certificate_arcsec)
                     writer.write(f"CERT {values}\n".encode())
+                elif words == ["PING"]:
+                    writer.write(b"OK\n")
+                elif len(words) >= 2 and words[0] == "DO":
+                    writer.write(self._operator_action(words[1], line.decode(errors="replace").split(None, 4)[4:]))
                 else:
                     writer.write(b"ERR CMD\n")
                 await writer.drain()

@@ -80,7 +80,8 @@ def resolve_certificate(proc: EncoderAbbeError, operator: Operator) -> list[floa
     if cert == "none":
         return None
     if cert == "bench":
-        values = operator.polygon_certificate_arcsec()
+        hands = operator.hands()  # the simulated bench's (or its simulated operator's); None on hardware
+        values = None if hands is None else hands.polygon_certificate_arcsec()
         if values is None:
             raise CertificateUnavailable(
                 "polygon.certificate_arcsec: `bench` takes the simulated polygon's certificate from the simulated bench "
@@ -206,6 +207,7 @@ class AbbeMethod:
     procedure_model = EncoderAbbeError
     results_model = abr.AbbeResults
     operator_steps = True  # the polygon's seatings
+    context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
 
     def plan_length(self, proc: EncoderAbbeError) -> int:
         return len(planned_visits(proc))

@@ -34,6 +34,24 @@ FACE = "x_arcsec"  # about the table axis: the face's angle
 INDICATOR = "y_um"
 
 
+def reseat_instruction(offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> str:
+    """What the person is asked before a polygon seating (the console and the live page say the same)."""
+    faces = offset_deg / face_pitch_deg
+    what = f"{faces:g} face(s)" if abs(faces - round(faces)) < 1e-9 else f"{offset_deg:g}°"
+    if resumed:
+        return (f"The run resumes with the polygon seated turned by {what}. Do not move it; "
+                "if it was moved, abort and start the seating again.")
+    return (f"Seat the polygon turned by {what} from its home seating "
+            f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
+            "and align it to the autocollimator within its range.")
+
+
+def reseat_step(offset_deg: float, face_pitch_deg: float, resumed: bool, message: str, seconds: float) -> OperatorStep:
+    """The polygon's seating as an operator step: a person seats it; the simulated operator turns the bench's."""
+    return OperatorStep(reseat_instruction(offset_deg, face_pitch_deg, resumed), message,
+                        lambda bench: bench.reseat_polygon(offset_deg), "re-seat the polygon", seconds=seconds)
+
+
 @dataclass(frozen=True)
 class AbbeInstrumentSet:
     stage: RotaryStage
@@ -121,9 +139,9 @@ class AbbePlan:
         seating = entry.group
         offset = self.proc.polygon.seatings_deg[seating]
         resumed = first and seating == self.last_seating
-        yield OperatorStep("reseat_polygon", (offset, self.proc.polygon.pitch_deg, resumed),
-                           f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {seating + 1})",
-                           seconds=0.0 if resumed or (first and self.last_seating is None) else self.proc.durations.reseat_polygon_s)
+        yield reseat_step(offset, self.proc.polygon.pitch_deg, resumed,
+                          f"polygon {'confirmed' if resumed else 'seated'} at {offset:g}° (seating {seating + 1})",
+                          0.0 if resumed or (first and self.last_seating is None) else self.proc.durations.reseat_polygon_s)
 
     def positions_unknown(self) -> None:
         """Nothing to forget: every visit approaches its target."""

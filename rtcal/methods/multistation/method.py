@@ -315,6 +315,7 @@ class MultistationMethod:
     procedure_model = LaserTracerMultistation
     results_model = msr.MultistationResults
     operator_steps = True  # the tracer's reference point, a second mount
+    context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
 
     def plan_length(self, proc: LaserTracerMultistation) -> int:
         return len(planned_readings(proc))

@@ -29,6 +29,14 @@ from rtcal.methods.multistation.checks import TracerCheck, TracerReturnCheck
 CMM_POSITION = tuple(DESCRIPTIONS["cmm"])  # x, y, z in the description's order
 
 
+def tracer_instruction(mount: int, where: str, resumed: bool = False) -> str:
+    """What the person is asked before the laser tracer's mount ``mount`` (0: the first)."""
+    if resumed:
+        return f"The run resumes with the laser tracer on mount {mount + 1}. Do not move it."
+    return (f"Move the laser tracer to mount {mount + 1} ({where}), at the same height as before, and fix it "
+            "(rtcal then re-references the beam).")
+
+
 @dataclass(frozen=True)
 class MultistationInstrumentSet:
     stage: RotaryStage
@@ -108,8 +116,9 @@ class MultistationPlan:
         if second is not None and (mk > 0 or resumed):
             where = ("its first mount" if mk == 0 else
                      f"the second mount: centre near {list(second.first_station_guess_mm)} mm at station 1")
-            yield OperatorStep("move_tracer", (mk, where, resumed),
-                               f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}", "laser_tracer",
+            yield OperatorStep(tracer_instruction(mk, where, resumed),
+                               f"laser tracer {'confirmed' if resumed else 'moved'} on mount {mk + 1}",
+                               lambda bench: bench.mount_tracer(mk), "move the laser tracer", "laser_tracer",
                                seconds=0.0 if resumed else self.proc.durations.move_tracer_s)
 
     def positions_unknown(self) -> None:

@@ -401,6 +401,7 @@ class EncoderVsCommandMethod:
     procedure_model = EncoderVsCommand
     results_model = EncoderResults
     operator_steps = False
+    context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
     planner = None  # `rtcal plan` predicts its plan as written: no levers
 
     def plan_length(self, proc: EncoderVsCommand) -> int:
