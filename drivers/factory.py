@@ -21,9 +21,14 @@ KIND_OF = {"stage": "stage", "cmm": "cmm", "laser_tracer": "laser_tracer", "enco
            "environment": "environment"}
 
 
-def kind_of(instrument: str) -> str:
-    """The kind of a procedure's instrument: KIND_OF's, else the installed kind it is named after
-    (AddressError naming the kind's broken plugin, or the known kinds)."""
+def kind_of(instrument: str, declared: str | None = None) -> str:
+    """The kind of a procedure's instrument: the one its section ``declared`` (``kind:``), else KIND_OF's (the
+    shipped procedures' names), else the installed kind it is named after (AddressError naming the kind's broken
+    plugin, or the known kinds)."""
+    if declared is not None:
+        if declared not in KINDS:
+            raise AddressError(KINDS.unknown(declared))
+        return declared
     if instrument in KIND_OF:
         return KIND_OF[instrument]
     if instrument in KINDS:
@@ -50,9 +55,10 @@ def resolve(kind: str, address: str) -> tuple[Address, Model]:
     return parsed, model
 
 
-def check_address(name: str, address: str) -> None:
-    """What procedure validation asks: the address suits the instrument ``name`` (AddressError if not)."""
-    resolve(kind_of(name), address)
+def check_address(name: str, address: str, kind: str | None = None) -> None:
+    """What procedure validation asks: the address suits the instrument ``name`` of ``kind`` (declared, else by
+    its name; AddressError if not)."""
+    resolve(kind_of(name, kind), address)
 
 
 def open_instrument(kind: str, address: str, timeout_s: float, **context: Any) -> Instrument:
@@ -61,6 +67,29 @@ def open_instrument(kind: str, address: str, timeout_s: float, **context: Any) -
     cls = model.driver_class()
     refuse_unfit_class(kind, model.name, model.plugin, model.target, cls)
     return fenced(kind, model.name, model.plugin, lambda: cls(parsed, timeout_s, **context))
+
+
+def open_choice(name: str, choice: Any) -> Instrument:
+    """A procedure's instrument ``name`` at its section's address, by its kind (its ``kind:``, else its name), with
+    what the kind needs from the section: a stage its soft limits, a CMM its volume, tool and homing, a dial
+    indicator its name (``choice``: a procedure's InstrumentChoice)."""
+    kind = kind_of(name, getattr(choice, "kind", None))
+    if choice.address is None:
+        raise AddressError(f"{name}: `backend: sim` cannot be opened over a transport; give its address")
+    return open_instrument(kind, choice.address, choice.timeout_s, **kind_context(kind, name, choice))
+
+
+def kind_context(kind: str, name: str, choice: Any) -> dict[str, Any]:
+    """What a driver of ``kind`` is built with from the procedure's section besides its address: a stage's soft
+    limits, a CMM's volume, tool and homing, a dial indicator's name."""
+    if kind == "stage":
+        return {"limits_deg": tuple(choice.soft_limits_deg)}
+    if kind == "cmm":
+        return {"volume_min_mm": tuple(choice.volume_min_mm), "volume_max_mm": tuple(choice.volume_max_mm),
+                "tool": choice.tool, "home": choice.home}
+    if kind == "dial_indicator":
+        return {"name": name}
+    return {}
 
 
 # each kind's fence subclasses the kind's interface (drivers/fence.py): the asserts below only narrow the type

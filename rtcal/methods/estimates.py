@@ -10,11 +10,13 @@ the estimate to quote: converged, and the smallest uncertainty among those that 
 
 from __future__ import annotations
 
-from typing import Callable, Iterable, TypeVar
+from dataclasses import dataclass
+from typing import Callable, Iterable, Literal, Protocol, Sequence, TypeVar
 
 import numpy as np
 
-from rtcal.results.model import BudgetComponent, DeviationBlock, Estimate, ResidualTest, SolverStatus, UncertaintyBudget
+from rtcal.results.model import (BudgetComponent, DeviationBlock, Estimate, QuantityComponent, QuantityEstimate, ResidualTest,
+                                 SolverStatus, UncertaintyBudget)
 from rtcal.solvers.uncertainty import DeviationBudget, ResidualCheck, difference_matrix
 
 COVERAGE_FACTOR = 2.0
@@ -61,7 +63,39 @@ def deviation_block(cumulative_arcsec: np.ndarray, budget: DeviationBudget, step
     )
 
 
-E = TypeVar("E", bound=Estimate)
+@dataclass(frozen=True)
+class QuantitySource:
+    """One source of a :func:`quantity_estimate`'s budget: its standard uncertainty ``input_sigma`` in
+    ``input_unit`` and what it contributes to each target's standard uncertainty, in the result's unit
+    (the sources are taken as independent: u² = Σ contribution²)."""
+
+    source: str
+    type: Literal["A", "B"]
+    input_sigma: float
+    input_unit: str
+    contribution: Sequence[float]
+    estimated: bool = False
+    note: str = ""
+
+
+def quantity_estimate(quantity: str, unit: str, target_deg: Sequence[float], target_direction: Sequence[int],
+                      value: Sequence[float] | np.ndarray, sources: Sequence[QuantitySource],
+                      not_included: Sequence[str] = (), message: str = "", converged: bool = True,
+                      digits: int = 4) -> QuantityEstimate:
+    """A result in its own quantity and unit (:class:`~rtcal.results.model.QuantityEstimate`) per target and
+    direction, with its GUM budget: u from the independent sources, U = k·u (k = 2)."""
+    n = len(target_deg)
+    contributions = np.array([np.broadcast_to(np.asarray(s.contribution, float), (n,)) for s in sources]).reshape(len(sources), n)
+    u = np.sqrt(np.sum(contributions**2, axis=0)) if len(sources) else np.full(n, np.nan)
+    return QuantityEstimate(
+        quantity=quantity, unit=unit, target_deg=[float(x) for x in target_deg],
+        target_direction=[1 if d > 0 else -1 for d in target_direction],
+        value=_round(value, digits), standard_uncertainty=_round(u, digits),
+        expanded_uncertainty=_round(COVERAGE_FACTOR * u, digits), coverage_factor=COVERAGE_FACTOR,
+        budget=[QuantityComponent(source=s.source, type=s.type, input_sigma=round(float(s.input_sigma), 6), unit=s.input_unit,
+                                  estimated_from_data=s.estimated, note=s.note, contribution=_round(c, digits))
+                for s, c in zip(sources, contributions)],
+        not_included=list(not_included), converged=converged, message=message)
 
 
 def residual_test(check: ResidualCheck | None) -> ResidualTest | None:
@@ -87,11 +121,34 @@ def not_covered(not_included: list[str], check: ResidualCheck | None) -> list[st
             "coverage interval for it"]
 
 
-def choose_recommended(estimates: dict[str, E], status: dict[str, SolverStatus]) -> str | None:
+class Result(Protocol):
+    """What every estimator's result says of how it ended (an :class:`Estimate`, a :class:`QuantityEstimate`)."""
+
+    @property
+    def converged(self) -> bool: ...
+
+    @property
+    def message(self) -> str: ...
+
+
+R = TypeVar("R", bound=Result)
+
+
+def _uncertainties(result: Result) -> list[float | None]:
+    """What a result's "smallest uncertainty" is measured on: an angular estimate's cumulative u after the first
+    target (0 there by construction), a quantity's standard uncertainty."""
+    if isinstance(result, Estimate):
+        return list(result.cumulative_uncertainty_arcsec[1:])
+    if isinstance(result, QuantityEstimate):
+        return list(result.standard_uncertainty)
+    return []
+
+
+def choose_recommended(estimates: dict[str, R], status: dict[str, SolverStatus]) -> str | None:
     """The estimate a certificate should quote: converged first, then one whose residuals pass its own
     noise model's test (one that fails it never, while another passes), then the smallest RMS uncertainty."""
     def key(name: str) -> tuple[bool, bool, float]:
-        u = np.array([v for v in estimates[name].cumulative_uncertainty_arcsec[1:] if v is not None], float)
+        u = np.array([v for v in _uncertainties(estimates[name]) if v is not None], float)
         st = status.get(name)
         test = getattr(estimates[name], "residual_test", None)
         return (st is None or st.status != "converged", test is not None and not test.passed,
@@ -104,13 +161,13 @@ def choose_recommended(estimates: dict[str, E], status: dict[str, SolverStatus])
 ESTIMATOR_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
 
 
-def run_estimators(solvers: dict[str, Callable[[], E]]) -> tuple[dict[str, E], dict[str, SolverStatus]]:
+def run_estimators(solvers: dict[str, Callable[[], R]]) -> tuple[dict[str, R], dict[str, SolverStatus]]:
     """Run every estimator; one that cannot run is recorded as failed and hides none of the others.
 
     Each solver returns its estimate (with ``converged`` and ``message``); the status of each is
     ``converged``, ``not converged`` (results kept, flagged) or ``failed`` (no results).
     """
-    estimates: dict[str, E] = {}
+    estimates: dict[str, R] = {}
     status: dict[str, SolverStatus] = {}
     for name, solve in solvers.items():
         try:

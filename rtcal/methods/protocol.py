@@ -89,6 +89,18 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
         ...
 
     @property
+    def estimators(self) -> tuple[str, ...]:
+        """The estimator names this method's analysis may run and recommend (its results model's ``recommended``)."""
+        ...
+
+    @property
+    def positioning_deviation(self) -> bool:
+        """Whether its recommended result is an angular positioning deviation: the runner then evaluates ISO 230-2
+        and VDI 3441 parameters and the procedure's acceptance from it, and `rtcal compensate` takes it; a result
+        of its own quantity and unit (a runout in µm) is not (results' ``QuantityEstimate``)."""
+        ...
+
+    @property
     def context_columns(self) -> Mapping[str, str]:
         """What this method's plan entries carry beyond the store's own columns (point, station, seating, run,
         direction, commanded_*, …), each name (its unit in it, e.g. ``ball_height_mm``) with what it is: stored

@@ -17,7 +17,8 @@ import re
 import unicodedata
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, field_validator, model_serializer,
+                      model_validator)
 
 ANGLE_LIMIT_DEG = 36_000.0  # 100 turns either way: beyond any table's travel
 COORD_LIMIT_MM = 1e6  # 1 km: beyond any CMM
@@ -126,6 +127,9 @@ class InstrumentChoice(_Strict):
                                 "`modbus-tcp://192.168.0.20:502?unit=1`, `ipp://cmm:1294`, `/dev/ttyUSB0`, `socket://host:4001`")
     timeout_s: float = Field(2.0, ge=0.01, le=600.0, description="deadline of one request to the instrument, s (e.g. 2; "
                                                                "at least 0.01)")
+    kind: str | None = Field(None, min_length=1, max_length=64, pattern=r"^[a-z][a-z0-9_]*$", description=(
+        "the instrument's kind (e.g. `dial_indicator`, `inclinometer`): what it reads and which drivers speak to it; "
+        "default: by its name (`stage`, `dial_indicator_1`, … or an installed kind's name)"))
 
     @model_validator(mode="after")
     def _one_backend(self) -> "InstrumentChoice":
@@ -140,16 +144,37 @@ class InstrumentChoice(_Strict):
                 raise ValueError(f"address: {exc}") from None
         return self
 
+    @model_serializer(mode="wrap")
+    def _kind_when_declared(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """``kind`` only where the procedure declared it: an instrument section stored with a run (whose digest
+        covers it) is what it was before instruments had a kind."""
+        data = handler(self)
+        if isinstance(data, dict) and data.get("kind", "") is None:
+            del data["kind"]
+        return data
+
+    def kind_of(self, name: str) -> str:
+        """This instrument's kind: declared (``kind:``), else by its ``name`` (ValueError naming the known kinds)."""
+        from drivers.addresses import AddressError
+        from drivers.factory import kind_of
+
+        try:
+            return kind_of(name, self.kind)
+        except AddressError as exc:
+            raise ValueError(f"{name}.kind: {exc}" if self.kind is not None else f"{name}: {exc}") from None
+
     def check_scheme(self, name: str) -> None:
         """The address is of the kind this instrument speaks (a CMM at a Modbus address would fail
         only when the run opens it)."""
+        if self.kind is not None:
+            self.kind_of(name)  # a declared kind is one rtcal knows, whatever the backend
         if self.address is None:
             return
         from drivers.addresses import AddressError
         from drivers.factory import SchemeMismatch, check_address
 
         try:
-            check_address(name, self.address)
+            check_address(name, self.address, self.kind)
         except SchemeMismatch as exc:
             raise ValueError(f"{name}.address: a {exc.scheme} address; the {name.replace('_', ' ')} speaks "
                              f"{' or '.join(exc.schemes)} (see drivers/addresses.py)") from None
@@ -411,7 +436,8 @@ Procedure = _Procedure
 """Any method's procedure (for the type checker): every method's model is its ``procedure_model``, on
 this base; the command line passes the models to the loader (:func:`rtcal.procedure.loader.load_procedure`)."""
 
-# The bases a method's own procedure model builds on (a plugin's too: docs/architecture.md, "Adding a method")
+# The bases a method's own procedure model builds on (a plugin's too, through rtcal.api: docs/architecture.md,
+# "Writing a method")
 StrictModel = _Strict
 InstrumentsBase = _Instruments
 VerificationBase = _Verification

@@ -14,7 +14,7 @@ hardware, ``estimates.closure`` without a closure, …) is left out of the file,
 
 from __future__ import annotations
 
-from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar
+from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
@@ -49,11 +49,11 @@ Direction = Literal[1, -1]
 Text = Annotated[str, Field(max_length=100_000)]
 Name = Annotated[str, Field(max_length=1_000)]
 
-EstimatorName = Literal["paper", "shared_dead_path", "network", "abbe", "closure"]
-EstimatorKey = Annotated[str, Field(pattern=r"^(paper|shared_dead_path|network|abbe|closure)$")]
+EstimatorName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,63}$")]
+"""An estimator's name, as its method declares it (a method's results narrow ``recommended`` and ``solver_status``
+to its own names: rtcal/methods/<method>/results.py, a plugin's results model)."""
+EstimatorKey = EstimatorName
 """An estimator's name as a key (``solver_status``)."""
-MultistationEstimator = Literal["paper", "shared_dead_path", "network"]
-AbbeEstimator = Literal["abbe", "closure"]
 
 
 class ResultsModel(BaseModel):
@@ -184,6 +184,53 @@ class TargetedEstimate(Estimate):
         n = len(self.cumulative_deviation_arcsec)
         if len(self.target_deg) != n or len(self.target_direction) != n:
             raise ValueError(f"target_deg and target_direction must have one value per target ({n})")
+        return self
+
+
+SigmaNumber = Annotated[float, Field(ge=0.0, le=1e12)]
+"""A standard (or expanded) uncertainty of any other quantity (its unit given beside it)."""
+
+
+class QuantityComponent(ResultsModel):
+    """One source of a :class:`QuantityEstimate`'s uncertainty budget, its contribution in the result's unit."""
+
+    source: Text = Field(description="what the source is (e.g. `indicator repeatability`)")
+    type: Literal["A", "B"] = Field(description="GUM type: A estimated from the readings, B as the procedure states it")
+    input_sigma: Number = Field(description="the source's standard uncertainty (1σ) in `unit`")
+    unit: Name = Field(description="unit of `input_sigma`")
+    estimated_from_data: bool = Field(description="true when `input_sigma` was estimated from this run's readings")
+    note: Text = Field(description="what the source covers")
+    contribution: list[SigmaNumber | None] = Field(
+        description="its contribution to the standard uncertainty per target, in the result's `unit` (null: not defined)")
+
+
+class QuantityEstimate(ResultsModel):
+    """An estimate of a quantity of its own per target and direction — a runout in µm, a location in mm —, as a
+    method declares it: its ``quantity`` in words and its ``unit``, the values with their standard and
+    expanded uncertainty and budget. Not an angular positioning deviation: no ISO 230-2 evaluation,
+    conformity or compensation follows from it (1.3)."""
+
+    quantity: Name = Field(description="what is estimated, in words (e.g. `radial displacement of the test ball`)")
+    unit: Name = Field(description="the unit of every value and uncertainty (e.g. `µm`)")
+    target_deg: list[Deg] = Field(description="commanded angle of each target, degrees")
+    target_direction: list[Direction] = Field(description="approach of each target: 1 positive (↑), −1 negative (↓)")
+    value: list[Number | None] = Field(description="the estimate per target, in `unit` (null: not measured)")
+    standard_uncertainty: list[SigmaNumber | None] = Field(description="its standard uncertainty u (1σ) per target")
+    expanded_uncertainty: list[SigmaNumber | None] = Field(description="its expanded uncertainty U = k·u per target")
+    coverage_factor: Annotated[float, Field(gt=0.0, le=10.0)] = Field(description="k of the expanded uncertainty (2)")
+    budget: list[QuantityComponent] = Field(description="per source: type, input σ and contribution per target")
+    not_included: list[Text] = Field(description="sources the procedure did not state: the budget is silent on them")
+    converged: bool = Field(description="whether the estimator converged (a mean always does)")
+    message: Text = Field(description="how the estimator ended, in words")
+
+    @model_validator(mode="after")
+    def _one_value_per_target(self) -> QuantityEstimate:
+        n = len(self.target_deg)
+        for name in ("target_direction", "value", "standard_uncertainty", "expanded_uncertainty"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name} has {len(getattr(self, name))} values, target_deg {n}")
+        if any(len(c.contribution) != n for c in self.budget):
+            raise ValueError(f"each budget contribution has one value per target ({n})")
         return self
 
 
@@ -624,6 +671,12 @@ class RunInfo(ResultsModel):
     clock: Literal["virtual", "real"] = Field(description="`virtual`: simulated time (settle waits skipped); `real`: wall clock")
 
 
+def _without_none(annotation: Any) -> Any:
+    """``X | None`` → X."""
+    args = [a for a in get_args(annotation) if a is not type(None)]
+    return args[0] if len(args) == 1 and get_origin(annotation) is not Literal else annotation
+
+
 class Analysis(ResultsModel):
     """What a method's analysis of the logged readings gives (every method)."""
 
@@ -635,10 +688,21 @@ class Analysis(ResultsModel):
         description="the estimate to quote: converged, and the smallest uncertainty among those that did")
     solver_status: dict[EstimatorKey, SolverStatus] = Field(
         description="every estimator the procedure asked for, including one that could not run")
-    estimates: NamedSet[Estimate] = Field(description="every estimate, by estimator")
+    estimates: NamedSet[Any] = Field(description="every estimate, by estimator (each method's: an angular Estimate, or a "
+                                                 "QuantityEstimate in its own quantity and unit)")
     positioning_deviations: DeviationTable | None = Field(
         None, description="the recommended estimate as the positioning-deviation table (absent: no estimate)")
     truth: Truth | None = Field(None, description="what the simulated bench really had (absent: a run on instruments)")
+
+    @model_validator(mode="after")
+    def _declared_names(self) -> Analysis:
+        """``solver_status`` names only estimators the method declares (its results' ``recommended`` Literal)."""
+        names = _without_none(type(self).model_fields["recommended"].annotation)
+        declared = get_args(names) if get_origin(names) is Literal else ()
+        unknown = [name for name in self.solver_status if declared and name not in declared]
+        if unknown:
+            raise ValueError(f"solver_status names {unknown[0]!r}, not an estimator of this method ({', '.join(declared)})")
+        return self
 
     @model_validator(mode="after")
     def _status_of_every_estimate(self) -> Analysis:
@@ -649,15 +713,22 @@ class Analysis(ResultsModel):
             raise ValueError(f"recommended names {self.recommended}, which is not among the estimates")
         return self
 
+    def recommended_result(self) -> Estimate | QuantityEstimate | None:
+        """The result ``recommended`` names, if any: an angular estimate or a quantity of the method's own."""
+        found = None if self.recommended is None else self.estimates.named(self.recommended)
+        return found if isinstance(found, (Estimate, QuantityEstimate)) else None
+
     def recommended_estimate(self) -> Estimate | None:
-        """The estimate ``recommended`` names, if any."""
-        return None if self.recommended is None else self.estimates.named(self.recommended)
+        """The angular estimate ``recommended`` names, if any (None: the method's result is a quantity of its own,
+        :meth:`recommended_result`)."""
+        found = self.recommended_result()
+        return found if isinstance(found, Estimate) else None
 
     def target_labels(self) -> list[str]:
         """Each target as ``angle↑`` or ``angle↓``: the recommended estimate's targets, else the
         nominal angles in the direction they were measured."""
-        e = self.recommended_estimate()
-        if isinstance(e, TargetedEstimate):
+        e = self.recommended_result()
+        if isinstance(e, (TargetedEstimate, QuantityEstimate)):
             pairs = list(zip(e.target_deg, e.target_direction))
         else:
             angles = self.nominal_angles_deg
@@ -773,3 +844,19 @@ def assemble(info: RunInfo, analysis: Analysis, log: RunLog, model: type[RunResu
     rtcal.methods.METHODS), validated as the file will be read."""
     fields = {**dict(info), **dict(analysis), **dict(log)}
     return model.model_validate(fields)
+
+
+MOVED = {"MultistationEstimator": "rtcal.methods.multistation.results", "AbbeEstimator": "rtcal.methods.abbe.results"}
+
+
+def __getattr__(name: str) -> Any:
+    """Deprecated: each method declares its estimator names in its own results model (the old names go in the next
+    release)."""
+    if name not in MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    import warnings
+
+    warnings.warn(f"rtcal.results.model.{name} moved to {MOVED[name]}.{name}; the old name goes in the next release",
+                  DeprecationWarning, stacklevel=2)
+    return getattr(importlib.import_module(MOVED[name]), name)

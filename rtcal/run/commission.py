@@ -114,14 +114,11 @@ class CheckRow:
     calibration_due: str = ""  # from the procedure's metadata ("" when it states none)
 
 
-def _context(name: str, choice) -> dict[str, Any]:
-    if name == "stage":
-        return {"limits_deg": tuple(choice.soft_limits_deg)}
-    if name == "cmm":
-        return {"volume_min_mm": tuple(choice.volume_min_mm), "volume_max_mm": tuple(choice.volume_max_mm), "tool": choice.tool}
-    if name.startswith("dial_indicator"):
-        return {"name": name}
-    return {}
+def _probe_context(kind: str, name: str, choice: Any) -> dict[str, Any]:
+    """What the driver is built with, as a run builds it, less the CMM's homing (a probe never homes a machine)."""
+    context = factory.kind_context(kind, name, choice)
+    context.pop("home", None)
+    return context
 
 
 def _in_range(name: str, choice: Any, reading: dict[str, float | None]) -> str:
@@ -152,13 +149,13 @@ def check(proc, addresses: dict[str, str] | None = None, operator_address: str =
     rows: list[CheckRow] = []
     for name in instruments.present():
         choice = getattr(instruments, name)
-        kind = factory.kind_of(name)
+        kind = choice.kind_of(name)
         if choice.is_sim:
             rows.append(CheckRow(name, "sim", "simulated", "in process, on the bench"))
             continue
         model = factory.resolve(kind, choice.address)[1].name
         try:
-            result = probe(kind, choice.address, choice.timeout_s, **_context(name, choice))
+            result = probe(kind, choice.address, choice.timeout_s, **_probe_context(kind, name, choice))
         except InstrumentError as exc:
             rows.append(CheckRow(name, model, "FAILED", str(exc).removeprefix(f"{exc.instrument}: ")))
             continue

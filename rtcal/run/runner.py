@@ -594,6 +594,12 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
         failures = "; ".join(f"{n}: {st.message}" for n, st in analysis.solver_status.items())
         raise AnalysisFailed(f"the readings are complete but the solvers could not use them: no estimator ran ({failures}); "
                              f"every reading is in {run_dir / RunStore.FILENAME}")
+    undeclared = sorted({analysis.recommended, *analysis.solver_status} - set(method.estimators))
+    if undeclared:
+        store.close()
+        raise AnalysisFailed(f"the method {method.name} names the estimator {undeclared[0]!r}, which it does not declare "
+                             f"(its estimators: {', '.join(method.estimators) or 'none'}); every reading is in "
+                             f"{run_dir / RunStore.FILENAME}")
     events = [Event(**e) for e in store.events()]
     virtual = isinstance(clock, VirtualClock)
     try:
@@ -613,7 +619,7 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
             measurement_duration_s=round(clock.now_s(), 1),
             clock="virtual" if virtual else "real",
         )
-        evaluation = evaluation_of(analysis)
+        evaluation = evaluation_of(analysis) if method.positioning_deviation else None  # the method says what its result is
         log = RunLog(evaluation=evaluation, skipped_readings=len(store.skipped_plan_indices()),
                      faults=sum(1 for e in events if e.kind == "fault"), events=events,
                      conformity=conformity_of(proc, analysis, evaluation),

@@ -126,7 +126,7 @@ def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]]) -> tuple[R
             raise RunDirError(f"{path}: its `instruments` is not the procedure's instrument section: the store was edited") from None
         analysis = methods[proc.method].analyse(proc, store, None, True)  # no bench: truth is the simulator's, not the readings'
 
-        evaluation = evaluation_of(analysis)
+        evaluation = evaluation_of(analysis) if methods[proc.method].positioning_deviation else None
         events = [Event(**e) for e in store.events()]
         recomputed = {
             **analysis.model_dump(mode="json"),

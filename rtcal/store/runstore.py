@@ -360,6 +360,9 @@ class RunStore:
         self._reserve: Path | None = None
         row = self._db.execute("SELECT MAX(attempt) FROM readings").fetchone()
         self._next_attempt = 0 if row[0] is None else int(row[0]) + 1
+        # a store opened read-only from before context columns has none: its readings declared none
+        self._context = f", {CONTEXT}" if any(r[1] == CONTEXT for r in self._db.execute("PRAGMA table_info(readings)")) \
+            else ", NULL"
 
     @classmethod
     def create(cls, run_dir: Path, meta: dict[str, str]) -> "RunStore":
@@ -554,7 +557,7 @@ class RunStore:
             self._upsert_meta(provider())
 
     def readings(self, instrument: str | None = None, quantity: str | None = None) -> Iterator[Reading]:
-        sql = f"SELECT {', '.join(READING_COLUMNS)}, {CONTEXT} FROM readings"
+        sql = f"SELECT {', '.join(READING_COLUMNS)}{self._context} FROM readings"
         clauses, args = [], []
         if instrument is not None:
             clauses.append("instrument = ?")
@@ -629,7 +632,7 @@ class RunStore:
     def export_csv(self, directory: Path) -> tuple[int, int]:
         """readings.csv (every column), events.csv and descriptions.csv (what each stored quantity is:
         docs/store.md), streamed row by row; returns the readings' and events' row counts."""
-        readings = self._db.execute(f"SELECT id, {', '.join(READING_COLUMNS)}, {CONTEXT} FROM readings ORDER BY id")
+        readings = self._db.execute(f"SELECT id, {', '.join(READING_COLUMNS)}{self._context} FROM readings ORDER BY id")
         events = self._db.execute(f"SELECT id, {', '.join(EVENT_COLUMNS)} FROM events ORDER BY id")
         counts = write_csv(directory / "readings.csv", ("id",) + READING_COLUMNS + (CONTEXT,), readings), \
             write_csv(directory / "events.csv", ("id",) + EVENT_COLUMNS, events)

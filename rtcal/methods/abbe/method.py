@@ -208,6 +208,8 @@ class AbbeMethod:
     results_model = abr.AbbeResults
     operator_steps = True  # the polygon's seatings
     context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
+    estimators = ("abbe", "closure")
+    positioning_deviation = True  # εz: evaluation, conformity and compensation follow
 
     def plan_length(self, proc: EncoderAbbeError) -> int:
         return len(planned_visits(proc))

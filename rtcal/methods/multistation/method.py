@@ -316,6 +316,8 @@ class MultistationMethod:
     results_model = msr.MultistationResults
     operator_steps = True  # the tracer's reference point, a second mount
     context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
+    estimators = ("paper", "shared_dead_path", "network")
+    positioning_deviation = True  # εz: evaluation, conformity and compensation follow
 
     def plan_length(self, proc: LaserTracerMultistation) -> int:
         return len(planned_readings(proc))

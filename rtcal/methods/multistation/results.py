@@ -7,9 +7,11 @@ from typing import Literal
 
 from pydantic import Field
 
-from rtcal.results.model import (Analysis, Arcsec, AxisLocation, EnvironmentSummary, ErrorMotionTarget, Estimate,
-                                 MultistationEstimator, NamedSet, NetworkEstimate, PaperEstimate, RunResults,
-                                 SharedDeadPathEstimate, Truth)
+from rtcal.results.model import (Analysis, Arcsec, AxisLocation, EnvironmentSummary, ErrorMotionTarget, Estimate, NamedSet,
+                                 NetworkEstimate, PaperEstimate, RunResults, SharedDeadPathEstimate, Truth)
+
+MultistationEstimator = Literal["paper", "shared_dead_path", "network"]
+"""The method's estimator names (what ``recommended`` and ``solver_status`` may name)."""
 
 
 class MultistationEstimates(NamedSet[Estimate]):

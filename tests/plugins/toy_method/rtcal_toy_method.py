@@ -402,6 +402,8 @@ class EncoderVsCommandMethod:
     results_model = EncoderResults
     operator_steps = False
     context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
+    estimators = ("encoder",)
+    positioning_deviation = True
     planner = None  # `rtcal plan` predicts its plan as written: no levers
 
     def plan_length(self, proc: EncoderVsCommand) -> int:
