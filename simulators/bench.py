@@ -18,7 +18,7 @@ import hashlib
 import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -242,6 +242,36 @@ class Bench:
             self.tracer_mount = index
             self.tracer_in_table_mm = self._mount_point(index)
             self.beam_broken = True
+
+    # -- the table as a simulation sees it (simulators/facade.py: SimBench)
+    def now_s(self) -> float:
+        return self.clock.now_s()
+
+    def table_angle_deg(self) -> float:
+        return math.degrees(self.actual_rad)
+
+    def commanded_angle_deg(self) -> float:
+        return math.degrees(self.target_rad)
+
+    def table_tilt_arcsec(self) -> tuple[float, float]:
+        """The table's tilt about the housing's x and y axes now: the axis's tilt and its tilt error motion, arcsec."""
+        st = self.scenario.stage
+        _, ex, ey = self.error_motions(self.commanded_rad)
+        return st.axis_tilt_x_arcsec + math.degrees(ex) * 3600.0, st.axis_tilt_y_arcsec + math.degrees(ey) * 3600.0
+
+    def table_point_mm(self, on_table_mm: Any) -> np.ndarray:
+        """Where a point of the table (its own frame, mm) is now, in the housing frame."""
+        return self.table_point_in_axis_frame(np.asarray(on_table_mm, dtype=float))
+
+    def true_table_point_mm(self, on_table_mm: Any, commanded_deg: float, direction: int) -> np.ndarray:
+        """The table point without noise, the table at ``commanded_deg`` approached in ``direction``."""
+        commanded = math.radians(commanded_deg)
+        with self.stage_state(self.motor_command_rad(commanded, direction), self.systematic_actual_rad(commanded, direction)):
+            return self.table_point_mm(on_table_mm)
+
+    def true_positioning_error_arcsec(self, commanded_deg: float, direction: int) -> float:
+        commanded = math.radians(commanded_deg)
+        return math.degrees(self.systematic_actual_rad(commanded, direction) - commanded) * 3600.0
 
     # -- what an operator mounts on the table (a test ball, a sphere): its position turns with the table
     def mount_artefact(self, name: str, on_table_mm: tuple[float, float, float] | list[float]) -> None:

@@ -38,3 +38,31 @@ class MethodOutputs(Protocol):
     def certificate_tables(self) -> list[dict[str, Any]]:
         """The method's own tables on the certificate: each a heading, a note, a header and rows."""
         ...
+
+
+class OutputsBase:
+    """What a method's outputs say when they have nothing to say: no files of their own, no report section, no
+    figure, no table on the certificate, no console line; the method named by its procedure's ``method:``. A
+    subclass gives what it has (at least :meth:`method_name` and :meth:`method_text`, which the certificate
+    states)."""
+
+    def write_files(self, run_dir: Path) -> list[Path]:
+        return []
+
+    def report_body(self) -> list[str]:
+        return []
+
+    def certificate_figures(self) -> list[tuple[str, str]]:
+        return []
+
+    def method_text(self) -> list[str]:
+        return []
+
+    def method_name(self) -> str:
+        return ""
+
+    def summary(self) -> list[str]:
+        return []
+
+    def certificate_tables(self) -> list[dict[str, Any]]:
+        return []

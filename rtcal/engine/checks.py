@@ -16,9 +16,13 @@ and the run stops at once (no retry can give rtcal its machine back).
 
 from __future__ import annotations
 
+from functools import partial
+from typing import Any, Generator
+
 import numpy as np
 
 from drivers.errors import InstrumentFault
+from rtcal.engine.steps import Move, Read, Settle, Step
 
 FLOOR_DEG = 1e-6  # a drive without steps still reports its position in floating point
 
@@ -90,6 +94,26 @@ class MotionChecks:
                                            f"(tolerance {tolerance_mm:g} mm, verification.cmm_tolerance_mm): another "
                                            "client or a hand is driving it; rtcal needs the machine to itself")
         return xyz
+
+
+def arrive(checks: MotionChecks, target_deg: float, direction: int, overshoot_deg: float, settle_s: float,
+           stage: str = "stage") -> Generator[Step, Any, float]:
+    """The stage moves, settles and is checked: approached from ``direction`` (ISO 230-2: past ``overshoot_deg``
+    where it would arrive the other way), left ``settle_s`` to settle, its feedback read and checked against the
+    command (a Contradiction where it is not there). ``feedback = yield from arrive(...)`` in a plan's attempt."""
+    yield Move(stage, target_deg, direction, overshoot_deg, what=f"move to {target_deg:g}°")
+    yield Settle(settle_s)
+    feedback: float = yield Read(stage, ("feedback_deg",), partial(checks.stage_at, command_deg=target_deg), target_deg,
+                                 f"position at {target_deg:g}°")
+    return feedback
+
+
+def stood_still(checks: MotionChecks, target_deg: float, feedback_deg: float, stage: str = "stage") -> Generator[Step, Any, float]:
+    """The stage did not move while the readings were taken: its feedback read again (purpose ``after``) and
+    checked against the one :func:`arrive` read (an UncommandedMotion where it moved: the run stops)."""
+    after: float = yield Read(stage, ("feedback_deg",), partial(checks.stage_still, before_deg=feedback_deg), target_deg,
+                              f"position at {target_deg:g}°", "after")
+    return after
 
 
 def combined_sigma(*noise_and_digit: tuple[float, float]) -> float:

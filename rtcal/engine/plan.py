@@ -67,3 +67,30 @@ class Plan(Protocol):
     def positions_unknown(self) -> None:
         """The machines may have moved (a pause, an operator): the next attempt approaches anew."""
         ...
+
+
+class PlanBase:
+    """What a plan says when it has nothing to say: no check before anything moves beyond what the subclass
+    yields, no operator's set-up between groups, nothing to forget when the machines may have moved, no
+    check before leaving a group, and a skipped reading taken again only by a resume. A subclass sets
+    ``method``, ``entries`` and ``policies`` (instrument → :class:`FaultPolicy`) and gives :meth:`attempt`."""
+
+    method: str
+    entries: list[Entry]
+    policies: Mapping[str, FaultPolicy]
+    retake_skipped: bool = False
+
+    def prologue(self) -> Iterable[Step]:
+        return ()
+
+    def enter_group(self, entry: Entry, first: bool) -> Iterable[Step]:
+        return ()
+
+    def attempt(self, entry: Entry) -> Attempt:
+        raise NotImplementedError(f"{type(self).__name__}.attempt: the steps of one attempt at a planned reading")
+
+    def leave_group(self, group: int, segment: int | None) -> "tuple[Mapping[str, Any], Attempt] | None":
+        return None
+
+    def positions_unknown(self) -> None:
+        return None

@@ -1,0 +1,182 @@
+"""rtcal's public face: everything a calibration method or an instrument kind may use of rtcal, in one module.
+
+A method or a kind written outside rtcal (an installed plugin) imports rtcal only from here, and
+``rtcal.solvers`` for mathematics; rtcal's own methods do too, as far as their solvers allow. Every name
+below keeps its meaning across minor releases; a name that moves keeps a deprecation shim for one release.
+rtcal ships ``py.typed``: ``mypy --strict`` checks a plugin against these types. Nothing is imported until a
+name is first used (``rtcal --help`` pays for none of it).
+
+**A method** (docs/architecture.md, "Writing a method", walks through tests/plugins/ball_runout) is one
+object, registered under the entry-point group ``rtcal.methods`` (``name = "module:Class"``). Subclass
+:class:`MethodBase`, which says "nothing" once for everything a simple method does not have, and give:
+
+- ``name``, ``procedure_model`` (a :class:`ProcedureBase` subclass with ``method: Literal[name]``, its
+  ``instruments`` an :class:`InstrumentsBase` of :class:`InstrumentChoice` — each may declare its ``kind``
+  and ``address`` —, ``approaches``, ``plan_size``, ``planned_stage_deg``), ``results_model`` (a
+  :class:`RunResults` subclass with ``method: Literal[name]`` and its own :class:`Analysis`),
+  ``estimators`` (the names its analysis may recommend) and ``positioning_deviation`` (whether its result is
+  an angular positioning deviation: then ISO 230-2 evaluation, conformity and compensation follow; a
+  result in its own quantity and unit is a :class:`QuantityEstimate`);
+- ``plan(proc, done, generation, stage_step_deg)``: a :class:`PlanBase` whose ``entries`` are the planned
+  readings (:class:`Entry`: the store's columns, and the method's own ``context_columns``) and whose
+  ``attempt(entry)`` yields steps — :class:`Move`, :class:`Settle`, :class:`Read` (fields its instruments'
+  kinds describe, checked by a relation such as :class:`MotionChecks`'), :class:`OperatorStep` (words for a
+  person, an action for the simulated bench); :func:`arrive` and :func:`stood_still` are "the stage moves,
+  settles and is checked" and "it did not move while read";
+- ``analyse(proc, store, bench, estimate_noise)``: the readings that count (:class:`RunReadings`'s
+  ``counted``) → its :class:`Analysis`, with :func:`run_estimators`, :func:`choose_recommended`,
+  :func:`deviation_block` or :func:`quantity_estimate`;
+- ``outputs(results)``: an :class:`OutputsBase` (files, figures, report and certificate sections).
+
+**An instrument kind** is a subclass of :class:`Instrument` declaring ``kind``, ``fields`` (each a
+:class:`FieldDescription`) and ``_raw_values``, registered under ``rtcal.instrument_kinds``; its simulation
+reads the simulated bench only through :class:`SimBench`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from drivers.errors import InstrumentError as InstrumentError
+    from drivers.errors import InstrumentFault as InstrumentFault
+    from drivers.errors import InstrumentTimeout as InstrumentTimeout
+    from drivers.factory import open_choice as open_choice
+    from drivers.factory import open_instrument as open_instrument
+    from drivers.interfaces import Autocollimator as Autocollimator
+    from drivers.interfaces import Cmm as Cmm
+    from drivers.interfaces import DialIndicator as DialIndicator
+    from drivers.interfaces import Encoder as Encoder
+    from drivers.interfaces import EnvironmentSensor as EnvironmentSensor
+    from drivers.interfaces import FieldDescription as FieldDescription
+    from drivers.interfaces import Instrument as Instrument
+    from drivers.interfaces import LaserTracer as LaserTracer
+    from drivers.interfaces import RotaryStage as RotaryStage
+    from drivers.interfaces import Value as Value
+    from rtcal.deliverables.deviations import PositioningDeviations as PositioningDeviations
+    from rtcal.deliverables.method_outputs import MethodOutputs as MethodOutputs
+    from rtcal.deliverables.method_outputs import OutputsBase as OutputsBase
+    from rtcal.engine.checks import Contradiction as Contradiction
+    from rtcal.engine.checks import MotionChecks as MotionChecks
+    from rtcal.engine.checks import UncommandedMotion as UncommandedMotion
+    from rtcal.engine.checks import arrive as arrive
+    from rtcal.engine.checks import combined_sigma as combined_sigma
+    from rtcal.engine.checks import stood_still as stood_still
+    from rtcal.engine.operator import Operator as Operator
+    from rtcal.engine.plan import Attempt as Attempt
+    from rtcal.engine.plan import Entry as Entry
+    from rtcal.engine.plan import Plan as Plan
+    from rtcal.engine.plan import PlanBase as PlanBase
+    from rtcal.engine.steps import Move as Move
+    from rtcal.engine.steps import OperatorStep as OperatorStep
+    from rtcal.engine.steps import Parallel as Parallel
+    from rtcal.engine.steps import Read as Read
+    from rtcal.engine.steps import ReadSamples as ReadSamples
+    from rtcal.engine.steps import Reference as Reference
+    from rtcal.engine.steps import Samples as Samples
+    from rtcal.engine.steps import Settle as Settle
+    from rtcal.engine.steps import Skipped as Skipped
+    from rtcal.engine.steps import Step as Step
+    from rtcal.engine.steps import Validate as Validate
+    from rtcal.methods.base import Instruments as Instruments
+    from rtcal.methods.base import MethodBase as MethodBase
+    from rtcal.methods.conditions import environment_read as environment_read
+    from rtcal.methods.estimates import COVERAGE_FACTOR as COVERAGE_FACTOR
+    from rtcal.methods.estimates import QuantitySource as QuantitySource
+    from rtcal.methods.estimates import choose_recommended as choose_recommended
+    from rtcal.methods.estimates import deviation_block as deviation_block
+    from rtcal.methods.estimates import finite_or_none as finite_or_none
+    from rtcal.methods.estimates import quantity_estimate as quantity_estimate
+    from rtcal.methods.estimates import residual_test as residual_test
+    from rtcal.methods.estimates import run_estimators as run_estimators
+    from rtcal.methods.estimates import with_residual_test as with_residual_test
+    from rtcal.methods.protocol import DataContradiction as DataContradiction
+    from rtcal.methods.protocol import InstrumentSet as InstrumentSet
+    from rtcal.methods.protocol import Method as Method
+    from rtcal.methods.protocol import PreparationError as PreparationError
+    from rtcal.methods.protocol import address_of as address_of
+    from rtcal.procedure.models import Acceptance as Acceptance
+    from rtcal.procedure.models import FaultPolicy as FaultPolicy
+    from rtcal.procedure.models import InstrumentChoice as InstrumentChoice
+    from rtcal.procedure.models import InstrumentsBase as InstrumentsBase
+    from rtcal.procedure.models import ProcedureBase as ProcedureBase
+    from rtcal.procedure.models import StageChoice as StageChoice
+    from rtcal.procedure.models import StrictModel as StrictModel
+    from rtcal.procedure.models import VerificationBase as VerificationBase
+    from rtcal.procedure.models import plan_outside_limits as plan_outside_limits
+    from rtcal.procedure.models import plan_size_problem as plan_size_problem
+    from rtcal.results.model import Analysis as Analysis
+    from rtcal.results.model import Arcsec as Arcsec
+    from rtcal.results.model import Count as Count
+    from rtcal.results.model import Deg as Deg
+    from rtcal.results.model import DeviationBlock as DeviationBlock
+    from rtcal.results.model import DeviationTable as DeviationTable
+    from rtcal.results.model import Direction as Direction
+    from rtcal.results.model import EnvironmentSummary as EnvironmentSummary
+    from rtcal.results.model import Estimate as Estimate
+    from rtcal.results.model import Mm as Mm
+    from rtcal.results.model import NamedSet as NamedSet
+    from rtcal.results.model import Number as Number
+    from rtcal.results.model import QuantityEstimate as QuantityEstimate
+    from rtcal.results.model import ResultsModel as ResultsModel
+    from rtcal.results.model import RunResults as RunResults
+    from rtcal.results.model import SigmaArcsec as SigmaArcsec
+    from rtcal.results.model import SolverStatus as SolverStatus
+    from rtcal.results.model import TargetedEstimate as TargetedEstimate
+    from rtcal.results.model import Text as Text
+    from rtcal.results.model import Truth as Truth
+    from rtcal.results.model import Um as Um
+    from rtcal.store.runstore import Reading as Reading
+    from rtcal.store.runstore import RunReadings as RunReadings
+    from simulators.facade import SimBench as SimBench
+    from simulators.facade import ideal_bench as ideal_bench
+    from simulators.facade import simulated_instrument as simulated_instrument
+    from simulators.scenario import Scenario as Scenario
+
+# where each name lives (what the TYPE_CHECKING imports above say to the type checker; tests/test_api.py holds
+# the two together)
+_WHERE = {
+    "drivers.errors": ("InstrumentError", "InstrumentFault", "InstrumentTimeout"),
+    "drivers.factory": ("open_choice", "open_instrument"),
+    "drivers.interfaces": ("Autocollimator", "Cmm", "DialIndicator", "Encoder", "EnvironmentSensor", "FieldDescription",
+                           "Instrument", "LaserTracer", "RotaryStage", "Value"),
+    "rtcal.deliverables.deviations": ("PositioningDeviations",),
+    "rtcal.deliverables.method_outputs": ("MethodOutputs", "OutputsBase"),
+    "rtcal.engine.checks": ("Contradiction", "MotionChecks", "UncommandedMotion", "arrive", "combined_sigma", "stood_still"),
+    "rtcal.engine.operator": ("Operator",),
+    "rtcal.engine.plan": ("Attempt", "Entry", "Plan", "PlanBase"),
+    "rtcal.engine.steps": ("Move", "OperatorStep", "Parallel", "Read", "ReadSamples", "Reference", "Samples", "Settle",
+                           "Skipped", "Step", "Validate"),
+    "rtcal.methods.base": ("Instruments", "MethodBase"),
+    "rtcal.methods.conditions": ("environment_read",),
+    "rtcal.methods.estimates": ("COVERAGE_FACTOR", "QuantitySource", "choose_recommended", "deviation_block",
+                                "finite_or_none", "quantity_estimate", "residual_test", "run_estimators",
+                                "with_residual_test"),
+    "rtcal.methods.protocol": ("DataContradiction", "InstrumentSet", "Method", "PreparationError", "address_of"),
+    "rtcal.procedure.models": ("Acceptance", "FaultPolicy", "InstrumentChoice", "InstrumentsBase", "ProcedureBase",
+                               "StageChoice", "StrictModel", "VerificationBase", "plan_outside_limits",
+                               "plan_size_problem"),
+    "rtcal.results.model": ("Analysis", "Arcsec", "Count", "Deg", "DeviationBlock", "DeviationTable", "Direction",
+                            "EnvironmentSummary", "Estimate", "Mm", "NamedSet", "Number", "QuantityEstimate",
+                            "ResultsModel", "RunResults", "SigmaArcsec", "SolverStatus", "TargetedEstimate", "Text",
+                            "Truth", "Um"),
+    "rtcal.store.runstore": ("Reading", "RunReadings"),
+    "simulators.facade": ("SimBench", "ideal_bench", "simulated_instrument"),
+    "simulators.scenario": ("Scenario",),
+}
+_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
+__all__ = sorted(_MODULE_OF)
+
+
+def __getattr__(name: str) -> Any:
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r} (rtcal.api's names: rtcal.api.__all__)")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # once loaded, a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
