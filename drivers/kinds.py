@@ -19,11 +19,12 @@ a plugin that fails to load or is malformed is left out and named in :attr:`Kind
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any
 
+from rtcal.registry import Registry
 from drivers.interfaces import (PURPOSES, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor,
                                 FieldDescription, Instrument, LaserTracer, RotaryStage, Value, check_described)
 
@@ -42,8 +43,10 @@ class Kind:
     plugin: str = ""  # the distribution that registered it; "" for a built-in
 
 
-BUILTIN: dict[str, Kind] = {c.kind: Kind(c.kind, c, c.described_fields()) for c in (
+BUILTIN = {c.kind: f"drivers.interfaces:{c.__name__}" for c in (
     RotaryStage, Cmm, LaserTracer, Encoder, Autocollimator, DialIndicator, EnvironmentSensor)}
+"""The built-in kinds, registered as a plugin's are (by name and ``module:Interface``; their tables are
+drivers/interfaces.py's DESCRIPTIONS)."""
 
 
 def _number(x: Any) -> bool:
@@ -90,60 +93,26 @@ def kind_from(name: str, interface: Any, plugin: str) -> Kind:
     return Kind(name, interface, interface.described_fields(), plugin)
 
 
-class KindRegistry(Mapping[str, Kind]):
+def kind_of_entry(name: str, interface: Any, plugin: str) -> Kind:
+    """A kind from what its table entry or entry point names: a built-in's description is DESCRIPTIONS', an
+    installed one's is checked (:func:`kind_from`)."""
+    if not plugin:
+        return Kind(name, interface, interface.described_fields())
+    return kind_from(name, interface, plugin)
+
+
+class KindRegistry(Registry[Kind]):
     """Every instrument kind by name: the built-in ones, then installed plugins' (read once, on first use)."""
-
-    def __init__(self, builtin: dict[str, Kind]):
-        self._builtin = builtin
-        self._plugins: dict[str, Kind] | None = None
-        self._names: tuple[str, ...] | None = None
-        self.broken: dict[str, str] = {}
-
-    def _all(self) -> dict[str, Kind]:
-        if self._plugins is None:
-            found: dict[str, Kind] = {}
-            for ep in entry_points(group=ENTRY_POINT_GROUP):
-                dist = getattr(ep.dist, "name", "?")
-                if ep.name in found:
-                    continue
-                if ep.name in self._builtin:
-                    self.broken[ep.name] = f"{dist}: a built-in kind; a plugin never replaces it"
-                    continue
-                try:
-                    found[ep.name] = kind_from(ep.name, ep.load(), dist)
-                except Exception as exc:  # noqa: BLE001 — a broken plugin is named, never a crash of the others
-                    self.broken[ep.name] = f"{dist}: {type(exc).__name__}: {str(exc)[:200]}"
-            self._plugins = found
-        return {**self._builtin, **self._plugins}
-
-    def __getitem__(self, name: str) -> Kind:
-        if name in self._builtin:  # the built-in kinds never wait for the plugins
-            return self._builtin[name]
-        return self._all()[name]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._all())
-
-    def __len__(self) -> int:
-        return len(self._all())
-
-    def names(self) -> tuple[str, ...]:
-        """Every kind's name, installed ones by their entry points without loading them (the probe
-        command's choices: a kind that fails to load is refused, with its reason, when it is used)."""
-        if self._names is None:
-            extra = [ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in self._builtin]
-            self._names = (*self._builtin, *dict.fromkeys(extra))
-        return self._names
 
     def unknown(self, name: str) -> str:
         """Why ``name`` is not a kind: one line a person can act on."""
-        self._all()
+        self.plugins()
         if name in self.broken:
             return f"instrument kind {name!r}: its plugin {self.broken[name]}"
         return f"unknown kind {name!r} (known: {', '.join(self)})"
 
 
-KINDS = KindRegistry(BUILTIN)
+KINDS = KindRegistry("kind", ENTRY_POINT_GROUP, BUILTIN, kind_of_entry, lambda group: entry_points(group=group))
 """Every instrument kind, by name (built in, and installed plugins')."""
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 from drivers.errors import AddressError
 from drivers.interfaces import a_kind
+from rtcal.registry import Registry
 
 ENTRY_POINT_GROUP = "rtcal.drivers"
 
@@ -83,27 +84,21 @@ BUILTIN: dict[str, Model] = {m.name: m for m in (
 DEFAULT_MODEL = {"stage": "oriental-az", "cmm": "ipp", "laser_tracer": "rtcal-line", "encoder": "qsb",
                  "autocollimator": "elcomat", "dial_indicator": "sylvac", "environment": "vaisala-ptu300"}
 
-_plugins: dict[str, Model] | None = None
+def model_of(name: str, cls: Any, plugin: str) -> Model:
+    """A plugin's model, from its driver class's declared attributes (loaded when the models are first asked for:
+    they are needed to validate an address)."""
+    return Model(name, cls.kind, f"{cls.__module__}:{cls.__qualname__}", tuple(getattr(cls, "schemes", ("serial",))),
+                 getattr(cls, "framing", None), dict(getattr(cls, "options", {})), plugin or "plugin")
 
 
-def _from_entry_point(ep) -> Model:
-    """A plugin's model, from its class's declared attributes (loaded now: they are needed to validate)."""
-    try:
-        cls = ep.load()
-        kind = cls.kind
-    except Exception as exc:  # noqa: BLE001 — a broken plugin is reported when its model is asked for, never a crash
-        return Model(ep.name, "", ep.value, plugin=f"{getattr(ep.dist, 'name', '?')} (failed to load: {exc!r:.200})")
-    return Model(ep.name, kind, ep.value, tuple(getattr(cls, "schemes", ("serial",))), getattr(cls, "framing", None),
-                 dict(getattr(cls, "options", {})), getattr(ep.dist, "name", "plugin"))
+MODELS: Registry[Model] = Registry("model", ENTRY_POINT_GROUP, BUILTIN, model_of, lambda group: entry_points(group=group))
+"""Every model by name: the built-in ones (records naming their driver class, imported when one is opened) and
+installed plugins' (a built-in name is never replaced)."""
 
 
 def plugins() -> dict[str, Model]:
     """Models installed packages register (read once per process); a built-in name is never replaced."""
-    global _plugins
-    if _plugins is None:
-        _plugins = {ep.name: _from_entry_point(ep) for ep in entry_points(group=ENTRY_POINT_GROUP)
-                    if ep.name not in BUILTIN}
-    return _plugins
+    return MODELS.plugins()
 
 
 def all_models() -> dict[str, Model]:
@@ -111,12 +106,14 @@ def all_models() -> dict[str, Model]:
 
 
 def find_model(name: str) -> Model:
-    """The model of that name, or AddressError listing the known ones."""
-    model = BUILTIN.get(name) or plugins().get(name)
+    """The model of that name, or AddressError listing the known ones (or why a plugin's failed)."""
+    if name in BUILTIN:
+        return BUILTIN[name]
+    model = plugins().get(name)
+    if model is None and name in MODELS.broken:
+        raise AddressError(f"model {name!r}: plugin {MODELS.broken[name]}")
     if model is None:
         raise AddressError(f"unknown model {name!r} (known: {', '.join(sorted(all_models()))})")
-    if not model.kind:
-        raise AddressError(f"model {name!r}: plugin {model.plugin}")
     return model
 
 

@@ -199,7 +199,7 @@ def test_a_repeated_command_keeps_its_direction_on_a_compensated_stage(tmp_path)
     """The controller compensates the motor, not the user's number: commanding the same target
     again (a retry after a lost reply) is no move, so it keeps the approach direction, and the
     stage reports the commanded angle."""
-    from rtcal.procedure.loader import load_scenario
+    from simulators.scenario_file import load_scenario
     from simulators.bench import Bench
     from simulators.instruments import SimStage
 
@@ -515,7 +515,7 @@ def _noise_tolerance_arcsec() -> float:
     procedure's runs; the polygon certificate drawn afresh by another seed; E a difference of two."""
     import yaml
 
-    from rtcal.procedure.loader import load_scenario
+    from simulators.scenario_file import load_scenario
     from tests.compensation_loop import BENCH as SHIPPED
 
     bench = load_scenario(SHIPPED)

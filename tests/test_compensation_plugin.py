@@ -60,7 +60,8 @@ def toy_registered(monkeypatch):
            EntryPoint("missing", "rtcal_toy_nowhere:Format", registry.ENTRY_POINT_GROUP),
            EntryPoint("fanuc", "rtcal_toy_format:ToyCsvFormat", registry.ENTRY_POINT_GROUP)]
     monkeypatch.setattr(registry, "entry_points", lambda group: [e for e in eps if e.group == group])
-    monkeypatch.setattr(registry, "_plugins", None)
+    monkeypatch.setattr(registry.FORMATS, "_plugins", None)  # read again, through the entry points above
+    monkeypatch.setattr(registry.FORMATS, "broken", {})
     yield
     sys.modules.pop("rtcal_toy_broken", None)
     sys.modules.pop("rtcal_toy_format", None)

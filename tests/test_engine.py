@@ -303,7 +303,7 @@ def test_remote_abort_while_paused_stops_like_ctrl_c():
 def test_walk_predicts_the_virtual_clock_of_the_run(name, tmp_path):
     """The walker's duration against the simulated run's clock (the same speeds, no noise); "concurrent": seed 000
     with the table and the CMM moving together."""
-    from rtcal.procedure.loader import load_scenario
+    from simulators.scenario_file import load_scenario
     from rtcal.run.runner import resolve_scenario, run_procedure
 
     path = ROOT / "procedures" / (name if name != "concurrent" else "laser_tracer_multistation.yaml")

@@ -113,7 +113,7 @@ def test_every_field_is_described():
     import json
 
     from rtcal.methods import procedure_schema
-    from rtcal.procedure.loader import scenario_schema
+    from simulators.scenario_file import scenario_schema
 
     missing = []
 

@@ -21,7 +21,7 @@ from drivers import factory
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentFault
 from drivers.fence import fenced, refuse_unfit_class
-from drivers.interfaces import FieldDescription, Instrument, Value
+from drivers.interfaces import FieldDescription, Instrument, RotaryStage, Value
 from drivers.kinds import describe_kind, recorded
 from rtcal.methods import load_procedure
 from rtcal.procedure.yamlfile import FileProblems
@@ -97,7 +97,7 @@ def test_the_registry_reads_entry_points_and_names_what_it_refuses(toy_kinds):
     assert list(toy_kinds) == ["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator", "environment",
                                "inclinometer"]
     assert toy_kinds["inclinometer"].interface is Inclinometer and toy_kinds["inclinometer"].plugin == "?"
-    assert toy_kinds["stage"] is kinds.BUILTIN["stage"], "a plugin never replaces a built-in kind"
+    assert toy_kinds["stage"].interface is RotaryStage, "a plugin never replaces a built-in kind"
     assert {n: f.unit for n, f in describe_kind("inclinometer").items()} == TILT
     assert recorded("inclinometer", "tilt_y_arcsec", purpose="after") == (("after_tilt_y_arcsec", "arcsec"),)
     broken = toy_kinds.broken
@@ -210,12 +210,12 @@ def test_probe_reads_an_installed_kinds_instrument_through_its_installed_model(t
 
     monkeypatch.setattr(sys.modules[__name__], "ConstantLevel", ConstantLevel, raising=False)
     level = models.Model("toy-level", "inclinometer", f"{__name__}:ConstantLevel", ("serial",), plugin="rtcal-toy-level")
-    monkeypatch.setattr(models, "_plugins", {"toy-level": level})
+    monkeypatch.setattr(models.MODELS, "_plugins", {"toy-level": level})
     for address in ("socket://bench:4001", "socket://bench:4001?model=toy-level"):
         result = probe("inclinometer", address)
         assert (result.model, result.identity, result.reading) == (
             "toy-level", "toy level 1", {"tilt_x_arcsec": 1.5, "tilt_y_arcsec": -0.8})
-    monkeypatch.setattr(models, "_plugins", {})
+    monkeypatch.setattr(models.MODELS, "_plugins", {})
     with pytest.raises(AddressError, match="an inclinometer has no built-in model: name its model with model= "
                                            r"\(none is installed\)"):
         probe("inclinometer", "socket://bench:4001")

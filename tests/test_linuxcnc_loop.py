@@ -31,7 +31,7 @@ import pytest
 from rtcal.compensation import write_table
 from rtcal.compensation.table import CompensationTable
 from rtcal.deliverables.compensation import parse_linuxcnc
-from rtcal.procedure.loader import load_scenario
+from simulators.scenario_file import load_scenario
 from rtcal.engine.motion import approach
 from simulators.bench import Bench
 from simulators.servers.linuxcnc import available

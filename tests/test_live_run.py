@@ -282,7 +282,7 @@ def test_every_early_end_stops_the_drive(tmp_path, how):
 
 
 def _scenario(tmp_path: Path, how: str, bench: Path = BENCH, faults: list | None = None):
-    from rtcal.procedure.loader import load_scenario
+    from simulators.scenario_file import load_scenario
 
     data = yaml.safe_load(bench.read_text(encoding="utf-8"))
     if how == "fault":  # the autocollimator fails for good after a few readings: its policy aborts

@@ -38,7 +38,7 @@ class _NotAnIndicator:
 
 
 def test_a_plugin_that_is_not_its_kinds_interface_is_refused_in_one_line(monkeypatch, capsys):
-    monkeypatch.setattr(models, "_plugins", {"loose-indicator": models.Model(
+    monkeypatch.setattr(models.MODELS, "_plugins", {"loose-indicator": models.Model(
         "loose-indicator", "dial_indicator", f"{__name__}:_NotAnIndicator", ("serial",), plugin="rtcal-loose")})
     err = _one_line(capsys, 2, ["probe", "dial_indicator", "socket://127.0.0.1:9?model=loose-indicator"])
     assert "rtcal-loose" in err and f"{__name__}:_NotAnIndicator" in err, err

@@ -187,7 +187,7 @@ class _PluginIndicator(DialIndicator):
 def plugin(monkeypatch):
     model = models.Model("test-indicator", "dial_indicator", f"{__name__}:_PluginIndicator", ("serial",),
                          plugin="rtcal-test-indicator")
-    monkeypatch.setattr(models, "_plugins", {"test-indicator": model})
+    monkeypatch.setattr(models.MODELS, "_plugins", {"test-indicator": model})
     return _PluginIndicator
 
 
@@ -215,7 +215,7 @@ def test_every_opened_driver_is_fenced():
     from drivers.fence import FencedDialIndicator
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(models, "_plugins", {"test-indicator": models.Model(
+        mp.setattr(models.MODELS, "_plugins", {"test-indicator": models.Model(
             "test-indicator", "dial_indicator", f"{__name__}:_PluginIndicator", ("serial",), plugin="p")})
         mp.setattr(_PluginIndicator, "MODE", "ok")
         inst = factory.open_instrument("dial_indicator", "socket://h:9?model=test-indicator", 1.0)

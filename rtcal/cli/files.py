@@ -16,7 +16,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
     """Everything `run` checks before the first motion: the file, and the plan against the bench
     it would run on (the procedure's `bench`, or --scenario) — limits, CMM volume, polygon."""
     from rtcal.methods import METHODS, load_procedure
-    from rtcal.procedure.loader import bench_path, is_procedure_text, load_scenario
+    from rtcal.procedure.loader import bench_path, is_procedure_text
+    from simulators.scenario_file import load_scenario
     from rtcal.run.runner import check_plan_on_bench, resolve_scenario
     from rtcal.procedure.yamlfile import read_text
 
@@ -67,7 +68,7 @@ def cmd_schema(args: argparse.Namespace) -> int:
     from rtcal.deliverables.certificate import certificate_schema
     from rtcal.planning.reports import plan_schema, uncertainty_schema
     from rtcal.methods import procedure_schema, results_schema
-    from rtcal.procedure.loader import scenario_schema
+    from simulators.scenario_file import scenario_schema
 
     chosen = [(flag, schema) for flag, schema in (("--scenario", scenario_schema), ("--results", results_schema),
                                                   ("--plan", plan_schema), ("--uncertainty", uncertainty_schema),

@@ -39,7 +39,7 @@ def cmd_sim_serve(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from rtcal.procedure.loader import load_scenario
+    from simulators.scenario_file import load_scenario
     from simulators.scenario import Scenario
     from simulators.servers.hub import SimulatorHub
 

@@ -12,20 +12,16 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Callable
 
 from rtcal.compensation.base import CompensationFormat
-from rtcal.compensation.fanuc import FanucFormat
-from rtcal.compensation.heidenhain import HeidenhainFormat
-from rtcal.compensation.linuxcnc import LinuxCncFormat
-from rtcal.compensation.siemens_cec import SiemensCecFormat
-from rtcal.compensation.siemens_lec import SiemensLecFormat
 from rtcal.compensation.table import CompensationError, CompensationTable
+from rtcal.registry import Registry
 
 ENTRY_POINT_GROUP = "rtcal.compensation_formats"
-BUILTIN: dict[str, CompensationFormat] = {f.name: f for f in (
-    LinuxCncFormat(), SiemensLecFormat(), SiemensCecFormat(), FanucFormat(), HeidenhainFormat())}
+BUILTIN = {"linuxcnc": "rtcal.compensation.linuxcnc:LinuxCncFormat", "siemens-lec": "rtcal.compensation.siemens_lec:SiemensLecFormat",
+           "siemens-cec": "rtcal.compensation.siemens_cec:SiemensCecFormat", "fanuc": "rtcal.compensation.fanuc:FanucFormat",
+           "heidenhain": "rtcal.compensation.heidenhain:HeidenhainFormat"}
+"""The built-in formats, registered as a plugin's are (by name and ``module:Class``, loaded on first use)."""
 # `rtcal compensate`'s own flags: a format's option may not take one
 RESERVED_FLAGS = frozenset({"--format", "--out", "--step-deg", "--allow-one-direction", "--max-gap-deg", "--help"})
-
-_plugins: dict[str, CompensationFormat | str] | None = None  # str: why the plugin could not be used
 
 
 def _check(fmt: CompensationFormat, known: list[CompensationFormat]) -> None:
@@ -47,53 +43,49 @@ def _check(fmt: CompensationFormat, known: list[CompensationFormat]) -> None:
             raise ValueError(f"option {option.flag} means something else for another format")
 
 
-def _from_entry_point(ep: EntryPoint, known: list[CompensationFormat]) -> CompensationFormat | str:
-    """A plugin's format (loaded now: its declaration is checked), or why it cannot be used."""
-    try:
-        obj = ep.load()
-        fmt = obj() if isinstance(obj, type) and issubclass(obj, CompensationFormat) else obj
-        if not isinstance(fmt, CompensationFormat):
-            raise TypeError(f"{ep.value} is not a CompensationFormat subclass or instance")
-        if getattr(fmt, "name", None) != ep.name:
-            raise ValueError(f"the entry point is named {ep.name!r}, the format {getattr(fmt, 'name', None)!r}")
-        _check(fmt, known)
-    except Exception as exc:  # noqa: BLE001 — a broken plugin is reported when its format is asked for, never a crash
-        return f"{getattr(ep.dist, 'name', '?')} (failed to load: {exc!r:.200})"
+def format_of(name: str, obj: Any, plugin: str) -> CompensationFormat:
+    """A format from what its table entry or entry point names (a class is instantiated); an installed one's
+    declaration is checked against the formats known before it (:func:`_check`)."""
+    fmt = obj() if isinstance(obj, type) and issubclass(obj, CompensationFormat) else obj
+    if not isinstance(fmt, CompensationFormat):
+        raise TypeError(f"{getattr(obj, '__name__', str(obj)[:60])} is not a CompensationFormat subclass or instance")
+    if getattr(fmt, "name", None) != name:
+        raise ValueError(f"the entry point is named {name!r}, the format {getattr(fmt, 'name', None)!r}")
+    if plugin:
+        _check(fmt, [FORMATS[n] for n in BUILTIN] + FORMATS.accepted())
     return fmt
 
 
-def plugins() -> dict[str, CompensationFormat | str]:
+def _entry_points(group: str) -> list[EntryPoint]:
+    return sorted(entry_points(group=group), key=lambda e: e.name)  # a clash is the later name's, whatever the order found
+
+
+FORMATS: Registry[CompensationFormat] = Registry("format", ENTRY_POINT_GROUP, BUILTIN, format_of, _entry_points)
+"""Every compensation format by name (built in, and installed plugins')."""
+
+
+def plugins() -> dict[str, CompensationFormat]:
     """Formats installed packages register (read once per process); a built-in name is never replaced."""
-    global _plugins
-    if _plugins is None:
-        found: dict[str, CompensationFormat | str] = {}
-        known = list(BUILTIN.values())
-        for ep in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
-            if ep.name in BUILTIN or ep.name in found:
-                continue
-            fmt = _from_entry_point(ep, known)
-            found[ep.name] = fmt
-            if isinstance(fmt, CompensationFormat):
-                known.append(fmt)
-        _plugins = found
-    return _plugins
+    return FORMATS.plugins()
 
 
 def formats() -> dict[str, CompensationFormat]:
     """Every usable format by name: the built-ins first, then the plugins'."""
-    return {**BUILTIN, **{n: f for n, f in plugins().items() if isinstance(f, CompensationFormat)}}
+    return {name: FORMATS[name] for name in FORMATS}
 
 
 def format_names() -> tuple[str, ...]:
     """The names `rtcal compensate --format` and a scenario's ``stage.compensation.format`` accept."""
-    return tuple(formats())
+    return tuple(FORMATS)
 
 
 def get_format(name: str) -> CompensationFormat:
     """The format of that name; CompensationError listing the known ones (or why a plugin's failed)."""
-    fmt = BUILTIN.get(name) or plugins().get(name)
-    if isinstance(fmt, str):
-        raise CompensationError(f"format {name!r}: plugin {fmt}")
+    if name in FORMATS.builtin_names():
+        return FORMATS[name]
+    fmt = plugins().get(name)
+    if fmt is None and name in FORMATS.broken:
+        raise CompensationError(f"format {name!r}: plugin {FORMATS.broken[name]}")
     if fmt is None:
         raise CompensationError(f"unknown format {name!r}; one of {', '.join(format_names())}")
     return fmt

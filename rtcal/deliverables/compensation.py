@@ -274,4 +274,4 @@ WRITERS: Mapping[str, Callable[..., str]] = _ByFormat(lambda f: f.write)
 PARSERS: Mapping[str, Callable[..., CompensationTable]] = _ByFormat(lambda f: f.parse)
 COMMENT: Mapping[str, str] = _ByFormat(lambda f: f.comment[0] if f.comment else None)  # formats whose files take comments
 MAX_TRIM_ARCSEC: Mapping[str, float] = _ByFormat(lambda f: f.max_trim_arcsec)
-parse_linuxcnc = registry.BUILTIN["linuxcnc"].parse
+parse_linuxcnc = registry.get_format("linuxcnc").parse

@@ -6,24 +6,26 @@ import json
 import os
 from pathlib import Path
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Annotated, Any, Union, cast
 
 from pydantic import BaseModel, Field, TypeAdapter
 
 from rtcal.procedure.models import Procedure
-from rtcal.compensation import CompensationError, get_format
 from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
-from simulators.scenario import Scenario
+
+NotAProcedure = Callable[[dict[str, Any]], "str | None"]
+"""What a document without a ``method:`` may be instead (a bench scenario), in words, or None; ``{path}`` in the
+words is the file's path."""
 
 
 def load_procedure(path: str | Path, models: Mapping[str, type[BaseModel]], large: bool = False, text: str | None = None,
-                   broken: Mapping[str, str] | None = None) -> Procedure:
+                   broken: Mapping[str, str] | None = None, not_a_procedure: NotAProcedure | None = None) -> Procedure:
     """Validate a procedure file (or its ``text``, already read) with the model its ``method:`` names
     in ``models``; raises :class:`FileProblems` naming file, line and field. ``large`` accepts plans
     beyond the default size limits (``rtcal run --large``); ``broken`` names the plugins that failed to
-    load, for the "unknown method" message. The registry of methods passes both
-    (:func:`rtcal.methods.load_procedure`)."""
+    load, for the "unknown method" message; ``not_a_procedure`` says what a document without one is instead. The
+    registry of methods passes them (:func:`rtcal.methods.load_procedure`)."""
     path = Path(path)
     text = read_text(path) if text is None else text
     data, locations = load_yaml(text, str(path))
@@ -34,49 +36,15 @@ def load_procedure(path: str | Path, models: Mapping[str, type[BaseModel]], larg
         line, col = locate(("method",), locations)
         known = ", ".join(sorted(models))
         msg = "required key is missing" if method is None else f"unknown method {method!r}"
-        if method is None and data and set(data) <= set(Scenario.model_fields):
-            raise FileProblems([Problem(str(path), line, col, "(document)", "this is a bench scenario, not a procedure: "
-                                        "give it with `--scenario` (e.g. `rtcal run PROCEDURE.yaml --scenario "
-                                        f"{path}`)")])
+        instead = not_a_procedure(data) if method is None and not_a_procedure is not None else None
+        if instead:
+            raise FileProblems([Problem(str(path), line, col, "(document)", instead.replace("{path}", str(path)))])
         failed = (broken or {}).get(method) if isinstance(method, str) else None
         if failed:
             msg += f" (its plugin failed to load: {failed})"
         raise FileProblems([Problem(str(path), line, col, "method", f"{msg}; one of: {known}")])
     # typed as the base: a method's own attributes are read only by its own code (docs/architecture.md)
     return cast(Procedure, validate_text(text, models[method], str(path), context={"large": large}))
-
-
-def load_scenario(path: str | Path, text: str | None = None) -> Scenario:
-    """Validate a bench scenario file (or its ``text``, already read); a compensation table it
-    names is read (relative to it) and checked."""
-    text = read_text(path) if text is None else text
-    data, locations = load_yaml(text, str(path))
-    if isinstance(data, dict) and "method" in data:
-        raise FileProblems([Problem(str(path), *locate(("method",), locations), "(document)",
-                                    "this is a procedure, not a bench scenario: give it as the procedure "
-                                    "(`rtcal run FILE`), and a bench with --scenario")])
-    scenario = validate_text(text, Scenario, str(path))
-    comp = scenario.stage.compensation
-    if comp is None:
-        return scenario
-    where = ("stage", "compensation", "file" if comp.file else "text")
-    table = comp.text
-    if comp.file is not None:
-        table_path = Path(path).parent / comp.file
-        try:
-            if table_path.stat().st_size > 1_000_000:
-                raise FileProblems([problem_at(path, where, f"{table_path} is larger than 1 MB: not a compensation table")])
-            table = table_path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise FileProblems([problem_at(path, where, f"cannot read {table_path}: {exc}")]) from None
-    if table is None:  # never: the model holds a file or a text (CompensationScenario)
-        raise FileProblems([problem_at(path, where, "give the table's file")])
-    try:
-        get_format(comp.format).parse(table, comp.file or "text")
-    except CompensationError as exc:
-        raise FileProblems([problem_at(path, where, str(exc))]) from None
-    return scenario.model_copy(update={"stage": scenario.stage.model_copy(update={
-        "compensation": comp.model_copy(update={"text": table, "file": None})})})
 
 
 def bench_path(procedure_path: str | Path, proc: Procedure) -> Path | None:
@@ -123,8 +91,17 @@ def procedure_schema(models: Mapping[str, type[BaseModel]]) -> str:
     return json.dumps(schema, indent=2)
 
 
-def scenario_schema() -> str:
-    schema = TypeAdapter(Scenario).json_schema()
-    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
-    schema["title"] = "rtcal bench scenario"
-    return json.dumps(schema, indent=2)
+MOVED = {"load_scenario": "simulators.scenario_file", "scenario_schema": "simulators.scenario_file"}
+
+
+def __getattr__(name: str) -> Any:
+    """Deprecated: a bench scenario's reading moved to simulators/scenario_file.py (a procedure's layer reads no
+    simulator); the old names go in the next release."""
+    if name not in MOVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    import warnings
+
+    warnings.warn(f"rtcal.procedure.loader.{name} moved to {MOVED[name]}.{name}; the old name goes in the next release",
+                  DeprecationWarning, stacklevel=2)
+    return getattr(importlib.import_module(MOVED[name]), name)

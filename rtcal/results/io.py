@@ -18,7 +18,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, Union
 
-from pydantic import Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 from pydantic_core import ErrorDetails
 
 from rtcal.results.model import RunResults
@@ -80,12 +80,36 @@ def read_results(run_dir: str | Path, models: ResultsModels) -> RunResults:
     return parse_results(data, models, str(path))
 
 
-def parse_results(data: bytes | str, models: ResultsModels, where: str = FILENAME) -> RunResults:
-    """Validate the text of a results.json (``where`` names it in messages)."""
+class _Named(BaseModel):
+    """What results.json names first of all: its method (everything else read by that method's model)."""
+
+    model_config = ConfigDict(extra="ignore")
+    method: str
+
+
+@lru_cache(maxsize=8)
+def _adapter_one(model: type[RunResults]) -> TypeAdapter[RunResults]:
+    return TypeAdapter(model)
+
+
+def _named_model(data: bytes | str, models: ResultsModels) -> type[RunResults] | None:
+    """The results model of the method the file names (only that method is loaded), or None: no method one of
+    ``models`` knows is named (then every model is asked, for the message)."""
     try:
-        return _adapter(models).validate_json(data, strict=True)
+        name = TypeAdapter(_Named).validate_json(data).method
+    except ValidationError:
+        return None
+    return models[name] if name in models else None
+
+
+def parse_results(data: bytes | str, models: ResultsModels, where: str = FILENAME) -> RunResults:
+    """Validate the text of a results.json (``where`` names it in messages) by the model of the method it names."""
+    model = _named_model(data, models)
+    try:
+        return (_adapter_one(model) if model is not None else _adapter(models)).validate_json(data, strict=True)
     except ValidationError as exc:
-        raise ResultsError(f"{where}: {_printable(_first_problem(exc.errors(), data, models))}") from None
+        told_apart = models if model is None else {}  # the union's errors start with the method's tag, one model's do not
+        raise ResultsError(f"{where}: {_printable(_first_problem(exc.errors(), data, told_apart))}") from None
 
 
 def _printable(text: str, limit: int = 400) -> str:

@@ -24,9 +24,9 @@ from rtcal import __version__
 from rtcal.clock import RealClock, VirtualClock
 from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import evaluate
-from rtcal.methods import METHODS, load_procedure
+from rtcal.methods import METHODS, load_procedure, procedure_models
 from rtcal.methods.protocol import DataContradiction, Method
-from rtcal.procedure.loader import bench_path, load_scenario
+from rtcal.procedure.loader import bench_path
 from rtcal.procedure.models import Procedure, plan_outside_limits
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
 from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
@@ -43,6 +43,7 @@ from rtcal.store.runstore import CONTEXT_COLUMNS_KEY, RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
+from simulators.scenario_file import load_scenario
 from drivers.addresses import REDACTED, redact_tokens
 from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, deliverable_digests, digests_of, results_digest
 from rtcal.store.hint import OPERATOR_TOKEN_ENV, resume_hint
@@ -140,7 +141,7 @@ NON_INSTRUMENT_ADDRESSES = ("operator",)  # what `rtcal sim serve` prints beside
 def known_address_names() -> list[str]:
     """Every name an ``--instruments`` object may hold: any method's instruments (`rtcal sim serve`
     serves them all, a procedure uses some) and the simulated operator."""
-    names = {f for model in METHODS.procedure_models().values()
+    names = {f for model in procedure_models().values()
              for f in cast("type[BaseModel]", model.model_fields["instruments"].annotation).model_fields}  # each method's Instruments
     return sorted(names) + list(NON_INSTRUMENT_ADDRESSES)
 
