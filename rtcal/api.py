@@ -30,7 +30,10 @@ object, registered under the entry-point group ``rtcal.methods`` (``name = "modu
 
 **An instrument kind** is a subclass of :class:`Instrument` declaring ``kind``, ``fields`` (each a
 :class:`FieldDescription`) and ``_raw_values``, registered under ``rtcal.instrument_kinds``; its simulation
-reads the simulated bench only through :class:`SimBench`.
+reads the simulated bench only through :class:`SimBench`. **A driver model** (``rtcal.drivers``) is a driver
+class of a kind's interface speaking its product's protocol (:class:`SerialLine`, :class:`Framing`,
+:class:`Address`); **a compensation format** (``rtcal.compensation_formats``) a :class:`CompensationFormat`
+(docs/drivers.md, docs/compensation.md).
 """
 
 from __future__ import annotations
@@ -39,9 +42,11 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from drivers.addresses import Address as Address
     from drivers.errors import InstrumentError as InstrumentError
     from drivers.errors import InstrumentFault as InstrumentFault
     from drivers.errors import InstrumentTimeout as InstrumentTimeout
+    from drivers.errors import TrackingLost as TrackingLost
     from drivers.factory import open_choice as open_choice
     from drivers.factory import open_instrument as open_instrument
     from drivers.interfaces import Autocollimator as Autocollimator
@@ -52,8 +57,16 @@ if TYPE_CHECKING:
     from drivers.interfaces import FieldDescription as FieldDescription
     from drivers.interfaces import Instrument as Instrument
     from drivers.interfaces import LaserTracer as LaserTracer
+    from drivers.interfaces import LengthReading as LengthReading
     from drivers.interfaces import RotaryStage as RotaryStage
     from drivers.interfaces import Value as Value
+    from drivers.models import Framing as Framing
+    from drivers.serial_line import SerialLine as SerialLine
+    from rtcal.compensation import CompensationError as CompensationError
+    from rtcal.compensation import CompensationFormat as CompensationFormat
+    from rtcal.compensation import CompensationTable as CompensationTable
+    from rtcal.compensation import FormatOption as FormatOption
+    from rtcal.compensation import sane as sane
     from rtcal.deliverables.deviations import PositioningDeviations as PositioningDeviations
     from rtcal.deliverables.method_outputs import MethodOutputs as MethodOutputs
     from rtcal.deliverables.method_outputs import OutputsBase as OutputsBase
@@ -137,10 +150,14 @@ if TYPE_CHECKING:
 # where each name lives (what the TYPE_CHECKING imports above say to the type checker; tests/test_api.py holds
 # the two together)
 _WHERE = {
-    "drivers.errors": ("InstrumentError", "InstrumentFault", "InstrumentTimeout"),
+    "drivers.addresses": ("Address",),
+    "drivers.errors": ("InstrumentError", "InstrumentFault", "InstrumentTimeout", "TrackingLost"),
     "drivers.factory": ("open_choice", "open_instrument"),
     "drivers.interfaces": ("Autocollimator", "Cmm", "DialIndicator", "Encoder", "EnvironmentSensor", "FieldDescription",
-                           "Instrument", "LaserTracer", "RotaryStage", "Value"),
+                           "Instrument", "LaserTracer", "LengthReading", "RotaryStage", "Value"),
+    "drivers.models": ("Framing",),
+    "drivers.serial_line": ("SerialLine",),
+    "rtcal.compensation": ("CompensationError", "CompensationFormat", "CompensationTable", "FormatOption", "sane"),
     "rtcal.deliverables.deviations": ("PositioningDeviations",),
     "rtcal.deliverables.method_outputs": ("MethodOutputs", "OutputsBase"),
     "rtcal.engine.checks": ("Contradiction", "MotionChecks", "UncommandedMotion", "arrive", "combined_sigma", "stood_still"),

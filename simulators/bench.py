@@ -25,7 +25,7 @@ import numpy as np
 from rtcal.solvers.air import ciddor_n
 from rtcal.clock import Clock, VirtualClock
 from rtcal.solvers.harmonics import evaluate
-from rtcal.units import arcsec_to_rad, um_to_mm
+from rtcal.units import arcsec_to_rad, rad_to_arcsec, um_to_mm
 from simulators.controllers import controller
 from simulators.faults import FaultInjector
 from simulators.scenario import Scenario
@@ -263,15 +263,28 @@ class Bench:
         """Where a point of the table (its own frame, mm) is now, in the housing frame."""
         return self.table_point_in_axis_frame(np.asarray(on_table_mm, dtype=float))
 
+    @contextmanager
+    def systematic_state(self, commanded_deg: float, direction: int) -> Iterator[float]:
+        """The bench with its table at ``commanded_deg`` approached in ``direction``, without repeatability (what a
+        noise-free instrument would read there); yields εz there, arcsec. The present state is restored after."""
+        cmd = self.quantise_command(math.radians(commanded_deg))
+        actual = self.systematic_actual_rad(cmd, int(direction))
+        with self.stage_state(self.motor_command_rad(cmd, int(direction)), actual):
+            yield rad_to_arcsec(actual - math.radians(commanded_deg))
+
     def true_table_point_mm(self, on_table_mm: Any, commanded_deg: float, direction: int) -> np.ndarray:
         """The table point without noise, the table at ``commanded_deg`` approached in ``direction``."""
-        commanded = math.radians(commanded_deg)
-        with self.stage_state(self.motor_command_rad(commanded, direction), self.systematic_actual_rad(commanded, direction)):
+        with self.systematic_state(commanded_deg, direction):
             return self.table_point_mm(on_table_mm)
 
     def true_positioning_error_arcsec(self, commanded_deg: float, direction: int) -> float:
-        commanded = math.radians(commanded_deg)
-        return math.degrees(self.systematic_actual_rad(commanded, direction) - commanded) * 3600.0
+        with self.systematic_state(commanded_deg, direction) as error_arcsec:
+            return error_arcsec
+
+    def true_encoder_error_arcsec(self, commanded_deg: float, direction: int) -> float:
+        """What a noise-free encoder misreads there (Abbe shift/rE, eccentricity, graduation), arcsec."""
+        with self.systematic_state(commanded_deg, direction):
+            return rad_to_arcsec(self.encoder_error_rad())
 
     # -- what an operator mounts on the table (a test ball, a sphere): its position turns with the table
     def mount_artefact(self, name: str, on_table_mm: tuple[float, float, float] | list[float]) -> None:

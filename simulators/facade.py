@@ -67,6 +67,10 @@ class SimBench(Protocol):
         """The table's systematic positioning error εz at ``commanded_deg`` approached in ``direction``, arcsec."""
         ...
 
+    def true_encoder_error_arcsec(self, commanded_deg: float, direction: int) -> float:
+        """What a noise-free encoder of the bench misreads there (its Abbe shift, eccentricity, graduation), arcsec."""
+        ...
+
     # -- the operator's hands (an operator step's ``simulate``)
     def mount_artefact(self, name: str, on_table_mm: Any) -> None: ...
 

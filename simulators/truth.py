@@ -35,11 +35,8 @@ def station_truth(bench: Bench, angles_deg: np.ndarray, direction: int) -> dict:
 
 def _systematic_arcsec(bench: Bench, angle_deg: float, direction: int) -> tuple[float, float]:
     """(εz, encoder error) at a commanded angle approached in ``direction``, without repeatability."""
-    cmd = bench.quantise_command(math.radians(angle_deg))
-    actual = bench.systematic_actual_rad(cmd, int(direction))
-    with bench.stage_state(bench.motor_command_rad(cmd, int(direction)), actual):
-        enc = rad_to_arcsec(bench.encoder_error_rad())
-    return rad_to_arcsec(actual - math.radians(angle_deg)), enc
+    with bench.systematic_state(angle_deg, direction) as error_arcsec:
+        return error_arcsec, rad_to_arcsec(bench.encoder_error_rad())
 
 
 def abbe_truth(bench: Bench, angles_deg: np.ndarray, directions: np.ndarray,

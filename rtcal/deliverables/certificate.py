@@ -29,7 +29,7 @@ from rtcal.deliverables.evaluation import UNCONFIRMED
 from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.method_outputs import MethodOutputs
 from rtcal.deliverables.rounding import fmt, u_text, value_text
-from rtcal.results.model import EnvironmentSummary, InstrumentRecord, RunResults
+from rtcal.results.model import EnvironmentSummary, InstrumentRecord, QuantityEstimate, RunResults
 
 SCHEMA_VERSION = "1.0"
 
@@ -291,6 +291,14 @@ def key_results(results: RunResults, uncertainties: dict[str, float | None]) -> 
         rows.append(("positioning deviation ECC (mean per target and direction)",
                      f"{value_text(smallest(cum), U, '+')}″ … {value_text(largest(cum), U, '+')}″ over {targets} targets"
                      + (" in both directions" if dirs == 2 else " in one direction"), f"U ≤ {u_text(U)}″"))
+    q = results.recommended_result()
+    if isinstance(q, QuantityEstimate):  # a result in its own quantity and unit, as the method declares it
+        values = [v for v in q.value if v is not None]
+        U = largest(q.expanded_uncertainty)
+        if values:
+            rows.append((f"{q.quantity} (per target and direction)",
+                         f"{value_text(min(values), U, '+')} {q.unit} … {value_text(max(values), U, '+')} {q.unit} over "
+                         f"{len({round(t, 6) for t in q.target_deg})} targets", f"U ≤ {u_text(U)} {q.unit}"))
     iso = results.evaluation.iso230_2 if results.evaluation else None
     if iso is not None:
         label = parameters_label(iso_departures(results))
@@ -567,12 +575,20 @@ class Sources:
         return "report" if self.missing else "certificate"
 
 
+def subject(results: RunResults) -> str:
+    """What the certificate is of: the angular positioning deviation, or the quantity the method's result declares."""
+    q = results.recommended_result()
+    if isinstance(q, QuantityEstimate):
+        return f"{q.quantity[:1].upper()}{q.quantity[1:]} ({q.unit})"
+    return "Angular positioning deviation of a rotary axis"
+
+
 def _header(s: Sources) -> Header:
     meta, results = s.results.metadata, s.results
     footer = " · ".join(x for x in (meta.laboratory or results.procedure.name or results.method,
                                     f"Certificate {meta.certificate_number}" if meta.certificate_number else "") if x)
     return Header(title="Calibration certificate" if not s.missing else "Calibration report",
-                  subtitle="Angular positioning deviation of a rotary axis",
+                  subtitle=subject(results),
                   laboratory=meta.laboratory or "Laboratory not stated", laboratory_address=meta.laboratory_address,
                   certificate_number=meta.certificate_number,
                   not_certificate=("Not a calibration certificate: the procedure's metadata does not give "
@@ -583,7 +599,8 @@ def _header(s: Sources) -> Header:
 def _identification(s: Sources) -> Identification:
     results, meta = s.results, s.results.metadata
     conformity = results.conformity
-    standards = list(STANDARDS) + ([DECISION_STANDARDS[conformity.decision_rule]] if conformity else [])
+    evaluated = results.evaluation is not None  # a result of the method's own quantity is evaluated by no positioning standard
+    standards = list(STANDARDS if evaluated else STANDARDS[2:]) + ([DECISION_STANDARDS[conformity.decision_rule]] if conformity else [])
     if s.departed:
         standards[0] = "ISO 230-2:2014 (its formulas for E, M, B, R, A applied to a test that departs from its test: see Departures)"
     item = ", ".join(x for x in (meta.machine, f"axis {meta.axis}" if meta.axis else "",
@@ -619,7 +636,9 @@ def _identification(s: Sources) -> Identification:
 
 
 def _not_included(s: Sources) -> list[str]:
-    e = s.results.recommended_estimate()
+    e = s.results.recommended_result()
+    if isinstance(e, QuantityEstimate):
+        return list(e.not_included)
     return list(e.uncertainty_budget.not_included) if e is not None else []
 
 
@@ -659,6 +678,8 @@ def _sign_off(s: Sources) -> SignOff:
 
 def _deviations(s: Sources) -> Table | None:
     results = s.results
+    if results.positioning_deviations is None:  # a result of the method's own quantity: its own tables state it
+        return None
     rows = []
     if results.positioning_deviations is not None:
         table = PositioningDeviations.from_model(results.positioning_deviations)

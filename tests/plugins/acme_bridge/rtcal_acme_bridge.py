@@ -10,11 +10,7 @@ from __future__ import annotations
 
 import re
 
-from drivers.addresses import Address
-from drivers.errors import InstrumentFault, TrackingLost
-from drivers.interfaces import LaserTracer, LengthReading
-from drivers.models import Framing
-from drivers.serial_line import SerialLine
+from rtcal.api import Address, Framing, InstrumentFault, LaserTracer, LengthReading, SerialLine, TrackingLost
 
 
 class AcmeBridgeTracer(LaserTracer):
@@ -22,7 +18,7 @@ class AcmeBridgeTracer(LaserTracer):
     model = "acme-bridge"  # the name `model=` gives (the entry point's name)
     schemes = ("serial",)  # a device path or socket://
     framing = Framing(115200, 8, "N", 1)  # the line's defaults; the address's baud/bytesize/parity/stopbits win
-    options: dict = {}  # its own address options: name → (lowest, highest, whole number)
+    options: dict[str, tuple[float, float, bool]] = {}  # its own address options: name → (lowest, highest, whole number)
     name = "laser_tracer"
 
     LENGTH = re.compile(r"LEN ([+-]?\d+(?:\.\d+)?) (\d{1,9})|ERR (\w+)")

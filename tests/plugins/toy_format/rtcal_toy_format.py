@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from rtcal.compensation import CompensationError, CompensationFormat, CompensationTable, FormatOption, sane
+from rtcal.api import CompensationError, CompensationFormat, CompensationTable, FormatOption, sane
 
 HEADER = "position_deg,trim_up_arcsec,trim_down_arcsec"
 

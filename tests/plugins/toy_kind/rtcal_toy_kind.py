@@ -7,18 +7,17 @@ and the physical range no level reads beyond) and ``_raw_values``, the adapter f
 method to those named values. From them rtcal describes it, stores its readings under the described
 quantities and units (with the store's ``descriptions`` rows), fences a driver's readings and lets
 ``rtcal probe`` show it; nothing in rtcal names it. :class:`SimInclinometer` is its simulation, here
-and not in simulators/: a kind's package brings what it needs.
+and not in simulators/: a kind's package brings what it needs, reading the simulated bench through
+rtcal.api's ``SimBench`` (the plugin imports rtcal only from rtcal.api).
 """
 
 from __future__ import annotations
 
 import math
 from abc import abstractmethod
-from typing import Any
-
 import numpy as np
 
-from drivers.interfaces import FieldDescription, Instrument, Value
+from rtcal.api import FieldDescription, Instrument, SimBench, Value
 
 TILT_RANGE_ARCSEC = 36_000.0  # ±10°: an electronic level's widest range; a reading beyond is no reading
 
@@ -45,31 +44,28 @@ class Inclinometer(Instrument):
 
 class SimInclinometer(Inclinometer):
     """A level on the simulated bench: the axis's tilt and the table's tilt error motion (εx, εy) at its
-    angle, seen in the table's turning frame, plus the level's zero offset and noise. Without a bench
-    (or one that has no tilt) it reads its zero offset plus noise from its own random stream."""
+    angle, seen in the table's turning frame, plus the level's zero offset and noise. Without a bench it
+    reads its zero offset plus noise from its own random stream."""
 
     name = "inclinometer"
 
-    def __init__(self, bench: Any = None, noise_arcsec: float = 0.2, resolution_arcsec: float = 0.1,
+    def __init__(self, bench: SimBench | None = None, noise_arcsec: float = 0.2, resolution_arcsec: float = 0.1,
                  zero_arcsec: tuple[float, float] = (1.5, -0.8), seed: int = 0):
         self.bench = bench
         self.noise_arcsec, self.resolution_arcsec, self.zero_arcsec = noise_arcsec, resolution_arcsec, zero_arcsec
-        self._rng = bench.rng("inclinometer") if hasattr(bench, "rng") else np.random.default_rng(seed)
+        self._rng = bench.rng("inclinometer") if bench is not None else np.random.default_rng(seed)
 
     def _table_tilt_arcsec(self) -> tuple[float, float]:
-        """The table's tilt in its own frame (0 without a bench that has one)."""
-        bench = self.bench
-        if not hasattr(bench, "error_motions"):
+        """The table's tilt in its own frame (0 without a bench)."""
+        if self.bench is None:
             return 0.0, 0.0
-        stage = bench.scenario.stage
-        _, ex_rad, ey_rad = bench.error_motions(bench.commanded_rad)
-        tx = stage.axis_tilt_x_arcsec + math.degrees(ex_rad) * 3600.0  # housing frame
-        ty = stage.axis_tilt_y_arcsec + math.degrees(ey_rad) * 3600.0
-        c, s = math.cos(bench.actual_rad), math.sin(bench.actual_rad)
+        tx, ty = self.bench.table_tilt_arcsec()  # the housing's frame
+        angle = math.radians(self.bench.table_angle_deg())
+        c, s = math.cos(angle), math.sin(angle)
         return tx * c + ty * s, -tx * s + ty * c  # the level turns with the table
 
     def read_tilt_arcsec(self) -> tuple[float, float]:
-        if hasattr(self.bench, "reading"):
+        if self.bench is not None:
             self.bench.reading()
         tilt = self._table_tilt_arcsec()
         step = self.resolution_arcsec

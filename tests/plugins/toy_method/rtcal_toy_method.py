@@ -6,40 +6,24 @@ overrun from its own side) the stage is moved, settled, its feedback checked, an
 ``samples_per_reading`` times; the deviation is encoder − command, relative to the first target of
 the first direction (an incremental encoder's zero is arbitrary). No reference standard is used:
 what the encoder itself misreads (its Abbe error, graduation, eccentricity) is in the result, and
-the certificate says so. Everything here is rtcal's public seams: the procedure model bases, the
-engine's steps, the sequencer's checks, the estimate block and the output protocol.
+the certificate says so. Everything here is rtcal's public face, rtcal.api (with rtcal.solvers for the
+budget's mathematics): the procedure model bases, the plan's steps and motion checks, the estimate block,
+the results bases, the store's readings that count, the outputs' base and the simulated bench.
 """
 
 from __future__ import annotations
 
 import csv
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
-from typing import Any, Iterator, Literal
+from typing import Any, Literal
 
 import numpy as np
+from matplotlib.figure import Figure
 from pydantic import Field, ValidationInfo, model_validator
 
-from drivers import factory
-from drivers.interfaces import Encoder, RotaryStage
-from drivers.interfaces import Instrument
-from rtcal.deliverables.deviations import PositioningDeviations
-from rtcal.deliverables.figures import legend_below, plt
-from rtcal.engine.plan import Attempt, Entry
-from rtcal.engine.steps import Move, Read, Settle, Step, Validate
-from rtcal.methods.estimates import choose_recommended, deviation_block, run_estimators
-from rtcal.methods.protocol import address_of
-from rtcal.procedure.models import (FaultPolicy, InstrumentChoice, InstrumentsBase, ProcedureBase, StageChoice, StrictModel,
-                                    VerificationBase, plan_outside_limits, plan_size_problem)
-from rtcal.results import model as rm
-from rtcal.store.runstore import RunReadings as RunStore
-from rtcal.engine.checks import EncoderCheck, MotionChecks
+from rtcal import api
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
-from simulators.bench import Bench
-from simulators.instruments import SimEncoder, SimStage
-from simulators.scenario import Scenario
-from simulators.truth import abbe_truth
 
 NAME = "encoder_vs_command"
 # the optional inclinometer: an installed instrument kind (tests/plugins/toy_kind), taken by its name
@@ -48,34 +32,35 @@ TILT_FIELDS = ("tilt_x_arcsec", "tilt_y_arcsec")
 
 
 # -- the procedure ------------------------------------------------------------------------------------
-class Instruments(InstrumentsBase):
-    stage: StageChoice = Field(StageChoice(), description="the rotary table's drive")
-    encoder: InstrumentChoice = Field(InstrumentChoice(), description="the counter of the table's own encoder")
-    inclinometer: InstrumentChoice | None = Field(None, description=(
+class Instruments(api.InstrumentsBase):
+    stage: api.StageChoice = Field(api.StageChoice(), description="the rotary table's drive")
+    encoder: api.InstrumentChoice = Field(api.InstrumentChoice(), description="the counter of the table's own encoder")
+    inclinometer: api.InstrumentChoice | None = Field(None, description=(
         "an electronic level on the table (kind `inclinometer`, package rtcal-toy-kind), read once per visit after "
         "the encoder (e.g. {backend: sim})"))
 
     @model_validator(mode="after")
     def _inclinometer_installed(self) -> "Instruments":
-        from drivers.kinds import KINDS
-
-        if self.inclinometer is not None and INCLINOMETER not in KINDS:
-            raise ValueError(f"inclinometer: {KINDS.unknown(INCLINOMETER)}; install rtcal-toy-kind")
+        if self.inclinometer is not None:
+            try:
+                self.inclinometer.kind_of(INCLINOMETER)
+            except ValueError as exc:
+                raise ValueError(f"{exc}; install rtcal-toy-kind") from None
         return self
 
 
-class OnFault(StrictModel):
-    stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
-    encoder: FaultPolicy = Field(FaultPolicy(), description="when the encoder counter fails")
-    inclinometer: FaultPolicy = Field(FaultPolicy(), description="when the inclinometer fails")
+class OnFault(api.StrictModel):
+    stage: api.FaultPolicy = Field(api.FaultPolicy(), description="when the stage fails")
+    encoder: api.FaultPolicy = Field(api.FaultPolicy(), description="when the encoder counter fails")
+    inclinometer: api.FaultPolicy = Field(api.FaultPolicy(), description="when the inclinometer fails")
 
 
-class Verification(VerificationBase):
+class Verification(api.VerificationBase):
     encoder_tolerance_arcsec: float = Field(600.0, gt=0.0, le=648_000.0, description=(
         "how far the encoder's change since the start's first reading may be from the commanded change, arcsec"))
 
 
-class Steps(StrictModel):
+class Steps(api.StrictModel):
     targets_deg: list[float] = Field([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0], min_length=2, max_length=360,
                                      description="the targets, deg, in increasing order")
     directions: list[Literal["positive", "negative"]] = Field(["positive", "negative"], min_length=1, max_length=2,
@@ -90,14 +75,14 @@ class Steps(StrictModel):
         return self
 
 
-class Uncertainty(StrictModel):
+class Uncertainty(api.StrictModel):
     encoder_noise_arcsec: float = Field(0.3, ge=0.0, le=3600.0, description=(
         "1σ of one encoder reading, arcsec (Type B; with two runs or more the runs' scatter is used instead)"))
     encoder_calibration_u_arcsec: float = Field(0.0, ge=0.0, le=3600.0, description=(
         "standard uncertainty of the encoder's indication from its calibration, arcsec (0: not stated)"))
 
 
-class EncoderVsCommand(ProcedureBase):
+class EncoderVsCommand(api.ProcedureBase):
     """The table's positioning deviation as its own encoder reads it against the command."""
 
     method: Literal["encoder_vs_command"] = Field(description="the table's encoder against the command (plugin)")
@@ -125,7 +110,7 @@ class EncoderVsCommand(ProcedureBase):
 
     @model_validator(mode="after")
     def _within_limits(self, info: ValidationInfo) -> "EncoderVsCommand":
-        problem = plan_size_problem(self, large=bool((info.context or {}).get("large"))) or plan_outside_limits(
+        problem = api.plan_size_problem(self, large=bool((info.context or {}).get("large"))) or api.plan_outside_limits(
             self, self.instruments.stage.soft_limits_deg)
         if problem:
             raise ValueError(problem)
@@ -151,96 +136,83 @@ def planned_visits(proc: EncoderVsCommand) -> list[Visit]:
     return out
 
 
-# -- instruments and plan ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class InstrumentSet:
-    stage: RotaryStage
-    encoder: Encoder
-    inclinometer: Instrument | None = None
+# -- the plan ------------------------------------------------------------------------------------------
+class FollowsCommand:
+    """The encoder moves as commanded: its reading minus the command stays within a tolerance of what it was at
+    the start's first visit (an incremental counter's zero is arbitrary); a contradiction is the stage's."""
 
-    def devices(self) -> dict[str, Any]:
-        return {"stage": self.stage, "encoder": self.encoder, **({INCLINOMETER: self.inclinometer} if self.inclinometer else {})}
+    def __init__(self, tolerance_arcsec: float):
+        self.tolerance_arcsec = tolerance_arcsec
+        self.offset_deg: float | None = None
+        self.first_command_deg = 0.0
 
-    def close(self) -> None:
-        self.stage.close()
-        self.encoder.close()
-        if self.inclinometer is not None:
-            self.inclinometer.close()
+    def check(self, encoder_deg: float, command_deg: float) -> None:
+        offset = encoder_deg - command_deg
+        if self.offset_deg is None:
+            self.offset_deg, self.first_command_deg = offset, command_deg
+            return
+        apart_deg = (offset - self.offset_deg + 180.0) % 360.0 - 180.0
+        if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec:
+            commanded = command_deg - self.first_command_deg
+            raise api.Contradiction("stage", f"the encoder turned {commanded + apart_deg:.4f}° where {commanded:.4f}° was "
+                                             f"commanded since the first visit: {apart_deg * 3600:+.0f}″ apart (tolerance "
+                                             f"{self.tolerance_arcsec:g}″, verification.encoder_tolerance_arcsec)")
 
 
-class EncoderPlan:
+class EncoderPlan(api.PlanBase):
     """Move, settle, check the feedback, read the encoder, check it moved as commanded and the table stood still."""
 
     method = NAME
-    retake_skipped = False
 
     def __init__(self, proc: EncoderVsCommand, generation: int, stage_step_deg: float):
         self.proc = proc
         self.visits = planned_visits(proc)
         self.policies = {name: getattr(proc.on_fault, name) for name in type(proc.on_fault).model_fields}
-        self.checks = MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
-        self.encoder_moves = EncoderCheck(proc.verification.encoder_tolerance_arcsec)
-        # the inclinometer's quantities as its kind describes them (None: no inclinometer)
+        self.checks = api.MotionChecks(stage_step_deg, proc.verification.stage_tolerance_deg)
+        self.encoder_moves = FollowsCommand(proc.verification.encoder_tolerance_arcsec)
         self.tilt = proc.instruments.inclinometer is not None
         self.entries = [
-            Entry(k, 0, {"station": v.step, "run": v.run, "direction": v.direction, "commanded_angle_deg": v.angle_deg,
-                         "plan_index": k, "segment": generation},
-                  {"target_deg": v.angle_deg, "run": v.run + 1, "direction": "↑" if v.direction > 0 else "↓"},
-                  f"visit at {v.angle_deg:g}°")
+            api.Entry(k, 0, {"station": v.step, "run": v.run, "direction": v.direction, "commanded_angle_deg": v.angle_deg,
+                             "plan_index": k, "segment": generation},
+                      {"target_deg": v.angle_deg, "run": v.run + 1, "direction": "↑" if v.direction > 0 else "↓"},
+                      f"visit at {v.angle_deg:g}°")
             for k, v in enumerate(self.visits)]
 
-    def prologue(self) -> Iterator[Step]:
+    def prologue(self) -> list[api.Step]:
         overshoot = self.proc.steps.overshoot_deg
-        yield Validate("stage", tuple(x for v in self.visits for x in (v.angle_deg, v.angle_deg - v.direction * overshoot)))
+        return [api.Validate("stage", tuple(x for v in self.visits for x in (v.angle_deg, v.angle_deg - v.direction * overshoot)))]
 
-    def enter_group(self, entry: Entry, first: bool) -> Iterator[Step]:
-        return iter(())  # no operator's set-up: nothing is re-seated
-
-    def positions_unknown(self) -> None:
-        """Nothing to forget: every visit approaches its target."""
-
-    def leave_group(self, group: int, segment: int | None) -> None:
-        return None
-
-    def attempt(self, entry: Entry) -> Attempt:
+    def attempt(self, entry: api.Entry) -> api.Attempt:
         proc, v = self.proc, self.visits[entry.index]
         angle = v.angle_deg
-        to_target = Move("stage", angle, v.direction, proc.steps.overshoot_deg, what=f"move to {angle:g}°")
-        yield to_target
-        yield Settle(proc.settle_time_s)
-        feedback = yield Read("stage", ("feedback_deg",), partial(self.checks.stage_at, command_deg=angle), angle,
-                              f"position at {angle:g}°")
+        feedback = yield from api.arrive(self.checks, angle, v.direction, proc.steps.overshoot_deg, proc.settle_time_s)
         for s in range(proc.samples_per_reading):
-            value = yield Read("encoder", ("angle_deg",), None, angle, f"reading at {angle:g}°", sample=s)
+            value = yield api.Read("encoder", ("angle_deg",), None, angle, f"reading at {angle:g}°", sample=s)
             self.encoder_moves.check(float(value), angle)
         if self.tilt:
-            yield Read(INCLINOMETER, TILT_FIELDS, None, (0.0, 0.0), f"tilt at {angle:g}°")
-        yield Read("stage", ("feedback_deg",), partial(self.checks.stage_still, before_deg=feedback), angle,
-                   f"position at {angle:g}°", "after")
+            yield api.Read(INCLINOMETER, TILT_FIELDS, None, (0.0, 0.0), f"tilt at {angle:g}°")
+        yield from api.stood_still(self.checks, angle, feedback)
 
 
 # -- results -----------------------------------------------------------------------------------------
-class Estimates(rm.NamedSet[rm.Estimate]):
+class Estimates(api.NamedSet[api.Estimate]):
     """``estimates`` of the encoder-against-command method."""
 
-    encoder: rm.TargetedEstimate | None = Field(None, description="encoder − command per target and direction")
+    encoder: api.TargetedEstimate | None = Field(None, description="encoder − command per target and direction")
 
 
-class EncoderAnalysis(rm.Analysis):
-    # a method's own estimator names: narrower than (and apart from) the built-in methods'
-    recommended: Literal["encoder"] | None = Field(description="the estimate to quote")  # type: ignore[assignment]
-    solver_status: dict[Literal["encoder"], rm.SolverStatus] = Field(  # type: ignore[assignment]
-        description="every estimator, including one that failed")
+class EncoderAnalysis(api.Analysis):
+    recommended: Literal["encoder"] | None = Field(description="the estimate to quote")  # the method's own estimator
     estimates: Estimates = Field(description="every estimate that could run")
 
 
-class EncoderResults(EncoderAnalysis, rm.RunResults):
+class EncoderResults(EncoderAnalysis, api.RunResults):
     """results.json of the encoder-against-command method (a plugin's)."""
 
     method: Literal["encoder_vs_command"] = Field(description="the calibration method")
 
 
-def encoder_means(store: RunStore, proc: EncoderVsCommand) -> tuple[np.ndarray, np.ndarray]:
+def encoder_means(store: api.RunReadings, proc: EncoderVsCommand) -> tuple[np.ndarray, np.ndarray]:
     """Per planned visit: mean of encoder − command (arcsec, wrapped to ±180°) and its sample count; only the
     readings that count (the store's rule), and of those only an attempt stored whole."""
     visits = planned_visits(proc)
@@ -267,7 +239,7 @@ def visit_sigma(per_key: np.ndarray, proc: EncoderVsCommand, samples: int,
             f"the procedure's stated 1σ of one reading ({stated:g}″), {samples} samples averaged")
 
 
-def analyse(proc: EncoderVsCommand, store: RunStore, bench: Bench | None, estimate_noise: bool) -> EncoderAnalysis:
+def analyse(proc: EncoderVsCommand, store: api.RunReadings, bench: api.SimBench | None, estimate_noise: bool) -> EncoderAnalysis:
     """Per target and direction the mean over the runs of encoder − command, relative to the first target of
     the first direction, with its budget; the rows of every visit as the positioning-deviation table."""
     visits = planned_visits(proc)
@@ -280,7 +252,7 @@ def analyse(proc: EncoderVsCommand, store: RunStore, bench: Bench | None, estima
     sigma, source, kind, estimated, note = visit_sigma(per_key, proc, max(int(count.min()), 1), estimate_noise)
     table = None
 
-    def estimate() -> rm.Estimate:
+    def estimate() -> api.TargetedEstimate:
         if np.isnan(per_key).any():
             raise ValueError(f"{int(np.isnan(per_key).sum())} visits have no encoder reading")
         n = len(keys)
@@ -293,15 +265,15 @@ def analyse(proc: EncoderVsCommand, store: RunStore, bench: Bench | None, estima
         else:
             omitted.append("the encoder's calibration (not stated)")
         cumulative = per_key.mean(axis=1) - per_key[0].mean()
-        block = deviation_block(cumulative, DeviationBudget(components), not_included=omitted)
-        return rm.TargetedEstimate(**block.model_dump(), converged=True, message="mean over the runs per target",
+        block = api.deviation_block(cumulative, DeviationBudget(components), not_included=omitted)
+        return api.TargetedEstimate(**block.model_dump(), converged=True, message="mean over the runs per target",
                                    target_deg=[float(t) for t, _ in keys], target_direction=[d for _, d in keys])
 
-    found, status = run_estimators({"encoder": estimate})
+    found, status = api.run_estimators({"encoder": estimate})
     if "encoder" in found:
         ref = per_key[0].mean()
         u_row = np.sqrt(sigma**2 + sigma**2 / runs + 2 * u_cal**2)  # one visit against the reference's mean
-        table = PositioningDeviations(
+        table = api.PositioningDeviations(
             np.array([v.angle_deg for v in visits]), np.array([v.direction for v in visits]),
             np.array([v.run + 1 for v in visits]), np.round(means - ref, 4), np.full(len(visits), round(float(u_row), 4)),
             estimator="encoder", notes=("encoder − command, relative to the first target of the first direction "
@@ -309,19 +281,18 @@ def analyse(proc: EncoderVsCommand, store: RunStore, bench: Bench | None, estima
     return EncoderAnalysis(
         nominal_angles_deg=[float(t) for t in proc.steps.targets_deg],
         raw_readings=len(store.done_plan_indices()),
-        recommended=choose_recommended(found, status),
+        recommended=api.choose_recommended(found, status),
         solver_status=status,
         estimates=Estimates(**found),
         positioning_deviations=table,
-        truth=None if bench is None or "encoder" not in found else rm.Truth(cumulative_deviation_arcsec=true_reading(bench, keys)),
+        truth=None if bench is None or "encoder" not in found else api.Truth(cumulative_deviation_arcsec=true_reading(bench, keys)),
     )
 
 
-def true_reading(bench: Bench, keys: list[tuple[float, int]]) -> list[float]:
+def true_reading(bench: api.SimBench, keys: list[tuple[float, int]]) -> list[float]:
     """What a noise-free encoder reads against the command at each target, relative to the first: the
-    table's true εz plus the encoder's own systematic error (the simulator's truth)."""
-    t = abbe_truth(bench, np.array([k[0] for k in keys]), np.array([k[1] for k in keys]))
-    seen = np.array(t["positioning_error_arcsec"]) + np.array(t["encoder_error_arcsec"])
+    table's true εz plus the encoder's own systematic error (the simulated bench's truth)."""
+    seen = np.array([bench.true_positioning_error_arcsec(t, d) + bench.true_encoder_error_arcsec(t, d) for t, d in keys])
     return [round(float(x), 6) for x in seen - seen[0]]
 
 
@@ -330,7 +301,7 @@ def _values(values: list[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in values], float)
 
 
-class EncoderOutputs:
+class EncoderOutputs(api.OutputsBase):
     """A CSV and one figure of the deviation per target, the report's section and the console's lines."""
 
     FIGURE = "encoder_deviation.png"
@@ -340,7 +311,7 @@ class EncoderOutputs:
         e = results.estimates.encoder
         if e is None:
             raise ValueError("estimates.encoder: missing")
-        self.e: rm.TargetedEstimate = e
+        self.e: api.TargetedEstimate = e
 
     def write_files(self, run_dir: Path) -> list[Path]:
         e, csv_path = self.e, run_dir / "encoder_deviations.csv"
@@ -350,7 +321,8 @@ class EncoderOutputs:
             for row in zip(e.target_deg, e.target_direction, e.cumulative_deviation_arcsec, e.cumulative_uncertainty_arcsec,
                            e.cumulative_expanded_uncertainty_arcsec):
                 w.writerow(row)
-        fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
+        fig = Figure(figsize=(8, 4.6), layout="constrained")
+        ax = fig.add_subplot()
         for d, label in ((1, "↑"), (-1, "↓")):
             sel = [i for i, x in enumerate(e.target_direction) if x == d]
             if sel:
@@ -360,9 +332,8 @@ class EncoderOutputs:
         ax.set_xlabel("table angle / °")
         ax.set_ylabel("deviation / ″")
         ax.grid(alpha=0.3)
-        legend_below(fig)
+        ax.legend()
         fig.savefig(run_dir / self.FIGURE, dpi=110)
-        plt.close(fig)
         return [csv_path, run_dir / self.FIGURE]
 
     def report_body(self) -> list[str]:
@@ -389,70 +360,42 @@ class EncoderOutputs:
         return [f"encoder − command: largest |deviation| {max(values, default=0.0):.2f}″ over "
                 f"{len(self.e.target_deg)} targets (estimate `encoder`)"]
 
-    def certificate_tables(self) -> list[dict[str, Any]]:
-        return []
-
 
 # -- the method --------------------------------------------------------------------------------------
-class EncoderVsCommandMethod:
-    """:class:`rtcal.methods.protocol.Method` of the encoder-against-command method."""
+class EncoderVsCommandMethod(api.MethodBase):
+    """The encoder-against-command method: its models, plan, analysis and outputs; rtcal.api.MethodBase says the
+    rest (its instruments opened by their kinds at their addresses, no planner, nothing to prepare)."""
 
     name = NAME
     procedure_model = EncoderVsCommand
     results_model = EncoderResults
-    operator_steps = False
-    context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
     estimators = ("encoder",)
-    positioning_deviation = True
-    planner = None  # `rtcal plan` predicts its plan as written: no levers
-
-    def plan_length(self, proc: EncoderVsCommand) -> int:
-        return len(planned_visits(proc))
-
-    def sim_instruments(self, proc: EncoderVsCommand, bench: Bench) -> InstrumentSet:
-        level = None
-        if proc.instruments.inclinometer is not None:
-            from rtcal_toy_kind import SimInclinometer  # the kind's package brings its simulation (extra `inclinometer`)
-
-            level = SimInclinometer(bench)
-        return InstrumentSet(SimStage(bench), SimEncoder(bench), level)
-
-    def transport_instruments(self, proc: EncoderVsCommand) -> InstrumentSet:
-        i = proc.instruments
-        level = (factory.open_instrument(INCLINOMETER, address_of(i.inclinometer), i.inclinometer.timeout_s)
-                 if i.inclinometer is not None else None)
-        return InstrumentSet(factory.open_stage(address_of(i.stage), i.stage.soft_limits_deg, i.stage.timeout_s),
-                             factory.open_encoder(address_of(i.encoder), i.encoder.timeout_s), level)
-
-    def prepare(self, proc: EncoderVsCommand, operator: Any) -> dict[str, str]:
-        return {}
 
     def plan(self, proc: EncoderVsCommand, done: set[int], generation: int = 0, stage_step_deg: float = 0.0) -> EncoderPlan:
         return EncoderPlan(proc, generation, stage_step_deg)
 
-    def analyse(self, proc: EncoderVsCommand, store: RunStore, bench: Bench | None,
+    def sim_instruments(self, proc: EncoderVsCommand, bench: api.SimBench) -> api.Instruments:
+        devices = {"stage": api.simulated_instrument(bench, "stage"), "encoder": api.simulated_instrument(bench, "encoder")}
+        if proc.instruments.inclinometer is not None:
+            from rtcal_toy_kind import SimInclinometer  # the kind's package brings its simulation (extra `inclinometer`)
+
+            devices[INCLINOMETER] = SimInclinometer(bench)
+        return api.Instruments(devices)
+
+    def analyse(self, proc: EncoderVsCommand, store: api.RunReadings, bench: api.SimBench | None,
                 estimate_noise: bool = True) -> EncoderAnalysis:
         return analyse(proc, store, bench, estimate_noise)
-
-    def draw_systematics(self, proc: EncoderVsCommand, scenario: Scenario, rng: np.random.Generator) -> Scenario:
-        return scenario  # no stated systematic error to draw
-
-    def scenario_problem(self, proc: EncoderVsCommand, scenario: Scenario) -> None:
-        return None
 
     def checks_text(self, proc: EncoderVsCommand) -> list[str]:
         return [f"encoder: its change since the run's first visit within {proc.verification.encoder_tolerance_arcsec:g}″ "
                 "of the commanded change"]
 
-    def conditions(self, results: rm.RunResults) -> None:
-        return None
-
-    def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
+    def instrument_roles(self, results: api.RunResults) -> dict[str, str]:
         return {"stage": "the item's drive (commanded)",
                 "encoder": "measuring instrument: the table's own encoder, read against the command (not a reference standard)",
                 INCLINOMETER: "monitor: the table's tilt at each visit, recorded, not used in the result"}
 
-    def outputs(self, results: rm.RunResults) -> EncoderOutputs:
+    def outputs(self, results: api.RunResults) -> EncoderOutputs:
         if not isinstance(results, EncoderResults):
             raise TypeError(f"encoder-against-command outputs need its results, not {type(results).__name__}")
         return EncoderOutputs(results)
