@@ -185,7 +185,7 @@ def world(tmp_path_factory) -> Path:
                       ("edited_instruments", "UPDATE meta SET value = '{\"stage\": 5}' WHERE key = 'instruments'"),
                       ("rows_twice", "INSERT INTO readings SELECT NULL, t_s, instrument, quantity, value, unit, point, "
                                      "station, sample, segment, commanded_angle_deg, commanded_x_mm, commanded_y_mm, "
-                                     "commanded_z_mm, seating, run, direction, plan_index, attempt FROM readings")):
+                                     "commanded_z_mm, seating, run, direction, plan_index, attempt, context FROM readings")):
         (w / name).mkdir()
         shutil.copy(store, w / name / "run.sqlite")
         if sql is None:
