@@ -16,11 +16,13 @@ import select
 import sys
 import threading
 from pathlib import Path
-from typing import Any, Callable, Protocol, TextIO, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Protocol, TextIO, runtime_checkable
 
 from drivers.addresses import redact_tokens
 from drivers.errors import InstrumentError
-from rtcal.engine.steps import OperatorStep
+
+if TYPE_CHECKING:  # `rtcal --help` loads this module (the live page's control), not the plan's vocabulary
+    from rtcal.engine.steps import OperatorStep
 
 
 class OperatorUnavailable(InstrumentError):

@@ -13,18 +13,14 @@ pending (a resume takes it again whole); its readings are kept.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 from typing import Any, Iterator
 
 import numpy as np
 
-from drivers.interfaces import Autocollimator, DialIndicator, Encoder, EnvironmentSensor, RotaryStage
-from rtcal.engine.plan import Attempt, Entry
-from rtcal.engine.steps import Move, OperatorStep, Read, Settle, Skipped, Step, Validate
-from rtcal.methods.conditions import environment_read
+from rtcal.api import (Attempt, Autocollimator, DialIndicator, Encoder, Entry, EnvironmentSensor, MotionChecks, OperatorStep,
+                       Read, Reading, RotaryStage, Skipped, Step, Validate, arrive, combined_sigma, environment_read,
+                       stood_still)
 from rtcal.methods.abbe.procedure import EncoderAbbeError
-from rtcal.store.runstore import Reading
-from rtcal.engine.checks import MotionChecks, combined_sigma
 from rtcal.methods.abbe.checks import EncoderCheck, abbe_cross_checks, check_abbe_visit, check_face
 
 
@@ -154,11 +150,7 @@ class AbbePlan:
         """Move, settle, check the feedback, read every instrument, check the readings and that the table stood still."""
         proc, v = self.proc, self.visits[entry.index]
         angle = v.angle_deg
-        to_target = Move("stage", angle, v.direction, proc.steps.overshoot_deg, what=f"move to {angle:g}°")
-        yield to_target
-        yield Settle(proc.settle_time_s)
-        feedback = yield Read("stage", ("feedback_deg",), partial(self.checks.stage_at, command_deg=angle), angle,
-                              f"position at {angle:g}°")
+        feedback = yield from arrive(self.checks, angle, v.direction, proc.steps.overshoot_deg, proc.settle_time_s)
         if proc.instruments.environment is not None:
             yield environment_read(f"environment at {angle:g}°")
         taken: list[tuple[str, str, float]] = [("encoder", ENCODER, angle)]
@@ -184,5 +176,4 @@ class AbbePlan:
                 check_face(value, tolerance, angle)
         check_abbe_visit(*self.cross, [Reading(0.0, i, q, x, "") for i, q, x in values], angle, v.seating, v.run,
                          v.direction, entry.index)
-        yield Read("stage", ("feedback_deg",), partial(self.checks.stage_still, before_deg=feedback), angle,
-                   f"position at {angle:g}°", "after")
+        yield from stood_still(self.checks, angle, feedback)

@@ -17,12 +17,10 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from drivers.interfaces import DESCRIPTIONS, Cmm, EnvironmentSensor, LaserTracer, RotaryStage
-from rtcal.engine.plan import Attempt, Entry
-from rtcal.engine.steps import Move, OperatorStep, Parallel, Read, ReadSamples, Reference, Settle, Skipped, Step, Validate
-from rtcal.methods.conditions import environment_read
+from drivers.interfaces import DESCRIPTIONS
+from rtcal.api import (Attempt, Cmm, Contradiction, Entry, EnvironmentSensor, LaserTracer, MotionChecks, Move, OperatorStep,
+                       Parallel, Read, ReadSamples, Reference, RotaryStage, Settle, Skipped, Step, Validate, environment_read)
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
-from rtcal.engine.checks import Contradiction, MotionChecks
 from rtcal.methods.multistation.checks import TracerCheck, TracerReturnCheck
 
 # what a reading takes, named by each kind's description (drivers/interfaces.py), which also names and unites what is stored
