@@ -10,7 +10,9 @@ name is first used (``rtcal --help`` pays for none of it).
 object, registered under the entry-point group ``rtcal.methods`` (``name = "module:Class"``). Subclass
 :class:`MethodBase`, which says "nothing" once for everything a simple method does not have, and give:
 
-- ``name``, ``procedure_model`` (a :class:`ProcedureBase` subclass with ``method: Literal[name]``, its
+- ``name``, ``procedure_model`` (a :class:`ProcedureBase` subclass with ``method: Literal[name]`` — a
+  :class:`CycleProcedureBase` when its plan is a :class:`TargetCycle` of its stage (targets, directions, runs,
+  overrun; its visits, :class:`Visit`) —, its
   ``instruments`` an :class:`InstrumentsBase` of :class:`InstrumentChoice` — each may declare its ``kind``
   and ``address`` —, ``approaches``, ``plan_size``, ``planned_stage_deg``), ``results_model`` (a
   :class:`RunResults` subclass with ``method: Literal[name]`` and its own :class:`Analysis`),
@@ -95,6 +97,9 @@ if TYPE_CHECKING:
     from rtcal.methods.base import Instruments as Instruments
     from rtcal.methods.base import MethodBase as MethodBase
     from rtcal.methods.conditions import environment_read as environment_read
+    from rtcal.methods.cycle import CycleProcedureBase as CycleProcedureBase
+    from rtcal.methods.cycle import TargetCycle as TargetCycle
+    from rtcal.methods.cycle import Visit as Visit
     from rtcal.methods.estimates import COVERAGE_FACTOR as COVERAGE_FACTOR
     from rtcal.methods.estimates import QuantitySource as QuantitySource
     from rtcal.methods.estimates import choose_recommended as choose_recommended
@@ -167,6 +172,7 @@ _WHERE = {
                            "Skipped", "Step", "Validate"),
     "rtcal.methods.base": ("Instruments", "MethodBase"),
     "rtcal.methods.conditions": ("environment_read",),
+    "rtcal.methods.cycle": ("CycleProcedureBase", "TargetCycle", "Visit"),
     "rtcal.methods.estimates": ("COVERAGE_FACTOR", "QuantitySource", "choose_recommended", "deviation_block",
                                 "finite_or_none", "quantity_estimate", "residual_test", "run_estimators",
                                 "with_residual_test"),

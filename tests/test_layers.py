@@ -18,7 +18,7 @@ PACKAGES = ("rtcal", "drivers", "simulators")
 # bottom to top; a file belongs to the longest prefix that names it
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("rtcal/__init__.py", "rtcal/units.py", "rtcal/errors.py", "rtcal/clock.py", "rtcal/outputs.py", "rtcal/registry.py",
-     "rtcal/procedure/yamlfile.py", "drivers/"),
+     "rtcal/moved.py", "rtcal/procedure/yamlfile.py", "drivers/"),
     ("rtcal/solvers/", "rtcal/compensation/"),
     ("simulators/",),
     ("rtcal/procedure/", "rtcal/results/"),
@@ -26,7 +26,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("rtcal/engine/",),
     ("rtcal/deliverables/",),
     ("rtcal/methods/protocol.py", "rtcal/methods/estimates.py", "rtcal/methods/conditions.py", "rtcal/methods/planner.py",
-     "rtcal/methods/base.py", "rtcal/api.py"),  # what methods share, and the public face
+     "rtcal/methods/base.py", "rtcal/methods/cycle.py", "rtcal/api.py"),  # what methods share, and the public face
     ("rtcal/methods/multistation/", "rtcal/methods/abbe/"),  # peers: one method never reaches into another
     ("rtcal/methods/__init__.py",),  # the registry (a face: its table names the methods as strings)
     ("rtcal/run/",),

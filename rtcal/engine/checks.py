@@ -23,6 +23,7 @@ import numpy as np
 
 from drivers.errors import InstrumentFault
 from rtcal.engine.steps import Move, Read, Settle, Step
+from rtcal.moved import moved
 
 FLOOR_DEG = 1e-6  # a drive without steps still reports its position in floating point
 
@@ -121,13 +122,4 @@ def combined_sigma(*noise_and_digit: tuple[float, float]) -> float:
     return float(np.sqrt(sum(n**2 + d**2 / 12.0 for n, d in noise_and_digit)))
 
 
-def __getattr__(name: str) -> object:
-    """Deprecated: ``EncoderCheck`` moved to rtcal/methods/abbe/checks.py (the old name goes in the next release)."""
-    if name != "EncoderCheck":
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    import warnings
-
-    warnings.warn("rtcal.engine.checks.EncoderCheck moved to rtcal.methods.abbe.checks.EncoderCheck; the old name goes in "
-                  "the next release", DeprecationWarning, stacklevel=2)
-    return getattr(importlib.import_module("rtcal.methods.abbe.checks"), name)
+__getattr__ = moved(__name__, {"EncoderCheck": "rtcal.methods.abbe.checks"})  # Abbe's, in its folder

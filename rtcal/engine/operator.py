@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol, TextIO, runtime_check
 
 from drivers.addresses import redact_tokens
 from drivers.errors import InstrumentError
+from rtcal.moved import moved
 
 if TYPE_CHECKING:  # `rtcal --help` loads this module (the live page's control), not the plan's vocabulary
     from rtcal.engine.steps import OperatorStep
@@ -357,16 +358,5 @@ class RehearsalOperator(WaitingOperator):
         return self.simulated.hands()
 
 
-MOVED = {"reseat_instruction": "rtcal.methods.abbe.plan", "tracer_instruction": "rtcal.methods.multistation.plan"}
-
-
-def __getattr__(name: str) -> Any:
-    """Deprecated: the polygon's and the tracer's instructions are their methods' (the old names go in the next release)."""
-    if name not in MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    import warnings
-
-    warnings.warn(f"rtcal.engine.operator.{name} moved to {MOVED[name]}.{name}; the old name goes in the next release",
-                  DeprecationWarning, stacklevel=2)
-    return getattr(importlib.import_module(MOVED[name]), name)
+# the polygon's and the tracer's instructions are their methods'
+__getattr__ = moved(__name__, {"reseat_instruction": "rtcal.methods.abbe.plan", "tracer_instruction": "rtcal.methods.multistation.plan"})

@@ -11,6 +11,7 @@ from typing import Annotated, Any, Union, cast
 
 from pydantic import BaseModel, Field, TypeAdapter
 
+from rtcal.moved import moved
 from rtcal.procedure.models import Procedure
 from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 
@@ -91,17 +92,5 @@ def procedure_schema(models: Mapping[str, type[BaseModel]]) -> str:
     return json.dumps(schema, indent=2)
 
 
-MOVED = {"load_scenario": "simulators.scenario_file", "scenario_schema": "simulators.scenario_file"}
-
-
-def __getattr__(name: str) -> Any:
-    """Deprecated: a bench scenario's reading moved to simulators/scenario_file.py (a procedure's layer reads no
-    simulator); the old names go in the next release."""
-    if name not in MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    import warnings
-
-    warnings.warn(f"rtcal.procedure.loader.{name} moved to {MOVED[name]}.{name}; the old name goes in the next release",
-                  DeprecationWarning, stacklevel=2)
-    return getattr(importlib.import_module(MOVED[name]), name)
+# a bench scenario's reading is the simulators' (a procedure's layer reads no simulator)
+__getattr__ = moved(__name__, {"load_scenario": "simulators.scenario_file", "scenario_schema": "simulators.scenario_file"})

@@ -18,6 +18,8 @@ from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
+from rtcal.moved import moved
+
 SCHEMA_VERSION = "1.3"
 # the first schema_version whose files carry each digest: a file of that version or later without it
 # was not written by rtcal (rtcal/run/integrity.py refuses it)
@@ -846,17 +848,6 @@ def assemble(info: RunInfo, analysis: Analysis, log: RunLog, model: type[RunResu
     return model.model_validate(fields)
 
 
-MOVED = {"MultistationEstimator": "rtcal.methods.multistation.results", "AbbeEstimator": "rtcal.methods.abbe.results"}
-
-
-def __getattr__(name: str) -> Any:
-    """Deprecated: each method declares its estimator names in its own results model (the old names go in the next
-    release)."""
-    if name not in MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    import warnings
-
-    warnings.warn(f"rtcal.results.model.{name} moved to {MOVED[name]}.{name}; the old name goes in the next release",
-                  DeprecationWarning, stacklevel=2)
-    return getattr(importlib.import_module(MOVED[name]), name)
+# each method declares its estimator names in its own results model
+__getattr__ = moved(__name__, {"MultistationEstimator": "rtcal.methods.multistation.results",
+                               "AbbeEstimator": "rtcal.methods.abbe.results"})

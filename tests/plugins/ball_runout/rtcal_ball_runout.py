@@ -18,13 +18,12 @@ prints for ``dial_indicator_1``).
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 from matplotlib.figure import Figure
-from pydantic import Field, ValidationInfo, model_validator
+from pydantic import Field, model_validator
 
 from rtcal import api
 
@@ -52,21 +51,6 @@ class Ball(api.StrictModel):
     height_mm: float = Field(40.0, ge=0.0, le=1000.0, description="the test ball's centre above the table top, mm")
 
 
-class Steps(api.StrictModel):
-    targets_deg: list[float] = Field([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0], min_length=2, max_length=360,
-                                     description="the targets, deg, in increasing order")
-    directions: list[Literal["positive", "negative"]] = Field(["positive", "negative"], min_length=1, max_length=2,
-                                                              description="approach directions")
-    runs: int = Field(2, ge=1, le=100, description="runs per direction")
-    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0, description="overrun past each target, deg")
-
-    @model_validator(mode="after")
-    def _increasing(self) -> Steps:
-        if any(b <= a for a, b in zip(self.targets_deg, self.targets_deg[1:])):
-            raise ValueError("targets_deg: give the targets in increasing order, each once")
-        return self
-
-
 class OnFault(api.StrictModel):
     stage: api.FaultPolicy = Field(api.FaultPolicy(), description="when the stage fails")
     probe: api.FaultPolicy = Field(api.FaultPolicy(), description="when the dial indicator fails")
@@ -85,59 +69,21 @@ class Durations(api.StrictModel):
     mount_ball_s: float = Field(120.0, ge=0.0, le=86_400.0, description="what mounting the ball and the indicator takes, s")
 
 
-class BallRunout(api.ProcedureBase):
+class BallRunout(api.CycleProcedureBase):
     """The radial runout of a test ball on the table, read by a dial indicator at each target."""
 
     method: Literal["ball_runout"] = Field(description="a test ball's radial runout (plugin)")
     instruments: Instruments = Field(description="the stage and the dial indicator (declared by its kind)")
     ball: Ball = Field(Ball(), description="where the test ball is mounted")
-    steps: Steps = Field(Steps(), description="targets, directions, runs")
-    samples_per_reading: int = Field(1, ge=1, le=1000, description="indicator readings averaged per visit")
-    settle_time_s: float = Field(1.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
     on_fault: OnFault = Field(OnFault(), description="what to do when an instrument fails")
     verification: api.VerificationBase = Field(api.VerificationBase(), description="what every motion is checked against")
     uncertainty: Uncertainty = Field(Uncertainty(), description="inputs of the uncertainty budget")
     durations: Durations = Field(Durations(), description="what the operator's step takes")
 
-    def directions(self) -> list[int]:
-        return [1 if d == "positive" else -1 for d in self.steps.directions]
 
-    def approaches(self) -> tuple[set[int], int]:
-        return set(self.directions()), self.steps.runs
-
-    def plan_size(self, max_cells: int, hint: str) -> tuple[int, str, str, str | None]:
-        visits = len(self.steps.targets_deg) * len(self.directions()) * self.steps.runs
-        return visits * self.samples_per_reading, "steps", f"{visits} visits × {self.samples_per_reading} samples", None
-
-    def planned_stage_deg(self) -> tuple[str, list[float]]:
-        base = list(self.steps.targets_deg)
-        return "steps", base + [a - d * self.steps.overshoot_deg for a in base for d in self.directions()]
-
-    @model_validator(mode="after")
-    def _within_limits(self, info: ValidationInfo) -> BallRunout:
-        problem = api.plan_size_problem(self, large=bool((info.context or {}).get("large"))) or api.plan_outside_limits(
-            self, self.instruments.stage.soft_limits_deg)
-        if problem:
-            raise ValueError(problem)
-        return self
-
-
-@dataclass(frozen=True)
-class Visit:
-    run: int
-    direction: int
-    step: int
-    angle_deg: float
-
-
-def planned_visits(proc: BallRunout) -> list[Visit]:
+def planned_visits(proc: BallRunout) -> list[api.Visit]:
     """ISO 230-2's linear cycle: each run ↑ through every target, then ↓."""
-    targets, out = proc.steps.targets_deg, []
-    for r in range(proc.steps.runs):
-        for d in proc.directions():
-            order = range(len(targets)) if d > 0 else range(len(targets) - 1, -1, -1)
-            out += [Visit(r, d, i, float(targets[i])) for i in order]
-    return out
+    return proc.steps.visits()
 
 
 # -- the plan -----------------------------------------------------------------------------------------

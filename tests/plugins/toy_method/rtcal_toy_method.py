@@ -14,13 +14,12 @@ the results bases, the store's readings that count, the outputs' base and the si
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 from matplotlib.figure import Figure
-from pydantic import Field, ValidationInfo, model_validator
+from pydantic import Field, model_validator
 
 from rtcal import api
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
@@ -60,21 +59,6 @@ class Verification(api.VerificationBase):
         "how far the encoder's change since the start's first reading may be from the commanded change, arcsec"))
 
 
-class Steps(api.StrictModel):
-    targets_deg: list[float] = Field([0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0], min_length=2, max_length=360,
-                                     description="the targets, deg, in increasing order")
-    directions: list[Literal["positive", "negative"]] = Field(["positive", "negative"], min_length=1, max_length=2,
-                                                              description="approach directions")
-    runs: int = Field(2, ge=1, le=100, description="runs per direction (ISO 230-2: 5)")
-    overshoot_deg: float = Field(1.0, ge=0.0, le=90.0, description="overrun past each target, deg")
-
-    @model_validator(mode="after")
-    def _increasing(self) -> "Steps":
-        if any(b <= a for a, b in zip(self.targets_deg, self.targets_deg[1:])):
-            raise ValueError("targets_deg: give the targets in increasing order, each once")
-        return self
-
-
 class Uncertainty(api.StrictModel):
     encoder_noise_arcsec: float = Field(0.3, ge=0.0, le=3600.0, description=(
         "1σ of one encoder reading, arcsec (Type B; with two runs or more the runs' scatter is used instead)"))
@@ -82,58 +66,19 @@ class Uncertainty(api.StrictModel):
         "standard uncertainty of the encoder's indication from its calibration, arcsec (0: not stated)"))
 
 
-class EncoderVsCommand(api.ProcedureBase):
+class EncoderVsCommand(api.CycleProcedureBase):
     """The table's positioning deviation as its own encoder reads it against the command."""
 
     method: Literal["encoder_vs_command"] = Field(description="the table's encoder against the command (plugin)")
     instruments: Instruments = Field(Instruments(), description="backend of each instrument")
-    steps: Steps = Field(Steps(), description="targets, directions, runs")
-    samples_per_reading: int = Field(1, ge=1, le=1000, description="encoder samples averaged per visit")
-    settle_time_s: float = Field(1.0, ge=0.0, le=3600.0, description="wait after each motion before reading, s")
     on_fault: OnFault = Field(OnFault(), description="what to do when an instrument fails")
     verification: Verification = Field(Verification(), description="what every motion and reading is checked against")
     uncertainty: Uncertainty = Field(Uncertainty(), description="inputs of the uncertainty budget")
 
-    def directions(self) -> list[int]:
-        return [1 if d == "positive" else -1 for d in self.steps.directions]
 
-    def approaches(self) -> tuple[set[int], int]:
-        return set(self.directions()), self.steps.runs
-
-    def plan_size(self, max_cells: int, hint: str) -> tuple[int, str, str, str | None]:
-        visits = len(self.steps.targets_deg) * len(self.directions()) * self.steps.runs
-        return visits * self.samples_per_reading, "steps", f"{visits} stage visits × {self.samples_per_reading} samples", None
-
-    def planned_stage_deg(self) -> tuple[str, list[float]]:
-        base = list(self.steps.targets_deg)
-        return "steps", base + [a - d * self.steps.overshoot_deg for a in base for d in self.directions()]
-
-    @model_validator(mode="after")
-    def _within_limits(self, info: ValidationInfo) -> "EncoderVsCommand":
-        problem = api.plan_size_problem(self, large=bool((info.context or {}).get("large"))) or api.plan_outside_limits(
-            self, self.instruments.stage.soft_limits_deg)
-        if problem:
-            raise ValueError(problem)
-        return self
-
-
-@dataclass(frozen=True)
-class Visit:
-    run: int
-    direction: int
-    step: int
-    angle_deg: float
-
-
-def planned_visits(proc: EncoderVsCommand) -> list[Visit]:
+def planned_visits(proc: EncoderVsCommand) -> list[api.Visit]:
     """ISO 230-2's linear cycle: each run ↑ through every target, then ↓."""
-    out = []
-    targets = proc.steps.targets_deg
-    for r in range(proc.steps.runs):
-        for d in proc.directions():
-            order = range(len(targets)) if d > 0 else range(len(targets) - 1, -1, -1)
-            out += [Visit(r, d, i, float(targets[i])) for i in order]
-    return out
+    return proc.steps.visits()
 
 
 # -- the plan ------------------------------------------------------------------------------------------
