@@ -13,20 +13,17 @@ checked on a server of their own with short deadlines."""
 
 from __future__ import annotations
 
-import json
 import shutil
 import socket
 import time
-from pathlib import Path
 
 import pytest
-import yaml
 
 from rtcal.live import web
 from rtcal.live.server import LiveServer
 from simulators.servers.hub import SimulatorHub
 from tests import hostile_http
-from tests.test_live_run import _scenario, fast_iso, finish, start_run, state, wait_for
+from tests.test_live_run import _scenario, fast_iso, finish, start_for_a_person, state, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -51,14 +48,8 @@ def test_confirm_pause_resume_and_abort_get_through_every_attack(tmp_path):
     procedure = fast_iso(tmp_path, settle_s=0.05, runs=5)  # long enough to be aborted
     figures: dict[str, float] = {}
     with SimulatorHub(_scenario(tmp_path, "none"), seed=1) as hub:
-        addresses = {k: v for k, v in hub.addresses.items() if k != "operator"}  # a person confirms
-        data = yaml.safe_load(procedure.read_text(encoding="utf-8"))
-        data["polygon"]["certificate_arcsec"] = RemoteSimOperator(hub.addresses["operator"]).polygon_certificate_arcsec()
-        procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
         run_dir = tmp_path / "run"
-        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(run_dir),
-                               "--live", "127.0.0.1:0")
-        url, token = seen["live view"], seen["control token"]
+        proc, url, token, _ = start_for_a_person(procedure, hub, run_dir)
         host, port = _address(url)
         attacks: list[hostile_http.Hostile] = []
         try:
