@@ -172,6 +172,37 @@ def path_between(geometry: TrunnionGeometry, sphere_mm: Sequence[float], start: 
     return joint_targets(geometry, sphere_mm, a0 + f * (a1 - a0), c0 + f * (c1 - c0), nest_offset_mm)
 
 
+def k_test_sequence(c_angles_deg: Sequence[float], tilt_deg: float | None, a_angles_deg: Sequence[float],
+                    both_directions: bool = True) -> list[tuple[float, float, int]]:
+    """(A deg, C deg, the direction C approaches from) of each reading of the ISO 10791-6 kinematic tests
+    of a trunnion table, in order: the reference pose (0, 0, +); C turned through ``c_angles_deg`` at
+    A = 0 (and back, if ``both_directions``); A turned through ``a_angles_deg`` at C = 0 (and back); C
+    turned again at A = ``tilt_deg`` (None: not); the reference pose again, approached as at first (the
+    drift). The linear axes follow the nominal sphere path throughout (:func:`path_between`)."""
+    out: list[tuple[float, float, int]] = [(0.0, 0.0, 1)]
+    c_dir = 1
+
+    def c_test(a: float) -> None:
+        nonlocal c_dir
+        forward = [float(c) for c in c_angles_deg]
+        for c in forward:
+            out.append((a, c, 1))
+        c_dir = 1
+        if both_directions:
+            for c in forward[::-1]:
+                out.append((a, c, -1))
+            c_dir = -1
+
+    c_test(0.0)
+    a_list = [float(a) for a in a_angles_deg]
+    for a in a_list + (a_list[::-1] if both_directions else []):
+        out.append((a, 0.0, c_dir))
+    if tilt_deg is not None:
+        c_test(float(tilt_deg))
+    out.append((0.0, 0.0, 1))
+    return out
+
+
 def linearised_c_displacement(c_location_mm_rad: Sequence[float], p_mm: Sequence[float], theta_rad: np.ndarray,
                               ecc_rad: np.ndarray | None = None) -> np.ndarray:
     """The first-order displacement (N, 3) of a table point ``p`` (relative to C's nominal point) when C

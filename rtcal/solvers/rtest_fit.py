@@ -153,8 +153,9 @@ class RTestResult:
     """The adjustment: the location errors reported (symbol → Parameter), the set-up offsets (per sphere:
     x, y, z µm), ECC per (commanded C deg, direction) in arcsec, the identifiability, the residual test,
     the drift the repeated pose showed (µm), and the sphere-centre displacements (µm, per fitted pose):
-    ``before_um`` as measured (drift corrected), ``after_um`` what compensating the eight location errors
-    would leave (set-up and ECC remain), ``residual_um`` what the whole model leaves."""
+    ``before_um`` as measured (drift corrected) less what the spheres' set-up offsets do (the machine's
+    own deviation from the nominal sphere path), ``after_um`` what remains once the eight location errors
+    are compensated (ECC and the residual), ``residual_um`` what the whole model leaves."""
 
     location: dict[str, Parameter]
     setup_offsets: list[tuple[Parameter, Parameter, Parameter]]
@@ -501,12 +502,21 @@ def solve_rtest(poses: RTestPoses, readings_um: np.ndarray, setup: RTestSetup, n
             ecc[key] = Parameter("ECC_arcsec", 0.0, 0.0, {})
         elif i in index:
             ecc[key] = _parameter("ECC_arcsec", float(x[i]), variances, index[i], ARCSEC_PER_RAD)
-    x_no_loc = x.copy()
-    x_no_loc[:8] = 0.0
-    without = _model(x_no_loc, np.zeros(4), layout, poses, setup, rows)
-    with_all = _model(x, np.zeros(4), layout, poses, setup, rows)
-    return RTestResult(location, setup_offsets, ecc, ident, check, drift * 1e3, d * 1e3,
-                       (d - (with_all - without)) * 1e3, r.reshape(-1, 3) * 1e3, iterations, linearisation, rows)
+    ns = 3 * layout.n_spheres
+
+    def at(loc: bool, ecc_: bool) -> np.ndarray:
+        y = x.copy()
+        if not loc:
+            y[:8] = 0.0
+        if not ecc_:
+            y[8 + ns:] = 0.0
+        return _model(y, np.zeros(4), layout, poses, setup, rows)
+
+    nominal = _model(np.zeros_like(x), np.zeros(4), layout, poses, setup, rows)
+    setup_only = at(False, False) - nominal  # what the spheres' set-up offsets alone do
+    compensated = at(True, True) - at(False, True)  # what the eight location errors do
+    return RTestResult(location, setup_offsets, ecc, ident, check, drift * 1e3, (d - setup_only) * 1e3,
+                       (d - setup_only - compensated) * 1e3, r.reshape(-1, 3) * 1e3, iterations, linearisation, rows)
 
 
 def predict_rtest(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated: StatedUncertainty) -> RTestPrediction:
