@@ -266,23 +266,33 @@ def _identify(Jw: np.ndarray, names: Sequence[str]) -> tuple[np.ndarray, dict[st
     share = np.linalg.norm(null, axis=0) if len(null) else np.zeros(len(names))
     estimable = (share <= NULL_TOLERANCE) & ~zero
     why: dict[str, str] = {}
+    projector = null.T @ null if len(null) else np.zeros((len(names), len(names)))
     for i, name in enumerate(names):
         if estimable[i] or name not in LOCATION_NAMES:
             continue
         if zero[i]:
             why[name] = "no pose of this plan moves it (the axis it belongs to never turns, or turns without the sphere off it)"
             continue
-        partners = [names[k] for k in range(len(names)) if k != i and np.any(np.abs(null[:, k] * null[:, i]) > NULL_TOLERANCE)]
+        share = projector[:, i]  # e_i's part in the null space (whatever basis the SVD chose)
+        partners = [_display(names[k]) for k in np.argsort(-np.abs(share))
+                    if k != i and not zero[k] and abs(share[k]) > NULL_TOLERANCE]
         why[name] = "cannot be separated from " + (", ".join(partners[:4]) if partners else "the other parameters") + \
                     " with these poses"
     return estimable, why
 
 
+def _display(name: str) -> str:
+    """A parameter as messages name it: a location error by its symbol (X0C_um), the others as they are."""
+    return name + _suffix(name)
+
+
 def _structural(Jw_fit: np.ndarray, Jw_struct: np.ndarray) -> dict[str, str]:
-    """Each structural parameter's column against the span of the fitted ones: within it (or zero), it
-    cannot be determined, for the reason WHY_STRUCTURAL gives."""
-    Q, _ = np.linalg.qr(Jw_fit)
-    scale = float(np.max(np.linalg.norm(Jw_fit, axis=0)))
+    """Each structural parameter's column against the span of the fitted ones (every column of the fit,
+    separable or not): within it (or zero), it cannot be determined, for the reason WHY_STRUCTURAL gives."""
+    norms = np.linalg.norm(Jw_fit, axis=0)
+    scale = float(np.max(norms))
+    U, sv, _ = np.linalg.svd(Jw_fit / np.where(norms > 1e-12 * scale, norms, np.inf), full_matrices=False)
+    Q = U[:, sv > SINGULAR_TOLERANCE * float(sv.max())]  # the range of the fitted columns
     out = {}
     for i, name in enumerate(STRUCTURAL):
         col = Jw_struct[:, i]
@@ -407,29 +417,52 @@ def _unit(name: str) -> float:
 
 
 # -- the adjustment ---------------------------------------------------------------------------------
+def _pinv(Jw: np.ndarray) -> np.ndarray:
+    """The minimum-norm least-squares inverse of the whitened Jacobian, its columns scaled to 1 first (so
+    that mm and rad weigh alike) and singular values below SINGULAR_TOLERANCE dropped — the rank the
+    identifiability check sees. An estimable parameter's row of it is the same for every generalised
+    inverse: what the fit reports does not depend on how the inseparable ones are shared out."""
+    norms = np.linalg.norm(Jw, axis=0)
+    scale = np.where(norms > 1e-12 * max(float(norms.max()), 1e-300), norms, np.inf)
+    P = np.linalg.pinv(Jw / scale, rcond=SINGULAR_TOLERANCE)
+    return np.asarray(P / scale[:, None])
+
+
+@dataclass(frozen=True)
+class _Adjustment:
+    layout: _Layout
+    rows: np.ndarray
+    d: np.ndarray  # the fitted displacements, drift corrected (N_fit, 3), mm
+    x: np.ndarray
+    estimable: np.ndarray
+    variances: dict[str, np.ndarray]  # per source, each parameter's variance
+    sources: dict[str, np.ndarray]
+    W_half: np.ndarray
+    J: np.ndarray
+    identifiability: Identifiability
+    iterations: int
+    linearisation_um: float
+
+
 def _analyse(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated: StatedUncertainty,
-             d_all_mm: np.ndarray, drift_mm: np.ndarray, x_start: np.ndarray | None,
-             solve: bool) -> tuple:
+             d_all_mm: np.ndarray, drift_mm: np.ndarray, solve: bool) -> _Adjustment:
     n_spheres = len(np.asarray(setup.spheres_mm).reshape(-1, 3))
     if np.any(np.asarray(poses.sphere) < 0) or np.any(np.asarray(poses.sphere) >= n_spheres):
         raise RTestDataError(f"poses name sphere set-ups beyond the {n_spheres} given")
     rows, L, w = _drift_map(poses, setup)
     layout = _layout(poses, n_spheres, rows)
     d = (L @ d_all_mm.ravel()).reshape(-1, 3)
-    Lam = _whitening(nest, stated)
-    W_half = np.kron(np.eye(len(rows)), Lam)
-    x = np.zeros(layout.size) if x_start is None else x_start.copy()
+    W_half = np.kron(np.eye(len(rows)), _whitening(nest, stated))
+    x = np.zeros(layout.size)
     J = _jacobian(x, layout, poses, setup, rows)
     estimable, why = _identify(W_half @ J, layout.names)
-    keep = np.nonzero(estimable)[0]
     iterations, linearisation = 0, 0.0
     if solve:
         J0, f0 = J.copy(), _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
         for iterations in range(1, MAX_ITERATIONS + 1):
             r = d.ravel() - _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
-            Jw = W_half @ J[:, keep]
-            step = np.linalg.lstsq(Jw, W_half @ r, rcond=None)[0]
-            x[keep] += step
+            step = _pinv(W_half @ J) @ (W_half @ r)
+            x = x + step
             J = _jacobian(x, layout, poses, setup, rows)
             if np.max(np.abs(step)) < STEP_TOLERANCE:
                 break
@@ -438,16 +471,13 @@ def _analyse(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated
                                  "or set-up offsets are beyond what the model follows (millimetres, degrees)")
         exact = _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
         linearisation = float(np.max(np.abs(exact - (f0 + J0 @ x)))) * 1e3
-    Jk = W_half @ J[:, keep]
-    N_inv = np.linalg.inv(Jk.T @ Jk)
-    H = N_inv @ Jk.T @ W_half  # influence of the displacements (mm) on the kept parameters
+    H = _pinv(W_half @ J) @ W_half  # influence of the displacements (mm) on every parameter (estimable rows unique)
     sources = _sources(poses, setup, nest, stated, d_all_mm, drift_mm, L, w)
     variances = {name: np.sum((H @ F) ** 2, axis=1) for name, F in sources.items()}
-    structural = _structural(Jk, W_half @ _jacobian(x, layout, poses, setup, rows, structural_columns=True))
-    ident = Identifiability(tuple(layout.names[i] + _suffix(layout.names[i]) for i in keep if i < 8), 
-                            {f"{k}{_suffix(k)}": v for k, v in why.items()},
-                            {f"{k}{_suffix(k)}": v for k, v in structural.items()})
-    return layout, rows, d, x, keep, variances, sources, W_half, J, ident, iterations, linearisation
+    structural = _structural(W_half @ J, W_half @ _jacobian(x, layout, poses, setup, rows, structural_columns=True))
+    ident = Identifiability(tuple(_display(layout.names[i]) for i in np.nonzero(estimable)[0] if i < 8),
+                            {_display(k): v for k, v in why.items()}, {_display(k): v for k, v in structural.items()})
+    return _Adjustment(layout, rows, d, x, estimable, variances, sources, W_half, J, ident, iterations, linearisation)
 
 
 def _suffix(name: str) -> str:
@@ -462,8 +492,11 @@ def _parameter(symbol: str, value: float, variances: dict[str, np.ndarray], i: i
 def solve_rtest(poses: RTestPoses, readings_um: np.ndarray, setup: RTestSetup, nest: NestCalibration,
                 stated: StatedUncertainty) -> RTestResult:
     """The location errors with their budgets from the readings (N, 3) µm, each relative to the nest's
-    zero (the sphere centre at the nest zero point reads 0), taken at the poses. RTestDataError for
-    readings the model cannot take (a contact off its flat face, a drift pair that is none)."""
+    zero (the sphere centre at the nest zero point reads 0), taken at the poses. Only what the poses
+    separate is reported (``identifiability`` says why the rest is not); the fit itself keeps every
+    parameter (minimum norm where the data cannot tell them apart), so a combination the data do see is
+    never forced onto the reported ones. RTestDataError for readings the model cannot take (a contact off
+    its flat face, a drift pair that is none)."""
     m = np.asarray(readings_um, float)
     if m.shape != (len(poses.joints), 3) or not np.all(np.isfinite(m)):
         raise RTestDataError(f"readings: {len(poses.joints)} rows of three finite numbers, one per pose")
@@ -475,33 +508,28 @@ def solve_rtest(poses: RTestPoses, readings_um: np.ndarray, setup: RTestSetup, n
                              f"{setup.flat_radius_mm:g} mm across it), where the nest's linear form no longer holds: "
                              "centre the sphere in the nest at the start, or use sensors with larger flats")
     drift = np.zeros(3) if setup.drift_pair is None else d_all[setup.drift_pair[1]] - d_all[setup.drift_pair[0]]
-    (layout, rows, d, x, keep, variances, _sources_, W_half, J, ident, iterations,
-     linearisation) = _analyse(poses, setup, nest, stated, d_all, drift, None, True)
-    Jk = W_half @ J[:, keep]
-    r = d.ravel() - _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
-    V = sum(F @ F.T for F in _sources_.values())
-    check = residual_check(W_half @ r, W_half @ V @ W_half.T, 0, jacobian=Jk)
-    index = {int(i): pos for pos, i in enumerate(keep)}
-    location = {}
-    for i, name in enumerate(LOCATION_NAMES):
-        if i in index:
-            sym = LOCATION_SYMBOLS[i]
-            location[sym] = _parameter(sym, float(x[i]), variances, index[i], _unit(name))
+    adj = _analyse(poses, setup, nest, stated, d_all, drift, True)
+    layout, rows, x, W_half = adj.layout, adj.rows, adj.x, adj.W_half
+    r = adj.d.ravel() - _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
+    V = sum(F @ F.T for F in adj.sources.values())
+    check = residual_check(W_half @ r, W_half @ V @ W_half.T, 0, jacobian=W_half @ adj.J)
+
+    def reported(symbol: str, i: int, factor: float) -> Parameter:
+        if not adj.estimable[i]:
+            return Parameter(symbol, float("nan"), float("nan"), {})
+        return _parameter(symbol, float(x[i]), adj.variances, i, factor)
+
+    location = {LOCATION_SYMBOLS[i]: reported(LOCATION_SYMBOLS[i], i, _unit(name))
+                for i, name in enumerate(LOCATION_NAMES) if adj.estimable[i]}
     setup_offsets = []
     for j in range(layout.n_spheres):
-        trio = []
-        for a, axis in enumerate("xyz"):
-            i = 8 + 3 * j + a
-            trio.append(_parameter(f"σ{j + 1}_{axis}_um", float(x[i]), variances, index[i], 1e3) if i in index
-                        else Parameter(f"σ{j + 1}_{axis}_um", float("nan"), float("nan"), {}))
+        trio = [reported(f"σ{j + 1}_{axis}_um", 8 + 3 * j + a, 1e3) for a, axis in enumerate("xyz")]
         setup_offsets.append((trio[0], trio[1], trio[2]))
-    ecc = {}
-    for q, key in enumerate(layout.keys):
+    ecc = {layout.keys[0]: Parameter("ECC_arcsec", 0.0, 0.0, {})}
+    for q, key in enumerate(layout.keys[1:], start=1):
         i = 8 + 3 * layout.n_spheres + q - 1
-        if q == 0:
-            ecc[key] = Parameter("ECC_arcsec", 0.0, 0.0, {})
-        elif i in index:
-            ecc[key] = _parameter("ECC_arcsec", float(x[i]), variances, index[i], ARCSEC_PER_RAD)
+        if adj.estimable[i]:
+            ecc[key] = reported("ECC_arcsec", i, ARCSEC_PER_RAD)
     ns = 3 * layout.n_spheres
 
     def at(loc: bool, ecc_: bool) -> np.ndarray:
@@ -515,8 +543,10 @@ def solve_rtest(poses: RTestPoses, readings_um: np.ndarray, setup: RTestSetup, n
     nominal = _model(np.zeros_like(x), np.zeros(4), layout, poses, setup, rows)
     setup_only = at(False, False) - nominal  # what the spheres' set-up offsets alone do
     compensated = at(True, True) - at(False, True)  # what the eight location errors do
-    return RTestResult(location, setup_offsets, ecc, ident, check, drift * 1e3, (d - setup_only) * 1e3,
-                       (d - setup_only - compensated) * 1e3, r.reshape(-1, 3) * 1e3, iterations, linearisation, rows)
+    d = adj.d
+    return RTestResult(location, setup_offsets, ecc, adj.identifiability, check, drift * 1e3, (d - setup_only) * 1e3,
+                       (d - setup_only - compensated) * 1e3, r.reshape(-1, 3) * 1e3, adj.iterations,
+                       adj.linearisation_um, rows)
 
 
 def predict_rtest(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated: StatedUncertainty) -> RTestPrediction:
@@ -525,16 +555,14 @@ def predict_rtest(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, s
     it; the drift as ``stated.expected_drift_um`` on each axis)."""
     n = len(poses.joints)
     drift = np.full(3, stated.expected_drift_um * 1e-3)
-    (layout, _rows, _d, _x, keep, variances, _s, _W, _J, ident, _it,
-     _lin) = _analyse(poses, setup, nest, stated, np.zeros((n, 3)), drift, None, False)
-    index = {int(i): pos for pos, i in enumerate(keep)}
+    adj = _analyse(poses, setup, nest, stated, np.zeros((n, 3)), drift, False)
     U, budget = {}, {}
     for i, name in enumerate(LOCATION_NAMES):
-        if i in index:
-            p = _parameter(LOCATION_SYMBOLS[i], 0.0, variances, index[i], _unit(name))
+        if adj.estimable[i]:
+            p = _parameter(LOCATION_SYMBOLS[i], 0.0, adj.variances, i, _unit(name))
             U[LOCATION_SYMBOLS[i]] = p.U
             budget[LOCATION_SYMBOLS[i]] = p.budget
-    return RTestPrediction(U, budget, ident)
+    return RTestPrediction(U, budget, adj.identifiability)
 
 
 def nominal_nest(directions: np.ndarray, moves_mm: np.ndarray, noise_um: float) -> NestCalibration:
