@@ -5,6 +5,7 @@ poses, C approached from the stated direction, the nest calibrated from six move
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -32,6 +33,21 @@ class SimulatedRTest:
     truth: dict[str, float]
     truth_setup_um: np.ndarray
     bench: Bench
+
+
+def linuxcnc_xyzac_inverse(pins: dict[str, float], p: np.ndarray, a_deg: float, c_deg: float) -> np.ndarray:
+    """LinuxCNC's xyzacKinematicsInverse (src/emc/kinematics/trtfuncs.c) term by term, tool-offset 0: the
+    joints X, Y, Z that put the tool on workpiece point ``p`` at A, C — written from the C source, apart
+    from rtcal's model, for the tests that check the kinematics and its compensation against it."""
+    xr, yr, zr, dy, dz = (pins[k] for k in ("x-rot-point", "y-rot-point", "z-rot-point", "y-offset", "z-offset"))
+    a, c = math.radians(a_deg), math.radians(c_deg)
+    x, y, z = p
+    return np.array([
+        math.cos(c) * (x - xr) - math.sin(c) * (y - yr) + xr,
+        math.sin(c) * math.cos(a) * (x - xr) + math.cos(c) * math.cos(a) * (y - yr) - math.sin(a) * (z - zr)
+        - math.cos(a) * dy + math.sin(a) * dz + dy + yr,
+        math.sin(c) * math.sin(a) * (x - xr) + math.cos(c) * math.sin(a) * (y - yr) + math.cos(a) * (z - zr)
+        - math.sin(a) * dy - math.cos(a) * dz + dz + zr])
 
 
 def _joints(row: np.ndarray) -> dict[str, float]:
@@ -109,11 +125,17 @@ STATED = StatedUncertainty(sensor_noise_um=0.1, sensor_resolution_um=0.1, sphere
                            drift_nonlinearity=0.25)
 
 
-def hidden_bench(rng: np.random.Generator, stated: StatedUncertainty = STATED) -> Scenario:
+SYSTEMATICS = 9  # the stated systematic inputs a bench draws: 3 scales, 3 squarenesses, the nest zero's 3
+
+
+def hidden_bench(rng: np.random.Generator, stated: StatedUncertainty = STATED, systematics: np.ndarray | None = None) -> Scenario:
     """A machine with location errors of tens of µm and tens of arcsec (1σ 20 each), C's positioning
-    deviation (harmonics 1–3, up to 10″) and a 3″ reversal, its linear axes, nest zero and sphere set-up as
-    the statement says they may be (drawn at its 1σ), a sphere of the stated form, nest directions off by
-    1° (and faces tilted 0.5°) that the calibration must find, a warming drift of a few µm."""
+    deviation (harmonics 1–3, up to 10″) and a reversal up to 6″, its linear axes and nest zero as the
+    statement says they may be (``systematics``: 9 standard normal deviates — X, Y, Z scales, XY, XZ, YZ
+    squarenesses, the nest zero's x, y, z — drawn here if not given), a sphere of the stated form set up
+    within ±50 µm, nest directions off by 1° (and faces tilted 0.5°) that the calibration must find, a
+    warming drift of a few µm."""
+    z = rng.standard_normal(SYSTEMATICS) if systematics is None else np.asarray(systematics, float)
     loc = {"X0C_um": 20, "Y0C_um": 20, "Y0A_um": 20, "Z0A_um": 20, "A0C_arcsec": 20, "B0C_arcsec": 20,
            "B0A_arcsec": 20, "C0A_arcsec": 20}
     return Scenario.model_validate({"machine": {
@@ -121,30 +143,36 @@ def hidden_bench(rng: np.random.Generator, stated: StatedUncertainty = STATED) -
         "c_positioning_error": [{"order": o, "amplitude_arcsec": float(rng.uniform(-10, 10) / o),
                                  "phase_deg": float(rng.uniform(0, 360))} for o in (1, 2, 3)],
         "c_reversal_arcsec": float(rng.uniform(0, 6)),
-        "linear_axes": {"scale_error_ppm": [float(v) for v in stated.linear_scale_ppm * rng.standard_normal(3)],
-                        "squareness_xy_arcsec": float(stated.linear_squareness_arcsec * rng.standard_normal()),
-                        "squareness_xz_arcsec": float(stated.linear_squareness_arcsec * rng.standard_normal()),
-                        "squareness_yz_arcsec": float(stated.linear_squareness_arcsec * rng.standard_normal()),
+        "linear_axes": {"scale_error_ppm": [float(v) for v in stated.linear_scale_ppm * z[:3]],
+                        "squareness_xy_arcsec": float(stated.linear_squareness_arcsec * z[3]),
+                        "squareness_xz_arcsec": float(stated.linear_squareness_arcsec * z[4]),
+                        "squareness_yz_arcsec": float(stated.linear_squareness_arcsec * z[5]),
                         "repeatability_um": stated.linear_repeatability_um},
         "sphere": {"form_um": stated.sphere_form_um,
                    "setup_offsets_um": [[float(v) for v in rng.uniform(-50, 50, 3)]]},
         "nest": {"direction_error_deg": 1.0, "face_tilt_deg": 0.5, "noise_um": stated.sensor_noise_um,
                  "resolution_um": stated.sensor_resolution_um,
-                 "zero_error_um": [float(v) for v in stated.nest_zero_um * rng.standard_normal(3)]},
+                 "zero_error_um": [float(v) for v in stated.nest_zero_um * z[6:9]]},
         "drift": {"amplitude_um": [float(v) for v in rng.normal(0, 3, 3)], "time_constant_s": float(rng.uniform(600, 3600))},
     }, "seed": int(rng.integers(2**31))})
 
 
-def monte_carlo(trials: int, seed: int = 2026, stated: StatedUncertainty = STATED) -> dict[str, dict[str, np.ndarray]]:
-    """Per location error: the errors (estimate − truth) and the reported u of each trial."""
+def monte_carlo(trials: int, seed: int = 2026, stated: StatedUncertainty = STATED,
+                balanced: bool = False) -> dict[str, dict[str, np.ndarray]]:
+    """Per location error: the errors (estimate − truth) and the reported u of each trial. ``balanced``: the
+    stated systematic inputs drawn in moment-matched antithetic pairs (rtcal.planning.montecarlo's
+    balanced_normals, as `rtcal uncertainty --balanced`), so that they add no sampling noise to the RMS of
+    the errors (an even number of trials, at least 18)."""
+    from rtcal.planning.montecarlo import balanced_normals
     from rtcal.solvers.rtest import LOCATION_SYMBOLS
     from rtcal.solvers.rtest_fit import solve_rtest
 
     rng = np.random.default_rng(seed)
+    draws = balanced_normals(trials // 2, SYSTEMATICS, rng) if balanced else [None] * trials
     errors: dict[str, list[float]] = {s: [] for s in LOCATION_SYMBOLS}
     us: dict[str, list[float]] = {s: [] for s in LOCATION_SYMBOLS}
-    for _ in range(trials):
-        scenario = hidden_bench(rng, stated)
+    for k in range(trials):
+        scenario = hidden_bench(rng, stated, draws[k])
         sim = run(scenario, seed=scenario.seed)
         result = solve_rtest(sim.poses, sim.readings_um, sim.setup, sim.nest, stated)
         for s in LOCATION_SYMBOLS:

@@ -3,8 +3,6 @@ independent physics (simulators/machine_tool.py) and LinuxCNC's own kinematics f
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -37,19 +35,6 @@ def machine(**extra) -> Scenario:
     return Scenario.model_validate({"machine": spec})
 
 
-def trtfuncs_inverse(pins: dict[str, float], p: np.ndarray, a_deg: float, c_deg: float) -> np.ndarray:
-    """LinuxCNC's xyzacKinematicsInverse (src/emc/kinematics/trtfuncs.c), term by term, tool-offset 0."""
-    xr, yr, zr, dy, dz = (pins[k] for k in ("x-rot-point", "y-rot-point", "z-rot-point", "y-offset", "z-offset"))
-    a, c = math.radians(a_deg), math.radians(c_deg)
-    x, y, z = p
-    return np.array([
-        math.cos(c) * (x - xr) - math.sin(c) * (y - yr) + xr,
-        math.sin(c) * math.cos(a) * (x - xr) + math.cos(c) * math.cos(a) * (y - yr) - math.sin(a) * (z - zr)
-        - math.cos(a) * dy + math.sin(a) * dz + dy + yr,
-        math.sin(c) * math.sin(a) * (x - xr) + math.cos(c) * math.sin(a) * (y - yr) + math.cos(a) * (z - zr)
-        - math.sin(a) * dy - math.cos(a) * dz + dz + zr])
-
-
 def test_the_nominal_model_is_linuxcncs_xyzac_trt_kinematics():
     pins = {"x-rot-point": 4.0, "y-rot-point": -3.0, "z-rot-point": 0.0, "y-offset": 5.0, "z-offset": -50.0}
     geometry = TrunnionGeometry.from_linuxcnc(*(pins[k] for k in ("x-rot-point", "y-rot-point", "z-rot-point",
@@ -57,7 +42,7 @@ def test_the_nominal_model_is_linuxcncs_xyzac_trt_kinematics():
     p = np.array([150.0, 40.0, 80.0])
     for a, c in ((0, 0), (30, 50), (-75, 210), (90, -120)):
         ours = table_to_machine(geometry, np.zeros(8), np.radians([a]), np.radians([c]), p[None])[0]
-        assert np.allclose(ours, trtfuncs_inverse(pins, p, a, c), atol=1e-10)
+        assert np.allclose(ours, rtest_sim.linuxcnc_xyzac_inverse(pins, p, a, c), atol=1e-10)
 
 
 def test_the_solvers_model_is_the_simulated_machines_physics_error_by_error():
@@ -256,12 +241,6 @@ def test_random_location_errors_of_realistic_size_are_recovered_within_u():
     assert result.residual_test is not None and result.residual_test.passed
 
 
-def _coverage(trials: int) -> dict[str, tuple[float, float]]:
-    mc = rtest_sim.monte_carlo(trials)
-    return {s: (float(np.mean(np.abs(v["error"]) <= 2 * v["u"])), float(np.mean(v["u"]) / np.sqrt(np.mean(v["error"] ** 2))))
-            for s, v in mc.items()}
-
-
 def test_a_short_monte_carlo_finds_no_gross_failure_of_u():
     """Five hidden benches (the campaign runs forty): each parameter's error within 2.5 U every time, and
     within U in at least 36 of the 40 checks; mean u / RMS error not off by more than a factor of two."""
@@ -275,8 +254,15 @@ def test_a_short_monte_carlo_finds_no_gross_failure_of_u():
 
 @pytest.mark.campaign
 def test_monte_carlo_u_covers_each_location_error():
-    """Forty hidden benches: each parameter's U (k = 2) covers its error in ≥ 95 % of them and the mean u
-    is within 0.8–1.25 of the RMS error (benchmarks/bench_rtest.py prints the table)."""
-    for s, (coverage, ratio) in _coverage(40).items():
-        assert coverage >= 0.95, (s, coverage)
+    """Forty hidden benches, the stated systematic inputs drawn in balanced antithetic pairs (benchmarks/
+    bench_rtest.py prints the table): each parameter's mean u within 0.8–1.25 of its RMS error; its U (k = 2)
+    covering the error in ≥ 90 % of the forty, and the eight together in ≥ 95 % of the 320 checks. (A U
+    that is exactly right covers 95.4 %; forty trials put one parameter's count below 38 in 28 % of runs,
+    and the antithetic pairs miss in pairs: "each ≥ 95 % of 40" is not a test a right U passes reliably.)"""
+    mc = rtest_sim.monte_carlo(40, balanced=True)
+    inside = {s: int(np.sum(np.abs(v["error"]) <= 2 * v["u"])) for s, v in mc.items()}
+    for s, v in mc.items():
+        ratio = float(np.mean(v["u"]) / np.sqrt(np.mean(v["error"] ** 2)))
         assert 0.8 <= ratio <= 1.25, (s, ratio)
+        assert inside[s] >= 36, (s, inside[s])
+    assert sum(inside.values()) >= 0.95 * 40 * len(mc), inside
