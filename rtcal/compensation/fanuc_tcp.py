@@ -27,7 +27,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from rtcal.compensation.kinematics import ActualLines, KinematicsFormat, KinematicsOutput, LocationErrors, number
+from rtcal.compensation.kinematics import (OFFSETS, ActualLines, KinematicsFormat, KinematicsOutput, LocationErrors,
+                                          number, tilts_not_held)
 from rtcal.compensation.table import CompensationError
 from rtcal.solvers.rtest import TrunnionGeometry
 
@@ -40,11 +41,8 @@ class FanucTcpFormat(KinematicsFormat):
     keys = KEYS
     sign = ("machine-frame positions, mm: the rotary table position (point A on the 1st table axis) and 19703–19705 "
             "the vector from A to point B on the 2nd, all rotation axes at 0° (A-79348E p. 82)")
-    absorbs = ("X0C_um", "Y0C_um", "Y0A_um", "Z0A_um")
-    cannot = {"A0C_arcsec": "FANUC's table model holds C along a machine axis (no tilt about X)",
-              "B0C_arcsec": "FANUC's table model holds C along a machine axis (no tilt about Y)",
-              "B0A_arcsec": "FANUC's table model holds A along a machine axis (no tilt about Y)",
-              "C0A_arcsec": "FANUC's table model holds A along a machine axis (no tilt about Z)"}
+    absorbs = OFFSETS
+    cannot = tilts_not_held("FANUC's table model (19682, 19687: each axis along a machine axis):", "Z", "X")
 
     def geometry(self, record: Mapping[str, float]) -> TrunnionGeometry:
         r = self.check_record(record)

@@ -23,6 +23,16 @@ from rtcal.compensation.table import CompensationError
 from rtcal.solvers.rtest import LOCATION_SYMBOLS, TrunnionGeometry, axis_lines, location_vector
 
 SYMBOL = re.compile(r"(?:[XYZ]0[ABC]_um|[ABC]0[ABC]_arcsec)")
+# the four offsets a model with its axes along machine axes can hold, and the four tilts it cannot
+OFFSETS = ("X0C_um", "Y0C_um", "Y0A_um", "Z0A_um")
+
+
+def tilts_not_held(model: str, c_axis: str = "Z", a_axis: str = "X") -> dict[str, str]:
+    """Why a model whose C lies exactly along ``c_axis`` and A along ``a_axis`` cannot hold the four tilts."""
+    return {"A0C_arcsec": f"{model} C is exactly along {c_axis} (no tilt about X)",
+            "B0C_arcsec": f"{model} C is exactly along {c_axis} (no tilt about Y)",
+            "B0A_arcsec": f"{model} A is exactly along {a_axis} (no tilt about Y)",
+            "C0A_arcsec": f"{model} A is exactly along {a_axis} (no tilt about Z)"}
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,8 @@ from __future__ import annotations
 import re
 from typing import Any, Mapping
 
-from rtcal.compensation.kinematics import ActualLines, KinematicsFormat, KinematicsOutput, LocationErrors, number
+from rtcal.compensation.kinematics import (OFFSETS, ActualLines, KinematicsFormat, KinematicsOutput, LocationErrors,
+                                          number, tilts_not_held)
 from rtcal.compensation.table import CompensationError
 from rtcal.solvers.rtest import TrunnionGeometry
 
@@ -37,11 +38,8 @@ class LinuxCncTrtFormat(KinematicsFormat):
     keys = PINS
     sign = ("machine-frame positions, mm: x/y-rot-point where C's line is at A = C = 0, y/z-offset from there to A's "
             "line (trtfuncs.c); a location error adds to the pin of its line")
-    absorbs = ("X0C_um", "Y0C_um", "Y0A_um", "Z0A_um")
-    cannot = {"A0C_arcsec": "the module's C is exactly along Z (no tilt about X)",
-              "B0C_arcsec": "the module's C is exactly along Z (no tilt about Y)",
-              "B0A_arcsec": "the module's A is exactly along X (no tilt about Y)",
-              "C0A_arcsec": "the module's A is exactly along X (no tilt about Z)"}
+    absorbs = OFFSETS
+    cannot = tilts_not_held("the module's")
 
     def geometry(self, record: Mapping[str, float]) -> TrunnionGeometry:
         r = self.check_record(record)
