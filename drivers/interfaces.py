@@ -89,6 +89,12 @@ DESCRIPTIONS: dict[str, dict[str, FieldDescription]] = {
                            FieldDescription("humidity_pct", "%", "the air's relative humidity", may_be_nan=True),
                            FieldDescription("material_temperature_c", "degC", "the table's material temperature",
                                             may_be_nan=True, probe_nan="omit")),
+    # a machine tool's joints as its controller reports them; a rotary axis the machine lacks reads NaN
+    "machine_tool": _fields(*(FieldDescription(f"position_{a}_mm", "mm", f"the {a.upper()} joint's position the control "
+                                               "reports, machine frame", physical_range=(-1e5, 1e5)) for a in "xyz"),
+                            *(FieldDescription(f"position_{a}_deg", "deg", f"the {a.upper()} joint's position the control "
+                                               "reports (NaN: the machine has no such axis)", may_be_nan=True,
+                                               probe_nan="omit", physical_range=(-36_000.0, 36_000.0)) for a in "abc")),
 }
 
 
@@ -347,3 +353,69 @@ class EnvironmentSensor(Instrument):
     def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         r = self.read()
         return {f.name: Value(float(getattr(r, f.name)), f.unit) for f in DESCRIPTIONS["environment"].values()}
+
+
+MACHINE_AXES = ("x", "y", "z", "a", "b", "c")
+
+
+@dataclass(frozen=True)
+class MachineTarget:
+    """One coordinated move of a machine tool's joints: every axis of ``joints`` (axis letter → mm or
+    deg, the machine's axes exactly) arrives together, passing through the waypoints ``via`` in order
+    (each a full set of joints), so that a rotary axis can turn while the linear axes follow a path
+    — the R-test's nominal sphere path, which a straight joint move would leave by millimetres. A
+    backend interpolates linearly in joint space between successive waypoints (a LinuxCNC G1 chain
+    in joint mode does the same)."""
+
+    joints: Mapping[str, float]
+    via: tuple[Mapping[str, float], ...] = ()
+
+    def points(self) -> tuple[Mapping[str, float], ...]:
+        """Every waypoint, then the target."""
+        return (*self.via, self.joints)
+
+
+class MachineTool(Instrument):
+    """A machine tool's axes driven together to commanded joint targets (linear mm, rotary deg; the
+    joints' own frame, no kinematics applied): what the R-test moves. A target names every axis of
+    ``axes``; the backend refuses one beyond ``limits`` before anything moves. ``stop`` returns only
+    once the control confirms every axis stands still (a controller that cannot confirm raises
+    InstrumentFault): the engine's one safe-state path relies on it."""
+
+    kind = "machine_tool"
+
+    axes: tuple[str, ...] = ("x", "y", "z", "a", "c")
+    limits: Mapping[str, tuple[float, float]] = {}
+
+    def check_target(self, target: MachineTarget) -> None:
+        for point in target.points():
+            if set(point) != set(self.axes):
+                raise OutOfLimits(self.name, f"a target names axes {sorted(point)}; this machine's are {list(self.axes)}")
+            for axis, value in point.items():
+                lo, hi = self.limits.get(axis, (-math.inf, math.inf))
+                if not (math.isfinite(value) and lo <= value <= hi):
+                    unit = "mm" if axis in "xyz" else "°"
+                    raise OutOfLimits(self.name, f"{axis.upper()} {value:.6g} {unit} outside its limits [{lo:g}, {hi:g}] {unit}")
+
+    @abstractmethod
+    def home(self) -> None: ...
+
+    @abstractmethod
+    def move_to(self, target: MachineTarget) -> None:
+        """The coordinated move through ``target.via`` to ``target.joints``; blocks until in position."""
+
+    @abstractmethod
+    def joint_positions(self) -> dict[str, float]:
+        """Each axis's position as the control reports it (mm, deg)."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Stop every axis; return once the control confirms all stand still."""
+
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        at = self.joint_positions()
+        out = {}
+        for axis in MACHINE_AXES:
+            unit = "mm" if axis in "xyz" else "deg"
+            out[f"position_{axis}_{unit}"] = Value(float(at.get(axis, math.nan)), unit)
+        return out
