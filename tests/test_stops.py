@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from drivers.interfaces import StopSeen
 from rtcal.clock import RealClock
 from rtcal.engine.engine import AbortRequested, Engine, MeasuringFinished
 from rtcal.engine.signals import Interrupted, ending_signals
@@ -163,6 +164,9 @@ class SlowStage:
         self.stopped.append(time.monotonic())
         self._stop.set()
 
+    def wait_stopped(self) -> StopSeen:
+        return StopSeen(True, f"{self.at:g}°")
+
     def recover(self) -> None:
         pass
 
@@ -186,7 +190,7 @@ def test_an_abort_interrupts_the_move_in_the_engines_thread():
     assert stage.stopped and stage.stopped[0] - asked[0] < BOUND_S
     assert engine.state == "aborted"
     assert [d["message"] for n, d in docs if n == "event" and d["kind"] == "abort"] == [
-        "aborted by a test: every machine the run moved was stopped; `rtcal resume` goes on"]
+        "aborted by a test: every machine the run moved was stopped (stage seen at rest at 0°); `rtcal resume` goes on"]
     assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL  # the run's routing is gone with it
 
 
@@ -287,3 +291,72 @@ def test_a_second_signal_does_not_cut_the_stop_short():
     assert isinstance(caught.value, Interrupted) and str(caught.value) == "interrupted by SIGINT (Ctrl-C)"
     assert docs[-1][0] == "stop" and engine.state == "aborted"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+class StillTurning(SlowStage):
+    """A table that keeps turning after its stop (a stop the controller queued behind the move), read
+    through the default watch of every RotaryStage; ``settles_s`` > 0: it comes to rest that long after."""
+
+    still_within_deg = 1e-4
+
+    def __init__(self, move_s: float, settles_s: float | None = None):
+        super().__init__(move_s)
+        self.settles_s = settles_s
+
+    def feedback_deg(self) -> float:
+        if not self.stopped:
+            return self.at
+        turning_s = time.monotonic() - self.stopped[0]
+        if self.settles_s is not None:
+            turning_s = min(turning_s, self.settles_s)
+        return 21.0 + 10.0 * turning_s  # 10 °/s on from 21°
+
+    def wait_stopped(self) -> StopSeen:
+        from drivers.interfaces import RotaryStage
+        return RotaryStage.wait_stopped(self, timeout_s=1.0)  # type: ignore[arg-type]
+
+
+def test_a_machine_not_seen_at_rest_is_named_with_its_last_position_never_called_stopped():
+    """Issue 40: the run wrote "every machine the run moved was stopped" while LinuxCNC's table went on
+    turning. A position that still changes after the watch is a `moving` event naming the machine and
+    its last position, the abort event says so, and the exception carries it for the console."""
+    stage = StillTurning(3.0)
+    docs: list[tuple[str, dict]] = []
+    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator(), [lambda n, d: docs.append((n, d))])
+    threading.Timer(0.3, engine.request_abort, ("a test",)).start()
+    with pytest.raises(AbortRequested) as caught:
+        engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
+    events = [d for n, d in docs if n == "event"]
+    moving = [e for e in events if e["kind"] == "moving"]
+    assert len(moving) == 1 and moving[0]["instrument"] == "stage", events
+    last_deg = float(moving[0]["message"].split("last seen at ")[1].split("°")[0])
+    assert 21.0 + 10.0 * 0.9 < last_deg < 21.0 + 10.0 * 1.5  # the position read as the 1 s watch ended
+    assert "position still changed 1 s after the stop" in moving[0]["message"]
+    (abort,) = [e["message"] for e in events if e["kind"] == "abort"]
+    assert "was stopped" not in abort and "stage may still be moving (last seen at" in abort
+    assert any("stage may still be moving" in note for note in caught.value.__notes__)
+
+
+def test_a_machine_that_comes_to_rest_is_stopped_where_it_was_seen():
+    stage = StillTurning(3.0, settles_s=0.3)
+    docs: list[tuple[str, dict]] = []
+    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator(), [lambda n, d: docs.append((n, d))])
+    threading.Timer(0.3, engine.request_abort, ("a test",)).start()
+    with pytest.raises(AbortRequested) as caught:
+        engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
+    events = [d for n, d in docs if n == "event"]
+    assert not [e for e in events if e["kind"] == "moving"]
+    assert [e["message"] for e in events if e["kind"] == "stopped"] == ["stopped: seen at rest at 24.000000°"]
+    (abort,) = [e["message"] for e in events if e["kind"] == "abort"]
+    assert "every machine the run moved was stopped (stage seen at rest at 24.000000°)" in abort
+    assert not getattr(caught.value, "__notes__", [])
+
+
+def test_a_machine_whose_position_cannot_be_read_after_the_stop_may_still_be_moving():
+    from drivers.interfaces import watch_still
+
+    def dead() -> float:
+        raise ConnectionResetError("the line died")
+
+    seen = watch_still(dead, lambda deg: f"{deg}°", 1e-4, timeout_s=0.5)
+    assert not seen.still and seen.where == "" and "could not be read" in seen.why and "the line died" in seen.why
