@@ -58,6 +58,11 @@ def abort_events(run_dir: Path) -> list[str]:
         return [m for (m,) in db.execute("SELECT message FROM events WHERE kind = 'abort' ORDER BY id")]
 
 
+def stopped_events(run_dir: Path) -> list[str]:
+    with sqlite3.connect(f"file:{run_dir / 'run.sqlite'}?mode=ro", uri=True) as db:
+        return [m for (m,) in db.execute("SELECT message FROM events WHERE kind = 'stopped' ORDER BY id")]
+
+
 def mid_long_move(hub: SimulatorHub, proc: subprocess.Popen) -> None:
     """Wait until the table is well into its long move."""
     wait_for(lambda: proc.poll() is not None or hub.drive.moving_to_deg == pytest.approx(LONG_MOVE_TO_DEG, abs=0.01), 60)
@@ -91,6 +96,9 @@ def test_a_signal_mid_move_stops_the_drive_records_it_and_resume_finishes(tmp_pa
         took_s = stopped_mid_move(hub, sent_s)
         print(f"{name}: STOP at the drive {took_s * 1000:.1f} ms after the signal")
         assert took_s < BOUND_S
+        # the drive's feedback read until it no longer changed: the store says where the table came to rest
+        (stopped,) = stopped_events(run_dir)
+        assert abs(float(stopped.split("at rest at ")[1].rstrip("°")) - hub.drive.stopped[0][1]) < 0.01, stopped
         assert proc.returncode == 130, err
         assert f"rtcal: interrupted by {name}; every reading taken so far is in {run_dir}/run.sqlite" in err
         assert f"rtcal resume {run_dir}" in err
@@ -360,3 +368,14 @@ def test_a_machine_whose_position_cannot_be_read_after_the_stop_may_still_be_mov
 
     seen = watch_still(dead, lambda deg: f"{deg}°", 1e-4, timeout_s=0.5)
     assert not seen.still and seen.where == "" and "could not be read" in seen.why and "the line died" in seen.why
+
+
+def test_the_console_says_which_machine_may_still_be_moving(capsys):
+    from rtcal.cli.run import _say_still_moving
+
+    exc = KeyboardInterrupt("interrupted by SIGINT (Ctrl-C)")
+    exc.__notes__ = ["(the status could not be recorded)", "WARNING: stage may still be moving (last seen at 45.100000°): "
+                     "its position still changed 5 s after the stop; stop it at the machine"]
+    _say_still_moving(exc)
+    assert capsys.readouterr().err == ("rtcal: WARNING: stage may still be moving (last seen at 45.100000°): its position "
+                                       "still changed 5 s after the stop; stop it at the machine\n")
