@@ -84,7 +84,7 @@ MAX_COMP_DEG = 1.0  # a rotary table's correction beyond this is a table read as
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
 # the joint order of kinematics modules without ``coordinates=`` (man 9 kins): letter i is joint i
 DEFAULT_COORDINATES = {"trivkins": "XYZABCUVW", "xyzac-trt-kins": "XYZAC", "xyzbc-trt-kins": "XYZBC"}
-SESSION_LIMIT = ("linuxcncrsh closed the connection before answering hello: it refuses a session beyond its "
+SESSION_LIMIT = ("linuxcncrsh closed the connection before answering hello, as it refuses a session beyond its "
                  "-s/--sessions limit (LinuxCNC 2.9 counts every session since it started, closed ones too; rtcal "
                  "needs two, one kept for stopping a move at once): start linuxcncrsh without -s, or restart LinuxCNC")
 
@@ -530,10 +530,12 @@ class LinuxCncStage(RotaryStage):
             return
         self.stopped = True
         try:
-            if not self.stopper.set("enable", ENABLE_PASSWORD) or not self.stopper.set("abort"):
-                raise InstrumentFault(self.name, f"set abort refused by the session kept for stopping: "
-                                                 f"E-stop {self.stopper.get('estop')[0].lower()}, machine "
-                                                 f"{self.stopper.get('machine')[0].lower()}")
+            if self.stopper.set("enable", ENABLE_PASSWORD) and self.stopper.set("abort"):
+                return
+            estop, machine = self.stopper.get("estop")[0].upper(), self.stopper.get("machine")[0].upper()
+            if estop != "OFF" or machine != "ON":  # emcrsh commandSet refuses it to a machine off: nothing moves
+                return
+            raise InstrumentFault(self.name, "set abort refused by the session kept for stopping, the machine on")
         except InstrumentFault:
             try:
                 self.rsh.send("set abort")

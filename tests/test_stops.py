@@ -324,17 +324,21 @@ class StillTurning(SlowStage):
         return RotaryStage.wait_stopped(self, timeout_s=1.0)  # type: ignore[arg-type]
 
 
+def aborted_after(stage: SlowStage, after_s: float) -> tuple[list[dict], pytest.ExceptionInfo]:
+    """The engine's events when a remote abort comes ``after_s`` into its first move, and the abort raised."""
+    docs: list[tuple[str, dict]] = []
+    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator(), [lambda n, d: docs.append((n, d))])
+    threading.Timer(after_s, engine.request_abort, ("a test",)).start()
+    with pytest.raises(AbortRequested) as caught:
+        engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
+    return [d for n, d in docs if n == "event"], caught
+
+
 def test_a_machine_not_seen_at_rest_is_named_with_its_last_position_never_called_stopped():
     """Issue 40: the run wrote "every machine the run moved was stopped" while LinuxCNC's table went on
     turning. A position that still changes after the watch is a `moving` event naming the machine and
     its last position, the abort event says so, and the exception carries it for the console."""
-    stage = StillTurning(3.0)
-    docs: list[tuple[str, dict]] = []
-    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator(), [lambda n, d: docs.append((n, d))])
-    threading.Timer(0.3, engine.request_abort, ("a test",)).start()
-    with pytest.raises(AbortRequested) as caught:
-        engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
-    events = [d for n, d in docs if n == "event"]
+    events, caught = aborted_after(StillTurning(3.0), 0.3)
     moving = [e for e in events if e["kind"] == "moving"]
     assert len(moving) == 1 and moving[0]["instrument"] == "stage", events
     last_deg = float(moving[0]["message"].split("last seen at ")[1].split("°")[0])
@@ -346,13 +350,7 @@ def test_a_machine_not_seen_at_rest_is_named_with_its_last_position_never_called
 
 
 def test_a_machine_that_comes_to_rest_is_stopped_where_it_was_seen():
-    stage = StillTurning(3.0, settles_s=0.3)
-    docs: list[tuple[str, dict]] = []
-    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator(), [lambda n, d: docs.append((n, d))])
-    threading.Timer(0.3, engine.request_abort, ("a test",)).start()
-    with pytest.raises(AbortRequested) as caught:
-        engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
-    events = [d for n, d in docs if n == "event"]
+    events, caught = aborted_after(StillTurning(3.0, settles_s=0.3), 0.3)
     assert not [e for e in events if e["kind"] == "moving"]
     assert [e["message"] for e in events if e["kind"] == "stopped"] == ["stopped: seen at rest at 24.000000°"]
     (abort,) = [e["message"] for e in events if e["kind"] == "abort"]
