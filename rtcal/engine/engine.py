@@ -628,13 +628,16 @@ class Engine:
                     device.stop()
                 except Exception as exc:  # noqa: BLE001 — a half-dead transport must not keep the others moving
                     failed.append((name, exc))
+            try:
+                self._set_state("stopping")  # (the page shows it while the machines are watched)
+            except Exception:  # the store is gone too: the machines are watched all the same
+                pass
             for name, device in self._moved.items():
                 try:
                     self.stops[name] = device.wait_stopped()
                 except Exception as exc:  # noqa: BLE001 — not seen at rest, whatever the reason
                     self.stops[name] = StopSeen(False, "", f"it could not be watched ({exc})")
             try:
-                self._set_state("stopping")
                 for name, error in failed:
                     self._event("fault", name, f"while stopping: {error}")
                 for name, seen in self.stops.items():
