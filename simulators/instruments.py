@@ -26,6 +26,8 @@ from drivers.interfaces import (
     MachineTarget,
     MachineTool,
     RotaryStage,
+    STOP_WATCH_S,
+    StopSeen,
 )
 from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, TrackingLost
 from rtcal.solvers.air import standard_air_n
@@ -155,6 +157,11 @@ class SimStage(_Injecting, RotaryStage):
     def stop(self) -> None:
         pass
 
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """A simulated motion is whole or not begun (the table moves when its time has passed), so
+        nothing moves after a stop: seen at rest where it is, without spending the run's clock."""
+        return StopSeen(True, f"{self.position_deg():.6f}°")
+
 
 class SimCmm(_Injecting, Cmm):
     name = "cmm"
@@ -188,6 +195,10 @@ class SimCmm(_Injecting, Cmm):
 
     def stop(self) -> None:
         pass
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """As the stage's: a simulated motion is whole or not begun; the probe is where the bench has it."""
+        return StopSeen(True, "(" + ", ".join(f"{v:.4f}" for v in self.bench.probe_target_mm) + ") mm")
 
 
 class SimLaserTracer(_Injecting, LaserTracer):

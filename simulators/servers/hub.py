@@ -218,7 +218,7 @@ class SimulatorHub:
             except BaseException:
                 self.stop()
                 raise
-            self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0"
+            self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0&take_control=1"
         return dict(self.addresses)
 
     def stop(self) -> None:
