@@ -18,7 +18,7 @@ import pytest
 from rtcal.cli import main
 from rtcal.methods import load_procedure
 from rtcal.run.runner import with_machine_identity
-from simulators.opcua_machine import DEFAULT_IDENTITY, OpcUaMachine
+from simulators.opcua_machine import DECOY_SERIAL, DEFAULT_IDENTITY, SECOND_MACHINE, OpcUaMachine
 
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURE = REPO / "procedures" / "iso230_2_verification.yaml"
@@ -72,7 +72,8 @@ def test_another_machines_serial_number_refuses_the_run_before_anything(machine,
 def test_the_machines_identification_fills_the_item(machine, tmp_path):
     path = _procedure(tmp_path, machine.address, None)
     proc = load_procedure(path)
-    filled = with_machine_identity(proc, path, path.read_text())
+    filled, read = with_machine_identity(proc, path, path.read_text())
+    assert read is not None and read["serial_number"] == "SN-4711"
     assert filled.metadata.serial_number == "SN-4711"
     assert filled.metadata.machine == proc.metadata.machine  # the procedure's own name is kept
 
@@ -89,10 +90,18 @@ def test_sim_serve_opcua_serves_the_identity():
                 address = m.group(1)
                 break
         assert address, "no OPC UA address printed"
-        r = subprocess.run([sys.executable, "-m", "rtcal.cli", "probe", "machine", address, "--json"], cwd=REPO,
-                           capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+        def probe(where: str) -> subprocess.CompletedProcess:
+            return subprocess.run([sys.executable, "-m", "rtcal.cli", "probe", "machine", where, "--json"], cwd=REPO,
+                                  capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+
+        r = probe(f"{address}?serial={DEFAULT_IDENTITY['SerialNumber']}")
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["serial_number"] == DEFAULT_IDENTITY["SerialNumber"]
+        # laid out as OPC 40001-1 does: a second machine beside the table, so a choice is needed
+        r = probe(address)
+        assert r.returncode == 1 and "2 machines under Machines" in r.stderr and len(r.stderr.splitlines()) == 1
+        r = probe(f"{address}?machine={SECOND_MACHINE[0]}")
+        assert json.loads(r.stdout)["serial_number"] == SECOND_MACHINE[1]["SerialNumber"] != DECOY_SERIAL
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(30)

@@ -197,8 +197,9 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
 
 def _probe_machine(args: argparse.Namespace) -> int:
-    """`rtcal probe machine opc.tcp://HOST:PORT`: the machine's OPC 40001-1 identification."""
-    from drivers.opcua_identity import read_identity
+    """`rtcal probe machine opc.tcp://HOST:PORT[?machine=NAME|serial=SN]`: the machine's OPC 40001-1
+    identification, each value printable and bounded (JSON escapes what is not ASCII)."""
+    from drivers.opcua_identity import read_identity, shown
 
     if not args.address.startswith("opc.tcp://"):
         raise UserError(f"{args.address[:80]}: a machine's identification is read over OPC UA: opc.tcp://HOST:PORT")
@@ -210,7 +211,7 @@ def _probe_machine(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(ident))
     else:
-        print("\n".join(f"{k}: {v}" for k, v in ident.items()))
+        print("\n".join(f"{k}: {'' if v is None else shown(str(v), 200)}" for k, v in ident.items()))
     return EXIT_OK
 
 
@@ -279,7 +280,8 @@ def add_probe(sub: Any) -> None:
     pr = sub.add_parser("probe", help="connect to one instrument, identify it where its protocol allows, take one "
                                       "reading and print it; exit 1 if it does not answer or answers wrongly")
     pr.add_argument("kind", choices=(*KINDS.names(), "machine"), help="the kind of instrument (machine: the machine's OPC "
-                                                               "40001-1 identification at opc.tcp://HOST:PORT)")
+                                                               "40001-1 identification at opc.tcp://HOST:PORT, one of "
+                                                               "several chosen by ?machine=NAME or ?serial=SN)")
     pr.add_argument("address", help="its address, e.g. socket://10.0.0.5:4001?model=sylvac or ipp://cmm:1294 "
                                     "(model= picks the product; docs/protocols/)")
     pr.add_argument("--json", action="store_true",

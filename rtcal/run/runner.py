@@ -216,26 +216,60 @@ def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
         store.keep_meta(lambda: {"fault_requests": json.dumps(dict(bench.faults.requests), sort_keys=True)})
 
 
-def with_machine_identity(proc: Procedure, path: Path, text: str) -> Procedure:
-    """``metadata.machine_identity``: the machine's OPC 40001-1 identification read before anything
-    moves; a serial number other than the procedure's refuses the run (FileProblems, exit 2), else
-    the certificate's item takes the machine's serial number, manufacturer and model where the
-    procedure leaves them empty. An unreachable server is an InstrumentError (exit 1)."""
+IDENTITY_KEY = "machine_identity"
+"""The store's meta key of the machine's identification read at the start (JSON): a resume applies it
+again rather than lose it (the stored procedure is the template, without what the machine said)."""
+
+
+def read_machine_identity(proc: Procedure) -> dict[str, Any] | None:
+    """``metadata.machine_identity``'s OPC 40001-1 identification, read before anything moves (None: the
+    procedure names no server). With several machines the address (``?machine=``, ``?serial=``) or the
+    procedure's ``serial_number`` chooses; an unreachable server or a nameplate of the wrong types is an
+    InstrumentError (exit 1)."""
     address = proc.metadata.machine_identity
     if not address:
-        return proc
+        return None
     from drivers.opcua_identity import read_identity
 
-    ident = read_identity(address)
-    said = str(ident.get("serial_number") or "")
+    return read_identity(address, serial=proc.metadata.serial_number or None)
+
+
+def apply_machine_identity(proc: Procedure, ident: dict[str, Any], where: str, line: int) -> Procedure:
+    """The procedure whose certificate item takes the machine's serial number, manufacturer and model
+    where the procedure leaves them empty, through the same validators as the procedure's own metadata
+    (a control character, a right-to-left override or a 100 kB serial number refuse the run at ``where``
+    before anything moves); a serial number other than the procedure's refuses it (FileProblems, exit 2)."""
+    from drivers.opcua_identity import shown
+
+    address = proc.metadata.machine_identity
+    said = ident.get("serial_number")
+    said = "" if said is None else str(said)
     if proc.metadata.serial_number and said != proc.metadata.serial_number:
-        line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
-        raise FileProblems([Problem(str(path), line, 1, "metadata.machine_identity",
-                                    f"the machine at {address} says serial number {said[:100]!r}, the procedure "
+        raise FileProblems([Problem(where, line, 1, "metadata.machine_identity",
+                                    f"the machine at {address} says serial number {shown(said, 100)!r}, the procedure "
                                     f"{proc.metadata.serial_number!r}: another machine; nothing was moved")])
     machine = proc.metadata.machine or " ".join(str(ident.get(k) or "") for k in ("manufacturer", "model")).strip()
-    meta = proc.metadata.model_copy(update={"serial_number": proc.metadata.serial_number or said, "machine": machine})
+    data = {**proc.metadata.model_dump(), "serial_number": proc.metadata.serial_number or said, "machine": machine}
+    try:
+        meta = type(proc.metadata).model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field = ".".join(map(str, first["loc"]))
+        value = shown(first.get("input", ""), 60)
+        raise FileProblems([Problem(where, line, 1, "metadata.machine_identity",
+                                    f"the machine at {address} gives {field} {value!r}, which a certificate cannot "
+                                    f"carry: {str(first['msg']).removeprefix('Value error, ')}; nothing was moved")]) from None
     return proc.model_copy(update={"metadata": meta})
+
+
+def with_machine_identity(proc: Procedure, path: Path, text: str) -> tuple[Procedure, dict[str, Any] | None]:
+    """The procedure with the machine's identification applied (:func:`apply_machine_identity`, located
+    at the procedure's ``machine_identity`` line), and the identification as read (None: none asked)."""
+    ident = read_machine_identity(proc)
+    if ident is None:
+        return proc, None
+    line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
+    return apply_machine_identity(proc, ident, str(path), line), ident
 
 
 def run_procedure(
@@ -272,7 +306,7 @@ def run_procedure(
     if addresses:
         proc = with_addresses(proc, addresses)
     check_calibration_due(proc)
-    proc = with_machine_identity(proc, procedure_path, procedure_yaml)
+    proc, identity = with_machine_identity(proc, procedure_path, procedure_yaml)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
     bench, scenario_text = None, ""
@@ -296,6 +330,7 @@ def run_procedure(
             "started_utc": _now(), "status": "not started", "generation": "0", "large": "1" if large else "",
             "operator_address": (addresses or {}).get("operator", ""),
             CLOCK_KEY: "virtual" if simulated or virtual_clock else "real",
+            **({IDENTITY_KEY: json.dumps(identity, sort_keys=True)} if identity is not None else {}),
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(method, proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
@@ -344,6 +379,12 @@ def resume_run(
         instruments = _stored(meta, "instruments", type(proc.instruments).model_validate_json, run_dir,
                               "the procedure's instrument section as JSON")
         proc = proc.model_copy(update={"instruments": instruments})
+        if IDENTITY_KEY in meta:  # the machine's identification read at the start: the certificate's item keeps it
+            identity = _stored(meta, IDENTITY_KEY, _identity, run_dir, "the machine's identification as JSON")
+            try:
+                proc = apply_machine_identity(proc, identity, f"{where} (stored procedure)", 1)
+            except FileProblems as exc:
+                raise RunDirError(f"cannot resume: {exc.problems[0]}") from None
         previous_generation = _stored(meta, "generation", _count, run_dir, "a whole number ≥ 0")
         twice = store.readings_stored_twice()
         if twice:
@@ -461,6 +502,15 @@ def _stored(meta: dict[str, str], key: str, parse, run_dir: Path, expected: str,
         raise RunDirError(f"cannot resume: {run_dir / RunStore.FILENAME}: its `{key}` is {shown}, not {expected}: the "
                           f"store was edited; `rtcal export {run_dir}` writes its readings")
     return parsed
+
+
+def _identity(text: str) -> dict[str, Any]:
+    """A stored machine identification: a JSON object of text, whole numbers and nulls."""
+    data = json.loads(text)
+    if not isinstance(data, dict) or not all(isinstance(k, str) and (v is None or type(v) in (str, int))
+                                             for k, v in data.items()):
+        raise ValueError(text)
+    return data
 
 
 def _count(text: str) -> int:
