@@ -117,7 +117,7 @@ async def _machines(client: Any, address: str, mns: int) -> list[tuple[Any, str,
     """(node, BrowseName, DisplayName) of every machine in the standard Machines folder."""
     from asyncua import ua
 
-    folder = client.get_node(ua.NodeId(MACHINES_FOLDER_ID, mns))
+    folder = client.get_node(f"ns={mns};i={MACHINES_FOLDER_ID}")
     try:
         await folder.read_browse_name()
     except ua.UaStatusCodeError:

@@ -59,16 +59,16 @@ async def _serve(host: str, port: int, machines: dict[str, dict[str, Any]], deco
     di = await server.register_namespace(DI_URI)
     mns = await server.register_namespace(MACHINERY_URI)
     vendor = await server.register_namespace(VENDOR_URI)
-    folder_id = ua.NodeId(MACHINES_FOLDER_ID, mns) if standard_folder else ua.NodeId("Machines", vendor)
+    folder_id = f"ns={mns};i={MACHINES_FOLDER_ID}" if standard_folder else f"ns={vendor};s=Machines"
     folder = await server.nodes.objects.add_folder(folder_id, ua.QualifiedName("Machines", mns))
     for machine, identity in machines.items():
-        node = await folder.add_object(ua.NodeId(machine, mns), ua.QualifiedName(machine, vendor))
-        ident = await _add_in(server, node, ua.NodeId(f"{machine}.Identification", mns), ua.QualifiedName("Identification", di))
+        node = await folder.add_object(f"ns={mns};s={machine}", ua.QualifiedName(machine, vendor))
+        ident = await _add_in(server, node, f"ns={mns};s={machine}.Identification", ua.QualifiedName("Identification", di))
         for name, value in identity.items():
             ns = mns if name in MACHINERY_PROPERTIES else di
-            await ident.add_property(ua.NodeId(f"{machine}.{name}", mns), ua.QualifiedName(name, ns), _variant(name, value))
+            await ident.add_property(f"ns={mns};s={machine}.{name}", ua.QualifiedName(name, ns), _variant(name, value))
         if decoy:  # after the standard one: a client matching bare names (the last it finds) reads this one
-            _rename(server, await ident.add_property(ua.NodeId(f"{machine}.VendorSerialNumber", vendor),
+            _rename(server, await ident.add_property(f"ns={vendor};s={machine}.VendorSerialNumber",
                                                      ua.QualifiedName("VendorSerialNumber", vendor),
                                                      ua.Variant(DECOY_SERIAL, ua.VariantType.String)),
                     ident, ua.QualifiedName("SerialNumber", vendor))
@@ -80,17 +80,17 @@ async def _serve(host: str, port: int, machines: dict[str, dict[str, Any]], deco
         await stop.wait()
 
 
-async def _add_in(server: Any, parent: Any, node_id: Any, name: Any) -> Any:
+async def _add_in(server: Any, parent: Any, node_id: str, name: Any) -> Any:
     """An object below ``parent`` by a ``HasAddIn`` reference (OPC 10000-100), as 40001-1 adds the Identification."""
     from asyncua import Node, ua
 
     item = ua.AddNodesItem()
-    item.RequestedNewNodeId = node_id
+    item.RequestedNewNodeId = ua.NodeId.from_string(node_id)
     item.BrowseName = name
     item.NodeClass = ua.NodeClass.Object
     item.ParentNodeId = parent.nodeid
-    item.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasAddIn)
-    item.TypeDefinition = ua.NodeId(ua.ObjectIds.BaseObjectType)
+    item.ReferenceTypeId = ua.NodeId.from_string(f"i={ua.ObjectIds.HasAddIn}")
+    item.TypeDefinition = ua.NodeId.from_string(f"i={ua.ObjectIds.BaseObjectType}")
     attrs = ua.ObjectAttributes()
     attrs.DisplayName = ua.LocalizedText(name.Name)
     item.NodeAttributes = attrs

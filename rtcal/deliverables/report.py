@@ -35,8 +35,9 @@ def write_html(certificate: Certificate, path: Path) -> Path:
     env = Environment(loader=FileSystemLoader(Path(__file__).parent / "templates"), autoescape=select_autoescape(["j2"]))
     figures = [(base64.b64encode(certificate.figure_path(f, path).read_bytes()).decode("ascii"), f.caption) for f in certificate.figures]
     footer_css = "".join(ch for ch in certificate.header.footer if ch not in '"\\<>&\n\r')
-    path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css),
-                    encoding="utf-8")
+    marking_css = "".join(ch for ch in certificate.header.marking if ch not in '"\\<>&\n\r')
+    path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css,
+                                                              marking_css=marking_css), encoding="utf-8")
     return path
 
 
@@ -94,6 +95,8 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
     head.setStyle(TableStyle([("VALIGN", (0, 0), (-1, -1), "TOP"), ("LINEBELOW", (0, 0), (-1, 0), 0.8, colors.HexColor("#3a5a80")),
                               ("LEFTPADDING", (0, 0), (-1, -1), 0), ("BOTTOMPADDING", (0, 0), (-1, -1), 4)]))
     story: list[Any] = [head, Spacer(1, 3 * mm)]
+    if hd.marking:
+        story += [boxed([Paragraph(f"<b>{esc(hd.marking)}</b>", body)], colors.HexColor("#c0392b")), Spacer(1, 2 * mm)]
     if hd.not_certificate:
         story += [boxed([Paragraph(f"<b>{esc(hd.not_certificate)}</b>", body)], colors.HexColor("#c0392b")), Spacer(1, 2 * mm)]
     story.append(table([(i.label, i.value) for i in c.identification.items], None, [50 * mm, width - 50 * mm],
@@ -165,6 +168,7 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
               Spacer(1, 4 * mm), Paragraph(f"<b>{esc(hd.closing)}</b>", body)]
 
     footer_left = hd.footer
+    marking = hd.marking
 
     class NumberedCanvas(Canvas):
         """Keeps each page until the count is known, then draws its footer last: "page N of M"."""
@@ -186,12 +190,17 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                 self.line(15 * mm, 13 * mm, A4[0] - 15 * mm, 13 * mm)
                 self.drawString(15 * mm, 9 * mm, footer_left[:120])
                 self.drawRightString(A4[0] - 15 * mm, 9 * mm, f"page {self._pageNumber} of {total}")
+                if marking:  # every page's head too: a page taken alone still says it is no calibration
+                    self.setFont(bold, 7)
+                    self.setFillColor(colors.HexColor("#c0392b"))
+                    self.drawCentredString(A4[0] / 2, A4[1] - 8 * mm, marking[:150])
+                    self.setFillColor(colors.black)
                 super().showPage()
             super().save()
 
-    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()], [c.sign_off.signing, "", ""]], None,
-                       [width / 3] * 3)
-    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed, under who signed it
+    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()], [c.sign_off.signing, "", ""],
+                        [c.sign_off.electronic_signature, "", ""]], None, [width / 3] * 3)
+    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1)), ("SPAN", (0, 2), (-1, 2))]))  # how it is signed, under who
     sign_h = signatures.wrap(width, 40 * mm)[1] + 4 * mm
 
     def sign(canvas, doc):  # page 1's foot: who performed and approved it, whatever the page holds above
@@ -227,6 +236,8 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
     table, the method's body, the run's events."""
     c, r = certificate, certificate.run
     lines = [f"# {r.report_title}", ""]
+    if c.header.marking:
+        lines += [f"> **{c.header.marking}**", ""]
     for issue in r.solver_issues:
         lines.append(f"> **Estimator `{issue.estimator}` {issue.status}**: {issue.message}")
         lines.append(">")
@@ -247,6 +258,7 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
         lines += [f"- instruments: {r.simulated}"]
     if r.recommended:
         lines.append(f"- recommended estimate: `{r.recommended}` (converged, smallest uncertainty)")
+    lines.append(f"- signature: {c.sign_off.electronic_signature}")
     lines.append("")
     if c.conformity:
         v = c.conformity
