@@ -262,3 +262,25 @@ def test_compensate_refuses_a_schema_version_set_back_by_hand(lab, tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "set back by hand" in err[0] and data["rtcal_version"] in err[0], err
     assert not (tmp_path / "c.txt").exists()
+
+
+def test_resume_signs_the_results_it_writes(lab, tmp_path, capsys, monkeypatch):
+    """A run stopped before its results, resumed with the lab's key: the resume writes the results and signs them."""
+    from rtcal.run.runner import run_procedure
+
+    run_dir = tmp_path / "run"
+
+    def abort_at_once(engine, _run_dir):
+        engine.request_abort("the test")
+        return None
+
+    with pytest.raises(KeyboardInterrupt):
+        run_procedure(PROCEDURE, out_dir=run_dir, show_progress=False, virtual_clock=True, on_engine=abort_at_once)
+    assert not (run_dir / "signature.json").exists()
+    monkeypatch.setenv(LAB_KEY_ENV, str(lab["private"]))
+    assert main(["resume", str(run_dir)]) == 0
+    monkeypatch.delenv(LAB_KEY_ENV)
+    monkeypatch.setenv(LAB_PUBLIC_KEYS_ENV, str(lab["public"]))
+    capsys.readouterr()
+    assert main(["verify", str(run_dir)]) == 0
+    assert "valid (checked against the lab's key)" in capsys.readouterr().out

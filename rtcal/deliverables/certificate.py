@@ -573,17 +573,15 @@ def signature_line(results: RunResults) -> str:
     """Who signed the run's digests, with which key; or that it is unsigned."""
     sig = results.signature
     if sig is None:
-        return ("Unsigned: no laboratory key was configured when this run was written; its digests reveal accidental "
-                "changes, not a forgery.")
-    return (f"Signed electronically by {sig.signer} with the laboratory's Ed25519 key {sig.key_fingerprint} "
-            "(signature.json; `rtcal verify` checks it against the laboratory's public key).")
+        return "Unsigned: no laboratory key was configured (its digests show accidents, not forgery)."
+    return f"Signed electronically by {sig.signer}, Ed25519 key {sig.key_fingerprint} (signature.json)."
 
 
 def _header(s: Sources) -> Header:
     meta, results = s.results.metadata, s.results
-    footer = " · ".join(x for x in (meta.laboratory or results.procedure.name or results.method,
-                                    f"Certificate {meta.certificate_number}" if meta.certificate_number else "",
-                                    marking(results).partition(":")[0]) if x)
+    footer = " · ".join(x for x in (marking(results).partition(":")[0],  # first: a long name never cuts it off
+                                    meta.laboratory or results.procedure.name or results.method,
+                                    f"Certificate {meta.certificate_number}" if meta.certificate_number else "") if x)
     return Header(title="Calibration certificate" if not s.missing else "Calibration report",
                   subtitle="Angular positioning deviation of a rotary axis",
                   laboratory=meta.laboratory or "Laboratory not stated", laboratory_address=meta.laboratory_address,
@@ -623,8 +621,7 @@ def _identification(s: Sources) -> Identification:
                                     f"({Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed}); "
                                     "a demonstration, not a measurement of a real item"))
     if results.simulation is not None and (results.simulation.simulators or results.simulation.rehearsed):
-        said = "; ".join(f"{k}: {v}" for k, v in results.simulation.simulators.items())
-        rows.append(("Simulation", results.simulation.statement + (f" (they said: {said})" if said else "")))
+        rows.append(("Simulation", results.simulation.statement))  # what each said: results.json, `simulation`
     notes = [f"Estimator {n} {st.status}: {st.message}" for n, st in results.solver_status.items()
              if st.status != "converged"]
     if results.bench is not None and results.bench.startswith("ideal bench"):

@@ -95,8 +95,6 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
     head.setStyle(TableStyle([("VALIGN", (0, 0), (-1, -1), "TOP"), ("LINEBELOW", (0, 0), (-1, 0), 0.8, colors.HexColor("#3a5a80")),
                               ("LEFTPADDING", (0, 0), (-1, -1), 0), ("BOTTOMPADDING", (0, 0), (-1, -1), 4)]))
     story: list[Any] = [head, Spacer(1, 3 * mm)]
-    if hd.marking:
-        story += [boxed([Paragraph(f"<b>{esc(hd.marking)}</b>", body)], colors.HexColor("#c0392b")), Spacer(1, 2 * mm)]
     if hd.not_certificate:
         story += [boxed([Paragraph(f"<b>{esc(hd.not_certificate)}</b>", body)], colors.HexColor("#c0392b")), Spacer(1, 2 * mm)]
     story.append(table([(i.label, i.value) for i in c.identification.items], None, [50 * mm, width - 50 * mm],
@@ -185,22 +183,22 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
             total = len(self._pages)
             for state in self._pages:
                 self.__dict__.update(state)
+                if marking:  # every page's head: a page taken alone still says it is no calibration
+                    self.setFont(bold, 7)
+                    self.setFillColor(colors.HexColor("#c0392b"))
+                    self.drawCentredString(A4[0] / 2, A4[1] - 8 * mm, marking[:150])
+                    self.setFillColor(colors.black)
                 self.setFont(font, 7)
                 self.setStrokeColor(colors.HexColor("#3a5a80"))
                 self.line(15 * mm, 13 * mm, A4[0] - 15 * mm, 13 * mm)
                 self.drawString(15 * mm, 9 * mm, footer_left[:120])
                 self.drawRightString(A4[0] - 15 * mm, 9 * mm, f"page {self._pageNumber} of {total}")
-                if marking:  # every page's head too: a page taken alone still says it is no calibration
-                    self.setFont(bold, 7)
-                    self.setFillColor(colors.HexColor("#c0392b"))
-                    self.drawCentredString(A4[0] / 2, A4[1] - 8 * mm, marking[:150])
-                    self.setFillColor(colors.black)
                 super().showPage()
             super().save()
 
-    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()], [c.sign_off.signing, "", ""],
-                        [c.sign_off.electronic_signature, "", ""]], None, [width / 3] * 3)
-    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1)), ("SPAN", (0, 2), (-1, 2))]))  # how it is signed, under who
+    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()],
+                        [f"{c.sign_off.signing} {c.sign_off.electronic_signature}".strip(), "", ""]], None, [width / 3] * 3)
+    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed and by which key, under who
     sign_h = signatures.wrap(width, 40 * mm)[1] + 4 * mm
 
     def sign(canvas, doc):  # page 1's foot: who performed and approved it, whatever the page holds above
