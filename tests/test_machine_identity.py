@@ -50,13 +50,16 @@ def test_a_machine_that_does_not_answer_is_exit_1_in_one_line(capsys):
 
 
 def _procedure(tmp_path: Path, address: str, serial: str | None) -> Path:
+    """The shipped ISO verification naming the machine's server (and ``serial``, or none), its bench beside it."""
     text = PROCEDURE.read_text()
     line = "  serial_number: SIM-230-2\n"
     assert line in text
-    text = text.replace(line, (f"  serial_number: {serial}\n" if serial else "") + f"  machine_identity: {address}\n")
+    text = text.replace(line, (f"  serial_number: {serial}\n" if serial else "") + f"  machine_identity: '{address}'\n")
     path = tmp_path / "proc.yaml"
     path.write_text(text)
-    (tmp_path / "scenarios").symlink_to(REPO / "procedures" / "scenarios")
+    (tmp_path / "scenarios").mkdir(exist_ok=True)  # the bench lies in the procedure's folder (a link would not)
+    bench = REPO / "procedures" / "scenarios" / "abbe_bench.yaml"
+    (tmp_path / "scenarios" / bench.name).write_text(bench.read_text())
     return path
 
 

@@ -18,9 +18,8 @@ from drivers.opcua_identity import CERT_ENV, KEY_ENV, read_identity
 from rtcal.cli import main
 from rtcal.run.runner import run_procedure
 from simulators.opcua_machine import DECOY_SERIAL, DEFAULT_IDENTITY, OpcUaMachine, default_machines
+from tests.test_machine_identity import _procedure
 
-REPO = Path(__file__).resolve().parents[1]
-PROCEDURE = REPO / "procedures" / "iso230_2_verification.yaml"
 
 
 @pytest.fixture()
@@ -34,18 +33,6 @@ def serve():
     yield start
     for m in started:
         m.close()
-
-
-def _procedure(tmp_path: Path, address: str, serial: str | None) -> Path:
-    text = PROCEDURE.read_text()
-    line = "  serial_number: SIM-230-2\n"
-    assert line in text
-    text = text.replace(line, (f"  serial_number: {serial}\n" if serial else "") + f"  machine_identity: '{address}'\n")
-    path = tmp_path / "proc.yaml"
-    path.write_text(text)
-    (tmp_path / "scenarios").mkdir(exist_ok=True)  # the bench lies in the procedure's folder (a link would not)
-    (tmp_path / "scenarios" / "abbe_bench.yaml").write_text((REPO / "procedures" / "scenarios" / "abbe_bench.yaml").read_text())
-    return path
 
 
 def _refused_before_anything(tmp_path: Path, capsys, address: str, code: int, serial: str | None = None) -> str:

@@ -284,3 +284,13 @@ def test_resume_signs_the_results_it_writes(lab, tmp_path, capsys, monkeypatch):
     capsys.readouterr()
     assert main(["verify", str(run_dir)]) == 0
     assert "valid (checked against the lab's key)" in capsys.readouterr().out
+
+
+def test_the_as_found_as_left_certificate_says_it_is_not_itself_signed(lab, tmp_path):
+    """Written from two runs after them, it carries neither run's signature as its own."""
+    assert main(["compare", str(lab["signed"]), str(lab["unsigned"]), "--certificate", "--certificate-number",
+                 "EML-AFAL-1", "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "as_found_as_left.json").read_text())
+    line = doc["sign_off"]["electronic_signature"]
+    assert line.startswith("Not itself signed") and "As found: Signed electronically" in line and "As left: Unsigned" in line
+    assert doc["header"]["marking"].startswith("SIMULATED")
