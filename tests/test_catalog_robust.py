@@ -325,4 +325,15 @@ def test_entries_from_before_normalising_are_one_history_read_as_they_are_and_af
         pass
     with closing(sqlite3.connect(path)) as conn:
         assert {r[0] for r in conn.execute("SELECT serial_number FROM calibrations")} == {"Acme Ré 7"}
-        assert conn.execute("SELECT version_num FROM alembic_version").fetchone()[0] == "0002"
+        assert conn.execute("SELECT version_num FROM alembic_version").fetchone()[0] == _newest_migration()
+
+
+def _newest_migration() -> str:
+    from alembic.config import Config
+    from alembic.script import ScriptDirectory
+
+    from rtcal.catalog.store import MIGRATIONS
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(MIGRATIONS))
+    return ScriptDirectory.from_config(cfg).get_current_head() or ""
