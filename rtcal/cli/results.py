@@ -60,10 +60,12 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     from rtcal.compensation import CompensationError, get_format, options_given, write_table
     from rtcal.deliverables.compensation import table_from_deviations
 
-    table, _ = read_deviation_table(args.source)
+    table, results = read_deviation_table(args.source)
     try:
         comp = table_from_deviations(table, args.step_deg, args.max_gap_deg, args.allow_one_direction, args.format)
         options = options_given(vars(args))
+        for keyword in getattr(get_format(args.format), "run_options", ()):  # options that name a run: its data
+            options[keyword] = _iso230_1_errors(keyword, options.get(keyword), results, args.source)
         text = write_table(args.format, comp, **options)
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
@@ -77,6 +79,29 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         where = "" if get_format(args.format).takes_comments else f" (not in {out}: a {args.format} file takes no comment)"
         print(f"rtcal: warning: {warning}{where}", file=sys.stderr)
     return EXIT_OK
+
+
+def _iso230_1_errors(which: str, run: str | None, source: RunResults | None, source_text: str) -> Any:
+    """The ISO 230-1 error motions or location errors (``which``) of ``run`` — or of the source run
+    when none is named (None: it has none, or the source is a CSV) — as its method's outputs give
+    them (``iso230_1_errors()``); a named run without them is a UserError."""
+    from rtcal.methods import METHODS
+
+    if run is not None:
+        _, results = read_deviation_table(run) if Path(run).is_dir() else (None, None)
+        if results is None:
+            raise UserError(f"{run}: not a run directory (its results.json gives the {which.replace('_', ' ')})")
+    else:
+        results = source
+    if results is None:
+        return None
+    found = getattr(METHODS[results.method].outputs(results), "iso230_1_errors", None)
+    motions, location = found() if found is not None else (None, None)
+    value = motions if which == "error_motions" else location
+    if value is None and run is not None:
+        raise UserError(f"{run}: its {results.method} run gives no {which.replace('_', ' ')} (error motions: the Abbe "
+                        "method's dial indicators or seed 000's second tracer mount; location: seed 000's network)")
+    return value
 
 
 def run_label(path_text: str) -> str:

@@ -11,6 +11,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 
+from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, LocationErrors
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.rounding import u_text
 from rtcal.deliverables.certificate import largest, period_text, smallest, status_lines
@@ -336,6 +337,28 @@ class AbbeOutputs:
             figs.append(("closure.png", "polygon face errors and table errors separated by closure, the table errors on "
                                         "the zero of Figure 1 (the first target); bars ±U (k = 2)."))
         return figs
+
+    def iso230_1_errors(self) -> tuple[ErrorMotions | None, LocationErrors | None]:
+        """The error motions the dial indicators measured, as a volumetric compensation takes them: EYC
+        (radial motion in Y at the tilt centre, mm) and EAC (tilt about X, rad) per step, the two
+        directions averaged and the mean over the turn removed (the indicators' zeros are arbitrary:
+        the axis's location is not measured here). EXC and EBC are not measured (one plane)."""
+        a = self.abbe
+        per: dict[float, list[tuple[float, float]]] = {}
+        for angle, t, y in zip(a.angle_deg, a.tilt_x_arcsec, a.radial_y_um):
+            if t is not None and y is not None:
+                per.setdefault(round(angle % 360.0, 6), []).append((t, y))
+        if len(per) < 3:
+            return None, None
+        angles = np.array(sorted(per))
+        tilt = np.array([np.mean([t for t, _ in per[k]]) for k in angles])
+        radial = np.array([np.mean([y for _, y in per[k]]) for k in angles])
+        r = self.results
+        return ErrorMotions(angles, {"EYC": (radial - radial.mean()) * 1e-3, "EAC": (tilt - tilt.mean()) * RAD_PER_ARCSEC},
+                            f"{Path(r.procedure.path).name or r.method} (encoder Abbe-error method, {r.started_utc or 'time not recorded'})",
+                            "EYC radial motion in Y at the tilt centre, EAC tilt about X, from two dial indicators below "
+                            "it (seed 001's model), both directions averaged, mean over the turn removed (the indicators' "
+                            "zeros are arbitrary); EXC, EBC not measured (indicators in Y only)"), None
 
     def estimate_words(self) -> str:
         """The recommended estimate as the certificate names it."""
