@@ -254,7 +254,10 @@ def test_calibrate_compensate_verify(calibrated, tmp_path, fmt):
     before, after = _evaluate(calibrated), _evaluate(verify)
     assert before["E"] > 40 and before["B"] > 2.5
     assert after["E"] < before["E"] / 8, (before["E"], after["E"])
-    assert after["B"] < before["B"] / 4, (before["B"], after["B"])
+    if fmt == "isg-volcomp":  # one ECC for both directions: the reversal stays the axis's backlash compensation's
+        assert abs(after["B"] - before["B"]) < 1.0, (before["B"], after["B"])
+    else:
+        assert after["B"] < before["B"] / 4, (before["B"], after["B"])
 
 
 def test_the_modbus_drive_simulator_applies_the_table(calibrated, tmp_path):

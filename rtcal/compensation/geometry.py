@@ -11,6 +11,7 @@ SI-like units, so this layer needs nothing above it.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +19,13 @@ import numpy as np
 RAD_PER_ARCSEC = math.pi / 648_000.0
 MOTION_UNITS = {"EXC": "mm", "EYC": "mm", "EZC": "mm", "EAC": "rad", "EBC": "rad"}
 LOCATION_UNITS = {"X0C": "mm", "Y0C": "mm", "A0C": "rad", "B0C": "rad"}
+
+
+def _known(values: Mapping[str, object], units: Mapping[str, str], what: str) -> None:
+    """Only ISO 230-1's names of the kind (a misspelt one would be written as a parameter the control reads)."""
+    unknown = set(values) - set(units)
+    if unknown:
+        raise ValueError(f"not {what} of a C axis: {', '.join(sorted(unknown))}")
 
 
 @dataclass(frozen=True)
@@ -34,9 +42,7 @@ class ErrorMotions:
     u: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        unknown = set(self.values) - set(MOTION_UNITS)
-        if unknown:
-            raise ValueError(f"not an error motion of a C axis: {', '.join(sorted(unknown))}")
+        _known(self.values, MOTION_UNITS, "an error motion")
 
     def widest_gap_deg(self) -> float:
         """The widest gap between neighbouring angles over one turn."""
@@ -63,6 +69,4 @@ class LocationErrors:
     u: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        unknown = set(self.values) - set(LOCATION_UNITS)
-        if unknown:
-            raise ValueError(f"not a location error of a C axis: {', '.join(sorted(unknown))}")
+        _known(self.values, LOCATION_UNITS, "a location error")
