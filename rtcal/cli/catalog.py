@@ -10,11 +10,12 @@ from typing import Any
 from rtcal.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, UserError, json_text
 
 
-def _open(args: argparse.Namespace) -> Any:
+def _open(args: argparse.Namespace, write: bool = False) -> Any:
+    """The catalogue, read-only unless ``write`` (only `add` migrates it or creates its file)."""
     from rtcal.catalog.store import Catalog, CatalogUsage
 
     try:
-        return Catalog(args.db)
+        return Catalog(args.db, write=write)
     except CatalogUsage as exc:
         raise UserError(str(exc)) from None
 
@@ -40,7 +41,7 @@ def _add(args: argparse.Namespace) -> int:
         except RunRefused as exc:
             print(f"rtcal: catalog add refused: {exc}", file=sys.stderr)
             return EXIT_USAGE if exc.code == 2 else EXIT_FAILED
-    with _open(args) as cat:
+    with _open(args, write=True) as cat:
         for entry in entries:
             added = cat.add(entry)
             print(f"{entry['run_id']} {entry['serial_number']} {entry['axis']} {entry['measured_utc']}: "
@@ -52,8 +53,10 @@ def _history(args: argparse.Namespace) -> int:
     from rtcal.catalog.history import e_text as history_e_text
     from rtcal.catalog.history import entry_json, history_document
 
+    from rtcal.catalog.history import by_axis
+
     with _open(args) as cat:
-        rows = cat.history(args.serial, args.axis)
+        rows = [r for rs in by_axis(cat.history(args.serial, args.axis)).values() for r in rs]
     if not rows:
         print(f"rtcal: no calibration of {args.serial}{' axis ' + args.axis if args.axis else ''} in {cat.name}",
               file=sys.stderr)
@@ -84,27 +87,27 @@ def _history(args: argparse.Namespace) -> int:
             print(f"axis {axis}: E's trend needs two runs at different times outside as-left runs ({t['runs_fitted']})")
         else:
             print(f"axis {axis}: E's trend {t['E_trend_arcsec_per_year']:+.3f} ± {t['E_trend_U_arcsec_per_year']:.3f} ″/year "
-                  f"({t['runs_fitted']} runs); reaches its limit {t['E_limit_arcsec']}″ "
-                  f"{t['E_reaches_limit_utc'][:10] if t['E_reaches_limit_utc'] else 'not on this trend'}")
-        print(f"axis {axis}: next due {d['next_due']} (method: {t['method']})")
+                  f"({t['runs_fitted']} runs); reaches its limit {t['E_limit_arcsec']}″: {t['E_reaches_limit']}")
+        print(f"axis {axis}: next due {d['next_due'] or '– (no entry has a time rtcal can read)'} (method: {t['method']})")
     return EXIT_OK
 
 
 def _plot(rows: list[dict[str, Any]], path: Path) -> None:
     """E ± U over time per axis, with its acceptance limit."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import math
+
     from matplotlib.dates import AutoDateLocator, ConciseDateFormatter, date2num
 
-    from rtcal.catalog.history import _time
+    from rtcal.catalog.history import by_axis, time_of
+    from rtcal.deliverables.figures import plt  # every text drawn as written (no mathtext: a serial may hold `$`)
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    for axis in sorted({r["axis"] for r in rows}):
-        rs = [r for r in rows if r["axis"] == axis and r["E_arcsec"] is not None]
-        ax.errorbar(date2num([_time(r["measured_utc"]) for r in rs]), [r["E_arcsec"] for r in rs],
-                    yerr=[r["E_U_arcsec"] or 0 for r in rs], fmt="o-", capsize=3, label=f"axis {axis}: E ± U (k = 2)")
-        limits = [r["E_limit_arcsec"] for r in rs if r["E_limit_arcsec"] is not None]
+    for axis, axis_rows in sorted(by_axis(rows).items()):
+        rs = [r for r in axis_rows if time_of(r) is not None and r["E_arcsec"] is not None and math.isfinite(r["E_arcsec"])]
+        ax.errorbar(date2num([time_of(r) for r in rs]), [r["E_arcsec"] for r in rs],
+                    yerr=[r["E_U_arcsec"] if r["E_U_arcsec"] and math.isfinite(r["E_U_arcsec"]) else 0 for r in rs],
+                    fmt="o-", capsize=3, label=f"axis {axis}: E ± U (k = 2)")
+        limits = [r["E_limit_arcsec"] for r in rs if r["E_limit_arcsec"] is not None and math.isfinite(r["E_limit_arcsec"])]
         if limits:
             ax.axhline(limits[-1], color="red", linestyle="--", label=f"axis {axis}: E's limit {limits[-1]:g}″")
     locator = AutoDateLocator()
@@ -124,13 +127,15 @@ def _list(args: argparse.Namespace) -> int:
 
     with _open(args) as cat:
         machines = fleet(cat.machines())
+    if not machines:
+        print(f"rtcal: {cat.name} holds no calibration yet (`rtcal catalog add RUN` adds one)", file=sys.stderr)
     if args.json:
         print(json_text(machines))
         return EXIT_OK
     print(f"{'serial number':20} {'axis':5} {'machine':30} {'runs':>4} {'last (UTC)':11} {'verdict':10} next due")
     for m in machines:
         print(f"{m['serial_number'][:20]:20} {m['axis'][:5]:5} {m['machine'][:30]:30} {m['calibrations']:>4} "
-              f"{m['last_utc'][:10]:11} {m['verdict']:10} {m['next_due']}")
+              f"{m['last_utc'][:10]:11} {m['verdict']:10} {m['next_due'] or '–'}")
     return EXIT_OK
 
 

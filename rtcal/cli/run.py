@@ -25,6 +25,13 @@ def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_fail
     return "nothing was measured"
 
 
+def _say_still_moving(exc: BaseException) -> None:
+    """The machines the engine's safe stop did not see at rest (its WARNING notes), said on the console."""
+    for note in getattr(exc, "__notes__", ()):
+        if note.startswith("WARNING: "):
+            print(f"rtcal: {note}", file=sys.stderr, flush=True)
+
+
 def out_of_descriptors(exc: BaseException) -> bool:
     """The process (EMFILE) or the system (ENFILE) has no file descriptor left, anywhere in the chain of
     causes: the computer's fault during a run, not the user's input."""
@@ -61,6 +68,7 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         return EXIT_FAILED
     except InstrumentError as exc:
         print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
+        _say_still_moving(exc)
         print(f"rtcal: {_how_to_go_on(run_dir, instruments, instruments_failed=True)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
@@ -81,6 +89,7 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         try:  # after SIGHUP the terminal may be gone: the status is recorded, the exit code still says it
             print(f"\nrtcal: {why}; {_how_to_go_on(run_dir, instruments)}",
                   file=sys.stderr, flush=True)
+            _say_still_moving(exc)
         except OSError:
             pass
         return EXIT_INTERRUPTED

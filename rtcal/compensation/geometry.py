@@ -4,28 +4,22 @@ errors (X0C, Y0C in mm; A0C, B0C in rad), each with where it came from.
 
 A method's outputs make them from its results (``iso230_1_errors()``: the Abbe method's dial
 indicators give EYC and EAC, seed 000's second tracer mount EXC, EYC, EAC, EBC and its network the
-location); a format that takes them (rtcal/compensation/isg_volcomp.py) writes them. Plain data with
-SI-like units, so this layer needs nothing above it.
+location; the R-test's eight location errors are the same :class:`LocationErrors` the kinematics
+formats take); a format that takes them (rtcal/compensation/isg_volcomp.py) writes them. Plain data,
+so this layer needs nothing above it.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from rtcal.compensation.kinematics import LocationErrors
+
 RAD_PER_ARCSEC = math.pi / 648_000.0
 MOTION_UNITS = {"EXC": "mm", "EYC": "mm", "EZC": "mm", "EAC": "rad", "EBC": "rad"}
-LOCATION_UNITS = {"X0C": "mm", "Y0C": "mm", "A0C": "rad", "B0C": "rad"}
-
-
-def _known(values: Mapping[str, object], units: Mapping[str, str], what: str) -> None:
-    """Only ISO 230-1's names of the kind (a misspelt one would be written as a parameter the control reads)."""
-    unknown = set(values) - set(units)
-    if unknown:
-        raise ValueError(f"not {what} of a C axis: {', '.join(sorted(unknown))}")
 
 
 @dataclass(frozen=True)
@@ -42,7 +36,9 @@ class ErrorMotions:
     u: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _known(self.values, MOTION_UNITS, "an error motion")
+        unknown = set(self.values) - set(MOTION_UNITS)
+        if unknown:  # a misspelt name would be written as a parameter the control reads
+            raise ValueError(f"not an error motion of a C axis: {', '.join(sorted(unknown))}")
 
     def widest_gap_deg(self) -> float:
         """The widest gap between neighbouring angles over one turn."""
@@ -59,14 +55,18 @@ class ErrorMotions:
 
 
 @dataclass(frozen=True)
-class LocationErrors:
-    """The C axis's location errors (:data:`LOCATION_UNITS`), their standard uncertainties, the run
-    and method they came from and the frame they are in."""
+class MeasuredLocation:
+    """Location errors as every method states them (:class:`rtcal.compensation.kinematics.LocationErrors`:
+    seed 000's X0C, Y0C, A0C, B0C, the R-test's eight, in µm and arcsec with u) and the run they came from."""
 
-    values: dict[str, float]
+    errors: LocationErrors
     source: str
-    frame: str
-    u: dict[str, float] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        _known(self.values, LOCATION_UNITS, "a location error")
+    def in_si(self) -> dict[str, tuple[float, float, str]]:
+        """ISO 230-1 name → (value, u, unit) in mm or rad, as a volumetric compensation takes them."""
+        out = {}
+        for symbol, v in self.errors.values.items():
+            name, unit = symbol.split("_")
+            scale, si = (1e-3, "mm") if unit == "um" else (RAD_PER_ARCSEC, "rad")
+            out[name] = (v.value * scale, v.u * scale, si)
+        return out

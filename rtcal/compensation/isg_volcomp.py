@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from rtcal.compensation.base import ASCII, CompensationFormat, FormatOption
-from rtcal.compensation.geometry import LOCATION_UNITS, MOTION_UNITS, RAD_PER_ARCSEC, ErrorMotions, LocationErrors
+from rtcal.compensation.geometry import MOTION_UNITS, RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
 from rtcal.compensation.table import ARCSEC_PER_DEG, CompensationError, CompensationTable, regular_table
 
 AXES = "XYZABC"
@@ -129,8 +129,8 @@ class IsgVolcompFormat(CompensationFormat):
         FormatOption("error_motions", "--error-motions-from", "a run whose ISO 230-1 error motions to write",
                      "default: the source run's (EYC, EAC from the Abbe method's dial indicators; EXC, EYC, EAC, EBC from "
                      "seed 000's second mount)", metavar="RUN"),
-        FormatOption("location", "--location-from", "a run whose location errors X0C, Y0C, A0C, B0C to write",
-                     "default: the source run's (seed 000's network)", metavar="RUN"),
+        FormatOption("location", "--location-from", "a run whose location errors (X0C, Y0C, A0C, B0C; the R-test's "
+                     "eight) to write", "default: the source run's (seed 000's network)", metavar="RUN"),
     )
     run_options: ClassVar[tuple[str, ...]] = ("error_motions", "location")  # the command line reads these runs
 
@@ -148,7 +148,7 @@ class IsgVolcompFormat(CompensationFormat):
         ]
 
     def write(self, table: CompensationTable, error_motions: ErrorMotions | None = None,
-              location: LocationErrors | None = None) -> str:
+              location: MeasuredLocation | None = None) -> str:
         """The location errors as one record, a file break, then ECC (and the error motions given)
         against C from 0° to 360° on the table's grid, the 360° record repeating the 0° one."""
         self.check_points(table)
@@ -177,12 +177,12 @@ class IsgVolcompFormat(CompensationFormat):
             lines.append("// error motions: none given (EXC, EYC, EAC, EBC not in this file)")
         lines += self.comment_lines(table)
         if location is not None:
-            lines += [f"// position (location) errors of C from {location.source}; frame: {location.frame}",
+            si = location.in_si()
+            lines += [f"// position (location) errors from {location.source}; frame: {location.errors.frame}",
                       "// X0C, Y0C are relative to that frame's origin: subtract the control's nominal centre of rotation "
                       "(PXC, PYC) if it is not that origin"]
-            lines += [f"// u (1 sigma) of {name}: {u:.3g} {LOCATION_UNITS[name]}" for name, u in location.u.items()]
-            names = [n for n in LOCATION_UNITS if n in location.values]
-            lines += ["  ".join(names), "  ".join(_fmt(location.values[n], LOCATION_UNITS[n]) for n in names), "#"]
+            lines += [f"// u (1 sigma) of {name}: {u:.3g} {unit}" for name, (_, u, unit) in si.items()]
+            lines += ["  ".join(si), "  ".join(_fmt(v, unit) for v, _, unit in si.values()), "#"]
         else:
             lines.append("// position (location) errors: none given (X0C, Y0C, A0C, B0C not in this file)")
         lines = [_plain(line) if line.startswith("//") else line for line in lines]

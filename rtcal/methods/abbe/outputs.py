@@ -11,7 +11,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 
-from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, LocationErrors
+from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.rounding import u_text
 from rtcal.deliverables.certificate import largest, period_text, smallest, status_lines
@@ -338,7 +338,7 @@ class AbbeOutputs:
                                         "the zero of Figure 1 (the first target); bars ±U (k = 2)."))
         return figs
 
-    def iso230_1_errors(self) -> tuple[ErrorMotions | None, LocationErrors | None]:
+    def iso230_1_errors(self) -> tuple[ErrorMotions | None, MeasuredLocation | None]:
         """The error motions the dial indicators measured, as a volumetric compensation takes them: EYC
         (radial motion in Y at the tilt centre, mm) and EAC (tilt about X, rad) per step, the two
         directions averaged and the mean over the turn removed (the indicators' zeros are arbitrary:

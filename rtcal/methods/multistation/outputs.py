@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, LocationErrors
+from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
+from rtcal.compensation.kinematics import LocationErrors
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.certificate import largest, status_lines
 from rtcal.deliverables.rounding import fmt
@@ -27,11 +28,6 @@ ESTIMATOR_LABELS = {
 
 def _values(values: list[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in values], float)
-
-
-def _mathtext_safe(text: str) -> str:
-    """A title exactly as the user wrote it: matplotlib would read ``$…$`` as mathtext."""
-    return text.replace("$", r"\$")
 
 
 def expanded(u: float, scale: float = 1.0) -> tuple[str, int]:
@@ -93,7 +89,7 @@ class MultistationOutputs:
     def __init__(self, results: MultistationResults):
         self.results = results
 
-    def iso230_1_errors(self) -> tuple[ErrorMotions | None, LocationErrors | None]:
+    def iso230_1_errors(self) -> tuple[ErrorMotions | None, MeasuredLocation | None]:
         """The axis's location errors from the network (X0C, Y0C in mm, A0C, B0C in rad, CMM frame) and,
         with a second tracer mount, its error motions per target (EXC, EYC in mm, EAC, EBC in rad), as a
         volumetric compensation takes them."""
@@ -113,10 +109,10 @@ class MultistationOutputs:
                                    "the line joining the mounts is not seen", u)
         if r.axis_location is not None:
             loc = r.axis_location
-            location = LocationErrors({"X0C": loc.x0c_mm, "Y0C": loc.y0c_mm, "A0C": loc.a0c_arcsec * RAD_PER_ARCSEC,
-                                       "B0C": loc.b0c_arcsec * RAD_PER_ARCSEC}, source, loc.frame,
-                                      {"X0C": loc.x0c_mm_u, "Y0C": loc.y0c_mm_u, "A0C": loc.a0c_arcsec_u * RAD_PER_ARCSEC,
-                                       "B0C": loc.b0c_arcsec_u * RAD_PER_ARCSEC})
+            location = MeasuredLocation(LocationErrors.of({
+                "X0C_um": (loc.x0c_mm * 1e3, loc.x0c_mm_u * 1e3), "Y0C_um": (loc.y0c_mm * 1e3, loc.y0c_mm_u * 1e3),
+                "A0C_arcsec": (loc.a0c_arcsec, loc.a0c_arcsec_u), "B0C_arcsec": (loc.b0c_arcsec, loc.b0c_arcsec_u)},
+                loc.frame), source)
         return motions, location
 
     def _by_recommended(self) -> list[tuple[str, Estimate]]:
@@ -189,7 +185,7 @@ class MultistationOutputs:
         ax2.set_xlabel("commanded table angle / °  (" + ("positive" if angles[-1] > angles[0] else "negative") + " approach)")
         ax2.set_xticks(angles, [f"{a:g}" for a in angles], fontsize=8)
         legend_below(fig)
-        ax.set_title(_mathtext_safe(r.procedure.name or r.method), fontsize=11)
+        ax.set_title(r.procedure.name or r.method, fontsize=11)  # as written: figures.py reads no mathtext
         path = run_dir / "deviation.png"
         fig.savefig(path, dpi=120)
         plt.close(fig)
