@@ -202,7 +202,6 @@ class Session:
                 pass
 
 
-
 class LinuxCncControl:
     """A driver's side of one LinuxCNC: the moving session (``rsh``), the session kept for stopping
     (``stopper``, a run only), the checks at connect and after every move, homing, the message queue.
@@ -447,7 +446,6 @@ class LinuxCncControl:
         for session in (getattr(self, "stopper", None), getattr(self, "rsh", None)):
             if session is not None:
                 session.close()
-
 
 
 def ini_section(text: str, section: str) -> dict[str, str]:
