@@ -19,6 +19,7 @@ import hmac
 import math
 import os
 import secrets
+import sys
 import threading
 import tty
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ from drivers.models import BUILTIN
 from rtcal.clock import VirtualClock
 from simulators.az_drive import AzDriveModel, steps_per_degree
 from simulators.bench import Bench
+from simulators.machine_tool import machine_of
 from simulators.instruments import (
     SimAutocollimator,
     SimCmm,
@@ -63,6 +65,8 @@ from simulators.servers.serial_protocols import (
 MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
 MAX_PENDING_REQUESTS = 16  # requests answered from one read of a line; the rest of a flood is dropped
 MAX_OPERATOR_LINE = 1024
+# the feeds of the LinuxCNC machine tool's address: a simulated machine has no reason to crawl
+MACHINE_SPEED_DEG_PER_S, MACHINE_SPEED_MM_PER_S = 60.0, 100.0
 # the product each line emulates, and the framing options a pseudo-terminal line's address carries:
 # this machine's kind of pseudo-terminal accepts 8N1 everywhere, other framings only on some kernels
 LINE_MODELS = {"laser_tracer": "rtcal-line", "encoder": "qsb", "autocollimator": "elcomat", "dial_indicator_1": "sylvac",
@@ -157,6 +161,11 @@ class SimulatorHub:
     # bench's table following its compensated motor command; ``comp``: its COMP_FILE (type 0)
     stage: Literal["modbus", "linuxcnc"] = "modbus"
     comp: str | None = None
+    # "linuxcnc": the scenario's machine tool is a real LinuxCNC with xyzac-trt-kins started headless, the
+    # simulated machine's joints following its motor commands; ``kins``: the pins it loads (a .hal file of
+    # setp lines), else the scenario's nominal kinematics
+    machine: Literal["sim", "linuxcnc"] = "sim"
+    kins: str | None = None
 
     def __post_init__(self) -> None:
         self.bench = Bench(self.scenario, VirtualClock(), self.seed)
@@ -199,6 +208,10 @@ class SimulatorHub:
         self.linuxcnc: LinuxCncProcess | None = None  # the LinuxCncProcess of a `stage="linuxcnc"` hub
         self.feed_updates = 0  # motor positions the LinuxCNC bench feed delivered
         self._feed_address = ""
+        if self.machine == "linuxcnc" and self.stage == "linuxcnc":
+            raise ValueError("one LinuxCNC per machine: the stage or the machine tool, not both")
+        if self.machine == "linuxcnc" and self.scenario.machine is None:
+            raise ValueError("a LinuxCNC machine tool drives the scenario's `machine:`, and it has none")
 
     # -- life cycle
     def start(self, timeout_s: float = 10.0) -> dict[str, str]:
@@ -219,6 +232,20 @@ class SimulatorHub:
                 self.stop()
                 raise
             self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0&take_control=1"
+        if self.machine == "linuxcnc":
+            from simulators.servers.linuxcnc import LinuxCncProcess, kins_hal
+
+            assert self.scenario.machine is not None
+            self.linuxcnc = LinuxCncProcess(self.host, feed=self._feed_address, machine="trt",
+                                            kins_hal=kins_hal(self.scenario.machine, self.kins))
+            try:
+                port = self.linuxcnc.start()
+            except BaseException:
+                self.stop()
+                raise
+            self.addresses["machine_tool"] = (f"linuxcncrsh://{self.host}:{port}?take_control=1&"
+                                              f"speed_deg_per_s={MACHINE_SPEED_DEG_PER_S:g}&"
+                                              f"speed_mm_per_s={MACHINE_SPEED_MM_PER_S:g}")
         return dict(self.addresses)
 
     def stop(self) -> None:
@@ -306,6 +333,10 @@ class SimulatorHub:
     async def _start_all(self) -> None:
         h = self.host
         stage_query = f"unit=1&steps_per_rev={self.steps_per_rev}&gear={self.gear:g}"
+        if self.machine == "linuxcnc":
+            feed = await asyncio.start_server(self._joints_feed, h, 0, limit=MAX_REQUEST_BYTES)
+            self._servers.append(feed)
+            self._feed_address = f"{h}:{feed.sockets[0].getsockname()[1]}"
         if self.stage == "linuxcnc":
             feed = await asyncio.start_server(self._motor_feed, h, 0, limit=MAX_REQUEST_BYTES)
             self._servers.append(feed)
@@ -350,6 +381,30 @@ class SimulatorHub:
                 if math.isfinite(motor_deg) and math.isfinite(command_deg) and abs(motor_deg) < 1e6:
                     self.bench.follow_motor(motor_deg, command_deg)
                     self.feed_updates += 1
+        except (ConnectionError, ValueError, asyncio.CancelledError):
+            pass
+        finally:
+            writer.close()
+
+    async def _joints_feed(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """LinuxCNC's bench feed in its joints form (rtcal_trt.hal): lines ``<x> <y> <z> <a> <c>``, the motor
+        commands of joints 0-4 (mm, deg); the simulated machine's joints follow them. A line that is not
+        five finite numbers is ignored; a sphere driven into the nest is said once on stderr."""
+        machine = machine_of(self.bench)
+        rng = self.bench.rng("machine_tool")
+        try:
+            while line := await reader.readline():
+                try:
+                    values = [float(w) for w in line.split()]
+                except ValueError:
+                    continue
+                if len(values) != 5 or not all(math.isfinite(v) and abs(v) < 1e6 for v in values):
+                    continue
+                struck = machine.collision
+                machine.follow_joints(dict(zip(("x", "y", "z", "a", "c"), values)), rng)
+                self.feed_updates += 1
+                if machine.collision and not struck:
+                    print(f"rtcal sim serve: WARNING: {machine.collision}", file=sys.stderr, flush=True)
         except (ConnectionError, ValueError, asyncio.CancelledError):
             pass
         finally:

@@ -30,7 +30,12 @@ import time
 import uuid
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 from simulators.servers.ports import free_port
+
+if TYPE_CHECKING:
+    from simulators.scenario import MachineToolScenario
 
 CONFIG = Path(__file__).resolve().parents[1] / "linuxcnc"
 INI, HAL, FEED = "rtcal_c.ini", "rtcal_c.hal", "rtcal_bench_feed.py"
@@ -53,6 +58,29 @@ def available() -> str:
     if not Path(SYSTEM_PYTHON).exists():
         return f"{SYSTEM_PYTHON} (the Python LinuxCNC's hal module is built for) is missing"
     return ""
+
+
+def kins_hal(machine: "MachineToolScenario", kins_file: str | None = None) -> str:
+    """The text of KINS_HAL: ``setp`` lines of xyzac-trt-kins' five pins — those ``kins_file`` sets (a .hal
+    file or INI [HAL] lines, what `rtcal compensate --format linuxcnc-xyzac-trt` writes; a pin it does not
+    set is 0, as in LinuxCNC), else the scenario's nominal kinematics (C's line through the rot point, A's
+    through rot point + (0, y-offset, z-offset): trtfuncs.c). Only these pins are written, whatever else
+    the file holds. ValueError (with the file's line) for a file LinuxCNC would read otherwise."""
+    from rtcal.compensation.linuxcnc_kins import PINS, PREFIX, LinuxCncTrtFormat
+    from rtcal.compensation.table import CompensationError
+
+    if kins_file is not None:
+        try:
+            pins = LinuxCncTrtFormat().parse(Path(kins_file).read_text(), kins_file)
+        except CompensationError as exc:
+            raise ValueError(str(exc)) from None
+    else:
+        c, a = machine.kinematics.c_point_mm, machine.kinematics.a_point_mm
+        pins = {"x-rot-point": c[0], "y-rot-point": c[1], "z-rot-point": c[2], "y-offset": a[1] - c[1],
+                "z-offset": a[2] - c[2]}
+    source = kins_file or "the scenario's nominal kinematics"
+    return f"# rtcal sim serve: xyzac-trt-kins' pins from {source}\n" + "".join(
+        f"setp {PREFIX}.{pin} {pins[pin]!r}\n" for pin in PINS)
 
 
 def with_comp(ini_text: str, comp_file: Path, comp_type: int = 0, joint: int = 0) -> str:
