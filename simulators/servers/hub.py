@@ -66,7 +66,7 @@ MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
 MAX_PENDING_REQUESTS = 16  # requests answered from one read of a line; the rest of a flood is dropped
 MAX_OPERATOR_LINE = 1024
 # the feeds of the LinuxCNC machine tool's address: a simulated machine has no reason to crawl
-MACHINE_SPEED_DEG_PER_S, MACHINE_SPEED_MM_PER_S = 60.0, 100.0
+MACHINE_SPEED_DEG_PER_S, MACHINE_SPEED_MM_PER_S = 90.0, 200.0
 # the product each line emulates, and the framing options a pseudo-terminal line's address carries:
 # this machine's kind of pseudo-terminal accepts 8N1 everywhere, other framings only on some kernels
 LINE_MODELS = {"laser_tracer": "rtcal-line", "encoder": "qsb", "autocollimator": "elcomat", "dial_indicator_1": "sylvac",
