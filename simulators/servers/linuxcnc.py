@@ -211,8 +211,11 @@ class LinuxCncProcess:
                 self.stop()
                 raise RuntimeError(f"LinuxCNC exited at start ({code}): {tail}")
             if self._hello():
-                self.operator("set estop off", "set machine on", "set mode manual",
-                              "set home 0" if self.ini_name == INI else "set home -1")
+                try:
+                    self.operator("set estop off", "set machine on", "set mode manual",
+                                  "set home 0" if self.ini_name == INI else "set home -1")
+                except (RuntimeError, OSError) as exc:
+                    raise RuntimeError(f"{exc}; LinuxCNC's log: {self.tail(20)}") from None
                 return self.port
             time.sleep(0.2)
         tail = self.tail()
