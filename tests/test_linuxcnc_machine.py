@@ -181,6 +181,9 @@ def test_sim_serve_machine_linuxcnc_prints_the_machine_tools_address_and_shuts_l
             addresses = json.loads(proc.stdout.readline())
             assert addresses["machine_tool"].startswith("linuxcncrsh://127.0.0.1:")
             assert "take_control=1" in addresses["machine_tool"] and "nest_indicator_3" in addresses
+            probed = subprocess.run([sys.executable, "-m", "rtcal.cli", "probe", "machine_tool", addresses["machine_tool"],
+                                     "--timeout-s", "5"], capture_output=True, text=True, cwd=REPO, timeout=60)
+            assert probed.returncode == 0 and "xyzac-trt-kins, joints X0 Y1 Z2 A3 C4" in probed.stdout, probed
         finally:
             proc.terminate()
             proc.wait(60)

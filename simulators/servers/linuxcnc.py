@@ -211,11 +211,17 @@ class LinuxCncProcess:
                 self.stop()
                 raise RuntimeError(f"LinuxCNC exited at start ({code}): {tail}")
             if self._hello():
+                steps = ("set estop off", "set machine on", "set mode manual",
+                         "set home 0" if self.ini_name == INI else "set home -1")
                 try:
-                    self.operator("set estop off", "set machine on", "set mode manual",
-                                  "set home 0" if self.ini_name == INI else "set home -1")
-                except (RuntimeError, OSError) as exc:
-                    raise RuntimeError(f"{exc}; LinuxCNC's log: {self.tail(20)}") from None
+                    self.operator(*steps)
+                except (RuntimeError, OSError):
+                    # seen on a loaded host: "USRMOT: ERROR: command timeout" as the machine came on, after
+                    # which it stays off and every mode change is refused; the operator starts over once
+                    try:
+                        self.operator("set estop on", *steps)
+                    except (RuntimeError, OSError) as exc:
+                        raise RuntimeError(f"{exc}; LinuxCNC's log: {self.tail(20)}") from None
                 return self.port
             time.sleep(0.2)
         tail = self.tail()
