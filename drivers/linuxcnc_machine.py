@@ -41,7 +41,6 @@ short).
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Mapping
 
@@ -143,12 +142,7 @@ class LinuxCncMachine(LinuxCncControl, MachineTool):
             raise OutOfLimits(self.name, "a joint target: LinuxCNC under xyzac-trt-kins moves tool-centre-point targets "
                                          "only (its kinematics turn them into joints)")
         what = "move to " + self._shown(target.joints)
-        self._moving_session(what)
-        stale = self._drain_errors()
-        if stale:
-            raise InstrumentFault(self.name, f"{what}: LinuxCNC reported before the move: {'; '.join(stale)}")
-        self._check_idle(what)
-        self._mdi_mode(what)
+        self._before_move(what)
         here = [self.rsh.position("abs_cmd_pos", AXES.index(a)) for a in "XYZ"]
         for point in target.points():
             there = [point[a] for a in "xyz"]
@@ -156,10 +150,7 @@ class LinuxCncMachine(LinuxCncControl, MachineTool):
             feed = self.feed_mm_per_min if moved else self.feed_deg_per_min
             word = ("G53 G1 " + " ".join(f"{a.upper()}{point[a]:.6f}" for a in self.axes) + f" F{feed:.3f}")
             self._mdi(word, what)
-            self._check_ready(what)
-            errors = self._drain_errors()
-            if errors:
-                raise InstrumentFault(self.name, f"{what}: LinuxCNC: {'; '.join(errors)}")
+            self._after_mdi(what)
             self._arrived(point, what)
             here = there
 
@@ -186,17 +177,7 @@ class LinuxCncMachine(LinuxCncControl, MachineTool):
         return self._joints_over(self.rsh)
 
     def _joints_over(self, session: Session) -> dict[str, float]:
-        out = {}
-        for axis, joint in self.joints.items():
-            words = session.get("joint_pos", joint)
-            try:
-                value = float(words[-1])
-            except (ValueError, IndexError):
-                value = math.nan
-            if len(words) != 2 or words[0] != str(joint) or not math.isfinite(value):
-                raise InstrumentFault(self.name, f"get joint_pos {joint}: unexpected reply {' '.join(words)[:120]!r}")
-            out[axis] = value
-        return out
+        return {axis: session.position("joint_pos", joint) for axis, joint in self.joints.items()}
 
     def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
         """The five joints (``get joint_pos``) read over the session kept for stopping until they no longer

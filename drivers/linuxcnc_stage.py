@@ -146,18 +146,10 @@ class LinuxCncStage(LinuxCncControl, RotaryStage):
     def move_to(self, angle_deg: float) -> None:
         self.check_target(angle_deg)
         what = f"move to {angle_deg:.6f}°"
-        self._moving_session(what)
-        stale = self._drain_errors()
-        if stale:
-            raise InstrumentFault(self.name, f"{what}: LinuxCNC reported before the move: {'; '.join(stale)}")
-        self._check_idle(what)
-        self._mdi_mode(what)
+        self._before_move(what)
         word = f"G1 {self.axis}{angle_deg:.6f} F{self.feed_deg_per_min:.3f}" if self.feed_deg_per_min else f"G0 {self.axis}{angle_deg:.6f}"
         self._mdi(word, what)
-        self._check_ready(what)
-        errors = self._drain_errors()
-        if errors:
-            raise InstrumentFault(self.name, f"{what}: LinuxCNC: {'; '.join(errors)}")
+        self._after_mdi(what)
         # "done" is the MDI command's; the status LinuxCNC reports may lag a servo cycle or two behind
         # (seen: 0.00005° short of the target right after the ACK, there a moment later), so the
         # position is polled until it is the target, for at most the driver's timeout

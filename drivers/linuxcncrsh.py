@@ -183,7 +183,7 @@ class Session:
         raise InstrumentFault(self.name, f"{line!r}: unexpected reply {reply[:120]!r}")
 
     def position(self, item: str, index: int) -> float:
-        """``get ITEM INDEX`` (abs_act_pos, abs_cmd_pos, joint_pos) as degrees."""
+        """``get ITEM INDEX`` (abs_act_pos, abs_cmd_pos, joint_pos) as a number (degrees or mm)."""
         words = self.get(item, index)
         try:
             value = float(words[-1])
@@ -392,6 +392,22 @@ class LinuxCncControl:
             raise InstrumentFault(self.name, f"{what}: a probe never moves the machine")
 
     # -- the interface
+    def _before_move(self, what: str) -> None:
+        """A session that may move, nothing queued from before, no program running, MDI mode."""
+        self._moving_session(what)
+        stale = self._drain_errors()
+        if stale:
+            raise InstrumentFault(self.name, f"{what}: LinuxCNC reported before the move: {'; '.join(stale)}")
+        self._check_idle(what)
+        self._mdi_mode(what)
+
+    def _after_mdi(self, what: str) -> None:
+        """What an ACK does not say (a move an E-stop cut short is ACKed too): E-stop, power, control, nothing queued."""
+        self._check_ready(what)
+        errors = self._drain_errors()
+        if errors:
+            raise InstrumentFault(self.name, f"{what}: LinuxCNC: {'; '.join(errors)}")
+
     def _mdi(self, word: str, what: str) -> None:
         """``set mdi WORD``, then ``set wait done``; a NAK to either empties LinuxCNC's error queue (the next
         move starts clean) and is OutOfLimits when LinuxCNC names a limit, else a fault with every queued message."""
