@@ -27,6 +27,20 @@ import time
 import hal
 
 POLL_S = 0.002  # 500 Hz: a reversal of motion lasts far longer, so the bench sees every direction
+MAX_PASSES = 100
+
+
+def snapshot(comp, pins):
+    """The pins as one servo period left them: read until two passes agree. The servo thread writes them
+    while this process reads them one by one, so one pass can mix two periods (seen on a loaded host: the
+    X joint of one period with the C joint of a later one, the machine 1 mm off its path)."""
+    now = tuple(comp[pin] for pin in pins)
+    for _ in range(MAX_PASSES):
+        again = tuple(comp[pin] for pin in pins)
+        if again == now:
+            break
+        now = again
+    return now
 
 
 def main() -> int:
@@ -50,7 +64,7 @@ def main() -> int:
     bench_gone = False
     try:
         while not stop:
-            now = tuple(comp[pin] for pin in pins)
+            now = snapshot(comp, pins)
             if now != last and sock is not None:
                 sock.sendall((" ".join(repr(v) for v in now) + "\n").encode())
                 last = now
