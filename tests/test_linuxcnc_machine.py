@@ -80,6 +80,7 @@ def at_poses(hub: SimulatorHub, pins: dict[str, float]) -> np.ndarray:
             joints = machine.joint_positions()
             expected = linuxcnc_xyzac_inverse(pins, sphere, a, c)
             assert np.allclose([joints[k] for k in "xyz"], expected, atol=JOINT_TOLERANCE), (a, c, joints, expected)
+            assert hub.joints_feed is not None and hub.joints_feed.caught_up(time.monotonic())
             followed = hub.bench.machine.joints
             assert all(abs(followed[k] - joints[k]) <= JOINT_TOLERANCE for k in "xyzac"), (followed, joints)
             readings.append([n.read_um() for n in nest])

@@ -8,7 +8,10 @@ Run by LinuxCNC's HAL file with the system Python, the only one that can import 
   ``joint.N.motor-pos-cmd``) and ``rtcal-bench.pos-cmd`` (the commanded joint position,
   uncompensated); lines ``<motor_deg> <pos_cmd_deg>``.
 - ``… rtcal_bench_feed.py joints N`` (a machine tool): pins ``rtcal-bench.joint-0`` …
-  ``joint-<N-1>`` (HAL_IN, each joint's motor command, mm or degrees); lines of N numbers.
+  ``joint-<N-1>`` (HAL_IN, each joint's motor command, mm or degrees); lines of the time the pins
+  were read (``time.monotonic()``, CLOCK_MONOTONIC: the hub's clock too) and the N numbers, sent
+  also when nothing changed, every ``HEARTBEAT_S``, so the hub knows how recent its machine is
+  (simulators/servers/joints_feed.py).
 
 Every ``POLL_S`` it sends a line to the bench at ``$RTCAL_BENCH_FEED`` (HOST:PORT) when a pin
 changed; it knows wires only: the bench turns the motor positions into where the table is. It exits when LinuxCNC unloads it (SIGTERM); when the
@@ -28,6 +31,7 @@ import hal
 
 POLL_S = 0.002  # 500 Hz: a reversal of motion lasts far longer, so the bench sees every direction
 MAX_PASSES = 100
+HEARTBEAT_S = 0.01
 
 
 def snapshot(comp, pins):
@@ -45,7 +49,8 @@ def snapshot(comp, pins):
 
 def main() -> int:
     comp = hal.component("rtcal-bench")
-    if sys.argv[1:2] == ["joints"]:
+    stamped = sys.argv[1:2] == ["joints"]
+    if stamped:
         pins = [f"joint-{i}" for i in range(int(sys.argv[2]))]
     else:
         pins = ["motor-pos-cmd", "pos-cmd"]
@@ -61,13 +66,15 @@ def main() -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     comp.ready()
     last = None
+    sent_s = 0.0
     bench_gone = False
     try:
         while not stop:
+            read_s = time.monotonic()
             now = snapshot(comp, pins)
-            if now != last and sock is not None:
-                sock.sendall((" ".join(repr(v) for v in now) + "\n").encode())
-                last = now
+            if sock is not None and (now != last or (stamped and read_s - sent_s >= HEARTBEAT_S)):
+                sock.sendall((" ".join(repr(v) for v in ((read_s,) if stamped else ()) + now) + "\n").encode())
+                last, sent_s = now, read_s
             if sock is None:
                 time.sleep(POLL_S)
             elif select.select([sock], [], [], POLL_S)[0] and not sock.recv(64):

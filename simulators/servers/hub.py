@@ -19,7 +19,6 @@ import hmac
 import math
 import os
 import secrets
-import sys
 import threading
 import tty
 from dataclasses import dataclass, field
@@ -31,7 +30,6 @@ from drivers.models import BUILTIN
 from rtcal.clock import VirtualClock
 from simulators.az_drive import AzDriveModel, steps_per_degree
 from simulators.bench import Bench
-from simulators.machine_tool import machine_of
 from simulators.instruments import (
     SimAutocollimator,
     SimCmm,
@@ -44,6 +42,7 @@ from simulators.instruments import (
 )
 from simulators.scenario import NEST_INDICATORS, Scenario
 from simulators.servers import modbus_stage
+from simulators.servers.joints_feed import FollowingLine, JointsFeed
 from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, IppMachine, serve_ipp
 from simulators.servers.ports import free_port  # importable from here too (tests)
 
@@ -187,9 +186,12 @@ class SimulatorHub:
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False), echo=self.echo, inch=self.sylvac_inch),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False), echo=self.echo, inch=self.sylvac_inch),
         }
+        # a LinuxCNC machine tool: the simulated machine follows its joints' feed (a thread of its own)
+        self.joints_feed = JointsFeed(b, self.host) if self.machine == "linuxcnc" else None
         if self.scenario.machine is not None:  # the R-test's nest: three Sylvac indicators around the sphere
             for i, name in enumerate(NEST_INDICATORS):
-                lines[name] = SylvacHandler(SimNestIndicator(b, i, inject=False), echo=self.echo, inch=self.sylvac_inch)
+                nest = SylvacHandler(SimNestIndicator(b, i, inject=False), echo=self.echo, inch=self.sylvac_inch)
+                lines[name] = nest if self.joints_feed is None else FollowingLine(nest, self.joints_feed)
         # referenced, as a lab leaves its controller (an extra reference move would draw the table's noise anew)
         self.pi_gcs = PiGcsHandler(SimStage(b, inject=False), referenced=True) if self.stage_model == "pi-gcs" else None
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
@@ -236,7 +238,8 @@ class SimulatorHub:
             from simulators.servers.linuxcnc import LinuxCncProcess, kins_hal
 
             assert self.scenario.machine is not None
-            self.linuxcnc = LinuxCncProcess(self.host, feed=self._feed_address, machine="trt",
+            assert self.joints_feed is not None
+            self.linuxcnc = LinuxCncProcess(self.host, feed=self.joints_feed.address, machine="trt",
                                             kins_hal=kins_hal(self.scenario.machine, self.kins))
             try:
                 port = self.linuxcnc.start()
@@ -251,6 +254,8 @@ class SimulatorHub:
     def stop(self) -> None:
         if self.linuxcnc is not None:
             self.linuxcnc.stop()  # first: its bench feed must not outlive the bench
+        if self.joints_feed is not None:
+            self.joints_feed.close()
         if self._thread and self._thread.is_alive():
             asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop)
             self._thread.join(5)
@@ -333,10 +338,6 @@ class SimulatorHub:
     async def _start_all(self) -> None:
         h = self.host
         stage_query = f"unit=1&steps_per_rev={self.steps_per_rev}&gear={self.gear:g}"
-        if self.machine == "linuxcnc":
-            feed = await asyncio.start_server(self._joints_feed, h, 0, limit=MAX_REQUEST_BYTES)
-            self._servers.append(feed)
-            self._feed_address = f"{h}:{feed.sockets[0].getsockname()[1]}"
         if self.stage == "linuxcnc":
             feed = await asyncio.start_server(self._motor_feed, h, 0, limit=MAX_REQUEST_BYTES)
             self._servers.append(feed)
@@ -381,30 +382,6 @@ class SimulatorHub:
                 if math.isfinite(motor_deg) and math.isfinite(command_deg) and abs(motor_deg) < 1e6:
                     self.bench.follow_motor(motor_deg, command_deg)
                     self.feed_updates += 1
-        except (ConnectionError, ValueError, asyncio.CancelledError):
-            pass
-        finally:
-            writer.close()
-
-    async def _joints_feed(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """LinuxCNC's bench feed in its joints form (rtcal_trt.hal): lines ``<x> <y> <z> <a> <c>``, the motor
-        commands of joints 0-4 (mm, deg); the simulated machine's joints follow them. A line that is not
-        five finite numbers is ignored; a sphere driven into the nest is said once on stderr."""
-        machine = machine_of(self.bench)
-        rng = self.bench.rng("machine_tool")
-        try:
-            while line := await reader.readline():
-                try:
-                    values = [float(w) for w in line.split()]
-                except ValueError:
-                    continue
-                if len(values) != 5 or not all(math.isfinite(v) and abs(v) < 1e6 for v in values):
-                    continue
-                struck = machine.collision
-                machine.follow_joints(dict(zip(("x", "y", "z", "a", "c"), values)), rng)
-                self.feed_updates += 1
-                if machine.collision and not struck:
-                    print(f"rtcal sim serve: WARNING: {machine.collision}", file=sys.stderr, flush=True)
         except (ConnectionError, ValueError, asyncio.CancelledError):
             pass
         finally:
