@@ -154,6 +154,11 @@ def check_described(kind: str, table: Mapping[str, FieldDescription], values: Ma
     return out
 
 
+SIMULATED_MARK = "SIMULATED"
+"""What rtcal's protocol simulators put into their identity replies (a model or serial string, within the
+format each product's reply allows: docs/protocols/): a run whose instrument says it is marked simulated."""
+
+
 class Instrument(ABC):
     """Common life cycle: a name for messages, connect on construction, close when done.
 

@@ -44,5 +44,7 @@ calibrations = Table(
     Column("run_dir", Text, nullable=False),  # where the readings stay
     Column("added_utc", String(40), nullable=False),
     Column("results", Text, nullable=False),  # the whole results.json
+    Column("simulated", Text, nullable=False, server_default=""),  # why it is no calibration ("": it is one)
+    Column("signature", Text, nullable=False, server_default="unsigned"),  # its signature when added
 )
 Index("ix_calibrations_history", calibrations.c.serial_number, calibrations.c.axis, calibrations.c.measured_utc)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -31,25 +32,31 @@ def cmd_catalog(args: argparse.Namespace) -> int:
 
 
 def _add(args: argparse.Namespace) -> int:
-    """Verify every run first (a refused one: exit 1 or 2, nothing of it written), then one transaction each."""
-    from rtcal.catalog.entry import RunRefused, entry_of, verified_results
+    """Verify every run first (a refused one: exit 1 or 2, nothing of it written), refuse one that calibrated
+    nothing unless --allow-simulated, then one transaction each."""
+    from rtcal.catalog.entry import RunRefused, entry_of, marks, refuse_simulated, verified
 
     entries = []
     for run in args.runs:
         try:
-            entries.append(entry_of(Path(run), verified_results(Path(run))))
+            results, signature = verified(Path(run))
+            if not args.allow_simulated:
+                refuse_simulated(Path(run), results)
+            entries.append(entry_of(Path(run), results, signature))
         except RunRefused as exc:
             print(f"rtcal: catalog add refused: {exc}", file=sys.stderr)
             return EXIT_USAGE if exc.code == 2 else EXIT_FAILED
     with _open(args, write=True) as cat:
         for entry in entries:
             added = cat.add(entry)
-            print(f"{entry['run_id']} {entry['serial_number']} {entry['axis']} {entry['measured_utc']}: "
+            mark = f" [{marks(entry)}]" if marks(entry) else ""
+            print(f"{entry['run_id']} {entry['serial_number']} {entry['axis']} {entry['measured_utc']}{mark}: "
                   f"{'added to' if added else 'already in'} {cat.name}")
     return EXIT_OK
 
 
 def _history(args: argparse.Namespace) -> int:
+    from rtcal.catalog.entry import marks
     from rtcal.catalog.history import e_text as history_e_text
     from rtcal.catalog.history import entry_json, history_document
 
@@ -66,6 +73,8 @@ def _history(args: argparse.Namespace) -> int:
         _plot(rows, Path(args.plot))
     if args.json:
         entries = [entry_json(r) for r in rows]
+        for e, r in zip(entries, rows):  # what it is besides a calibration: simulated, unsigned
+            e["simulated"], e["signature"], e["marks"] = r["simulated"], r["signature"], marks(r)
         for e in entries:  # each entry carries its axis's pairs role and trend
             axis = doc[e["axis"]]
             e["as_found_of"] = next((p["as_left"] for p in axis["pairs"] if p["as_found"] == e["run_id"]), None)
@@ -73,11 +82,14 @@ def _history(args: argparse.Namespace) -> int:
             e["trend"] = axis["trend"]
         print(json_text(entries))
         return EXIT_OK
-    print(f"{'measured (UTC)':26} {'axis':5} {'method':22} {'E ± U (″)':>16} {'verdict':10} certificate")
+    print(f"{'measured (UTC)':26} {'axis':5} {'method':22} {'E ± U (″)':>16} {'verdict':10} {'certificate':20} marks")
     for r in rows:
         e_text = history_e_text(r)
         print(f"{r['measured_utc'][:25]:26} {r['axis']:5} {r['method'][:22]:22} {e_text:>16} {r['verdict']:10} "
-              f"{r['certificate_number']}")
+              f"{r['certificate_number'][:20]:20} {marks(r)}".rstrip())
+    if any(r["simulated"] for r in rows):
+        print(f"{sum(1 for r in rows if r['simulated'])} of {len(rows)} entries are SIMULATED (added with "
+              "--allow-simulated): not calibrations")
     for axis, d in doc.items():
         t = d["trend"]
         for p in d["pairs"]:
@@ -123,19 +135,28 @@ def _plot(rows: list[dict[str, Any]], path: Path) -> None:
 
 
 def _list(args: argparse.Namespace) -> int:
+    from rtcal.catalog.entry import marks
     from rtcal.catalog.history import fleet
 
     with _open(args) as cat:
-        machines = fleet(cat.machines())
+        rows = cat.machines()
+    machines = fleet(rows)
     if not machines:
         print(f"rtcal: {cat.name} holds no calibration yet (`rtcal catalog add RUN` adds one)", file=sys.stderr)
+    by_id = {r["run_id"]: r for r in rows}
+    simulated = Counter((r["serial_number"], r["axis"]) for r in rows if r["simulated"])
+    for m in machines:  # the last calibration's marks, and how many of the axis's entries calibrated nothing
+        m["marks"] = marks(by_id[m["last_run_id"]])
+        m["simulated_entries"] = simulated[(m["serial_number"], m["axis"])]
     if args.json:
         print(json_text(machines))
         return EXIT_OK
-    print(f"{'serial number':20} {'axis':5} {'machine':30} {'runs':>4} {'last (UTC)':11} {'verdict':10} next due")
+    print(f"{'serial number':20} {'axis':5} {'machine':30} {'runs':>4} {'last (UTC)':11} {'verdict':10} {'next due':11} marks")
     for m in machines:
+        simulated = f"{m['simulated_entries']} of {m['calibrations']} SIMULATED" if m["simulated_entries"] else ""
+        shown = "; ".join(x for x in (m["marks"], simulated) if x)
         print(f"{m['serial_number'][:20]:20} {m['axis'][:5]:5} {m['machine'][:30]:30} {m['calibrations']:>4} "
-              f"{m['last_utc'][:10]:11} {m['verdict']:10} {m['next_due'] or '–'}")
+              f"{m['last_utc'][:10]:11} {m['verdict']:10} {m['next_due'] or '–':11} {shown}".rstrip())
     return EXIT_OK
 
 
@@ -149,6 +170,9 @@ def add_catalog(sub: Any) -> None:
                                          "already there changes nothing")
     add.add_argument("runs", nargs="+", metavar="RUN", help="run directories")
     add.add_argument("--db", help=db_help)
+    add.add_argument("--allow-simulated", action="store_true",
+                     help="also file a run that calibrated nothing (simulated in process, on `rtcal sim serve`, or "
+                          "--rehearse): refused without it; every listing then marks it SIMULATED")
     hist = cat_sub.add_parser("history", help="a machine axis's calibrations oldest first, as-found/as-left pairs, E's "
                                               "trend and the date it reaches its limit")
     hist.add_argument("--serial", required=True, metavar="SN", help="the machine's serial number")

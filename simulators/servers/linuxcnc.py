@@ -125,6 +125,9 @@ def console(host: str, port: int, *requests: str, timeout_s: float = 30.0, joint
     return replies[3:]
 
 
+SERVER_NAME = "rtcal-SIMULATED"
+"""The simulated machine's linuxcncrsh server name: its HELLO ACK, and so the stage's identity, says SIMULATED."""
+
 class LinuxCncProcess:
     """One headless LinuxCNC: ``start()`` → linuxcncrsh's port; ``stop()`` shuts it down."""
 
@@ -167,8 +170,10 @@ class LinuxCncProcess:
     def _write_config(self) -> Path:
         folder = Path(tempfile.mkdtemp(prefix="rtcal-linuxcnc-"))
         folder.chmod(0o755)  # rtapi_app runs as the fallback uid
+        # --name: the server name linuxcncrsh gives in HELLO ACK (linuxcncrsh(1)); it says the machine is simulated
         ini = (CONFIG / self.ini_name).read_text().replace(
-            "linuxcncrsh --port 5007", " ".join(["linuxcncrsh", "--port", str(self.port), *self.rsh_options.split()]))
+            "linuxcncrsh --port 5007",
+            " ".join(["linuxcncrsh", "--port", str(self.port), "--name", SERVER_NAME, *self.rsh_options.split()]))
         if self.comp_file is not None:
             table = folder / "c.comp"
             shutil.copyfile(self.comp_file, table)
