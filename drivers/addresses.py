@@ -30,6 +30,7 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "steps_per_rev": (1, 10_000_000, True),
     "gear": (1e-3, 100_000, False),
     "speed_deg_per_s": (1e-6, 3600, False),
+    "speed_mm_per_s": (1e-6, 10_000, False),  # LinuxCNC machine tool: the feed of a move of the held point
     "baud": (50, 10_000_000, True),
     "counts_per_rev": (1, 2**40, True),
     "bytesize": (7, 8, True),  # serial framing: data bits

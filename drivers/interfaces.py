@@ -16,7 +16,7 @@ import math
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, Callable, Collection, Mapping, NamedTuple
+from typing import Any, Callable, Collection, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -429,15 +429,24 @@ MACHINE_AXES = ("x", "y", "z", "a", "b", "c")
 
 @dataclass(frozen=True)
 class MachineTarget:
-    """One coordinated move of a machine tool's joints: every axis of ``joints`` (axis letter → mm or
-    deg, the machine's axes exactly) arrives together, passing through the waypoints ``via`` in order
-    (each a full set of joints), so that a rotary axis can turn while the linear axes follow a path
-    — the R-test's nominal sphere path, which a straight joint move would leave by millimetres. A
-    backend interpolates linearly in joint space between successive waypoints (a LinuxCNC G1 chain
-    in joint mode does the same)."""
+    """One coordinated move of a machine tool: every axis of ``joints`` (axis letter → mm or deg, the
+    machine's axes exactly) arrives together, passing through the waypoints ``via`` in order (each a
+    full set of axes), so that a rotary axis can turn while the linear axes follow a path — the
+    R-test's nominal sphere path, which a straight joint move would leave by millimetres.
+
+    ``tcp`` False: the values are joints, and a backend interpolates linearly in joint space between
+    successive points. ``tcp`` True (tool-centre-point): x, y, z name the point of the table the
+    controlled point goes to, by its machine coordinates at A = C = 0 (LinuxCNC's G53 coordinates
+    under its table kinematics), and the control's own kinematic model turns it into joints while
+    the rotary axes turn — LinuxCNC's ``xyzac-trt-kins``, a simulated control's nominal kinematics:
+    a point held fixed on the table is followed by the linear axes however the rotary axes turn, and
+    where the control's model is wrong the measured sphere strays (what the R-test sees, and what a
+    corrected model removes). Between points a TCP backend interpolates linearly in those
+    coordinates; :meth:`MachineTool.joint_positions` says where the joints went."""
 
     joints: Mapping[str, float]
     via: tuple[Mapping[str, float], ...] = ()
+    tcp: bool = False
 
     def points(self) -> tuple[Mapping[str, float], ...]:
         """Every waypoint, then the target."""
@@ -445,29 +454,37 @@ class MachineTarget:
 
 
 class MachineTool(Instrument):
-    """A machine tool's axes driven together to commanded joint targets (linear mm, rotary deg; the
-    joints' own frame, no kinematics applied): what the R-test moves. A target names every axis of
-    ``axes``; the backend refuses one beyond ``limits`` before anything moves. ``stop`` returns only
-    once the control confirms every axis stands still (a controller that cannot confirm raises
-    InstrumentFault): the engine's one safe-state path relies on it."""
+    """A machine tool's axes driven together (linear mm, rotary deg): what the R-test moves. A target
+    names every axis of ``axes``; joint targets are refused beyond ``limits`` before anything moves;
+    tool-centre-point targets (``MachineTarget.tcp``) only where the backend has the control's
+    kinematics (``tcp``), which then refuses joints beyond its limits.
+
+    Stopping is every mover's contract: :meth:`stop` sends the stop at once and never waits for a
+    motion to end; :meth:`wait_stopped` then reads the joints until they no longer change — the
+    engine writes "stopped" only where it saw that."""
 
     kind = "machine_tool"
 
     axes: tuple[str, ...] = ("x", "y", "z", "a", "c")
     limits: Mapping[str, tuple[float, float]] = {}
+    tcp: bool = False  # the backend moves tool-centre-point targets through the control's kinematics
+    still_within: float = 1e-4  # mm or deg: joints creeping less than this in STILL_S are at rest
 
     def check_target(self, target: MachineTarget) -> None:
+        if target.tcp and not self.tcp:
+            raise OutOfLimits(self.name, "a tool-centre-point target, and this machine tool's backend moves joints only")
         for point in target.points():
             if set(point) != set(self.axes):
                 raise OutOfLimits(self.name, f"a target names axes {sorted(point)}; this machine's are {list(self.axes)}")
             for axis, value in point.items():
-                lo, hi = self.limits.get(axis, (-math.inf, math.inf))
+                lo, hi = (-math.inf, math.inf) if target.tcp and axis in "xyz" else self.limits.get(axis, (-math.inf, math.inf))
                 if not (math.isfinite(value) and lo <= value <= hi):
                     unit = "mm" if axis in "xyz" else "°"
                     raise OutOfLimits(self.name, f"{axis.upper()} {value:.6g} {unit} outside its limits [{lo:g}, {hi:g}] {unit}")
 
     @abstractmethod
-    def home(self) -> None: ...
+    def home(self) -> None:
+        """Every joint referenced (homed) as the backend allows."""
 
     @abstractmethod
     def move_to(self, target: MachineTarget) -> None:
@@ -475,11 +492,20 @@ class MachineTool(Instrument):
 
     @abstractmethod
     def joint_positions(self) -> dict[str, float]:
-        """Each axis's position as the control reports it (mm, deg)."""
+        """Each axis's joint position as the control reports it (mm, deg)."""
 
     @abstractmethod
     def stop(self) -> None:
-        """Stop every axis; return once the control confirms all stand still."""
+        """Send the stop at once (the safe state): never waits for a motion to end."""
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """After :meth:`stop`: the joints read until they no longer change (:func:`watch_still`)."""
+        return watch_still(lambda: [self.joint_positions()[a] for a in self.axes], self.show_joints, self.still_within,
+                           timeout_s)
+
+    def show_joints(self, values: Sequence[float]) -> str:
+        """Joint positions in the order of ``axes``, with their units."""
+        return " ".join(f"{a.upper()} {v:.6f}" + (" mm" if a in "xyz" else "°") for a, v in zip(self.axes, values))
 
     def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         at = self.joint_positions()

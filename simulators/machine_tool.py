@@ -149,6 +149,7 @@ class MachineModel:
         self.c_direction = 1
         self.random_mm = np.zeros(3)  # this move's random positioning error of the linear axes
         self.mounted = 0  # which sphere set-up is on the table
+        self.collision = ""  # where an external control (follow_joints) first drove the sphere into the nest
 
     # -- the table ---------------------------------------------------------------------------------
     def c_actual_rad(self, c_deg: float, direction: int) -> float:
@@ -221,6 +222,18 @@ class MachineModel:
             self.c_direction = 1 if joints["c"] > self.joints["c"] else -1
         self.joints = dict(joints)
         self.random_mm = self.spec.linear_axes.repeatability_um * 1e-3 * rng.standard_normal(3)
+
+    def follow_joints(self, joints: Mapping[str, float], rng: np.random.Generator) -> None:
+        """The machine driven by an external control (LinuxCNC's motor commands, streamed as they change):
+        its joints are there now, C last moved the way it turned, a new random error of the linear axes
+        at each new position (the repeatability, drawn as a real machine's arrives). A sphere driven into
+        the nest is remembered (``collision``, the first) — a real nest would be wrecked: the hub says so."""
+        direction = None if joints["c"] == self.joints["c"] else (1 if joints["c"] > self.joints["c"] else -1)
+        self.arrive(joints, rng, direction)
+        if not self.collision:
+            row = np.array([[joints[a] for a in ("x", "y", "z", "a", "c")]])
+            if self.strikes(row, np.array([self.c_direction])) >= 0:
+                self.collision = self.struck(joints)
 
     # -- the nest -----------------------------------------------------------------------------------
     def sensor_mm(self, index: int) -> float:

@@ -149,6 +149,16 @@ def nominal_table_to_machine(geometry: TrunnionGeometry, a_deg: np.ndarray, c_de
     return table_to_machine(geometry, np.zeros(8), a, c, pts)
 
 
+def nominal_machine_to_table(geometry: TrunnionGeometry, a_deg: np.ndarray, c_deg: np.ndarray,
+                             points_mm: np.ndarray) -> np.ndarray:
+    """The controller's forward kinematics: machine points (N, 3) at the poses (a, c) → their table
+    coordinates (where they are at A = C = 0); the inverse of :func:`nominal_table_to_machine`."""
+    a, c = np.radians(np.atleast_1d(np.asarray(a_deg, float))), np.radians(np.atleast_1d(np.asarray(c_deg, float)))
+    pts = np.broadcast_to(np.asarray(points_mm, float), (len(a), 3))
+    a_point, a_dir, c_point, c_dir = axis_lines(geometry, np.zeros(8))
+    return rotate_about(rotate_about(pts, a_point, a_dir, -a), c_point, c_dir, -c)
+
+
 def joint_targets(geometry: TrunnionGeometry, sphere_mm: Sequence[float], a_deg: np.ndarray, c_deg: np.ndarray,
                   nest_offset_mm: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
     """(N, 5) joints X, Y, Z (mm), A, C (deg) that put the nest's zero point on the sphere's nominal
