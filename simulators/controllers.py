@@ -279,7 +279,7 @@ def controller(fmt: str, text: str, where: str, backlash_deg: float = 0.0, detec
         if stated is not None and detection_unit_deg is not None and abs(stated - detection_unit_deg) > 1e-12:
             raise ControllerError(f"{where}: the table is for a detection unit of {stated:g}°, the axis's is "
                                   f"{detection_unit_deg:g}° (detection_unit_deg): every trim would be "
-                                  f"{stated / detection_unit_deg:g}x what it should; write it with --detection-unit-deg "
+                                  f"{detection_unit_deg / stated:g}x what it should; write it with --detection-unit-deg "
                                   f"{detection_unit_deg:g}")
     if fmt in CONTROLLERS:
         try:

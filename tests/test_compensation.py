@@ -720,7 +720,7 @@ def test_fanuc_needs_its_detection_unit_and_first_point_and_says_them(tmp_path, 
     back = PARSERS["fanuc"](text, "f")  # read in the unit the file states
     np.testing.assert_allclose(back.trim_up_deg, table_from_deviations(_smooth_table(), 15.0).trim_up_deg, atol=0.0005 + 1e-9)
     with pytest.raises(CompensationError, match="the table is for a detection unit of 0.001 deg, IS-B, the axis's is "
-                                                "0.0001 deg, IS-C: every trim would be 10x"):
+                                                "0.0001 deg, IS-C: every trim would be 0.1x"):
         PARSERS["fanuc"](text, "f", unit_deg=0.0001)
     listing = _write("fanuc", table_from_deviations(_smooth_table(), 15.0), listing=True)
     assert "3605 #0 = 1  (bidirectional pitch error compensation: bit #0 only" in listing

@@ -350,7 +350,7 @@ def stated_or_given(where: str, stated: float | None, given: float | None) -> fl
     never two that disagree."""
     if stated is not None and given is not None and abs(stated - given) > 1e-12:
         raise CompensationError(f"{where}: the table is for a detection unit of {increment_system(stated)}, the axis's is "
-                                f"{increment_system(given)}: every trim would be {stated / given:g}x what it should; write "
+                                f"{increment_system(given)}: every trim would be {given / stated:g}x what it should; write "
                                 f"it with --detection-unit-deg {given:g}")
     unit = stated if stated is not None else given
     if unit is None:
