@@ -15,12 +15,15 @@ with its table at the measured targets and resampled onto a 15° grid (--step-de
 IS-C (0.0001°) — refused by the bench's loading, which compares the unit the file states with the
 axis's; and what the control would do with it had the file not said (its first line stripped) —
 and one written for IS-B. Prints E and B (ISO 230-2, arcsec) before → after, and what
-`rtcal compensate` warned.
+`rtcal compensate` warned. ``--backlash-misread`` (tests/data/smooth_reversal_bench.yaml): the HEIDENHAIN
+table applied as rtcal reads its BACKLASH column (the negative direction's curve) and as a control
+that adds it to the axis column would (that column replaced by C + BACKLASH, read rtcal's way).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 from pathlib import Path
@@ -28,7 +31,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from tests.compensation_loop import (VERIFY, fanuc_options, load_table, measure_after, measure_before,  # noqa: E402
+from tests.compensation_loop import (ISO, VERIFY, fanuc_options, load_table, measure_after, measure_before,  # noqa: E402
                                      rtcal, seated)
 
 IS_B = {"detection_unit_deg": 0.001}
@@ -44,7 +47,12 @@ def main() -> None:
     parser.add_argument("--dense", action="store_true", help="also calibrate every 7.5° and verify between those targets")
     parser.add_argument("--fanuc-units", action="store_true", help="only: a FANUC table on an IS-B axis, for the right and "
                                                                   "the wrong detection unit")
+    parser.add_argument("--backlash-misread", action="store_true", help="only: a HEIDENHAIN table's BACKLASH column read "
+                                                                       "both ways")
     args = parser.parse_args()
+    if args.backlash_misread:
+        backlash_misread()
+        return
     if args.fanuc_units:
         fanuc_units()
         return
@@ -90,6 +98,33 @@ def fanuc_units() -> None:
         print(line("between them (24 targets, +7.5°)", before.between, right.between))
         print(f"  predicted as above: E {before.at['E']:.1f}″ → "
               f"{predicted_e(before, (work / 'is-b.fanuc').read_text()):.1f}″ (its own readings: no new noise)")
+
+
+def backlash_misread() -> None:
+    """E before and after the ISO test's HEIDENHAIN table on the smooth bench, BACKLASH read both ways."""
+    smooth = REPO / "tests" / "data" / "smooth_reversal_bench.yaml"
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        calibration = work / "calibration"
+        code, _, err = rtcal("run", ISO, "--scenario", smooth, "--out", calibration)
+        assert code == 0, err
+        table = work / "h.com"
+        code, _, err = rtcal("compensate", calibration, "--format", "heidenhain", "--step-deg", "15", "--out", table)
+        assert code == 0, err
+        lines = table.read_text().splitlines()
+        added = [" ".join([*r.split()[:3], f"{float(r.split()[2]) + float(r.split()[3]):+.8f}"]) for r in lines[2:-1]]
+        misread = work / "added.com"
+        misread.write_text("\n".join(lines[:2] + added + lines[-1:]) + "\n")
+
+        def e_after(path: Path) -> float:
+            out = work / f"{path.stem}-after"
+            code, _, err = rtcal("run", ISO, "--scenario", load_table(path, "heidenhain", smooth), "--seed", "7", "--out", out)
+            assert code == 0, err
+            return float(json.loads((out / "results.json").read_text())["evaluation"]["iso230_2"]["E"])
+
+        before = json.loads((calibration / "results.json").read_text())["evaluation"]["iso230_2"]["E"]
+        print(f"HEIDENHAIN table, smooth bench: E {before:.1f}″ → {e_after(table):.2f}″ with BACKLASH the negative curve "
+              f"(rtcal's reading), → {e_after(misread):.1f}″ with BACKLASH added to the C column")
 
 
 def predicted_e(before, text: str) -> float:
