@@ -917,3 +917,85 @@ def test_md32450_changes_only_the_reversal_and_only_on_a_sinumerik():
         controller("heidenhain", WRITERS["heidenhain"](comp), "t", backlash_deg=0.001)
     with pytest.raises(ValueError, match="MD32450 is SINUMERIK machine data"):
         CompensationScenario.model_validate({"format": "fanuc", "text": "%", "backlash_deg": 0.001})
+
+
+# -- what no manual settles: printed with the one-point check, its figures what the simulated control does --------
+
+def _printed(out: str, start: str) -> str:
+    lines = [line.removeprefix("unsettled: ") for line in out.splitlines() if line.startswith(f"unsettled: {start}")]
+    assert len(lines) == 1, out
+    return lines[0]
+
+
+def _expected(text: str) -> float:
+    """The change the check says rtcal's reading shows, arcsec."""
+    return float(re.search(r"must (?:change by|go from about \S+ to about) ([+-]\d+\.\d) arcsec", text).group(1))
+
+
+def _otherwise(text: str) -> list[float]:
+    """The change(s) the other reading shows, arcsec (after "); by")."""
+    return [float(v) for v in re.search(r"\); by ([+-]\d+\.\d)(?: or ([+-]\d+\.\d))?", text).groups() if v is not None]
+
+
+@pytest.mark.parametrize("fmt, options, readings", [
+    ("siemens-cec", (), ["the sign", "the line length"]),
+    ("siemens-lec", (), ["the line length"]),
+    ("fanuc", (), ["where an increment acts"]),
+    ("heidenhain", (), ["the sign", "the BACKLASH column", "the header line"]),
+    ("heidenhain", ("--generation", "tnc4xx"), ["the sign", "the entry beyond 360 deg", "the header line"]),
+    ("linuxcnc", (), []),
+])
+def test_each_unsettled_reading_is_printed_with_its_check(tmp_path, capsys, fmt, options, readings):
+    """Issue 46: CEC's sign, HEIDENHAIN's BACKLASH column, FANUC's increment placement, the .COM header,
+    SINUMERIK's line length were open readings said nowhere. `rtcal compensate` prints each, only for
+    the format written, with commands an operator types and the change the control must show."""
+    code, out, err = _compensate(tmp_path, _csv(tmp_path, _smooth_table()), "--format", fmt, "--step-deg", "15", *options,
+                                 "--out", str(tmp_path / "t"), capsys=capsys)
+    assert code == 0, err
+    printed = [line for line in out.splitlines() if line.startswith("unsettled: ")]
+    assert [next(r for r in readings if line.startswith(f"unsettled: {r}")) for line in printed] == readings
+    for line in printed:  # commands to type: a move there and the check
+        assert re.search(r"`(G90 G0|G90 G00|L C)|create an empty \.COM table|delete the `;` lines", line), line
+    if fmt.startswith("siemens"):
+        assert max(len(line) for line in (tmp_path / "t").read_text().splitlines()) <= 100  # was 599
+
+
+def test_the_printed_checks_are_what_the_simulated_controls_do(tmp_path, capsys):
+    """The change each check says to expect is the trim the simulated control (simulators/controllers.py,
+    its own reading of the file) applies there; the other reading's figure is what the check rules out."""
+    from simulators.controllers import controller
+
+    csv = _csv(tmp_path, _smooth_table())
+
+    def written(fmt: str, *options: str) -> tuple[str, str]:
+        code, out, err = _compensate(tmp_path, csv, "--format", fmt, "--step-deg", "15", *options, "--out",
+                                     str(tmp_path / fmt), capsys=capsys)
+        assert code == 0, err
+        return out, (tmp_path / fmt).read_text()
+
+    out, text = written("siemens-cec")
+    line = _printed(out, "the sign")
+    at = float(re.search(r"`G0 C1=(\d+(?:\.\d+)?)`", line).group(1))
+    cec = controller("siemens-cec", text, "t").trim_deg(at, 1) * 3600
+    assert _expected(line) == pytest.approx(cec, abs=0.06) and _otherwise(line) == [pytest.approx(-cec, abs=0.06)]
+
+    out, text = written("fanuc", "--detection-unit-deg", "0.0001", "--first-point", "0")
+    line = _printed(out, "where an increment acts")
+    at = float(re.search(r"`G00 C(\d+(?:\.\d+)?);`", line).group(1))
+    applied = controller("fanuc", text, "t", detection_unit_deg=0.0001)
+    assert _expected(line) == pytest.approx(applied.trim_deg(at, 1) * 3600, abs=0.06)
+    ends = sorted(applied.trim_deg(at + half, 1) * 3600 for half in (-7.5, 7.5))  # a step: either end's trim
+    assert sorted(_otherwise(line)) == [pytest.approx(v, abs=0.06) for v in ends]
+
+    out, text = written("heidenhain")
+    line = _printed(out, "the BACKLASH column")
+    at = float(re.search(r"`L C\+(\d+(?:\.\d+)?) FMAX`\s*$", line.split(", read")[0]).group(1))
+    applied = controller("heidenhain", text, "t")
+    assert _expected(line) == pytest.approx(applied.trim_deg(at, -1) * 3600, abs=0.06)
+    column = applied.trim_deg(at, 1) * 3600  # BACKLASH added to the C column: both removed on a negative approach
+    assert _otherwise(line) == [pytest.approx(applied.trim_deg(at, -1) * 3600 + column, abs=0.06)]
+
+    out, text = written("heidenhain", "--generation", "tnc4xx")
+    line = _printed(out, "the entry beyond 360 deg")
+    at = float(re.search(r"Check at (\d+(?:\.\d+)?) deg", line).group(1))
+    assert _expected(line) == pytest.approx(controller("heidenhain", text, "t").trim_deg(at, 1) * 3600, abs=0.06)
