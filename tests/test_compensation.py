@@ -730,8 +730,9 @@ def test_a_fanuc_table_for_another_unit_is_refused_by_the_axis(tmp_path, capsys)
     """A table written for IS-C (0.0001°) loaded on an IS-B axis (0.001°): the control itself skips the
     statement and applies every increment 10× (E 53.5″ → 482.9″ on the shipped bench, issue 46); the
     simulated bench's loading compares it with the axis, as the engineer is asked to, and refuses it
-    in one line naming both units. Written for IS-B, the axis applies the trims within half a unit."""
-    from simulators.controllers import controller, fanuc
+    in one line naming both units. Written for IS-B, the axis applies the trims within half a unit;
+    with 3605#0 left 0 on the control, the negative-travel table is not applied."""
+    from simulators.controllers import ControllerError, controller, fanuc
 
     comp = _reversal_table()
     for_c, for_b = _write("fanuc", comp, unit_deg=0.0001), _write("fanuc", comp, unit_deg=0.001)
@@ -740,12 +741,17 @@ def test_a_fanuc_table_for_another_unit_is_refused_by_the_axis(tmp_path, capsys)
     bench.write_text("stage:\n  compensation: {format: fanuc, file: c.txt, detection_unit_deg: 0.001}\n")
     assert main(["validate", str(bench)]) == 2
     err = capsys.readouterr().err
-    assert f"{bench}:2:" in err and "the table is for a detection unit of 0.0001°, the axis's is 0.001°" in err
+    assert f"{bench}:2:" in err and "the table is for a detection unit of 0.0001 deg, IS-C, the axis's is 0.001 deg, " \
+                                    "IS-B: every trim would be 10x what it should; write it with --detection-unit-deg 0.001" in err
+    with pytest.raises(ControllerError, match="the table is for a detection unit of 0.0001°, the axis's is 0.001°"):
+        controller("fanuc", for_c, "c", detection_unit_deg=0.001)  # the simulated bench's own loading refuses it too
     silent = fanuc(for_c, "c", 0.001)  # what the IS-B control does with it: each trim 10×
     right = controller("fanuc", for_b, "b", detection_unit_deg=0.001)
     for a, d in ((45.0, 1), (200.0, -1), (97.5, 1)):
         assert silent.trim_deg(a, d) == pytest.approx(10 * fanuc(for_c, "c", 0.0001).trim_deg(a, d), abs=1e-12)
         assert right.trim_deg(a, d) == pytest.approx(comp.trim_deg(a, d), abs=0.0005 + 1e-9)
+    one_way = controller("fanuc", for_b, "b", detection_unit_deg=0.001, bidirectional=False)
+    assert one_way.trim_deg(200.0, -1) == one_way.trim_deg(200.0, 1) != right.trim_deg(200.0, -1)
     bench.write_text("stage:\n  compensation: {format: fanuc, file: c.txt}\n")
     assert main(["validate", str(bench)]) == 2 and "a FANUC axis's detection unit is needed" in capsys.readouterr().err
 
