@@ -53,7 +53,7 @@ def _copy(run: Path, tmp_path: Path, name: str = "copy") -> Path:
 
 def test_results_and_store_record_each_others_digests_and_a_copied_run_stays_valid(solved, tmp_path, capsys):
     results = json.loads((solved / "results.json").read_text())
-    assert results["schema_version"] == "1.3"
+    assert results["schema_version"] == "1.4"
     d = results["digests"]
     with sqlite3.connect(solved / "run.sqlite") as db:
         readings = db.execute("SELECT COUNT(*) FROM readings").fetchone()[0]

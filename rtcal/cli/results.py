@@ -136,6 +136,10 @@ def cmd_verify(args: argparse.Namespace) -> int:
           "(each records the other's)")
     for name, status in found.files:
         print(f"{run / name}: {status}")
+    if found.signature is not None:
+        print(f"{run}: signature: {found.signature.text if found.signature.state != 'REFUSED' else 'REFUSED (above)'}")
+    if found.results is not None and found.results.simulation is not None:
+        print(f"{run}: {found.results.simulation.statement}")
     verdict = "agrees" if found.agrees else "does NOT agree"
     print(f"{run} {verdict}: {len(found.differences)} differ of {found.compared} values, {len(found.altered_files)} of {len(found.files)} "
           f"deliverables changed, digests {'match' if not found.integrity else 'do not match'}")

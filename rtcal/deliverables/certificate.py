@@ -322,6 +322,8 @@ class Header(Part):
     laboratory_address: str = Field(description="its address")
     certificate_number: str = Field(description="the certificate's unique identification (empty: not given)")
     not_certificate: str = Field(description="why this is not a certificate (empty: it is one)")
+    marking: str = Field("", description="SIMULATED / REHEARSED — not a calibration, and why: every page's header and "
+                                         "footer carry it (empty: real instruments, not rehearsed)")
     footer: str = Field(description="the left part of every page's footer")
     closing: str = Field(description="the document's last line")
 
@@ -384,6 +386,8 @@ class SignOff(Part):
     approved_by: str
     date_of_issue: str = Field(description="YYYY-MM-DD")
     signing: str = Field(description="how the document was approved for issue")
+    electronic_signature: str = Field("", description="who signed the run's digests and with which key (its fingerprint), "
+                                                      "or that the run is unsigned")
 
     def items(self) -> list[Item]:
         return [Item(label="Performed by", value=self.performed_by), Item(label="Approved by", value=self.approved_by),
@@ -555,9 +559,28 @@ class Sources:
         return "report" if self.missing else "certificate"
 
 
+def marking(results: RunResults) -> str:
+    """What every page says of a run that measured no real item or was rehearsed ("": a calibration):
+    results.json's statement, or for a file from before 1.4 its in-process instruments."""
+    if results.simulation is not None:
+        return results.simulation.statement
+    if isinstance(results.instruments, str):
+        return "SIMULATED — NOT A CALIBRATION: every instrument and the table were simulated in process on a model bench"
+    return ""
+
+
+def signature_line(results: RunResults) -> str:
+    """Who signed the run's digests, with which key; or that it is unsigned."""
+    sig = results.signature
+    if sig is None:
+        return "Unsigned: no laboratory key was configured (its digests show accidents, not forgery)."
+    return f"Signed electronically by {sig.signer}, Ed25519 key {sig.key_fingerprint} (signature.json)."
+
+
 def _header(s: Sources) -> Header:
     meta, results = s.results.metadata, s.results
-    footer = " · ".join(x for x in (meta.laboratory or results.procedure.name or results.method,
+    footer = " · ".join(x for x in (marking(results).partition(":")[0],  # first: a long name never cuts it off
+                                    meta.laboratory or results.procedure.name or results.method,
                                     f"Certificate {meta.certificate_number}" if meta.certificate_number else "") if x)
     return Header(title="Calibration certificate" if not s.missing else "Calibration report",
                   subtitle="Angular positioning deviation of a rotary axis",
@@ -565,6 +588,7 @@ def _header(s: Sources) -> Header:
                   certificate_number=meta.certificate_number,
                   not_certificate=("Not a calibration certificate: the procedure's metadata does not give "
                                    + ", ".join(s.missing) + "." if s.missing else ""),
+                  marking=marking(results),
                   footer=footer, closing="End of report." if s.missing else "End of certificate.")
 
 
@@ -596,6 +620,8 @@ def _identification(s: Sources) -> Identification:
         rows.append(("Instruments", "simulated: every instrument and the table are simulated on a model bench "
                                     f"({Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed}); "
                                     "a demonstration, not a measurement of a real item"))
+    if results.simulation is not None and (results.simulation.simulators or results.simulation.rehearsed):
+        rows.append(("Simulation", results.simulation.statement))  # what each said: results.json, `simulation`
     notes = [f"Estimator {n} {st.status}: {st.message}" for n, st in results.solver_status.items()
              if st.status != "converged"]
     if results.bench is not None and results.bench.startswith("ideal bench"):
@@ -642,7 +668,8 @@ def _sign_off(s: Sources) -> SignOff:
     signing = (SIGNING_STATEMENT.format(doc=s.doc, approver=meta.approved_by, date=s.issued) if meta.approved_by else
                f"This {s.doc} has not been approved for issue (the procedure's metadata names no approver).")
     return SignOff(performed_by=meta.performed_by or meta.operator or "not stated",
-                   approved_by=meta.approved_by or "not approved", date_of_issue=s.issued, signing=signing)
+                   approved_by=meta.approved_by or "not approved", date_of_issue=s.issued, signing=signing,
+                   electronic_signature=signature_line(s.results))
 
 
 def _deviations(s: Sources) -> Table | None:

@@ -35,8 +35,9 @@ def write_html(certificate: Certificate, path: Path) -> Path:
     env = Environment(loader=FileSystemLoader(Path(__file__).parent / "templates"), autoescape=select_autoescape(["j2"]))
     figures = [(base64.b64encode(certificate.figure_path(f, path).read_bytes()).decode("ascii"), f.caption) for f in certificate.figures]
     footer_css = "".join(ch for ch in certificate.header.footer if ch not in '"\\<>&\n\r')
-    path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css),
-                    encoding="utf-8")
+    marking_css = "".join(ch for ch in certificate.header.marking if ch not in '"\\<>&\n\r')
+    path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css,
+                                                              marking_css=marking_css), encoding="utf-8")
     return path
 
 
@@ -165,6 +166,7 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
               Spacer(1, 4 * mm), Paragraph(f"<b>{esc(hd.closing)}</b>", body)]
 
     footer_left = hd.footer
+    marking = hd.marking
 
     class NumberedCanvas(Canvas):
         """Keeps each page until the count is known, then draws its footer last: "page N of M"."""
@@ -181,6 +183,11 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
             total = len(self._pages)
             for state in self._pages:
                 self.__dict__.update(state)
+                if marking:  # every page's head: a page taken alone still says it is no calibration
+                    self.setFont(bold, 7)
+                    self.setFillColor(colors.HexColor("#c0392b"))
+                    self.drawCentredString(A4[0] / 2, A4[1] - 8 * mm, marking[:150])
+                    self.setFillColor(colors.black)
                 self.setFont(font, 7)
                 self.setStrokeColor(colors.HexColor("#3a5a80"))
                 self.line(15 * mm, 13 * mm, A4[0] - 15 * mm, 13 * mm)
@@ -189,9 +196,9 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                 super().showPage()
             super().save()
 
-    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()], [c.sign_off.signing, "", ""]], None,
-                       [width / 3] * 3)
-    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed, under who signed it
+    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()],
+                        [f"{c.sign_off.signing} {c.sign_off.electronic_signature}".strip(), "", ""]], None, [width / 3] * 3)
+    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed and by which key, under who
     sign_h = signatures.wrap(width, 40 * mm)[1] + 4 * mm
 
     def sign(canvas, doc):  # page 1's foot: who performed and approved it, whatever the page holds above
@@ -227,6 +234,8 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
     table, the method's body, the run's events."""
     c, r = certificate, certificate.run
     lines = [f"# {r.report_title}", ""]
+    if c.header.marking:
+        lines += [f"> **{c.header.marking}**", ""]
     for issue in r.solver_issues:
         lines.append(f"> **Estimator `{issue.estimator}` {issue.status}**: {issue.message}")
         lines.append(">")
@@ -247,6 +256,7 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
         lines += [f"- instruments: {r.simulated}"]
     if r.recommended:
         lines.append(f"- recommended estimate: `{r.recommended}` (converged, smallest uncertainty)")
+    lines.append(f"- signature: {c.sign_off.electronic_signature}")
     lines.append("")
     if c.conformity:
         v = c.conformity

@@ -171,6 +171,13 @@ class StageChoice(InstrumentChoice):
     def _ordered_limits(self) -> "StageChoice":
         if self.soft_limits_deg[0] >= self.soft_limits_deg[1]:
             raise ValueError("soft_limits_deg: the lower limit must be below the upper one")
+        if self.address is not None:  # a run moves its stage: taking a LinuxCNC's control is said in its address
+            from drivers.addresses import AddressError, check_take_control, parse_address
+
+            try:
+                check_take_control(parse_address(self.address))
+            except AddressError as exc:
+                raise ValueError(f"address: {exc}") from None
         return self
 
 

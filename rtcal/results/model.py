@@ -18,11 +18,15 @@ from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-SCHEMA_VERSION = "1.3"
+SCHEMA_VERSION = "1.4"
 # the first schema_version whose files carry each digest: a file of that version or later without it
 # was not written by rtcal (rtcal/run/integrity.py refuses it)
 STORE_DIGESTS_SINCE = (1, 2)
 DELIVERABLE_DIGESTS_SINCE = (1, 3)
+SCHEMA_WRITTEN_SINCE: tuple[tuple[tuple[int, int, int], tuple[int, int]], ...] = ((0, 2, 0), (1, 4)),
+"""(rtcal release, the schema_version it and every later release writes at least): a file that claims
+a release and an older schema had its schema_version set back by hand (rtcal/run/integrity.py). Releases
+before the first entry wrote 1.0 to 1.3 under one version number, 0.1.0, and are not told apart."""
 
 # -- bounded numbers ------------------------------------------------------------------------------
 Arcsec = Annotated[float, Field(ge=-1e7, le=1e7)]
@@ -600,6 +604,29 @@ class RunMetadata(ResultsModel):
                                                        "(empty: not recorded) (1.2)")
 
 
+class Simulation(ResultsModel):
+    """A run that measured no real item, or rehearsed one: every page of its certificate says so, and
+    `rtcal catalog add` refuses it unless told (1.4)."""
+
+    in_process: bool = Field(description="every instrument and the table simulated in this process on a model bench")
+    simulators: dict[Name, Text] = Field(
+        description="per instrument (and `machine`, `operator`) that answered from rtcal's protocol simulators "
+                    "(`rtcal sim serve`, whose identity replies say SIMULATED): what it said it is")
+    rehearsed: bool = Field(description="`--rehearse`: a person confirmed each operator step, the simulated operator "
+                                        "carried it out")
+    statement: Text = Field(description="the marking every page of the certificate and the console carry")
+
+
+class Signature(ResultsModel):
+    """Who signs this run's digests: the laboratory's Ed25519 key (signature.json beside results.json
+    holds the signature over this file's SHA-256, its digests and every deliverable's) (1.4)."""
+
+    algorithm: Literal["ed25519"] = Field(description="the signature algorithm")
+    signer: Name = Field(description="who the key signs for, as the key file names it")
+    key_fingerprint: Annotated[str, Field(pattern=r"^SHA256:[A-Za-z0-9+/]{43}$")] = Field(
+        description="SHA256: and the unpadded base64 of the SHA-256 of the raw public key")
+
+
 # -- the three parts of a run's results, and the results of each method ------------------------------
 class RunInfo(ResultsModel):
     """What the runner knows of every run before its analysis."""
@@ -622,6 +649,10 @@ class RunInfo(ResultsModel):
     starts: Annotated[int, Field(ge=1, le=1_000_000)] = Field(description="how many times the run was started (1 + resumes)")
     measurement_duration_s: Seconds = Field(description="time the measurement took on `clock`, s")
     clock: Literal["virtual", "real"] = Field(description="`virtual`: simulated time (settle waits skipped); `real`: wall clock")
+    simulation: Simulation | None = Field(
+        None, description="why this run is not a calibration: its instruments were simulated in process or answered "
+                          "from rtcal's protocol simulators, or it was rehearsed (absent: real instruments, not "
+                          "rehearsed) (1.4)")
 
 
 class Analysis(ResultsModel):
@@ -740,7 +771,7 @@ class Digests(ResultsModel):
 class RunLog(ResultsModel):
     """What the runner adds after the analysis: the evaluation and the run's log."""
 
-    OPTIONAL_KEYS = frozenset({"conformity", "control", "digests"})
+    OPTIONAL_KEYS = frozenset({"conformity", "control", "digests", "signature"})
 
     evaluation: Evaluation | None = Field(description="ISO 230-2 and VDI 3441 parameters (null: no positioning deviations)")
     skipped_readings: Count = Field(description="planned readings a fault policy skipped and no start took again")
@@ -753,12 +784,15 @@ class RunLog(ResultsModel):
     digests: Digests | None = Field(
         None, description="digests of the store's readings, events and procedure these results were computed from; "
                           "every command that reads the run checks them (1.2)")
+    signature: Signature | None = Field(
+        None, description="the laboratory key that signs this run (signature.json); absent: unsigned, no lab key was "
+                          "configured when the run was written (1.4)")
 
 
 class RunResults(RunLog, Analysis, RunInfo):
     """results.json of any method: the run, its analysis, its log (the fields in that order)."""
 
-    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | RunLog.OPTIONAL_KEYS
+    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | RunLog.OPTIONAL_KEYS | frozenset({"simulation"})
 
     @model_validator(mode="after")
     def _names_its_estimate(self) -> RunResults:

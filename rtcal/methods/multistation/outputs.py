@@ -28,11 +28,6 @@ def _values(values: list[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in values], float)
 
 
-def _mathtext_safe(text: str) -> str:
-    """A title exactly as the user wrote it: matplotlib would read ``$…$`` as mathtext."""
-    return text.replace("$", r"\$")
-
-
 def expanded(u: float, scale: float = 1.0) -> tuple[str, int]:
     """U = 2u (times ``scale``) rounded up to two significant digits (GUM 7.2.6), and the decimals it has,
     to which the value is then rounded."""
@@ -162,7 +157,7 @@ class MultistationOutputs:
         ax2.set_xlabel("commanded table angle / °  (" + ("positive" if angles[-1] > angles[0] else "negative") + " approach)")
         ax2.set_xticks(angles, [f"{a:g}" for a in angles], fontsize=8)
         legend_below(fig)
-        ax.set_title(_mathtext_safe(r.procedure.name or r.method), fontsize=11)
+        ax.set_title(r.procedure.name or r.method, fontsize=11)  # as written: figures.py reads no mathtext
         path = run_dir / "deviation.png"
         fig.savefig(path, dpi=120)
         plt.close(fig)
