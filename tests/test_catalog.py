@@ -165,7 +165,7 @@ def test_the_default_catalogue_is_a_sqlite_file_named_by_rtcal_catalog(finished_
     assert r.returncode == 0, r.stderr
     assert path.is_file() and _count(str(path)) == 1
     home = tmp_path / "home"
-    r = _cli("catalog", "add", str(finished_run), env={"RTCAL_CATALOG": "", "HOME": str(home), "XDG_DATA_HOME": ""})
+    r = _cli("catalog", "add", "--allow-simulated", str(finished_run), env={"RTCAL_CATALOG": "", "HOME": str(home), "XDG_DATA_HOME": ""})
     assert r.returncode == 0 and (home / ".local/share/rtcal/catalog.sqlite").is_file()
 
 

@@ -34,11 +34,6 @@ def run_id(results: RunResults) -> str:
     return hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
-def verified_results(run_dir: Path) -> RunResults:
-    """results.json of a run that ``rtcal verify`` finds agreeing with its readings and digests."""
-    return verified(run_dir)[0]
-
-
 def verified(run_dir: Path) -> tuple[RunResults, str]:
     """results.json of a run that ``rtcal verify`` finds agreeing with its readings, digests and signature
     (a forgery refused: RunRefused, code 1), and its signature as the catalogue marks it."""

@@ -171,6 +171,7 @@ class Catalog:
         self.engine = _engine(self.url, write)
         self.empty = False  # no calibrations table yet (a new database nobody has added to)
         self.normalised = True  # every entry's names are normal_text (migration 0002 ran)
+        self.present = {c.name for c in calibrations.c}  # the table's columns (fewer in a catalogue not migrated)
         if write:
             with self._failures("cannot be opened"):
                 with self.engine.begin() as conn:
@@ -179,6 +180,8 @@ class Catalog:
         with self._failures("cannot be opened"), self.engine.connect() as conn:
             tables = set(inspect(conn).get_table_names())
             self.empty = "calibrations" not in tables
+            if not self.empty:  # an older catalogue, read without migrating it, lacks the newer columns
+                self.present = {c["name"] for c in inspect(conn).get_columns("calibrations")}
             revision = conn.execute(text("SELECT version_num FROM alembic_version")).scalar() \
                 if "alembic_version" in tables else None
             self.normalised = revision is not None and str(revision) >= NORMALISED_SINCE
@@ -213,19 +216,23 @@ class Catalog:
                     Catalog.before_commit()
         return inserted
 
+    def _columns(self, with_results: bool = False) -> list[Any]:
+        return [c for c in calibrations.c if c.name in self.present and (with_results or c.name != "results")]
+
     def _rows(self, q: Any) -> list[dict[str, Any]]:
+        """The rows of ``q``, a column the table does not have yet given as its migration fills it."""
         if self.empty:
             return []
+        missing = {c.name: getattr(c.server_default, "arg", None) for c in calibrations.c if c.name not in self.present}
         with self._failures("cannot be read"), self.engine.connect() as conn:
-            return [dict(r._mapping) for r in conn.execute(q)]
+            return [{**missing, **r._mapping} for r in conn.execute(q)]
 
     def history(self, serial_number: str, axis: str | None = None, with_results: bool = False) -> list[dict[str, Any]]:
         """A machine's (axis's) entries, oldest first; the serial number and axis as
         :func:`~rtcal.catalog.schema.normal_text` makes them (in an older catalogue, whatever form
         an entry holds)."""
         serial, axis = normal_text(serial_number), None if axis is None else normal_text(axis)
-        cols = [c for c in calibrations.c if with_results or c.name != "results"]
-        q = select(*cols)
+        q = select(*self._columns(with_results))
         if self.normalised:  # the index answers
             q = q.where(calibrations.c.serial_number == serial)
             if axis is not None:
@@ -236,8 +243,7 @@ class Catalog:
 
     def machines(self) -> list[dict[str, Any]]:
         """Every entry's history columns, by machine axis and time (what ``list`` summarises)."""
-        cols = [c for c in calibrations.c if c.name != "results"]
-        return self._rows(select(*cols).order_by(calibrations.c.serial_number, calibrations.c.axis,
+        return self._rows(select(*self._columns()).order_by(calibrations.c.serial_number, calibrations.c.axis,
                                                  calibrations.c.measured_utc))
 
     def count(self) -> int:

@@ -144,10 +144,10 @@ def _list(args: argparse.Namespace) -> int:
     if not machines:
         print(f"rtcal: {cat.name} holds no calibration yet (`rtcal catalog add RUN` adds one)", file=sys.stderr)
     by_id = {r["run_id"]: r for r in rows}
-    simulated = Counter((r["serial_number"], r["axis"]) for r in rows if r["simulated"])
+    per_axis = Counter((r["serial_number"], r["axis"]) for r in rows if r["simulated"])
     for m in machines:  # the last calibration's marks, and how many of the axis's entries calibrated nothing
         m["marks"] = marks(by_id[m["last_run_id"]])
-        m["simulated_entries"] = simulated[(m["serial_number"], m["axis"])]
+        m["simulated_entries"] = per_axis[(m["serial_number"], m["axis"])]
     if args.json:
         print(json_text(machines))
         return EXIT_OK

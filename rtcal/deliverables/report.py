@@ -132,6 +132,24 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                                     table([(r.symbol, r.meaning, r.value_arcsec) for r in p.vdi_rows], p.vdi_header,
                                           [26 * mm, width - 48 * mm, 22 * mm])])]
         story += [Paragraph(esc(n), small) for n in p.notes]
+    if c.other_standards:
+        o = c.other_standards
+        story += [Paragraph(esc(o.heading), h2), Paragraph(esc(o.note), small)]
+        title = ParagraphStyle("block", parent=body, keepWithNext=1, spaceBefore=3)
+        for blk in o.blocks:  # a long table splits over pages (its header repeated); its title stays with it
+            story += [Paragraph(f"<b>{esc(blk.title)}</b>", title)]
+            if blk.rows:
+                story.append(table([(r.symbol, r.value, r.expanded_uncertainty, figure_definition(r)) for r in blk.rows],
+                                   o.header, [20 * mm, 24 * mm, 20 * mm, width - 64 * mm]))
+            story += [Paragraph(esc(t), small) for t in [blk.rule] + blk.notes if t] + [Spacer(1, 1.5 * mm)]
+    pe = c.periodic_error
+    story += [Paragraph(esc(pe.heading), h2), Paragraph(esc(pe.statement), small)]
+    if pe.tested:
+        story += [Spacer(1, 1.5 * mm), table([(k.quantity, k.value_arcsec, k.expanded_uncertainty_arcsec) for k in pe.rows],
+                                              pe.header, [width - 60 * mm, 36 * mm, 24 * mm]),
+                  Spacer(1, 1.5 * mm), table(pe.harmonic_rows, pe.harmonic_header,
+                                             [26 * mm, width - 104 * mm, 26 * mm, 26 * mm, 26 * mm])]
+        story += [Paragraph(esc(n), small) for n in pe.notes]
     for t in c.tables:
         story += [KeepTogether([Paragraph(esc(t.heading), h2), Paragraph(esc(t.note), small), Spacer(1, 1.5 * mm),
                                 table(t.rows, t.header, [18 * mm, width - 74 * mm, 28 * mm, 28 * mm]
@@ -215,6 +233,12 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
     return path
 
 
+def figure_definition(row: Any) -> str:
+    """A figure's definition with its edition and coverage (and the verdict a TUR stands beside), in one cell."""
+    text = f"{row.definition} ({row.edition}; coverage: {row.coverage})"
+    return f"{text}. {row.beside}" if row.beside else text
+
+
 def _fonts(pdfmetrics, TTFont) -> tuple[str, str]:
     """DejaVu Sans from matplotlib (it has ″, ↑, σ, ±, –); Helvetica if it cannot be found."""
     try:
@@ -265,6 +289,23 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
         lines += [f"| {x.symbol} | {x.value_arcsec} | {x.limit_arcsec} | {x.expanded_uncertainty_arcsec} | "
                   f"{x.guard_band_arcsec} | {x.verdict} |" for x in v.rows]
         lines += [""] + [f"- {n}" for n in v.notes] + [""]
+    pe = c.periodic_error
+    lines += [f"## {pe.heading}", "", pe.statement, ""]
+    if pe.tested:
+        lines += ["| " + " | ".join(pe.header) + " |", "|---|---|---|"]
+        lines += [f"| {k.quantity} | {k.value_arcsec} | {k.expanded_uncertainty_arcsec} |" for k in pe.rows]
+        lines += ["", "| " + " | ".join(pe.harmonic_header) + " |", "|---|---|---|---|---|"]
+        lines += ["| " + " | ".join(r) + " |" for r in pe.harmonic_rows] + [""] + [f"- {n}" for n in pe.notes] + [""]
+    if c.other_standards:
+        o = c.other_standards
+        lines += [f"## {o.heading}", "", o.note, ""]
+        for blk in o.blocks:
+            lines += [f"### {blk.title}", ""]
+            if blk.rows:
+                lines += ["| " + " | ".join(o.header) + " |", "|---|---|---|---|"]
+                lines += [f"| {r.symbol} | {r.value} | {r.expanded_uncertainty} | {figure_definition(r)} |" for r in blk.rows]
+                lines.append("")
+            lines += [f"- {t}" for t in [blk.rule] + blk.notes if t] + [""]
     lines += c.report_body
     if r.event_counts != "none":
         lines += ["## Events", "", r.event_counts, ""] + [f"- {e}" for e in r.notable_events]

@@ -566,8 +566,13 @@ class Event(ResultsModel):
 class ProcedureRef(ResultsModel):
     """The procedure the run followed."""
 
+    OPTIONAL_KEYS = frozenset({"standards"})
+
     name: Name = Field(description="the procedure's title")
     path: Text = Field(description="the procedure file the run started from")
+    standards: list[Annotated[str, Field(pattern=r"^[a-z0-9.:-]{1,40}$")]] | None = Field(
+        None, max_length=20, description="the labels of the standards whose figures the certificate states besides ISO "
+                                         "230-2 and VDI 3441 (the procedure's `evaluation.standards`; absent: none) (1.4)")
 
 
 class InstrumentRecord(ResultsModel):
@@ -627,6 +632,48 @@ class Signature(ResultsModel):
         description="SHA256: and the unpadded base64 of the SHA-256 of the raw public key")
 
 
+class PeriodicTerm(ResultsModel):
+    """One harmonic of the tested period, named by its period in degrees and in worm revolutions (1.4)."""
+
+    OPTIONAL_KEYS = frozenset({"period_worm_revolutions"})
+
+    order: Annotated[int, Field(ge=1, le=10_000_000)] = Field(description="cycles per table turn")
+    period_deg: Deg = Field(description="its period, degrees (360° / order)")
+    period_worm_revolutions: Number | None = Field(None, description="its period in worm revolutions (worm ratio / order; "
+                                                                     "absent: the procedure states no worm ratio)")
+    amplitude_arcsec: SigmaArcsec = Field(description="amplitude A of A·sin(order·θ + φ), arcsec")
+    amplitude_sigma_arcsec: SigmaArcsec = Field(description="its standard uncertainty (1σ), arcsec")
+    phase_deg: Annotated[float, Field(ge=-360.0, le=360.0)] = Field(description="phase φ, degrees")
+    significant: bool = Field(description="above the family-wise 1 % threshold (rtcal.solvers.harmonics)")
+    threshold_arcsec: SigmaArcsec = Field(description="the amplitude above which it counts as significant, arcsec")
+
+
+class PeriodicError(ResultsModel):
+    """The periodic positioning error of a fine-step test over one period and a little more (ISO
+    230-2:2014 Annex C, as rtcal reads it: the annex's text was not reached; docs/evaluation.md) (1.4)."""
+
+    definition: Text = Field(description="what the figure is, in words, and what it rests on")
+    reference: Text = Field(description="what the table's positioning error at each fine step was read from")
+    period_deg: Deg = Field(description="the period tested, degrees")
+    worm_ratio: Number | None = Field(description="worm (motor) turns per table turn the procedure states (null: none)")
+    start_deg: Deg = Field(description="the first target, degrees")
+    step_deg: Deg = Field(description="the fine step, degrees")
+    targets_per_period: Count = Field(description="targets within one period (both ends included)")
+    trend_degree: Count = Field(description="degree of the slow error removed over the arc, per direction")
+    periodic_error_up_arcsec: Parameter | None = Field(description="range over one period of the mean deviation ↑ "
+                                                                   "less the slow part, arcsec (null: not measured)")
+    periodic_error_down_arcsec: Parameter | None = Field(description="the same ↓, arcsec (null: not measured)")
+    periodic_error_arcsec: Parameter = Field(description="the axis's periodic positioning error: the larger of ↑ and ↓")
+    expanded_uncertainty_arcsec: SigmaArcsec = Field(description="its U (k = 2), arcsec: 2·√(u² + u²) of its two means")
+    expanded_uncertainty_up_arcsec: SigmaArcsec | None = Field(description="U (k = 2) of the ↑ figure, arcsec (null: not measured)")
+    expanded_uncertainty_down_arcsec: SigmaArcsec | None = Field(description="U (k = 2) of the ↓ figure, arcsec (null: not measured)")
+    harmonics: list[PeriodicTerm] = Field(description="the harmonic analysis at the period's orders")
+    target_deg: list[Deg] = Field(description="the curve the figure is the range of: each (direction, target)'s angle")
+    direction: list[Direction] = Field(description="its direction")
+    residual_arcsec: list[Arcsec] = Field(description="its mean deviation less the slow part, arcsec")
+    notes: list[Text] = Field(description="what the figure leaves out and what is not confirmed")
+
+
 # -- the three parts of a run's results, and the results of each method ------------------------------
 class RunInfo(ResultsModel):
     """What the runner knows of every run before its analysis."""
@@ -658,7 +705,7 @@ class RunInfo(ResultsModel):
 class Analysis(ResultsModel):
     """What a method's analysis of the logged readings gives (every method)."""
 
-    OPTIONAL_KEYS = frozenset({"positioning_deviations", "truth"})
+    OPTIONAL_KEYS = frozenset({"positioning_deviations", "truth", "periodic_error"})
 
     nominal_angles_deg: list[Deg] = Field(description="commanded angle of each station or step, degrees")
     raw_readings: Count = Field(description="planned readings taken whole")
@@ -670,6 +717,9 @@ class Analysis(ResultsModel):
     positioning_deviations: DeviationTable | None = Field(
         None, description="the recommended estimate as the positioning-deviation table (absent: no estimate)")
     truth: Truth | None = Field(None, description="what the simulated bench really had (absent: a run on instruments)")
+    periodic_error: PeriodicError | None = Field(
+        None, description="the periodic positioning error of a fine-step test over a period (ISO 230-2:2014 Annex C; "
+                          "absent: not tested) (1.4)")
 
     @model_validator(mode="after")
     def _status_of_every_estimate(self) -> Analysis:

@@ -663,7 +663,9 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
             schema_version=SCHEMA_VERSION,
             rtcal_version=__version__,
             method=proc.method,
-            procedure=ProcedureRef(name=proc.name, path=meta.get("procedure_path", "")),
+            procedure=ProcedureRef(name=proc.name, path=meta.get("procedure_path", ""),
+                                   standards=list(proc.evaluation.standards) if proc.evaluation is not None
+                                   and proc.evaluation.standards else None),
             metadata=RunMetadata.model_validate(proc.metadata.model_dump(exclude={"machine_identity"})),
             seed=int(meta["seed"]) if simulated else None,
             instruments="simulated in process" if simulated else {
