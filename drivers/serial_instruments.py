@@ -119,7 +119,10 @@ class SylvacIndicator(SerialInstrument, DialIndicator):
     REQUEST = b"?\r"
     REPLY = re.compile(r"\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)\s*(mm)?\s*", re.IGNORECASE)
     ERROR = re.compile(r"\s*ERR\s*(\d)\s*", re.IGNORECASE)
-    ERRORS = {"0": "sensor error", "3": "measuring range exceeded"}  # OPTO-RS manual; 1 and 2: see the instrument's manual
+    # "User's manual for OPTO-RS cable connections" p. 12: "0: sensor error (e.g. speed, scale distance) 1: incorrect
+    # command 2: parity error (duplex instruments only) 3: exceeded measurement range"
+    ERRORS = {"0": "sensor error", "1": "incorrect command: the indicator did not understand the request",
+              "2": "parity error: check the line's framing, 4800 baud 7E2", "3": "measuring range exceeded"}
     RANGE_MM = 100.0  # the longest Sylvac stroke
     QUIET_S = 0.15  # after MM: whatever the indicator sends back (an echo) arrives within this
     AFTER_MM_MAX_BYTES, AFTER_MM_MAX_S = 256, 1.0  # more, or longer, is an indicator sending on its own, not an echo

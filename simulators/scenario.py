@@ -107,6 +107,12 @@ class CompensationScenario(_Strict):
         "SINUMERIK (siemens-lec, siemens-cec) only: the axis's backlash compensation MD32450 $MA_BACKLASH, deg; on each "
         "reversal the control adds it to the travel in the new direction (808D Parameter Manual p. 228: positive when "
         "the encoder leads the table); the axis counts as referenced in the positive direction (0: none)"))
+    detection_unit_deg: float | None = Field(None, gt=0.0, le=0.01, description=(
+        "FANUC (fanuc) only, and needed there: the axis's detection unit, deg — its increment system (0.001 IS-B, 0.0001 "
+        "IS-C); the control applies the table's increments in it, whatever unit the table was made for"))
+    bidirectional: bool = Field(True, description=(
+        "FANUC only: parameter 3605#0 as set on the control (bidirectional pitch error compensation; `rtcal compensate` "
+        "writes no 3605 record and asks for #0 = 1); a 3605 record in the table overrides it"))
 
     @field_validator("format", mode="before")
     @classmethod
@@ -126,6 +132,12 @@ class CompensationScenario(_Strict):
             raise ValueError("file: give the table's file")
         if self.backlash_deg and self.format not in SINUMERIK:
             raise ValueError(f"backlash_deg: MD32450 is SINUMERIK machine data; a {self.format} control has none")
+        fanuc_only = {"detection_unit_deg", "bidirectional"} & self.model_fields_set
+        if self.format != "fanuc" and fanuc_only:
+            raise ValueError(f"{min(fanuc_only)}: a FANUC axis's parameter; a {self.format} control has none")
+        if self.format == "fanuc" and self.detection_unit_deg is None:
+            raise ValueError("detection_unit_deg: a FANUC axis's detection unit is needed (0.001 for IS-B, 0.0001 for "
+                             "IS-C): the control applies the table's increments in it")
         return self
 
 

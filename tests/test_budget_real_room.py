@@ -178,14 +178,18 @@ def test_a_partial_error_motion_bound_and_the_cmm_geometry_are_named():
 def test_the_autocollimator_calibration_enters_the_iso_budget():
     from rtcal.run.runner import run_procedure
 
-    out = run_procedure(str(DATA / "iso_scale.yaml"), DATA / "iso_scale_bench.yaml", 3,
-                        Path(__import__("tempfile").mkdtemp()) / "run", show_progress=False, outputs=False)
+    run_dir = Path(__import__("tempfile").mkdtemp()) / "run"
+    out = run_procedure(str(DATA / "iso_scale.yaml"), DATA / "iso_scale_bench.yaml", 3, run_dir, show_progress=False)
     budget = getattr(out.results.estimates, out.results.recommended).uncertainty_budget
     names = {c.source: c for c in budget.components}
     scale = names["autocollimator calibration (scale)"]
     assert scale.input_sigma == 5000
     assert max(v for v in scale.contribution_arcsec if v is not None) > 0.05  # 0.5 % of deflections of tens of ″
     assert "autocollimator calibration (certificate U)" in names
+    # the certificate and the report state it as written, not "5e+03 ppm" (issue 46)
+    for name in ("certificate.json", "report.md"):
+        text = (run_dir / name).read_text(encoding="utf-8")
+        assert "5000 ppm" in text and "e+03" not in text, name
 
 
 def test_an_estimator_whose_residuals_the_stated_noise_cannot_explain_says_so():

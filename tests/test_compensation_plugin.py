@@ -70,11 +70,12 @@ def test_builtins_are_the_registry():
     assert registry.format_names() == ("linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain", "isg-volcomp")
     assert list(PARSERS) == list(registry.format_names())
     flags = {o.flag: o for o in registry.cli_options()}
-    assert list(flags) == ["--range-deg", "--axis", "--reference-deg", "--max-points", "--table-index",
+    assert list(flags) == ["--range-deg", "--axis", "--reference-deg", "--max-points", "--table-index", "--cec-tables",
                            "--detection-unit-deg", "--first-point", "--series", "--reference-return", "--axis-number",
                            "--listing", "--generation", "--error-motions-from", "--location-from"]
     assert flags["--axis"].formats == ("siemens-lec", "siemens-cec", "heidenhain")
-    assert flags["--reference-deg"].formats == ("siemens-lec", "heidenhain")
+    assert flags["--reference-deg"].formats == ("siemens-lec", "siemens-cec", "heidenhain")
+    assert "fanuc (required: 0.001 for IS-B, 0.0001 for IS-C)" in flags["--detection-unit-deg"].help
     assert flags["--listing"].argparse_kwargs()["action"] == "store_const"  # a switch: no value
     assert "siemens-lec/siemens-cec (default C1), heidenhain (default C)" in flags["--axis"].help
     given = registry.options_given({"range_deg": [-10.0, 350.0], "axis": None, "detection_unit_deg": 0.001, "format": "x",

@@ -123,6 +123,33 @@ def test_driver(hub):
         cmm.close()
 
 
+def test_a_second_client_is_told_the_cmm_is_busy(hub):
+    """Issue 46: a second rtcal (or `rtcal probe cmm`) beside a run got the server's bare refusal, or —
+    from a server that leaves it unanswered, as NIST's reference server does — a timeout. Both now say
+    the CMM is busy and what to do."""
+    import threading
+
+    from drivers.errors import InstrumentTimeout
+
+    first = IppCmm(parse_address(hub.addresses["cmm"]), tool="CatEye")
+    try:
+        with pytest.raises(InstrumentFault, match="the CMM is busy: another client holds its I\\+\\+ session .*close the "
+                                                  "other client"):
+            IppCmm(parse_address(hub.addresses["cmm"]), tool="CatEye")
+    finally:
+        first.close()
+    silent = socket.create_server(("127.0.0.1", 0))  # accepts, never answers: a server busy with another client
+    held: list[socket.socket] = []
+    threading.Thread(target=lambda: held.append(silent.accept()[0]), daemon=True).start()
+    try:
+        with pytest.raises(InstrumentTimeout, match=r"no reply to StartSession\(\) within 0.3 s: the CMM may be busy"):
+            IppCmm(parse_address(f"ipp://127.0.0.1:{silent.getsockname()[1]}"), timeout_s=0.3)
+    finally:
+        for s in held:
+            s.close()
+        silent.close()
+
+
 def test_driver_refuses_an_unknown_tool(hub):
     with pytest.raises(InstrumentFault, match="Tool not found"):
         IppCmm(parse_address(hub.addresses["cmm"]), 1.0, tool="NoSuchTool")

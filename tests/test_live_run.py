@@ -207,7 +207,7 @@ def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path
         proc, url, token, addresses = start_for_a_person(procedure, hub, run_dir)
         try:
             asked = wait_for(lambda: (s := state(url))["operator"] and s)
-            assert asked["state"] == "running" and "Seat the polygon turned by 0 face(s)" in asked["operator"]["instruction"]
+            assert asked["state"] == "running" and "Seat the polygon in its home seating" in asked["operator"]["instruction"]
             time.sleep(1.0)
             assert proc.poll() is None and state(url)["done_readings"] == 0  # it waits, nothing measured
             assert post(url, "confirm", None) == 401 and main(["control", str(run_dir), "confirm", "--token", "x" + token]) == 2

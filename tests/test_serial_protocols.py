@@ -73,7 +73,9 @@ BAD = [
     (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.34", InstrumentTimeout, "truncated"),
     (AUTOCOLLIMATOR, b"a\r\n", None, InstrumentTimeout, "no reply"),
     (INDICATOR, b"?\r", b"\r", InstrumentFault, "initialising"),
-    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "indicator error ERR1"),
+    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "indicator error ERR1 .incorrect command"),
+    (INDICATOR, b"?\r", b"ERR2\r", InstrumentFault, "indicator error ERR2 .parity error: check the line's framing"),
+    (INDICATOR, b"?\r", b"ERR0\r", InstrumentFault, "indicator error ERR0 .sensor error"),
     (INDICATOR, b"?\r", b"ERR3\r", InstrumentFault, "ERR3 .measuring range exceeded"),
     (INDICATOR, b"?\r", b"+0.0100 in\r", InstrumentFault, "unexpected reply"),  # no unit but mm is ever right
     (INDICATOR, b"?\r", b"\xff\xfe\r", InstrumentFault, "not ASCII"),

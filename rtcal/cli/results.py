@@ -73,11 +73,14 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
           "(docs/compensation.md: the format's rules and sign)")
-    for step in get_format(args.format).instructions(comp, **options):  # what to do on the control
+    fmt = get_format(args.format)
+    for step in fmt.instructions(comp, **options):  # what to do on the control
         print(f"on the control: {step}")
+    for reading in fmt.readings(comp, **options):  # what no manual settles, and the check on the machine
+        print(f"unsettled: {reading}")
+    note = fmt.comment_note(**options)
     for warning in comp.warnings:
-        where = "" if get_format(args.format).takes_comments else f" (not in {out}: a {args.format} file takes no comment)"
-        print(f"rtcal: warning: {warning}{where}", file=sys.stderr)
+        print(f"rtcal: warning: {warning}{f' (not in {out}: {note})' if note else ''}", file=sys.stderr)
     return EXIT_OK
 
 

@@ -28,7 +28,7 @@ from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import UNCONFIRMED
 from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.method_outputs import MethodOutputs
-from rtcal.deliverables.rounding import fmt, u_text, value_text
+from rtcal.deliverables.rounding import fmt, significant, u_text, value_text
 from rtcal.results.model import EnvironmentSummary, InstrumentRecord, RunResults
 
 SCHEMA_VERSION = "1.0"
@@ -859,7 +859,7 @@ def _budget(s: Sources) -> Budget | None:
     b = e.uncertainty_budget
     rows = []
     for c in b.components:
-        stated = c.note if "," in c.unit else f"{c.input_sigma:.3g} {c.unit}"  # several inputs: say them
+        stated = c.note if "," in c.unit else f"{significant(c.input_sigma)} {c.unit}"  # several inputs: say them
         rows.append(BudgetRow(source=c.source, type=c.type, input=stated + (" (from the data)" if c.estimated_from_data else ""),
                               contribution_arcsec=_fmt(largest(c.contribution_arcsec), 3)))
     comb = largest(b.combined_arcsec)

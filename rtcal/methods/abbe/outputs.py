@@ -15,7 +15,7 @@ from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLo
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.rounding import u_text
 from rtcal.deliverables.certificate import largest, period_text, smallest, status_lines
-from rtcal.deliverables.rounding import fmt
+from rtcal.deliverables.rounding import fmt, significant
 from rtcal.methods.abbe.results import AbbeResults, ClosureEstimate
 from rtcal.results.model import AbbeEstimate, Estimate, HarmonicTerm, PeriodicError, PeriodicTerm, TargetedEstimate
 
@@ -286,7 +286,7 @@ class AbbeOutputs:
         for c in b.components:
             contrib = np.array([np.nan if v is None else v for v in c.contribution_arcsec], float)
             origin = " (from the data)" if c.estimated_from_data else ""
-            lines.append(f"| {c.source} | {c.type} | {c.input_sigma:.3g} {c.unit}{origin} | {contrib[worst]:.3f} | "
+            lines.append(f"| {c.source} | {c.type} | {significant(c.input_sigma)} {c.unit}{origin} | {contrib[worst]:.3f} | "
                          f"{float(np.sqrt(np.mean(contrib[1:] ** 2))):.3f} |")
         lines += [f"| **combined u** | | | **{comb[worst]:.3f}** | **{float(np.sqrt(np.mean(comb[1:] ** 2))):.3f}** |", ""]
         lines += [f"- not included: {n}" for n in b.not_included] + [""]

@@ -14,7 +14,7 @@ from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLo
 from rtcal.compensation.kinematics import LocationErrors
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.certificate import largest, status_lines
-from rtcal.deliverables.rounding import fmt
+from rtcal.deliverables.rounding import fmt, significant
 from rtcal.deliverables.rounding import decimals, round_up, u_text
 from rtcal.methods.multistation.results import MultistationResults
 from rtcal.results.model import AXIS_CONVENTION, Estimate, NetworkEstimate, PaperEstimate, StationChainEstimate
@@ -199,7 +199,7 @@ class MultistationOutputs:
         lines = [head, "|" + "---|" * (3 + len(angles) - 1)]
         for c in b.components:
             origin = " (from the data)" if c.estimated_from_data else ""
-            cells = [c.source, c.type, f"{c.input_sigma:.3g} {c.unit}{origin}"]
+            cells = [c.source, c.type, f"{significant(c.input_sigma)} {c.unit}{origin}"]
             cells += [fmt(v, ".3f") for v in c.contribution_arcsec[1:]]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("| **combined u** | | | " + " | ".join(f"**{fmt(v, '.3f')}**" for v in b.combined_arcsec[1:]) + " |")
