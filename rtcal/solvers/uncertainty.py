@@ -16,32 +16,56 @@ CMM point seen from every station) and one per residual (tracer noise) leave dif
 patterns in the residuals, so the data tell their sizes apart. The stated σ of a Type A source
 only sets its reference scale.
 
-Everything here is arrays in, arrays out: the models that build F live with their methods.
+Everything here is arrays in, arrays out: the models that build F live with their methods. F keeps
+its source's structure (:mod:`rtcal.solvers.structure`: a vector for one input per residual,
+:class:`~rtcal.solvers.structure.Grouped` for inputs shared by a group of residuals — a CMM point,
+a stage visit —, a dense (N, q) or :class:`~rtcal.solvers.structure.Factored` for a few inputs
+common to many), and V = Σ θ·F·Fᵀ is never formed: REML, the residual test and the propagation
+work in that structure at a cost linear in the residuals. A new source is a new effect of one of
+those shapes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
+from rtcal.solvers.structure import (
+    Arrow,
+    Effect,
+    Grouped,
+    Restricted,
+    column_basis,
+    diagonal_of,
+    effect_rows,
+    grouped_of,
+    scaled,
+    sum_of_squares,
+    times_effect,
+    transposed_times,
+)
+
 SourceType = Literal["A", "B"]
+Placement = tuple[str, np.ndarray]
 
 
 @dataclass(frozen=True)
 class Source:
     """One source of input uncertainty, by its effect on the residuals per 1σ of its inputs.
 
-    ``effect``: (N,) for one independent input per residual, or (N, q) for q inputs that each
-    move several residuals (a CMM point, a stage visit, a CMM scale). ``sigma`` is the 1σ the
-    effect is scaled to, in ``unit``; for Type A it is the reference the estimated scale
+    ``effect``: (N,) for one independent input per residual, (N, q) dense for q inputs that each
+    move many residuals (a CMM scale, the air's index), :class:`~rtcal.solvers.structure.Grouped`
+    for inputs each shared by a group of residuals (a CMM point, a stage visit) or
+    :class:`~rtcal.solvers.structure.Factored` (a sparse map times a dense mix). ``sigma`` is the 1σ
+    the effect is scaled to, in ``unit``; for Type A it is the reference the estimated scale
     multiplies.
     """
 
     name: str
     type: SourceType
-    effect: np.ndarray
+    effect: Effect
     sigma: float
     unit: str
     note: str = ""
@@ -61,96 +85,112 @@ class VarianceEstimate:
         return source.sigma * float(np.sqrt(self.scale.get(source.name, 1.0)))
 
 
-def _as_diagonal(effect: np.ndarray) -> np.ndarray | None:
-    """The diagonal of F·Fᵀ when it is diagonal (each input touches one residual), else None."""
-    e = np.asarray(effect, float)
-    if e.ndim == 1:
-        return e**2
-    if np.all(np.count_nonzero(e, axis=0) <= 1):
-        return np.sum(e**2, axis=1)
-    return None
+def _arrange(effects: list[Effect], rows: int) -> tuple[np.ndarray, Grouped | None, list[Effect], list[Placement]]:
+    """V = Σ F_k·F_kᵀ in the structure of :class:`rtcal.solvers.structure.Restricted`: the diagonal sources
+    summed into d, the grouped sources over the grouping with the most groups as the block, the rest as random
+    globals; per effect where its columns went: ("diagonal", diag(F·Fᵀ)), ("block", its block columns) or
+    ("global", its global columns)."""
+    d = np.zeros(rows)
+    grouped: list[tuple[int, Grouped]] = []
+    placements: list[Placement] = [("diagonal", np.zeros(0))] * len(effects)
+    others: list[int] = []
+    for k, e in enumerate(effects):
+        diagonal = diagonal_of(e)
+        if diagonal is not None:
+            d = d + diagonal
+            placements[k] = ("diagonal", diagonal)
+            continue
+        g = grouped_of(e)
+        if g is not None:
+            grouped.append((k, g))
+        else:
+            others.append(k)
+    block: Grouped | None = None
+    if grouped:
+        _, widest = max(grouped, key=lambda kg: kg[1].groups)
+        members = [(k, g) for k, g in grouped if g.groups == widest.groups and np.array_equal(g.group, widest.group)]
+        block = Grouped(np.hstack([g.values for _, g in members]), widest.group, widest.groups)
+        c = 0
+        for k, g in members:
+            placements[k] = ("block", np.arange(c, c + g.width))
+            c += g.width
+        others += [k for k, _ in grouped if all(k != m for m, _ in members)]
+    randoms: list[Effect] = []
+    q = 0
+    for k in sorted(others):
+        e = effects[k]
+        width = e.shape[1] if not isinstance(e, np.ndarray) else np.asarray(e).shape[1]
+        randoms.append(e)
+        placements[k] = ("global", np.arange(q, q + width))
+        q += width
+    return d, block, randoms, placements
 
 
-def reml_scales(jacobian: np.ndarray, residuals: np.ndarray, sources: list[Source],
+def reml_scales(jacobian: np.ndarray | Any, residuals: np.ndarray, sources: list[Source],
                 max_iterations: int = 60, tolerance: float = 1e-4, floor: float = 1e-14) -> VarianceEstimate:
     """Estimate the variance scales θ of the Type A sources by REML (Fisher scoring).
 
     The Type B sources enter V with θ = 1. Scales are kept ≥ ``floor`` (a noise-free bench
     estimates them ≈ 0 and V must stay invertible). One source must act on every residual
-    (V positive definite). V = D + U·Uᵀ is kept as a diagonal part and a low-rank part, so that
-    with P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁻¹JᵀV⁻¹ = D⁻¹ − Y·H·Yᵀ (Woodbury; Y = D⁻¹[U J]) every trace costs
-    O(N·(q + p)²) instead of O(N³).
+    (V positive definite). ``jacobian``: dense or scipy.sparse (N×p). V is kept in its sources'
+    structure (:mod:`rtcal.solvers.structure`: diagonal, one block per CMM point, low rank), so that
+    P·r, every tr(P·V_k) and tr(P·V_k·P·V_l) cost O(N·(c + G)²), G the global columns (the
+    estimator's unknowns and the low-rank sources): linear in the readings. With P·F_l =
+    θ_l^(−½)·D⁻¹X·C⁻¹Λ_l (C the mixed-model matrix; the dense form is tests/dense_reference.py):
+
+    - diagonal V_k = diag(x): tr(P·V_k) = Σ x/d − Σ x·h/d², h_i = x_i·C⁻¹·x_iᵀ;
+    - a random source's columns: tr(P·V_k) = tr((I − ΛC⁻¹)_kk)/θ_k, ‖F_kᵀPF_l‖² = ‖(I − ΛC⁻¹)_kl‖²/(θ_kθ_l);
+    - tr(P·diag(x)·P·diag(y)) = Σ x·y/d² − 2Σ x·y·h/d³ + tr(C⁻¹Q_x·C⁻¹Q_y), Q_x = XᵀD⁻¹diag(x)D⁻¹X;
+    - tr(P·diag(x)·P·V_l) = tr(C⁻¹Q_x·C⁻¹Λ_l)/θ_l.
     """
-    J = np.asarray(jacobian, float)
     r = np.asarray(residuals, float)
-    N, p = J.shape
+    N = len(r)
+    p = int(jacobian.shape[1])
     a_sources = [s for s in sources if s.type == "A"]
     if not a_sources:
         return VarianceEstimate({}, {}, 0, True)
-    # per source: (True, diagonal of F·Fᵀ) when it is diagonal, else (False, F)
-    effects: list[tuple[bool, np.ndarray]] = []
-    for s in sources:
-        diagonal_k = _as_diagonal(s.effect)
-        effects.append((True, diagonal_k) if diagonal_k is not None else (False, np.asarray(s.effect, float)))
     is_a = [s.type == "A" for s in sources]
     a_index = [k for k, a in enumerate(is_a) if a]
     # a first guess that already fits the residuals' size: scale every Type A source together
-    total_trace = sum(float(np.sum(e)) if diagonal else float(np.sum(e**2))
-                      for (diagonal, e), a in zip(effects, is_a) if a)
+    total_trace = sum(sum_of_squares(s.effect) for s in a_sources)
     theta = np.full(len(a_index), max(float(r @ r) / max(total_trace * (1.0 - p / max(N, 1)), 1e-300), floor))
+    _, _, _, places = _arrange([s.effect for s in sources], N)  # where each source's columns go (θ moves no column)
     info = np.eye(len(theta))
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
         scale = dict(zip(a_index, theta))
-        d = np.full(N, 1e-300)
-        cols = []
-        for k, (diagonal, e) in enumerate(effects):
-            t = scale.get(k, 1.0)
-            if diagonal:
-                d = d + t * e
-            else:
-                cols.append(np.sqrt(t) * e)
-        U = np.column_stack(cols) if cols else np.zeros((N, 0))
-        dinv = 1.0 / d
-        DU, DJ = U * dinv[:, None], J * dinv[:, None]
-        S = np.eye(U.shape[1]) + U.T @ DU
-        S_inv = np.linalg.inv(S) if U.shape[1] else np.zeros((0, 0))
-        a_mat = np.vstack([-S_inv @ (U.T @ DJ), np.eye(p)])  # V⁻¹J = Y·a
-        Y = np.hstack([DU, DJ])
-        VJ = Y @ a_mat
-        M = np.linalg.pinv(J.T @ VJ)
-        H = a_mat @ M @ a_mat.T
-        H[: U.shape[1], : U.shape[1]] += S_inv
-        YH = Y @ H
-        Pr = dinv * r - YH @ (Y.T @ r)
-        yhy_diag = np.sum(YH * Y, axis=1)
-        diagP = dinv - yhy_diag
-        terms: list[tuple[np.ndarray, np.ndarray | None]] = []  # per Type A source: (e², None) or (F, P·F)
-        for k in a_index:
-            diagonal, X = effects[k]
-            terms.append((X, None) if diagonal else (X, dinv[:, None] * X - YH @ (Y.T @ X)))
+        d, block, randoms, _ = _arrange([scaled(s.effect, float(np.sqrt(scale.get(k, 1.0)))) for k, s in enumerate(sources)], N)
+        R = Restricted(d + 1e-300, block, randoms, jacobian)
+        Pr = R.apply(r)
+        kinds = [places[k] for k in a_index]
+        h = R.hat() if any(kind == "diagonal" for kind, _ in kinds) else np.zeros(N)
+        dinv = R.dinv
+        diagP = dinv - h * dinv**2
+        arrows: dict[int, Arrow] = {}
+        columns: dict[int, tuple[np.ndarray | None, np.ndarray | None]] = {}
         score = np.empty(len(theta))
-        for i, (X, PX) in enumerate(terms):
-            if PX is None:
-                score[i] = 0.5 * (float(np.sum(Pr**2 * X)) - float(np.sum(diagP * X)))
+        for i, (k, (kind, where)) in enumerate(zip(a_index, kinds)):
+            if kind == "diagonal":
+                arrows[i] = R.arrow(where * dinv**2)
+                score[i] = 0.5 * (float(np.sum(Pr**2 * where)) - float(np.sum(diagP * where)))
             else:
-                FtPr = X.T @ Pr
-                score[i] = 0.5 * (float(FtPr @ FtPr) - float(np.sum(X * PX)))
-        for i, (Xi, PXi) in enumerate(terms):
-            for j in range(i, len(terms)):
-                Xj, PXj = terms[j]
-                if PXi is None:
-                    if PXj is None:
-                        Qi, Qj = Y.T @ (Xi[:, None] * Y), Y.T @ (Xj[:, None] * Y)
-                        val = (float(np.sum(Xi * Xj * dinv**2)) - 2.0 * float(np.sum(Xi * Xj * dinv * yhy_diag))
-                               + float(np.sum((H @ Qi) * (H @ Qj).T)))
-                    else:
-                        val = float(np.sum(Xi[:, None] * PXj**2))
-                elif PXj is None:
-                    val = float(np.sum(Xj[:, None] * PXi**2))
+                columns[i] = (where, None) if kind == "block" else (None, where)
+                FtPr = transposed_times(sources[k].effect, Pr)
+                score[i] = 0.5 * (float(FtPr @ FtPr) - R.complement_trace(*columns[i]) / theta[i])
+        for i in range(len(theta)):
+            for j in range(i, len(theta)):
+                if i in arrows and j in arrows:
+                    x, y = kinds[i][1], kinds[j][1]
+                    val = (float(np.sum(x * y * dinv**2)) - 2.0 * float(np.sum(x * y * dinv**3 * h))
+                           + R.trace_hqhq(arrows[i], arrows[j]))
+                elif i in arrows or j in arrows:
+                    diag_i, col_j = (i, j) if i in arrows else (j, i)
+                    b, g = columns[col_j]
+                    selector = R.block_selector(b) if b is not None else R.global_selector(g if g is not None else np.zeros(0, int))
+                    val = R.trace_hqhq(arrows[diag_i], selector) / theta[col_j]
                 else:
-                    val = float(np.sum((Xi.T @ PXj) ** 2))
+                    val = R.complement_norm2(columns[i], columns[j]) / (theta[i] * theta[j])
                 info[i, j] = info[j, i] = 0.5 * val
         step = np.linalg.lstsq(info, score, rcond=None)[0]
         new = np.maximum(theta + step, floor * np.max(np.abs(theta)) + 1e-300)
@@ -206,12 +246,12 @@ class DeviationBudget:
 def propagate(influence: np.ndarray, sources: list[Source], variances: VarianceEstimate,
               output_jacobian: np.ndarray) -> list[BudgetComponent]:
     """Each source through the estimator (``influence`` = H restricted to the parameters the
-    output depends on) and the output's Jacobian: G·H·F·θ·(G·H·F)ᵀ per source."""
+    output depends on, m' × N) and the output's Jacobian: G·H·F·θ·(G·H·F)ᵀ per source, F in its
+    structure (m × q, never N × N)."""
     G = np.asarray(output_jacobian, float) @ np.asarray(influence, float)
     out = []
     for s in sources:
-        e = np.asarray(s.effect, float)
-        GF = G * e[None, :] if e.ndim == 1 else G @ e
+        GF = times_effect(G, s.effect)
         theta = variances.scale.get(s.name, 1.0) if s.type == "A" else 1.0
         out.append(BudgetComponent(s.name, s.type, variances.sigma(s), s.unit, theta * (GF @ GF.T), s.type == "A", s.note))
     return out
@@ -257,49 +297,70 @@ class ResidualCheck:
                 f"degrees of freedom against {against}{'' if self.passed else failed})")
 
 
-def residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: int,
-                   jacobian: np.ndarray | None = None) -> ResidualCheck | None:
+@dataclass(frozen=True)
+class Covariance:
+    """V = Σ F·Fᵀ over some effects (the sources at their stated sizes, the error motions through the
+    stations), kept as those effects: never N×N (:mod:`rtcal.solvers.structure`)."""
+
+    effects: tuple[Effect, ...]
+
+    @classmethod
+    def of_sources(cls, sources: list[Source]) -> "Covariance":
+        """V of the sources at their stated sizes (θ = 1)."""
+        return cls(tuple(s.effect for s in sources))
+
+    def plus(self, *effects: Effect) -> "Covariance":
+        return Covariance(self.effects + tuple(effects))
+
+    @property
+    def rows(self) -> int:
+        return effect_rows(self.effects[0]) if self.effects else 0
+
+    def restricted(self, jacobian: Any = None, jacobian_mix: np.ndarray | None = None) -> Restricted | None:
+        """P for V and J (None when V has no positive diagonal part to build it on)."""
+        d, block, randoms, _ = _arrange(list(self.effects), self.rows)
+        if not np.all(d > 0):
+            return None
+        return Restricted(d, block, randoms, jacobian, jacobian_mix)
+
+
+def residual_check(residuals: np.ndarray, covariance: Covariance, parameters: int,
+                   jacobian: Any = None) -> ResidualCheck | None:
     """χ² of the residuals under the covariance V of what moves them (None when nothing is left to test:
-    ν < 1 or V not positive definite).
+    ν < 1, or V without a positive diagonal part).
 
     Without ``jacobian``: χ² = rᵀV⁻¹r with ν = N − parameters (exact when the estimator weighted with V⁻¹).
-    With the Jacobian J of an unweighted least-squares estimator: its residuals are r = Q·Qᵀ·e (Q an
-    orthonormal basis of J's left null space, e the inputs' errors), so z = Qᵀr has covariance QᵀVQ and
-    χ² = zᵀ(QᵀVQ)⁻¹z is exactly χ²(N − rank J) when e ~ N(0, V), whatever V's correlations (a CMM point
-    common to every station's length): the test is then the whole budget's (``whole_budget``)."""
+    With the Jacobian J (dense or sparse) of an unweighted least-squares estimator: its residuals are
+    r = Q·Qᵀ·e (Q an orthonormal basis of J's left null space, e the inputs' errors), so z = Qᵀr has
+    covariance QᵀVQ and χ² = zᵀ(QᵀVQ)⁻¹z is exactly χ²(N − rank J) when e ~ N(0, V), whatever V's
+    correlations (a CMM point common to every station's length): the test is then the whole budget's
+    (``whole_budget``). Q(QᵀVQ)⁻¹Qᵀ is REML's P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁺JᵀV⁻¹, so χ² = rᵀPr, computed in V's
+    structure with J's column space of the rank the SVD of J counts (:func:`rtcal.solvers.structure.column_basis`)."""
     from scipy.stats import chi2 as chi2_dist
 
     r = np.asarray(residuals, float)
-    V = np.asarray(covariance, float)
     if jacobian is not None:
-        J = np.asarray(jacobian, float)
-        left, sv, _ = np.linalg.svd(J, full_matrices=True)
-        rank = int(np.sum(sv > sv[0] * max(J.shape) * np.finfo(float).eps)) if sv.size else 0
-        Q = left[:, rank:]
-        r, V = Q.T @ r, Q.T @ V @ Q
-        parameters = 0
-    dof = len(r) - int(parameters)
-    if dof < 1:
+        basis, rank = column_basis(jacobian if hasattr(jacobian, "tocsr") else _sparse(jacobian))
+        dof = len(r) - rank
+        P = covariance.restricted(jacobian, basis) if dof >= 1 else None
+    else:
+        dof = len(r) - int(parameters)
+        P = covariance.restricted() if dof >= 1 else None
+    if P is None:
         return None
-    try:
-        L = np.linalg.cholesky(V)
-    except np.linalg.LinAlgError:
-        return None
-    z = np.linalg.solve(L, r)
-    chi2 = float(z @ z)
+    chi2 = P.quadratic(r)
     return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
 
 
-def stated_covariance(sources: list[Source], rows: int) -> np.ndarray:
-    """V = Σ F·Fᵀ of the sources at their stated sizes (θ = 1), N×N."""
-    V = np.zeros((rows, rows))
-    for s in sources:
-        e = np.asarray(s.effect, float)[:rows]
-        if e.ndim == 1:
-            V[np.diag_indices(rows)] += e**2
-        else:
-            V += e @ e.T
-    return V
+def _sparse(matrix: np.ndarray) -> Any:
+    import scipy.sparse as sp
+
+    return sp.csr_matrix(np.asarray(matrix, float))
+
+
+def stated_covariance(sources: list[Source]) -> Covariance:
+    """V = Σ F·Fᵀ of the sources at their stated sizes (θ = 1), in their structure."""
+    return Covariance.of_sources(sources)
 
 
 def difference_matrix(n: int) -> np.ndarray:
