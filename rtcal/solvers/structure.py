@@ -241,12 +241,17 @@ class Arrow:
 
 class Restricted:
     """P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁺JᵀV⁻¹ for V = diag(d) + Z_b·Z_bᵀ + Z_g·Z_gᵀ, in the mixed-model form of the
-    module docstring: the block (``block``: Z_b as :class:`Grouped`) eliminated group by group, then the
-    random globals (``randoms``: effects), then J (``jacobian``, sparse, optionally times ``jacobian_mix``)
-    through a pseudo-inverse — the order and the pseudo-inverse of the dense form it replaces."""
+    module docstring: the block eliminated group by group, then the random globals (``randoms``: effects),
+    then J (``jacobian``, sparse, optionally times ``jacobian_mix``) through a pseudo-inverse — the order
+    and the pseudo-inverse of the dense form it replaces.
+
+    The block is given unscaled, Z_b = F_b·diag(s) (``block``: F_b as :class:`Grouped`, ``block_scale``: s,
+    one per block column, √θ of its source): the traces REML needs of a source in the block are then taken
+    of F_b itself (:meth:`block_products`, :meth:`trace_block`), never as a trace of Z_b divided by θ, which
+    a noise-free bench (θ → 0) would underflow."""
 
     def __init__(self, d: np.ndarray, block: Grouped | None, randoms: list[Effect], jacobian: Any = None,
-                 jacobian_mix: np.ndarray | None = None):
+                 jacobian_mix: np.ndarray | None = None, block_scale: np.ndarray | None = None):
         import scipy.sparse as sp
 
         self.d = np.asarray(d, float)
@@ -257,6 +262,7 @@ class Restricted:
             block = Grouped(np.zeros((N, 0)), np.full(N, -1), 0)
         self.block = block
         self.c, self.groups = block.width, block.groups
+        self.s = np.ones(self.c) if block_scale is None else np.asarray(block_scale, float)
         pieces, mixes = [], []
         for e in randoms:
             rows, mix = sparse_columns(e)
@@ -273,7 +279,7 @@ class Restricted:
         identity = all(m.shape[0] == m.shape[1] and np.array_equal(m, np.eye(m.shape[0])) for m in mixes)
         self.raw = raw  # X_g = raw·T (T None: the identity)
         self.T = None if identity else _block_diagonal(mixes)
-        self.gmember = block.group >= 0
+        self.member = np.flatnonzero(block.group >= 0)
         self._eliminate()
 
     # ---- X_g and the block's rows -------------------------------------------------------------
@@ -292,40 +298,39 @@ class Restricted:
         K = np.asarray((self.raw.T @ self.raw.multiply(w[:, None]).tocsr()).toarray())
         return K if self.T is None else np.asarray(self.T.T @ K @ self.T)
 
-    def _block_sums(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Σ over each group's rows of w·v·vᵀ (groups, c, c) and of w·v·x_gᵀ (groups, c, G)."""
-        g, v = self.block.group, self.block.values
-        rows = np.flatnonzero(self.gmember)
+    def arrow(self, w: np.ndarray) -> Arrow:
+        """Xᵀ·diag(w)·X in arrow form, its block part of F_b (unscaled): Σ w·f·fᵀ and Σ w·f·x_gᵀ per group."""
+        w = np.asarray(w, float)
+        g, u, rows = self.block.group, self.block.values, self.member
         bb = np.zeros((self.groups, self.c, self.c))
         for a in range(self.c):
             for b in range(a, self.c):
-                bb[:, a, b] = bb[:, b, a] = np.bincount(g[rows], weights=(w * v[:, a] * v[:, b])[rows], minlength=self.groups)
+                bb[:, a, b] = bb[:, b, a] = np.bincount(g[rows], weights=(w * u[:, a] * u[:, b])[rows], minlength=self.groups)
         bg = np.zeros((self.groups, self.c, self.G))
         if self.c and self.G and len(rows):
             import scipy.sparse as sp
 
-            E = sp.csr_matrix(((w[:, None] * v)[rows].ravel(), (np.repeat(rows, self.c),
+            E = sp.csr_matrix(((w[:, None] * u)[rows].ravel(), (np.repeat(rows, self.c),
                                                                 ((self.c * g[rows])[:, None] + np.arange(self.c)).ravel())),
                               shape=(self.N, self.groups * self.c))
             product = E.T @ self.raw
-            cross = product.toarray() if self.T is None else product @ self.T
-            bg = np.asarray(cross).reshape(self.groups, self.c, self.G)
-        return bb, bg
-
-    def arrow(self, w: np.ndarray) -> Arrow:
-        """Xᵀ·diag(w)·X in arrow form."""
-        bb, bg = self._block_sums(np.asarray(w, float))
-        return Arrow(bb, bg, self._gram_gg(np.asarray(w, float)))
+            bg = np.asarray(product.toarray() if self.T is None else product @ self.T).reshape(self.groups, self.c, self.G)
+        return Arrow(bb, bg, self._gram_gg(w))
 
     # ---- the elimination ------------------------------------------------------------------------
     def _eliminate(self) -> None:
-        c, q, p = self.c, self.q, self.p
-        core = self.arrow(self.dinv)  # C − Λ
-        self.Nb = core.bb  # Z_bᵀD⁻¹Z_b per group: A − I, kept without the I
-        A = core.bb + np.eye(c)
-        self.Ainv = np.linalg.inv(A) if self.groups and c else np.zeros((self.groups, c, c))
-        self.B = np.matmul(self.Ainv, core.bg)  # (groups, c, G)
-        reduction = np.einsum("iag,iah->gh", core.bg, self.B) if self.groups and c else np.zeros((self.G, self.G))
+        c, q, p, s = self.c, self.q, self.p, self.s
+        core = self.arrow(self.dinv)  # C − Λ, the block part of F_b
+        self.Nu = core.bb  # F_bᵀD⁻¹F_b per group
+        s2 = s * s
+        if self.groups and c:
+            self.Ainv = np.linalg.inv(np.eye(c) + s[:, None] * core.bb * s[None, :])  # A = I + S·Nu·S
+            self.Au = np.linalg.inv(np.eye(c) + core.bb * s2[None, :])  # S⁻¹A⁻¹S, without dividing by s
+        else:
+            self.Ainv = self.Au = np.zeros((self.groups, c, c))
+        self.Bu = np.matmul(self.Au, core.bg)  # S⁻¹·B, B = A⁻¹·C_bg: (groups, c, G)
+        self.SAS = s[:, None] * self.Ainv * s[None, :]  # S·A⁻¹·S
+        reduction = np.einsum("iag,a,iah->gh", core.bg, s2, self.Bu) if self.groups and c else np.zeros((self.G, self.G))
         N_gg = core.gg - reduction  # S − Λ_g: the Schur complement without the random globals' I
         N_rr = N_gg[:q, :q]
         S_rr_inv = np.linalg.inv(np.eye(q) + N_rr) if q else np.zeros((0, 0))
@@ -339,26 +344,27 @@ class Restricted:
         self.M = M  # S⁻¹ (the J part a pseudo-inverse)
         # (I − H) over the random globals, without subtracting from I: S_rr⁻¹·N_rr − T·Mj·Tᵀ
         self.IH_rr = S_rr_inv @ N_rr - Trj @ Mj @ Trj.T
-        self.AinvN = np.matmul(self.Ainv, self.Nb)  # (I − A⁻¹) per group, as A⁻¹·(A − I)
 
     # ---- P and the hat diagonal ---------------------------------------------------------------
     def _solve(self, ub: np.ndarray, ug: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(y_b, y_g) = C⁻¹·(u_b, u_g)."""
-        yg = self.M @ (ug - np.einsum("iag,ia->g", self.B, ub)) if self.G else np.zeros(0)
-        yb = np.einsum("iab,ib->ia", self.Ainv, ub) - np.einsum("iag,g->ia", self.B, yg) if self.G else \
-            np.einsum("iab,ib->ia", self.Ainv, ub)
+        """(y_b, y_g) = C⁻¹·(u_b, u_g), u_b and y_b of the unscaled block (u_b = F_bᵀ·v, X·y = F_b·y_b + X_g·y_g)."""
+        s2 = self.s * self.s
+        yg = self.M @ (ug - np.einsum("iag,ia->g", self.Bu, s2 * ub)) if self.G else np.zeros(0)
+        yb = np.einsum("iab,ib->ia", self.SAS, ub)
+        if self.G:
+            yb = yb - s2 * np.einsum("iag,g->ia", self.Bu, yg)
         return yb, yg
 
     def _x_times(self, yb: np.ndarray, yg: np.ndarray) -> np.ndarray:
         out = self._g_times(yg) if self.G else np.zeros(self.N)
         if self.c:
-            rows = np.flatnonzero(self.gmember)
+            rows = self.member
             out[rows] += np.einsum("ia,ia->i", self.block.values[rows], yb[self.block.group[rows]])
         return out
 
     def _x_transposed(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ub = np.zeros((self.groups, self.c))
-        rows = np.flatnonzero(self.gmember)
+        rows = self.member
         for a in range(self.c):
             ub[:, a] = np.bincount(self.block.group[rows], weights=(self.block.values[:, a] * v)[rows], minlength=self.groups)
         return ub, (self._g_transposed(v) if self.G else np.zeros(0))
@@ -376,18 +382,17 @@ class Restricted:
     def hat(self) -> np.ndarray:
         """h_i = x_i·C⁻¹·x_iᵀ for each row x_i of X (so that P_ii = 1/d_i − h_i/d_i²)."""
         h = np.zeros(self.N)
-        group, values = self.block.group, self.block.values
+        group, values, s2 = self.block.group, self.block.values, self.s * self.s
         for start in range(0, self.N, CHUNK_ROWS):
             stop = min(start + CHUNK_ROWS, self.N)
             g = group[start:stop]
             inside = g >= 0
-            v = values[start:stop]
+            f = values[start:stop] * inside[:, None]
             xg = self._g_rows(start, stop) if self.G else np.zeros((stop - start, 0))
             if self.c:
                 gi = np.where(inside, g, 0)
-                vb = v * inside[:, None]
-                h[start:stop] += np.einsum("ia,iab,ib->i", vb, self.Ainv[gi], vb)
-                z = xg - np.einsum("ia,iag->ig", vb, self.B[gi]) if self.G else xg
+                h[start:stop] += np.einsum("ia,iab,ib->i", f, self.SAS[gi], f)
+                z = xg - np.einsum("ia,iag->ig", f * s2, self.Bu[gi]) if self.G else xg
             else:
                 z = xg
             if self.G:
@@ -396,65 +401,71 @@ class Restricted:
 
     # ---- traces ---------------------------------------------------------------------------------
     def _qk(self, Q: Arrow) -> tuple[np.ndarray, np.ndarray]:
-        """(Q·K)_b (groups, c, G) and Kᵀ·Q·K (G, G) for K = [B; −I] (H = E + K·M·Kᵀ, E = diag(A⁻¹, 0))."""
-        QKb = np.matmul(Q.bb, self.B) - Q.bg
-        KQK = np.einsum("iag,iah->gh", self.B, QKb) - (np.einsum("iag,iah->gh", Q.bg, self.B) - Q.gg)
-        return QKb, KQK
+        """With H = C⁻¹ = E + K·M·Kᵀ (E = diag(A⁻¹, 0), K = [B; −I]) and Q of the unscaled block: R_Q, with
+        (Q·K)_b = S·R_Q (groups, c, G), and Kᵀ·Q·K (G, G)."""
+        s2 = self.s * self.s
+        RQ = np.matmul(Q.bb, s2[None, :, None] * self.Bu) - Q.bg
+        KQK = (np.einsum("iag,a,iah->gh", self.Bu, s2, RQ) - np.einsum("iag,a,iah->gh", Q.bg, s2, self.Bu) + Q.gg)
+        return RQ, KQK
 
     def trace_hq(self, Q: Arrow) -> float:
         """tr(C⁻¹·Q)."""
         _, KQK = self._qk(Q)
-        return float(np.einsum("iab,iba->", self.Ainv, Q.bb) + np.sum(self.M * KQK))
+        return float(np.einsum("iab,iba->", self.SAS, Q.bb) + np.sum(self.M * KQK))
 
     def trace_hqhq(self, Q1: Arrow, Q2: Arrow) -> float:
         """tr(C⁻¹·Q1·C⁻¹·Q2)."""
-        Q1Kb, KQ1K = self._qk(Q1)
-        Q2Kb, KQ2K = self._qk(Q2)
-        blocks = float(np.einsum("iab,ibc,icd,ida->", self.Ainv, Q1.bb, self.Ainv, Q2.bb, optimize=True))
-        cross = np.einsum("iag,iab,ibh->gh", Q1Kb, self.Ainv, Q2Kb, optimize=True)
+        R1, KQ1K = self._qk(Q1)
+        R2, KQ2K = self._qk(Q2)
+        blocks = float(np.einsum("iab,ibc,icd,ida->", self.SAS, Q1.bb, self.SAS, Q2.bb, optimize=True))
+        cross = np.einsum("iag,iab,ibh->gh", R1, self.SAS, R2, optimize=True)
         return blocks + 2.0 * float(np.sum(self.M * cross)) + float(np.sum((self.M @ KQ1K) * (self.M @ KQ2K).T))
-
-    def block_selector(self, columns: np.ndarray) -> Arrow:
-        """Λ over some of the block's c columns (one source among the block's)."""
-        bb = np.zeros((self.groups, self.c, self.c))
-        bb[:, columns, columns] = 1.0
-        return Arrow(bb, np.zeros((self.groups, self.c, self.G)), np.zeros((self.G, self.G)))
 
     def global_selector(self, columns: np.ndarray) -> Arrow:
         gg = np.zeros((self.G, self.G))
         gg[columns, columns] = 1.0
         return Arrow(np.zeros((self.groups, self.c, self.c)), np.zeros((self.groups, self.c, self.G)), gg)
 
-    def complement_trace(self, block_cols: np.ndarray | None, global_cols: np.ndarray | None) -> float:
-        """tr((I − ΛC⁻¹)_kk) for a random source k's columns: θ_k·tr(F_kᵀ·P·F_k)."""
-        if block_cols is not None:
-            Bk = self.B[:, block_cols, :]
-            return float(np.einsum("iaa->", self.AinvN[:, block_cols][:, :, block_cols])
-                         - np.sum(self.M * np.einsum("iag,iah->gh", Bk, Bk)))
-        assert global_cols is not None
-        return float(np.trace(self.IH_rr[np.ix_(global_cols, global_cols)]))
+    def trace_block(self, Q: Arrow, columns: np.ndarray) -> float:
+        """tr(F_kᵀ·P·W·P·F_k) for the block's source k (its ``columns``) and Q = Xᵀ·D⁻¹W·D⁻¹X (W diagonal):
+        P·F_k = D⁻¹X·C⁻¹Λ_k·S⁻¹, so this is tr(C⁻¹Q·C⁻¹·Λ_kS⁻²), taken with A_u = S⁻¹A⁻¹S and B_u = S⁻¹B."""
+        RQ, KQK = self._qk(Q)
+        Au = self.Au[:, columns, :]  # the rows of A_u for the source: (Λ_k·A_u)
+        Bk = self.Bu[:, columns, :]
+        blocks = float(np.einsum("ika,iab,ikb->", Au, Q.bb, Au))
+        cross = np.einsum("iag,ika,ikh->gh", RQ, Au, Bk, optimize=True)
+        BtB = np.einsum("ikg,ikh->gh", Bk, Bk)
+        return blocks + 2.0 * float(np.sum(self.M * cross)) + float(np.sum((self.M @ KQK) * (self.M @ BtB).T))
 
-    def complement_norm2(self, k: tuple[np.ndarray | None, np.ndarray | None],
-                         l: tuple[np.ndarray | None, np.ndarray | None]) -> float:
-        """‖(I − ΛC⁻¹)_kl‖²_F for two random sources (each: its block columns or its global columns):
-        θ_k·θ_l·‖F_kᵀ·P·F_l‖²."""
-        (bk, gk), (bl, gl) = k, l
-        if bk is not None and bl is not None:  # block-diagonal A⁻¹N minus the low-rank B_k·M·B_lᵀ
-            Bk, Bl = self.B[:, bk, :], self.B[:, bl, :]
-            Dkl = self.AinvN[:, bk][:, :, bl]
-            low = self.M
-            first = float(np.sum(Dkl**2))
-            cross = float(np.sum(low * np.einsum("iag,iab,ibh->gh", Bk, Dkl, Bl)))
-            last = float(np.sum((low @ np.einsum("iag,iah->gh", Bk, Bk)) * (low @ np.einsum("iag,iah->gh", Bl, Bl)).T))
-            return first - 2.0 * cross + last
-        if bk is not None or bl is not None:  # −H_bg = B·M over the global's columns
-            b, g = (bk, gl) if bk is not None else (bl, gk)
-            assert g is not None
-            Bb = self.B[:, b, :]
-            Mg = self.M[:, g]
-            return float(np.sum((Mg.T @ np.einsum("iag,iah->gh", Bb, Bb)) * Mg.T))
-        assert gk is not None and gl is not None
-        return float(np.sum(self.IH_rr[np.ix_(gk, gl)] ** 2))
+    def block_products(self, k_cols: np.ndarray, l_cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """F_kᵀ·P·F_l for two sources of the block as (block diagonal (groups, c_k, c_l), L_k, L_l) with
+        F_kᵀPF_l = blockdiag − L_k·M·L_lᵀ: blockdiag = (A_u·N_u)[k, l], L = B_u[k]."""
+        AuNu = np.matmul(self.Au, self.Nu)
+        return AuNu[:, k_cols][:, :, l_cols], self.Bu[:, k_cols, :], self.Bu[:, l_cols, :]
+
+    def trace_block_complement(self, columns: np.ndarray) -> float:
+        """tr(F_kᵀ·P·F_k) for the block's source k."""
+        D, L, _ = self.block_products(columns, columns)
+        return float(np.einsum("iaa->", D) - np.sum(self.M * np.einsum("iag,iah->gh", L, L)))
+
+    def norm2_block(self, k_cols: np.ndarray, l_cols: np.ndarray) -> float:
+        """‖F_kᵀ·P·F_l‖²_F for two sources of the block."""
+        D, Lk, Ll = self.block_products(k_cols, l_cols)
+        first = float(np.sum(D**2))
+        cross = float(np.sum(self.M * np.einsum("iag,iab,ibh->gh", Lk, D, Ll)))
+        last = float(np.sum((self.M @ np.einsum("iag,iah->gh", Lk, Lk)) * (self.M @ np.einsum("iag,iah->gh", Ll, Ll)).T))
+        return first - 2.0 * cross + last
+
+    def norm2_block_global(self, k_cols: np.ndarray, global_cols: np.ndarray, global_scale: float) -> float:
+        """‖F_kᵀ·P·F_l‖²_F for a source k of the block and a random global l (Z_l = F_l·``global_scale``):
+        F_kᵀPF_l = B_u[k]·M[:, l]/scale."""
+        Bk = self.Bu[:, k_cols, :]
+        Mg = self.M[:, global_cols]
+        return float(np.sum((Mg.T @ np.einsum("iag,iah->gh", Bk, Bk)) * Mg.T)) / global_scale**2
+
+    def global_complement(self, k_cols: np.ndarray, l_cols: np.ndarray) -> np.ndarray:
+        """(I − ΛC⁻¹) over two random globals' columns: √θ_k·√θ_l·F_kᵀPF_l."""
+        return np.asarray(self.IH_rr[np.ix_(k_cols, l_cols)])
 
 
 def _block_diagonal(blocks: list[np.ndarray]) -> np.ndarray:

@@ -85,45 +85,72 @@ class VarianceEstimate:
         return source.sigma * float(np.sqrt(self.scale.get(source.name, 1.0)))
 
 
-def _arrange(effects: list[Effect], rows: int) -> tuple[np.ndarray, Grouped | None, list[Effect], list[Placement]]:
-    """V = Σ F_k·F_kᵀ in the structure of :class:`rtcal.solvers.structure.Restricted`: the diagonal sources
+@dataclass(frozen=True)
+class _Layout:
+    """Where each effect's columns go in :class:`rtcal.solvers.structure.Restricted`: the diagonal sources
     summed into d, the grouped sources over the grouping with the most groups as the block, the rest as random
-    globals; per effect where its columns went: ("diagonal", diag(F·Fᵀ)), ("block", its block columns) or
-    ("global", its global columns)."""
-    d = np.zeros(rows)
-    grouped: list[tuple[int, Grouped]] = []
-    placements: list[Placement] = [("diagonal", np.zeros(0))] * len(effects)
-    others: list[int] = []
-    for k, e in enumerate(effects):
-        diagonal = diagonal_of(e)
-        if diagonal is not None:
-            d = d + diagonal
-            placements[k] = ("diagonal", diagonal)
-            continue
-        g = grouped_of(e)
-        if g is not None:
-            grouped.append((k, g))
-        else:
-            others.append(k)
-    block: Grouped | None = None
-    if grouped:
-        _, widest = max(grouped, key=lambda kg: kg[1].groups)
-        members = [(k, g) for k, g in grouped if g.groups == widest.groups and np.array_equal(g.group, widest.group)]
-        block = Grouped(np.hstack([g.values for _, g in members]), widest.group, widest.groups)
-        c = 0
-        for k, g in members:
-            placements[k] = ("block", np.arange(c, c + g.width))
-            c += g.width
-        others += [k for k, _ in grouped if all(k != m for m, _ in members)]
-    randoms: list[Effect] = []
-    q = 0
-    for k in sorted(others):
-        e = effects[k]
-        width = e.shape[1] if not isinstance(e, np.ndarray) else np.asarray(e).shape[1]
-        randoms.append(e)
-        placements[k] = ("global", np.arange(q, q + width))
-        q += width
-    return d, block, randoms, placements
+    globals. ``places[k]``: ("diagonal", diag(F·Fᵀ)), ("block", its block columns) or ("global", its global
+    columns)."""
+
+    places: list[Placement]
+    block_group: np.ndarray | None
+    block_groups: int
+    block_members: list[int]  # the effects in the block, in column order
+    randoms: list[int]  # the effects among the random globals, in column order
+
+    @classmethod
+    def of(cls, effects: list[Effect]) -> "_Layout":
+        places: list[Placement] = [("diagonal", np.zeros(0))] * len(effects)
+        grouped: list[tuple[int, Grouped]] = []
+        others: list[int] = []
+        for k, e in enumerate(effects):
+            diagonal = diagonal_of(e)
+            if diagonal is not None:
+                places[k] = ("diagonal", diagonal)
+                continue
+            g = grouped_of(e)
+            if g is not None:
+                grouped.append((k, g))
+            else:
+                others.append(k)
+        members: list[int] = []
+        group, groups = None, 0
+        if grouped:
+            _, widest = max(grouped, key=lambda kg: kg[1].groups)
+            group, groups = widest.group, widest.groups
+            c = 0
+            for k, g in grouped:
+                if g.groups == groups and np.array_equal(g.group, group):
+                    members.append(k)
+                    places[k] = ("block", np.arange(c, c + g.width))
+                    c += g.width
+                else:
+                    others.append(k)
+        q = 0
+        randoms = sorted(others)
+        for k in randoms:
+            e = effects[k]
+            width = np.asarray(e).shape[1] if isinstance(e, np.ndarray) else e.shape[1]
+            places[k] = ("global", np.arange(q, q + width))
+            q += width
+        return cls(places, group, groups, members, randoms)
+
+    def restricted(self, effects: list[Effect], scales: list[float], rows: int, floor: float = 0.0, jacobian: Any = None,
+                   jacobian_mix: np.ndarray | None = None) -> Restricted:
+        """P for V = Σ scale_k·F_k·F_kᵀ (the block unscaled, its columns scaled by √scale)."""
+        d = np.full(rows, floor)
+        for k, (kind, where) in enumerate(self.places):
+            if kind == "diagonal":
+                d = d + scales[k] * where
+        block = None
+        block_scale = None
+        if self.block_members:
+            assert self.block_group is not None
+            grouped = [grouped_of(effects[k]) for k in self.block_members]
+            block = Grouped(np.hstack([g.values for g in grouped if g is not None]), self.block_group, self.block_groups)
+            block_scale = np.concatenate([np.full(len(self.places[k][1]), np.sqrt(scales[k])) for k in self.block_members])
+        randoms = [scaled(effects[k], float(np.sqrt(scales[k]))) if scales[k] != 1.0 else effects[k] for k in self.randoms]
+        return Restricted(d, block, randoms, jacobian, jacobian_mix, block_scale)
 
 
 def reml_scales(jacobian: np.ndarray | Any, residuals: np.ndarray, sources: list[Source],
@@ -135,13 +162,15 @@ def reml_scales(jacobian: np.ndarray | Any, residuals: np.ndarray, sources: list
     (V positive definite). ``jacobian``: dense or scipy.sparse (N×p). V is kept in its sources'
     structure (:mod:`rtcal.solvers.structure`: diagonal, one block per CMM point, low rank), so that
     P·r, every tr(P·V_k) and tr(P·V_k·P·V_l) cost O(N·(c + G)²), G the global columns (the
-    estimator's unknowns and the low-rank sources): linear in the readings. With P·F_l =
-    θ_l^(−½)·D⁻¹X·C⁻¹Λ_l (C the mixed-model matrix; the dense form is tests/dense_reference.py):
+    estimator's unknowns and the low-rank sources): linear in the readings. With C the mixed-model
+    matrix and P·F_k = D⁻¹X·C⁻¹Λ_k·θ_k^(−½) (the dense form is tests/dense_reference.py):
 
-    - diagonal V_k = diag(x): tr(P·V_k) = Σ x/d − Σ x·h/d², h_i = x_i·C⁻¹·x_iᵀ;
-    - a random source's columns: tr(P·V_k) = tr((I − ΛC⁻¹)_kk)/θ_k, ‖F_kᵀPF_l‖² = ‖(I − ΛC⁻¹)_kl‖²/(θ_kθ_l);
-    - tr(P·diag(x)·P·diag(y)) = Σ x·y/d² − 2Σ x·y·h/d³ + tr(C⁻¹Q_x·C⁻¹Q_y), Q_x = XᵀD⁻¹diag(x)D⁻¹X;
-    - tr(P·diag(x)·P·V_l) = tr(C⁻¹Q_x·C⁻¹Λ_l)/θ_l.
+    - diagonal V_k = diag(x): tr(P·V_k) = Σ x/d − Σ x·h/d², h_i = x_i·C⁻¹·x_iᵀ, and
+      tr(P·diag(x)·P·diag(y)) = Σ x·y/d² − 2Σ x·y·h/d³ + tr(C⁻¹Q_x·C⁻¹Q_y), Q_x = XᵀD⁻¹diag(x)D⁻¹X;
+    - a source of the block (the CMM points): F_kᵀPF_l = (A_u·N_u)_kl − B_u,k·M·B_u,lᵀ per group plus low
+      rank, and tr(P·diag(x)·P·V_k) = tr(C⁻¹Q_x·C⁻¹·Λ_k/θ_k), both taken of F_k unscaled
+      (:class:`~rtcal.solvers.structure.Restricted`): θ → 0 on a noise-free bench does not underflow;
+    - a random global source: the same through (I − ΛC⁻¹) over its columns, divided by θ.
     """
     r = np.asarray(residuals, float)
     N = len(r)
@@ -154,43 +183,48 @@ def reml_scales(jacobian: np.ndarray | Any, residuals: np.ndarray, sources: list
     # a first guess that already fits the residuals' size: scale every Type A source together
     total_trace = sum(sum_of_squares(s.effect) for s in a_sources)
     theta = np.full(len(a_index), max(float(r @ r) / max(total_trace * (1.0 - p / max(N, 1)), 1e-300), floor))
-    _, _, _, places = _arrange([s.effect for s in sources], N)  # where each source's columns go (θ moves no column)
+    effects = [s.effect for s in sources]
+    layout = _Layout.of(effects)  # where each source's columns go (θ moves none)
+    kinds = [layout.places[k] for k in a_index]
     info = np.eye(len(theta))
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
         scale = dict(zip(a_index, theta))
-        d, block, randoms, _ = _arrange([scaled(s.effect, float(np.sqrt(scale.get(k, 1.0)))) for k, s in enumerate(sources)], N)
-        R = Restricted(d + 1e-300, block, randoms, jacobian)
+        R = layout.restricted(effects, [scale.get(k, 1.0) for k in range(len(sources))], N, 1e-300, jacobian)
         Pr = R.apply(r)
-        kinds = [places[k] for k in a_index]
         h = R.hat() if any(kind == "diagonal" for kind, _ in kinds) else np.zeros(N)
         dinv = R.dinv
         diagP = dinv - h * dinv**2
         arrows: dict[int, Arrow] = {}
-        columns: dict[int, tuple[np.ndarray | None, np.ndarray | None]] = {}
         score = np.empty(len(theta))
         for i, (k, (kind, where)) in enumerate(zip(a_index, kinds)):
             if kind == "diagonal":
                 arrows[i] = R.arrow(where * dinv**2)
                 score[i] = 0.5 * (float(np.sum(Pr**2 * where)) - float(np.sum(diagP * where)))
-            else:
-                columns[i] = (where, None) if kind == "block" else (None, where)
-                FtPr = transposed_times(sources[k].effect, Pr)
-                score[i] = 0.5 * (float(FtPr @ FtPr) - R.complement_trace(*columns[i]) / theta[i])
+                continue
+            FtPr = transposed_times(sources[k].effect, Pr)
+            trace = (R.trace_block_complement(where) if kind == "block"
+                     else float(np.trace(R.global_complement(where, where))) / theta[i])
+            score[i] = 0.5 * (float(FtPr @ FtPr) - trace)
         for i in range(len(theta)):
             for j in range(i, len(theta)):
-                if i in arrows and j in arrows:
-                    x, y = kinds[i][1], kinds[j][1]
-                    val = (float(np.sum(x * y * dinv**2)) - 2.0 * float(np.sum(x * y * dinv**3 * h))
+                (ki, wi), (kj, wj) = kinds[i], kinds[j]
+                if ki == "diagonal" and kj == "diagonal":
+                    val = (float(np.sum(wi * wj * dinv**2)) - 2.0 * float(np.sum(wi * wj * dinv**3 * h))
                            + R.trace_hqhq(arrows[i], arrows[j]))
-                elif i in arrows or j in arrows:
-                    diag_i, col_j = (i, j) if i in arrows else (j, i)
-                    b, g = columns[col_j]
-                    selector = R.block_selector(b) if b is not None else R.global_selector(g if g is not None else np.zeros(0, int))
-                    val = R.trace_hqhq(arrows[diag_i], selector) / theta[col_j]
+                elif "diagonal" in (ki, kj):
+                    d_i, c_j = (i, j) if ki == "diagonal" else (j, i)
+                    kind, where = kinds[c_j]
+                    val = (R.trace_block(arrows[d_i], where) if kind == "block"
+                           else R.trace_hqhq(arrows[d_i], R.global_selector(where)) / theta[c_j])
+                elif ki == "block" and kj == "block":
+                    val = R.norm2_block(wi, wj)
+                elif "block" in (ki, kj):
+                    b, g = (i, j) if ki == "block" else (j, i)
+                    val = R.norm2_block_global(kinds[b][1], kinds[g][1], float(np.sqrt(theta[g])))
                 else:
-                    val = R.complement_norm2(columns[i], columns[j]) / (theta[i] * theta[j])
+                    val = float(np.sum(R.global_complement(wi, wj) ** 2)) / (theta[i] * theta[j])
                 info[i, j] = info[j, i] = 0.5 * val
         step = np.linalg.lstsq(info, score, rcond=None)[0]
         new = np.maximum(theta + step, floor * np.max(np.abs(theta)) + 1e-300)
@@ -318,10 +352,11 @@ class Covariance:
 
     def restricted(self, jacobian: Any = None, jacobian_mix: np.ndarray | None = None) -> Restricted | None:
         """P for V and J (None when V has no positive diagonal part to build it on)."""
-        d, block, randoms, _ = _arrange(list(self.effects), self.rows)
+        layout = _Layout.of(list(self.effects))
+        d = sum((w for kind, w in layout.places if kind == "diagonal"), np.zeros(self.rows))
         if not np.all(d > 0):
             return None
-        return Restricted(d, block, randoms, jacobian, jacobian_mix)
+        return layout.restricted(list(self.effects), [1.0] * len(self.effects), self.rows, 0.0, jacobian, jacobian_mix)
 
 
 def residual_check(residuals: np.ndarray, covariance: Covariance, parameters: int,
