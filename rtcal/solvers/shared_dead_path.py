@@ -106,8 +106,8 @@ def least_squares_sparse(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[
                          max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, Any, bool, str]:
     """min ½‖f(x)‖² for a sparse Jacobian with few unknowns (stations and dead paths): Gauss–Newton on the p×p
     normal equations, Levenberg–Marquardt damped (µ·diag JᵀJ) while a full step does not lower the cost. Converged
-    when the undamped step is below :data:`STEP_TOLERANCE` of the unknowns (the least-squares optimum to rounding,
-    as MINPACK's xtol = 1e-15 before it), or when no step lowers the cost and the step is within 1e-9 of them
+    when the undamped step is below :data:`STEP_TOLERANCE` of the unknowns, that last step taken (the
+    least-squares optimum to rounding, as MINPACK's xtol = 1e-15 before it), or when no step lowers the cost and the step is within 1e-9 of them
     (the rounding floor of many residuals). Returns x, f(x), J(x) (sparse), converged, how it ended."""
     x = np.asarray(x0, float).copy()
     f = fun(x)
@@ -119,8 +119,10 @@ def least_squares_sparse(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[
         normal = np.asarray((J.T @ J).toarray())
         gn = _solve_normal(normal, -g)
         size = 1.0 + float(np.max(np.abs(x)))
-        if np.max(np.abs(gn)) <= STEP_TOLERANCE * size:
-            return x, f, J, True, f"converged in {it - 1} iterations (the Gauss–Newton step below {STEP_TOLERANCE:g} of the unknowns)"
+        if np.max(np.abs(gn)) <= STEP_TOLERANCE * size:  # taken too: the optimum to rounding, whatever the unknowns' size
+            x = x + gn
+            return x, fun(x), jac(x), True, (f"converged in {it} iterations (the last Gauss–Newton step below "
+                                               f"{STEP_TOLERANCE:g} of the unknowns)")
         step, trial = gn, fun(x + gn)
         diag = np.diag(normal).copy()
         while float(trial @ trial) > cost:

@@ -48,7 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from rtcal.solvers.structure import Effect, Factored, Grouped, pseudo_inverse_gram
+from rtcal.solvers.structure import Effect, Factored, Grouped, pseudo_inverse_gram, r_factor
 from rtcal.solvers.uncertainty import (
     BudgetComponent,
     Covariance,
@@ -511,13 +511,20 @@ def station_budget(
     sources = observation_sources(obs, stations_mm, axis_center_mm, axis_direction, noise)
     variances = reml_scales(J, residuals, sources) if noise.estimate else VarianceEstimate({}, {}, 0, True)
     G = chain_jacobian(stations_mm, cumulative_of_stations)
-    # G·(rows of J⁺ for the stations) = (G·(JᵀJ)⁺[stations])·Jᵀ: the influence of every length on the output
-    influence = np.asarray((J @ (G @ pseudo_inverse_gram(J)[np.asarray(station_columns).ravel()]).T).T)
-    components = propagate(influence, sources, variances, np.eye(len(G)))
     P = np.asarray(stations_mm, float)[obs.station]
     diff = np.asarray(obs.points_mm, float)[obs.point] - P
     L = np.linalg.norm(diff, axis=1)
     radial = radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction)
+    stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
+    N = len(np.asarray(residuals))
+    course = None if stated_zero else course_nuisance(L, radial, obs.run_fraction if obs.run_fraction is not None
+                                                      else np.linspace(-1, 1, N), noise)
+    tested = J if course is None else _hstack(J, course)  # the residual test's J: the air's course free beside it
+    R = r_factor(tested)  # J's R factor is its leading block: one pass over the rows for both
+    # G·(rows of J⁺ for the stations) = (G·(JᵀJ)⁺[stations])·Jᵀ: the influence of every length on the output
+    p = J.shape[1]
+    influence = np.asarray((J @ (G @ pseudo_inverse_gram(R[:p, :p])[np.asarray(station_columns).ravel()]).T).T)
+    components = propagate(influence, sources, variances, np.eye(len(G)))
     if noise.air_index_bound > 0 or noise.material_temperature_bound_k > 0:
         # the uncorrected air and table as any course within their ranges, not the straight line the REML's V assumes
         components = [c for c in components if c.name != AIR_DRIFT_SOURCE]
@@ -529,16 +536,12 @@ def station_budget(
                                           f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
                                           "mount cannot separate them from the rotation"))
     check = None
-    stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
     if not stated_zero:  # the whole budget as stated (Type A at θ = 1), every source that moves the residuals
-        N = len(np.asarray(residuals))
         V = Covariance.of_sources(sources)
         if motions:  # the error motions move the stations: each length by −u·δP of its station
             V = V.plus(Factored(Grouped(-diff / L[:, None], np.asarray(obs.station), len(stations_mm)).sparse(),
                                 covariance_root(sum(cov for *_, cov in motions))))
-        course = course_nuisance(L, radial, obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, N),
-                                 noise)
-        check = residual_check(residuals, V, 0, jacobian=J if course is None else _hstack(J, course))
+        check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R)
     return StationBudget(DeviationBudget(components), variances, sources, check)
 
 

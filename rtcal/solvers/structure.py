@@ -212,20 +212,22 @@ def r_factor(jacobian: Any, chunk_rows: int = CHUNK_ROWS) -> np.ndarray:
     return R[:p] if R.shape[0] >= p else np.vstack([R, np.zeros((p - R.shape[0], p))])
 
 
-def column_basis(jacobian: Any) -> tuple[np.ndarray, int]:
+def column_basis(jacobian: Any, R: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """(W, rank): J·W spans J's column space with full rank, W p×rank, the rank as the SVD of J
-    counts it (singular values above s₁·max(N, p)·ε) — the rank the residual test's ν subtracts."""
+    counts it (singular values above s₁·max(N, p)·ε) — the rank the residual test's ν subtracts.
+    ``R``: J's R factor when already at hand (:func:`r_factor`)."""
     N, p = jacobian.shape
     if p == 0:
         return np.zeros((0, 0)), 0
-    _, sv, vt = np.linalg.svd(r_factor(jacobian))
+    _, sv, vt = np.linalg.svd(r_factor(jacobian) if R is None else R)
     rank = int(np.sum(sv > sv[0] * max(N, p) * np.finfo(float).eps)) if sv.size and sv[0] > 0 else 0
     return vt[:rank].T, rank
 
 
-def pseudo_inverse_gram(jacobian: Any) -> np.ndarray:
-    """(JᵀJ)⁺ through J's R factor (R⁺R⁺ᵀ), so that J⁺ = (JᵀJ)⁺Jᵀ keeps the conditioning of J, not of JᵀJ."""
-    Rp = np.linalg.pinv(r_factor(jacobian))
+def pseudo_inverse_gram(R: np.ndarray) -> np.ndarray:
+    """(JᵀJ)⁺ from J's R factor (:func:`r_factor`) as R⁺R⁺ᵀ, so that J⁺ = (JᵀJ)⁺Jᵀ keeps the conditioning of J,
+    not of JᵀJ."""
+    Rp = np.linalg.pinv(R)
     return np.asarray(Rp @ Rp.T)
 
 
@@ -330,7 +332,7 @@ class Restricted:
             self.Ainv = self.Au = np.zeros((self.groups, c, c))
         self.Bu = np.matmul(self.Au, core.bg)  # S⁻¹·B, B = A⁻¹·C_bg: (groups, c, G)
         self.SAS = s[:, None] * self.Ainv * s[None, :]  # S·A⁻¹·S
-        reduction = np.einsum("iag,a,iah->gh", core.bg, s2, self.Bu) if self.groups and c else np.zeros((self.G, self.G))
+        reduction = _group_sum(core.bg * s2[None, :, None], self.Bu) if self.groups and c else np.zeros((self.G, self.G))
         N_gg = core.gg - reduction  # S − Λ_g: the Schur complement without the random globals' I
         N_rr = N_gg[:q, :q]
         S_rr_inv = np.linalg.inv(np.eye(q) + N_rr) if q else np.zeros((0, 0))
@@ -396,7 +398,7 @@ class Restricted:
             else:
                 z = xg
             if self.G:
-                h[start:stop] += np.einsum("ig,gh,ih->i", z, self.M, z, optimize=True)
+                h[start:stop] += np.sum((z @ self.M) * z, axis=1)
         return h
 
     # ---- traces ---------------------------------------------------------------------------------
@@ -405,7 +407,7 @@ class Restricted:
         (Q·K)_b = S·R_Q (groups, c, G), and Kᵀ·Q·K (G, G)."""
         s2 = self.s * self.s
         RQ = np.matmul(Q.bb, s2[None, :, None] * self.Bu) - Q.bg
-        KQK = (np.einsum("iag,a,iah->gh", self.Bu, s2, RQ) - np.einsum("iag,a,iah->gh", Q.bg, s2, self.Bu) + Q.gg)
+        KQK = _group_sum(self.Bu * s2[None, :, None], RQ) - _group_sum(Q.bg * s2[None, :, None], self.Bu) + Q.gg
         return RQ, KQK
 
     def trace_hq(self, Q: Arrow) -> float:
@@ -418,7 +420,7 @@ class Restricted:
         R1, KQ1K = self._qk(Q1)
         R2, KQ2K = self._qk(Q2)
         blocks = float(np.einsum("iab,ibc,icd,ida->", self.SAS, Q1.bb, self.SAS, Q2.bb, optimize=True))
-        cross = np.einsum("iag,iab,ibh->gh", R1, self.SAS, R2, optimize=True)
+        cross = _group_sum(R1, np.matmul(self.SAS, R2))
         return blocks + 2.0 * float(np.sum(self.M * cross)) + float(np.sum((self.M @ KQ1K) * (self.M @ KQ2K).T))
 
     def global_selector(self, columns: np.ndarray) -> Arrow:
@@ -433,8 +435,8 @@ class Restricted:
         Au = self.Au[:, columns, :]  # the rows of A_u for the source: (Λ_k·A_u)
         Bk = self.Bu[:, columns, :]
         blocks = float(np.einsum("ika,iab,ikb->", Au, Q.bb, Au))
-        cross = np.einsum("iag,ika,ikh->gh", RQ, Au, Bk, optimize=True)
-        BtB = np.einsum("ikg,ikh->gh", Bk, Bk)
+        cross = _group_sum(RQ, np.matmul(Au.transpose(0, 2, 1), Bk))
+        BtB = _group_sum(Bk, Bk)
         return blocks + 2.0 * float(np.sum(self.M * cross)) + float(np.sum((self.M @ KQK) * (self.M @ BtB).T))
 
     def block_products(self, k_cols: np.ndarray, l_cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -446,14 +448,14 @@ class Restricted:
     def trace_block_complement(self, columns: np.ndarray) -> float:
         """tr(F_kᵀ·P·F_k) for the block's source k."""
         D, L, _ = self.block_products(columns, columns)
-        return float(np.einsum("iaa->", D) - np.sum(self.M * np.einsum("iag,iah->gh", L, L)))
+        return float(np.einsum("iaa->", D) - np.sum(self.M * _group_sum(L, L)))
 
     def norm2_block(self, k_cols: np.ndarray, l_cols: np.ndarray) -> float:
         """‖F_kᵀ·P·F_l‖²_F for two sources of the block."""
         D, Lk, Ll = self.block_products(k_cols, l_cols)
         first = float(np.sum(D**2))
-        cross = float(np.sum(self.M * np.einsum("iag,iab,ibh->gh", Lk, D, Ll)))
-        last = float(np.sum((self.M @ np.einsum("iag,iah->gh", Lk, Lk)) * (self.M @ np.einsum("iag,iah->gh", Ll, Ll)).T))
+        cross = float(np.sum(self.M * _group_sum(Lk, np.matmul(D, Ll))))
+        last = float(np.sum((self.M @ _group_sum(Lk, Lk)) * (self.M @ _group_sum(Ll, Ll)).T))
         return first - 2.0 * cross + last
 
     def norm2_block_global(self, k_cols: np.ndarray, global_cols: np.ndarray, global_scale: float) -> float:
@@ -461,11 +463,16 @@ class Restricted:
         F_kᵀPF_l = B_u[k]·M[:, l]/scale."""
         Bk = self.Bu[:, k_cols, :]
         Mg = self.M[:, global_cols]
-        return float(np.sum((Mg.T @ np.einsum("iag,iah->gh", Bk, Bk)) * Mg.T)) / global_scale**2
+        return float(np.sum((Mg.T @ _group_sum(Bk, Bk)) * Mg.T)) / global_scale**2
 
     def global_complement(self, k_cols: np.ndarray, l_cols: np.ndarray) -> np.ndarray:
         """(I − ΛC⁻¹) over two random globals' columns: √θ_k·√θ_l·F_kᵀPF_l."""
         return np.asarray(self.IH_rr[np.ix_(k_cols, l_cols)])
+
+
+def _group_sum(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Σ over groups of X_iᵀ·Y_i for (groups, c, G) stacks: one matrix product of the stacked rows (BLAS)."""
+    return np.asarray(X.reshape(-1, X.shape[2]).T @ Y.reshape(-1, Y.shape[2]))
 
 
 def _block_diagonal(blocks: list[np.ndarray]) -> np.ndarray:

@@ -360,7 +360,7 @@ class Covariance:
 
 
 def residual_check(residuals: np.ndarray, covariance: Covariance, parameters: int,
-                   jacobian: Any = None) -> ResidualCheck | None:
+                   jacobian: Any = None, jacobian_r: np.ndarray | None = None) -> ResidualCheck | None:
     """χ² of the residuals under the covariance V of what moves them (None when nothing is left to test:
     ν < 1, or V without a positive diagonal part).
 
@@ -370,12 +370,13 @@ def residual_check(residuals: np.ndarray, covariance: Covariance, parameters: in
     covariance QᵀVQ and χ² = zᵀ(QᵀVQ)⁻¹z is exactly χ²(N − rank J) when e ~ N(0, V), whatever V's
     correlations (a CMM point common to every station's length): the test is then the whole budget's
     (``whole_budget``). Q(QᵀVQ)⁻¹Qᵀ is REML's P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁺JᵀV⁻¹, so χ² = rᵀPr, computed in V's
-    structure with J's column space of the rank the SVD of J counts (:func:`rtcal.solvers.structure.column_basis`)."""
+    structure with J's column space of the rank the SVD of J counts (:func:`rtcal.solvers.structure.column_basis`;
+    ``jacobian_r``: J's R factor when at hand)."""
     from scipy.stats import chi2 as chi2_dist
 
     r = np.asarray(residuals, float)
     if jacobian is not None:
-        basis, rank = column_basis(jacobian if hasattr(jacobian, "tocsr") else _sparse(jacobian))
+        basis, rank = column_basis(jacobian if hasattr(jacobian, "tocsr") else _sparse(jacobian), jacobian_r)
         dof = len(r) - rank
         P = covariance.restricted(jacobian, basis) if dof >= 1 else None
     else:
