@@ -738,7 +738,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         if not lay.error_motions:
             station_motions = error_motion_covariances(P, nominal, x[lay.c], noise)
             if station_motions:  # through the stations: each length by −u·δP of its station
-                V0 = V0.plus(padded(Factored(U, covariance_root(sum(cov for *_, cov in station_motions))), len(f_pts)))
+                V0 = V0.plus(padded(Factored(U, covariance_root(np.sum([cov for *_, cov in station_motions], axis=0))),
+                                    len(f_pts)))
         tested = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
         # weighted: rᵀV₀⁻¹r is its χ²(ν); an uncorrected air or table (no sensor) takes any course, which this V₀ does
         # not hold (free knots as the station estimators' test has them did not take it up here: open, docs/paper000.md),

@@ -48,7 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from rtcal.solvers.structure import Effect, Factored, Grouped, pseudo_inverse_gram, r_factor
+from rtcal.solvers.structure import Effect, Factored, Grouped, dense_effect, pseudo_inverse_gram, r_factor
 from rtcal.solvers.uncertainty import (
     BudgetComponent,
     Covariance,
@@ -374,7 +374,7 @@ def sensor_noise_variance_mm2(distances_mm: np.ndarray, radial_mm: np.ndarray, m
     """(N,): each length's variance from :func:`sensor_noise_sources`, mm² (for a weighted estimator's weights)."""
     total = np.zeros(len(np.asarray(distances_mm)))
     for src in sensor_noise_sources(distances_mm, radial_mm, material_offset_k, noise):
-        total = total + src.effect**2
+        total = total + dense_effect(src.effect) ** 2  # each one vector: one input per length
     return total
 
 
@@ -540,7 +540,7 @@ def station_budget(
         V = Covariance.of_sources(sources)
         if motions:  # the error motions move the stations: each length by −u·δP of its station
             V = V.plus(Factored(Grouped(-diff / L[:, None], np.asarray(obs.station), len(stations_mm)).sparse(),
-                                covariance_root(sum(cov for *_, cov in motions))))
+                                covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
         check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R)
     return StationBudget(DeviationBudget(components), variances, sources, check)
 

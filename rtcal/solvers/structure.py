@@ -208,7 +208,7 @@ def r_factor(jacobian: Any, chunk_rows: int = CHUNK_ROWS) -> np.ndarray:
     N, p = J.shape
     R = np.zeros((0, p))
     for start in range(0, N, chunk_rows):
-        R = np.linalg.qr(np.vstack([R, J[start:start + chunk_rows].toarray()]), mode="r")
+        R = np.asarray(np.linalg.qr(np.vstack([R, J[start:start + chunk_rows].toarray()]), mode="r"))
     return R[:p] if R.shape[0] >= p else np.vstack([R, np.zeros((p - R.shape[0], p))])
 
 
