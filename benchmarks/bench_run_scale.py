@@ -47,8 +47,8 @@ def grown(folder: Path, k: int, stations: int) -> Path:
     return path
 
 
-def child(args: list[str], env: dict[str, str] | None = None) -> tuple[int, float, float]:
-    """(exit status, wall s, peak resident MB) of `rtcal ARGS` in its own process."""
+def child(args: list[str], env: dict[str, str] | None = None) -> tuple[int, float, float, float]:
+    """(exit status, wall s, peak resident MB, CPU s: user + system) of `rtcal ARGS` in its own process."""
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             env=env)
@@ -59,7 +59,7 @@ def child(args: list[str], env: dict[str, str] | None = None) -> tuple[int, floa
         proc.stderr.close()
         if os.waitstatus_to_exitcode(status) not in (0, -signal.SIGKILL):
             print(err[-2000:], file=sys.stderr)
-    return os.waitstatus_to_exitcode(status), wall, usage.ru_maxrss / 1024.0
+    return os.waitstatus_to_exitcode(status), wall, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
 
 
 def stored(db: Path) -> int:
@@ -75,15 +75,15 @@ def load() -> str:
     return f"load average {one:.1f} {five:.1f} {fifteen:.1f} on {os.cpu_count()} CPUs"
 
 
-def run_sizes(folder: Path, sizes: list[tuple[int, int]]) -> list[tuple[str, int, float, float]]:
+def run_sizes(folder: Path, sizes: list[tuple[int, int]]) -> list[tuple[str, int, float, float, float]]:
     rows = []
     for k, m in sizes:
         procedure = grown(folder, k, m)
         lengths = k**3 * m
-        code, wall, peak = child(["run", str(procedure), "--out", str(folder / f"run{k}x{m}")])
-        rows.append((f"{k}³ × {m}", lengths, wall, peak))
-        print(f"  {k}³ points × {m} stations: {lengths} lengths, exit {code}, {wall:.1f} s, {peak:.0f} MB, "
-              f"{1e3 * wall / lengths:.2f} ms per length", flush=True)
+        code, wall, peak, cpu = child(["run", str(procedure), "--out", str(folder / f"run{k}x{m}")])
+        rows.append((f"{k}³ × {m}", lengths, wall, peak, cpu))
+        print(f"  {k}³ points × {m} stations: {lengths} lengths, exit {code}, {wall:.1f} s ({cpu:.1f} s CPU), {peak:.0f} MB, "
+              f"{1e3 * wall / lengths:.2f} ms per length; {load()}", flush=True)
     return rows
 
 
@@ -102,14 +102,15 @@ def kill_and_resume(folder: Path, k: int, m: int) -> None:
     proc.wait()
     at_kill = stored(db)
     print(f"  killed after {time.perf_counter() - t0:.1f} s with {at_kill} of {planned} lengths stored", flush=True)
-    code, wall, peak = child(["resume", str(run_dir)])
+    code, wall, peak, cpu = child(["resume", str(run_dir)])
     with sqlite3.connect(db) as c:
         rows = c.execute("SELECT plan_index, COUNT(*) FROM readings WHERE instrument = 'laser_tracer' AND "
                          "plan_index IS NOT NULL AND quantity <> 'skipped' GROUP BY plan_index").fetchall()
     whole = sorted(i for i, _ in rows) == list(range(planned)) and all(n == 1 for _, n in rows)
-    print(f"  rtcal resume: exit {code}, {wall:.1f} s, {peak:.0f} MB; every planned length present once: {whole}", flush=True)
-    code, wall, peak = child(["verify", str(run_dir)])
-    print(f"  rtcal verify: exit {code}, {wall:.1f} s, {peak:.0f} MB", flush=True)
+    print(f"  rtcal resume: exit {code}, {wall:.1f} s ({cpu:.1f} s CPU), {peak:.0f} MB; every planned length present once: "
+          f"{whole}", flush=True)
+    code, wall, peak, cpu = child(["verify", str(run_dir)])
+    print(f"  rtcal verify: exit {code}, {wall:.1f} s ({cpu:.1f} s CPU), {peak:.0f} MB", flush=True)
 
 
 def store_alone(folder: Path, readings: int = 36000) -> None:
@@ -147,11 +148,17 @@ def methods(folder: Path) -> None:
     import yaml
 
     shutil.copytree(REPO / "procedures" / "scenarios", folder / "scenarios", dirs_exist_ok=True)
+    # 5 × 12 ISO targets need a polygon of 60 faces: the shipped bench's with its face errors repeated (mean removed)
+    bench = yaml.safe_load((folder / "scenarios" / "abbe_bench.yaml").read_text(encoding="utf-8"))
+    errors = [bench["polygon"]["face_errors_arcsec"][k % 24] for k in range(60)]
+    bench["polygon"].update(faces=60, face_errors_arcsec=[round(e - sum(errors) / 60, 6) for e in errors])
+    (folder / "scenarios" / "abbe_bench_60.yaml").write_text(yaml.safe_dump(bench, sort_keys=False), encoding="utf-8")
     for name, grow in (("encoder_abbe_error", lambda d: d["steps"].update(steps_per_face=5 * d["steps"]["steps_per_face"],
                                                                             runs=5 * d["steps"]["runs"])),
                        ("iso230_2_polygon", lambda d: (d["steps"].update(targets_deg=[6 * k for k in range(60)],
                                                                          runs=5 * d["steps"]["runs"]),
-                                                       d["polygon"].update(faces=60)))):
+                                                       d["polygon"].update(faces=60),
+                                                       d.update(bench="scenarios/abbe_bench_60.yaml")))):
         data = yaml.safe_load((REPO / "procedures" / f"{name}.yaml").read_text(encoding="utf-8"))
         shipped = folder / f"{name}.yaml"
         shipped.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
@@ -160,15 +167,15 @@ def methods(folder: Path) -> None:
         big.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
         results = []
         for label, path in (("as shipped", shipped), ("5× targets and runs", big)):
-            code, wall, peak = child(["run", str(path), "--out", str(folder / f"{path.stem}-run")])
+            code, wall, peak, cpu = child(["run", str(path), "--out", str(folder / f"{path.stem}-run")])
             db = folder / f"{path.stem}-run" / "run.sqlite"
             n = stored(db)
-            results.append((n, wall))
-            print(f"  {name} {label}: {n} planned readings, exit {code}, {wall:.1f} s, {peak:.0f} MB, "
+            results.append((n, wall, cpu))
+            print(f"  {name} {label}: {n} planned readings, exit {code}, {wall:.1f} s ({cpu:.1f} s CPU), {peak:.0f} MB, "
                   f"{1e3 * wall / max(n, 1):.1f} ms per reading", flush=True)
-        (n0, w0), (n1, w1) = results
-        print(f"  {name}: {n1 / n0:.0f}× the readings in {w1 / w0:.1f}× the time (per reading {w1 / n1 / (w0 / n0):.2f}×)",
-              flush=True)
+        (n0, w0, c0), (n1, w1, c1) = results
+        print(f"  {name}: {n1 / n0:.0f}× the readings in {w1 / w0:.1f}× the time, {c1 / c0:.1f}× the CPU (per reading "
+              f"{w1 / n1 / (w0 / n0):.2f}× the time, {c1 / n1 / (c0 / n0):.2f}× the CPU)", flush=True)
 
 
 def main() -> None:
@@ -187,10 +194,10 @@ def main() -> None:
         rows = run_sizes(folder, sizes)
         if rows:
             base = next((r for r in rows if r[1] == 704), rows[0])
-            print(f"\n| grid × stations | lengths | wall s | × shipped | peak MB | ms per length | × shipped per length |")
-            print("|---|---|---|---|---|---|---|")
-            for label, n, wall, peak in rows:
-                print(f"| {label} | {n} | {wall:.1f} | {wall / base[2]:.1f} | {peak:.0f} | {1e3 * wall / n:.2f} | "
+            print("\n| grid × stations | lengths | wall s | × shipped | CPU s | peak MB | ms per length | × shipped per length |")
+            print("|---|---|---|---|---|---|---|---|")
+            for label, n, wall, peak, cpu in rows:
+                print(f"| {label} | {n} | {wall:.1f} | {wall / base[2]:.1f} | {cpu:.1f} | {peak:.0f} | {1e3 * wall / n:.2f} | "
                       f"{(wall / n) / (base[2] / base[1]):.2f} |", flush=True)
         if args.kill:
             k, m = sizes[-1]
