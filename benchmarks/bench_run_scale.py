@@ -3,8 +3,9 @@ and stations grown, each size in its own process, on the shipped bench.
 
     python benchmarks/bench_run_scale.py [--sizes 4,6,8,10,36x10] [--kill] [--store] [--methods]
 
-Prints, per size, the planned lengths, the wall time and peak memory of the process (os.wait4), the time per
-length, and the ratios to the shipped size (4³ points × 11 stations, 704 lengths). ``--kill``: the largest size
+Prints, per size, the planned lengths, the wall time, CPU time and peak memory of the process (os.wait4), the
+time per length, the ratios to the shipped size (4³ points × 11 stations, 704 lengths), and the CPU time each
+length added since the size before costs (the fixed cost of a run — imports, the report — apart). ``--kill``: the largest size
 is also killed (SIGKILL) once half its lengths are stored, `rtcal resume`d and `rtcal verify`ed, each timed, and
 every planned length checked present once. ``--store``: 36 000 readings written through the run store one
 transaction each (as the engine commits them), its done set read back and its digest taken. ``--methods``: the
@@ -194,11 +195,15 @@ def main() -> None:
         rows = run_sizes(folder, sizes)
         if rows:
             base = next((r for r in rows if r[1] == 704), rows[0])
-            print("\n| grid × stations | lengths | wall s | × shipped | CPU s | peak MB | ms per length | × shipped per length |")
-            print("|---|---|---|---|---|---|---|---|")
+            print("\n| grid × stations | lengths | wall s | × shipped | CPU s | peak MB | ms per length | × shipped per length "
+                  "| CPU ms per added length |")
+            print("|---|---|---|---|---|---|---|---|---|")
+            previous = None
             for label, n, wall, peak, cpu in rows:
+                added = "" if previous is None else f"{1e3 * (cpu - previous[1]) / (n - previous[0]):.2f}"
                 print(f"| {label} | {n} | {wall:.1f} | {wall / base[2]:.1f} | {cpu:.1f} | {peak:.0f} | {1e3 * wall / n:.2f} | "
-                      f"{(wall / n) / (base[2] / base[1]):.2f} |", flush=True)
+                      f"{(wall / n) / (base[2] / base[1]):.2f} | {added} |", flush=True)
+                previous = (n, cpu)
         if args.kill:
             k, m = sizes[-1]
             print(f"\nkilled at half and resumed: {k}³ points × {m} stations", flush=True)

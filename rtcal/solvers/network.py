@@ -21,7 +21,14 @@ axis line is also reported as ISO 230-7 location errors (X0C, Y0C, A0C, B0C; rtc
 
 Normal equations are solved with the points eliminated (Schur complement: each point is a
 3×3 block), so a network of thousands of points costs O(points·globals²): the globals (axis,
-radius, angles, dead paths, CMM) are a few dozen.
+radius, angles, dead paths, CMM) are a few dozen. The budget keeps the same structure: the
+estimator's influence is globals × residuals (H = S⁻¹·Zᵀ·W, the points eliminated), each source's
+effect on the residuals (lengths, then the points' coordinates) is a vector (one input per residual:
+tracer, CMM point noise, a visit of one length, sensor noise), a :class:`Grouped` (a visit of several
+lengths), a dense column or two (air, table expansion) or a :class:`Factored` map (the CMM field on the
+points' rows, the error motions through the stations), and the residual test's V₀ is those effects
+(:class:`rtcal.solvers.uncertainty.Covariance`), never N×N. A new term of the budget is one more
+source of one of these shapes (rtcal/solvers/structure.py).
 """
 
 from __future__ import annotations
