@@ -234,7 +234,8 @@ def pseudo_inverse_gram(R: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class Arrow:
     """A symmetric matrix over (block, global) columns whose block part is block diagonal: ``bb`` (groups,
-    c, c), ``bg`` (groups, c, G), ``gg`` (G, G) — the shape of Xᵀ·diag(w)·X and of a selector Λ_k."""
+    c, c), ``bg`` (groups, c, G), ``gg`` (G, G) — the shape of Xᵀ·diag(w)·X (its block rows of F_b
+    unscaled: :meth:`Restricted.arrow`) and of a selector of global columns."""
 
     bb: np.ndarray
     bg: np.ndarray
@@ -410,11 +411,6 @@ class Restricted:
         KQK = _group_sum(self.Bu * s2[None, :, None], RQ) - _group_sum(Q.bg * s2[None, :, None], self.Bu) + Q.gg
         return RQ, KQK
 
-    def trace_hq(self, Q: Arrow) -> float:
-        """tr(C⁻¹·Q)."""
-        _, KQK = self._qk(Q)
-        return float(np.einsum("iab,iba->", self.SAS, Q.bb) + np.sum(self.M * KQK))
-
     def trace_hqhq(self, Q1: Arrow, Q2: Arrow) -> float:
         """tr(C⁻¹·Q1·C⁻¹·Q2)."""
         R1, KQ1K = self._qk(Q1)
@@ -472,7 +468,8 @@ class Restricted:
 
 def _group_sum(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Σ over groups of X_iᵀ·Y_i for (groups, c, G) stacks: one matrix product of the stacked rows (BLAS)."""
-    return np.asarray(X.reshape(-1, X.shape[2]).T @ Y.reshape(-1, Y.shape[2]))
+    rows = X.shape[0] * X.shape[1]
+    return np.asarray(X.reshape(rows, X.shape[2]).T @ Y.reshape(rows, Y.shape[2]))
 
 
 def _block_diagonal(blocks: list[np.ndarray]) -> np.ndarray:
