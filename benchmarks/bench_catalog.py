@@ -49,11 +49,12 @@ def synthetic(machine: int, k: int, rng: random.Random) -> dict[str, Any]:
 def bench(label: str, location: str, machines: int, calibrations: int, queries: int) -> None:
     rng = random.Random(1)
     rows = [synthetic(m, k, rng) for k in range(calibrations) for m in range(machines)]
-    with Catalog(location) as cat:
+    with Catalog(location, write=True) as cat:
         t0 = time.perf_counter()
         for row in rows:
             cat.add(row)
         adds_s = time.perf_counter() - t0
+    with Catalog(location) as cat:  # read as `catalog history` reads: nothing written
         assert cat.count() == len(rows)
         times_ms = []
         for _ in range(queries):

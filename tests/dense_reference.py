@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from rtcal.solvers.structure import dense_effect
-from rtcal.solvers.uncertainty import ResidualCheck, Source
+from rtcal.solvers.uncertainty import ResidualCheck, Source, residual_check
 
 
 def dense_covariance(sources: list[Source], rows: int, scales: dict[str, float] | None = None) -> np.ndarray:
@@ -27,29 +27,9 @@ def dense_covariance(sources: list[Source], rows: int, scales: dict[str, float] 
 
 def dense_residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: int,
                          jacobian: np.ndarray | None = None) -> ResidualCheck | None:
-    """χ² of the residuals under V: with the Jacobian, z = Qᵀr (Q the full SVD's left null space)
-    against QᵀVQ by its Cholesky factor; without it rᵀV⁻¹r with ν = N − parameters."""
-    from scipy.stats import chi2 as chi2_dist
-
-    r = np.asarray(residuals, float)
-    V = np.asarray(covariance, float)
-    if jacobian is not None:
-        J = np.asarray(jacobian, float)
-        left, sv, _ = np.linalg.svd(J, full_matrices=True)
-        rank = int(np.sum(sv > sv[0] * max(J.shape) * np.finfo(float).eps)) if sv.size else 0
-        Q = left[:, rank:]
-        r, V = Q.T @ r, Q.T @ V @ Q
-        parameters = 0
-    dof = len(r) - int(parameters)
-    if dof < 1:
-        return None
-    try:
-        L = np.linalg.cholesky(V)
-    except np.linalg.LinAlgError:
-        return None
-    z = np.linalg.solve(L, r)
-    chi2 = float(z @ z)
-    return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
+    """The residual test with V whole: z = Qᵀr (Q the full SVD's left null space) against QᵀVQ by its Cholesky
+    factor, or rᵀV⁻¹r with ν = N − parameters — rtcal keeps this form for a dense V (the R-test's few poses)."""
+    return residual_check(residuals, covariance, parameters, jacobian=jacobian)
 
 
 def dense_reml(jacobian: np.ndarray, residuals: np.ndarray, sources: list[Source], max_iterations: int = 60,

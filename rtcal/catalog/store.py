@@ -1,30 +1,44 @@
 """The catalogue's database: one URL (a SQLite file by default, or PostgreSQL through psycopg 3),
-migrated on connect by the shipped Alembic migrations, one transaction per run added.
+one transaction per run added.
 
-Every message names the database with its password hidden (:func:`safe_name`); a server that does
-not answer fails within :data:`CONNECT_TIMEOUT_S` + :data:`STATEMENT_TIMEOUT_S` (< 30 s)."""
+Only a writer (`catalog add`) migrates (the shipped Alembic migrations) and, on SQLite, switches the
+file to write-ahead logging: reading (`list`, `history`, the page) writes nothing, so a catalogue on
+a read-only disk, or a file the reader may not write, is read as it is — a SQLite file the reader
+may not write is opened ``immutable``, which needs no -wal/-shm beside it; a PostgreSQL session is
+read-only. A SQLite file that does not exist is refused for reading (not created empty), and an
+in-memory one for anything (its entries would vanish at exit).
+
+Every message names the database with its password hidden (:func:`safe_name`: in the userinfo or
+as a ``?password=`` parameter); a server that does not answer fails within
+:data:`CONNECT_TIMEOUT_S` + :data:`STATEMENT_TIMEOUT_S` (< 30 s)."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import sqlite3
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
-from sqlalchemy import Connection, Engine, create_engine, event, select, text
+from sqlalchemy import Connection, Engine, create_engine, event, inspect, select, text
 from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, SQLAlchemyError
 
-from rtcal.catalog.schema import calibrations
+from rtcal.catalog.schema import calibrations, normal_text
 
 ENV = "RTCAL_CATALOG"
 CONNECT_TIMEOUT_S = 10
 STATEMENT_TIMEOUT_S = 15
 MIGRATIONS = Path(__file__).with_name("migrations")
 ADVISORY_LOCK = 42302  # one migration at a time on a shared PostgreSQL (any number; ours)
+NORMALISED_SINCE = "0002"  # the migration that brought every entry's names to normal_text
+SECRET = re.compile(r"password", re.IGNORECASE)  # a query parameter whose value is hidden (password, sslpassword)
+URL_FORMS = "postgresql://user:password@host:port/db or a SQLite file"
 
 
 class CatalogError(Exception):
@@ -43,44 +57,81 @@ def default_location() -> str:
     return str(base / "rtcal" / "catalog.sqlite")
 
 
-def database_url(location: str | None) -> URL:
-    """A file path or ``sqlite:///`` URL, or ``postgresql://`` (mapped to psycopg 3's driver)."""
+def database_url(location: str | None, create: bool = False) -> URL:
+    """A file path or ``sqlite:///`` URL, or ``postgresql://`` (mapped to psycopg 3's driver).
+    ``create``: a SQLite file that does not exist will be made (only a writer asks)."""
     location = location or default_location()
     if "://" not in location:
-        path = Path(location).expanduser()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        return URL.create("sqlite", database=str(path))
-    try:
-        url = make_url(location)
-    except ArgumentError:
-        raise CatalogUsage(f"{safe_text(location)}: not a database URL (postgresql://user:password@host:port/db or a "
-                           "SQLite file)") from None
+        url = URL.create("sqlite", database=str(Path(location).expanduser()))
+    else:
+        try:
+            url = make_url(location)
+        except (ArgumentError, ValueError):  # e.g. postgresql://[::1 (an IPv6 host without its bracket)
+            raise CatalogUsage(f"{masked(location)}: not a database URL ({URL_FORMS})") from None
     if url.drivername in ("postgresql", "postgres", "postgresql+psycopg"):
         return url.set(drivername="postgresql+psycopg")
-    if url.drivername == "sqlite":
-        return url
-    raise CatalogUsage(f"{safe_name(url)}: rtcal's catalogue is on SQLite or PostgreSQL (postgresql://…), not "
-                       f"{url.drivername}")
+    if url.drivername != "sqlite":
+        raise CatalogUsage(f"{safe_name(url)}: rtcal's catalogue is on SQLite or PostgreSQL (postgresql://…), not "
+                           f"{url.drivername}")
+    if not url.database or url.database == ":memory:" or url.query.get("mode") == "memory":
+        raise CatalogUsage(f"{masked(location)}: an in-memory SQLite database forgets every entry at exit; give a file "
+                           "(--db catalog.sqlite)")
+    path = Path(url.database).expanduser()
+    if create:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    elif not path.is_file():
+        raise CatalogUsage(f"{path}: no catalogue there ({'a folder' if path.is_dir() else 'no such file'}); "
+                           "`rtcal catalog add RUN --db FILE` creates one")
+    return url.set(database=str(path))
+
+
+def masked(text_: str) -> str:
+    """Text that may hold a database URL with its password (after ``user:``, or ``password=``) as ***."""
+    text_ = re.sub(r"(://[^/@\s]*?:)[^@/\s]*@", r"\1***@", text_)
+    return " ".join(re.sub(r"((?:^|[?&\s])[A-Za-z_]*password=)[^&\s]*", r"\1***", text_, flags=re.IGNORECASE).split())
 
 
 def safe_name(url: URL) -> str:
-    return url.render_as_string(hide_password=True)
+    """The URL as messages name it: its password hidden, in the userinfo or a query parameter."""
+    hidden = {k: "***" if SECRET.search(k) else v for k, v in url.query.items()}
+    return url.set(query=hidden).render_as_string(hide_password=True).replace("%2A%2A%2A", "***")
+
+
+def secrets_of(url: URL) -> list[str]:
+    found = [str(url.password)] if url.password else []
+    for k, v in url.query.items():
+        if SECRET.search(k):
+            found += [v] if isinstance(v, str) else list(v)
+    return [s for s in found if s]
 
 
 def safe_text(text_: str, url: URL | None = None) -> str:
-    """``text_`` with the URL's password replaced (a driver's message may quote the connection)."""
-    if url is not None and url.password:
-        text_ = text_.replace(str(url.password), "***")
-    return " ".join(text_.split())
+    """``text_`` with the URL's passwords replaced (a driver's message may quote the connection)."""
+    for secret in secrets_of(url) if url is not None else []:
+        text_ = text_.replace(secret, "***")
+    return masked(text_)
 
 
-def _engine(url: URL) -> Engine:
+def _sqlite_reader(path: str) -> Callable[[], sqlite3.Connection]:
+    """Connections that cannot write: ``mode=ro``; ``immutable`` when this user may not write the
+    file or its folder (a read-only disk, another user's catalogue), where a write-ahead-logged file
+    could otherwise not be opened at all."""
+    writable = os.access(path, os.W_OK) and os.access(os.path.dirname(path) or ".", os.W_OK)
+    uri = f"file:{quote(path)}?{'mode=ro' if writable else 'immutable=1'}"
+    return lambda: sqlite3.connect(uri, uri=True, timeout=STATEMENT_TIMEOUT_S, check_same_thread=False)
+
+
+def _engine(url: URL, write: bool) -> Engine:
     if url.get_backend_name() == "postgresql":
+        read_only = "" if write else " -c default_transaction_read_only=on"
         return create_engine(url, connect_args={
             "connect_timeout": CONNECT_TIMEOUT_S,
-            "options": f"-c statement_timeout={STATEMENT_TIMEOUT_S * 1000} -c lock_timeout={STATEMENT_TIMEOUT_S * 1000}",
+            "options": f"-c statement_timeout={STATEMENT_TIMEOUT_S * 1000} -c lock_timeout={STATEMENT_TIMEOUT_S * 1000}"
+                       + read_only,
             "keepalives": 1, "keepalives_idle": 5, "keepalives_interval": 2, "keepalives_count": 3,
         }, pool_pre_ping=True)
+    if not write:
+        return create_engine("sqlite://", creator=_sqlite_reader(str(url.database)))
     engine = create_engine(url, connect_args={"timeout": STATEMENT_TIMEOUT_S})
 
     @event.listens_for(engine, "connect")
@@ -109,17 +160,31 @@ def _migrate(conn: Connection) -> None:
 
 
 class Catalog:
-    """An open catalogue (``with Catalog(location) as cat``)."""
+    """An open catalogue (``with Catalog(location) as cat``): read-only unless ``write``, which
+    migrates it first (and creates a SQLite file that is not there)."""
 
     before_commit: Callable[[], None] | None = None  # tests stop the server here: nothing may be left half-written
 
-    def __init__(self, location: str | None = None) -> None:
-        self.url = database_url(location)
+    def __init__(self, location: str | None = None, write: bool = False) -> None:
+        self.url = database_url(location, create=write)
         self.name = safe_name(self.url)
-        self.engine = _engine(self.url)
-        with self._failures("cannot be opened"):
-            with self.engine.begin() as conn:
-                _migrate(conn)
+        self.engine = _engine(self.url, write)
+        self.empty = False  # no calibrations table yet (a new database nobody has added to)
+        self.normalised = True  # every entry's names are normal_text (migration 0002 ran)
+        self.present = {c.name for c in calibrations.c}  # the table's columns (fewer in a catalogue not migrated)
+        if write:
+            with self._failures("cannot be opened"):
+                with self.engine.begin() as conn:
+                    _migrate(conn)
+            return
+        with self._failures("cannot be opened"), self.engine.connect() as conn:
+            tables = set(inspect(conn).get_table_names())
+            self.empty = "calibrations" not in tables
+            if not self.empty:  # an older catalogue, read without migrating it, lacks the newer columns
+                self.present = {c["name"] for c in inspect(conn).get_columns("calibrations")}
+            revision = conn.execute(text("SELECT version_num FROM alembic_version")).scalar() \
+                if "alembic_version" in tables else None
+            self.normalised = revision is not None and str(revision) >= NORMALISED_SINCE
 
     def __enter__(self) -> Catalog:
         return self
@@ -131,7 +196,7 @@ class Catalog:
     def _failures(self, doing: str) -> Iterator[None]:
         try:
             yield
-        except (DBAPIError, SQLAlchemyError, OSError) as exc:
+        except (DBAPIError, SQLAlchemyError, OSError, sqlite3.Error) as exc:
             cause = getattr(exc, "orig", None) or exc
             first = safe_text(str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__, self.url)
             raise CatalogError(f"catalogue {self.name} {doing}: {first[:200]}") from None
@@ -151,24 +216,39 @@ class Catalog:
                     Catalog.before_commit()
         return inserted
 
-    def history(self, serial_number: str, axis: str | None = None, with_results: bool = False) -> list[dict[str, Any]]:
-        """A machine's (axis's) entries, oldest first."""
-        cols = [c for c in calibrations.c if with_results or c.name != "results"]
-        q = select(*cols).where(calibrations.c.serial_number == serial_number)
-        if axis is not None:
-            q = q.where(calibrations.c.axis == axis)
-        q = q.order_by(calibrations.c.axis, calibrations.c.measured_utc)
+    def _columns(self, with_results: bool = False) -> list[Any]:
+        return [c for c in calibrations.c if c.name in self.present and (with_results or c.name != "results")]
+
+    def _rows(self, q: Any) -> list[dict[str, Any]]:
+        """The rows of ``q``, a column the table does not have yet given as its migration fills it."""
+        if self.empty:
+            return []
+        missing = {c.name: getattr(c.server_default, "arg", None) for c in calibrations.c if c.name not in self.present}
         with self._failures("cannot be read"), self.engine.connect() as conn:
-            return [dict(r._mapping) for r in conn.execute(q)]
+            return [{**missing, **r._mapping} for r in conn.execute(q)]
+
+    def history(self, serial_number: str, axis: str | None = None, with_results: bool = False) -> list[dict[str, Any]]:
+        """A machine's (axis's) entries, oldest first; the serial number and axis as
+        :func:`~rtcal.catalog.schema.normal_text` makes them (in an older catalogue, whatever form
+        an entry holds)."""
+        serial, axis = normal_text(serial_number), None if axis is None else normal_text(axis)
+        q = select(*self._columns(with_results))
+        if self.normalised:  # the index answers
+            q = q.where(calibrations.c.serial_number == serial)
+            if axis is not None:
+                q = q.where(calibrations.c.axis == axis)
+        rows = [r for r in self._rows(q.order_by(calibrations.c.axis, calibrations.c.measured_utc))
+                if normal_text(r["serial_number"]) == serial and (axis is None or normal_text(r["axis"]) == axis)]
+        return sorted(rows, key=lambda r: normal_text(r["axis"]))  # stable: each axis oldest first
 
     def machines(self) -> list[dict[str, Any]]:
         """Every entry's history columns, by machine axis and time (what ``list`` summarises)."""
-        cols = [c for c in calibrations.c if c.name != "results"]
-        q = select(*cols).order_by(calibrations.c.serial_number, calibrations.c.axis, calibrations.c.measured_utc)
-        with self._failures("cannot be read"), self.engine.connect() as conn:
-            return [dict(r._mapping) for r in conn.execute(q)]
+        return self._rows(select(*self._columns()).order_by(calibrations.c.serial_number, calibrations.c.axis,
+                                                 calibrations.c.measured_utc))
 
     def count(self) -> int:
+        if self.empty:
+            return 0
         with self._failures("cannot be read"), self.engine.connect() as conn:
             return int(conn.execute(text("SELECT count(*) FROM calibrations")).scalar_one())
 
@@ -178,4 +258,4 @@ def now_utc() -> str:
 
 
 def dumps(value: Any) -> str:
-    return json.dumps(value, sort_keys=True, separators=(",", ":"))
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)

@@ -359,7 +359,7 @@ class Covariance:
         return layout.restricted(list(self.effects), [1.0] * len(self.effects), self.rows, 0.0, jacobian, jacobian_mix)
 
 
-def residual_check(residuals: np.ndarray, covariance: Covariance, parameters: int,
+def residual_check(residuals: np.ndarray, covariance: Covariance | np.ndarray, parameters: int,
                    jacobian: Any = None, jacobian_r: np.ndarray | None = None) -> ResidualCheck | None:
     """χ² of the residuals under the covariance V of what moves them (None when nothing is left to test:
     ν < 1, or V without a positive diagonal part).
@@ -371,9 +371,14 @@ def residual_check(residuals: np.ndarray, covariance: Covariance, parameters: in
     correlations (a CMM point common to every station's length): the test is then the whole budget's
     (``whole_budget``). Q(QᵀVQ)⁻¹Qᵀ is REML's P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁺JᵀV⁻¹, so χ² = rᵀPr, computed in V's
     structure with J's column space of the rank the SVD of J counts (:func:`rtcal.solvers.structure.column_basis`;
-    ``jacobian_r``: J's R factor when at hand)."""
+    ``jacobian_r``: J's R factor when at hand). A dense V (a small problem: the R-test's poses) is taken as it is
+    (:func:`_dense_residual_check`, O(N³))."""
     from scipy.stats import chi2 as chi2_dist
 
+    if isinstance(covariance, np.ndarray):
+        return _dense_residual_check(residuals, covariance, parameters,
+                                     None if jacobian is None else np.asarray(jacobian.toarray() if hasattr(jacobian, "toarray")
+                                                                              else jacobian, float))
     r = np.asarray(residuals, float)
     if jacobian is not None:
         basis, rank = column_basis(jacobian if hasattr(jacobian, "tocsr") else _sparse(jacobian), jacobian_r)
@@ -385,6 +390,34 @@ def residual_check(residuals: np.ndarray, covariance: Covariance, parameters: in
     if P is None:
         return None
     chi2 = P.quadratic(r)
+    return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
+
+
+def _dense_residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: int,
+                          jacobian: np.ndarray | None = None) -> ResidualCheck | None:
+    """:func:`residual_check` with V an N×N array: with the Jacobian, z = Qᵀr (Q the left null space of J, from
+    its full SVD) against QᵀVQ by its Cholesky factor; without it rᵀV⁻¹r with ν = N − parameters (None: ν < 1 or V
+    not positive definite). The statement the structured form is checked against (tests/test_structured_budget.py)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    r = np.asarray(residuals, float)
+    V = np.asarray(covariance, float)
+    if jacobian is not None:
+        J = np.asarray(jacobian, float)
+        left, sv, _ = np.linalg.svd(J, full_matrices=True)
+        rank = int(np.sum(sv > sv[0] * max(J.shape) * np.finfo(float).eps)) if sv.size else 0
+        Q = left[:, rank:]
+        r, V = Q.T @ r, Q.T @ V @ Q
+        parameters = 0
+    dof = len(r) - int(parameters)
+    if dof < 1:
+        return None
+    try:
+        L = np.linalg.cholesky(V)
+    except np.linalg.LinAlgError:
+        return None
+    z = np.linalg.solve(L, r)
+    chi2 = float(z @ z)
     return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
 
 
