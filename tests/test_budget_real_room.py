@@ -21,7 +21,7 @@ from rtcal.clock import VirtualClock
 from rtcal.planning.montecarlo import plan_trials, run_trial, summarize
 from rtcal.methods import load_procedure
 from rtcal.solvers.station_budget import bounded_course_component
-from rtcal.solvers.uncertainty import residual_check
+from rtcal.solvers.uncertainty import Covariance, residual_check
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
@@ -99,8 +99,9 @@ def test_the_bounded_course_covers_every_step_and_cycle_within_the_range():
 def test_the_residual_test_passes_noise_as_stated_and_fails_a_model_error():
     rng = np.random.default_rng(5)
     N, p = 600, 20
-    V = np.diag(rng.uniform(0.5, 2.0, N))
-    r = rng.standard_normal(N) * np.sqrt(np.diag(V))
+    sigma = np.sqrt(rng.uniform(0.5, 2.0, N))
+    V = Covariance((sigma,))  # one independent error per residual
+    r = rng.standard_normal(N) * sigma
     ok = residual_check(r, V, p)
     assert ok is not None and ok.passed and 0.85 < ok.birge_ratio < 1.15
     bad = residual_check(r + 3.0 * np.sin(np.linspace(0, 6, N)), V, p)

@@ -590,6 +590,7 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
     clock = bench.clock if bench else (VirtualClock(goes_on_s) if virtual_clock else RealClock(goes_on_s))
     try:
         store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
+        store.sync_each_commit(to_disk=isinstance(clock, RealClock))  # a simulation's readings to the OS, not the disk
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
         if isinstance(exc, KeyboardInterrupt):  # nothing moved yet
