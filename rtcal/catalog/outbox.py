@@ -79,7 +79,7 @@ def file_entry(location: str | None, entry: dict[str, Any], who: str, reason: st
     except CertificateTaken:
         raise
     except CatalogError as exc:
-        if outbox is None:
+        if outbox is None or not exc.transient:  # refused (a privilege, a policy): sending again would not help
             raise
         keep(outbox, entry, who, reason)
         return "waiting", str(exc)
@@ -128,6 +128,10 @@ def sync(location: str | None, outbox: Path) -> Synced:
                     out.refused.append(f"{path.name}: not an entry rtcal wrote ({type(exc).__name__})")
                     continue
                 except CatalogError as exc:
+                    if not exc.transient:  # refused for good: set aside with why, the rest goes on
+                        _set_aside(outbox, path, str(exc))
+                        out.refused.append(f"{path.name}: {exc}")
+                        continue
                     out.failure, out.waiting = str(exc), len(files) - k
                     return out
                 path.unlink(missing_ok=True)

@@ -27,7 +27,7 @@ from urllib.parse import quote
 
 from sqlalchemy import Connection, Engine, Table, create_engine, event, inspect, select, text
 from sqlalchemy.engine import URL, make_url
-from sqlalchemy.exc import ArgumentError, DBAPIError, SQLAlchemyError
+from sqlalchemy.exc import ArgumentError, DBAPIError, InterfaceError, OperationalError, SQLAlchemyError
 
 from rtcal.catalog.audit import ENTRY_HASH_VERSION, GENESIS, Findings, chained, check, entry_hash
 from rtcal.catalog.schema import audit, calibrations, instruments, normal_text
@@ -50,7 +50,13 @@ URL_FORMS = "postgresql://user:password@host:port/db or a SQLite file"
 
 
 class CatalogError(Exception):
-    """The database cannot be reached or fails: exit 1, one line naming it without its password."""
+    """The database cannot be reached or fails: exit 1, one line naming it without its password.
+    ``transient``: the server could not be reached or went away (a rig's outbox keeps the entry);
+    otherwise it refused (a privilege, a row-level policy, a constraint): sending again changes nothing."""
+
+    def __init__(self, message: str, transient: bool = True) -> None:
+        super().__init__(message)
+        self.transient = transient
 
 
 class CatalogUsage(ValueError):
@@ -210,7 +216,9 @@ class Catalog:
         except (DBAPIError, SQLAlchemyError, OSError, sqlite3.Error) as exc:
             cause = getattr(exc, "orig", None) or exc
             first = safe_text(str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__, self.url)
-            raise CatalogError(f"catalogue {self.name} {doing}: {first[:200]}") from None
+            transient = isinstance(exc, (OperationalError, InterfaceError, OSError, sqlite3.OperationalError)) \
+                or not isinstance(exc, DBAPIError)
+            raise CatalogError(f"catalogue {self.name} {doing}: {first[:200]}", transient) from None
 
     @contextmanager
     def writing(self, doing: str) -> Iterator[Connection]:

@@ -115,6 +115,32 @@ def _add(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def check_location(location: str) -> None:
+    """A catalogue URL `rtcal run --catalog` can use, checked before the run (UserError, exit 2)."""
+    from rtcal.catalog.store import CatalogUsage, database_url
+
+    try:
+        if "://" in location and not location.startswith("sqlite"):  # (a SQLite file is made by the first add)
+            database_url(location, create=False)
+    except CatalogUsage as exc:
+        raise UserError(f"--catalog: {exc}") from None
+
+
+def file_finished_run(run_dir: Path, location: str) -> int:
+    """`rtcal run --catalog URL`: the finished run added as `catalog add` adds it, then the rig's outbox
+    sent (a catalogue out of reach: the run waits in the outbox, exit 1)."""
+    args = argparse.Namespace(db=location, runs=[str(run_dir)], site=None, rig=None, by=None, reason=None, no_outbox=False,
+                              catalog_command="add")
+    try:
+        code = cmd_catalog(args)
+    except UserError as exc:
+        print(f"rtcal: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    if code == EXIT_OK and _outbox(args, location) is not None:
+        return cmd_catalog(argparse.Namespace(db=location, catalog_command="sync"))
+    return code
+
+
 def _place(given: str | None, env: str, option: str, default: str) -> str:
     text = " ".join((given if given is not None else os.environ.get(env, default)).split())
     if len(text) > 100 or any(ord(c) < 32 for c in text):
@@ -144,30 +170,10 @@ def _migrate(args: argparse.Namespace) -> int:
 
 
 # -- reading ----------------------------------------------------------------------------------------
-def _programme(cat: Any) -> tuple[Any, dict[str, list[tuple[datetime, float]]], dict[tuple[str, str], dict[str, Any]]]:
-    """The catalogue's interval policy, machine hours and retirements."""
-    from rtcal.catalog.intervals import DEFAULT, Policy
-    from rtcal.catalog.schema import policies, retirements, usage
-
-    found = cat.table(policies, "version")
-    policy = DEFAULT
-    if found:
-        import yaml
-
-        policy = Policy.model_validate(yaml.safe_load(found[-1]["text"]) or {})
-    hours: dict[str, list[tuple[datetime, float]]] = {}
-    for r in cat.table(usage, "at_utc"):
-        hours.setdefault(r["serial_number"], []).append((datetime.fromisoformat(r["at_utc"]), float(r["hours"])))
-    retired = {(r["serial_number"], r["axis"]): r for r in cat.table(retirements, "at_utc")}
-    return policy, hours, retired
-
-
 def _due_of(cat: Any) -> Any:
-    """(serial, axis, rows) → the next due date with its method and data, as the catalogue's policy says."""
-    from rtcal.catalog.intervals import next_due
+    from rtcal.catalog.duelist import due_of
 
-    policy, hours, retired = _programme(cat)
-    return lambda sn, axis, rows: next_due(rows, policy.of(sn, axis), hours.get(sn), retired.get((sn, axis)))
+    return due_of(cat)
 
 
 def _history(args: argparse.Namespace) -> int:

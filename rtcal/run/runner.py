@@ -218,16 +218,17 @@ def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
 
 
 def with_machine_identity(proc: Procedure, path: Path, text: str) -> Procedure:
-    """``metadata.machine_identity``: the machine's OPC 40001-1 identification read before anything
+    """``metadata.machine_identity``: the machine's identification (OPC 40001-1, or an MTConnect agent's
+    probe) read before anything
     moves; a serial number other than the procedure's refuses the run (FileProblems, exit 2), else
     the certificate's item takes the machine's serial number, manufacturer and model where the
     procedure leaves them empty. An unreachable server is an InstrumentError (exit 1)."""
     address = proc.metadata.machine_identity
     if not address:
         return proc
-    from drivers.opcua_identity import read_identity
+    from drivers.machine_identity import read_machine_identity
 
-    ident = read_identity(address)
+    ident = read_machine_identity(address)
     said = str(ident.get("serial_number") or "")
     if proc.metadata.serial_number and said != proc.metadata.serial_number:
         line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
