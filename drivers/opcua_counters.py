@@ -42,11 +42,11 @@ async def _read(address: str, timeout_s: float, machine: str | None) -> float:
                                              "OperationCounters (OPC 40001-1 §14): give the hours with --hours")
         found: dict[str, Any] = {}
         for prop in await counters.get_children():
-            name = (await prop.read_browse_name()).Name
-            if name in PROPERTIES:
-                found[name] = await prop.read_value()
-        for name in PROPERTIES:
-            value = found.get(name)
+            browse = str((await prop.read_browse_name()).Name)
+            if browse in PROPERTIES:
+                found[browse] = await prop.read_value()
+        for wanted in PROPERTIES:
+            value = found.get(wanted)
             if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
                 return float(value) / 3_600_000.0
         raise InstrumentError("machine", f"{address}: OperationCounters holds no OperationDuration or PowerOnDuration "
