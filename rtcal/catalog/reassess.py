@@ -119,7 +119,7 @@ def _issue(cat: Catalog, item: dict[str, Any], calibration: InstrumentCalibratio
     run_dir = Path(item["run_dir"])
     folder = (out or run_dir.parent) / f"{run_dir.name}-{re.sub(r'[^A-Za-z0-9._-]+', '_', number)}"
     now = datetime.now(timezone.utc)
-    results = reissued(item["_results"], number, now.date().isoformat())
+    results = reissued(item["_results"], number, now.date().isoformat(), item["role"], calibration)
     note = {"replaces": item["certificate_number"], "reason": reason, "by": who, "at_utc": now.isoformat(),
             "run_dir": str(run_dir), "readings_sha256": (results.digests.readings_sha256 if results.digests else None),
             "instrument": calibration.instrument, "role": item["role"],

@@ -135,12 +135,19 @@ def reevaluate(run_dir: Path, methods: Mapping[str, Method[Any, Any]], role: str
     return Reevaluation(old, new)
 
 
-def reissued(new: RunResults, number: str, issued_on: str) -> RunResults:
+def reissued(new: RunResults, number: str, issued_on: str, role: str, calibration: InstrumentCalibration) -> RunResults:
     """The superseding certificate's results: the re-evaluated ones under a new ``number``, saying which
-    certificate they replace (the run's own), issued on ``issued_on`` (the digests of the readings stay
-    the run's)."""
+    certificate they replace (the run's own), issued on ``issued_on``, the instrument in ``role`` named
+    with its new certificate (the traceability statement cites it); the digests of the readings stay
+    the run's."""
+    instruments = dict(new.metadata.instruments)
+    if role in instruments:
+        old = instruments[role]
+        instruments[role] = old.model_copy(update={"certificate_number": calibration.certificate_number,
+                                                   "calibrated_by": calibration.calibrated_by or old.calibrated_by,
+                                                   "calibration_due": calibration.calibration_due or old.calibration_due})
     meta = new.metadata.model_copy(update={"certificate_number": number, "replaces": new.metadata.certificate_number,
-                                           "date_of_issue": issued_on})
+                                           "date_of_issue": issued_on, "instruments": instruments})
     return type(new).model_validate({**new.model_dump(mode="json"), "metadata": meta.model_dump(mode="json")})
 
 
