@@ -11,7 +11,7 @@ import math
 from typing import Any
 
 from drivers.errors import InstrumentError
-from drivers.opcua_identity import MACHINERY_URI
+from drivers.opcua_identity import machine_part
 
 PROPERTIES = ("OperationDuration", "PowerOnDuration")  # in the order preferred: use, else powered
 
@@ -22,24 +22,12 @@ async def _read(address: str, timeout_s: float, machine: str | None) -> float:
     client = Client(url=address, timeout=timeout_s)
     async with client:
         try:
-            ns = await client.get_namespace_index(MACHINERY_URI)
-        except ValueError:
-            raise InstrumentError("machine", f"{address}: the server has no Machinery namespace ({MACHINERY_URI})") from None
-        machines = await client.nodes.objects.get_child(f"{ns}:Machines")
-        children = await machines.get_children()
-        names = [str((await c.read_browse_name()).Name) for c in children]
-        if not children:
-            raise InstrumentError("machine", f"{address}: Machines is empty")
-        if machine is not None and machine not in names:
-            raise InstrumentError("machine", f"{address}: no machine {machine!r} under Machines ({', '.join(names)})")
-        node = children[names.index(machine)] if machine else children[0]
-        counters = None
-        for c in await node.get_children():
-            if (await c.read_browse_name()).Name == "OperationCounters":
-                counters = c
-        if counters is None:
-            raise InstrumentError("machine", f"{address}: Machines/{names[names.index(machine) if machine else 0]} has no "
-                                             "OperationCounters (OPC 40001-1 §14): give the hours with --hours")
+            counters, _ = await machine_part(client, address, machine, "OperationCounters")
+        except InstrumentError as exc:
+            if "OperationCounters" not in str(exc):
+                raise
+            raise InstrumentError("machine", f"{str(exc).removeprefix('machine: ')} (OPC 40001-1 §14): give the "
+                                             "hours with --hours") from None
         found: dict[str, Any] = {}
         for prop in await counters.get_children():
             browse = str((await prop.read_browse_name()).Name)

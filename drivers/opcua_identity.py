@@ -21,32 +21,38 @@ FIELDS = {"Manufacturer": "manufacturer", "Model": "model", "SerialNumber": "ser
           "YearOfConstruction": "year_of_construction", "SoftwareRevision": "software_revision"}
 
 
+async def machine_part(client: Any, address: str, machine: str | None, part: str) -> tuple[Any, str]:
+    """The first (or the named) machine under ``Machines`` and its child ``part`` (Identification,
+    OperationCounters): (the part's node, the machine's name); InstrumentError naming what is missing."""
+    try:
+        ns = await client.get_namespace_index(MACHINERY_URI)
+    except ValueError:
+        raise InstrumentError("machine", f"{address}: the server has no Machinery namespace ({MACHINERY_URI}): "
+                                         "no OPC 40001-1 machine") from None
+    machines = await client.nodes.objects.get_child(f"{ns}:Machines")
+    children = await machines.get_children()
+    names = [str((await c.read_browse_name()).Name) for c in children]
+    if not children:
+        raise InstrumentError("machine", f"{address}: Machines is empty")
+    if machine is not None and machine not in names:
+        raise InstrumentError("machine", f"{address}: no machine {machine!r} under Machines ({', '.join(names)})")
+    name = machine or names[0]
+    found = None
+    for c in await children[names.index(name)].get_children():
+        if (await c.read_browse_name()).Name == part:
+            found = c
+    if found is None:
+        raise InstrumentError("machine", f"{address}: Machines/{name} has no {part}")
+    return found, name
+
+
 async def _read(address: str, timeout_s: float, machine: str | None) -> dict[str, Any]:
     from asyncua import Client
 
     client = Client(url=address, timeout=timeout_s)
     async with client:
-        try:
-            ns = await client.get_namespace_index(MACHINERY_URI)
-        except ValueError:
-            raise InstrumentError("machine", f"{address}: the server has no Machinery namespace ({MACHINERY_URI}): "
-                                             "no OPC 40001-1 identification") from None
-        machines = await client.nodes.objects.get_child(f"{ns}:Machines")
-        children = await machines.get_children()
-        names = [str((await c.read_browse_name()).Name) for c in children]
-        if not children:
-            raise InstrumentError("machine", f"{address}: Machines is empty")
-        if machine is not None and machine not in names:
-            raise InstrumentError("machine", f"{address}: no machine {machine!r} under Machines ({', '.join(names)})")
-        node = children[names.index(machine)] if machine else children[0]
-        ident = None
-        for c in await node.get_children():
-            if (await c.read_browse_name()).Name == "Identification":
-                ident = c
-        if ident is None:
-            raise InstrumentError("machine", f"{address}: Machines/{names[names.index(machine) if machine else 0]} has "
-                                             "no Identification")
-        out: dict[str, Any] = {"machine": machine or names[0]}
+        ident, name = await machine_part(client, address, machine, "Identification")
+        out: dict[str, Any] = {"machine": name}
         for prop in await ident.get_children():
             name = (await prop.read_browse_name()).Name
             if name in FIELDS:

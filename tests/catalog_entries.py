@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 from datetime import datetime, timedelta, timezone
+from pathlib import Path
 
 
 def synthetic(k: int, site: str = "", serial: str | None = None, days: float | None = None) -> dict:
@@ -47,3 +48,30 @@ def rig_main(argv: list[str] | None = None) -> None:
         sync(db, outbox)
         time.sleep(0.5)
     print("left", len(pending(outbox)), flush=True)
+
+
+def older_catalogue(path: Path, revision: str, rows: list[dict]) -> None:
+    """A SQLite catalogue as an older rtcal left it: migrated to ``revision`` only, ``rows`` inserted with
+    the columns that revision has (the rest of each row dropped)."""
+    import sqlite3
+    from contextlib import closing
+
+    from alembic import command
+    from alembic.config import Config
+    from sqlalchemy import create_engine
+
+    from rtcal.catalog.store import MIGRATIONS
+
+    engine = create_engine(f"sqlite:///{path}")
+    with engine.begin() as conn:
+        cfg = Config()
+        cfg.set_main_option("script_location", str(MIGRATIONS))
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, revision)
+    engine.dispose()
+    with closing(sqlite3.connect(path)) as conn, conn:
+        columns = {r[1] for r in conn.execute("PRAGMA table_info(calibrations)")}
+        for row in rows:
+            kept = {c: v for c, v in row.items() if c in columns}
+            conn.execute(f"INSERT INTO calibrations ({', '.join(kept)}) VALUES ({', '.join('?' * len(kept))})",
+                         list(kept.values()))

@@ -11,7 +11,6 @@ from __future__ import annotations
 import hashlib
 import http.server
 import json
-import os
 import re
 import secrets
 import shutil
@@ -33,6 +32,7 @@ from rtcal.catalog.history import pair_info, trend
 from rtcal.catalog.intervals import AxisPolicy, next_due
 from rtcal.catalog.store import Catalog
 from rtcal.cli import main
+from tests.catalog_entries import older_catalogue
 from tests.catalog_entries import synthetic as _synthetic
 from tests.test_catalog import OUTBOX, _cli, db, postgres, rig_outbox  # noqa: F401  (fixtures)
 
@@ -601,27 +601,10 @@ def test_the_page_shows_the_due_list_and_finds_serials_customers_and_instruments
 
 def test_the_chain_starts_at_genesis_and_an_older_catalogue_is_brought_into_it(tmp_path):
     """Migration 0003 files every entry an older rtcal added with one `add` row, so verify covers them."""
-    from alembic import command
-    from alembic.config import Config
-    from sqlalchemy import create_engine
-
-    from rtcal.catalog.store import MIGRATIONS
-
     path = tmp_path / "old.sqlite"
-    engine = create_engine(f"sqlite:///{path}")
-    with engine.begin() as conn:
-        cfg = Config()
-        cfg.set_main_option("script_location", str(MIGRATIONS))
-        cfg.attributes["connection"] = conn
-        command.upgrade(cfg, "0002")
-    engine.dispose()
-    with closing(sqlite3.connect(path)) as conn, conn:
-        old_columns = {r[1] for r in conn.execute("PRAGMA table_info(calibrations)")}
-        for k in range(3):
-            row = {c: v for c, v in _synthetic(k).items() if c in old_columns}
-            row["results"] = json.dumps({"procedure": {"name": "old test"}, "metadata": {"instruments": {
-                "polygon": {"id": "polygon 9", "certificate_number": "P9", "calibrated_by": "PTB", "calibration_due": ""}}}})
-            conn.execute(f"INSERT INTO calibrations ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})", list(row.values()))
+    old = json.dumps({"procedure": {"name": "old test"}, "metadata": {"instruments": {
+        "polygon": {"id": "polygon 9", "certificate_number": "P9", "calibrated_by": "PTB", "calibration_due": ""}}}})
+    older_catalogue(path, "0002", [{**_synthetic(k), "results": old} for k in range(3)])
     assert _cli("catalog", "used-by", "polygon 9", "--db", str(path)).returncode == 2  # read as it is: no instruments yet
     assert _cli("catalog", "migrate", "--db", str(path)).returncode == 0
     with Catalog(str(path)) as cat:
@@ -629,3 +612,54 @@ def test_the_chain_starts_at_genesis_and_an_older_catalogue_is_brought_into_it(t
         assert trail[0]["prev_hash"] == GENESIS and [a["action"] for a in trail] == ["add"] * 3
         assert len(cat.used_by("polygon 9")) == 3 and cat.machines()[0]["test"] == "old test"
     assert _verify(str(path)).returncode == 0
+
+
+def test_machine_hours_are_read_from_opc_ua_operation_counters_and_drive_in_use_intervals(tmp_path, capsys):
+    from simulators.opcua_machine import OpcUaMachine
+
+    db_ = str(tmp_path / "c.sqlite")
+    with Catalog(db_, write=True) as cat:
+        cat.add(_synthetic(1, serial="HRS-1"))
+    machine = OpcUaMachine(hours=1234.5)
+    bare = OpcUaMachine()
+    try:
+        assert main(["catalog", "hours", "--serial", "HRS-1", "--opcua", machine.address, "--at", "2020-03-01",
+                     "--db", db_]) == 0
+        assert "1234.5 h on 2020-03-01 (OPC UA" in capsys.readouterr().out
+        r = _cli("catalog", "hours", "--serial", "HRS-1", "--opcua", bare.address, "--db", db_)
+        assert r.returncode == 1 and "no OperationCounters" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    finally:
+        machine.close()
+        bare.close()
+    assert main(["catalog", "hours", "--serial", "HRS-1", "--hours", "1834.5", "--at", "2020-05-30", "--db", db_]) == 0
+    policy = tmp_path / "p.yaml"
+    policy.write_text("axes:\n  - {serial_number: HRS-1, method: in_use, interval_hours: 1000, max_days: 3000}\n")
+    assert main(["catalog", "policy", str(policy), "--reason", "hours", "--db", db_]) == 0
+    due = _json(capsys, "catalog", "list", "--db", db_, "--json")[0]
+    # 600 h in 90 days (6.67 h/day); the calibration on 2020-01-31 at 1234.5 − 30·6.67 = 1034.5 h; 2034.5 h is 200 h after
+    # the reading of 2020-05-30: 30 days later
+    assert due["due_method"] == "ILAC-G24 method 3 (in-use time)" and due["next_due"] == "2020-06-29", due
+
+
+def test_a_run_that_replaces_a_certificate_is_filed_as_a_supersede_with_its_reason(db, runs, monkeypatch, capsys):
+    from rtcal.catalog import entry as entry_module
+    from rtcal.methods import read_results
+
+    found, _, _ = runs
+    assert main(["catalog", "add", str(found), "--db", db]) == 0
+    base = read_results(found)
+    again = base.model_copy(update={"started_utc": "2026-01-05T00:00:00+00:00", "metadata": base.metadata.model_copy(
+        update={"certificate_number": "P-AF-1-B", "replaces": "P-AF-1"})})
+    monkeypatch.setattr(entry_module, "verified_results", lambda _run: again)
+    assert main(["catalog", "add", str(found), "--db", db]) == 2
+    assert "--reason" in capsys.readouterr().err
+    assert main(["catalog", "add", str(found), "--db", db, "--reason", "customer's name was misspelt"]) == 0
+    assert "(replaces P-AF-1): added to" in capsys.readouterr().out
+    with Catalog(db) as cat:
+        trail = cat.table(audit, "seq")
+        assert [(a["action"], a["reason"]) for a in trail][-1] == ("supersede", "customer's name was misspelt")
+    nowhere = again.model_copy(update={"started_utc": "2026-02-05T00:00:00+00:00", "metadata": again.metadata.model_copy(
+        update={"certificate_number": "P-AF-1-C", "replaces": "NO-SUCH-1"})})
+    monkeypatch.setattr(entry_module, "verified_results", lambda _run: nowhere)
+    assert main(["catalog", "add", str(found), "--db", db, "--reason", "r"]) == 2
+    assert "NO-SUCH-1" in capsys.readouterr().err

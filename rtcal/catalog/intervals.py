@@ -292,9 +292,14 @@ def _in_use(rows: list[dict[str, Any]], last: datetime, p: AxisPolicy, hours: li
 
 def _hours_at(readings: list[tuple[datetime, float]], when: datetime) -> float:
     """The machine's hours at ``when``, interpolated (or extrapolated at the ends) between readings."""
-    before = [r for r in readings if r[0] <= when] or readings[:1]
-    after = [r for r in readings if r[0] >= when] or readings[-1:]
-    (ta, ha), (tb, hb) = before[-1], after[0]
+    before = [r for r in readings if r[0] <= when]
+    after = [r for r in readings if r[0] >= when]
+    if not before:  # before the first reading: the line through the first two
+        (ta, ha), (tb, hb) = readings[0], readings[1]
+    elif not after:  # after the last: through the last two
+        (ta, ha), (tb, hb) = readings[-2], readings[-1]
+    else:
+        (ta, ha), (tb, hb) = before[-1], after[0]
     if tb == ta:
         return ha
     return ha + (hb - ha) * (when - ta).total_seconds() / (tb - ta).total_seconds()

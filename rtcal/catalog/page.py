@@ -84,7 +84,8 @@ def _page(location: str | None, serial: str | None, query: str | None = None, wi
             "E's trend needs two runs at different times (as-left runs apart)" if t["E_trend_arcsec_per_year"] is None
             else f"E's trend {_cell(t['E_trend_arcsec_per_year'])} ± {_cell(t['E_trend_U_arcsec_per_year'])} ″/year; "
                  f"its limit: {_cell(t['E_reaches_limit'])}") + "</li>"
-            for a, rs in sorted(by_axis(history).items()) for t in [trend(rs)])
+            + f"<li>axis {html.escape(a)}: next due {_cell(d['due'])} — {_cell(d['method'])}: {_cell(d['data'])}</li>"
+            for a, rs in sorted(by_axis(history).items()) for t, d in [(trend(rs), due(rs[0]["serial_number"], a, rs))])
         body += (f'<h2>History of {html.escape(serial)}</h2><table id="history"><tr><th>measured (UTC)</th><th>axis</th>'
                  f"<th>test</th><th>E ± U (″)</th><th>verdict</th><th>state</th><th>certificate</th></tr>{hist}</table>"
                  f"<ul>{trends}</ul>")
