@@ -112,13 +112,12 @@ def _backfill() -> None:
     for seq, r in enumerate(rows, start=1):
         entry = dict(r)
         text = entry.pop("results") or ""
-        try:
-            results = json.loads(text)
+        try:  # the stored text as JSON (a migration reads what older rtcal wrote, whatever it holds)
+            stored = _mapping(json.loads(text))
         except ValueError:
-            results = {}
-        results = results if isinstance(results, dict) else {}
-        procedure = _mapping(results.get("procedure"))
-        meta = _mapping(results.get("metadata"))
+            stored = {}
+        procedure = _mapping(stored.get("procedure"))
+        meta = _mapping(stored.get("metadata"))
         key = entry["certificate_number"] if entry["certificate_number"] and entry["certificate_number"] not in taken else None
         taken.add(entry["certificate_number"])
         changes = {"test": _text(procedure.get("name"), 200), "results_sha256": hashlib.sha256(text.encode()).hexdigest(),
