@@ -663,3 +663,18 @@ def test_a_run_that_replaces_a_certificate_is_filed_as_a_supersede_with_its_reas
     monkeypatch.setattr(entry_module, "verified_results", lambda _run: nowhere)
     assert main(["catalog", "add", str(found), "--db", db, "--reason", "r"]) == 2
     assert "NO-SUCH-1" in capsys.readouterr().err
+
+
+def test_an_autocollimator_found_with_a_scale_error_re_evaluates_its_runs(runs, tmp_path, capsys):
+    found, _, _ = runs
+    db_ = str(tmp_path / "c.sqlite")
+    assert main(["catalog", "add", str(found), "--db", db_]) == 0
+    cert = tmp_path / "ac.yaml"
+    cert.write_text(yaml.safe_dump({"instrument": AUTOCOLLIMATOR, "certificate_number": "EML-K-2026-001",
+                                    "scale_error_ppm": 10_000, "u_arcsec": 0.3}, allow_unicode=True))
+    doc = _json(capsys, "catalog", "reassess", AUTOCOLLIMATOR, "--db", db_, "--reason", "r", "--json", "--certificate", str(cert))
+    (run,) = doc["runs"]
+    old, new = run["old"], run["new"]
+    # readings 1 % too large: divided by 1.01, E moves by about 1 % of the readings it rests on, and U grows
+    assert run["changed"] and 0 < abs(new["E_arcsec"] - old["E_arcsec"]) < 0.02 * (abs(old["E_arcsec"]) + 60)
+    assert new["E_U_arcsec"] > old["E_U_arcsec"]

@@ -32,9 +32,10 @@ class AbbeRecalibration:
         polygon = ("none: its face errors were separated from the table's by closure in this run" if faces is None else
                    f"{len(faces)} face errors from its certificate ({min(faces):+.2f}″ … {max(faces):+.2f}″), "
                    f"u {proc.polygon.certificate_uncertainty_arcsec:g}″ each")
-        autocollimator = (f"scale error {u.autocollimator_scale_error_ppm:+g} ppm corrected; scale u "
-                          f"{u.autocollimator_scale_u_ppm:g} ppm, U {u.autocollimator_calibration_u_arcsec:g}″ of an "
-                          "indication in the budget")
+        scale = (f"scale error {u.autocollimator_scale_error_ppm:+g} ppm corrected" if u.autocollimator_scale_error_ppm
+                 else "no scale error stated (none corrected)")
+        autocollimator = (f"{scale}; scale u {u.autocollimator_scale_u_ppm:g} ppm, U "
+                          f"{u.autocollimator_calibration_u_arcsec:g}″ of an indication in the budget")
         return {"polygon": polygon, "autocollimator": autocollimator,
                 "encoder": "none: the item's own encoder, not a reference",
                 "environment": "none: its readings are the conditions reported, not a correction of E",
