@@ -2,11 +2,12 @@
 row, chained by hash, so that no row can be edited, deleted or moved without `rtcal catalog verify`
 naming it.
 
-A row's hash is SHA-256 of its fields (:data:`ROW_FIELDS`, the previous row's hash among them) as
-canonical JSON; the first row's previous hash is :data:`GENESIS`. An ``add`` (or ``supersede``)
-row records the entry's own hash (:func:`entry_hash`: every column of the entry but the results
-text, which ``results_sha256`` stands for, and its reference instruments), so that an entry edited
-after it was filed no longer matches the row that filed it. The database refuses UPDATE and DELETE
+A row's hash is SHA-256 of its fields (:data:`ROW_FIELDS` in that order, the previous row's hash
+among them) as a canonical JSON list; the first row's previous hash is :data:`GENESIS`. An ``add``
+(or ``supersede``) row records the entry's own hash (:func:`entry_hash`: every column of the entry
+in :data:`ENTRY_FIELDS` order but the results text, which ``results_sha256`` stands for, and its
+reference instruments, sorted), so that an entry edited after it was filed no longer matches the
+row that filed it. The database refuses UPDATE and DELETE
 on these tables (triggers, migration 0003); the chain finds what a superuser does anyway.
 
 Migration 0003 holds a copy of :func:`canonical`, :func:`entry_hash` and :func:`row_hash` (a
@@ -32,6 +33,7 @@ ENTRY_FIELDS = (  # version 1: the calibrations columns of revision 0003 but the
     "location_errors", "digests", "run_dir", "added_utc", "test", "site", "rig", "state", "replaces", "supersedes",
     "origin", "added_by", "results_sha256", "certificate_key")
 INSTRUMENT_FIELDS = ("role", "instrument_id", "kind", "certificate_number", "issuer", "due", "correction")
+NUMBERS = frozenset(k for k in ENTRY_FIELDS if k.endswith("_arcsec"))  # the only fields that may be a float
 
 
 def _plain(value: Any) -> Any:
@@ -44,14 +46,15 @@ def canonical(value: Any) -> str:
 
 
 def entry_hash(entry: dict[str, Any], instruments: list[dict[str, Any]]) -> str:
-    """The entry as filed: its columns (:data:`ENTRY_FIELDS`) and its instruments, hashed."""
-    doc = {"entry": {k: _plain(entry.get(k)) for k in ENTRY_FIELDS},
-           "instruments": sorted(([_plain(i.get(k)) for k in INSTRUMENT_FIELDS] for i in instruments), key=canonical)}
+    """The entry as filed: its columns (:data:`ENTRY_FIELDS`) and its instruments (text only, sorted), hashed."""
+    values = [_plain(entry.get(k)) if k in NUMBERS else entry.get(k) for k in ENTRY_FIELDS]
+    doc = [values, sorted([str(i.get(k, "")) for k in INSTRUMENT_FIELDS] for i in instruments)]
     return hashlib.sha256(canonical(doc).encode()).hexdigest()
 
 
 def row_hash(row: dict[str, Any]) -> str:
-    return hashlib.sha256(canonical({k: row[k] for k in ROW_FIELDS}).encode()).hexdigest()
+    """A row's fields (:data:`ROW_FIELDS`, in that order) as a canonical JSON list, hashed."""
+    return hashlib.sha256(canonical([row[k] for k in ROW_FIELDS]).encode()).hexdigest()
 
 
 def chained(seq: int, prev_hash: str, **fields: Any) -> dict[str, Any]:

@@ -280,7 +280,9 @@ class Catalog:
         if self.empty:
             return []
         with self._failures("cannot be read"), self.engine.connect() as conn:
-            return [{**ENTRY_DEFAULTS, **dict(r._mapping)} for r in conn.execute(q)]
+            result = conn.execute(q)
+            names = list(result.keys())
+            return [{**ENTRY_DEFAULTS, **dict(zip(names, r))} for r in result]
 
     def _entry_columns(self, with_results: bool = False) -> list[Any]:
         """The calibrations columns this catalogue has (an older one read as it is lacks 0003's)."""
@@ -357,13 +359,17 @@ class Catalog:
         out = Findings()
         if self.empty or not self.programme:
             return out
+        def plain(q: Any) -> Iterator[dict[str, Any]]:  # rows as plain dicts (10 000 entries: a mapping's .get is slow)
+            result = conn.execute(q)
+            names = list(result.keys())
+            return (dict(zip(names, r)) for r in result)
+
         with self._failures("cannot be read"), self.engine.connect() as conn:
-            rows = [dict(r._mapping) for r in conn.execute(select(audit).order_by(audit.c.seq))]
+            rows = list(plain(select(audit).order_by(audit.c.seq)))
             used: dict[str, list[dict[str, Any]]] = {}
-            for r in conn.execute(select(instruments)):
-                used.setdefault(r.run_id, []).append(dict(r._mapping))
-            entries = {r.run_id: entry_hash(dict(r._mapping), used.get(r.run_id, []))
-                       for r in conn.execute(select(*self._entry_columns()))}
+            for r in plain(select(instruments)):
+                used.setdefault(r["run_id"], []).append(r)
+            entries = {r["run_id"]: entry_hash(r, used.get(r["run_id"], [])) for r in plain(select(*self._entry_columns()))}
         check(rows, entries, out)
         return out
 

@@ -41,13 +41,13 @@ def _canonical(value):
 
 
 def _entry_hash(entry, instruments):
-    doc = {"entry": {k: _plain(entry.get(k)) for k in ENTRY_FIELDS},
-           "instruments": sorted(([_plain(i.get(k)) for k in INSTRUMENT_FIELDS] for i in instruments), key=_canonical)}
+    values = [_plain(entry.get(k)) if k.endswith("_arcsec") else entry.get(k) for k in ENTRY_FIELDS]
+    doc = [values, sorted([str(i.get(k, "")) for k in INSTRUMENT_FIELDS] for i in instruments)]
     return hashlib.sha256(_canonical(doc).encode()).hexdigest()
 
 
 def _row_hash(row):
-    return hashlib.sha256(_canonical({k: row[k] for k in ROW_FIELDS}).encode()).hexdigest()
+    return hashlib.sha256(_canonical([row[k] for k in ROW_FIELDS]).encode()).hexdigest()
 
 
 def _mapping(value):
