@@ -19,7 +19,7 @@ from drivers.addresses import AddressError
 from drivers.errors import InstrumentError, InstrumentFault
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading, EnvironmentSensor,
                                 FieldDescription, Instrument, LaserTracer, LengthReading, ReadingOutsideDescription,
-                                RotaryStage, Value)
+                                RotaryStage, StopSeen, Value, STOP_WATCH_S)
 from drivers.kinds import KINDS, check_values, describe_kind
 
 MAX_IDENTITY_CHARS = 200
@@ -110,11 +110,22 @@ class _Fenced:
             raise InstrumentFault(self.name, f"reading refused: {shown_identity(str(exc))}{self._by()}") from None
 
 
+class _FencedMover(_Fenced):
+    """A stage's or CMM's fence: what the driver saw of its stop, as text rtcal may show."""
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        seen = self._call("wait_stopped", timeout_s)
+        if not isinstance(seen, StopSeen):
+            return StopSeen(False, "", f"its wait_stopped answered {shown_identity(repr(seen))[:60]}, not what it saw"
+                                       f"{self._by()}")
+        return StopSeen(bool(seen.still), shown_identity(seen.where), shown_identity(seen.why))
+
+
 def what_plugin(model: str, plugin: str) -> str:
     return f"model {model} of plugin {plugin}" if plugin else f"model {model}"
 
 
-class FencedStage(_Fenced, RotaryStage):
+class FencedStage(_FencedMover, RotaryStage):
     def __init__(self, inner: RotaryStage, kind: str, model: str, plugin: str):
         super().__init__(inner, kind, model, plugin)
         lo, hi = inner.limits_deg
@@ -146,7 +157,7 @@ class FencedStage(_Fenced, RotaryStage):
         self._call("reset_alarm")
 
 
-class FencedCmm(_Fenced, Cmm):
+class FencedCmm(_FencedMover, Cmm):
     def __init__(self, inner: Cmm, kind: str, model: str, plugin: str):
         super().__init__(inner, kind, model, plugin)
         self.volume_min_mm, self.volume_max_mm = inner.volume_min_mm, inner.volume_max_mm

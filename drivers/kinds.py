@@ -25,7 +25,8 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from drivers.interfaces import (PURPOSES, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor,
-                                FieldDescription, Instrument, LaserTracer, RotaryStage, Value, check_described)
+                                FieldDescription, Instrument, LaserTracer, MachineTool, RotaryStage, Value,
+                                check_described)
 
 ENTRY_POINT_GROUP = "rtcal.instrument_kinds"
 # the store's marker quantities (rtcal/store/runstore.py MARKERS): no described field may be stored under them
@@ -43,7 +44,7 @@ class Kind:
 
 
 BUILTIN: dict[str, Kind] = {c.kind: Kind(c.kind, c, c.described_fields()) for c in (
-    RotaryStage, Cmm, LaserTracer, Encoder, Autocollimator, DialIndicator, EnvironmentSensor)}
+    RotaryStage, Cmm, LaserTracer, Encoder, Autocollimator, DialIndicator, EnvironmentSensor, MachineTool)}
 
 
 def _number(x: Any) -> bool:

@@ -9,11 +9,13 @@ from typing import Any
 from drivers.errors import InstrumentError
 
 
-def read_machine_identity(address: str, timeout_s: float = 5.0) -> dict[str, Any]:
+def read_machine_identity(address: str, timeout_s: float = 5.0, serial: str | None = None) -> dict[str, Any]:
+    """The identification at ``address``; ``serial`` chooses among an OPC UA server's machines (an MTConnect
+    agent's device is the one its address names)."""
     if address.startswith("opc.tcp://"):
         from drivers.opcua_identity import read_identity
 
-        return read_identity(address, timeout_s)
+        return read_identity(address, timeout_s, serial)
     if address.startswith(("http://", "https://")):
         from drivers.mtconnect_identity import read_identity as read_probe
 

@@ -1,8 +1,8 @@
 """A machine's hours of use over OPC UA (OPC 40001-1 Machinery §14, the operation counter building
-block): wires only. Read-only: the first (or the named) machine under ``Machines`` (as
-drivers/opcua_identity.py finds it), its ``OperationCounters`` object, and the Duration property
-``OperationDuration`` (how long it performed an activity; else ``PowerOnDuration``), in ms
-(OPC 10000-100 §4.5.5) → hours. docs/protocols/opcua.md gives the sources."""
+block): wires only. Read-only: the machine the address chooses, found and secured as
+drivers/opcua_identity.py finds its identification, its ``DI:OperationCounters`` object, and the
+Duration property ``OperationDuration`` (how long it performed an activity; else ``PowerOnDuration``),
+in ms (OPC 10000-100 §4.5.5) → hours. docs/protocols/opcua.md gives the sources."""
 
 from __future__ import annotations
 
@@ -11,28 +11,32 @@ import math
 from typing import Any
 
 from drivers.errors import InstrumentError
-from drivers.opcua_identity import machine_part
+from drivers.opcua_identity import _secure, chosen_machine, shown, split_address
 
 PROPERTIES = ("OperationDuration", "PowerOnDuration")  # in the order preferred: use, else powered
 
 
-async def _read(address: str, timeout_s: float, machine: str | None) -> float:
-    from asyncua import Client
+async def _read(address: str, timeout_s: float) -> float:
+    from asyncua import Client, ua
 
-    client = Client(url=address, timeout=timeout_s)
+    url, _ = split_address(address)
+    client = Client(url=url, timeout=timeout_s)
+    await _secure(client, url, address)
     async with client:
-        try:
-            counters, _ = await machine_part(client, address, machine, "OperationCounters")
-        except InstrumentError as exc:
-            if "OperationCounters" not in str(exc):
-                raise
-            raise InstrumentError("machine", f"{str(exc).removeprefix('machine: ')} (OPC 40001-1 §14): give the "
-                                             "hours with --hours") from None
+        node, name, _, di = await chosen_machine(client, address)
+        counters = None
+        for child in await node.get_children(nodeclassmask=ua.NodeClass.Object):
+            qn = await child.read_browse_name()
+            if qn.Name == "OperationCounters" and qn.NamespaceIndex == di:
+                counters = child
+        if counters is None:
+            raise InstrumentError("machine", f"{address}: machine {shown(name, 60)} has no OperationCounters (OPC 40001-1 "
+                                             "§14): give the hours with --hours")
         found: dict[str, Any] = {}
-        for prop in await counters.get_children():
-            browse = str((await prop.read_browse_name()).Name)
-            if browse in PROPERTIES:
-                found[browse] = await prop.read_value()
+        for prop in await counters.get_children(nodeclassmask=ua.NodeClass.Variable):
+            qn = await prop.read_browse_name()
+            if qn.Name in PROPERTIES and qn.NamespaceIndex == di and str(qn.Name) not in found:
+                found[str(qn.Name)] = await prop.read_value()
         for wanted in PROPERTIES:
             value = found.get(wanted)
             if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
@@ -41,12 +45,12 @@ async def _read(address: str, timeout_s: float, machine: str | None) -> float:
                                          "(a Duration in ms)")
 
 
-def read_hours(address: str, timeout_s: float = 5.0, machine: str | None = None) -> float:
-    """The machine's hours of use at ``opc.tcp://HOST:PORT``."""
-    if not address.startswith("opc.tcp://"):
-        raise InstrumentError("machine", f"{address}: not an OPC UA address (opc.tcp://HOST:PORT)")
+def read_hours(address: str, timeout_s: float = 5.0) -> float:
+    """The machine's hours of use at ``opc.tcp://HOST:PORT[?machine=NAME|serial=SN]`` (the machine chosen
+    as its identification is)."""
+    split_address(address)  # an address that is none: one line before any connection
     try:
-        return asyncio.run(asyncio.wait_for(_read(address, timeout_s, machine), timeout_s * 3))
+        return asyncio.run(asyncio.wait_for(_read(address, timeout_s), timeout_s * 3))
     except InstrumentError:
         raise
     except (OSError, asyncio.TimeoutError, TimeoutError) as exc:

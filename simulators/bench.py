@@ -18,7 +18,7 @@ import hashlib
 import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -120,6 +120,7 @@ class Bench:
         self.emergency_stop = False  # pressed: no motion until an operator releases it
         self.truth = Truth()
         self.faults = FaultInjector(scenario.faults, self.rng)
+        self.machine: Any = None  # the five-axis machine of a scenario's `machine:` (simulators/machine_tool.py, made on first use)
 
     # -- randomness: one stream per named consumer, so interleaving never changes a draw
     @staticmethod

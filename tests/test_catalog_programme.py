@@ -600,11 +600,11 @@ def test_the_page_shows_the_due_list_and_finds_serials_customers_and_instruments
 
 
 def test_the_chain_starts_at_genesis_and_an_older_catalogue_is_brought_into_it(tmp_path):
-    """Migration 0003 files every entry an older rtcal added with one `add` row, so verify covers them."""
+    """Migration 0004 files every entry an older rtcal added with one `add` row, so verify covers them."""
     path = tmp_path / "old.sqlite"
     old = json.dumps({"procedure": {"name": "old test"}, "metadata": {"instruments": {
         "polygon": {"id": "polygon 9", "certificate_number": "P9", "calibrated_by": "PTB", "calibration_due": ""}}}})
-    older_catalogue(path, "0002", [{**_synthetic(k), "results": old} for k in range(3)])
+    older_catalogue(path, "0003", [{**_synthetic(k), "results": old} for k in range(3)])
     assert _cli("catalog", "used-by", "polygon 9", "--db", str(path)).returncode == 2  # read as it is: no instruments yet
     assert _cli("catalog", "migrate", "--db", str(path)).returncode == 0
     with Catalog(str(path)) as cat:

@@ -35,7 +35,6 @@ from tests.catalog_entries import older_catalogue
 from tests.test_catalog import _cli, _row, db, finished_run, postgres, rig_outbox  # noqa: F401  (fixtures)
 
 REPO = Path(__file__).resolve().parents[1]
-HEAD = sorted(p.name[:4] for p in (MIGRATIONS / "versions").glob("0*.py"))[-1]  # the newest revision
 
 
 def _strict(text: str):
@@ -130,9 +129,9 @@ def test_every_field_is_checked_at_add(finished_run, tmp_path, monkeypatch, caps
     else:
         iso = results.evaluation.iso230_2.model_copy(update={field: value})
         results = results.model_copy(update={"evaluation": results.evaluation.model_copy(update={"iso230_2": iso})})
-    monkeypatch.setattr(entry_module, "verified_results", lambda _run: results)  # as if verify had passed it
+    monkeypatch.setattr(entry_module, "verified", lambda _run: (results, "unsigned"))  # as if verify had passed it
     db_ = tmp_path / "c.sqlite"
-    assert main(["catalog", "add", str(finished_run), "--db", str(db_)]) == 2
+    assert main(["catalog", "add", str(finished_run), "--allow-simulated", "--db", str(db_)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and says in err and "cannot go into the catalogue" in err, err
     assert not db_.exists()  # nothing written
@@ -142,9 +141,9 @@ def test_an_added_time_is_kept_in_utc(finished_run, tmp_path, monkeypatch):
     from rtcal.catalog import entry as entry_module
 
     results = read_results(finished_run).model_copy(update={"started_utc": "2024-05-01T14:00:00+02:00"})
-    monkeypatch.setattr(entry_module, "verified_results", lambda _run: results)
+    monkeypatch.setattr(entry_module, "verified", lambda _run: (results, "unsigned"))
     db_ = str(tmp_path / "c.sqlite")
-    assert main(["catalog", "add", str(finished_run), "--db", db_]) == 0
+    assert main(["catalog", "add", str(finished_run), "--allow-simulated", "--db", db_]) == 0
     with Catalog(db_) as cat:
         assert [r["measured_utc"] for r in cat.machines()] == ["2024-05-01T12:00:00+00:00"]
 
@@ -190,7 +189,7 @@ def _get(port: str, host_header: str, path: str = "/api/catalog") -> int:
 
 def test_the_catalogue_page_refuses_a_foreign_host_and_warns_beyond_loopback(finished_run, tmp_path):
     db_ = str(tmp_path / "c.sqlite")
-    assert main(["catalog", "add", str(finished_run), "--db", db_]) == 0
+    assert main(["catalog", "add", str(finished_run), "--allow-simulated", "--db", db_]) == 0
     proc, port, lines = _serve(db_, "127.0.0.1:0")
     try:
         assert _get(port, f"127.0.0.1:{port}") == 200 and _get(port, f"localhost:{port}", "/") == 200
@@ -210,7 +209,7 @@ def test_the_catalogue_page_refuses_a_foreign_host_and_warns_beyond_loopback(fin
 
 @pytest.mark.parametrize("url", ["sqlite://", "sqlite:///:memory:"])
 def test_an_in_memory_catalogue_is_refused(finished_run, url):
-    for argv in (["add", str(finished_run)], ["list"], ["history", "--serial", "SIM-230-2"]):
+    for argv in (["add", str(finished_run), "--allow-simulated"], ["list"], ["history", "--serial", "SIM-230-2"]):
         r = _cli("catalog", *argv, "--db", url)
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "in-memory" in r.stderr, r.stderr
 
@@ -223,7 +222,7 @@ def test_a_malformed_url_is_one_line_and_hides_its_password():
 
 
 def test_a_password_given_as_a_query_parameter_is_hidden(postgres, finished_run):
-    assert _cli("catalog", "add", str(finished_run), "--db", postgres.create_database("query")).returncode == 0
+    assert _cli("catalog", "add", str(finished_run), "--allow-simulated", "--db", postgres.create_database("query")).returncode == 0
     base = f"postgresql://rtcal_test@127.0.0.1:{postgres.port}"
     r = _cli("catalog", "list", "--db", f"{base}/query?password={postgres.password}")
     assert r.returncode == 0 and "SIM-230-2" in r.stdout, r.stderr  # the password works there …
@@ -252,7 +251,7 @@ def test_a_catalogue_on_a_read_only_disk_is_read_as_it_is(finished_run, tmp_path
     folder = tmp_path / "disk"
     folder.mkdir()
     db_ = folder / "lab.sqlite"
-    assert main(["catalog", "add", str(finished_run), "--db", str(db_)]) == 0  # written in WAL mode
+    assert main(["catalog", "add", str(finished_run), "--allow-simulated", "--db", str(db_)]) == 0  # written in WAL mode
     with closing(sqlite3.connect(db_)) as conn:
         assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     assert sorted(p.name for p in folder.iterdir()) == ["lab.sqlite"]  # closed: no -wal, no -shm left
@@ -289,8 +288,8 @@ def test_one_machine_typed_three_ways_has_one_history(db, finished_run, monkeypa
         results = base.model_copy(update={"started_utc": _at(200 * k),
                                           "metadata": base.metadata.model_copy(update={"serial_number": serial,
                                                                                        "certificate_number": f"N-{k}"})})
-        monkeypatch.setattr(entry_module, "verified_results", lambda _run, r=results: r)
-        assert main(["catalog", "add", str(finished_run), "--db", db]) == 0
+        monkeypatch.setattr(entry_module, "verified", lambda _run, r=results: (r, "unsigned"))
+        assert main(["catalog", "add", str(finished_run), "--allow-simulated", "--db", db]) == 0
     capsys.readouterr()
     assert main(["catalog", "list", "--db", db, "--json"]) == 0
     assert [(m["serial_number"], m["calibrations"]) for m in _strict(capsys.readouterr().out)] == [("Acme Ré 7", 3)]
@@ -314,4 +313,15 @@ def test_entries_from_before_normalising_are_one_history_read_as_they_are_and_af
         pass
     with closing(sqlite3.connect(path)) as conn:
         assert {r[0] for r in conn.execute("SELECT serial_number FROM calibrations")} == {"Acme Ré 7"}
-        assert conn.execute("SELECT version_num FROM alembic_version").fetchone()[0] == HEAD
+        assert conn.execute("SELECT version_num FROM alembic_version").fetchone()[0] == _newest_migration()
+
+
+def _newest_migration() -> str:
+    from alembic.config import Config
+    from alembic.script import ScriptDirectory
+
+    from rtcal.catalog.store import MIGRATIONS
+
+    cfg = Config()
+    cfg.set_main_option("script_location", str(MIGRATIONS))
+    return ScriptDirectory.from_config(cfg).get_current_head() or ""

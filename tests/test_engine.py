@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from drivers.errors import InstrumentFault
-from drivers.interfaces import FieldDescription, Instrument, Value
+from drivers.interfaces import FieldDescription, Instrument, StopSeen, Value
 from rtcal.clock import VirtualClock
 from rtcal.engine.engine import AbortRequested, Engine
 from rtcal.engine.faults import RunAborted
@@ -53,6 +53,9 @@ class FakeStage:
 
     def stop(self) -> None:
         self.stopped += 1
+
+    def wait_stopped(self) -> StopSeen:
+        return StopSeen(True, f"{self.at:g}°")
 
 
 class FakeProbe(Instrument):
@@ -225,7 +228,8 @@ def test_abort_policy_stops_the_moved_devices_and_keeps_the_attempt():
     assert isinstance(error, RunAborted)
     assert stage.stopped == 1 and engine.state == "failed"
     assert [r.quantity for r in readings if r.plan_index == 1] == ["skipped"]  # the attempt in hand, marked
-    assert [e["kind"] for e in events][-2:] == ["fault", "abort"]
+    assert [e["kind"] for e in events][-3:] == ["fault", "abort", "stopped"]
+    assert events[-1]["instrument"] == "stage" and events[-1]["message"] == "stopped: seen at rest at 10°"
 
 
 def test_ctrl_c_mid_attempt_stops_the_stage_and_keeps_what_was_read():

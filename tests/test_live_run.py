@@ -11,6 +11,7 @@ import os
 import select
 import shutil
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -281,6 +282,10 @@ def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
                                                         "paper000_bench.yaml", faults), how, cmm=True)
     assert hub.drive.stops >= 1, err
     assert hub.ipp_machine.aborts >= 1, err
+    # each then seen at rest (the drive's feedback, the CMM's Get(X(), Y(), Z()) read until unchanged)
+    with sqlite3.connect(f"file:{tmp_path / 'run' / 'run.sqlite'}?mode=ro", uri=True) as db:
+        seen = dict(db.execute("SELECT instrument, kind FROM events WHERE kind IN ('stopped', 'moving')"))
+    assert seen == {"stage": "stopped", "cmm": "stopped"} and "may still be moving" not in err, (seen, err)
 
 
 @pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])

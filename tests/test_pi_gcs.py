@@ -45,6 +45,8 @@ def test_driver_references_only_when_allowed_moves_and_stops():
                 stage.move_to(350.0)  # the controller's travel range is ±180° here, rtcal's limits ±360°
             stage.stop()
             assert stage.position_deg() == 45.25
+            seen = stage.wait_stopped()  # the default of every stage: POS? read until it no longer changes
+            assert seen.still and seen.where == "45.250000°", seen
         finally:
             stage.close()
     sent = [line.decode() for line in controller.requests]

@@ -8,9 +8,9 @@ among them) as a canonical JSON list; the first row's previous hash is :data:`GE
 in :data:`ENTRY_FIELDS` order but the results text, which ``results_sha256`` stands for, and its
 reference instruments, sorted), so that an entry edited after it was filed no longer matches the
 row that filed it. The database refuses UPDATE and DELETE
-on these tables (triggers, migration 0003); the chain finds what a superuser does anyway.
+on these tables (triggers, migration 0004); the chain finds what a superuser does anyway.
 
-Migration 0003 holds a copy of :func:`canonical`, :func:`entry_hash` and :func:`row_hash` (a
+Migration 0004 holds a copy of :func:`canonical`, :func:`entry_hash` and :func:`row_hash` (a
 migration stays as it ran): keep the two alike."""
 
 from __future__ import annotations
@@ -25,13 +25,13 @@ GENESIS = "0" * 64
 ROW_FIELDS = ("seq", "at_utc", "who", "action", "subject", "site", "reason", "detail", "prev_hash")
 ACTIONS = ("add", "supersede", "reassess", "retire", "policy", "usage")
 ENTRY_HASH_VERSION = 1
-ENTRY_FIELDS = (  # version 1: the calibrations columns of revision 0003 but the results text
+ENTRY_FIELDS = (  # version 1: the calibrations columns of revision 0004 but the results text
     "run_id", "serial_number", "axis", "machine", "customer", "method", "measured_utc", "finished_utc",
     "certificate_number", "verdict",
     *[f"{p}_{k}arcsec" for p in ("E", "M", "B", "R", "A") for k in ("", "U_", "limit_")],
     *[f"vdi_{p}_arcsec" for p in ("Pa", "P", "Ps_max", "U_max")],
     "location_errors", "digests", "run_dir", "added_utc", "test", "site", "rig", "state", "replaces", "supersedes",
-    "origin", "added_by", "results_sha256", "certificate_key")
+    "origin", "added_by", "results_sha256", "certificate_key", "simulated", "signature")
 INSTRUMENT_FIELDS = ("role", "instrument_id", "kind", "certificate_number", "issuer", "due", "correction")
 NUMBERS = frozenset(k for k in ENTRY_FIELDS if k.endswith("_arcsec"))  # the only fields that may be a float
 

@@ -35,8 +35,9 @@ def run_id(results: RunResults) -> str:
     return hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
-def verified_results(run_dir: Path) -> RunResults:
-    """results.json of a run that ``rtcal verify`` finds agreeing with its readings and digests."""
+def verified(run_dir: Path) -> tuple[RunResults, str]:
+    """results.json of a run that ``rtcal verify`` finds agreeing with its readings, digests and signature
+    (a forgery refused: RunRefused, code 1), and its signature as the catalogue marks it."""
     from rtcal.procedure.yamlfile import FileProblems
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
@@ -56,8 +57,33 @@ def verified_results(run_dir: Path) -> RunResults:
     except ValueError as exc:
         raise RunRefused(f"{run_dir}: its results cannot be recomputed from its readings ({str(exc)[:200]})", 1) from None
     if not found.agrees:
-        raise RunRefused(f"{run_dir}: does not verify (`rtcal verify {run_dir}`): {' '.join(_why(run_dir, found).split())[:300]}", 1)
-    return read_results(run_dir)
+        raise RunRefused(f"{run_dir}: does not verify (`rtcal verify {run_dir}`): {' '.join(_why(run_dir, found).split())[:700]}", 1)
+    status = found.signature
+    mark = "unsigned" if status is None or status.state == "unsigned" else \
+        f"{'checked' if status.state == 'valid' else 'not checked'}: {status.signer} {status.fingerprint}"
+    return read_results(run_dir), mark
+
+
+def refuse_simulated(run_dir: Path, results: RunResults) -> None:
+    """A run that calibrated nothing (simulated, or rehearsed) is no entry of a machine's history unless
+    ``catalog add --allow-simulated`` (RunRefused, code 2, naming why)."""
+    from rtcal.deliverables.certificate import marking
+
+    if marking(results):
+        raise RunRefused(f"{run_dir}: {marking(results)}; the catalogue files calibrations (add it anyway with "
+                         "--allow-simulated: every listing then marks it SIMULATED)", 2)
+
+
+def marks(row: dict[str, Any]) -> str:
+    """What a listing says of an entry beside its verdict: SIMULATED, unsigned, signature not checked ("": none)."""
+    out = ["SIMULATED" if "REHEARSED" not in (row.get("simulated") or "") else "SIMULATED/REHEARSED"] \
+        if row.get("simulated") else []
+    signature = row.get("signature") or "unsigned"
+    if signature == "unsigned":
+        out.append("unsigned")
+    elif signature.startswith("not checked"):
+        out.append("signature not checked")
+    return ", ".join(out)
 
 
 def _why(run_dir: Path, found: Any) -> str:
@@ -100,9 +126,11 @@ def instruments_of(run_dir: Path, results: RunResults) -> list[dict[str, Any]]:
             for role, rec in results.metadata.instruments.items() if rec.id]
 
 
-def entry_of(run_dir: Path, results: RunResults, check: bool = True) -> dict[str, Any]:
-    """The catalogue row of a verified run, every field :func:`checked` (``check`` False: as it
-    comes, as older rtcal versions added it — tests make such catalogues)."""
+def entry_of(run_dir: Path, results: RunResults, signature: str = "unsigned", check: bool = True) -> dict[str, Any]:
+    """The catalogue row of a verified run (``signature``: as :func:`verified` marks it), every field
+    :func:`checked` (``check`` False: as it comes, as older rtcal versions added it — tests make such
+    catalogues)."""
+    from rtcal.deliverables.certificate import marking
     from rtcal.deliverables.conformity import parameter_uncertainties
 
     meta = results.metadata
@@ -122,6 +150,7 @@ def entry_of(run_dir: Path, results: RunResults, check: bool = True) -> dict[str
         "run_dir": str(run_dir.resolve()),
         "added_utc": now_utc(),
         "results": (text := (run_dir / "results.json").read_text(encoding="utf-8")),  # the file as written, byte for byte
+        "simulated": marking(results), "signature": signature,
         "results_sha256": hashlib.sha256(text.encode()).hexdigest(),
         "test": results.procedure.name or results.method,
         "state": meta.item_state, "replaces": meta.replaces, "origin": "run",

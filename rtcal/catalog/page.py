@@ -20,6 +20,7 @@ from starlette.responses import HTMLResponse, Response
 from starlette.routing import Route
 
 from rtcal.catalog.duelist import due_list, due_of
+from rtcal.catalog.entry import marks
 from rtcal.catalog.history import by_axis, e_text, fleet, trend
 from rtcal.catalog.schema import normal_text
 from rtcal.catalog.store import Catalog
@@ -28,7 +29,8 @@ from rtcal.results.io import finite
 
 STYLE = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #bbb;"
          "padding:.3em .6em;text-align:left}.fail{color:#b00}.pass{color:#070}.undecided{color:#a60}"
-         "tr.overdue td{background:#fde8e8}tr.soon td{background:#fff6df}small{color:#555}")
+         "tr.overdue td{background:#fde8e8}tr.soon td{background:#fff6df}small{color:#555}"
+         ".marks{color:#b00;font-weight:bold}")
 
 
 def _cell(value: Any) -> str:
@@ -38,19 +40,21 @@ def _cell(value: Any) -> str:
 def _page(location: str | None, serial: str | None, query: str | None = None, within: float = 30.0) -> str:
     with Catalog(location) as cat:
         due = due_of(cat)
-        machines = fleet(cat.machines(), due)
+        entries = cat.machines()
+        machines = fleet(entries, due)
         soon = due_list(cat, within, None, due)
         history = [r for rs in by_axis(cat.history(serial)).values() for r in rs] if serial else []
         found = _search(cat, machines, query) if query else None
         name = cat.name
+    last = {r["run_id"]: marks(r) for r in entries}  # the marks of each axis's last calibration
     rows = "".join(
         f'<tr class="machine"><td><a href="?serial={html.escape(quote(m["serial_number"]))}">{_cell(m["serial_number"])}</a></td>'
         f'<td>{_cell(m["axis"])}</td><td>{_cell(m["machine"])}</td><td>{_cell(m["customer"])}</td><td>{_cell(m["site"] or None)}</td>'
         f'<td>{m["calibrations"]}</td><td>{_cell(m["last_utc"][:10])}</td><td>{_cell(m["last_certificate"] or None)}</td>'
         f'<td class="{html.escape(m["verdict"])}">{_cell(m["verdict"])}</td><td>{html.escape(e_text(m))}</td>'
         f'<td class="due" title="{html.escape(str(m.get("due_data", "")))}">'
-        f'{"retired" if m.get("due_retired") else _cell(m["next_due"])}<br><small>{_cell(m.get("due_method"))}</small></td></tr>'
-        for m in machines)
+        f'{"retired" if m.get("due_retired") else _cell(m["next_due"])}<br><small>{_cell(m.get("due_method"))}</small></td>'
+        f'<td class="marks">{html.escape(last[m["last_run_id"]])}</td></tr>' for m in machines)
     due_rows = "".join(
         f'<tr class="due-row {"overdue" if d["status"].startswith("overdue") else "soon"}"><td>{_cell(d["next_due"])}</td>'
         f'<td>{_cell(d["status"])}</td><td>{_cell(d["site"] or None)}</td>'
@@ -69,7 +73,7 @@ def _page(location: str | None, serial: str | None, query: str | None = None, wi
                 '<p id="due">nothing overdue or due soon</p>'))
     body += ("<h2>Fleet</h2><table id=\"fleet\"><tr><th>serial number</th><th>axis</th><th>machine</th><th>customer</th>"
              "<th>site</th><th>calibrations</th><th>last</th><th>certificate</th><th>verdict</th><th>E ± U (″)</th>"
-             f"<th>next due</th></tr>{rows}</table>")
+             f"<th>next due</th><th>marks</th></tr>{rows}</table>")
     if serial:
         replaced = {r["supersedes"]: r["certificate_number"] for r in history if r.get("supersedes")}
         hist = "".join(f'<tr class="run"><td>{_cell(r["measured_utc"][:19])}</td><td>{_cell(r["axis"])}</td>'
@@ -79,7 +83,7 @@ def _page(location: str | None, serial: str | None, query: str | None = None, wi
                        f'<td>{_cell(r["certificate_number"])}'
                        + (f' <small>(superseded by {html.escape(replaced[r["run_id"]])})</small>' if r["run_id"] in replaced else "")
                        + (f' <small>(replaces {html.escape(r["replaces"])})</small>' if r.get("replaces") else "")
-                       + "</td></tr>" for r in history)
+                       + f'</td><td class="marks">{html.escape(marks(r))}</td></tr>' for r in history)
         trends = "".join(f"<li>axis {html.escape(a)}: " + (
             "E's trend needs two runs at different times (as-left runs apart)" if t["E_trend_arcsec_per_year"] is None
             else f"E's trend {_cell(t['E_trend_arcsec_per_year'])} ± {_cell(t['E_trend_U_arcsec_per_year'])} ″/year; "
@@ -87,7 +91,7 @@ def _page(location: str | None, serial: str | None, query: str | None = None, wi
             + f"<li>axis {html.escape(a)}: next due {_cell(d['due'])} — {_cell(d['method'])}: {_cell(d['data'])}</li>"
             for a, rs in sorted(by_axis(history).items()) for t, d in [(trend(rs), due(rs[0]["serial_number"], a, rs))])
         body += (f'<h2>History of {html.escape(serial)}</h2><table id="history"><tr><th>measured (UTC)</th><th>axis</th>'
-                 f"<th>test</th><th>E ± U (″)</th><th>verdict</th><th>state</th><th>certificate</th></tr>{hist}</table>"
+                 f"<th>test</th><th>E ± U (″)</th><th>verdict</th><th>state</th><th>certificate</th><th>marks</th></tr>{hist}</table>"
                  f"<ul>{trends}</ul>")
     return f"<!doctype html><html><head><meta charset=utf-8><title>rtcal catalogue</title><style>{STYLE}</style>" \
            f"</head><body>{body}</body></html>"
@@ -119,7 +123,10 @@ def app(location: str | None, host: str) -> Starlette:
     async def api(request: Request) -> Response:
         def read() -> list[dict[str, Any]]:
             with Catalog(location) as cat:
-                return fleet(cat.machines(), due_of(cat))
+                entries = cat.machines()
+                due = due_of(cat)
+            last = {r["run_id"]: marks(r) for r in entries}
+            return [{**m, "marks": last[m["last_run_id"]]} for m in fleet(entries, due)]
         machines = finite(await anyio.to_thread.run_sync(read))  # strict JSON: a NaN or infinity is null
         return Response(json.dumps(machines, allow_nan=False, ensure_ascii=False), media_type="application/json")
 

@@ -46,7 +46,9 @@ calibrations = Table(
     Column("run_dir", Text, nullable=False),  # where the readings stay
     Column("added_utc", String(40), nullable=False),
     Column("results", Text, nullable=False),  # the whole results.json
-    # revision 0003: a lab's programme (docs/catalog.md)
+    Column("simulated", Text, nullable=False, server_default=""),  # why it is no calibration ("": it is one)
+    Column("signature", Text, nullable=False, server_default="unsigned"),  # its signature when added
+    # revision 0004: a lab's programme (docs/catalog.md)
     Column("test", String(200), nullable=False, server_default=""),  # the test as its procedure names it
     Column("site", String(100), nullable=False, server_default=""),
     Column("rig", String(100), nullable=False, server_default=""),

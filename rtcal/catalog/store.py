@@ -38,9 +38,10 @@ STATEMENT_TIMEOUT_S = 15
 MIGRATIONS = Path(__file__).with_name("migrations")
 ADVISORY_LOCK = 42302  # one migration at a time on a shared PostgreSQL (any number; ours)
 NORMALISED_SINCE = "0002"  # the migration that brought every entry's names to normal_text
-PROGRAMME_SINCE = "0003"  # instruments, the audit trail, policies, retirements, machine hours
+PROGRAMME_SINCE = "0004"  # instruments, the audit trail, policies, retirements, machine hours
 AUDIT_LOCK = 42303  # one audit row at a time on a shared PostgreSQL: the chain stays one line
-ENTRY_DEFAULTS: dict[str, Any] = {"test": "", "site": "", "rig": "", "state": "", "replaces": "", "supersedes": None,
+ENTRY_DEFAULTS: dict[str, Any] = {"simulated": "", "signature": "unsigned",
+                                  "test": "", "site": "", "rig": "", "state": "", "replaces": "", "supersedes": None,
                                   "origin": "run", "added_by": "", "results_sha256": "", "certificate_key": None}
 USED_BY_COLUMNS = ("run_id", "serial_number", "axis", "machine", "customer", "method", "test", "measured_utc",
                    "certificate_number", "verdict", "E_arcsec", "E_U_arcsec", "E_limit_arcsec", "run_dir", "site", "rig",
@@ -189,7 +190,8 @@ class Catalog:
         self.engine = _engine(self.url, write)
         self.empty = False  # no calibrations table yet (a new database nobody has added to)
         self.normalised = True  # every entry's names are normal_text (migration 0002 ran)
-        self.programme = True  # instruments, audit trail, policies (migration 0003 ran)
+        self.programme = True  # instruments, audit trail, policies (migration 0004 ran)
+        self.present = {c.name for c in calibrations.c}  # the table's columns (fewer in a catalogue not migrated)
         if write:
             with self._failures("cannot be opened"):
                 with self.engine.begin() as conn:
@@ -198,6 +200,8 @@ class Catalog:
         with self._failures("cannot be opened"), self.engine.connect() as conn:
             tables = set(inspect(conn).get_table_names())
             self.empty = "calibrations" not in tables
+            if not self.empty:  # an older catalogue, read without migrating it, lacks the newer columns
+                self.present = {c["name"] for c in inspect(conn).get_columns("calibrations")}
             revision = conn.execute(text("SELECT version_num FROM alembic_version")).scalar() \
                 if "alembic_version" in tables else None
             self.normalised = revision is not None and str(revision) >= NORMALISED_SINCE
@@ -276,25 +280,25 @@ class Catalog:
                 conn.execute(table.insert().values(**values))
             append(conn, action, subject, who or os_user(), reason, site, detail)
 
+    def _columns(self, with_results: bool = False) -> list[Any]:
+        return [c for c in calibrations.c if c.name in self.present and (with_results or c.name != "results")]
+
     def _rows(self, q: Any) -> list[dict[str, Any]]:
+        """The rows of ``q``, a column the table does not have yet given as its migration fills it."""
         if self.empty:
             return []
+        missing = {c.name: getattr(c.server_default, "arg", None) for c in calibrations.c if c.name not in self.present}
         with self._failures("cannot be read"), self.engine.connect() as conn:
             result = conn.execute(q)
             names = list(result.keys())
-            return [{**ENTRY_DEFAULTS, **dict(zip(names, r))} for r in result]
-
-    def _entry_columns(self, with_results: bool = False) -> list[Any]:
-        """The calibrations columns this catalogue has (an older one read as it is lacks 0003's)."""
-        return [c for c in calibrations.c if (with_results or c.name != "results")
-                and (self.programme or c.name not in ENTRY_DEFAULTS)]
+            return [{**missing, **dict(zip(names, r))} for r in result]
 
     def history(self, serial_number: str, axis: str | None = None, with_results: bool = False) -> list[dict[str, Any]]:
         """A machine's (axis's) entries, oldest first; the serial number and axis as
         :func:`~rtcal.catalog.schema.normal_text` makes them (in an older catalogue, whatever form
         an entry holds)."""
         serial, axis = normal_text(serial_number), None if axis is None else normal_text(axis)
-        q = select(*self._entry_columns(with_results))
+        q = select(*self._columns(with_results))
         if self.normalised:  # the index answers
             q = q.where(calibrations.c.serial_number == serial)
             if axis is not None:
@@ -305,16 +309,16 @@ class Catalog:
 
     def machines(self) -> list[dict[str, Any]]:
         """Every entry's history columns, by machine axis and time (what ``list`` summarises)."""
-        return self._rows(select(*self._entry_columns()).order_by(calibrations.c.serial_number, calibrations.c.axis,
-                                                                  calibrations.c.measured_utc))
+        return self._rows(select(*self._columns()).order_by(calibrations.c.serial_number, calibrations.c.axis,
+                                                            calibrations.c.measured_utc))
 
     def entry(self, run_id: str, with_results: bool = True) -> dict[str, Any] | None:
-        found = self._rows(select(*self._entry_columns(with_results)).where(calibrations.c.run_id == run_id))
+        found = self._rows(select(*self._columns(with_results)).where(calibrations.c.run_id == run_id))
         return found[0] if found else None
 
     def by_certificate(self, number: str) -> list[dict[str, Any]]:
         """The entries that carry this certificate number (one, unless an older catalogue holds two)."""
-        return self._rows(select(*self._entry_columns()).where(calibrations.c.certificate_number == normal_text(number)))
+        return self._rows(select(*self._columns()).where(calibrations.c.certificate_number == normal_text(number)))
 
     def used_by(self, instrument_id: str, since: str | None = None) -> list[dict[str, Any]]:
         """Every entry that used the instrument (by its id, as the runs name it), oldest first, each with
@@ -369,7 +373,7 @@ class Catalog:
             used: dict[str, list[dict[str, Any]]] = {}
             for r in plain(select(instruments)):
                 used.setdefault(r["run_id"], []).append(r)
-            entries = {r["run_id"]: entry_hash(r, used.get(r["run_id"], [])) for r in plain(select(*self._entry_columns()))}
+            entries = {r["run_id"]: entry_hash(r, used.get(r["run_id"], [])) for r in plain(select(*self._columns()))}
         check(rows, entries, out)
         return out
 

@@ -75,8 +75,9 @@ def _outbox(args: argparse.Namespace, location: str | None) -> Path | None:
 
 
 def _add(args: argparse.Namespace) -> int:
-    """Verify every run first (a refused one: exit 1 or 2, nothing of it written), then one transaction each."""
-    from rtcal.catalog.entry import RunRefused, entry_of, verified_results
+    """Verify every run first (a refused one: exit 1 or 2, nothing of it written), refuse one that calibrated
+    nothing unless --allow-simulated, then one transaction each."""
+    from rtcal.catalog.entry import RunRefused, entry_of, marks, refuse_simulated, verified
     from rtcal.catalog.history import certificate_words
     from rtcal.catalog.outbox import file_entry
     from rtcal.catalog.store import safe_name, database_url
@@ -86,7 +87,10 @@ def _add(args: argparse.Namespace) -> int:
     entries = []
     for run in args.runs:
         try:
-            entries.append(entry_of(Path(run), verified_results(Path(run))))
+            results, signature = verified(Path(run))
+            if not args.allow_simulated:
+                refuse_simulated(Path(run), results)
+            entries.append(entry_of(Path(run), results, signature))
         except RunRefused as exc:
             print(f"rtcal: catalog add refused: {exc}", file=sys.stderr)
             return EXIT_USAGE if exc.code == 2 else EXIT_FAILED
@@ -110,7 +114,8 @@ def _add(args: argparse.Namespace) -> int:
         if state == "waiting":
             print(f"rtcal: {why}; {what} waits in the outbox {outbox} (`rtcal catalog sync` sends it)", file=sys.stderr)
             return EXIT_FAILED
-        print(f"{what}{' (replaces ' + e['replaces'] + ')' if e['replaces'] else ''}: "
+        mark = f" [{marks(e)}]" if marks(e) else ""
+        print(f"{what}{mark}{' (replaces ' + e['replaces'] + ')' if e['replaces'] else ''}: "
               f"{'added to' if state == 'added' else 'already in'} {name}")
     return EXIT_OK
 
@@ -126,11 +131,11 @@ def check_location(location: str) -> None:
         raise UserError(f"--catalog: {exc}") from None
 
 
-def file_finished_run(run_dir: Path, location: str) -> int:
+def file_finished_run(run_dir: Path, location: str, allow_simulated: bool = False) -> int:
     """`rtcal run --catalog URL`: the finished run added as `catalog add` adds it, then the rig's outbox
     sent (a catalogue out of reach: the run waits in the outbox, exit 1)."""
     args = argparse.Namespace(db=location, runs=[str(run_dir)], site=None, rig=None, by=None, reason=None, no_outbox=False,
-                              catalog_command="add")
+                              allow_simulated=allow_simulated, catalog_command="add")
     try:
         code = cmd_catalog(args)
     except UserError as exc:
@@ -177,6 +182,7 @@ def _due_of(cat: Any) -> Any:
 
 
 def _history(args: argparse.Namespace) -> int:
+    from rtcal.catalog.entry import marks
     from rtcal.catalog.history import by_axis, certificate_words, e_text, entry_json, history_document
 
     with _open(args) as cat:
@@ -194,6 +200,8 @@ def _history(args: argparse.Namespace) -> int:
         print(plot_history(rows, Path(args.plot)))
     if args.json:
         entries = [entry_json(r) for r in rows]
+        for e, r in zip(entries, rows):  # what it is besides a calibration: simulated, unsigned
+            e["simulated"], e["signature"], e["marks"] = r["simulated"], r["signature"], marks(r)
         for e in entries:  # each entry carries its axis's pairs role, trend and next due date
             axis = doc[e["axis"]]
             e["as_found_of"] = next((p["as_left"] for p in axis["pairs"] if p["as_found"] == e["run_id"]), None)
@@ -203,14 +211,18 @@ def _history(args: argparse.Namespace) -> int:
             e["next_due"] = dues[e["axis"]]
         print(json_text(entries))
         return EXIT_OK
-    print(f"{'measured (UTC)':17} {'axis':5} {'test':34} {'E ± U (″)':>16} {'verdict':10} {'state':9} certificate")
+    print(f"{'measured (UTC)':17} {'axis':5} {'test':34} {'E ± U (″)':>16} {'verdict':10} {'state':9} certificate (marks)")
     replaced = {r["supersedes"]: r for r in rows if r.get("supersedes")}
     for r in rows:
         state = {"as_found": "as found", "as_left": "as left"}.get(r.get("state", ""), "–")
         note = f" (superseded by {replaced[r['run_id']]['certificate_number']})" if r["run_id"] in replaced else ""
         note += f" (replaces {r['replaces']})" if r.get("replaces") else ""
+        note += f" [{marks(r)}]" if marks(r) else ""
         print(f"{r['measured_utc'][:16].replace('T', ' '):17} {r['axis'][:5]:5} {(r.get('test') or r['method'])[:34]:34} "
               f"{e_text(r):>16} {r['verdict']:10} {state:9} {r['certificate_number'] or '–'}{note}")
+    if any(r["simulated"] for r in rows):
+        print(f"{sum(1 for r in rows if r['simulated'])} of {len(rows)} entries are SIMULATED (added with "
+              "--allow-simulated): not calibrations")
     for axis, d in doc.items():
         t = d["trend"]
         for p in d["pairs"]:
@@ -230,21 +242,33 @@ def _history(args: argparse.Namespace) -> int:
 
 
 def _list(args: argparse.Namespace) -> int:
+    from collections import Counter
+
+    from rtcal.catalog.entry import marks
     from rtcal.catalog.history import fleet
 
     with _open(args) as cat:
-        machines = fleet(cat.machines(), _due_of(cat))
+        rows = cat.machines()
+        machines = fleet(rows, _due_of(cat))
     if not machines:
         print(f"rtcal: {cat.name} holds no calibration yet (`rtcal catalog add RUN` adds one)", file=sys.stderr)
+    by_id = {r["run_id"]: r for r in rows}
+    per_axis = Counter((r["serial_number"], r["axis"]) for r in rows if r["simulated"])
+    for m in machines:  # the last calibration's marks, and how many of the axis's entries calibrated nothing
+        m["marks"] = marks(by_id[m["last_run_id"]])
+        m["simulated_entries"] = per_axis[(m["serial_number"], m["axis"])]
     if args.json:
         print(json_text(machines))
         return EXIT_OK
     print(f"{'serial number':20} {'axis':5} {'machine':26} {'runs':>4} {'last':11} {'certificate':16} {'verdict':10} "
-          "next due (method)")
+          "next due (method); marks")
     for m in machines:
         due = "retired" if m.get("due_retired") else (m["next_due"] or "–")
+        simulated = f"{m['simulated_entries']} of {m['calibrations']} SIMULATED" if m["simulated_entries"] else ""
+        shown = "; ".join(x for x in (m["marks"], simulated) if x)
         print(f"{m['serial_number'][:20]:20} {m['axis'][:5]:5} {m['machine'][:26]:26} {m['calibrations']:>4} "
-              f"{m['last_utc'][:10]:11} {(m['last_certificate'] or '–')[:16]:16} {m['verdict']:10} {due} ({m['due_method']})")
+              f"{m['last_utc'][:10]:11} {(m['last_certificate'] or '–')[:16]:16} {m['verdict']:10} {due} "
+              f"({m['due_method']}){'; ' + shown if shown else ''}")
     return EXIT_OK
 
 
@@ -455,6 +479,9 @@ def add_catalog(sub: Any) -> None:
     add.add_argument("--rig", help="the rig (default: $RTCAL_RIG, else this computer's name)")
     add.add_argument("--by", help=by_help)
     add.add_argument("--reason", help="why (required when a run's metadata.replaces names a certificate it supersedes)")
+    add.add_argument("--allow-simulated", action="store_true",
+                     help="also file a run that calibrated nothing (simulated in process, on `rtcal sim serve`, or "
+                          "--rehearse): refused without it; every listing then marks it SIMULATED")
     add.add_argument("--no-outbox", action="store_true", help="PostgreSQL out of reach: fail (exit 1) rather than keep "
                                                               "the entry in the rig's outbox for `catalog sync`")
     hist = cat_sub.add_parser("history", help="a machine axis's calibrations oldest first, as-found/as-left pairs, E's "

@@ -69,9 +69,9 @@ def cmd_sim_serve(args: argparse.Namespace) -> int:
         raise UserError(f"simulators could not start: {exc}") from None
     machine = None
     if args.opcua:  # the machine's identity server: its address on stderr (not an instrument of --instruments)
-        from simulators.opcua_machine import OpcUaMachine
+        from simulators.opcua_machine import OpcUaMachine, default_machines
 
-        machine = OpcUaMachine(host=args.host)
+        machine = OpcUaMachine(host=args.host, machines=default_machines())  # laid out as OPC 40001-1: two machines
         print(f"rtcal: machine identity (OPC UA): {machine.address}", file=sys.stderr, flush=True)
     if not stop.is_set():
         print(json.dumps(addresses), flush=True)

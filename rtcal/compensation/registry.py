@@ -14,6 +14,7 @@ from typing import Any, Callable
 from rtcal.compensation.base import CompensationFormat
 from rtcal.compensation.fanuc import FanucFormat
 from rtcal.compensation.heidenhain import HeidenhainFormat
+from rtcal.compensation.isg_volcomp import IsgVolcompFormat
 from rtcal.compensation.linuxcnc import LinuxCncFormat
 from rtcal.compensation.siemens_cec import SiemensCecFormat
 from rtcal.compensation.siemens_lec import SiemensLecFormat
@@ -21,7 +22,7 @@ from rtcal.compensation.table import CompensationError, CompensationTable
 
 ENTRY_POINT_GROUP = "rtcal.compensation_formats"
 BUILTIN: dict[str, CompensationFormat] = {f.name: f for f in (
-    LinuxCncFormat(), SiemensLecFormat(), SiemensCecFormat(), FanucFormat(), HeidenhainFormat())}
+    LinuxCncFormat(), SiemensLecFormat(), SiemensCecFormat(), FanucFormat(), HeidenhainFormat(), IsgVolcompFormat())}
 # `rtcal compensate`'s own flags: a format's option may not take one
 RESERVED_FLAGS = frozenset({"--format", "--out", "--step-deg", "--allow-one-direction", "--max-gap-deg", "--help"})
 

@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 from rtcal.results.io import read_results
 from rtcal.results.model import RunResults
-from rtcal.run.integrity import IntegrityError, _read_only, check_deliverables, check_run, missing_digests
+from rtcal.run.integrity import (IntegrityError, SignatureStatus, _read_only, check_deliverables, check_run, check_signature,
+                                 missing_digests)
 from rtcal.store.runstore import RunStore
 
 if TYPE_CHECKING:
@@ -48,6 +49,10 @@ class Verification:
     differences: list[tuple[str, Any, Any]] = field(default_factory=list)
     files: list[tuple[str, str]] = field(default_factory=list)
     """Each deliverable results.json records a digest of, and its status (integrity.check_deliverables)."""
+    signature: SignatureStatus | None = None
+    """The run's signature against the lab's keys (integrity.check_signature); None: not checked."""
+    results: RunResults | None = None
+    """results.json as read (its simulation and signature marks)."""
 
     @property
     def altered_files(self) -> list[tuple[str, str]]:
@@ -158,11 +163,17 @@ def verify(run_dir: str | Path, methods: Mapping[str, Method[Any, Any]]) -> Veri
     results, recomputed, readings = recompute(run_dir, methods)
     if missing_digests(results, run_dir / "results.json"):  # exit 2: not a results.json rtcal wrote
         raise IntegrityError(missing_digests(results, run_dir / "results.json"))
-    out = Verification(readings=readings)
+    out = Verification(readings=readings, results=results)
     try:
         out.warnings += check_run(run_dir, results)
     except IntegrityError as exc:
         out.integrity.append(str(exc))
+    try:
+        out.signature = check_signature(run_dir, results)
+    except IntegrityError as exc:  # a forgery: named once, whichever check found it first
+        out.signature = SignatureStatus("REFUSED", str(exc))
+        if str(exc) not in out.integrity:
+            out.integrity.append(str(exc))
     out.files = check_deliverables(run_dir, results)
     if results.digests is not None and results.digests.deliverables_sha256 is None and not out.integrity:
         out.warnings.append(f"{run_dir / 'results.json'} (schema {results.schema_version}) records no digests of the "

@@ -37,9 +37,10 @@ from simulators.instruments import (
     SimEncoder,
     SimEnvironmentSensor,
     SimLaserTracer,
+    SimNestIndicator,
     SimStage,
 )
-from simulators.scenario import Scenario
+from simulators.scenario import NEST_INDICATORS, Scenario
 from simulators.servers import modbus_stage
 from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, IppMachine, serve_ipp
 from simulators.servers.ports import free_port  # importable from here too (tests)
@@ -65,7 +66,8 @@ MAX_OPERATOR_LINE = 1024
 # the product each line emulates, and the framing options a pseudo-terminal line's address carries:
 # this machine's kind of pseudo-terminal accepts 8N1 everywhere, other framings only on some kernels
 LINE_MODELS = {"laser_tracer": "rtcal-line", "encoder": "qsb", "autocollimator": "elcomat", "dial_indicator_1": "sylvac",
-               "dial_indicator_2": "sylvac", "environment": "vaisala-ptu300"}
+               "dial_indicator_2": "sylvac", "environment": "vaisala-ptu300",
+               **{name: "sylvac" for name in NEST_INDICATORS}}
 PTY_FRAMING = "bytesize=8&parity=N&stopbits=1"
 
 
@@ -176,6 +178,9 @@ class SimulatorHub:
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False), echo=self.echo, inch=self.sylvac_inch),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False), echo=self.echo, inch=self.sylvac_inch),
         }
+        if self.scenario.machine is not None:  # the R-test's nest: three Sylvac indicators around the sphere
+            for i, name in enumerate(NEST_INDICATORS):
+                lines[name] = SylvacHandler(SimNestIndicator(b, i, inject=False), echo=self.echo, inch=self.sylvac_inch)
         # referenced, as a lab leaves its controller (an extra reference move would draw the table's noise anew)
         self.pi_gcs = PiGcsHandler(SimStage(b, inject=False), referenced=True) if self.stage_model == "pi-gcs" else None
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
@@ -213,7 +218,7 @@ class SimulatorHub:
             except BaseException:
                 self.stop()
                 raise
-            self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0"
+            self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0&take_control=1"
         return dict(self.addresses)
 
     def stop(self) -> None:

@@ -34,6 +34,8 @@ from simulators.servers.ports import free_port
 
 CONFIG = Path(__file__).resolve().parents[1] / "linuxcnc"
 INI, HAL, FEED = "rtcal_c.ini", "rtcal_c.hal", "rtcal_bench_feed.py"
+# the machines rtcal ships: the rotary table alone (C, joint 0), and X Y Z with the table as joint 3
+MACHINES = {"c": ("rtcal_c.ini", "rtcal_c.hal"), "xyzc": ("rtcal_xyzc.ini", "rtcal_xyzc.hal")}
 SYSTEM_PYTHON = "/usr/bin/python3"  # LinuxCNC's hal module is built for it alone
 NOBODY_UID = 65534
 NML_FILE = Path("/usr/share/linuxcnc/linuxcnc.nml")  # the default NML_FILE the linuxcnc script uses
@@ -89,11 +91,18 @@ def console(host: str, port: int, *requests: str, timeout_s: float = 30.0) -> li
     return replies[3:]
 
 
+SERVER_NAME = "rtcal-SIMULATED"
+"""The simulated machine's linuxcncrsh server name: its HELLO ACK, and so the stage's identity, says SIMULATED."""
+
 class LinuxCncProcess:
     """One headless LinuxCNC: ``start()`` → linuxcncrsh's port; ``stop()`` shuts it down."""
 
-    def __init__(self, host: str = "127.0.0.1", feed: str = "", comp_file: Path | None = None, comp_type: int = 0):
+    def __init__(self, host: str = "127.0.0.1", feed: str = "", comp_file: Path | None = None, comp_type: int = 0,
+                 machine: str = "c", rsh_options: str = ""):
+        """``machine``: one of MACHINES; ``rsh_options``: more linuxcncrsh options (e.g. ``-s 2``, its session limit)."""
         self.host, self.feed, self.comp_file, self.comp_type = host, feed, comp_file, comp_type
+        self.ini_name, self.hal_name = MACHINES[machine]
+        self.rsh_options = rsh_options
         self.proc: subprocess.Popen | None = None
         self.marker = uuid.uuid4().hex
         self.env: dict[str, str] = dict(os.environ)
@@ -122,15 +131,18 @@ class LinuxCncProcess:
     def _write_config(self) -> Path:
         folder = Path(tempfile.mkdtemp(prefix="rtcal-linuxcnc-"))
         folder.chmod(0o755)  # rtapi_app runs as the fallback uid
-        ini = (CONFIG / INI).read_text().replace("linuxcncrsh --port 5007", f"linuxcncrsh --port {self.port}")
+        # --name: the server name linuxcncrsh gives in HELLO ACK (linuxcncrsh(1)); it says the machine is simulated
+        ini = (CONFIG / self.ini_name).read_text().replace(
+            "linuxcncrsh --port 5007",
+            " ".join(["linuxcncrsh", "--port", str(self.port), "--name", SERVER_NAME, *self.rsh_options.split()]))
         if self.comp_file is not None:
             table = folder / "c.comp"
             shutil.copyfile(self.comp_file, table)
             ini = with_comp(ini, table, self.comp_type)
-        (folder / INI).write_text(ini)
-        for name in (HAL, FEED):
+        (folder / self.ini_name).write_text(ini)
+        for name in (self.hal_name, FEED):
             shutil.copyfile(CONFIG / name, folder / name)
-        (folder / "rtcal_c.var").write_text("")
+        (folder / "rtcal_c.var").write_text("")  # every shipped INI names these two
         (folder / "rtcal_c.tbl").write_text("T1 P1 D0 Z0 ;rtcal: no tools\n")
         for p in folder.iterdir():
             p.chmod(0o644)
@@ -152,7 +164,7 @@ class LinuxCncProcess:
             env.update(RTAPI_UID=str(NOBODY_UID), RTAPI_FIFO_PATH=str(self.fifo))
         self.log = folder / "linuxcnc.log"
         with open(self.log, "wb") as log:
-            self.proc = subprocess.Popen(["linuxcnc", str(folder / INI)], cwd=folder, env=env, stdin=subprocess.DEVNULL,
+            self.proc = subprocess.Popen(["linuxcnc", str(folder / self.ini_name)], cwd=folder, env=env, stdin=subprocess.DEVNULL,
                                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         atexit.register(self.stop)
         deadline = time.monotonic() + timeout_s
@@ -163,7 +175,8 @@ class LinuxCncProcess:
                 self.stop()
                 raise RuntimeError(f"LinuxCNC exited at start ({code}): {tail}")
             if self._hello():
-                self.operator("set estop off", "set machine on", "set mode manual", "set home 0")
+                self.operator("set estop off", "set machine on", "set mode manual",
+                              "set home 0" if self.ini_name == INI else "set home -1")
                 return self.port
             time.sleep(0.2)
         tail = self.tail()

@@ -16,8 +16,8 @@ from datetime import datetime, timezone
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0003"
-down_revision = "0002"
+revision = "0004"
+down_revision = "0003"
 
 GENESIS = "0" * 64
 ROW_FIELDS = ("seq", "at_utc", "who", "action", "subject", "site", "reason", "detail", "prev_hash")
@@ -27,7 +27,7 @@ ENTRY_FIELDS = (
     *[f"{p}_{k}arcsec" for p in ("E", "M", "B", "R", "A") for k in ("", "U_", "limit_")],
     *[f"vdi_{p}_arcsec" for p in ("Pa", "P", "Ps_max", "U_max")],
     "location_errors", "digests", "run_dir", "added_utc", "test", "site", "rig", "state", "replaces", "supersedes",
-    "origin", "added_by", "results_sha256", "certificate_key")
+    "origin", "added_by", "results_sha256", "certificate_key", "simulated", "signature")
 INSTRUMENT_FIELDS = ("role", "instrument_id", "kind", "certificate_number", "issuer", "due", "correction")
 APPEND_ONLY = ("calibrations", "instruments", "audit", "policies", "retirements", "usage")
 
@@ -132,10 +132,10 @@ def _backfill() -> None:
             found.append({"role": _text(role, 50), "instrument_id": _text(rec.get("id"), 200), "kind": _text(role, 50),
                           "certificate_number": _text(rec.get("certificate_number"), 100),
                           "issuer": _text(rec.get("calibrated_by"), 200), "due": _text(rec.get("calibration_due"), 40),
-                          "correction": "not recorded (filed before catalogue revision 0003)"})
+                          "correction": "not recorded (filed before catalogue revision 0004)"})
         for i in found:
             conn.execute(ins.insert().values(**i, run_id=entry["run_id"], measured_utc=entry["measured_utc"], site=""))
-        row = {"seq": seq, "at_utc": now, "who": "rtcal migration 0003", "action": "add", "subject": entry["run_id"],
+        row = {"seq": seq, "at_utc": now, "who": "rtcal migration 0004", "action": "add", "subject": entry["run_id"],
                "site": "", "reason": f"filed on {entry['added_utc'][:19]}, before the catalogue kept an audit trail",
                "detail": _canonical({"run_id": entry["run_id"], "entry_sha256": _entry_hash(entry, found),
                                      "entry_hash_version": 1}), "prev_hash": prev}
