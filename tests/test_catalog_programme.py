@@ -101,7 +101,7 @@ def runs(tmp_path_factory, agent):
     assert main(["run", str(path), "--virtual-clock", "--out", str(found), "--as-found", "--certificate-number", "P-AF-1",
                  "--scenario", str(BENCH)]) == 0
     assert main(["run", str(REPO / "procedures" / "iso230_2_polygon.yaml"), "--virtual-clock", "--out", str(left),
-                 "--as-left", "--certificate-number", "P-AL-1", "--catalog", str(filed)]) == 0
+                 "--as-left", "--certificate-number", "P-AL-1", "--catalog", str(filed), "--allow-simulated"]) == 0
     return found, left, filed
 
 
@@ -164,7 +164,7 @@ def test_run_catalog_files_the_run_and_pairs_are_named_by_certificate_and_date(r
     found, left, filed = runs
     with Catalog(str(filed)) as cat:
         assert [r["certificate_number"] for r in cat.machines()] == ["P-AL-1"]  # `run --catalog` filed it
-    assert main(["catalog", "add", str(found), "--db", str(filed)]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", str(filed)]) == 0
     capsys.readouterr()
     assert main(["catalog", "history", "--serial", SERIAL, "--db", str(filed)]) == 0
     out = capsys.readouterr().out
@@ -191,7 +191,7 @@ def test_two_undeclared_runs_within_14_days_are_a_pair_labelled_as_a_guess():
 
 def test_each_entry_records_its_instruments_and_used_by_lists_the_calibrations(db, runs, capsys):
     found, left, _ = runs
-    assert main(["catalog", "add", str(found), str(left), "--db", db, "--site", "north", "--by", "A. Tester"]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), str(left), "--db", db, "--site", "north", "--by", "A. Tester"]) == 0
     used = _json(capsys, "catalog", "used-by", POLYGON, "--db", db, "--json")
     assert [u["certificate_number"] for u in used] == ["P-AF-1", "P-AL-1"]
     results = json.loads((found / "results.json").read_text())["metadata"]["instruments"]["polygon"]
@@ -208,7 +208,7 @@ def test_each_entry_records_its_instruments_and_used_by_lists_the_calibrations(d
 
 def test_reassess_re_evaluates_from_the_stored_readings_and_issues_superseding_certificates(db, runs, tmp_path, capsys):
     found, left, _ = runs
-    assert main(["catalog", "add", str(found), str(left), "--db", db]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), str(left), "--db", db]) == 0
     faces = _stored_faces(found)
     before = {run: _tree(run) for run in (found, left)}
     # the same face errors, or all shifted by one constant (positions are relative to the first target): nothing changes
@@ -257,7 +257,7 @@ def test_a_run_whose_readings_are_gone_or_whose_instrument_does_not_enter_is_nam
     copy = tmp_path / "moved"
     shutil.copytree(found, copy)
     db_ = str(tmp_path / "c.sqlite")
-    assert main(["catalog", "add", str(copy), "--db", db_]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(copy), "--db", db_]) == 0
     (copy / "run.sqlite").unlink()
     doc = _json(capsys, "catalog", "reassess", POLYGON, "--db", db_, "--reason", "r", "--json",
                 "--certificate", str(_certificate(tmp_path / "c.yaml", corrections_u_arcsec=0.2)))
@@ -272,7 +272,7 @@ def test_a_run_whose_readings_are_gone_or_whose_instrument_does_not_enter_is_nam
 
 def test_an_instrument_out_of_tolerance_marks_the_runs_measured_since(db, runs, tmp_path, capsys):
     found, left, _ = runs
-    assert main(["catalog", "add", str(found), str(left), "--db", db]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), str(left), "--db", db]) == 0
     day = json.loads((found / "results.json").read_text())["started_utc"][:10]
     for since, doubted in ((day, 2), ("2999-01-01", 0)):
         cert = _certificate(tmp_path / "oot.yaml", out_of_tolerance_since=since)
@@ -294,7 +294,7 @@ def test_an_instrument_out_of_tolerance_marks_the_runs_measured_since(db, runs, 
 def test_a_bad_certificate_file_is_one_line_exit_2_and_nothing_written(runs, tmp_path, content, says):
     found, _, _ = runs
     db_ = str(tmp_path / "c.sqlite")
-    assert main(["catalog", "add", str(found), "--db", db_]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db_]) == 0
     (tmp_path / "oot.yaml").write_text(content)
     with Catalog(db_) as cat:
         rows = len(cat.table(audit, "seq"))
@@ -313,10 +313,10 @@ def test_a_duplicate_certificate_number_is_refused(db, runs, monkeypatch, capsys
     from rtcal.methods import read_results
 
     found, _, _ = runs
-    assert main(["catalog", "add", str(found), "--db", db]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db]) == 0
     other = read_results(found).model_copy(update={"started_utc": "2025-01-01T00:00:00+00:00"})  # another run, same number
-    monkeypatch.setattr(entry_module, "verified_results", lambda _run: other)
-    assert main(["catalog", "add", str(found), "--db", db]) == 2
+    monkeypatch.setattr(entry_module, "verified", lambda _run: (other, "unsigned"))
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db]) == 2
     err = capsys.readouterr().err
     assert "P-AF-1" in err and "already in" in err and len(err.strip().splitlines()) == 1
     with Catalog(db) as cat:
@@ -329,7 +329,7 @@ def test_an_edited_run_is_refused_naming_the_edited_file(runs, tmp_path):
     shutil.copytree(found, copy)
     with open(copy / "report.html", "a", encoding="utf-8") as f:
         f.write("<!-- a later hand -->")
-    r = _cli("catalog", "add", str(copy), "--db", str(tmp_path / "c.sqlite"))
+    r = _cli("catalog", "add", "--allow-simulated", str(copy), "--db", str(tmp_path / "c.sqlite"))
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1
     assert f"{copy / 'report.html'}: EDITED" in r.stderr, r.stderr
 
@@ -434,10 +434,10 @@ def test_the_docs_roles_let_a_rig_only_insert_and_only_for_its_site(postgres, ru
         password = "rig-" + secrets.token_hex(8)
         conn.execute(f"ALTER ROLE rig_berlin_1 PASSWORD '{password}'")  # (the docs ask it with psql's \password)
     rig = admin.replace(f"rtcal_test:{postgres.password}", f"rig_berlin_1:{password}")
-    assert _cli("catalog", "add", str(found), "--db", rig, "--site", "berlin").returncode == 0
-    r = _cli("catalog", "add", str(left), "--db", rig, "--site", "munich")
+    assert _cli("catalog", "add", "--allow-simulated", str(found), "--db", rig, "--site", "berlin").returncode == 0
+    r = _cli("catalog", "add", "--allow-simulated", str(left), "--db", rig, "--site", "munich")
     assert r.returncode == 1 and "row-level security" in r.stderr and not list(OUTBOX.glob("*.json")), r.stderr
-    assert _cli("catalog", "add", str(left), "--db", admin, "--site", "munich").returncode == 0  # the lab's own role
+    assert _cli("catalog", "add", "--allow-simulated", str(left), "--db", admin, "--site", "munich").returncode == 0  # the lab's own role
     with psycopg.connect(rig, autocommit=True) as conn:
         for sql in ("UPDATE calibrations SET verdict = 'pass'", "DELETE FROM calibrations", "DELETE FROM audit",
                     "UPDATE audit SET reason = ''", "INSERT INTO policies VALUES (9, '', '', '', '')"):
@@ -489,7 +489,7 @@ def test_an_unreachable_postgresql_keeps_the_entry_in_the_outbox_and_sync_sends_
     env = {"RTCAL_OUTBOX": str(outbox)}
     postgres.stop()
     try:
-        r = _cli("catalog", "add", str(found), "--db", db_, env=env)
+        r = _cli("catalog", "add", "--allow-simulated", str(found), "--db", db_, env=env)
         assert r.returncode == 1 and "waits in the outbox" in r.stderr and len(r.stderr.strip().splitlines()) == 1
         assert postgres.password not in r.stderr and len(list(outbox.glob("*.json"))) == 1
         assert _cli("catalog", "sync", "--db", db_, env=env).returncode == 1  # still away: it keeps waiting
@@ -646,29 +646,29 @@ def test_a_run_that_replaces_a_certificate_is_filed_as_a_supersede_with_its_reas
     from rtcal.methods import read_results
 
     found, _, _ = runs
-    assert main(["catalog", "add", str(found), "--db", db]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db]) == 0
     base = read_results(found)
     again = base.model_copy(update={"started_utc": "2026-01-05T00:00:00+00:00", "metadata": base.metadata.model_copy(
         update={"certificate_number": "P-AF-1-B", "replaces": "P-AF-1"})})
-    monkeypatch.setattr(entry_module, "verified_results", lambda _run: again)
-    assert main(["catalog", "add", str(found), "--db", db]) == 2
+    monkeypatch.setattr(entry_module, "verified", lambda _run: (again, "unsigned"))
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db]) == 2
     assert "--reason" in capsys.readouterr().err
-    assert main(["catalog", "add", str(found), "--db", db, "--reason", "customer's name was misspelt"]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db, "--reason", "customer's name was misspelt"]) == 0
     assert "(replaces P-AF-1): added to" in capsys.readouterr().out
     with Catalog(db) as cat:
         trail = cat.table(audit, "seq")
         assert [(a["action"], a["reason"]) for a in trail][-1] == ("supersede", "customer's name was misspelt")
     nowhere = again.model_copy(update={"started_utc": "2026-02-05T00:00:00+00:00", "metadata": again.metadata.model_copy(
         update={"certificate_number": "P-AF-1-C", "replaces": "NO-SUCH-1"})})
-    monkeypatch.setattr(entry_module, "verified_results", lambda _run: nowhere)
-    assert main(["catalog", "add", str(found), "--db", db, "--reason", "r"]) == 2
+    monkeypatch.setattr(entry_module, "verified", lambda _run: (nowhere, "unsigned"))
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db, "--reason", "r"]) == 2
     assert "NO-SUCH-1" in capsys.readouterr().err
 
 
 def test_an_autocollimator_found_with_a_scale_error_re_evaluates_its_runs(runs, tmp_path, capsys):
     found, _, _ = runs
     db_ = str(tmp_path / "c.sqlite")
-    assert main(["catalog", "add", str(found), "--db", db_]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(found), "--db", db_]) == 0
     cert = tmp_path / "ac.yaml"
     cert.write_text(yaml.safe_dump({"instrument": AUTOCOLLIMATOR, "certificate_number": "EML-K-2026-001",
                                     "scale_error_ppm": 10_000, "u_arcsec": 0.3}, allow_unicode=True))

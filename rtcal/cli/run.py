@@ -201,7 +201,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.catalog is not None and code == EXIT_OK:
         from rtcal.cli.catalog import file_finished_run
 
-        return file_finished_run(Path(out), args.catalog)
+        return file_finished_run(Path(out), args.catalog, args.allow_simulated)
     return code
 
 
@@ -304,6 +304,8 @@ def add_run(sub: Any) -> None:
                        help="the item after adjustment or compensation (metadata.item_state)")
     run.add_argument("--catalog", metavar="URL", help="when the run is finished, add it to this catalogue (a SQLite file "
                                                      "or postgresql://…) and send what waits in the rig's outbox")
+    run.add_argument("--allow-simulated", action="store_true", help="with --catalog: file the run even though it "
+                                                                     "calibrated nothing (every listing marks it SIMULATED)")
     run.set_defaults(func=cmd_run)
 
 
