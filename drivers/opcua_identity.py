@@ -239,13 +239,21 @@ async def _read(address: str, timeout_s: float, serial: str | None) -> dict[str,
     client = Client(url=url, timeout=timeout_s)
     await _secure(client, url, address)
     async with client:
-        mns, di = await _namespaces(client, address)
-        machines = [(node, browse, display, await _nameplate(node, mns, di, address, browse or display))
-                    for node, browse, display in await _machines(client, address, mns)]
-        name, plate = _choose(machines, options, serial, address)
+        _, name, plate, _ = await chosen_machine(client, address, serial)
         out: dict[str, Any] = {"machine": name, **{key: None for key in FIELDS.values()}}
         out.update(plate)
         return out
+
+
+async def chosen_machine(client: Any, address: str, serial: str | None = None) -> tuple[Any, str, dict[str, Any], int]:
+    """The machine the address (or ``serial``) chooses, on a connected ``client``: (its node, its name, its
+    nameplate, the DI namespace's index) — what the identification and the operation counters are read from."""
+    _, options = split_address(address)
+    mns, di = await _namespaces(client, address)
+    machines = [(node, browse, display, await _nameplate(node, mns, di, address, browse or display))
+                for node, browse, display in await _machines(client, address, mns)]
+    name, plate = _choose(machines, options, serial, address)
+    return next(m[0] for m in machines if m[1] == name), name, plate, di
 
 
 def read_identity(address: str, timeout_s: float = 5.0, serial: str | None = None) -> dict[str, Any]:

@@ -44,7 +44,7 @@ def default_machines() -> dict[str, dict[str, Any]]:
 
 async def _serve(host: str, port: int, machines: dict[str, dict[str, Any]], decoy: bool, standard_folder: bool,
                  security: str | None, certificate: tuple[Path, Path] | None, ready: threading.Event,
-                 stop: asyncio.Event, bound: list[str]) -> None:
+                 stop: asyncio.Event, bound: list[str], hours: float | None = None) -> None:
     from asyncua import Server, ua
 
     server = Server()
@@ -67,6 +67,12 @@ async def _serve(host: str, port: int, machines: dict[str, dict[str, Any]], deco
         for name, value in identity.items():
             ns = mns if name in MACHINERY_PROPERTIES else di
             await ident.add_property(f"ns={mns};s={machine}.{name}", ua.QualifiedName(name, ns), _variant(name, value))
+        if hours is not None:  # OPC 40001-1 §14: the operation counters, Durations in ms (OPC 10000-100 §4.5.5)
+            counters = await _add_in(server, node, f"ns={mns};s={machine}.OperationCounters",
+                                     ua.QualifiedName("OperationCounters", di))
+            for name, value in (("OperationDuration", hours), ("PowerOnDuration", hours * 1.5)):
+                await counters.add_property(f"ns={mns};s={machine}.{name}", ua.QualifiedName(name, di),
+                                            ua.Variant(value * 3_600_000.0, ua.VariantType.Double))
         if decoy:  # after the standard one: a client matching bare names (the last it finds) reads this one
             _rename(server, await ident.add_property(f"ns={vendor};s={machine}.VendorSerialNumber",
                                                      ua.QualifiedName("VendorSerialNumber", vendor),
@@ -129,18 +135,20 @@ class OpcUaMachine:
     machine's nameplate (the single-machine server of the older tests); ``machines`` replaces the layout
     (name → nameplate); ``decoy`` adds the vendor SerialNumber; ``standard_folder=False`` puts Machines at a
     vendor NodeId (a server that does not follow 40001-1); ``security="sign-and-encrypt"`` with
-    ``certificate=(cert.der, key.pem)`` admits only signed and encrypted sessions."""
+    ``certificate=(cert.der, key.pem)`` admits only signed and encrypted sessions; ``hours`` gives every
+    machine OperationCounters (OperationDuration, PowerOnDuration: 40001-1 §14)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, machine: str = "SimulatedTable",
                  identity: dict[str, Any] | None = None, machines: dict[str, dict[str, Any]] | None = None,
                  decoy: bool = True, standard_folder: bool = True, security: str | None = None,
-                 certificate: tuple[Path, Path] | None = None) -> None:
+                 certificate: tuple[Path, Path] | None = None, hours: float | None = None) -> None:
         self._ready = threading.Event()
         self._bound: list[str] = []
         self._loop = asyncio.new_event_loop()
         self._stop = asyncio.Event()
         layout = machines if machines is not None else {machine: {**DEFAULT_IDENTITY, **(identity or {})}}
-        args = (host, port, layout, decoy, standard_folder, security, certificate, self._ready, self._stop, self._bound)
+        args = (host, port, layout, decoy, standard_folder, security, certificate, self._ready, self._stop, self._bound,
+                hours)
         self._failure: list[BaseException] = []
         self._thread = threading.Thread(target=self._main, args=(_serve(*args),), daemon=True)
         self._thread.start()

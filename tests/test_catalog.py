@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
@@ -26,6 +27,13 @@ from tests.postgres_server import PostgresServer, binaries
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURE = REPO / "procedures" / "iso230_2_verification.yaml"
 SERIAL = "SIM-230-2"
+OUTBOX = Path(tempfile.mkdtemp(prefix="rtcal-outbox-"))  # a rig's outbox in the tests: never the user's own
+
+
+@pytest.fixture(autouse=True)
+def rig_outbox(monkeypatch):
+    """Every test's rig keeps its outbox in a folder of its own, never the user's."""
+    monkeypatch.setenv("RTCAL_OUTBOX", str(OUTBOX))
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +63,7 @@ def db(request, tmp_path) -> str:
 
 def _cli(*argv: str, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "rtcal.cli", *argv], capture_output=True, text=True, timeout=timeout,
-                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})})
+                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), "RTCAL_OUTBOX": str(OUTBOX), **(env or {})})
 
 
 def _count(db: str) -> int:

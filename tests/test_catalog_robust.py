@@ -31,7 +31,8 @@ from rtcal.catalog.history import BEYOND, fleet, history_document, next_due, tre
 from rtcal.catalog.store import MIGRATIONS, Catalog
 from rtcal.cli import main
 from rtcal.methods import read_results
-from tests.test_catalog import _cli, _row, db, finished_run, postgres  # noqa: F401  (fixtures)
+from tests.catalog_entries import older_catalogue
+from tests.test_catalog import _cli, _row, db, finished_run, postgres, rig_outbox  # noqa: F401  (fixtures)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -285,7 +286,8 @@ def test_one_machine_typed_three_ways_has_one_history(db, finished_run, monkeypa
     base = read_results(finished_run)
     for k, serial in enumerate(SPELLINGS):
         results = base.model_copy(update={"started_utc": _at(200 * k),
-                                          "metadata": base.metadata.model_copy(update={"serial_number": serial})})
+                                          "metadata": base.metadata.model_copy(update={"serial_number": serial,
+                                                                                       "certificate_number": f"N-{k}"})})
         monkeypatch.setattr(entry_module, "verified", lambda _run, r=results: (r, "unsigned"))
         assert main(["catalog", "add", str(finished_run), "--allow-simulated", "--db", db]) == 0
     capsys.readouterr()
@@ -299,24 +301,9 @@ def test_one_machine_typed_three_ways_has_one_history(db, finished_run, monkeypa
 def test_entries_from_before_normalising_are_one_history_read_as_they_are_and_after_migration(finished_run, tmp_path):
     """A catalogue an older rtcal wrote (revision 0001, names as typed): read without migrating it
     (normalised on reading), then migrated by the next add (0002 normalises the entries themselves)."""
-    from alembic import command
-    from alembic.config import Config
-    from sqlalchemy import create_engine
-
     path = tmp_path / "old.sqlite"
-    engine = create_engine(f"sqlite:///{path}")
-    with engine.begin() as conn:
-        cfg = Config()
-        cfg.set_main_option("script_location", str(MIGRATIONS))
-        cfg.attributes["connection"] = conn
-        command.upgrade(cfg, "0001")
-    engine.dispose()
-    with closing(sqlite3.connect(path)) as conn, conn:
-        for k, serial in enumerate(SPELLINGS):
-            row = _entry(finished_run, serial_number=serial, measured_utc=_at(200 * k))
-            row = {k: v for k, v in row.items() if k not in ("simulated", "signature")}  # columns 0001 lacks
-            conn.execute(f"INSERT INTO calibrations ({', '.join(row)}) VALUES ({', '.join('?' * len(row))})",
-                         list(row.values()))
+    older_catalogue(path, "0001", [_entry(finished_run, serial_number=serial, measured_utc=_at(200 * k))
+                                   for k, serial in enumerate(SPELLINGS)])
     assert _cli("catalog", "history", "--serial", SPELLINGS[0], "--db", str(path)).returncode == 0
     with closing(sqlite3.connect(path)) as conn:
         assert conn.execute("SELECT version_num FROM alembic_version").fetchone()[0] == "0001"  # reading migrated nothing

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from rtcal.results import SCHEMA_VERSION
+
 from rtcal.cli import main
 
 REPO = Path(__file__).resolve().parents[1]

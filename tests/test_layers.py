@@ -21,7 +21,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("rtcal/store/",),
     ("rtcal/engine/",),
     ("rtcal/deliverables/",),
-    ("rtcal/methods/protocol.py", "rtcal/methods/estimates.py", "rtcal/methods/conditions.py", "rtcal/methods/planner.py"),
+    ("rtcal/methods/protocol.py", "rtcal/methods/estimates.py", "rtcal/methods/conditions.py", "rtcal/methods/planner.py",
+     "rtcal/methods/recalibration.py"),
     ("rtcal/methods/multistation/", "rtcal/methods/abbe/"),  # peers: one method never reaches into another
     ("rtcal/methods/__init__.py",),  # the registry
     ("rtcal/run/",),

@@ -17,6 +17,7 @@ import yaml
 from drivers.factory import open_instrument, open_stage
 from drivers.interfaces import SIMULATED_MARK
 from rtcal.cli import main
+from rtcal.results import SCHEMA_VERSION
 from rtcal.procedure.loader import load_scenario
 from rtcal.run.runner import run_procedure
 from simulators.servers.hub import SimulatorHub
@@ -120,7 +121,7 @@ def runs(tmp_path_factory) -> dict[str, Path]:
 
 def test_results_json_says_which_instruments_answered_from_simulators_and_that_it_was_rehearsed(runs):
     data = json.loads((runs["rehearsal"] / "results.json").read_text())
-    assert data["schema_version"] == "1.4"
+    assert data["schema_version"] == SCHEMA_VERSION
     sim = data["simulation"]
     assert sim["rehearsed"] is True and sim["in_process"] is False
     assert {"stage", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2", "operator"} <= set(sim["simulators"])

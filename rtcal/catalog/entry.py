@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 import sqlite3
 import unicodedata
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
-from rtcal.catalog.schema import NAMES, PARAMETERS, VDI, VERDICTS, calibrations, normal_text
+from rtcal.catalog.schema import NAMES, PARAMETERS, STATES, VDI, VERDICTS, calibrations, instruments, normal_text
 from rtcal.catalog.store import dumps, now_utc
 from rtcal.methods import read_results
 from rtcal.results.io import finite
@@ -56,8 +57,7 @@ def verified(run_dir: Path) -> tuple[RunResults, str]:
     except ValueError as exc:
         raise RunRefused(f"{run_dir}: its results cannot be recomputed from its readings ({str(exc)[:200]})", 1) from None
     if not found.agrees:
-        what = found.integrity[0] if found.integrity else f"{len(found.differences)} values differ from its readings"
-        raise RunRefused(f"{run_dir}: does not verify (`rtcal verify {run_dir}`): {' '.join(what.split())[:700]}", 1)
+        raise RunRefused(f"{run_dir}: does not verify (`rtcal verify {run_dir}`): {' '.join(_why(run_dir, found).split())[:700]}", 1)
     status = found.signature
     mark = "unsigned" if status is None or status.state == "unsigned" else \
         f"{'checked' if status.state == 'valid' else 'not checked'}: {status.signer} {status.fingerprint}"
@@ -86,6 +86,22 @@ def marks(row: dict[str, Any]) -> str:
     return ", ".join(out)
 
 
+def _why(run_dir: Path, found: Any) -> str:
+    """What ``rtcal verify`` would say first: a digest that does not match, an edited file named, or
+    a value that differs from its readings."""
+    from rtcal.run.verify import ALTERED
+
+    if found.integrity:
+        return str(found.integrity[0])
+    if found.altered_files:
+        name, status = found.altered_files[0]
+        more = f" (and {len(found.altered_files) - 1} more files)" if len(found.altered_files) > 1 else ""
+        return f"{run_dir / name}: {status} — {ALTERED[status]}{more}"
+    where, stored, recomputed = found.differences[0]
+    return (f"{run_dir / 'results.json'}: {where}: stored {str(stored)[:40]}, recomputed from the readings "
+            f"{str(recomputed)[:40]} ({len(found.differences)} values differ)")
+
+
 def _location_errors(results: RunResults) -> dict[str, Any]:
     """Every estimate of an axis location error with its U (names carrying location, offset, tilt, eccentric)."""
     out: dict[str, Any] = {}
@@ -94,6 +110,20 @@ def _location_errors(results: RunResults) -> dict[str, Any]:
             if any(w in key for w in ("location", "offset", "tilt", "eccentric")) and not isinstance(value, list):
                 out[f"{solver}.{key}"] = value
     return out
+
+
+def instruments_of(run_dir: Path, results: RunResults) -> list[dict[str, Any]]:
+    """The instruments and reference standards the run names (metadata.instruments), each with what of
+    its calibration the run's analysis applied (its method's words; rtcal/run/reassess.py)."""
+    from rtcal.methods import METHODS
+    from rtcal.run.reassess import corrections_applied
+
+    applied = corrections_applied(run_dir, METHODS)
+    return [{"role": role, "instrument_id": rec.id, "kind": re.sub(r"_\d+$", "", role),
+             "certificate_number": rec.certificate_number, "issuer": rec.calibrated_by, "due": rec.calibration_due,
+             "correction": applied.get(role, "not stated by its method" if applied else
+                                       f"not stated: its method {results.method} does not say")}
+            for role, rec in results.metadata.instruments.items() if rec.id]
 
 
 def entry_of(run_dir: Path, results: RunResults, signature: str = "unsigned", check: bool = True) -> dict[str, Any]:
@@ -119,8 +149,12 @@ def entry_of(run_dir: Path, results: RunResults, signature: str = "unsigned", ch
         "digests": dumps(results.digests.model_dump(mode="json") if results.digests else {}),
         "run_dir": str(run_dir.resolve()),
         "added_utc": now_utc(),
-        "results": (run_dir / "results.json").read_text(encoding="utf-8"),  # the file as written, byte for byte
+        "results": (text := (run_dir / "results.json").read_text(encoding="utf-8")),  # the file as written, byte for byte
         "simulated": marking(results), "signature": signature,
+        "results_sha256": hashlib.sha256(text.encode()).hexdigest(),
+        "test": results.procedure.name or results.method,
+        "state": meta.item_state, "replaces": meta.replaces, "origin": "run",
+        "instruments": instruments_of(run_dir, results),
     }
     uncertainties = parameter_uncertainties(results)
     for p in PARAMETERS:
@@ -153,25 +187,41 @@ def _utc(run_dir: Path, field: str, text: str, required: bool) -> str:
     return t.isoformat()
 
 
+def _name(run_dir: Path, name: str, text: Any, limit: int | None) -> str:
+    """A name as the catalogue keeps it (normal_text), or RunRefused naming the field."""
+    if not isinstance(text, str):
+        raise _refused(run_dir, name, "not text")
+    bad = next((c for c in text if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co")), None)
+    if bad is not None:
+        raise _refused(run_dir, name, f"it holds a control or invisible character (U+{ord(bad):04X})")
+    text = normal_text(text)
+    if limit is not None and len(text) > limit:
+        raise _refused(run_dir, name, f"longer than {limit} characters")
+    return text
+
+
 def checked(row: dict[str, Any], run_dir: Path) -> dict[str, Any]:
     """The row with every field checked (RunRefused, code 2, naming the first that is not one the
     catalogue can keep) and its names and times in the one form lists compare: an entry added
     is one no list, history or page fails on."""
     for name in (*NAMES, "method", "verdict"):
-        text = row[name]
-        if not isinstance(text, str):
-            raise _refused(run_dir, name, "not text")
-        bad = next((c for c in text if unicodedata.category(c) in ("Cc", "Cf", "Cs", "Co")), None)
-        if bad is not None:
-            raise _refused(run_dir, name, f"it holds a control or invisible character (U+{ord(bad):04X})")
-        row[name] = normal_text(text)
-        limit = getattr(calibrations.c[name].type, "length", None)
-        if limit is not None and len(row[name]) > limit:
-            raise _refused(run_dir, name, f"longer than {limit} characters")
+        row[name] = _name(run_dir, name, row[name], getattr(calibrations.c[name].type, "length", None))
     if not row["serial_number"]:
         raise _refused(run_dir, "serial number", "none (metadata.serial_number): a history is a machine's")
     if row["verdict"] not in VERDICTS:
         raise _refused(run_dir, "verdict", f"{row['verdict'][:20]!r} is not one of {', '.join(VERDICTS)}")
+    if row.get("state", "") not in STATES:
+        raise _refused(run_dir, "item state", f"{str(row['state'])[:20]!r} is not as_found, as_left or empty")
+    for name in ("test", "replaces", "site", "rig", "added_by"):
+        if name in row:
+            row[name] = _name(run_dir, name, row[name], getattr(calibrations.c[name].type, "length", None))
+    for i in row.get("instruments", []):
+        for name in ("role", "instrument_id", "kind", "certificate_number", "issuer", "due"):
+            i[name] = _name(run_dir, f"instrument {i.get('role', '')[:20]} {name}", i[name],
+                            getattr(instruments.c[name].type, "length", None))
+    if row["replaces"] and row["replaces"] == row["certificate_number"]:
+        raise _refused(run_dir, "metadata.replaces", "it names the certificate's own number")
+    row["certificate_key"] = row["certificate_number"] or None  # unique in the catalogue
     row["measured_utc"] = _utc(run_dir, "start time (started_utc)", row["measured_utc"], True)
     row["finished_utc"] = _utc(run_dir, "end time (finished_utc)", row["finished_utc"], False)
     for key in [f"{p}_{kind}arcsec" for p in PARAMETERS for kind in ("", "U_", "limit_")] + [f"vdi_{p}_arcsec" for p in VDI]:

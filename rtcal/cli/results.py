@@ -148,7 +148,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
     from rtcal.methods import METHODS
-    from rtcal.run.verify import verify
+    from rtcal.run.verify import ALTERED, verify
 
     run = Path(args.run_dir)
     if not run.is_dir():
@@ -193,9 +193,6 @@ def cmd_verify(args: argparse.Namespace) -> int:
     return EXIT_OK if found.agrees else EXIT_FAILED
 
 
-ALTERED = {"EDITED": "changed after the run wrote it: its SHA-256 is not the one results.json records for it",
-           "missing": "results.json records it as written by the run, and it is gone",
-           "not a regular file": "a link or a folder stands where the run wrote this file"}
 
 
 def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,

@@ -187,12 +187,22 @@ def cmd_run(args: argparse.Namespace) -> int:
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     _real_controller_in_real_time(addresses, args.virtual_clock)
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
+    if args.catalog is not None:
+        from rtcal.cli.catalog import check_location
+
+        check_location(args.catalog)
     _unsigned_where_checked()
     control = _run_control(args.live)
-    return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
+    code = _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
                                           virtual_clock=args.virtual_clock, large=args.large, on_engine=control,
-                                          certificate_number=args.certificate_number, rehearse=args.rehearse), out,
+                                          certificate_number=args.certificate_number, rehearse=args.rehearse,
+                                          item_state=args.item_state), out,
                     args.instruments)
+    if args.catalog is not None and code == EXIT_OK:
+        from rtcal.cli.catalog import file_finished_run
+
+        return file_finished_run(Path(out), args.catalog, args.allow_simulated)
+    return code
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
@@ -224,14 +234,17 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
 
 def _probe_machine(args: argparse.Namespace) -> int:
-    """`rtcal probe machine opc.tcp://HOST:PORT[?machine=NAME|serial=SN]`: the machine's OPC 40001-1
-    identification, each value printable and bounded (JSON escapes what is not ASCII)."""
-    from drivers.opcua_identity import read_identity, shown
+    """`rtcal probe machine opc.tcp://HOST:PORT[?machine=NAME|serial=SN]` or `http://AGENT:PORT/DEVICE`: the
+    machine's identification (OPC 40001-1, or an MTConnect agent's probe), each value printable and bounded
+    (JSON escapes what is not ASCII)."""
+    from drivers.machine_identity import read_machine_identity
+    from drivers.opcua_identity import shown
 
-    if not args.address.startswith("opc.tcp://"):
-        raise UserError(f"{args.address[:80]}: a machine's identification is read over OPC UA: opc.tcp://HOST:PORT")
+    if not args.address.startswith(("opc.tcp://", "http://", "https://")):
+        raise UserError(f"{args.address[:80]}: a machine's identification is read over OPC UA (opc.tcp://HOST:PORT) or "
+                        "from an MTConnect agent (http://HOST:PORT/DEVICE)")
     try:
-        ident = read_identity(args.address, args.timeout_s)
+        ident = read_machine_identity(args.address, args.timeout_s)
     except InstrumentError as exc:
         print(f"rtcal: machine at {args.address}: {one_line(exc)}", file=sys.stderr)
         return EXIT_FAILED
@@ -284,6 +297,15 @@ def add_run(sub: Any) -> None:
                      help="this run's certificate number (replaces the procedure's metadata.certificate_number: a "
                           "procedure serves many runs, each certificate needs its own)")
     run.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
+    state = run.add_mutually_exclusive_group()
+    state.add_argument("--as-found", dest="item_state", action="store_const", const="as_found",
+                       help="the item as received, before any adjustment (sets metadata.item_state; the certificate says so)")
+    state.add_argument("--as-left", dest="item_state", action="store_const", const="as_left",
+                       help="the item after adjustment or compensation (metadata.item_state)")
+    run.add_argument("--catalog", metavar="URL", help="when the run is finished, add it to this catalogue (a SQLite file "
+                                                     "or postgresql://…) and send what waits in the rig's outbox")
+    run.add_argument("--allow-simulated", action="store_true", help="with --catalog: file the run even though it "
+                                                                     "calibrated nothing (every listing marks it SIMULATED)")
     run.set_defaults(func=cmd_run)
 
 
@@ -308,7 +330,8 @@ def add_probe(sub: Any) -> None:
                                       "reading and print it; exit 1 if it does not answer or answers wrongly")
     pr.add_argument("kind", choices=(*KINDS.names(), "machine"), help="the kind of instrument (machine: the machine's OPC "
                                                                "40001-1 identification at opc.tcp://HOST:PORT, one of "
-                                                               "several chosen by ?machine=NAME or ?serial=SN)")
+                                                               "several chosen by ?machine=NAME or ?serial=SN; or its "
+                                                               "MTConnect agent's probe at http://HOST:PORT/DEVICE)")
     pr.add_argument("address", help="its address, e.g. socket://10.0.0.5:4001?model=sylvac or ipp://cmm:1294 "
                                     "(model= picks the product; docs/protocols/)")
     pr.add_argument("--json", action="store_true",

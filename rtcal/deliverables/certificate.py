@@ -302,6 +302,8 @@ def plural(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
+ITEM_STATES = {"as_found": "as found: as received, before any adjustment or compensation",
+               "as_left": "as left: after adjustment or compensation"}
 NOTABLE_EVENTS = ("fault", "retry", "reacquire", "skip", "pause", "abort", "resume")
 
 
@@ -654,10 +656,13 @@ def _identification(s: Sources) -> Identification:
                                  f"serial number {meta.serial_number}" if meta.serial_number else "") if x)
     rows = [
         ("Certificate number", meta.certificate_number or "not given"),
+        *([("Replaces", f"certificate {meta.replaces}, which this certificate supersedes (that one is withdrawn, "
+                        "and kept)")] if meta.replaces else []),
         ("Date of issue", s.issued),
         ("Customer", ", ".join(x for x in (meta.customer, meta.customer_address) if x) or "not given"),
         ("Item calibrated", item or "not given"),
         ("Condition on receipt", getattr(meta, "condition_on_receipt", "") or "not recorded"),
+        *([("State of the item", ITEM_STATES[meta.item_state])] if meta.item_state else []),
         ("Place of calibration", meta.location or "not given"),
         ("Date of measurement", measurement_dates(results)),
         ("Method", s.outputs.method_name() or results.method),

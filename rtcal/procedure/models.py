@@ -100,21 +100,30 @@ class Metadata(_Strict):
     condition_on_receipt: str = Field("", max_length=500, description="the item's condition on receipt (ISO/IEC 17025 "
                                                                      "7.8.2.1 j; e.g. clean, no visible damage, table "
                                                                      "at room temperature overnight)")
-    machine_identity: str = Field("", max_length=300, description="the machine's OPC UA server, opc.tcp://HOST:PORT: its "
-                                                                 "OPC 40001-1 identification fills the certificate's item "
-                                                                 "at run time, and a serial number other than "
-                                                                 "`serial_number` refuses the run")
+    machine_identity: str = Field("", max_length=300, description="the machine's OPC UA server, opc.tcp://HOST:PORT, or "
+                                                                 "its MTConnect agent, http://HOST:PORT/DEVICE: its "
+                                                                 "identification (OPC 40001-1; MTConnect's Device and "
+                                                                 "Description) fills the certificate's item at run time, "
+                                                                 "and a serial number other than `serial_number` refuses "
+                                                                 "the run")
+    item_state: Literal["", "as_found", "as_left"] = Field("", description=(
+        "what the run measured: `as_found` (the item as received, before any adjustment or compensation) or `as_left` "
+        "(after it); empty: not said (`rtcal run --as-found` / `--as-left` set it)"))
+    replaces: str = Field("", max_length=100, description=(
+        "the number of the certificate this one replaces (empty: none); the certificate says so, and `rtcal catalog "
+        "add --reason` files it as superseding that one"))
 
     @field_validator("machine_identity")
     @classmethod
     def _opc_tcp(cls, text: str) -> str:
-        if text and not text.startswith("opc.tcp://"):
-            raise ValueError(f"{text[:60]!r} is not an OPC UA address (opc.tcp://HOST:PORT)")
+        if text and not text.startswith(("opc.tcp://", "http://", "https://")):
+            raise ValueError(f"{text[:60]!r} is not an OPC UA address (opc.tcp://HOST:PORT) or an MTConnect agent's "
+                             "(http://HOST:PORT/DEVICE)")
         return _check_text(text)
 
     _plain = field_validator("customer", "machine", "axis", "serial_number", "location", "operator", "certificate_number",
                              "laboratory", "laboratory_address", "customer_address", "performed_by", "approved_by",
-                             "traceability", "condition_on_receipt")(lambda cls, text: _check_text(text))
+                             "traceability", "condition_on_receipt", "replaces")(lambda cls, text: _check_text(text))
     _issued = field_validator("date_of_issue")(lambda cls, text: _check_date(text))
 
 

@@ -18,7 +18,7 @@ from typing import Annotated, Any, ClassVar, Generic, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-SCHEMA_VERSION = "1.4"
+SCHEMA_VERSION = "1.5"
 # the first schema_version whose files carry each digest: a file of that version or later without it
 # was not written by rtcal (rtcal/run/integrity.py refuses it)
 STORE_DIGESTS_SINCE = (1, 2)
@@ -607,6 +607,10 @@ class RunMetadata(ResultsModel):
                                                "certificates) (1.1)")
     condition_on_receipt: Text = Field("", description="the item's condition on receipt, as the laboratory recorded it "
                                                        "(empty: not recorded) (1.2)")
+    item_state: Literal["", "as_found", "as_left"] = Field(
+        "", description="what the run measured: `as_found` (before any adjustment), `as_left` (after it), empty: not "
+                        "said (1.5)")
+    replaces: Name = Field("", description="the number of the certificate this one replaces, or empty (1.5)")
 
 
 class Simulation(ResultsModel):

@@ -115,13 +115,14 @@ def expired_instruments(proc: Procedure, on: _dt.date) -> list[tuple[str, str]]:
             if rec.calibration_due and _dt.date.fromisoformat(rec.calibration_due) < on]
 
 
-def with_certificate_number(procedure_yaml: str, number: str, name: str) -> str:
-    """The procedure's text with ``metadata.certificate_number`` set to ``number``: what the run
-    stores, so resume, verify and the live view read the certificate's own number. A procedure is a
-    template used for many runs; each certificate needs its own number (ISO/IEC 17025 7.8.2.1)."""
+def with_metadata(procedure_yaml: str, values: dict[str, str], name: str) -> str:
+    """The procedure's text with these ``metadata`` keys set (by `rtcal run --certificate-number`,
+    `--as-found`, `--as-left`): what the run stores, and says so in its first line, so resume, verify
+    and the live view read them. A procedure is a template used for many runs; each certificate needs
+    its own number (ISO/IEC 17025 7.8.2.1)."""
     data = yaml.safe_load(procedure_yaml)
-    data.setdefault("metadata", {})["certificate_number"] = number
-    return (f"# {name}, as run: metadata.certificate_number given by `rtcal run --certificate-number`\n"
+    data.setdefault("metadata", {}).update(values)
+    return (f"# {name}, as run: metadata.{', metadata.'.join(values)} given on `rtcal run`'s command line\n"
             + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
 
 
@@ -224,16 +225,16 @@ again rather than lose it (the stored procedure is the template, without what th
 
 
 def read_machine_identity(proc: Procedure) -> dict[str, Any] | None:
-    """``metadata.machine_identity``'s OPC 40001-1 identification, read before anything moves (None: the
-    procedure names no server). With several machines the address (``?machine=``, ``?serial=``) or the
+    """``metadata.machine_identity``'s identification (OPC 40001-1, or an MTConnect agent's probe), read
+    before anything moves (None: the procedure names no server). With several machines the address (``?machine=``, ``?serial=``) or the
     procedure's ``serial_number`` chooses; an unreachable server or a nameplate of the wrong types is an
     InstrumentError (exit 1)."""
     address = proc.metadata.machine_identity
     if not address:
         return None
-    from drivers.opcua_identity import read_identity
+    from drivers.machine_identity import read_machine_identity as read
 
-    return read_identity(address, serial=proc.metadata.serial_number or None)
+    return read(address, serial=proc.metadata.serial_number or None)
 
 
 def apply_machine_identity(proc: Procedure, ident: dict[str, Any], where: str, line: int) -> Procedure:
@@ -288,10 +289,11 @@ def run_procedure(
     on_engine: OnEngine | None = None,
     certificate_number: str | None = None,
     rehearse: bool = False,
+    item_state: str | None = None,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
-    results.json, figures or report — for Monte Carlo trials). ``certificate_number`` replaces the
-    procedure's ``metadata.certificate_number`` for this run (the stored procedure says so).
+    results.json, figures or report — for Monte Carlo trials). ``certificate_number`` and ``item_state``
+    (as_found, as_left) replace the procedure's metadata for this run (the stored procedure says so).
 
     All instruments ``sim``: an in-process bench (from the scenario) with a virtual clock, and
     the results carry its truth. Otherwise real transports at the procedure's addresses (or
@@ -302,8 +304,9 @@ def run_procedure(
     procedure_path = Path(procedure_path)
     procedure_yaml = read_text(procedure_path)
     proc = load_procedure(procedure_path, large, procedure_yaml)
-    if certificate_number is not None:
-        procedure_yaml = with_certificate_number(procedure_yaml, certificate_number, procedure_path.name)
+    given = {k: v for k, v in (("certificate_number", certificate_number), ("item_state", item_state)) if v is not None}
+    if given:
+        procedure_yaml = with_metadata(procedure_yaml, given, procedure_path.name)
         proc = load_procedure(procedure_path, large, procedure_yaml)
     if addresses:
         proc = with_addresses(proc, addresses)

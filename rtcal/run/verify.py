@@ -14,7 +14,7 @@ import json
 import math
 from contextlib import closing
 from dataclasses import dataclass, field
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +32,10 @@ if TYPE_CHECKING:
 RECOMPUTED = ("nominal_angles_deg", "raw_readings", "recommended", "solver_status", "estimates", "positioning_deviations",
               "environment", "evaluation", "conformity", "skipped_readings", "faults", "events")
 REL_TOLERANCE = 1e-9  # a full-precision float recomputed on another machine's BLAS
+ALTERED = {"EDITED": "changed after the run wrote it: its SHA-256 is not the one results.json records for it",
+           "missing": "results.json records it as written by the run, and it is gone",
+           "not a regular file": "a link or a folder stands where the run wrote this file"}
+"""What each status of a deliverable (Verification.files) means, as `rtcal verify` and `catalog add` say it."""
 
 
 @dataclass
@@ -104,9 +108,13 @@ def compare(stored: Any, recomputed: Any, path: str, out: Verification) -> None:
         out.differences.append((path, stored, recomputed))
 
 
-def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]]) -> tuple[RunResults, dict[str, Any], int]:
+def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]],
+              adjust: Callable[[Method[Any, Any], Any, RunStore], tuple[Any, RunStore]] | None = None,
+              ) -> tuple[RunResults, dict[str, Any], int]:
     """results.json as read, the parts of it the store determines recomputed, and the readings used
-    (``methods``: the known methods, by name: the store names the run's)."""
+    (``methods``: the known methods, by name: the store names the run's; ``adjust``: the procedure and
+    store the analysis takes instead of the stored ones — a reference instrument's new calibration,
+    rtcal/run/reassess.py)."""
     from rtcal.procedure.yamlfile import validate_text
     from rtcal.results.model import Event
     from rtcal.run.rundir import RunDirError
@@ -129,7 +137,10 @@ def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]]) -> tuple[R
             proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta.get("instruments", ""))})
         except ValueError:
             raise RunDirError(f"{path}: its `instruments` is not the procedure's instrument section: the store was edited") from None
-        analysis = methods[proc.method].analyse(proc, store, None, True)  # no bench: truth is the simulator's, not the readings'
+        source = store
+        if adjust is not None:
+            proc, source = adjust(methods[proc.method], proc, store)
+        analysis = methods[proc.method].analyse(proc, source, None, True)  # no bench: truth is the simulator's, not the readings'
 
         evaluation = evaluation_of(analysis)
         events = [Event(**e) for e in store.events()]

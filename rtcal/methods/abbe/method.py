@@ -7,6 +7,7 @@ sections are the output layer's (:mod:`rtcal.methods.abbe.outputs`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from typing import TYPE_CHECKING, Callable
 
@@ -28,6 +29,7 @@ from rtcal.methods.protocol import DataContradiction, PreparationError, address_
 from rtcal.results import model as rm
 from rtcal.methods.abbe import results as abr
 from rtcal.methods.abbe.plan import AbbeInstrumentSet, AbbePlan, planned_visits
+from rtcal.methods.abbe.recalibration import AbbeRecalibration
 from rtcal.engine.operator import Operator
 from rtcal.solvers.abbe import (
     AbbeEstimate,
@@ -252,6 +254,7 @@ class AbbeMethod:
     procedure_model = EncoderAbbeError
     results_model = abr.AbbeResults
     operator_steps = True  # the polygon's seatings
+    recalibration = AbbeRecalibration()  # a reference instrument's new calibration, taken into a run (catalog reassess)
 
     def plan_length(self, proc: EncoderAbbeError) -> int:
         return len(planned_visits(proc))
@@ -316,6 +319,9 @@ class AbbeMethod:
     def analyse(self, proc: EncoderAbbeError, store: RunStore, bench: Bench | None,
                 estimate_noise: bool = True) -> abr.AbbeAnalysis:
         visits = abbe_visits(store, proc.polygon.seatings_deg)
+        if proc.uncertainty.autocollimator_scale_error_ppm:  # its certificate's scale error, corrected
+            visits = dataclasses.replace(visits, autocollimator_arcsec=visits.autocollimator_arcsec
+                                         / (1.0 + proc.uncertainty.autocollimator_scale_error_ppm * 1e-6))
         recorded = json.loads(store.meta().get("polygon_certificate_arcsec", "null"))
         cert = None if recorded is None else np.asarray(recorded, float)
         # a fine-step test spans a few degrees: harmonics per turn mean nothing there (its own are per period)

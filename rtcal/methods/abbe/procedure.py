@@ -251,6 +251,9 @@ class AbbeUncertainty(_Strict):
         "expanded uncertainty (k = 2) of an indication from the autocollimator's calibration certificate, arcsec (e.g. 0.1)"))
     indicator_scale_u_ppm: float = Field(0.0, ge=0.0, le=1e5, description=(
         "standard uncertainty of each dial indicator's scale, from its calibration certificate, ppm (e.g. 5000)"))
+    autocollimator_scale_error_ppm: float = Field(0.0, ge=-1e5, le=1e5, description=(
+        "the autocollimator's scale error from its calibration certificate, ppm: each reading is divided by 1 + e before "
+        "the analysis (e.g. 120; 0: none stated, nothing corrected)"))
 
 
 class EncoderAbbeError(_Procedure):

@@ -25,6 +25,7 @@ from rtcal.results import model as rm
 from rtcal.methods.multistation import results as msr
 from rtcal.engine.operator import Operator
 from rtcal.methods.multistation.plan import MultistationInstrumentSet, MultistationPlan, planned_readings
+from rtcal.methods.multistation.recalibration import MultistationRecalibration
 from rtcal.solvers.air import correct_lengths
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
@@ -310,6 +311,7 @@ class MultistationMethod:
     procedure_model = LaserTracerMultistation
     results_model = msr.MultistationResults
     operator_steps = True  # the tracer's reference point, a second mount
+    recalibration = MultistationRecalibration()  # a reference instrument's new calibration (catalog reassess)
 
     def plan_length(self, proc: LaserTracerMultistation) -> int:
         return len(planned_readings(proc))
