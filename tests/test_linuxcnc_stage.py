@@ -385,25 +385,32 @@ def test_a_run_with_a_linuxcnc_stage_refuses_the_virtual_clock(capsys, tmp_path)
     assert code == 2 and "real time" in capsys.readouterr().err and not (tmp_path / "run").exists()
 
 
-def test_a_stop_reaches_linuxcnc_while_the_moving_session_waits_for_its_move():
-    """Issue 40: `set abort` went on the session whose `set mdi` waited for the move, and was read only
-    after the move ended (the table went on from 21° to 90°). The stop goes over the session kept for
-    stopping, at once, and the position is seen at rest far short of the target."""
-    fake = FakeRsh()
-    fake.move_s = 9.0  # 0 → 90° at 10 °/s
+def _stopped_at_20_deg(fake: FakeRsh, garbled: dict[str, list[str]] | None = None):
+    """A move 0 → 90° at 10 °/s, stopped from another thread once the table passed 20° (``garbled``
+    given to the fake then): what wait_stopped saw, and how long after the stop was asked."""
+    fake.move_s = 9.0
     stage = open_stage(f"linuxcncrsh://127.0.0.1:{fake.port}?take_control=1", (-400, 400), 2.0)
     moving = threading.Thread(target=lambda: pytest.raises(InstrumentFault, stage.move_to, 90.0), daemon=True)
     try:
         moving.start()
         while fake.position() < 20.0:
             time.sleep(0.01)
+        fake.garbled = garbled or {}
         asked_s = time.monotonic()
         stage.stop()
         seen = stage.wait_stopped()
-        took_s = time.monotonic() - asked_s
+        return seen, time.monotonic() - asked_s
     finally:
         moving.join(15)
         stage.close()
+
+
+def test_a_stop_reaches_linuxcnc_while_the_moving_session_waits_for_its_move():
+    """Issue 40: `set abort` went on the session whose `set mdi` waited for the move, and was read only
+    after the move ended (the table went on from 21° to 90°). The stop goes over the session kept for
+    stopping, at once, and the position is seen at rest far short of the target."""
+    fake = FakeRsh()
+    seen, took_s = _stopped_at_20_deg(fake)
     assert seen.still and 20.0 <= float(seen.where.rstrip("°")) < 25.0, seen
     assert took_s < 1.0 and fake.position() < 25.0
     assert fake.by_session[2][4:6] == ["set enable EMCTOO", "set abort"]
@@ -455,19 +462,7 @@ def test_a_stop_is_seen_at_rest_through_replies_of_another_form():
     """The stop watch reads the position over the session kept for stopping while another session asks:
     a reply of another form there is asked again, not a machine that could not be seen to stop."""
     fake = FakeRsh()
-    fake.move_s = 9.0
-    stage = open_stage(f"linuxcncrsh://127.0.0.1:{fake.port}?take_control=1", (-400, 400), 2.0)
-    moving = threading.Thread(target=lambda: pytest.raises(InstrumentFault, stage.move_to, 90.0), daemon=True)
-    try:
-        moving.start()
-        while fake.position() < 20.0:
-            time.sleep(0.01)
-        fake.garbled = {"get abs_act_pos 5": [ALL_AXES, "GET 5 NAK", ALL_AXES], "set abort": ["SET NAK"]}
-        stage.stop()
-        seen = stage.wait_stopped()
-    finally:
-        moving.join(15)
-        stage.close()
+    seen, _ = _stopped_at_20_deg(fake, {"get abs_act_pos 5": [ALL_AXES, "GET 5 NAK", ALL_AXES], "set abort": ["SET NAK"]})
     assert seen.still and 20.0 <= float(seen.where.rstrip("°")) < 25.0, seen
     assert not any(fake.garbled.values()) and fake.by_session[2].count("set abort") == 2
 
