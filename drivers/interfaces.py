@@ -224,25 +224,30 @@ class StopSeen:
 
 
 def watch_still(read: Callable[[], Any], show: Callable[[Any], str], tolerance: float, timeout_s: float = STOP_WATCH_S,
-                still_s: float = STILL_S, poll_s: float = STOP_POLL_S) -> StopSeen:
+                still_s: float = STILL_S, poll_s: float = STOP_POLL_S, busy: Callable[[], bool] | None = None) -> StopSeen:
     """Read the position (``read``) until it stays within ``tolerance`` of one value for ``still_s``
     (a machine at rest), at most ``timeout_s``; a position that cannot be read is no machine seen at
-    rest. ``show`` writes a position with its unit."""
+    rest. ``show`` writes a position with its unit. ``busy``, asked after each reading, is the
+    controller's word that a move still executes: while it says so the position is not at rest,
+    however long it stays (a controller's report that stops being refreshed — LinuxCNC's task
+    process starved on a loaded host — repeats its last position unchanged, and that it was moving)."""
     started = time.monotonic()
     last: Any = None
+    anchor: Any = None  # the reading the position has stayed within tolerance of, since anchor_s
+    anchor_s = started
     try:
-        anchor = last = read()
-        anchor_s = time.monotonic()
         while True:
+            last = read()
+            moving = busy is not None and busy()
             now_s = time.monotonic()
-            if now_s - anchor_s >= still_s:
+            if anchor is None or moving or float(np.max(np.abs(np.asarray(last, float) - np.asarray(anchor, float)))) > tolerance:
+                anchor, anchor_s = (None if moving else last), now_s
+            elif now_s - anchor_s >= still_s:
                 return StopSeen(True, show(last))
             if now_s - started >= timeout_s:
-                return StopSeen(False, show(last), f"its position still changed {timeout_s:g} s after the stop")
+                return StopSeen(False, show(last), f"its controller still executed a move {timeout_s:g} s after the stop"
+                                if moving else f"its position still changed {timeout_s:g} s after the stop")
             time.sleep(poll_s)
-            last = read()
-            if float(np.max(np.abs(np.asarray(last, float) - np.asarray(anchor, float)))) > tolerance:
-                anchor, anchor_s = last, time.monotonic()
     except Exception as exc:  # noqa: BLE001 — a dead line: the machine was not seen to stop, which is the answer
         return StopSeen(False, show(last) if last is not None else "", f"its position could not be read ({exc})")
 

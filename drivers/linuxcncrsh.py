@@ -4,8 +4,23 @@ command). The rotary-stage driver (drivers/linuxcnc_stage.py) and the machine-to
 (drivers/linuxcnc_machine.py) are this plus what they move.
 
 A session opens with ``hello EMC rtcal 1.0`` (the server's ``HELLO ACK <name> <version>`` is the
-identity; ``HELLO NAK`` to this well-formed hello is a wrong connect password), turns echo off and
-verbose on (so every ``set`` answers ``SET <CMD> ACK`` or ``NAK``).
+identity; ``HELLO NAK`` to this well-formed hello, every time it is sent, is a wrong connect
+password), turns echo off and verbose on (so every ``set`` answers ``SET <CMD> ACK`` or ``NAK``).
+
+Replies are checked for their request's form, never trusted for being next: linuxcncrsh 2.9 serves
+each session in a thread of its own and splits every request into words with the C library's
+``strtok``, whose place in the line is one for the whole server (emcrsh.cc ``parseCommand`` and
+every handler: ``strtok(NULL, delims)``). A request parsed while another session's is may take that
+one's words: seen with two sessions asking at once, ``get abs_act_pos 5`` answered ``ABS_ACT_POS
+0.000000 … 0.000000`` (the all-axes form: its axis word was gone) or ``GET 5 NAK`` (its item word
+taken), ``get joint_pos 0`` answered ``JOINT_POS 5 …`` (the other request's axis). So a ``get`` is
+accepted only as ``ITEM [its arguments] value…`` and a ``set`` only as ``SET ITEM ACK|NAK``; a reply
+of another form puts the session back in step (``get RTCAL_SYNC_<n>``, an item linuxcncrsh does not
+know, answered ``GET RTCAL_SYNC_<n> NAK``: every line before that answer is dropped) and the request
+is sent again, at most REASKS times. Every request rtcal sends may be sent twice: gets only read,
+and its sets (enable, echo, verbose, mode, home, an absolute G53/G0/G1 target, wait, abort) leave
+the controller as once. What no client can undo: a ``get error`` of another session parsed with
+this one's words reads a message of LinuxCNC's queue away from it.
 
 Before anything is commanded the driver checks what it is given and what the controller is doing,
 and refuses — never changes — what is not its own: the joints and kinematics the driver's kind
@@ -62,7 +77,9 @@ from drivers.interfaces import StopSeen, watch_still
 AXES = "XYZABCUVW"  # linuxcncrsh numbers a position's axes in this order (abs_act_pos 5 is C)
 CONNECT_PASSWORD, ENABLE_PASSWORD = "EMC", "EMCTOO"  # linuxcncrsh's documented defaults (no secret: see its man page)
 MAX_LINE_BYTES = 4096
-MAX_STRAY = 4  # late extra reply lines skipped before a request's own reply
+MAX_STRAY = 4  # replies of another form kept for messages
+REASKS = 4  # a request answered in another form is sent again at most this many times
+SYNC_ITEM = "RTCAL_SYNC_"  # + a number: an item linuxcncrsh does not know, its NAK puts a session back in step
 MAX_QUEUED = 64  # rounds of reading LinuxCNC's message queue; a longer queue is a controller in trouble
 LIMIT_ERROR = re.compile(r"exceed .*limit", re.IGNORECASE)  # 2.9: "Linear move on line 0 would exceed C's positive limit"
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
@@ -79,6 +96,7 @@ class Session:
     def __init__(self, name: str, address: Address, timeout_s: float, what: str):
         self.name, self.timeout_s, self.what = name, timeout_s, what
         self.stray: list[str] = []
+        self._syncs = 0
         self._buffer = b""
         self.server = ""
         try:
@@ -93,26 +111,34 @@ class Session:
 
     def _hello(self) -> None:
         """hello, echo off, verbose on. A connection closed before the hello's reply is linuxcncrsh's
-        session limit; ``HELLO NAK`` to this well-formed hello is the connect password (emcrsh commandHello)."""
-        self.send(f"hello {CONNECT_PASSWORD} rtcal 1.0")
-        try:
-            reply = self.line("hello", self.timeout_s).split()
-        except InstrumentFault as exc:
-            if "closed the connection" in str(exc) or "connection to LinuxCNC lost" in str(exc):
-                raise InstrumentFault(self.name, f"{self.what}: {SESSION_LIMIT}") from None
-            raise
-        if reply[:2] == ["HELLO", "NAK"]:
+        session limit; ``HELLO NAK`` to this well-formed hello is the connect password (emcrsh
+        commandHello), unless another session's request took its words: sent again, REASKS times."""
+        for _ in range(REASKS + 1):
+            self.send(f"hello {CONNECT_PASSWORD} rtcal 1.0")
+            try:
+                reply = self.line("hello", self.timeout_s).split()
+            except InstrumentFault as exc:
+                if "closed the connection" in str(exc) or "connection to LinuxCNC lost" in str(exc):
+                    raise InstrumentFault(self.name, f"{self.what}: {SESSION_LIMIT}") from None
+                raise
+            if reply[:2] != ["HELLO", "NAK"]:
+                break
+        else:
             raise InstrumentFault(self.name, f"linuxcncrsh refused rtcal's connect password (HELLO NAK): it was started "
                                              f"with a --connectpw other than its documented default {CONNECT_PASSWORD!r}, "
                                              "the one rtcal gives (docs/protocols/linuxcnc.md)")
         if reply[:2] != ["HELLO", "ACK"] or len(reply) < 4:
             raise InstrumentFault(self.name, f"hello refused: {' '.join(reply)[:120]!r} (is this linuxcncrsh?)")
         self.server = f"{reply[2]} {reply[3]}"
-        self.send("set echo off")  # acknowledged by the last echo, then nothing more
+        self.send("set echo off")  # echoed (the echo is written before the request is parsed); no reply, verbose off
         self.line("set echo off", self.timeout_s)
-        self.send("set verbose on")
-        if self.line("set verbose on", self.timeout_s).upper() != "SET VERBOSE ACK":
+        if not self.set("verbose", "on"):
             raise InstrumentFault(self.name, "set verbose on: not acknowledged")
+        for _ in range(REASKS + 1):  # a `set echo off` parsed with another session's words left echo on
+            if self.get("echo") == ["OFF"]:
+                return
+            self.set("echo", "off")
+        raise InstrumentFault(self.name, "set echo off: linuxcncrsh still echoes every request")
 
     def connected(self, what: str) -> socket.socket:
         """The connection (None once closed)."""
@@ -153,34 +179,57 @@ class Session:
                 raise InstrumentFault(self.name, f"{what}: LinuxCNC closed the connection (controller shut down or killed)")
             self._buffer += chunk
 
-    def reply(self, line: str, starts: tuple[str, ...], timeout_s: float) -> str:
-        """The reply to ``line``: the next line that starts as its reply does. A line that does not is a
-        late extra reply to an earlier request (linuxcncrsh 2.9 sometimes sends one) and is skipped, at
-        most MAX_STRAY of them; ``stray`` keeps the last few for messages."""
-        for _ in range(MAX_STRAY + 1):
+    def ask(self, line: str, fits: Callable[[list[str]], bool], timeout_s: float) -> list[str]:
+        """``line`` sent, its reply's words: the next line, not the echo of ``line``, that ``fits`` the
+        request's form. A reply of another form (the request parsed with another session's words, or a
+        late reply to an earlier request) is not trusted: the session is put back in step and the
+        request sent again, at most REASKS times; ``stray`` keeps the last few for messages."""
+        for attempt in range(REASKS + 1):
+            if attempt:
+                self.resync(line)
+            self.send(line)
             reply = self.line(line, timeout_s)
-            if reply.upper().startswith(starts) or reply.upper() in {s.strip() for s in starts}:
-                return reply
+            while reply == line:  # echo still on: the request itself comes back first
+                reply = self.line(line, timeout_s)
+            if fits(words := reply.split()):
+                return words
             self.stray = (self.stray + [reply[:80]])[-MAX_STRAY:]
-        raise InstrumentFault(self.name, f"{line!r}: no reply of its kind, only {self.stray!r}")
+        raise InstrumentFault(self.name, f"{line!r}: no reply of its form in {REASKS + 1} tries, only {self.stray!r}")
+
+    def resync(self, what: str) -> None:
+        """Back in step: ``get RTCAL_SYNC_<n>`` until its own ``GET RTCAL_SYNC_<n> NAK`` (emcrsh
+        commandGet: ``GET <item> NAK`` for an item it does not know), every line before it dropped."""
+        for _ in range(REASKS + 1):
+            self._syncs += 1
+            answer = f"GET {SYNC_ITEM}{self._syncs} NAK"
+            self.send(f"get {SYNC_ITEM}{self._syncs}")
+            deadline = time.monotonic() + self.timeout_s
+            try:
+                while self.line(what, max(deadline - time.monotonic(), 1e-3)).upper() != answer:
+                    pass
+                return
+            except InstrumentTimeout:
+                continue  # the marker itself taken by another session's words: another one
+        raise InstrumentFault(self.name, f"{what}: linuxcncrsh does not answer in step ({REASKS + 1} markers unanswered)")
 
     def get(self, item: str, *args: object) -> list[str]:
-        """``get ITEM [ARGS]`` → the words after the echoed item name (``ABS_ACT_POS 5 30.000000`` → ['5', '30.000000'])."""
+        """``get ITEM [ARGS]`` → the words after the echoed item name (``ABS_ACT_POS 5 30.000000`` → ['5', '30.000000']):
+        a reply that names the item and, in order, the arguments asked, with at least one word more;
+        ``GET ITEM NAK`` every time it is asked is a refusal."""
         line = " ".join(["get", item, *map(str, args)])
-        self.send(line)
-        words = self.reply(line, (item.upper(),), self.timeout_s).split()
-        if words[1:] == ["NAK"]:
-            raise InstrumentFault(self.name, f"{line!r}: refused (NAK)")
-        return words[1:]
+        head, nak = [item.upper(), *map(str, args)], ["GET", item.upper(), "NAK"]
+        for _ in range(REASKS + 1):  # a NAK naming the item may be the request parsed with another session's words
+            words = self.ask(line, lambda w: w[:len(head)] == head and len(w) > len(head) or w == nak, self.timeout_s)
+            if words != nak:
+                return words[1:]
+        raise InstrumentFault(self.name, f"{line!r}: refused (GET {item.upper()} NAK)")
 
     def set(self, item: str, *args: object, timeout_s: float | None = None) -> bool:
-        """``set ITEM ARGS``: True on ``SET ITEM ACK`` (verbose mode), False on NAK."""
+        """``set ITEM ARGS``: True on ``SET ITEM ACK`` (verbose mode), False on ``SET ITEM NAK``."""
         line = " ".join(["set", item, *map(str, args)])
-        self.send(line)
-        reply = self.reply(line, (f"SET {item.upper()} ",), timeout_s or self.timeout_s)
-        if reply.upper() in (f"SET {item.upper()} ACK", f"SET {item.upper()} NAK"):
-            return reply.upper().endswith("ACK")
-        raise InstrumentFault(self.name, f"{line!r}: unexpected reply {reply[:120]!r}")
+        words = self.ask(line, lambda w: w[:2] == ["SET", item.upper()] and w[2:] in (["ACK"], ["NAK"]),
+                         timeout_s or self.timeout_s)
+        return words[2] == "ACK"
 
     def position(self, item: str, index: int) -> float:
         """``get ITEM INDEX`` (abs_act_pos, abs_cmd_pos, joint_pos) as a number (degrees or mm)."""
@@ -298,7 +347,7 @@ class LinuxCncControl:
         if not self.may_move:
             return
         self.stopper = Session(self.name, self.address, self.timeout_s, "the session kept for stopping")
-        if not self.rsh.set("enable", ENABLE_PASSWORD):
+        if not any(self.rsh.set("enable", ENABLE_PASSWORD) for _ in range(REASKS + 1)):  # NAK each time: the password
             raise InstrumentFault(self.name, f"linuxcncrsh refused rtcal's enable password (SET ENABLE NAK): it was "
                                              f"started with an --enablepw other than its documented default "
                                              f"{ENABLE_PASSWORD!r}, the one rtcal gives (docs/protocols/linuxcnc.md)")
@@ -429,7 +478,7 @@ class LinuxCncControl:
             return
         self.stopped = True
         try:
-            if self.stopper.set("enable", ENABLE_PASSWORD) and self.stopper.set("abort"):
+            if any(self.stopper.set("enable", ENABLE_PASSWORD) for _ in range(REASKS + 1)) and self.stopper.set("abort"):
                 return
             estop, machine = self.stopper.get("estop")[0].upper(), self.stopper.get("machine")[0].upper()
             if estop != "OFF" or machine != "ON":  # emcrsh commandSet refuses it to a machine off: nothing moves
@@ -444,12 +493,16 @@ class LinuxCncControl:
 
     def _watch_stopped(self, read: Callable[[Session], Any], show: Callable[[Any], str], tolerance: float,
                        timeout_s: float) -> StopSeen:
-        """After :meth:`stop`: ``read`` over the session kept for stopping until it no longer changes (the
-        moving session may still wait for the move's reply); a probe's session is read once."""
+        """After :meth:`stop`: ``read`` over the session kept for stopping until it no longer changes and
+        ``get program_status`` says IDLE (the moving session may still wait for the move's reply); a
+        probe's session is read once. Seen on a loaded host: linuxcncrsh repeated one position for 0.3 s
+        while the table turned on 3° (its status, written by LinuxCNC's task process, not refreshed), but
+        that status said RUNNING, as it does while an MDI move executes, until the abort."""
         if self.stopper is None:
             return StopSeen(True, show(read(self.rsh)))
         stopper = self.stopper
-        return watch_still(lambda: read(stopper), show, tolerance, timeout_s)
+        return watch_still(lambda: read(stopper), show, tolerance, timeout_s,
+                           busy=lambda: stopper.get("program_status")[:1] != ["IDLE"])
 
     def reset_alarm(self) -> None:
         """Clear LinuxCNC's queued errors and re-enter MDI; an E-stop or a lost session stays a fault."""

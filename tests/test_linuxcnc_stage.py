@@ -37,7 +37,9 @@ class FakeRsh:
     ACK (as LinuxCNC 2.9 does). ``move_s``: a move takes that long, the table turning on meanwhile,
     and its session answers only once it ended — an abort from another session ends it at once.
     ``inifile``: what ``get inifile`` answers. ``max_sessions``: emcrsh's ``-s`` limit, counting every
-    session since the start (2.9 never counts a closed one off), the one beyond closed unanswered."""
+    session since the start (2.9 never counts a closed one off), the one beyond closed unanswered.
+    ``garbled``: request → replies 2.9 gave it when another session's request was parsed at the same
+    time (its shared ``strtok``), each answered once in their place, in order, and nothing else done."""
 
     def __init__(self, joint_type: str = "ANGULAR", stray_after_ack: bool = True, estop: str = "OFF",
                  machine: str = "ON", homed: str = "YES", limit: float = 400.0, inifile: str = "emc.ini",
@@ -57,6 +59,7 @@ class FakeRsh:
         self.cut_short_at: float | None = None
         self.die_on_mdi = False  # the controller is killed while a move is under way: the connection closes
         self.requests: list[str] = []
+        self.garbled: dict[str, list[str]] = {}
         self.by_session: dict[int, list[str]] = {}
         self.messages: list[tuple[str, str]] = []
         self.strings = {"ERROR": "", "OPERATOR_DISPLAY": "", "OPERATOR_TEXT": ""}
@@ -80,6 +83,7 @@ class FakeRsh:
     def _serve(self, conn: socket.socket, number: int) -> None:
         with conn, conn.makefile("rb") as lines:
             echo = False  # observed: the hello is not echoed, the requests after it are until `set echo off`
+            verbose = False
             for raw in lines:
                 line = raw.decode().strip()
                 with self.lock:
@@ -87,10 +91,17 @@ class FakeRsh:
                     self.by_session.setdefault(number, []).append(line)
                 if self.die_on_mdi and line.startswith("set mdi"):
                     return
-                reply = self._answer(line, conn)
+                with self.lock:
+                    odd = self.garbled.get(line, [])
+                    garbled = odd.pop(0) + "\r\n" if odd else ""
+                reply = garbled or (f"ECHO {'ON' if echo else 'OFF'}\r\n" if line == "get echo" else self._answer(line, conn))
+                if line.startswith("set echo") and not garbled and verbose:  # emcrsh commandSet: acknowledged once verbose
+                    reply = "SET ECHO ACK\n\r"
+                verbose = (verbose or line == "set verbose on") and line != "set verbose off"
                 if echo:
                     conn.sendall(raw.rstrip(b"\r\n") + b"\r\n")
-                echo = line.startswith("hello") or (echo and line.lower() != "set echo off")
+                if not garbled:  # emcrsh echoes once a hello linked the session, until `set echo off`
+                    echo = reply.startswith("HELLO ACK") or (echo and line.lower() != "set echo off")
                 if reply:
                     conn.sendall(reply.encode())
 
@@ -215,11 +226,11 @@ def test_session_moves_by_mdi_and_never_touches_estop_power_or_homing(rsh):
     finally:
         stage.close()
     moving, stopping = rsh.by_session[1], rsh.by_session[2]
-    assert moving[:3] == stopping[:3] == ["hello EMC rtcal 1.0", "set echo off", "set verbose on"]
+    assert moving[:4] == stopping[:4] == ["hello EMC rtcal 1.0", "set echo off", "set verbose on", "get echo"]
     assert not [q for q in rsh.requests if q.startswith(("set estop", "set machine", "set home", "set set_wait"))]
     assert moving.index("set enable EMCTOO") > moving.index("get program_status")  # asked before control is taken
     assert moving[moving.index("set mdi G0 C-1.250000") + 1] == "set wait done"
-    assert "set abort" not in moving and stopping[3:5] == ["set enable EMCTOO", "set abort"]
+    assert "set abort" not in moving and stopping[4:6] == ["set enable EMCTOO", "set abort"]
 
 
 @pytest.mark.parametrize("state, named", [({"estop": "ON", "machine": "OFF"}, "E-stop is on"),
@@ -374,28 +385,86 @@ def test_a_run_with_a_linuxcnc_stage_refuses_the_virtual_clock(capsys, tmp_path)
     assert code == 2 and "real time" in capsys.readouterr().err and not (tmp_path / "run").exists()
 
 
-def test_a_stop_reaches_linuxcnc_while_the_moving_session_waits_for_its_move():
-    """Issue 40: `set abort` went on the session whose `set mdi` waited for the move, and was read only
-    after the move ended (the table went on from 21° to 90°). The stop goes over the session kept for
-    stopping, at once, and the position is seen at rest far short of the target."""
-    fake = FakeRsh()
-    fake.move_s = 9.0  # 0 → 90° at 10 °/s
+def _stopped_at_20_deg(fake: FakeRsh, garbled: dict[str, list[str]] | None = None):
+    """A move 0 → 90° at 10 °/s, stopped from another thread once the table passed 20° (``garbled``
+    given to the fake then): what wait_stopped saw, and how long after the stop was asked."""
+    fake.move_s = 9.0
     stage = open_stage(f"linuxcncrsh://127.0.0.1:{fake.port}?take_control=1", (-400, 400), 2.0)
     moving = threading.Thread(target=lambda: pytest.raises(InstrumentFault, stage.move_to, 90.0), daemon=True)
     try:
         moving.start()
         while fake.position() < 20.0:
             time.sleep(0.01)
+        fake.garbled = garbled or {}
         asked_s = time.monotonic()
         stage.stop()
         seen = stage.wait_stopped()
-        took_s = time.monotonic() - asked_s
+        return seen, time.monotonic() - asked_s
     finally:
         moving.join(15)
         stage.close()
+
+
+def test_a_stop_reaches_linuxcnc_while_the_moving_session_waits_for_its_move():
+    """Issue 40: `set abort` went on the session whose `set mdi` waited for the move, and was read only
+    after the move ended (the table went on from 21° to 90°). The stop goes over the session kept for
+    stopping, at once, and the position is seen at rest far short of the target."""
+    fake = FakeRsh()
+    seen, took_s = _stopped_at_20_deg(fake)
     assert seen.still and 20.0 <= float(seen.where.rstrip("°")) < 25.0, seen
     assert took_s < 1.0 and fake.position() < 25.0
-    assert fake.by_session[2][3:5] == ["set enable EMCTOO", "set abort"]
+    assert fake.by_session[2][4:6] == ["set enable EMCTOO", "set abort"]
+
+
+ALL_AXES = "ABS_ACT_POS 0.000000 0.000000 0.000000 0.000000 0.000000 0.000000"  # 2.9's all-axes form
+
+
+def test_replies_of_another_form_are_asked_again_never_trusted(rsh):
+    """linuxcncrsh 2.9 splits every session's request with one ``strtok`` for the whole server: a request
+    parsed while another session's is takes that one's words (seen on LinuxCNC: `get abs_act_pos 5` →
+    the all-axes form or `GET 5 NAK`; `get joint_pos 0` → `JOINT_POS 5 …`). Such a reply, or a late one
+    before the reply, is asked again once the session is back in step: never an error, never its value."""
+    rsh.garbled = {
+        "hello EMC rtcal 1.0": ["HELLO NAK"],  # its password word taken
+        "set echo off": ["SET NAK"],  # parsed without its words: echo stays on
+        "set enable EMCTOO": ["SET ENABLE NAK"],  # its password word taken
+        "get mode": ["SET MODE ACK\r\nMODE MANUAL"],  # a late reply, then a reply of before
+        "set mdi G0 C-1.250000": ["SET ABS_ACT_POS NAK"],
+        "get abs_act_pos 5": [ALL_AXES, "GET 5 NAK", "ABS_ACT_POS 0 0.000000", "ABS_CMD_POS 5 0.000000"],
+        "get joint_pos 0": ["JOINT_POS 5 0.000000"],
+    }
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}?axis=C&joint=0&take_control=1", (-400, 400), 2.0)
+    try:
+        stage.move_to(-1.25)
+        assert stage.position_deg() == -1.25 and stage.feedback_deg() == -1.25
+    finally:
+        stage.close()
+    assert not any(rsh.garbled.values())  # every odd reply was given, and none was taken
+    moving = rsh.by_session[1]
+    assert moving.count("hello EMC rtcal 1.0") == 2 and moving.count("set mdi G0 C-1.250000") == 2
+    assert moving[moving.index("get echo") + 1] == "set echo off"  # echo still on: turned off again
+    assert [q for q in moving if q.startswith("get RTCAL_SYNC_")] == [f"get RTCAL_SYNC_{n}" for n in range(1, 9)]
+
+
+def test_a_reply_of_another_form_every_time_is_a_fault_not_a_value(rsh):
+    stage = open_stage(f"linuxcncrsh://127.0.0.1:{rsh.port}?axis=C&joint=0&take_control=1", (-400, 400), 2.0)
+    try:
+        rsh.garbled = {"get abs_act_pos 5": ["ABS_ACT_POS 0 12.000000"] * 5, "get joint_pos 0": ["GET JOINT_POS NAK"] * 25}
+        with pytest.raises(InstrumentFault, match=r"no reply of its form in 5 tries, only .*'ABS_ACT_POS 0 12.000000'"):
+            stage.position_deg()
+        with pytest.raises(InstrumentFault, match=re.escape("'get joint_pos 0': refused (GET JOINT_POS NAK)")):
+            stage.feedback_deg()
+    finally:
+        stage.close()
+
+
+def test_a_stop_is_seen_at_rest_through_replies_of_another_form():
+    """The stop watch reads the position over the session kept for stopping while another session asks:
+    a reply of another form there is asked again, not a machine that could not be seen to stop."""
+    fake = FakeRsh()
+    seen, _ = _stopped_at_20_deg(fake, {"get abs_act_pos 5": [ALL_AXES, "GET 5 NAK", ALL_AXES], "set abort": ["SET NAK"]})
+    assert seen.still and 20.0 <= float(seen.where.rstrip("°")) < 25.0, seen
+    assert not any(fake.garbled.values()) and fake.by_session[2].count("set abort") == 2
 
 
 def test_the_moving_session_moves_nothing_after_a_stop(rsh):

@@ -368,6 +368,27 @@ def test_a_machine_whose_position_cannot_be_read_after_the_stop_may_still_be_mov
     assert not seen.still and seen.where == "" and "could not be read" in seen.why and "the line died" in seen.why
 
 
+def test_a_report_repeated_while_the_controller_still_executes_its_move_is_not_a_machine_at_rest():
+    """Seen on a loaded host: linuxcncrsh repeated one position for 0.3 s while the table turned on 3°
+    (LinuxCNC's status not refreshed), and the stop was said seen at rest there. The same status said
+    RUNNING: while the controller says a move executes, no unchanged position is rest."""
+    from drivers.interfaces import watch_still
+
+    reads = []
+
+    def read() -> float:  # 20 readings (≥ 0.4 s at one per 20 ms, > STILL_S) the same, then where it stopped
+        reads.append(1)
+        return 21.0 if len(reads) <= 20 else 24.0
+
+    seen = watch_still(read, lambda deg: f"{deg}°", 1e-4, busy=lambda: len(reads) <= 20)
+    assert seen.still and seen.where == "24.0°"
+    reads.clear()
+    assert watch_still(read, lambda deg: f"{deg}°", 1e-4).where == "21.0°"  # without the controller's word: fooled
+    reads.clear()
+    never = watch_still(read, lambda deg: f"{deg}°", 1e-4, timeout_s=0.3, busy=lambda: True)
+    assert not never.still and "still executed a move" in never.why
+
+
 def test_the_console_says_which_machine_may_still_be_moving(capsys):
     from rtcal.cli.run import _say_still_moving
 
