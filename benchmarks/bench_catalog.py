@@ -1,10 +1,14 @@
-"""The catalogue at a lab's scale (issue 33): 10 000 synthetic entries (200 machines × 50
-calibrations) added one transaction each, as `rtcal catalog add` does, to SQLite and to a PostgreSQL
-server started here (Debian's postgresql package, fsync on); then a machine axis's history query.
+"""The catalogue at a lab's scale (issues 33, 45): 10 000 synthetic entries (200 machines × 50
+calibrations, each with two reference instruments from a pool of 20 polygons and 10 autocollimators)
+added one transaction each, as `rtcal catalog add` does (the entry, its instruments, its audit row), to
+SQLite and to a PostgreSQL server started here (Debian's postgresql package, fsync on); then a machine
+axis's history, an instrument's `used-by` (all its ~500 calibrations, and those of the last year), and
+`catalog verify` of the whole audit trail.
 
     PYTHONPATH=$PWD python benchmarks/bench_catalog.py [--machines 200] [--calibrations 50] [--queries 200]
 
-Prints adds per second and the history query's median and worst time (goal: under 50 ms).
+Prints adds per second, the queries' median and worst times (goal: under 50 ms) and the verify time
+(goal: under 1 s).
 """
 
 from __future__ import annotations
@@ -37,7 +41,12 @@ def synthetic(machine: int, k: int, rng: random.Random) -> dict[str, Any]:
         "measured_utc": t.isoformat(), "finished_utc": (t + timedelta(hours=2)).isoformat(),
         "certificate_number": f"C-{machine}-{k}", "verdict": "pass", "location_errors": "{}",
         "digests": dumps({"readings_sha256": "0" * 64}), "run_dir": f"/runs/{machine}/{k}", "added_utc": now_utc(),
-        "results": dumps({"deviations": [rng.gauss(0, 5) for _ in range(100)]}),
+        "results": (text := dumps({"deviations": [rng.gauss(0, 5) for _ in range(100)]})),
+        "results_sha256": hashlib.sha256(text.encode()).hexdigest(), "certificate_key": f"C-{machine}-{k}",
+        "test": "ISO 230-2 positioning test", "site": f"site {machine % 3}",
+        "instruments": [{"role": role, "instrument_id": f"{role} SN {machine % pool}", "kind": role,
+                         "certificate_number": f"K-{role}-{machine % pool}", "issuer": "PTB", "due": "2030-01-01",
+                         "correction": "from its certificate"} for role, pool in (("polygon", 20), ("autocollimator", 10))],
     }
     for p in PARAMETERS:
         row[f"{p}_arcsec"], row[f"{p}_U_arcsec"], row[f"{p}_limit_arcsec"] = e, 0.6, 60.0
@@ -49,11 +58,12 @@ def synthetic(machine: int, k: int, rng: random.Random) -> dict[str, Any]:
 def bench(label: str, location: str, machines: int, calibrations: int, queries: int) -> None:
     rng = random.Random(1)
     rows = [synthetic(m, k, rng) for k in range(calibrations) for m in range(machines)]
-    with Catalog(location) as cat:
+    with Catalog(location, write=True) as cat:
         t0 = time.perf_counter()
         for row in rows:
             cat.add(row)
         adds_s = time.perf_counter() - t0
+    with Catalog(location) as cat:  # read as `catalog history` reads: nothing written
         assert cat.count() == len(rows)
         times_ms = []
         for _ in range(queries):
@@ -62,9 +72,29 @@ def bench(label: str, location: str, machines: int, calibrations: int, queries: 
             history = cat.history(sn, "C")
             times_ms.append(1000 * (time.perf_counter() - t0))
             assert len(history) == calibrations
-    print(f"{label}: {len(rows)} entries added, {len(rows) / adds_s:.0f} adds/s (one transaction each); history of one "
-          f"axis ({calibrations} entries): median {statistics.median(times_ms):.1f} ms, worst {max(times_ms):.1f} ms "
-          f"over {queries} queries (goal < 50 ms)")
+        used_ms, recent_ms, used_rows = [], [], 0
+        since = (datetime(2020, 1, 1, tzinfo=timezone.utc) + timedelta(days=7 * (calibrations - 10))).date().isoformat()
+        for _ in range(queries):
+            instrument = f"polygon SN {rng.randrange(20)}"
+            t0 = time.perf_counter()
+            used = cat.used_by(instrument)
+            used_ms.append(1000 * (time.perf_counter() - t0))
+            used_rows = len(used)
+            t0 = time.perf_counter()
+            cat.used_by(instrument, since)
+            recent_ms.append(1000 * (time.perf_counter() - t0))
+        t0, cpu0 = time.perf_counter(), time.process_time()
+        found = cat.audit_check()
+        verify_s, verify_cpu_s = time.perf_counter() - t0, time.process_time() - cpu0
+        assert not found.problems and found.entries == len(rows), found.problems[:3]
+    print(f"{label}: {len(rows)} entries added, {len(rows) / adds_s:.0f} adds/s (one transaction each, with instruments and "
+          f"audit row); history of one axis ({calibrations} entries): median {statistics.median(times_ms):.1f} ms, worst "
+          f"{max(times_ms):.1f} ms over {queries} queries (goal < 50 ms)")
+    print(f"{label}: used-by of one polygon ({used_rows} calibrations): median {statistics.median(used_ms):.1f} ms, worst "
+          f"{max(used_ms):.1f} ms; since {since}: median {statistics.median(recent_ms):.1f} ms, worst {max(recent_ms):.1f} ms "
+          f"(goal < 50 ms)")
+    print(f"{label}: catalog verify: {found.rows} audit rows chained and {found.entries} entries checked in {verify_s:.2f} s "
+          f"({verify_cpu_s:.2f} s of this process's CPU; goal < 1 s)")
 
 
 def main() -> None:

@@ -6,7 +6,7 @@
 - ``/dev/ttyUSB0`` or ``socket://HOST:PORT`` (``?model=sylvac&baud=4800&bytesize=7&parity=E&stopbits=2``) — a
   serial instrument; framing options the address leaves out are the model's defaults
 - ``sim-operator://HOST:PORT?token=…`` — the simulated operator of a protocol-simulator bench
-- ``linuxcncrsh://HOST:PORT?axis=C&joint=0`` — a LinuxCNC controller's rotary axis over its
+- ``linuxcncrsh://HOST:PORT?axis=C&joint=0&take_control=1`` — a LinuxCNC controller's rotary axis (A, B or C) over its
   linuxcncrsh text interface (default port 5007; model ``linuxcnc``)
 
 ``model=`` names the product whose protocol the driver speaks (drivers/models.py; an installed
@@ -30,6 +30,7 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "steps_per_rev": (1, 10_000_000, True),
     "gear": (1e-3, 100_000, False),
     "speed_deg_per_s": (1e-6, 3600, False),
+    "speed_mm_per_s": (1e-6, 10_000, False),  # LinuxCNC machine tool: the feed of a move of the held point
     "baud": (50, 10_000_000, True),
     "counts_per_rev": (1, 2**40, True),
     "bytesize": (7, 8, True),  # serial framing: data bits
@@ -37,7 +38,9 @@ OPTIONS: dict[str, tuple[float, float, bool]] = {
     "home": (0, 1, True),  # a CMM (I++) or a LinuxCNC joint: 1 lets rtcal home an unhomed machine (else refused)
     "joint": (0, 15, True),  # LinuxCNC: the rotary axis's joint number
     "move_timeout_s": (0.1, 3600, False),  # LinuxCNC: the longest wait for one move
+    "take_control": (0, 1, True),  # LinuxCNC: 1 lets rtcal take control from any other linuxcncrsh console
 }
+ROTARY_AXES = "ABC"  # LinuxCNC's rotary axis letters (X Y Z U V W are linear)
 # options whose value is text: a pattern it must match and what to call it in a message
 TEXT_OPTIONS: dict[str, tuple[str, str]] = {
     "model": (r"[a-z0-9][a-z0-9._-]{0,63}", "a model name such as sylvac or oriental-az"),
@@ -141,6 +144,16 @@ def check_text(name: str, text: str) -> str:
     return text
 
 
+def check_take_control(address: Address) -> None:
+    """A LinuxCNC address that will move the table says ``take_control=1``: ``set enable`` takes control
+    from any other linuxcncrsh console, and linuxcncrsh cannot tell whether one holds it."""
+    if address.scheme == "linuxcncrsh" and address.option("take_control", 0) != 1:
+        raise AddressError("a LinuxCNC stage that rtcal moves needs take_control=1 in its address: rtcal takes control "
+                           "of the machine (linuxcncrsh `set enable`) from any other linuxcncrsh console — an operator's, "
+                           "a cell controller's — which then loses it silently, and linuxcncrsh cannot tell whether one "
+                           "holds it; add take_control=1 once no one else commands the machine over linuxcncrsh")
+
+
 REDACTED = "…"  # what a stored address carries in place of a token's value
 _TOKEN_VALUE = re.compile(r"(token=)[^&\s\"'#\\]*")
 MAX_ADDRESS_CHARS = 2000
@@ -210,6 +223,10 @@ def parse_address(text: str) -> Address:
             raise AddressError(f"{_shown(text)}: needs HOST:PORT")
         if parts.path not in ("", "/") or parts.fragment:
             raise AddressError(f"{_shown(text)}: nothing may follow HOST:PORT but ?options")
+        if parts.scheme == "linuxcncrsh" and options.get("axis", "C").upper() not in ROTARY_AXES:
+            # G0 <letter> moves the letter's axis whatever joint= says: a linear letter moves a slide, not the table
+            raise AddressError(f"option axis={options['axis']!r}: a LinuxCNC rotary axis is A, B or C (X Y Z U V W are "
+                               "linear: rtcal would move a slide and report it as the table)")
         return Address(parts.scheme, host=parts.hostname, port=port, options=options)
     if parts.scheme == "modbus-rtu":
         if not parts.path:

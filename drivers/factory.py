@@ -10,7 +10,8 @@ from __future__ import annotations
 from typing import Any
 
 from drivers.addresses import Address, AddressError, parse_address, redact_tokens
-from drivers.interfaces import Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer, RotaryStage
+from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor, Instrument, LaserTracer,
+                                MachineTool, RotaryStage)
 from drivers.fence import fenced, refuse_unfit_class
 from drivers.kinds import KINDS
 from drivers.models import Model, model_for
@@ -18,7 +19,8 @@ from drivers.models import Model, model_for
 # a procedure's instruments and the kind of each (an instrument named after an installed kind is of it: kind_of)
 KIND_OF = {"stage": "stage", "cmm": "cmm", "laser_tracer": "laser_tracer", "encoder": "encoder",
            "autocollimator": "autocollimator", "dial_indicator_1": "dial_indicator", "dial_indicator_2": "dial_indicator",
-           "environment": "environment"}
+           "environment": "environment", "machine_tool": "machine_tool",
+           **{f"nest_indicator_{i}": "dial_indicator" for i in (1, 2, 3)}}
 
 
 def kind_of(instrument: str, declared: str | None = None) -> str:
@@ -128,6 +130,12 @@ def open_autocollimator(address: str, timeout_s: float) -> Autocollimator:
 def open_dial_indicator(address: str, name: str, timeout_s: float) -> DialIndicator:
     instrument = open_instrument("dial_indicator", address, timeout_s, name=name)
     assert isinstance(instrument, DialIndicator)
+    return instrument
+
+
+def open_machine_tool(address: str, timeout_s: float, may_move: bool = True) -> MachineTool:
+    instrument = open_instrument("machine_tool", address, timeout_s, may_move=may_move)
+    assert isinstance(instrument, MachineTool)
     return instrument
 
 

@@ -11,15 +11,15 @@ from __future__ import annotations
 
 import inspect
 import math
-from typing import Any, Callable, Collection, NoReturn
+from typing import Any, Callable, Collection, Mapping, NoReturn
 
 import numpy as np
 
 from drivers.addresses import AddressError
 from drivers.errors import InstrumentError, InstrumentFault
 from drivers.interfaces import (Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading, EnvironmentSensor,
-                                FieldDescription, Instrument, LaserTracer, LengthReading, ReadingOutsideDescription,
-                                RotaryStage, Value)
+                                FieldDescription, Instrument, LaserTracer, LengthReading, MachineTarget, MachineTool,
+                                ReadingOutsideDescription, RotaryStage, StopSeen, Value, STOP_WATCH_S)
 from drivers.kinds import KINDS, check_values, describe_kind
 
 MAX_IDENTITY_CHARS = 200
@@ -34,6 +34,7 @@ TRACER_RANGE_MM = 100_000.0  # a tracer's relative length beyond 100 m
 ENCODER_RANGE_DEG = 36_000.0  # a multi-turn count of a hundred turns
 AUTOCOLLIMATOR_RANGE_ARCSEC = 3_600.0  # autocollimators measure within about ±1000″
 DIAL_RANGE_UM = 100_000.0  # a dial indicator's travel is at most 100 mm
+MACHINE_RANGE = 100_000.0  # a machine tool's joint beyond 100 m (or a hundred turns and more) is no reading
 ENVIRONMENT_RANGES = {"air_temperature_c": (-50.0, 100.0), "air_pressure_pa": (30_000.0, 150_000.0),
                       "humidity_pct": (0.0, 100.0), "material_temperature_c": (-50.0, 100.0)}
 
@@ -110,11 +111,22 @@ class _Fenced:
             raise InstrumentFault(self.name, f"reading refused: {shown_identity(str(exc))}{self._by()}") from None
 
 
+class _FencedMover(_Fenced):
+    """A stage's or CMM's fence: what the driver saw of its stop, as text rtcal may show."""
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        seen = self._call("wait_stopped", timeout_s)
+        if not isinstance(seen, StopSeen):
+            return StopSeen(False, "", f"its wait_stopped answered {shown_identity(repr(seen))[:60]}, not what it saw"
+                                       f"{self._by()}")
+        return StopSeen(bool(seen.still), shown_identity(seen.where), shown_identity(seen.why))
+
+
 def what_plugin(model: str, plugin: str) -> str:
     return f"model {model} of plugin {plugin}" if plugin else f"model {model}"
 
 
-class FencedStage(_Fenced, RotaryStage):
+class FencedStage(_FencedMover, RotaryStage):
     def __init__(self, inner: RotaryStage, kind: str, model: str, plugin: str):
         super().__init__(inner, kind, model, plugin)
         lo, hi = inner.limits_deg
@@ -146,7 +158,7 @@ class FencedStage(_Fenced, RotaryStage):
         self._call("reset_alarm")
 
 
-class FencedCmm(_Fenced, Cmm):
+class FencedCmm(_FencedMover, Cmm):
     def __init__(self, inner: Cmm, kind: str, model: str, plugin: str):
         super().__init__(inner, kind, model, plugin)
         self.volume_min_mm, self.volume_max_mm = inner.volume_min_mm, inner.volume_max_mm
@@ -168,6 +180,31 @@ class FencedCmm(_Fenced, Cmm):
                                   f"in mm{self._by()}")
         return np.array([self._number(v, f"position {axis}", -CMM_RANGE_MM, CMM_RANGE_MM, "mm")
                          for v, axis in zip(xyz, "xyz")])
+
+    def stop(self) -> None:
+        self._call("stop")
+
+
+class FencedMachineTool(_FencedMover, MachineTool):
+    def __init__(self, inner: MachineTool, kind: str, model: str, plugin: str):
+        super().__init__(inner, kind, model, plugin)
+        self.axes = tuple(str(a) for a in inner.axes)
+        self.limits = {str(a): (float(lo), float(hi)) for a, (lo, hi) in dict(inner.limits).items()}
+        self.tcp = bool(getattr(inner, "tcp", False))
+
+    def home(self) -> None:
+        self._call("home")
+
+    def move_to(self, target: MachineTarget) -> None:
+        self._call("move_to", target)
+
+    def joint_positions(self) -> dict[str, float]:
+        value = self._call("joint_positions")
+        if not isinstance(value, Mapping) or set(value) != set(self.axes):
+            raise InstrumentFault(self.name, f"joint positions: {shown_identity(repr(value))[:60]} names not this "
+                                             f"machine's axes {list(self.axes)}{self._by()}")
+        return {a: self._number(value[a], f"joint {a.upper()}", -MACHINE_RANGE, MACHINE_RANGE, "mm" if a in "xyz" else "°")
+                for a in self.axes}
 
     def stop(self) -> None:
         self._call("stop")
@@ -234,7 +271,8 @@ class FencedEnvironmentSensor(_Fenced, EnvironmentSensor):
 
 FENCES: dict[str, Callable[..., Instrument]] = {
     "stage": FencedStage, "cmm": FencedCmm, "laser_tracer": FencedLaserTracer, "encoder": FencedEncoder,
-    "autocollimator": FencedAutocollimator, "dial_indicator": FencedDialIndicator, "environment": FencedEnvironmentSensor}
+    "autocollimator": FencedAutocollimator, "dial_indicator": FencedDialIndicator, "environment": FencedEnvironmentSensor,
+    "machine_tool": FencedMachineTool}
 
 
 class FencedKind(_Fenced):

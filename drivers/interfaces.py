@@ -2,14 +2,21 @@
 
 A backend (in-process simulation, Modbus drive, serial ASCII instrument, TCP CMM) implements
 one of these; the engine sees nothing else. Motions block until in position.
+
+Every mover (a stage, a CMM) stops in two parts: ``stop()`` sends the stop at once, and
+``wait_stopped()`` says whether the machine was then *seen* to stop — its position read until it
+no longer changes (:func:`watch_still`) — and where. A stop acknowledged is not a machine at rest
+(linuxcncrsh acknowledges an abort queued behind the move it should cut), so the engine writes
+"stopped" only where a position was seen still, and names every machine that may still move.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Collection, Mapping, NamedTuple
+from typing import Any, Callable, Collection, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -89,6 +96,12 @@ DESCRIPTIONS: dict[str, dict[str, FieldDescription]] = {
                            FieldDescription("humidity_pct", "%", "the air's relative humidity", may_be_nan=True),
                            FieldDescription("material_temperature_c", "degC", "the table's material temperature",
                                             may_be_nan=True, probe_nan="omit")),
+    # a machine tool's joints as its controller reports them; a rotary axis the machine lacks reads NaN
+    "machine_tool": _fields(*(FieldDescription(f"position_{a}_mm", "mm", f"the {a.upper()} joint's position the control "
+                                               "reports, machine frame", physical_range=(-1e5, 1e5)) for a in "xyz"),
+                            *(FieldDescription(f"position_{a}_deg", "deg", f"the {a.upper()} joint's position the control "
+                                               "reports (NaN: the machine has no such axis)", may_be_nan=True,
+                                               probe_nan="omit", physical_range=(-36_000.0, 36_000.0)) for a in "abc")),
 }
 
 
@@ -141,6 +154,11 @@ def check_described(kind: str, table: Mapping[str, FieldDescription], values: Ma
     return out
 
 
+SIMULATED_MARK = "SIMULATED"
+"""What rtcal's protocol simulators put into their identity replies (a model or serial string, within the
+format each product's reply allows: docs/protocols/): a run whose instrument says it is marked simulated."""
+
+
 class Instrument(ABC):
     """Common life cycle: a name for messages, connect on construction, close when done.
 
@@ -189,6 +207,51 @@ class Instrument(ABC):
         raise NotImplementedError(f"{type(self).__name__} does not read")
 
 
+STILL_S = 0.25  # a position that has not changed for this long, read again and again, is a machine at rest
+STOP_WATCH_S = 5.0  # the longest a stop is watched: a table still turning after it is reported as moving
+STOP_POLL_S = 0.02
+
+
+@dataclass(frozen=True)
+class StopSeen:
+    """What a mover's stop was seen to do: ``still`` when its position was read unchanged for
+    STILL_S after the stop; ``where`` the last position read, with its unit ("" when none could be);
+    ``why`` says why it was not seen still."""
+
+    still: bool
+    where: str = ""
+    why: str = ""
+
+
+def watch_still(read: Callable[[], Any], show: Callable[[Any], str], tolerance: float, timeout_s: float = STOP_WATCH_S,
+                still_s: float = STILL_S, poll_s: float = STOP_POLL_S, busy: Callable[[], bool] | None = None) -> StopSeen:
+    """Read the position (``read``) until it stays within ``tolerance`` of one value for ``still_s``
+    (a machine at rest), at most ``timeout_s``; a position that cannot be read is no machine seen at
+    rest. ``show`` writes a position with its unit. ``busy``, asked after each reading, is the
+    controller's word that a move still executes: while it says so the position is not at rest,
+    however long it stays (a controller's report that stops being refreshed — LinuxCNC's task
+    process starved on a loaded host — repeats its last position unchanged, and that it was moving)."""
+    started = time.monotonic()
+    last: Any = None
+    anchor: Any = None  # the reading the position has stayed within tolerance of, since anchor_s
+    anchor_s = started
+    try:
+        while True:
+            last = read()
+            moving = busy is not None and busy()
+            now_s = time.monotonic()
+            if anchor is None or moving or float(np.max(np.abs(np.asarray(last, float) - np.asarray(anchor, float)))) > tolerance:
+                anchor, anchor_s = (None if moving else last), now_s
+            elif now_s - anchor_s >= still_s:
+                return StopSeen(True, show(last))
+            if now_s - started >= timeout_s:
+                return StopSeen(False, show(last), f"its controller still executed a move {timeout_s:g} s after the stop"
+                                if moving else f"its position still changed {timeout_s:g} s after the stop")
+            time.sleep(poll_s)
+    except Exception as exc:  # noqa: BLE001 — a dead line: the machine was not seen to stop, which is the answer
+        return StopSeen(False, show(last) if last is not None else "", f"its position could not be read ({exc})")
+
+
 class RotaryStage(Instrument):
     """A rotary table driven to commanded angles (degrees, counterclockwise positive)."""
 
@@ -219,7 +282,16 @@ class RotaryStage(Instrument):
         return self.position_deg()
 
     @abstractmethod
-    def stop(self) -> None: ...
+    def stop(self) -> None:
+        """Send the stop at once (the safe state): never waits for a motion to end."""
+
+    # a table creeping this little in STILL_S is at rest (an encoder may flicker by a count)
+    still_within_deg: float = 1e-4
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """After :meth:`stop`: the feedback position read until it no longer changes (:func:`watch_still`)."""
+        return watch_still(self.feedback_deg, lambda deg: f"{deg:.6f}°", max(self.still_within_deg, 2 * self.step_deg),
+                           timeout_s)
 
     def reset_alarm(self) -> None:  # noqa: B027 — drives without alarms need nothing
         """Clear a drive alarm so that it can move again (not an emergency stop)."""
@@ -257,7 +329,15 @@ class Cmm(Instrument):
         """The probe position the CMM reports (its scales), mm."""
 
     @abstractmethod
-    def stop(self) -> None: ...
+    def stop(self) -> None:
+        """Send the stop at once (the safe state): never waits for a motion to end."""
+
+    still_within_mm: float = 1e-3  # a probe creeping this little in STILL_S is at rest
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """After :meth:`stop`: the scales read until they no longer change (:func:`watch_still`)."""
+        return watch_still(self.position_mm, lambda xyz: "(" + ", ".join(f"{v:.4f}" for v in xyz) + ") mm",
+                           self.still_within_mm, timeout_s)
 
     def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         return {f"position_{a}_mm": Value(float(v), "mm") for a, v in zip("xyz", self.position_mm())}
@@ -347,3 +427,95 @@ class EnvironmentSensor(Instrument):
     def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
         r = self.read()
         return {f.name: Value(float(getattr(r, f.name)), f.unit) for f in DESCRIPTIONS["environment"].values()}
+
+
+MACHINE_AXES = ("x", "y", "z", "a", "b", "c")
+
+
+@dataclass(frozen=True)
+class MachineTarget:
+    """One coordinated move of a machine tool: every axis of ``joints`` (axis letter → mm or deg, the
+    machine's axes exactly) arrives together, passing through the waypoints ``via`` in order (each a
+    full set of axes), so that a rotary axis can turn while the linear axes follow a path — the
+    R-test's nominal sphere path, which a straight joint move would leave by millimetres.
+
+    ``tcp`` False: the values are joints, and a backend interpolates linearly in joint space between
+    successive points. ``tcp`` True (tool-centre-point): x, y, z name the point of the table the
+    controlled point goes to, by its machine coordinates at A = C = 0 (LinuxCNC's G53 coordinates
+    under its table kinematics), and the control's own kinematic model turns it into joints while
+    the rotary axes turn — LinuxCNC's ``xyzac-trt-kins``, a simulated control's nominal kinematics:
+    a point held fixed on the table is followed by the linear axes however the rotary axes turn, and
+    where the control's model is wrong the measured sphere strays (what the R-test sees, and what a
+    corrected model removes). Between points a TCP backend interpolates linearly in those
+    coordinates; :meth:`MachineTool.joint_positions` says where the joints went."""
+
+    joints: Mapping[str, float]
+    via: tuple[Mapping[str, float], ...] = ()
+    tcp: bool = False
+
+    def points(self) -> tuple[Mapping[str, float], ...]:
+        """Every waypoint, then the target."""
+        return (*self.via, self.joints)
+
+
+class MachineTool(Instrument):
+    """A machine tool's axes driven together (linear mm, rotary deg): what the R-test moves. A target
+    names every axis of ``axes``; joint targets are refused beyond ``limits`` before anything moves;
+    tool-centre-point targets (``MachineTarget.tcp``) only where the backend has the control's
+    kinematics (``tcp``), which then refuses joints beyond its limits.
+
+    Stopping is every mover's contract: :meth:`stop` sends the stop at once and never waits for a
+    motion to end; :meth:`wait_stopped` then reads the joints until they no longer change — the
+    engine writes "stopped" only where it saw that."""
+
+    kind = "machine_tool"
+
+    axes: tuple[str, ...] = ("x", "y", "z", "a", "c")
+    limits: Mapping[str, tuple[float, float]] = {}
+    tcp: bool = False  # the backend moves tool-centre-point targets through the control's kinematics
+    still_within: float = 1e-4  # mm or deg: joints creeping less than this in STILL_S are at rest
+
+    def check_target(self, target: MachineTarget) -> None:
+        if target.tcp and not self.tcp:
+            raise OutOfLimits(self.name, "a tool-centre-point target, and this machine tool's backend moves joints only")
+        for point in target.points():
+            if set(point) != set(self.axes):
+                raise OutOfLimits(self.name, f"a target names axes {sorted(point)}; this machine's are {list(self.axes)}")
+            for axis, value in point.items():
+                lo, hi = (-math.inf, math.inf) if target.tcp and axis in "xyz" else self.limits.get(axis, (-math.inf, math.inf))
+                if not (math.isfinite(value) and lo <= value <= hi):
+                    unit = "mm" if axis in "xyz" else "°"
+                    raise OutOfLimits(self.name, f"{axis.upper()} {value:.6g} {unit} outside its limits [{lo:g}, {hi:g}] {unit}")
+
+    @abstractmethod
+    def home(self) -> None:
+        """Every joint referenced (homed) as the backend allows."""
+
+    @abstractmethod
+    def move_to(self, target: MachineTarget) -> None:
+        """The coordinated move through ``target.via`` to ``target.joints``; blocks until in position."""
+
+    @abstractmethod
+    def joint_positions(self) -> dict[str, float]:
+        """Each axis's joint position as the control reports it (mm, deg)."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Send the stop at once (the safe state): never waits for a motion to end."""
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """After :meth:`stop`: the joints read until they no longer change (:func:`watch_still`)."""
+        return watch_still(lambda: [self.joint_positions()[a] for a in self.axes], self.show_joints, self.still_within,
+                           timeout_s)
+
+    def show_joints(self, values: Sequence[float]) -> str:
+        """Joint positions in the order of ``axes``, with their units."""
+        return " ".join(f"{a.upper()} {v:.6f}" + (" mm" if a in "xyz" else "°") for a, v in zip(self.axes, values))
+
+    def _raw_values(self, wanted: frozenset[str]) -> dict[str, Value]:
+        at = self.joint_positions()
+        out = {}
+        for axis in MACHINE_AXES:
+            unit = "mm" if axis in "xyz" else "deg"
+            out[f"position_{axis}_{unit}"] = Value(float(at.get(axis, math.nan)), unit)
+        return out

@@ -92,7 +92,7 @@ class IppCmm(Cmm):
             raise InstrumentTimeout(self.name, f"cannot connect to {a.host}:{a.port}: {exc}") from None
         self._buffer = b""
         self._error_state = False  # a new session starts clean
-        self.command("StartSession()")
+        self._start_session()
         try:
             data = self.command("GetDMEVersion()")
             m = ipp.DME_VERSION.search(data[0]) if data else None
@@ -105,6 +105,26 @@ class IppCmm(Cmm):
         self._ensure_homed()
         if self.tool:
             self.command(f'ChangeTool("{self.tool}")')
+
+    def _start_session(self) -> None:
+        """``StartSession()``; a refusal or no answer says the CMM may be busy: a server serves one
+        client at a time (§6.3.1), and one whose session is held may refuse a second (rtcal's
+        simulator: 0507 "Another client holds the session") or leave it unanswered (NIST's
+        reference server)."""
+        busy = ("close the other client (another rtcal, the CMM's own software) or wait for its run to end, then try "
+                "again")
+        try:
+            self.command("StartSession()")
+        except InstrumentTimeout:
+            raise self._drop(InstrumentTimeout(self.name, f"no reply to StartSession() within {self.timeout_s:g} s: the "
+                                                          "CMM may be busy — it serves one client at a time, and a server "
+                                                          f"whose session another client holds may not answer: {busy}")) from None
+        except InstrumentFault as exc:
+            said = str(exc).removeprefix(f"{self.name}: ")
+            if "another client" in said.lower() or f"error {ipp.ILLEGAL_COMMAND}" in said:
+                raise self._drop(InstrumentFault(self.name, f"the CMM is busy: another client holds its I++ session "
+                                                            f"({said}): {busy}")) from None
+            raise
 
     def _ensure_homed(self) -> None:
         """``IsHomed()``; an unhomed machine is homed only when allowed (§6.3.2.1: it refuses motion until homed)."""

@@ -26,7 +26,8 @@ from typing import Any
 
 from rtcal.registry import Registry
 from drivers.interfaces import (PURPOSES, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentSensor,
-                                FieldDescription, Instrument, LaserTracer, RotaryStage, Value, check_described)
+                                FieldDescription, Instrument, LaserTracer, MachineTool, RotaryStage, Value,
+                                check_described)
 
 ENTRY_POINT_GROUP = "rtcal.instrument_kinds"
 # the store's marker quantities (rtcal/store/runstore.py MARKERS): no described field may be stored under them
@@ -44,7 +45,7 @@ class Kind:
 
 
 BUILTIN = {c.kind: f"drivers.interfaces:{c.__name__}" for c in (
-    RotaryStage, Cmm, LaserTracer, Encoder, Autocollimator, DialIndicator, EnvironmentSensor)}
+    RotaryStage, Cmm, LaserTracer, Encoder, Autocollimator, DialIndicator, EnvironmentSensor, MachineTool)}
 """The built-in kinds, registered as a plugin's are (by name and ``module:Interface``; their tables are
 drivers/interfaces.py's DESCRIPTIONS)."""
 

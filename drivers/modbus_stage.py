@@ -71,12 +71,34 @@ class ModbusStage(RotaryStage):
             raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}: {exc!r}") from None
         if not connected:
             raise InstrumentTimeout(self.name, f"cannot connect to the drive at {where}")
+        self.device_identification = self._device_identification()
+
+    def _device_identification(self) -> str:
+        """Modbus Read Device Identification (FC 43 / MEI 14, basic objects: VendorName, ProductCode,
+        MajorMinorRevision; Modbus Application Protocol V1.1b3 §6.21), asked once at connect. An AZ drive
+        does not implement it (exception: illegal function), which leaves it empty; rtcal's simulator
+        answers it, and says SIMULATED."""
+        try:
+            reply = self.client.read_device_information(read_code=1, object_id=0, device_id=self.unit)
+        except (ModbusException, OSError, ValueError):
+            return ""
+        if reply.isError():
+            return ""
+        info = getattr(reply, "information", {}) or {}
+        words = []
+        for key in (0, 1, 2):
+            value = info.get(key)
+            if isinstance(value, bytes):
+                words.append("".join(c if c.isprintable() else "?" for c in value.decode("ascii", "replace"))[:100])
+        return " ".join(words)
 
     def identity(self) -> str:
-        """What the drive's registers say now (status, present alarm): no identity register is confirmed."""
+        """What the drive's registers say now (status, present alarm) and its device identification where it
+        answers one: no identity register of the AZ is confirmed."""
         status, alarm = self._read32(az.OUTPUT_STATUS, 2)
         state = f"alarm 0x{alarm:02X}" if status & az.OUT_ALM_A else "READY" if status & az.OUT_READY else "not ready"
-        return f"Oriental Motor AZ drive (Modbus unit {self.unit}, direct data operation), {state}"
+        said = f"; device identification: {self.device_identification}" if self.device_identification else ""
+        return f"Oriental Motor AZ drive (Modbus unit {self.unit}, direct data operation), {state}{said}"
 
     # -- register access with typed errors: nothing but an InstrumentError leaves this driver
     def _call(self, what: str, fn, *args, **kwargs):

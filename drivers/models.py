@@ -73,6 +73,7 @@ BUILTIN: dict[str, Model] = {m.name: m for m in (
              Framing(115200, 8, "E", 1)),
     _builtin("pi-gcs", "stage", "drivers.pi_gcs:PiGcsStage", framing=Framing(115200, 8, "N", 1)),
     _builtin("linuxcnc", "stage", "drivers.linuxcnc_stage:LinuxCncStage", ("linuxcncrsh",)),
+    _builtin("linuxcnc-trt", "machine_tool", "drivers.linuxcnc_machine:LinuxCncMachine", ("linuxcncrsh",)),
     _builtin("ipp", "cmm", "drivers.ipp_cmm:IppCmm", ("ipp",)),
     _builtin("rtcal-line", "laser_tracer", "drivers.serial_instruments:LineLaserTracer", framing=Framing(115200, 8, "N", 1)),
     _builtin("qsb", "encoder", "drivers.serial_instruments:QsbEncoder", framing=Framing(230400, 8, "N", 1)),
@@ -82,7 +83,8 @@ BUILTIN: dict[str, Model] = {m.name: m for m in (
     _builtin("vaisala-ptb330", "environment", "drivers.vaisala:VaisalaPtb330", framing=Framing(4800, 7, "E", 1)),
 )}
 DEFAULT_MODEL = {"stage": "oriental-az", "cmm": "ipp", "laser_tracer": "rtcal-line", "encoder": "qsb",
-                 "autocollimator": "elcomat", "dial_indicator": "sylvac", "environment": "vaisala-ptu300"}
+                 "autocollimator": "elcomat", "dial_indicator": "sylvac", "environment": "vaisala-ptu300",
+                 "machine_tool": "linuxcnc-trt"}
 
 def model_of(name: str, cls: Any, plugin: str) -> Model:
     """A plugin's model, from its driver class's declared attributes (loaded when the models are first asked for:

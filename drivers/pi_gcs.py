@@ -73,6 +73,9 @@ class PiGcsStage(RotaryStage):
             if stale:
                 log.warning("%s: the controller held GCS error %d (%s) from before; read and cleared", self.name, stale,
                             ERRORS.get(stale, "see the controller manual"))
+            if not may_move and not self._referenced():  # a query: nothing moves; what a run would refuse is said now
+                self._identity += (f" — axis {self.axis} NOT referenced (FRF? {self.axis} = 0): a run refuses it until it "
+                                   "is referenced at the controller, or with home=1 in the address")
             if may_move:
                 self._command(f"SVO {self.axis} 1")
                 if not self._referenced():

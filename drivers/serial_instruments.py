@@ -6,7 +6,9 @@
 - encoder counter, US Digital QSB (``qsb``): ``R0E\\r\\n`` → ``r0E<8 hex>[<8 hex timestamp>][!]\\r\\n``;
   end of response, mode and counter mode written at open, version read as identity
 - laser tracer, rtcal's adapter protocol (``rtcal-line``): ``REF`` → ``OK REF <segment>``;
-  ``LEN?`` → ``LEN <nm> <segment>`` or ``ERR LOST`` (no public protocol exists: a vendor-SDK bridge speaks it)
+  ``LEN?`` → ``LEN <nm> <segment>`` or ``ERR LOST`` (no public protocol exists: a vendor-SDK bridge speaks it);
+  ``ID?`` → ``ID <text>`` at open (optional: ``ERR CMD``), the identity
+- dial indicator: ``ID?`` at open (OPTO-RS: ``SY<instrument>.<option>…``), the identity where it answers
 
 The Vaisala environment sensors are in :mod:`drivers.vaisala`.
 """
@@ -23,6 +25,9 @@ from drivers.models import Framing, builtin_framing
 from drivers.serial_line import SerialLine
 
 NUMBER = r"[+-]?\d+(?:\.\d+)?"
+QSB_SIMULATED_VERSION = 0x5111A7ED
+"""The VERSION register rtcal's QSB simulator answers: the QSB's identity is 8 hex digits, so the simulator is
+told by this value (no QSB firmware of US Digital's is known to report it) and the driver names it SIMULATED."""
 
 
 def match_reply(name: str, pattern: re.Pattern, reply: str) -> re.Match:
@@ -114,7 +119,10 @@ class SylvacIndicator(SerialInstrument, DialIndicator):
     REQUEST = b"?\r"
     REPLY = re.compile(r"\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)\s*(mm)?\s*", re.IGNORECASE)
     ERROR = re.compile(r"\s*ERR\s*(\d)\s*", re.IGNORECASE)
-    ERRORS = {"0": "sensor error", "3": "measuring range exceeded"}  # OPTO-RS manual; 1 and 2: see the instrument's manual
+    # "User's manual for OPTO-RS cable connections" p. 12: "0: sensor error (e.g. speed, scale distance) 1: incorrect
+    # command 2: parity error (duplex instruments only) 3: exceeded measurement range"
+    ERRORS = {"0": "sensor error", "1": "incorrect command: the indicator did not understand the request",
+              "2": "parity error: check the line's framing, 4800 baud 7E2", "3": "measuring range exceeded"}
     RANGE_MM = 100.0  # the longest Sylvac stroke
     QUIET_S = 0.15  # after MM: whatever the indicator sends back (an echo) arrives within this
     AFTER_MM_MAX_BYTES, AFTER_MM_MAX_S = 256, 1.0  # more, or longer, is an indicator sending on its own, not an echo
@@ -124,6 +132,7 @@ class SylvacIndicator(SerialInstrument, DialIndicator):
         self.open_line(name, address, timeout_s)
         try:
             self._set_mm(timeout_s)
+            self._identity = self._ask_id()
         except BaseException:
             self.line.close()
             raise
@@ -154,6 +163,20 @@ class SylvacIndicator(SerialInstrument, DialIndicator):
                                              "at the instrument; readings would be 25.4 times too small")
         raise InstrumentFault(self.name, f"the indicator did not confirm its unit is mm ({said}); its replies carry "
                                          "no unit, so rtcal does not read it")
+
+    IDENTIFICATION = re.compile(r"SY[0-9A-Z]{1,10}(?:\.[0-9A-Za-z]{1,20}){0,4}")
+
+    def _ask_id(self) -> str:
+        """``ID?`` (a duplex instrument's identification, OPTO-RS manual: ``SY<instrument>.<option>…``); an
+        instrument that does not know it (``ERR1``) or answers otherwise has no identity."""
+        try:
+            reply = self._reply(b"ID?\r").strip()
+        except InstrumentError:
+            return ""
+        return f"Sylvac {reply}" if self.IDENTIFICATION.fullmatch(reply) else ""
+
+    def identity(self) -> str:
+        return self._identity
 
     def _reply(self, request: bytes) -> str:
         """The reply line, past an echo of the request; ``ERRn`` raised with its meaning."""
@@ -210,7 +233,8 @@ class QsbEncoder(SerialInstrument, Encoder):
         return int(m.group(3), 16)
 
     def identity(self) -> str:
-        return f"US Digital QSB, VERSION register 0x{self._version:08X}"
+        simulated = " (rtcal's simulator: SIMULATED)" if self._version == QSB_SIMULATED_VERSION else ""
+        return f"US Digital QSB, VERSION register 0x{self._version:08X}{simulated}"
 
     def read_angle_deg(self) -> float:
         count = self._exchange("R0E", "r", 0x0E)
@@ -226,9 +250,21 @@ class LineLaserTracer(SerialInstrument, LaserTracer):
     LEN_REPLY = re.compile(rf"LEN ({NUMBER}) (\d{{1,9}})|ERR (\w+)")
     RANGE_MM = 100_000.0  # a tracer follows a reflector within some 20 m; a length change beyond 100 m is garbage
 
+    ID_REPLY = re.compile(r"ID (.{1,200})")
+
     def __init__(self, address: Address, timeout_s: float = 1.0, **_: object):
         self.terminator = b"\r\n"
         self.open_line(self.name, address, timeout_s)
+        self._identity = ""
+        try:  # optional in the protocol: a bridge that does not know it answers ERR CMD
+            m = self.ID_REPLY.fullmatch(self.line.query(b"ID?\r\n").strip())
+        except InstrumentError:
+            m = None
+        if m is not None:
+            self._identity = m.group(1)
+
+    def identity(self) -> str:
+        return self._identity
 
     def reference(self) -> int:
         return int(match_reply(self.name, self.REF_REPLY, self.line.query(b"REF\r\n")).group(1))

@@ -1,3 +1,3 @@
 """rtcal — angular positioning calibration of precision rotary tables."""
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"

@@ -28,7 +28,10 @@ object, registered under the entry-point group ``rtcal.methods`` (``name = "modu
 - ``analyse(proc, store, bench, estimate_noise)``: the readings that count (:class:`RunReadings`'s
   ``counted``) → its :class:`Analysis`, with :func:`run_estimators`, :func:`choose_recommended`,
   :func:`deviation_block` or :func:`quantity_estimate`;
-- ``outputs(results)``: an :class:`OutputsBase` (files, figures, report and certificate sections).
+- ``outputs(results)``: an :class:`OutputsBase` (files, figures, report and certificate sections);
+- optionally ``recalibration``: a :class:`Recalibration`, how a reference instrument's new calibration
+  (:class:`InstrumentCalibration`) enters a run already made (``rtcal catalog reassess``; a part it does not take
+  raises :class:`CannotRecalibrate`).
 
 **An instrument kind** is a subclass of :class:`Instrument` declaring ``kind``, ``fields`` (each a
 :class:`FieldDescription`) and ``_raw_values``, registered under ``rtcal.instrument_kinds``; its simulation
@@ -60,6 +63,7 @@ if TYPE_CHECKING:
     from drivers.interfaces import Instrument as Instrument
     from drivers.interfaces import LaserTracer as LaserTracer
     from drivers.interfaces import LengthReading as LengthReading
+    from drivers.interfaces import MachineTool as MachineTool
     from drivers.interfaces import RotaryStage as RotaryStage
     from drivers.interfaces import Value as Value
     from drivers.models import Framing as Framing
@@ -114,6 +118,9 @@ if TYPE_CHECKING:
     from rtcal.methods.protocol import Method as Method
     from rtcal.methods.protocol import PreparationError as PreparationError
     from rtcal.methods.protocol import address_of as address_of
+    from rtcal.methods.recalibration import CannotRecalibrate as CannotRecalibrate
+    from rtcal.methods.recalibration import InstrumentCalibration as InstrumentCalibration
+    from rtcal.methods.recalibration import Recalibration as Recalibration
     from rtcal.procedure.models import Acceptance as Acceptance
     from rtcal.procedure.models import FaultPolicy as FaultPolicy
     from rtcal.procedure.models import InstrumentChoice as InstrumentChoice
@@ -159,7 +166,7 @@ _WHERE = {
     "drivers.errors": ("InstrumentError", "InstrumentFault", "InstrumentTimeout", "TrackingLost"),
     "drivers.factory": ("open_choice", "open_instrument"),
     "drivers.interfaces": ("Autocollimator", "Cmm", "DialIndicator", "Encoder", "EnvironmentSensor", "FieldDescription",
-                           "Instrument", "LaserTracer", "LengthReading", "RotaryStage", "Value"),
+                           "Instrument", "LaserTracer", "LengthReading", "MachineTool", "RotaryStage", "Value"),
     "drivers.models": ("Framing",),
     "drivers.serial_line": ("SerialLine",),
     "rtcal.compensation": ("CompensationError", "CompensationFormat", "CompensationTable", "FormatOption", "sane"),
@@ -177,6 +184,7 @@ _WHERE = {
                                 "finite_or_none", "quantity_estimate", "residual_test", "run_estimators",
                                 "with_residual_test"),
     "rtcal.methods.protocol": ("DataContradiction", "InstrumentSet", "Method", "PreparationError", "address_of"),
+    "rtcal.methods.recalibration": ("CannotRecalibrate", "InstrumentCalibration", "Recalibration"),
     "rtcal.procedure.models": ("Acceptance", "FaultPolicy", "InstrumentChoice", "InstrumentsBase", "ProcedureBase",
                                "StageChoice", "StrictModel", "VerificationBase", "plan_outside_limits",
                                "plan_size_problem"),

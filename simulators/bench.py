@@ -106,8 +106,8 @@ class Bench:
         comp = scenario.stage.compensation
         # the table as the controller applies it: read and applied as its manual says, apart from
         # rtcal's writer (simulators/controllers.py)
-        self.compensation = (controller(comp.format, comp.text or "", comp.file or "compensation", comp.backlash_deg)
-                             if comp is not None else None)
+        self.compensation = (controller(comp.format, comp.text or "", comp.file or "compensation", comp.backlash_deg,
+                                        comp.detection_unit_deg, comp.bidirectional) if comp is not None else None)
         # state
         self.commanded_rad = 0.0  # where the motor was sent (the user's command plus any compensation)
         self.target_rad = 0.0  # the user's command, in whole steps: what the controller shows, moves start from
@@ -121,6 +121,7 @@ class Bench:
         self.artefacts: dict[str, np.ndarray] = {}  # what an operator mounted on the table, at its point of the table
         self.truth = Truth()
         self.faults = FaultInjector(scenario.faults, self.rng)
+        self.machine: Any = None  # the five-axis machine of a scenario's `machine:` (simulators/machine_tool.py, made on first use)
 
     # -- randomness: one stream per named consumer, so interleaving never changes a draw
     @staticmethod

@@ -34,12 +34,16 @@ class Applies(Protocol):
 
 @dataclass(frozen=True)
 class CyclicCurve:
-    """Values at points ``start + k·step`` over one turn, linear between points, repeated every 360°."""
+    """Values at points ``start + k·step`` over one turn, linear between points, repeated every 360°;
+    points from 0° to beyond 360° (a TNC 4xx table) are read as they stand, the last interval
+    across 360° from the entries either side."""
 
     positions_deg: np.ndarray
     values: np.ndarray
 
     def at(self, angle_deg: float) -> float:
+        if self.positions_deg[0] == 0.0 and self.positions_deg[-1] > 360.0:
+            return float(np.interp(np.mod(angle_deg, 360.0), self.positions_deg, self.values))
         return float(np.interp(np.mod(angle_deg, 360.0), self.positions_deg, self.values, period=360.0))
 
 
@@ -158,17 +162,29 @@ def sinumerik_cec(text: str, where: str) -> Applied:
 # -- FANUC: the I/O file ('%', N…P…; records, '%') or a listing -----------------------------
 FANUC_RECORD = re.compile(r"N(\d{5})(?:A\d+)?P([+-]?[\d.]+);")
 FANUC_LISTED = re.compile(r"(\d+)(?: #0)? = ([+-]?[\d.]+)")
+FANUC_STATED_UNIT = re.compile(r"detection unit ([0-9.]+(?:e-?\d+)?) deg")
 
 
-def fanuc(text: str, where: str, detection_unit_deg: float = 0.0001, reference_return: int = +1) -> Applied:
+def fanuc_stated_unit(text: str) -> float | None:
+    """The detection unit a FANUC file says it was made for, on its first line (the I/O file's
+    ``%`` line, whose rest the control skips: 16i Operator's Manual B-63524EN/01 p. 649) — not
+    read by the control: what the engineer who loads it is asked to compare with the axis."""
+    first = next((line for line in text.splitlines() if line.strip()), "")
+    m = FANUC_STATED_UNIT.search(first)
+    return float(m.group(1)) if m else None
+
+
+def fanuc(text: str, where: str, detection_unit_deg: float | None = None, reference_return: int = +1,
+          bidirectional: bool = True) -> Applied:
     """Bidirectional pitch error compensation (A-77810E): the positive-travel table runs 3621 … 3622
     (3621 = 3620 on a rotary axis, 0i-PB p. 100), the negative-travel table from 3626; each point
     holds the change of the compensation over the section ending at it, "output at the
     compensation position No. corresponding to each section" (p. 100) — spread over the section
     here. The table of the reference-return direction is 0 at the reference position; the other
     starts from 3627. The amount is added to the command (the pitch error pulses move the axis).
-    Units: 360/3625 per count when 3625 is an integer (detection units), else
-    ``detection_unit_deg`` (a real-unit series); × 3623."""
+    Units: the axis's ``detection_unit_deg`` (its increment system, whatever the file was made
+    for) × 3623; without it, 360/3625 when 3625 is an integer. ``bidirectional``: the axis's
+    3605#0 as set on the control, unless the file carries a 3605 record (a whole byte, 15i p. 25)."""
     lines = [line.split("(", 1)[0].strip() for line in text.splitlines()]
     lines = [line for line in lines if line]
     io_file = bool(lines) and lines[0] == "%"
@@ -189,7 +205,14 @@ def fanuc(text: str, where: str, detection_unit_deg: float = 0.0001, reference_r
     if lo != ref:
         raise ControllerError(f"{where}: a rotary axis's 3621 equals 3620 (0i-PB p. 100)")
     per_rev = params[3625]
-    unit = (detection_unit_deg if "." in per_rev else 360.0 / int(per_rev)) * int(params[3623])
+    if detection_unit_deg is None:
+        if "." in per_rev:
+            raise ControllerError(f"{where}: 3625 is in degrees: the simulated axis needs its detection unit (detection_unit_deg)")
+        detection_unit_deg = 360.0 / int(per_rev)
+    elif "." not in per_rev and abs(int(per_rev) * detection_unit_deg - 360.0) > 1e-9:
+        raise ControllerError(f"{where}: 3625 = {per_rev} detection units of {detection_unit_deg:g}° is not one turn: this "
+                              "control would place the points elsewhere (not simulated)")
+    unit = detection_unit_deg * int(params[3623])
     n = hi - lo
     positions = np.linspace(0.0, 360.0, n + 1)
 
@@ -199,11 +222,12 @@ def fanuc(text: str, where: str, detection_unit_deg: float = 0.0001, reference_r
             raise ControllerError(f"{where}: the increments of one turn do not sum to 0: the error accumulates per turn")
         return CyclicCurve(positions, (start + np.concatenate([[0], np.cumsum(inc)])) * unit)
 
-    bits = params.get(3605, "0")  # a bit parameter: 8 binary digits in the I/O file (15i p. 25), #0 in a listing
-    bidirectional = int(bits, 2 if len(bits) == 8 else 10) & 1 == 1
+    if 3605 in params:  # a bit parameter: 8 binary digits in the I/O file (15i p. 25), #0 in a listing
+        bits = params[3605]
+        bidirectional = int(bits, 2 if len(bits) == 8 else 10) & 1 == 1
     other = int(params.get(3627, "0"))
     up = curve(lo, 0 if reference_return > 0 else other)
-    down = curve(int(params[3626]), other if reference_return > 0 else 0) if bidirectional else up
+    down = curve(int(params[3626]), other if reference_return > 0 else 0) if bidirectional and 3626 in params else up
     return Applied(up, down, 1.0)
 
 
@@ -213,7 +237,10 @@ def heidenhain(text: str, where: str) -> Applied:
     "Error in Z"; MP720 p. 151 "the error is positive if the table travel is too long"), which the
     control removes: the motor goes to command − error; linear between entries, 0 … 360 for a
     rotary axis (p. 156); the BACKLASH column the negative direction's values (MANUALplus 620
-    p. 716). Header and column line as rtcal writes them (their exact form is unconfirmed)."""
+    p. 716). A TNC 4xx table's power-of-two spacing divides no turn: its entries cover it (TNC 306
+    p. 4-21), and the interval across 360° is read from the entries either side (the first beyond
+    360° counts; later ones are not "entries from 0 to 360"). Header and column line as rtcal
+    writes them (their exact form is unconfirmed)."""
     rows = [line.split() for line in text.splitlines() if line.strip()]
     if not rows or rows[0][0] != "BEGIN" or rows[-1] != ["[END]"]:
         raise ControllerError(f"{where}: a .COM table runs from BEGIN to [END]")
@@ -221,8 +248,10 @@ def heidenhain(text: str, where: str) -> Applied:
     if columns[:2] != ["NR", "AXISPOS"]:
         raise ControllerError(f"{where}: no NR AXISPOS columns")
     a = np.array([[float(v) for v in r] for r in rows[2:-1]])
-    if a[0, 1] != 0.0 or abs(a[-1, 1] - 360.0) > 1e-9:
+    beyond = np.nonzero(a[:, 1] >= 360.0 - 1e-9)[0]
+    if a[0, 1] != 0.0 or not len(beyond):
         raise ControllerError(f"{where}: a rotary axis's entries run 0 … 360 (TNC 407 p. 156)")
+    a = a[: beyond[0] + 1]
     up = CyclicCurve(a[:, 1], a[:, 2])
     down = CyclicCurve(a[:, 1], a[:, columns.index("BACKLASH")]) if "BACKLASH" in columns else up
     return Applied(up, down, -1.0)
@@ -233,16 +262,32 @@ CONTROLLERS: dict[str, Callable[[str, str], Applied]] = {
 SINUMERIK = ("siemens-lec", "siemens-cec")  # the controls whose axis has MD32450
 
 
-def controller(fmt: str, text: str, where: str, backlash_deg: float = 0.0) -> Applies:
+def controller(fmt: str, text: str, where: str, backlash_deg: float = 0.0, detection_unit_deg: float | None = None,
+               bidirectional: bool = True) -> Applies:
     """The table as the simulated control of ``fmt`` applies it, with the SINUMERIK axis's
-    MD32450 ``backlash_deg`` (``with_backlash``); formats without a controller here (LinuxCNC,
-    plugins) through their own reading."""
+    MD32450 ``backlash_deg`` (``with_backlash``) or the FANUC axis's detection unit and 3605#0;
+    formats without a controller here (LinuxCNC, plugins) through their own reading. Loading a
+    FANUC table that states another detection unit than the axis's is refused: the control
+    skips that statement, but the engineer loading it compares it with the axis, as
+    `rtcal compensate` asks."""
     if backlash_deg and fmt not in SINUMERIK:
         raise ControllerError(f"{where}: backlash_deg is SINUMERIK machine data (MD32450); the {fmt} control has none")
+    if detection_unit_deg is not None and fmt != "fanuc":
+        raise ControllerError(f"{where}: detection_unit_deg is a FANUC axis's; the {fmt} control has none")
+    if fmt == "fanuc":
+        stated = fanuc_stated_unit(text)
+        if stated is not None and detection_unit_deg is not None and abs(stated - detection_unit_deg) > 1e-12:
+            raise ControllerError(f"{where}: the table is for a detection unit of {stated:g}°, the axis's is "
+                                  f"{detection_unit_deg:g}° (detection_unit_deg): every trim would be "
+                                  f"{detection_unit_deg / stated:g}x what it should; write it with --detection-unit-deg "
+                                  f"{detection_unit_deg:g}")
     if fmt in CONTROLLERS:
         try:
-            applied = CONTROLLERS[fmt](text, where)
+            applied = (fanuc(text, where, detection_unit_deg, bidirectional=bidirectional) if fmt == "fanuc"
+                       else CONTROLLERS[fmt](text, where))
         except (KeyError, IndexError, ValueError) as exc:
+            if isinstance(exc, ControllerError):
+                raise
             raise ControllerError(f"{where}: the simulated {fmt} control refuses the table ({exc})") from None
         return with_backlash(applied, backlash_deg) if backlash_deg else applied
     from rtcal.compensation import get_format

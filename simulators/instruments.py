@@ -23,13 +23,19 @@ from drivers.interfaces import (
     EnvironmentSensor,
     LaserTracer,
     LengthReading,
+    MachineTarget,
+    MachineTool,
     RotaryStage,
+    STOP_WATCH_S,
+    StopSeen,
 )
-from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, TrackingLost
+from drivers.errors import InstrumentError, InstrumentFault, InstrumentTimeout, OutOfLimits, TrackingLost
 from rtcal.solvers.air import standard_air_n
+from rtcal.solvers.rtest import TrunnionGeometry, joint_targets, nominal_machine_to_table
 from rtcal.units import rad_to_arcsec, um_to_mm
 from simulators.bench import Bench
 from simulators.faults import ALARM_CODES
+from simulators.machine_tool import machine_of
 from simulators.scenario import STATE_KINDS, FaultSpec
 
 
@@ -152,6 +158,11 @@ class SimStage(_Injecting, RotaryStage):
     def stop(self) -> None:
         pass
 
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """A simulated motion is whole or not begun (the table moves when its time has passed), so
+        nothing moves after a stop: seen at rest where it is, without spending the run's clock."""
+        return StopSeen(True, f"{self.position_deg():.6f}°")
+
 
 class SimCmm(_Injecting, Cmm):
     name = "cmm"
@@ -185,6 +196,10 @@ class SimCmm(_Injecting, Cmm):
 
     def stop(self) -> None:
         pass
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """As the stage's: a simulated motion is whole or not begun; the probe is where the bench has it."""
+        return StopSeen(True, "(" + ", ".join(f"{v:.4f}" for v in self.bench.probe_target_mm) + ") mm")
 
 
 class SimLaserTracer(_Injecting, LaserTracer):
@@ -332,3 +347,125 @@ class SimEnvironmentSensor(_Injecting, EnvironmentSensor):
         z = self._rng.standard_normal(4)
         return EnvironmentReading(t + e.temperature_noise_k * z[0], p + e.pressure_noise_pa * z[1],
                                   rh + e.humidity_noise_pct * z[2], tm + e.temperature_noise_k * z[3])
+
+
+class SimMachineTool(_Injecting, MachineTool):
+    """The five-axis machine of the scenario's ``machine:`` (simulators/machine_tool.py): coordinated
+    moves through their waypoints, each segment sampled finely (0.25°, 0.5 mm) and checked for the
+    sphere striking the nest; a move takes the time its longest axis needs at the scenario's speeds.
+    Joint targets are interpolated in joint space; tool-centre-point targets (``MachineTarget.tcp``)
+    through the control's model, the scenario's nominal ``kinematics`` with the nest's stated offset as
+    its tool (joints = T(a, c)·p − offset at every sample), as a control's TCP function does. The control
+    reports the commanded joints (its scales; the geometry it does not know is the truth)."""
+
+    name = "machine_tool"
+    STEP_DEG, STEP_MM = 0.25, 0.5
+    tcp = True
+
+    def __init__(self, bench: Bench, inject: bool = True):
+        self.bench = bench
+        self.inject = inject
+        self.machine = machine_of(bench)
+        spec = self.machine.spec
+        lo, hi = spec.limits_mm
+        self.limits = {"x": (lo[0], hi[0]), "y": (lo[1], hi[1]), "z": (lo[2], hi[2]), "a": spec.a_limits_deg,
+                       "c": spec.c_limits_deg}
+        self.geometry = TrunnionGeometry(spec.kinematics.c_point_mm, spec.kinematics.a_point_mm)
+        self.tool_mm = np.array(spec.nest.offset_mm, float)
+        self._rng = bench.rng(self.name)
+
+    def home(self) -> None:
+        self.move_to(MachineTarget({a: 0.0 for a in self.axes}))
+
+    def _joint_legs(self, target: MachineTarget) -> list[np.ndarray]:
+        """Each leg's samples (K, 5) of a joint target: linear in joint space."""
+        here = np.array([self.machine.joints[a] for a in self.axes])
+        legs = []
+        for point in target.points():
+            there = np.array([point[a] for a in self.axes])
+            span_lin, span_rot = float(np.max(np.abs(there[:3] - here[:3]))), float(np.max(np.abs(there[3:] - here[3:])))
+            steps = max(1, math.ceil(max(span_lin / self.STEP_MM, span_rot / self.STEP_DEG)))
+            legs.append(here + np.arange(1, steps + 1)[:, None] / steps * (there - here))
+            here = there
+        return legs
+
+    def _tcp_legs(self, target: MachineTarget) -> list[np.ndarray]:
+        """Each leg's samples (K, 5) of a tool-centre-point target: linear in the table point and the rotary
+        angles, each sample's joints by the control's nominal kinematics; OutOfLimits if any joint leaves
+        its limits (nothing has moved)."""
+        j = self.machine.joints
+        a0, c0 = j["a"], j["c"]
+        p0 = nominal_machine_to_table(self.geometry, np.array([a0]), np.array([c0]), np.array([j["x"], j["y"], j["z"]]) + self.tool_mm)[0]
+        legs = []
+        for point in target.points():
+            p1, a1, c1 = np.array([point["x"], point["y"], point["z"]]), point["a"], point["c"]
+            span = max(float(np.max(np.abs(p1 - p0))) / self.STEP_MM, max(abs(a1 - a0), abs(c1 - c0)) / self.STEP_DEG)
+            f = np.arange(1, max(1, math.ceil(span)) + 1) / max(1, math.ceil(span))
+            legs.append(joint_targets(self.geometry, p0 + f[:, None] * (p1 - p0), a0 + f * (a1 - a0), c0 + f * (c1 - c0),
+                                      tuple(self.tool_mm)))
+            p0, a0, c0 = p1, a1, c1
+        for leg in legs:
+            for k, axis in enumerate(self.axes):
+                lo, hi = self.limits[axis]
+                if np.any(leg[:, k] < lo) or np.any(leg[:, k] > hi):
+                    unit = "mm" if axis in "xyz" else "°"
+                    raise OutOfLimits(self.name, f"the tool-centre-point move takes joint {axis.upper()} outside its limits "
+                                                 f"[{lo:g}, {hi:g}] {unit}")
+        return legs
+
+    def move_to(self, target: MachineTarget) -> None:
+        self.check_target(target)
+        legs = self._tcp_legs(target) if target.tcp else self._joint_legs(target)
+        self._request()
+        spec = self.machine.spec
+        here = np.array([self.machine.joints[a] for a in self.axes])
+        direction = self.machine.c_direction
+        directions, seconds = [], 0.0
+        for leg in legs:
+            steps = np.diff(np.vstack([here, leg]), axis=0)
+            if leg[-1, 4] != here[4]:
+                direction = 1 if leg[-1, 4] > here[4] else -1
+            directions.append(np.full(len(leg), direction))
+            seconds += max(float(np.max(np.sum(np.abs(steps[:, :3]), axis=0))) / spec.linear_speed_mm_per_s,
+                           float(np.max(np.sum(np.abs(steps[:, 3:]), axis=0))) / spec.rotary_speed_deg_per_s)
+            here = leg[-1]
+        path = np.vstack(legs)
+        k = self.machine.strikes(path, np.concatenate(directions))
+        if k >= 0:
+            at = dict(zip(self.axes, (float(v) for v in path[k])))
+            self.machine.arrive(at, self._rng)
+            raise InstrumentFault(self.name, self.machine.struck(at))
+        self.bench.clock.sleep(seconds)
+        self.machine.arrive(dict(zip(self.axes, (float(v) for v in path[-1]))), self._rng, direction)
+
+    def joint_positions(self) -> dict[str, float]:
+        return dict(self.machine.joints)
+
+    def stop(self) -> None:
+        """Nothing moves between calls in process: every axis stands still."""
+
+    def wait_stopped(self, timeout_s: float = STOP_WATCH_S) -> StopSeen:
+        """As the stage's: a simulated motion is whole or not begun; the joints are where the machine has them."""
+        return StopSeen(True, self.show_joints([self.machine.joints[a] for a in self.axes]))
+
+
+class SimNestIndicator(SimDialIndicator):
+    """One of the nest's three indicators (``index`` 0–2), read as a Sylvac: the sensor's plunger position
+    (simulators/machine_tool.py), with the nest's noise and resolution; creep and inch as a dial indicator's."""
+
+    def __init__(self, bench: Bench, index: int, inject: bool = True):
+        super().__init__(bench, index, inject)
+        self.name = f"nest_indicator_{index + 1}"
+        self._rng = bench.rng(self.name)
+        self.machine = machine_of(bench)
+
+    def display(self) -> tuple[float, str]:
+        nest = self.machine.spec.nest
+        creep_um = 0.0
+        if self.state_fault is not None and self.state_fault.kind == "creep":
+            self._creep_readings += 1
+            creep_um = self.state_fault.creep_um_per_reading * self._creep_readings
+        um = self.machine.sensor_mm(self.index) * 1e3 + creep_um + nest.noise_um * self._rng.standard_normal()
+        if self.state_fault is not None and self.state_fault.kind == "inch":
+            return _quantise(um / 25400.0, self.INCH_DIGIT), "in"
+        return _quantise(um, nest.resolution_um) / 1000.0, "mm"

@@ -107,6 +107,12 @@ class CompensationScenario(_Strict):
         "SINUMERIK (siemens-lec, siemens-cec) only: the axis's backlash compensation MD32450 $MA_BACKLASH, deg; on each "
         "reversal the control adds it to the travel in the new direction (808D Parameter Manual p. 228: positive when "
         "the encoder leads the table); the axis counts as referenced in the positive direction (0: none)"))
+    detection_unit_deg: float | None = Field(None, gt=0.0, le=0.01, description=(
+        "FANUC (fanuc) only, and needed there: the axis's detection unit, deg — its increment system (0.001 IS-B, 0.0001 "
+        "IS-C); the control applies the table's increments in it, whatever unit the table was made for"))
+    bidirectional: bool = Field(True, description=(
+        "FANUC only: parameter 3605#0 as set on the control (bidirectional pitch error compensation; `rtcal compensate` "
+        "writes no 3605 record and asks for #0 = 1); a 3605 record in the table overrides it"))
 
     @field_validator("format", mode="before")
     @classmethod
@@ -126,6 +132,12 @@ class CompensationScenario(_Strict):
             raise ValueError("file: give the table's file")
         if self.backlash_deg and self.format not in SINUMERIK:
             raise ValueError(f"backlash_deg: MD32450 is SINUMERIK machine data; a {self.format} control has none")
+        fanuc_only = {"detection_unit_deg", "bidirectional"} & self.model_fields_set
+        if self.format != "fanuc" and fanuc_only:
+            raise ValueError(f"{min(fanuc_only)}: a FANUC axis's parameter; a {self.format} control has none")
+        if self.format == "fanuc" and self.detection_unit_deg is None:
+            raise ValueError("detection_unit_deg: a FANUC axis's detection unit is needed (0.001 for IS-B, 0.0001 for "
+                             "IS-C): the control applies the table's increments in it")
         return self
 
 
@@ -293,6 +305,141 @@ class DialIndicatorScenario(_Strict):
     noise_um: float = _noise(0.0, "µm", "1σ of each reading", MAX_LENGTH_NOISE_UM)
 
 
+# -- a five-axis machine tool with a trunnion table (the R-test, docs/rtest.md) ------------------------
+ErrorLength_um = Annotated[float, Field(ge=-10_000.0, le=10_000.0)]
+# the R-test nest's default: three sensors square to each other, each 54.7° from the spindle axis, at
+# azimuths 0°, 120°, 240°; each vector points from the sphere to the sensor (the sphere moving along it
+# pushes the plunger in)
+_R2, _R3 = math.sqrt(2.0 / 3.0), 1.0 / math.sqrt(3.0)
+
+
+def _nest_direction(azimuth_deg: float) -> tuple[float, float, float]:
+    az = math.radians(azimuth_deg)
+    return round(_R2 * math.cos(az), 12), round(_R2 * math.sin(az), 12), round(_R3, 12)
+
+
+NEST_DIRECTIONS = (_nest_direction(0.0), _nest_direction(120.0), _nest_direction(240.0))
+
+
+class LocationErrorsScenario(_Strict):
+    """The machine's true ISO 230-7 location errors (docs/rtest.md: frames and signs), exactly these keys."""
+
+    X0C_um: ErrorLength_um = Field(0.0, description="C's line in X at the height of the C point, µm")
+    Y0C_um: ErrorLength_um = Field(0.0, description="C's line in Y relative to A's line, µm")
+    A0C_arcsec: ErrorAngle_arcsec = Field(0.0, description="C's tilt about X (right-hand), arcsec")
+    B0C_arcsec: ErrorAngle_arcsec = Field(0.0, description="C's squareness to A about Y (right-hand), arcsec")
+    Y0A_um: ErrorLength_um = Field(0.0, description="A's line in Y at the A point's X, µm")
+    Z0A_um: ErrorLength_um = Field(0.0, description="A's line in Z at the A point's X, µm")
+    B0A_arcsec: ErrorAngle_arcsec = Field(0.0, description="A's tilt about Y (right-hand), arcsec")
+    C0A_arcsec: ErrorAngle_arcsec = Field(0.0, description="A's tilt about Z (right-hand), arcsec")
+
+
+class TrunnionScenario(_Strict):
+    """The nominal kinematics the controller holds: a point of C's line at A = C = 0 and a point of A's line,
+    machine frame (LinuxCNC xyzac-trt-kins: C through the rot point, A through rot point + (0, y-offset, z-offset))."""
+
+    c_point_mm: Vec3 = Field((0.0, 0.0, 0.0), description="a point of C's line, mm (its z: where X0C, Y0C are stated)")
+    a_point_mm: Vec3 = Field((0.0, 0.0, -50.0), description="a point of A's line, mm (its x: where Y0A, Z0A are stated)")
+
+
+class LinearAxesScenario(_Strict):
+    """The linear axes' geometry: the nest stands at M·J for commanded joints J, M = [[1+sx, 0, 0],
+    [xy, 1+sy, 0], [xz, yz, 1+sz]] (as the CMM's), plus a random error per move."""
+
+    scale_error_ppm: tuple[Annotated[float, Field(ge=-1e3, le=1e3)], Annotated[float, Field(ge=-1e3, le=1e3)],
+                           Annotated[float, Field(ge=-1e3, le=1e3)]] = Field((0.0, 0.0, 0.0), description="X, Y, Z scale errors, ppm")
+    squareness_xy_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness between X and Y, arcsec")
+    squareness_xz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness between X and Z, arcsec")
+    squareness_yz_arcsec: ErrorAngle_arcsec = Field(0.0, description="squareness between Y and Z, arcsec")
+    repeatability_um: float = _noise(0.0, "µm", "1σ per axis of each move's random positioning error", MAX_LENGTH_NOISE_UM)
+
+
+class SphereSetupScenario(_Strict):
+    """The calibration sphere: its certificate and where it is mounted on the table."""
+
+    radius_mm: float = Field(12.7, gt=0.5, le=100.0, description="radius, mm (e.g. 12.7: a 1-inch ball)")
+    form_um: float = Field(0.0, ge=0.0, le=100.0, description="its form deviation, peak to valley, µm (a smooth field "
+                                                              "of spherical degrees 2–6; 0: perfect)")
+    positions_mm: list[Vec3] = Field([(150.0, 0.0, 80.0)], min_length=1, max_length=10, description=(
+        "where each set-up's sphere centre is assumed on the table (table coordinates: machine frame at A = C = 0), mm"))
+    setup_offsets_um: list[tuple[ErrorLength_um, ErrorLength_um, ErrorLength_um]] = Field([], max_length=10, description=(
+        "where each sphere really sits less where assumed, µm (none: drawn with setup_sigma_um)"))
+    setup_sigma_um: float = Field(0.0, ge=0.0, le=1000.0, description="1σ per axis of the set-up offsets drawn when none "
+                                                                    "are given, µm")
+
+    @model_validator(mode="after")
+    def _one_offset_per_position(self) -> "SphereSetupScenario":
+        if self.setup_offsets_um and len(self.setup_offsets_um) != len(self.positions_mm):
+            raise ValueError(f"setup_offsets_um: {len(self.setup_offsets_um)} for {len(self.positions_mm)} positions")
+        return self
+
+
+class NestScenario(_Strict):
+    """Three flat-ended indicators on the spindle around the sphere (read as Sylvac indicators)."""
+
+    directions: tuple[Vec3, Vec3, Vec3] = Field(NEST_DIRECTIONS, description=(
+        "each sensor's nominal direction from the sphere to the sensor (normalised)"))
+    direction_error_deg: float = Field(0.0, ge=0.0, le=10.0, description="1σ of each sensor's real axis about its "
+                                                                        "nominal direction, deg (drawn once per nest)")
+    face_tilt_deg: float = Field(0.0, ge=0.0, le=5.0, description="1σ of each flat face's tilt to its plunger, deg")
+    flat_radius_mm: float = Field(3.0, gt=0.0, le=20.0, description="radius of each flat face, mm")
+    stroke_mm: float = Field(2.0, gt=0.0, le=25.0, description="each plunger's travel either side of its zero, mm")
+    capture_mm: float = Field(1.0, gt=0.0, le=10.0, description="how far the sphere may stray from the nest's zero "
+                                                               "point before it strikes the nest, mm")
+    offset_mm: Vec3 = Field((0.0, 0.0, 0.0), description="the nest zero point's stated offset from the joints, mm")
+    zero_error_um: tuple[ErrorLength_um, ErrorLength_um, ErrorLength_um] = Field(
+        (0.0, 0.0, 0.0), description="where the zero point really is less the stated offset, µm")
+    noise_um: float = _noise(0.0, "µm", "1σ of each reading", MAX_LENGTH_NOISE_UM)
+    resolution_um: float = Field(0.1, ge=0.0, le=10.0, description="display resolution, µm (a Sylvac's 0.0001 mm)")
+
+    @model_validator(mode="after")
+    def _square_enough(self) -> "NestScenario":
+        d = np.array(self.directions, float)
+        n = np.linalg.norm(d, axis=1)
+        if np.any(n < 1e-6) or abs(np.linalg.det(d / n[:, None])) < 0.1:
+            raise ValueError("directions: three directions that span space (a nest whose sensors lie in one plane "
+                             "cannot see the sphere move across it)")
+        return self
+
+
+class DriftScenario(_Strict):
+    """The sphere's drift relative to the nest (spindle and table warming): amplitude·(1 − e^(−t/τ)) from
+    the run's first reading."""
+
+    amplitude_um: tuple[ErrorLength_um, ErrorLength_um, ErrorLength_um] = Field((0.0, 0.0, 0.0), description="X, Y, Z, µm")
+    time_constant_s: float = Field(3600.0, gt=0.0, le=1e7, description="τ, s")
+
+
+class MachineToolScenario(_Strict):
+    """A five-axis machine with a trunnion table (A about X carrying C), as LinuxCNC's xyzac-trt-kins
+    describes it, and the truth the R-test measures (docs/rtest.md)."""
+
+    kinematics: TrunnionScenario = Field(TrunnionScenario(), description="the nominal kinematics")
+    location_errors: LocationErrorsScenario = Field(LocationErrorsScenario(), description="the true location errors")
+    c_positioning_error: list[AngularHarmonic] = Field([], max_length=1000, description="ECC(c): C's actual − commanded "
+                                                                                       "angle, harmonics")
+    c_reversal_arcsec: ErrorAngle_arcsec = Field(0.0, description="how much lower C ends approached negative, arcsec")
+    linear_axes: LinearAxesScenario = Field(LinearAxesScenario(), description="the linear axes' errors")
+    sphere: SphereSetupScenario = Field(SphereSetupScenario(), description="the calibration sphere")
+    nest: NestScenario = Field(NestScenario(), description="the three-sensor nest")
+    drift: DriftScenario = Field(DriftScenario(), description="thermal drift of the sphere relative to the nest")
+    limits_mm: tuple[Vec3, Vec3] = Field(((-500.0, -500.0, -500.0), (500.0, 500.0, 500.0)),
+                                         description="[lowest X, Y, Z], [highest X, Y, Z] the joints accept, mm")
+    a_limits_deg: tuple[Limit_deg, Limit_deg] = Field((-120.0, 120.0), description="A's limits, deg")
+    c_limits_deg: tuple[Limit_deg, Limit_deg] = Field((-36_000.0, 36_000.0), description="C's limits, deg")
+    linear_speed_mm_per_s: float = Field(50.0, ge=0.01, le=10_000.0, description="linear speed, mm/s")
+    rotary_speed_deg_per_s: float = Field(20.0, ge=MIN_STAGE_SPEED_DEG_PER_S, le=MAX_STAGE_SPEED_DEG_PER_S,
+                                          description="rotary speed, deg/s")
+
+    @model_validator(mode="after")
+    def _bounded(self) -> "MachineToolScenario":
+        _bounded_sum("c_positioning_error", self.c_positioning_error, "arcsec", MAX_ANGULAR_MOTION_ARCSEC)
+        if any(lo >= hi for lo, hi in zip(*self.limits_mm)) or self.a_limits_deg[0] >= self.a_limits_deg[1] \
+                or self.c_limits_deg[0] >= self.c_limits_deg[1]:
+            raise ValueError("limits: each lower limit must be below its upper one")
+        return self
+
+
 Profile = list[tuple[Annotated[float, Field(ge=0.0, le=1e7)], Annotated[float, Field(ge=-1e5, le=1e5)]]]
 
 
@@ -348,14 +495,16 @@ class EnvironmentScenario(_Strict):
 
 
 InstrumentName = Literal["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator_1", "dial_indicator_2",
-                         "environment"]
+                         "environment", "machine_tool", "nest_indicator_1", "nest_indicator_2", "nest_indicator_3"]
 FaultKind = Literal["beam_break", "no_reply", "garbled", "truncated", "modbus_exception", "crc_error", "alarm", "emergency_stop",
                     "stuck", "short", "moved", "stale", "frozen", "creep", "inch"]
 STAGE_ONLY = {"modbus_exception", "crc_error", "alarm", "emergency_stop", "stuck", "short"}
 POSITION_READ_KINDS = {"moved"}  # counted on the instrument's position reads, not on its other requests
 # what goes wrong inside an instrument and stays wrong: from the request it is drawn at, every reading after
-STATE_KINDS = {"stale": ("autocollimator", "encoder"), "frozen": ("autocollimator", "encoder"), "creep": ("laser_tracer", "dial_indicator_1", "dial_indicator_2"),
-               "inch": ("dial_indicator_1", "dial_indicator_2")}
+NEST_INDICATORS = ("nest_indicator_1", "nest_indicator_2", "nest_indicator_3")
+STATE_KINDS = {"stale": ("autocollimator", "encoder"), "frozen": ("autocollimator", "encoder"),
+               "creep": ("laser_tracer", "dial_indicator_1", "dial_indicator_2", *NEST_INDICATORS),
+               "inch": ("dial_indicator_1", "dial_indicator_2", *NEST_INDICATORS)}
 
 
 class FaultSpec(_Strict):
@@ -428,6 +577,8 @@ class Scenario(_Strict):
     stepper: StepperScenario = Field(StepperScenario(), description="an open-loop stepper drive, if any")
     environment: EnvironmentScenario = Field(EnvironmentScenario(), description="the air around the beam and its sensor")
     faults: list[FaultSpec] = Field([], max_length=1000, description="faults to inject (docs/faults.md)")
+    machine: MachineToolScenario | None = Field(None, description="a five-axis machine tool with a trunnion table and "
+                                                                  "the R-test's sphere and nest (docs/rtest.md)")
 
     def without_noise(self) -> "Scenario":
         """The same bench with every random error and fault removed: its systematic errors and
@@ -443,4 +594,7 @@ class Scenario(_Strict):
             "environment": self.environment.model_copy(update={"temperature_noise_k": 0.0, "pressure_noise_pa": 0.0,
                                                                "humidity_noise_pct": 0.0}),
             "faults": [],
+            "machine": None if self.machine is None else self.machine.model_copy(update={
+                "linear_axes": self.machine.linear_axes.model_copy(update={"repeatability_um": 0.0}),
+                "nest": self.machine.nest.model_copy(update={"noise_um": 0.0, "resolution_um": 0.0})}),
         })

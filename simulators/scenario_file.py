@@ -10,7 +10,9 @@ from pathlib import Path
 from pydantic import TypeAdapter
 
 from rtcal.compensation import CompensationError, get_format
+from rtcal.compensation.fanuc import FanucFormat
 from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
+from simulators.controllers import ControllerError, controller
 from simulators.scenario import Scenario
 
 
@@ -39,9 +41,14 @@ def load_scenario(path: str | Path, text: str | None = None) -> Scenario:
             raise FileProblems([problem_at(path, where, f"cannot read {table_path}: {exc}")]) from None
     if table is None:  # never: the model holds a file or a text (CompensationScenario)
         raise FileProblems([problem_at(path, where, "give the table's file")])
-    try:
-        get_format(comp.format).parse(table, comp.file or "text")
-    except CompensationError as exc:
+    try:  # rtcal's strict reading (a FANUC table in the axis's detection unit), then as the simulated control loads it
+        fmt = get_format(comp.format)
+        if isinstance(fmt, FanucFormat):
+            fmt.parse(table, comp.file or "text", unit_deg=comp.detection_unit_deg)
+        else:
+            fmt.parse(table, comp.file or "text")
+        controller(comp.format, table, comp.file or "text", comp.backlash_deg, comp.detection_unit_deg, comp.bidirectional)
+    except (CompensationError, ControllerError) as exc:
         raise FileProblems([problem_at(path, where, str(exc))]) from None
     return scenario.model_copy(update={"stage": scenario.stage.model_copy(update={
         "compensation": comp.model_copy(update={"text": table, "file": None})})})

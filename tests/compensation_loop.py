@@ -49,17 +49,29 @@ def md32450_deg(table_text: str) -> float:
     return float(found[0]) if found else 0.0
 
 
-def load_table(table: Path, fmt: str, bench: Path = BENCH) -> Path:
+# the simulated FANUC axis's detection unit unless a loop gives another (docs/compensation.md's loop: IS-C)
+AXIS: dict[str, dict[str, float]] = {"fanuc": {"detection_unit_deg": 0.0001}}
+
+
+def load_table(table: Path, fmt: str, bench: Path = BENCH, axis: dict[str, float] | None = None) -> Path:
     """``bench`` with ``table`` loaded into the simulated controller (``stage.compensation``),
-    and the machine data its `;` lines ask for (MD32450, ``backlash_deg``) entered, written
-    beside the table (the scenario names it relative to itself)."""
+    the machine data its `;` lines ask for (MD32450, ``backlash_deg``) entered, and the axis's own
+    (``axis``: a FANUC axis's ``detection_unit_deg``, default AXIS), written beside the table (the
+    scenario names it relative to itself)."""
     text = bench.read_text()
     assert "\nstage:\n" in text, bench
     out = table.parent / f"{table.name}.bench.yaml"
     backlash = md32450_deg(table.read_text())
     md = f", backlash_deg: {backlash!r}" if backlash else ""
+    md += "".join(f", {k}: {v!r}" for k, v in (AXIS.get(fmt, {}) if axis is None else axis).items())
     out.write_text(text.replace("\nstage:\n", f"\nstage:\n  compensation: {{format: {fmt}, file: {table.name}{md}}}\n", 1))
     return out
+
+
+def fanuc_options(axis: dict[str, float] | None = None) -> tuple[str, ...]:
+    """What `rtcal compensate --format fanuc` needs: the axis's detection unit (default AXIS) and a first point."""
+    unit = (AXIS["fanuc"] if axis is None else axis)["detection_unit_deg"]
+    return ("--detection-unit-deg", f"{unit:g}", "--first-point", "0")
 
 
 def run(procedure: Path, out: Path, *options: str) -> dict:
@@ -94,13 +106,23 @@ def measure_before(work: Path, calibration: Path = ISO, between: Path = VERIFY) 
 
 
 def measure_after(before: Before, work: Path, name: str, compensate: tuple[str, ...] = (), fmt: str = "linuxcnc",
-                  calibration: Path = ISO, between: Path = VERIFY) -> After:
+                  calibration: Path = ISO, between: Path = VERIFY, axis: dict[str, float] | None = None) -> After:
     """Write the table from ``before``'s calibration (`rtcal compensate` with ``compensate``'s
-    options), load it into the bench, and measure at the targets and between them again."""
+    options; a FANUC table for the axis's detection unit unless they give one), load it into the
+    bench (with ``axis``'s machine data), and measure at the targets and between them again."""
     table = work / f"{name}.{fmt}"
+    if fmt == "fanuc" and "--detection-unit-deg" not in compensate:
+        compensate = (*compensate, *fanuc_options(axis))
     code, out, err = rtcal("compensate", before.calibration, "--format", fmt, "--out", table, *compensate)
     assert code == 0, err
-    bench = load_table(table, fmt)
+    return measure_loaded(table, fmt, work, name, out + err, calibration, between, axis)
+
+
+def measure_loaded(table: Path, fmt: str, work: Path, name: str, console: str = "", calibration: Path = ISO,
+                   between: Path = VERIFY, axis: dict[str, float] | None = None) -> After:
+    """``table`` (a file of format ``fmt``) loaded into the bench with ``axis``'s machine data, and
+    the measurements at the calibration targets and between them (another seed)."""
+    bench = load_table(table, fmt, axis=axis)
     options = ("--scenario", str(bench), "--seed", str(AFTER_SEED))
     return After(run(calibration, work / f"{name}-at", *options), run(between, work / f"{name}-between", *options),
-                 out + err)
+                 console)

@@ -9,6 +9,7 @@ per case on a process pool."""
 
 from __future__ import annotations
 
+from rtcal.results.model import SCHEMA_VERSION
 import math
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -250,7 +251,7 @@ def test_a_run_reports_the_axis_where_the_bench_has_it(tmp_path, capsys):
     assert main(["run", str(repo / "procedures" / "laser_tracer_multistation.yaml"), "--scenario", str(path),
                  "--out", str(out)]) == 0
     r = json.loads((out / "results.json").read_text(encoding="utf-8"))
-    assert r["schema_version"] == "1.3" and "error_motions" not in r  # one mount: no error motions
+    assert r["schema_version"] == SCHEMA_VERSION and "error_motions" not in r  # one mount: no error motions
     loc = r["axis_location"]
     assert set(loc) == {"frame", *(f"{k}{s}" for k in ("x0c_mm", "y0c_mm", "a0c_arcsec", "b0c_arcsec") for s in ("", "_u"))}
     truth = true_location(Bench(Scenario.model_validate(scenario)))

@@ -21,7 +21,7 @@ from rtcal.clock import VirtualClock
 from rtcal.planning.montecarlo import plan_trials, run_trial, summarize
 from rtcal.methods import load_procedure
 from rtcal.solvers.station_budget import bounded_course_component
-from rtcal.solvers.uncertainty import residual_check
+from rtcal.solvers.uncertainty import Covariance, residual_check
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
@@ -99,8 +99,9 @@ def test_the_bounded_course_covers_every_step_and_cycle_within_the_range():
 def test_the_residual_test_passes_noise_as_stated_and_fails_a_model_error():
     rng = np.random.default_rng(5)
     N, p = 600, 20
-    V = np.diag(rng.uniform(0.5, 2.0, N))
-    r = rng.standard_normal(N) * np.sqrt(np.diag(V))
+    sigma = np.sqrt(rng.uniform(0.5, 2.0, N))
+    V = Covariance((sigma,))  # one independent error per residual
+    r = rng.standard_normal(N) * sigma
     ok = residual_check(r, V, p)
     assert ok is not None and ok.passed and 0.85 < ok.birge_ratio < 1.15
     bad = residual_check(r + 3.0 * np.sin(np.linspace(0, 6, N)), V, p)
@@ -178,14 +179,18 @@ def test_a_partial_error_motion_bound_and_the_cmm_geometry_are_named():
 def test_the_autocollimator_calibration_enters_the_iso_budget():
     from rtcal.run.runner import run_procedure
 
-    out = run_procedure(str(DATA / "iso_scale.yaml"), DATA / "iso_scale_bench.yaml", 3,
-                        Path(__import__("tempfile").mkdtemp()) / "run", show_progress=False, outputs=False)
+    run_dir = Path(__import__("tempfile").mkdtemp()) / "run"
+    out = run_procedure(str(DATA / "iso_scale.yaml"), DATA / "iso_scale_bench.yaml", 3, run_dir, show_progress=False)
     budget = getattr(out.results.estimates, out.results.recommended).uncertainty_budget
     names = {c.source: c for c in budget.components}
     scale = names["autocollimator calibration (scale)"]
     assert scale.input_sigma == 5000
     assert max(v for v in scale.contribution_arcsec if v is not None) > 0.05  # 0.5 % of deflections of tens of ″
     assert "autocollimator calibration (certificate U)" in names
+    # the certificate and the report state it as written, not "5e+03 ppm" (issue 46)
+    for name in ("certificate.json", "report.md"):
+        text = (run_dir / name).read_text(encoding="utf-8")
+        assert "5000 ppm" in text and "e+03" not in text, name
 
 
 def test_an_estimator_whose_residuals_the_stated_noise_cannot_explain_says_so():

@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
@@ -26,6 +27,13 @@ from tests.postgres_server import PostgresServer, binaries
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURE = REPO / "procedures" / "iso230_2_verification.yaml"
 SERIAL = "SIM-230-2"
+OUTBOX = Path(tempfile.mkdtemp(prefix="rtcal-outbox-"))  # a rig's outbox in the tests: never the user's own
+
+
+@pytest.fixture(autouse=True)
+def rig_outbox(monkeypatch):
+    """Every test's rig keeps its outbox in a folder of its own, never the user's."""
+    monkeypatch.setenv("RTCAL_OUTBOX", str(OUTBOX))
 
 
 @pytest.fixture(scope="module")
@@ -55,10 +63,12 @@ def db(request, tmp_path) -> str:
 
 def _cli(*argv: str, env: dict[str, str] | None = None, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "rtcal.cli", *argv], capture_output=True, text=True, timeout=timeout,
-                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), **(env or {})})
+                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), "RTCAL_OUTBOX": str(OUTBOX), **(env or {})})
 
 
 def _count(db: str) -> int:
+    if "://" not in db and not Path(db).exists():  # a refused add creates no file (and reading one is refused)
+        return 0
     with Catalog(db) as cat:
         return cat.count()
 
@@ -68,8 +78,8 @@ def _password(db: str) -> str | None:
 
 
 def test_a_run_is_added_once_and_its_history_lists_it(db, finished_run, capsys):
-    assert main(["catalog", "add", str(finished_run), "--db", db]) == 0
-    assert main(["catalog", "add", str(finished_run), "--db", db]) == 0  # again: nothing changes
+    assert main(["catalog", "add", "--allow-simulated", str(finished_run), "--db", db]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(finished_run), "--db", db]) == 0  # again: nothing changes
     out = capsys.readouterr().out
     assert "added to" in out and "already in" in out
     assert _count(db) == 1
@@ -109,14 +119,14 @@ def test_a_tampered_or_unfinished_run_is_refused_and_nothing_is_written(db, fini
     shutil.copytree(finished_run, unfinished)
     (unfinished / "results.json").unlink()
     for run, code in ((bad, 1), (unfinished, 2)):
-        r = _cli("catalog", "add", str(finished_run), str(run), "--db", db)
+        r = _cli("catalog", "add", "--allow-simulated", str(finished_run), str(run), "--db", db)
         assert r.returncode == code, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr and str(run) in r.stderr
     assert _count(db) == 0  # the good run before the bad one is not written either
 
 
 def test_two_processes_adding_the_same_run_make_one_entry(db, finished_run):
-    procs = [subprocess.Popen([sys.executable, "-m", "rtcal.cli", "catalog", "add", str(finished_run), "--db", db],
+    procs = [subprocess.Popen([sys.executable, "-m", "rtcal.cli", "catalog", "add", "--allow-simulated", str(finished_run), "--db", db],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
                               env={**os.environ, "PYTHONPATH": str(REPO)}) for _ in range(2)]
     outs = [p.communicate(timeout=120) for p in procs]
@@ -129,13 +139,13 @@ def test_a_database_that_is_down_fails_in_one_line_without_the_password_and_work
     postgres.stop()
     try:
         t0 = time.monotonic()
-        r = _cli("catalog", "add", str(finished_run), "--db", db)
+        r = _cli("catalog", "add", "--allow-simulated", str(finished_run), "--db", db)
         assert r.returncode == 1 and time.monotonic() - t0 < 30
         assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
         assert f"127.0.0.1:{postgres.port}/down" in r.stderr and postgres.password not in r.stderr + r.stdout
     finally:
         postgres.start()
-    assert _cli("catalog", "add", str(finished_run), "--db", db).returncode == 0
+    assert _cli("catalog", "add", "--allow-simulated", str(finished_run), "--db", db).returncode == 0
     assert _count(db) == 1
 
 
@@ -145,7 +155,7 @@ def test_a_server_that_drops_mid_add_leaves_nothing_and_the_add_works_again(post
     monkeypatch.setattr(Catalog, "before_commit", staticmethod(lambda: postgres.stop("immediate")))
     try:
         t0 = time.monotonic()
-        assert main(["catalog", "add", str(finished_run), "--db", db]) == 1
+        assert main(["catalog", "add", "--allow-simulated", str(finished_run), "--db", db]) == 1
         assert time.monotonic() - t0 < 30
     finally:
         postgres.start()
@@ -153,17 +163,17 @@ def test_a_server_that_drops_mid_add_leaves_nothing_and_the_add_works_again(post
     assert len(err.strip().splitlines()) == 1 and "nothing of it was written" in err and postgres.password not in err
     monkeypatch.setattr(Catalog, "before_commit", None)
     assert _count(db) == 0
-    assert main(["catalog", "add", str(finished_run), "--db", db]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(finished_run), "--db", db]) == 0
     assert _count(db) == 1
 
 
 def test_the_default_catalogue_is_a_sqlite_file_named_by_rtcal_catalog(finished_run, tmp_path):
     path = tmp_path / "env" / "lab.sqlite"
-    r = _cli("catalog", "add", str(finished_run), env={"RTCAL_CATALOG": str(path)})
+    r = _cli("catalog", "add", "--allow-simulated", str(finished_run), env={"RTCAL_CATALOG": str(path)})
     assert r.returncode == 0, r.stderr
     assert path.is_file() and _count(str(path)) == 1
     home = tmp_path / "home"
-    r = _cli("catalog", "list", env={"RTCAL_CATALOG": "", "HOME": str(home), "XDG_DATA_HOME": ""})
+    r = _cli("catalog", "add", "--allow-simulated", str(finished_run), env={"RTCAL_CATALOG": "", "HOME": str(home), "XDG_DATA_HOME": ""})
     assert r.returncode == 0 and (home / ".local/share/rtcal/catalog.sqlite").is_file()
 
 
@@ -202,7 +212,7 @@ def test_the_catalog_page_shows_the_fleet_and_a_machines_history_in_chromium(fin
 
     sync_api = pytest.importorskip("playwright.sync_api")
     db = str(tmp_path / "catalog.sqlite")
-    assert main(["catalog", "add", str(finished_run), "--db", db]) == 0
+    assert main(["catalog", "add", "--allow-simulated", str(finished_run), "--db", db]) == 0
     proc = subprocess.Popen([sys.executable, "-m", "rtcal.cli", "view", "--catalog", "--db", db, "--live", "127.0.0.1:0"],
                             cwd=REPO, stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
     try:

@@ -35,7 +35,8 @@ def test_help_lists_every_command(capsys):
     commands = _subcommands(build_parser())
     assert len(commands) == len(COMMANDS)
     assert set(commands) == {"run", "resume", "uncertainty", "evaluate", "compensate", "compare", "export", "verify",
-                             "plan", "sim", "probe", "check", "validate", "schema", "solve", "view", "control", "catalog"}
+                             "plan", "sim", "probe", "check", "validate", "schema", "solve", "view", "control", "catalog",
+                             "key"}
     done = subprocess.run([sys.executable, "-m", "rtcal.cli", "--help"], capture_output=True, text=True, timeout=120,
                           cwd=REPO)
     assert done.returncode == 0, done.stderr

@@ -24,6 +24,8 @@ import pytest
 from rtcal.cli import main
 from rtcal.deliverables.deviations import MAX_CSV_BYTES
 
+FANUC = ["--detection-unit-deg", "0.0001", "--first-point", "0"]  # a FANUC table has no default for either (issue 46)
+
 REPO = Path(__file__).resolve().parents[1]
 ABBE = REPO / "procedures" / "encoder_abbe_error.yaml"
 TRACER = REPO / "procedures" / "laser_tracer_multistation.yaml"
@@ -51,21 +53,21 @@ CASES: dict[str, tuple[list[str], int, str]] = {
     "evaluate_results_is_a_folder": (["evaluate", "{w}/results_folder"], 2, "{w}/results_folder/results.json: not a regular file"),
     "evaluate_standard": (["evaluate", "{w}/good.csv", "--standard", "iso9999"], 2, "argument --standard: invalid choice"),
     # compensate: numbers and destinations
-    "compensate_step_zero": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--step-deg", "0"], 2, "--step-deg 0"),
-    "compensate_step_nan": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--step-deg", "nan"], 2, "--step-deg nan"),
-    "compensate_step_uneven": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--step-deg", "7"], 2, "--step-deg 7"),
-    "compensate_step_huge": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--step-deg", "1e308"], 2, "--step-deg 1e+308"),
-    "compensate_step_text": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--step-deg", "x"], 2, "argument --step-deg"),
-    "compensate_gap_nan": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--max-gap-deg", "nan"], 2, "--max-gap-deg nan"),
-    "compensate_gap_negative": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--max-gap-deg", "-1"], 2, "--max-gap-deg -1"),
+    "compensate_step_zero": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/c", "--step-deg", "0"], 2, "--step-deg 0"),
+    "compensate_step_nan": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/c", "--step-deg", "nan"], 2, "--step-deg nan"),
+    "compensate_step_uneven": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/c", "--step-deg", "7"], 2, "--step-deg 7"),
+    "compensate_step_huge": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/c", "--step-deg", "1e308"], 2, "--step-deg 1e+308"),
+    "compensate_step_text": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/c", "--step-deg", "x"], 2, "argument --step-deg"),
+    "compensate_gap_nan": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/c", "--max-gap-deg", "nan"], 2, "--max-gap-deg nan"),
+    "compensate_gap_negative": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/c", "--max-gap-deg", "-1"], 2, "--max-gap-deg -1"),
     "compensate_range_huge": (["compensate", "{w}/abbe", "--format", "linuxcnc", "--out", "{w}/c", "--range-deg", "0", "1e300"], 2, "--range-deg 0 1e+300"),
     "compensate_range_backwards": (["compensate", "{w}/abbe", "--format", "linuxcnc", "--out", "{w}/c", "--range-deg", "90", "0"], 2, "--range-deg 90 0"),
-    "compensate_unit_zero": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--detection-unit-deg", "0"], 2, "--detection-unit-deg 0"),
-    "compensate_first_point": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/c", "--first-point", "-5"], 2, "choose --first-point"),
+    "compensate_unit_zero": (["compensate", "{w}/abbe", "--format", "fanuc", "--first-point", "0", "--out", "{w}/c", "--detection-unit-deg", "0"], 2, "--detection-unit-deg 0"),
+    "compensate_first_point": (["compensate", "{w}/abbe", "--format", "fanuc", "--detection-unit-deg", "0.0001", "--out", "{w}/c", "--first-point", "-5"], 2, "choose --first-point"),
     "compensate_axis_newline": (["compensate", "{w}/abbe", "--format", "siemens-lec", "--out", "{w}/c", "--axis", "C\n1"], 2, "--axis 'C\\n1'"),
-    "compensate_out_folder": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/nostore"], 2, "{w}/nostore is a directory"),
-    "compensate_out_nowhere": (["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/missing/c.txt"], 2, "{w}/missing: cannot write there"),
-    "compensate_one_target": (["compensate", "{w}/one_target.csv", "--format", "fanuc", "--out", "{w}/c"], 2, "{w}/one_target.csv: the positive direction"),
+    "compensate_out_folder": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/nostore"], 2, "{w}/nostore is a directory"),
+    "compensate_out_nowhere": (["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/missing/c.txt"], 2, "{w}/missing: cannot write there"),
+    "compensate_one_target": (["compensate", "{w}/one_target.csv", "--format", "fanuc", *FANUC, "--out", "{w}/c"], 2, "{w}/one_target.csv: the positive direction"),
     "compensate_format": (["compensate", "{w}/abbe", "--format", "mazak", "--out", "{w}/c"], 2, "argument --format: invalid choice"),
     # compare
     "compare_missing_a": (["compare", "{w}/nothing", "{w}/abbe", "--out", "{w}/o"], 2, "{w}/nothing: cannot read"),
@@ -243,7 +245,7 @@ def test_a_full_disk_is_a_failure_not_a_mistake(world, command, capsys, monkeypa
         raise OSError(errno.ENOSPC, "No space left on device")
 
     argv = {"export": ["export", "{w}/abbe", "--out", "{w}/full"],
-            "compensate": ["compensate", "{w}/abbe", "--format", "fanuc", "--out", "{w}/full.txt"],
+            "compensate": ["compensate", "{w}/abbe", "--format", "fanuc", *FANUC, "--out", "{w}/full.txt"],
             "compare": ["compare", "{w}/abbe", "{w}/abbe", "--out", "{w}/full"],
             "uncertainty": ["uncertainty", str(ABBE), "--trials", "2", "--workers", "1", "--out", "{w}/full"]}[command]
     if command == "uncertainty":  # the trials themselves write their stores where the disk is not full

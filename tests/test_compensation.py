@@ -18,6 +18,14 @@ from rtcal.deliverables.deviations import PositioningDeviations
 
 REPO = Path(__file__).resolve().parents[1]
 ISO = REPO / "procedures" / "iso230_2_polygon.yaml"
+# what a format cannot be written without (FANUC: the axis's detection unit and first point, issue 46)
+REQUIRED = {"fanuc": {"unit_deg": 0.0001, "first_point": 0}}
+REQUIRED_CLI = {"fanuc": ["--detection-unit-deg", "0.0001", "--first-point", "0"]}
+
+
+def _write(fmt: str, comp: CompensationTable, **options) -> str:
+    """``write_table`` with what the format requires (REQUIRED) unless given."""
+    return write_table(fmt, comp, **{**REQUIRED.get(fmt, {}), **options})
 BENCH = REPO / "tests" / "data" / "smooth_reversal_bench.yaml"
 FORMATS = list(WRITERS)
 
@@ -29,9 +37,12 @@ SYNTAX = {
     "siemens-cec": [r"%_N_NC_CEC_INI", r"; [ -~]+", r"CHANDATA\(1\)", r"\$AN_CEC\[[01],\d+\]=-?\d+\.\d{8}",
                     r"\$AN_CEC_(INPUT_AXIS|OUTPUT_AXIS)\[[01]\]=\(C1\)",
                     r"\$AN_CEC_(STEP|MIN|MAX|DIRECTION|MULT_BY_TABLE|IS_MODULO)\[[01]\]=-?[\d.]+", r"M17"],
-    "fanuc": [r"%", r"N0360[05]A4P[01]{8};", r"N036\d\dA4P-?\d+(\.\d+)?;", r"N1\d{4}P[+-]\d+;"],
+    "fanuc": [r"%", r"%\(rtcal: detection unit [\d.]+ deg(, IS-[BC])?; points \d+-\d+; set 3605#0 = 1 by hand\)",
+              r"N036(2\d)A4P-?\d+(\.\d+)?;", r"N1\d{4}P[+-]\d+;"],
     "heidenhain": [r"BEGIN AXIS_C\.COM", r"NR AXISPOS C BACKLASH", r"\d+ [+-]\d+\.\d{4} [+-]\d+\.\d{8} [+-]\d+\.\d{8}",
                    r"\[END\]"],
+    "isg-volcomp": [r"// [ -~]*", r"#", r"(C|[XY]0C|[AB]0C|E[XYZABC]C)( +([XY]0C|[AB]0C|E[XYZABC]C))*",
+                    r"-?\d+\.\d+( +-?\d+\.\d+)*"],
 }
 
 
@@ -55,7 +66,7 @@ def _documented_example(fmt: str) -> list[str]:
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_written_tables_read_back_and_match_their_syntax(fmt):
     comp = table_from_deviations(_smooth_table(), 15.0)
-    text = WRITERS[fmt](comp)
+    text = _write(fmt, comp)
     for line in text.splitlines():
         assert any(re.fullmatch(p, line) for p in SYNTAX[fmt]), (fmt, line)
     example = _documented_example(fmt)
@@ -65,7 +76,7 @@ def test_written_tables_read_back_and_match_their_syntax(fmt):
     back = PARSERS[fmt](text, fmt)
     # LEC keeps the mean of both, 0 at the reference point (0°); FANUC quantises to its 0.0001° detection unit (0.36″)
     tol = 0.18 / 3600 + 1e-9 if fmt == "fanuc" else 1e-8
-    if fmt == "siemens-lec":
+    if fmt in ("siemens-lec", "isg-volcomp"):  # one value per position: the mean of both directions
         mean = (comp.trim_up_deg + comp.trim_down_deg) / 2
         np.testing.assert_allclose(back.trim_up_deg, mean - mean[0], atol=tol)
         np.testing.assert_allclose(back.trim_down_deg, mean - mean[0], atol=tol)
@@ -79,7 +90,7 @@ def test_the_rules_each_format_states():
     comp = table_from_deviations(_smooth_table(), 15.0)
     assert comp.trim_up_deg[0] == 0.0  # the datum stays put
     assert comp.trim_down_deg[0] == pytest.approx(3 / 3600)  # the reversal is compensated at the datum too
-    fanuc = write_table("fanuc", comp, listing=True)
+    fanuc = _write("fanuc", comp, listing=True)
     inc = [int(v) for v in re.findall(r"^\d{1,4} = ([+-]\d+)$", fanuc, re.M)]
     up, down = inc[:25], inc[25:]
     assert len(down) == 25
@@ -135,14 +146,14 @@ def test_linuxcnc_file_and_console_state_comp_file_type_0(tmp_path, capsys):
 
 
 def _mutated(fmt: str, old: str, new: str) -> str:
-    text = WRITERS[fmt](table_from_deviations(_smooth_table(), 15.0))
+    text = _write(fmt, table_from_deviations(_smooth_table(), 15.0))
     assert old in text
     return text.replace(old, new, 1)
 
 
 @pytest.mark.parametrize("fmt, old, new, message", [
     ("siemens-lec", "M17\n", "", "M17 is missing"),
-    ("siemens-lec", "CHANDATA(1)\n", "CHANDATA(1)\nG01 X10\n", ":7: not a \\$AA_ENC_COMP assignment"),
+    ("siemens-lec", "CHANDATA(1)\n", "CHANDATA(1)\nG01 X10\n", ":13: not a \\$AA_ENC_COMP assignment"),
     ("siemens-lec", "IS_MODULO[0,C1]=1", "IS_MODULO[0,C1]=0", "modulo table"),
     ("siemens-lec", "$AA_ENC_COMP[0,3,", "$AA_ENC_COMP[0,33,", "without gaps"),
     ("siemens-cec", "%_N_NC_CEC_INI", "%_N_AX_EEC_INI", ":1: the first line must be %_N_NC_CEC_INI"),
@@ -186,13 +197,13 @@ def test_fanuc_magnification_keeps_values_within_range():
     t = _smooth_table()
     big = PositioningDeviations(t.target_deg, t.direction, t.run, 10 * t.deviation_arcsec, t.uncertainty_arcsec)
     comp = table_from_deviations(big, 15.0)
-    text = write_table("fanuc", comp, listing=True)
+    text = _write("fanuc", comp, listing=True)
     assert re.search(r"^3623 = 2 ", text, re.M)
     assert max(abs(int(v)) for v in re.findall(r"^\d{1,4} = ([+-]\d+)$", text, re.M)) <= 127
     back = PARSERS["fanuc"](text, "f")
     np.testing.assert_allclose(back.trim_up_deg, comp.trim_up_deg, atol=0.0002 / 2 + 1e-9)
     with pytest.raises(CompensationError, match="do not fit 0 … 1023"):
-        write_table("fanuc", comp, first_point=1000)
+        _write("fanuc", comp, first_point=1000)
 
 
 def test_a_repeated_command_keeps_its_direction_on_a_compensated_stage(tmp_path):
@@ -228,31 +239,37 @@ def calibrated(tmp_path_factory) -> Path:
     return out
 
 
-def _compensated_bench(calibrated: Path, tmp_path: Path, fmt: str) -> Path:
+def _compensated_bench(calibrated: Path, tmp_path: Path, fmt: str, axis: dict | None = None) -> Path:
     """``BENCH`` with the table `rtcal compensate` writes loaded, and the machine data its `;`
-    lines ask for entered (SINUMERIK LEC: MD32450, tests/compensation_loop.py)."""
-    from tests.compensation_loop import load_table
+    lines ask for entered (SINUMERIK LEC: MD32450, tests/compensation_loop.py); a FANUC table for
+    the axis's detection unit (``axis``, default IS-C)."""
+    from tests.compensation_loop import fanuc_options, load_table
 
     table = tmp_path / f"table.{fmt}"
-    assert main(["compensate", str(calibrated), "--format", fmt, "--step-deg", "15", "--out", str(table)]) == 0
-    return load_table(table, fmt, BENCH)
+    options = fanuc_options(axis) if fmt == "fanuc" else ()
+    assert main(["compensate", str(calibrated), "--format", fmt, "--step-deg", "15", *options, "--out", str(table)]) == 0
+    return load_table(table, fmt, BENCH, axis)
 
 
-@pytest.mark.parametrize("fmt", FORMATS)
-def test_calibrate_compensate_verify(calibrated, tmp_path, fmt):
+@pytest.mark.parametrize("fmt, axis", [(f, None) for f in FORMATS] + [("fanuc", {"detection_unit_deg": 0.001})])
+def test_calibrate_compensate_verify(calibrated, tmp_path, fmt, axis):
     """The ISO 230-2 test, its table loaded into the simulated controller, the test again with
     another seed (fresh repeatability, autocollimator noise and polygon certificate: a table that
     only fitted the first run's noise would not pass): E (44″ here) drops at least 8× and B (3.1″)
     at least 4×. This is what proves each format's sign: with the sign wrong the table doubles
     the error instead. The one-direction format (LEC) carries the mean of both directions and the
-    reversal goes to MD32450, as its `;` line asks."""
-    bench = _compensated_bench(calibrated, tmp_path, fmt)
+    reversal goes to MD32450, as its `;` line asks. FANUC on an IS-B axis too, its table written
+    for that unit (issue 46: one written for IS-C made E nine times worse there)."""
+    bench = _compensated_bench(calibrated, tmp_path, fmt, axis)
     verify = tmp_path / "verify"
     assert main(["run", str(ISO), "--scenario", str(bench), "--seed", "7", "--out", str(verify)]) == 0
     before, after = _evaluate(calibrated), _evaluate(verify)
     assert before["E"] > 40 and before["B"] > 2.5
     assert after["E"] < before["E"] / 8, (before["E"], after["E"])
-    assert after["B"] < before["B"] / 4, (before["B"], after["B"])
+    if fmt == "isg-volcomp":  # one ECC for both directions: the reversal stays the axis's backlash compensation's
+        assert abs(after["B"] - before["B"]) < 1.0, (before["B"], after["B"])
+    elif axis is None:  # an IS-B axis moves in 3.6″ units: the bench's 3.1″ reversal is below one
+        assert after["B"] < before["B"] / 4, (before["B"], after["B"])
 
 
 def test_the_modbus_drive_simulator_applies_the_table(calibrated, tmp_path):
@@ -279,7 +296,11 @@ def test_a_bad_table_in_a_scenario_is_located(tmp_path, capsys):
 @pytest.mark.parametrize("options, message", [
     (["--format", "linuxcnc", "--step-deg", "7"], "--step-deg 7: the grid must divide one turn"),
     (["--format", "linuxcnc", "--axis", "C"], "linuxcnc takes no --axis"),
-    (["--format", "fanuc", "--step-deg", "15", "--first-point", "1000"], "do not fit 0 … 1023"),
+    (["--format", "fanuc", "--step-deg", "15", "--detection-unit-deg", "0.001", "--first-point", "1000"], "do not fit 0 … 1023"),
+    (["--format", "fanuc", "--step-deg", "15", "--first-point", "0"], "fanuc needs --detection-unit-deg"),
+    (["--format", "fanuc", "--step-deg", "15", "--detection-unit-deg", "0.001"], "fanuc needs --first-point"),
+    (["--format", "siemens-cec", "--step-deg", "15", "--table-index", "99999"], "--table-index 99999: tables 99999 and "
+                                                                               "100000 are written, and the control has tables 0 ... 7"),
     (["--format", "siemens-lec", "--axis", "c1"], "not a siemens-lec axis name"),
 ])
 def test_compensate_refuses_bad_options_in_one_line(tmp_path, capsys, options, message):
@@ -303,7 +324,8 @@ def test_compensate_options_reach_the_file(tmp_path):
                  "--series", "16i", "--out", str(tmp_path / "f")]) == 0
     text = (tmp_path / "f").read_text()
     assert "N03620A4P100;" in text and "N03625A4P360000;" in text
-    assert main(["compensate", str(csv), "--format", "fanuc", "--step-deg", "15", "--listing", "--out", str(tmp_path / "l")]) == 0
+    assert main(["compensate", str(csv), "--format", "fanuc", "--step-deg", "15", *REQUIRED_CLI["fanuc"], "--listing",
+                 "--out", str(tmp_path / "l")]) == 0
     assert "3620 = 0  (" in (tmp_path / "l").read_text() and "3625 = 360.0  (" in (tmp_path / "l").read_text()
 
 
@@ -316,7 +338,13 @@ def _csv(tmp_path: Path, table: PositioningDeviations, name: str = "d.csv") -> P
 
 
 def _compensate(tmp_path: Path, source: Path, *options: str, capsys) -> tuple[int, str, str]:
-    code = main(["compensate", str(source), *options])
+    """`rtcal compensate SOURCE OPTIONS` (with what its format requires, REQUIRED_CLI, unless given)."""
+    given = list(options)
+    required = REQUIRED_CLI.get(given[given.index("--format") + 1], []) if "--format" in given else []
+    for flag, value in zip(required[::2], required[1::2]):
+        if flag not in given:
+            given += [flag, value]
+    code = main(["compensate", str(source), *given])
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -404,14 +432,18 @@ def test_a_one_direction_run_is_refused_without_the_option(one_direction_run, tm
                                  "--out", str(out_file), capsys=capsys)
     assert code == 0 and str(out_file) in out
     assert "rtcal: warning: one direction measured (positive only): LinuxCNC ignores the joint's BACKLASH" in err
-    assert "a linuxcnc file takes no comment" in err
-    rows = np.loadtxt(out_file)
+    # the warning is in the file's footer (after the table: LinuxCNC never reads it), and the console says no otherwise
+    assert "not in" not in err and "# rtcal: warning: one direction measured [positive only]: LinuxCNC ignores" in \
+        out_file.read_text()
+    rows = np.loadtxt(out_file, comments="#")
     np.testing.assert_array_equal(rows[:, 1], rows[:, 2])
 
 
 @pytest.mark.parametrize("fmt, comment", [("siemens-cec", "; rtcal warning: one direction measured"),
                                           ("siemens-lec", "; rtcal warning: one direction measured"),
-                                          ("heidenhain", None), ("fanuc", None)])
+                                          ("linuxcnc", "# rtcal: warning: one direction measured"),
+                                          ("heidenhain", "a .COM table takes no comment line rtcal knows of"),
+                                          ("fanuc", "a FANUC I/O file holds only records between its two '%'")])
 def test_warnings_go_into_files_that_take_comments(tmp_path, capsys, fmt, comment):
     """Where the format takes comments the warning is in the file too, in plain ASCII, and the
     strict reader still reads it (negative approaches only: the datum comes from them)."""
@@ -423,9 +455,9 @@ def test_warnings_go_into_files_that_take_comments(tmp_path, capsys, fmt, commen
     code, _, err = _compensate(tmp_path, _csv(tmp_path, down), "--format", fmt, "--step-deg", "15", "--allow-one-direction",
                                "--out", str(tmp_path / "t"), capsys=capsys)
     text = (tmp_path / "t").read_text()
-    if comment is None:  # the FANUC I/O file holds records only, a .COM table its rows: the console says so
-        assert code == 0 and f"(not in {tmp_path / 't'}: a {fmt} file takes no comment)" in err
-    else:
+    if not comment.startswith(("; ", "# ")):  # the FANUC I/O file holds records only, a .COM table its rows: said why
+        assert code == 0 and f"(not in {tmp_path / 't'}: {comment}" in err and "rtcal warning" not in text
+    else:  # in the file; the console does not say otherwise (issue 46: it said so of LinuxCNC's, which has a footer)
         assert code == 0 and "not in" not in err
         lines = [line for line in text.splitlines() if line.startswith(comment)]
         assert len(lines) == 1 and lines[0].isascii()
@@ -608,30 +640,124 @@ def test_cec_writes_axes_in_parentheses_into_the_tables_asked_for():
         write_table("siemens-cec", comp, table_index=-1)
 
 
+def test_cec_stays_within_the_controls_tables_and_warns_of_the_memory():
+    """Issue 46: `--table-index 99999` was written (the 828D has eight tables, K3 p. 264); MD18342,
+    like LEC's MD38000, reorganises the NC memory when changed: its line says to back it up."""
+    comp = _reversal_table()
+    for index, tables in ((7, 8), (99999, 8), (8, 9)):
+        with pytest.raises(CompensationError, match=f"--table-index {index}: tables {index} and {index + 1} are written"):
+            write_table("siemens-cec", comp, table_index=index, tables=tables)
+    text = write_table("siemens-cec", comp, table_index=6)  # 6 and 7: the 828D's last two
+    assert "$AN_CEC_DIRECTION[7]=-1" in text
+    assert "$AN_CEC_DIRECTION[9]=-1" in write_table("siemens-cec", comp, table_index=8, tables=10)  # an 840D's tenth
+    notes = " ".join(line.removeprefix(";").strip() for line in text.splitlines() if line.startswith(";"))
+    for fmt, md in (("siemens-cec", "MD18342"), ("siemens-lec", "MD38000")):
+        notes = " ".join(line.removeprefix(";").strip() for line in write_table(fmt, comp).splitlines() if line.startswith(";"))
+        assert re.search(rf"{md} \$\S+ >= 25 .*a change of {md} reorganises the NC memory .* back it up first", notes), notes
+
+
+def test_cec_is_zero_at_the_reference_point():
+    """--reference-deg for CEC too (issue 46): the positive table is 0 where the axis references (no
+    jump on activation, K3 p. 238), the negative keeps the reversal there; what the control applies
+    differs from the table measured by a constant only."""
+    from simulators.controllers import controller
+
+    comp = _reversal_table()
+    assert abs(comp.trim_deg(240.0, 1)) * 3600 > 30  # away from 0° the axis's table is far from 0
+    text = write_table("siemens-cec", comp, reference_deg=240.0)
+    up = _file_values(text, r"^\$AN_CEC\[0,\d+\]=(\S+)$")
+    down = _file_values(text, r"^\$AN_CEC\[1,\d+\]=(\S+)$")
+    assert up[16] == 0.0 and down[16] == pytest.approx(comp.trim_down_deg[16] - comp.trim_up_deg[16], abs=1e-8)
+    applied = controller("siemens-cec", text, "t")
+    for a, d in ((15.0, 1), (200.0, -1), (240.0, -1)):
+        assert applied.trim_deg(a, d) == pytest.approx(comp.trim_deg(a, d) - comp.trim_deg(240.0, 1), abs=1e-8)
+    assert "0 at its reference point, 240 deg" in " ".join(line[1:].strip() for line in text.splitlines())
+
+
 def test_fanuc_writes_its_io_file_by_default():
-    """'%', N…P…; records only, '%' (15i p. 25); 3627 for the approach opposite to the reference
-    return; 3624/3625 in the series' unit; a warning past 128 points."""
+    """'%', N…P…; records only, '%' (15i p. 25), the first line stating the unit (the control skips
+    it); 3627 for the approach opposite to the reference return; 3624/3625 in the series' unit; a
+    warning past 128 points."""
     from rtcal.compensation.fanuc import RECORD
     from simulators.controllers import fanuc
 
     comp = _reversal_table()
-    text = WRITERS["fanuc"](comp)
+    text = _write("fanuc", comp)
     lines = text.splitlines()
-    assert lines[0] == lines[-1] == "%" and all(RECORD.fullmatch(line) for line in lines[1:-1])
+    assert lines[0].startswith("%(rtcal: detection unit 0.0001 deg, IS-C;") and lines[-1] == "%"
+    assert all(RECORD.fullmatch(line) for line in lines[1:-1])
     assert "N03624A4P15.0000;" in lines and "N03625A4P360.0;" in lines  # 0i-F: real degrees
     plus = int(re.search(r"^N03627A4P(-?\d+);", text, re.M).group(1))
-    minus_text = write_table("fanuc", comp, reference_return="-", series="16i")
+    minus_text = _write("fanuc", comp, reference_return="-", series="16i")
     assert int(re.search(r"^N03627A4P(-?\d+);", minus_text, re.M).group(1)) == -plus != 0
     assert "N03624A4P150000;" in minus_text.splitlines()
     # either way the control applies the same reversal (a constant offset aside)
     for written, ret in ((text, 1), (minus_text, -1)):
-        applied = fanuc(written, "f", reference_return=ret)
+        applied = fanuc(written, "f", 0.0001, reference_return=ret)
         reversal = [applied.trim_deg(a, -1) - applied.trim_deg(a, 1) for a in (0.0, 95.0, 300.0)]
         np.testing.assert_allclose(reversal, [comp.trim_deg(a, -1) - comp.trim_deg(a, 1) for a in (0.0, 95.0, 300.0)],
                                    atol=0.0002)
     fine = table_from_deviations(_smooth_table(), 2.0)
-    assert any("warning: 181 points" in line for line in get_format("fanuc").instructions(fine))
-    assert not any("warning" in line for line in get_format("fanuc").instructions(comp))
+    assert any("warning: 181 points" in line for line in get_format("fanuc").instructions(fine, **REQUIRED["fanuc"]))
+    assert not any("warning" in line for line in get_format("fanuc").instructions(comp, **REQUIRED["fanuc"]))
+
+
+def test_fanuc_needs_its_detection_unit_and_first_point_and_says_them(tmp_path, capsys):
+    """Issue 46: the unit was 0.0001° unless told (an IS-B axis then took every trim 10×) and the
+    points 0 … 49 were written without a word although all axes share them. Both are required,
+    stated in the file's first line and on the console; 3605 is not written as a whole byte."""
+    csv = _csv(tmp_path, _smooth_table())
+    base = ["compensate", str(csv), "--format", "fanuc", "--step-deg", "15", "--out", str(tmp_path / "f")]
+    for missing, given in (("--detection-unit-deg", ["--first-point", "100"]), ("--first-point", ["--detection-unit-deg", "0.001"])):
+        assert main([*base, *given]) == 2
+        err = capsys.readouterr().err
+        assert f"fanuc needs {missing}" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "f").exists()
+    assert main([*base, "--detection-unit-deg", "0.001", "--first-point", "100"]) == 0
+    out = capsys.readouterr().out
+    text = (tmp_path / "f").read_text()
+    assert text.splitlines()[0] == "%(rtcal: detection unit 0.001 deg, IS-B; points 100-149; set 3605#0 = 1 by hand)"
+    assert "N03605" not in text and "N03620A4P100;" in text and "N10149P" in text and "N10150P" not in text
+    assert "on the control: the increments are in detection units of 0.001 deg, IS-B" in out
+    assert "the file occupies pitch error compensation points 100 ... 149 (positive travel 100 ... 124, negative travel " \
+           "125 ... 149); the points 0 ... 1023 are shared by all axes" in out
+    assert "set 3605#0 = 1 (bidirectional pitch error compensation) on the parameter screen: bit #0 only" in out
+    back = PARSERS["fanuc"](text, "f")  # read in the unit the file states
+    np.testing.assert_allclose(back.trim_up_deg, table_from_deviations(_smooth_table(), 15.0).trim_up_deg, atol=0.0005 + 1e-9)
+    with pytest.raises(CompensationError, match="the table is for a detection unit of 0.001 deg, IS-B, the axis's is "
+                                                "0.0001 deg, IS-C: every trim would be 0.1x"):
+        PARSERS["fanuc"](text, "f", unit_deg=0.0001)
+    listing = _write("fanuc", table_from_deviations(_smooth_table(), 15.0), listing=True)
+    assert "3605 #0 = 1  (bidirectional pitch error compensation: bit #0 only" in listing
+
+
+def test_a_fanuc_table_for_another_unit_is_refused_by_the_axis(tmp_path, capsys):
+    """A table written for IS-C (0.0001°) loaded on an IS-B axis (0.001°): the control itself skips the
+    statement and applies every increment 10× (E 53.5″ → 482.9″ on the shipped bench, issue 46); the
+    simulated bench's loading compares it with the axis, as the engineer is asked to, and refuses it
+    in one line naming both units. Written for IS-B, the axis applies the trims within half a unit;
+    with 3605#0 left 0 on the control, the negative-travel table is not applied."""
+    from simulators.controllers import ControllerError, controller, fanuc
+
+    comp = _reversal_table()
+    for_c, for_b = _write("fanuc", comp, unit_deg=0.0001), _write("fanuc", comp, unit_deg=0.001)
+    (tmp_path / "c.txt").write_text(for_c)
+    bench = tmp_path / "bench.yaml"
+    bench.write_text("stage:\n  compensation: {format: fanuc, file: c.txt, detection_unit_deg: 0.001}\n")
+    assert main(["validate", str(bench)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bench}:2:" in err and "the table is for a detection unit of 0.0001 deg, IS-C, the axis's is 0.001 deg, " \
+                                    "IS-B: every trim would be 10x what it should; write it with --detection-unit-deg 0.001" in err
+    with pytest.raises(ControllerError, match="the table is for a detection unit of 0.0001°, the axis's is 0.001°"):
+        controller("fanuc", for_c, "c", detection_unit_deg=0.001)  # the simulated bench's own loading refuses it too
+    silent = fanuc(for_c, "c", 0.001)  # what the IS-B control does with it: each trim 10×
+    right = controller("fanuc", for_b, "b", detection_unit_deg=0.001)
+    for a, d in ((45.0, 1), (200.0, -1), (97.5, 1)):
+        assert silent.trim_deg(a, d) == pytest.approx(10 * fanuc(for_c, "c", 0.0001).trim_deg(a, d), abs=1e-12)
+        assert right.trim_deg(a, d) == pytest.approx(comp.trim_deg(a, d), abs=0.0005 + 1e-9)
+    one_way = controller("fanuc", for_b, "b", detection_unit_deg=0.001, bidirectional=False)
+    assert one_way.trim_deg(200.0, -1) == one_way.trim_deg(200.0, 1) != right.trim_deg(200.0, -1)
+    bench.write_text("stage:\n  compensation: {format: fanuc, file: c.txt}\n")
+    assert main(["validate", str(bench)]) == 2 and "a FANUC axis's detection unit is needed" in capsys.readouterr().err
 
 
 def test_heidenhain_writes_the_error_curve_with_a_backlash_column():
@@ -650,8 +776,54 @@ def test_heidenhain_writes_the_error_curve_with_a_backlash_column():
     applied = heidenhain(text, "h")  # the control removes the error: the same trims (an offset aside)
     for a, d in ((15.0, 1), (15.0, -1), (200.0, -1)):
         assert applied.trim_deg(a, d) - applied.trim_deg(30.0, 1) == pytest.approx(comp.trim_deg(a, d) - comp.trim_deg(30.0, 1), abs=1e-8)
-    with pytest.raises(CompensationError, match=r"not a power of two.*13\.1072° and 26\.2144°"):
-        write_table("heidenhain", comp, generation="tnc4xx")
+
+
+def test_heidenhain_tnc4xx_covers_the_turn_at_a_power_of_two():
+    """Issue 46: `--generation tnc4xx` refused every table (a power of two dividing 360° does not
+    exist) and its own suggestions. The older TNC manuals ask a spacing whose points cover the turn
+    (TNC 306 p. 4-21): 15° → 2^17 × 0.0001° = 13.1072°, 29 entries from 0° to 367.0016°; the control
+    applies the mean curve (TNC 4xx: one curve) within what resampling leaves."""
+    from simulators.controllers import heidenhain
+
+    comp = _reversal_table()
+    text = write_table("heidenhain", comp, generation="tnc4xx")
+    lines = text.splitlines()
+    assert lines[:2] == ["BEGIN AXIS-C.COM DATUM:+0.0000 DISTANCE:+13.1072", "NR AXISPOS C"] and lines[-1] == "[END]"
+    rows = np.array([[float(v) for v in line.split()] for line in lines[2:-1]])
+    np.testing.assert_allclose(rows[:, 1], np.arange(29) * 13.1072, atol=1e-4)
+    assert rows[-2, 1] < 360.0 < rows[-1, 1] and rows[0, 2] == 0.0  # covers the turn; 0 at the datum
+    mean = (comp.trim_up_deg + comp.trim_down_deg) / 2
+    back, applied = PARSERS["heidenhain"](text, "h"), heidenhain(text, "h")
+    for a in (0.0, 7.5, 100.0, 357.0, 359.9):
+        want = np.interp(a, comp.positions_deg, mean) - mean[0]
+        for d in (1, -1):  # read back and applied as written (the error curve removed), both directions alike
+            assert back.trim_deg(a, d) == pytest.approx(applied.trim_deg(a, d), abs=1e-9)
+            assert back.trim_deg(a, d) == pytest.approx(want, abs=1.5 / 3600), a  # 20″ sine between 15° points
+    fine = write_table("heidenhain", table_from_deviations(_smooth_table(), 1.0), generation="tnc4xx")
+    assert fine.splitlines()[0].endswith("DISTANCE:+1.6384") and len(fine.splitlines()) - 3 == 221 <= 256
+    with pytest.raises(CompensationError, match="tnc4xx: --reference-deg 30: the error curve starts with 0"):
+        write_table("heidenhain", comp, generation="tnc4xx", reference_deg=30.0)
+    with pytest.raises(CompensationError, match="DISTANCE 15 is not a power of two"):
+        PARSERS["heidenhain"](text.replace("DISTANCE:+13.1072", "DISTANCE:+15.0000"), "h")
+    short = "".join(line for line in text.splitlines(keepends=True) if not line.startswith("28 "))
+    with pytest.raises(CompensationError, match="28 entries to 353.894°: they must cover the turn"):
+        PARSERS["heidenhain"](short, "h")
+
+
+def test_the_heidenhain_manual_table_is_read_by_both_readers():
+    """The TNC 306 manual's example table, adapted to a rotary axis in TNC 4xx form
+    (tests/data/compensation_manuals/README.md): rtcal's parser and the simulated control read the
+    same curve, the interval across 360° from the entry beyond it."""
+    from simulators.controllers import heidenhain
+
+    text = (MANUALS / "heidenhain_tnc306_p421_rotary.com").read_text()
+    table, applied = PARSERS["heidenhain"](text, "m"), heidenhain(text, "m")
+    error = _file_values(text, r"^\d+ \S+ (\S+)$")
+    np.testing.assert_allclose(table.positions_deg, np.arange(15) * 26.2144)
+    np.testing.assert_allclose(table.trim_up_deg, -error)
+    for a in (0.0, 26.2144, 100.0, 350.0, 359.0):
+        want = -np.interp(a, np.arange(15) * 26.2144, error)
+        assert table.trim_deg(a, 1) == pytest.approx(want) and applied.trim_deg(a, -1) == pytest.approx(want)
 
 
 @pytest.mark.parametrize("name, fmt", [("lec_k3_p242_rotary.ini", "siemens-lec"),
@@ -755,3 +927,85 @@ def test_md32450_changes_only_the_reversal_and_only_on_a_sinumerik():
         controller("heidenhain", WRITERS["heidenhain"](comp), "t", backlash_deg=0.001)
     with pytest.raises(ValueError, match="MD32450 is SINUMERIK machine data"):
         CompensationScenario.model_validate({"format": "fanuc", "text": "%", "backlash_deg": 0.001})
+
+
+# -- what no manual settles: printed with the one-point check, its figures what the simulated control does --------
+
+def _printed(out: str, start: str) -> str:
+    lines = [line.removeprefix("unsettled: ") for line in out.splitlines() if line.startswith(f"unsettled: {start}")]
+    assert len(lines) == 1, out
+    return lines[0]
+
+
+def _expected(text: str) -> float:
+    """The change the check says rtcal's reading shows, arcsec."""
+    return float(re.search(r"must (?:change by|go from about \S+ to about) ([+-]\d+\.\d) arcsec", text).group(1))
+
+
+def _otherwise(text: str) -> list[float]:
+    """The change(s) the other reading shows, arcsec (after "); by")."""
+    return [float(v) for v in re.search(r"\); by ([+-]\d+\.\d)(?: or ([+-]\d+\.\d))?", text).groups() if v is not None]
+
+
+@pytest.mark.parametrize("fmt, options, readings", [
+    ("siemens-cec", (), ["the sign", "the line length"]),
+    ("siemens-lec", (), ["the line length"]),
+    ("fanuc", (), ["where an increment acts"]),
+    ("heidenhain", (), ["the sign", "the BACKLASH column", "the header line"]),
+    ("heidenhain", ("--generation", "tnc4xx"), ["the sign", "the entry beyond 360 deg", "the header line"]),
+    ("linuxcnc", (), []),
+])
+def test_each_unsettled_reading_is_printed_with_its_check(tmp_path, capsys, fmt, options, readings):
+    """Issue 46: CEC's sign, HEIDENHAIN's BACKLASH column, FANUC's increment placement, the .COM header,
+    SINUMERIK's line length were open readings said nowhere. `rtcal compensate` prints each, only for
+    the format written, with commands an operator types and the change the control must show."""
+    code, out, err = _compensate(tmp_path, _csv(tmp_path, _smooth_table()), "--format", fmt, "--step-deg", "15", *options,
+                                 "--out", str(tmp_path / "t"), capsys=capsys)
+    assert code == 0, err
+    printed = [line for line in out.splitlines() if line.startswith("unsettled: ")]
+    assert [next(r for r in readings if line.startswith(f"unsettled: {r}")) for line in printed] == readings
+    for line in printed:  # commands to type: a move there and the check
+        assert re.search(r"`(G90 G0|G90 G00|L C)|create an empty \.COM table|delete the `;` lines", line), line
+    if fmt.startswith("siemens"):
+        assert max(len(line) for line in (tmp_path / "t").read_text().splitlines()) <= 100  # was 599
+
+
+def test_the_printed_checks_are_what_the_simulated_controls_do(tmp_path, capsys):
+    """The change each check says to expect is the trim the simulated control (simulators/controllers.py,
+    its own reading of the file) applies there; the other reading's figure is what the check rules out."""
+    from simulators.controllers import controller
+
+    csv = _csv(tmp_path, _smooth_table())
+
+    def written(fmt: str, *options: str) -> tuple[str, str]:
+        code, out, err = _compensate(tmp_path, csv, "--format", fmt, "--step-deg", "15", *options, "--out",
+                                     str(tmp_path / fmt), capsys=capsys)
+        assert code == 0, err
+        return out, (tmp_path / fmt).read_text()
+
+    out, text = written("siemens-cec")
+    line = _printed(out, "the sign")
+    at = float(re.search(r"`G0 C1=(\d+(?:\.\d+)?)`", line).group(1))
+    cec = controller("siemens-cec", text, "t").trim_deg(at, 1) * 3600
+    assert _expected(line) == pytest.approx(cec, abs=0.06) and _otherwise(line) == [pytest.approx(-cec, abs=0.06)]
+
+    out, text = written("fanuc", "--detection-unit-deg", "0.0001", "--first-point", "0")
+    line = _printed(out, "where an increment acts")
+    at = float(re.search(r"`G00 C(\d+(?:\.\d+)?);`", line).group(1))
+    applied = controller("fanuc", text, "t", detection_unit_deg=0.0001)
+    assert _expected(line) == pytest.approx(applied.trim_deg(at, 1) * 3600, abs=0.06)
+    ends = sorted(applied.trim_deg(at + half, 1) * 3600 for half in (-7.5, 7.5))  # a step: either end's trim
+    assert sorted(_otherwise(line)) == [pytest.approx(v, abs=0.06) for v in ends]
+
+    out, text = written("heidenhain")
+    line = _printed(out, "the BACKLASH column")
+    at = float(re.search(r"`L C\+(\d+(?:\.\d+)?) FMAX`\s*$", line.split(", read")[0]).group(1))
+    applied = controller("heidenhain", text, "t")
+    assert _expected(line) == pytest.approx(applied.trim_deg(at, -1) * 3600, abs=0.06)
+    column = applied.trim_deg(at, 1) * 3600  # BACKLASH added to the C column: both removed on a negative approach
+    assert _otherwise(line) == [pytest.approx(applied.trim_deg(at, -1) * 3600 + column, abs=0.06)]
+
+    out, text = written("heidenhain", "--generation", "tnc4xx")
+    line = _printed(out, "the entry beyond 360 deg")
+    at = float(re.search(r"Check at (\d+(?:\.\d+)?) deg", line).group(1))
+    assert _expected(line) == pytest.approx(controller("heidenhain", text, "t").trim_deg(at, 1) * 3600, abs=0.06)

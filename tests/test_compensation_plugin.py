@@ -68,14 +68,15 @@ def toy_registered(monkeypatch):
 
 
 def test_builtins_are_the_registry():
-    assert registry.format_names() == ("linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain")
+    assert registry.format_names() == ("linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain", "isg-volcomp")
     assert list(PARSERS) == list(registry.format_names())
     flags = {o.flag: o for o in registry.cli_options()}
-    assert list(flags) == ["--range-deg", "--axis", "--reference-deg", "--max-points", "--table-index",
+    assert list(flags) == ["--range-deg", "--axis", "--reference-deg", "--max-points", "--table-index", "--cec-tables",
                            "--detection-unit-deg", "--first-point", "--series", "--reference-return", "--axis-number",
-                           "--listing", "--generation"]
+                           "--listing", "--generation", "--error-motions-from", "--location-from"]
     assert flags["--axis"].formats == ("siemens-lec", "siemens-cec", "heidenhain")
-    assert flags["--reference-deg"].formats == ("siemens-lec", "heidenhain")
+    assert flags["--reference-deg"].formats == ("siemens-lec", "siemens-cec", "heidenhain")
+    assert "fanuc (required: 0.001 for IS-B, 0.0001 for IS-C)" in flags["--detection-unit-deg"].help
     assert flags["--listing"].argparse_kwargs()["action"] == "store_const"  # a switch: no value
     assert "siemens-lec/siemens-cec (default C1), heidenhain (default C)" in flags["--axis"].help
     given = registry.options_given({"range_deg": [-10.0, 350.0], "axis": None, "detection_unit_deg": 0.001, "format": "x",
@@ -87,7 +88,7 @@ def test_builtins_are_the_registry():
 
 def test_a_plugin_format_is_registered_checked_and_offered(toy_registered):
     names = registry.format_names()
-    assert names == ("linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain", "toy-csv")
+    assert names == ("linuxcnc", "siemens-lec", "siemens-cec", "fanuc", "heidenhain", "isg-volcomp", "toy-csv")
     assert type(registry.get_format("fanuc")).__module__ == "rtcal.compensation.fanuc"  # a built-in is never replaced
     for name, why in (("wrong-axis", "--axis means something else"), ("misnamed", "the format 'toy-csv'"),
                       ("missing", "No module named 'rtcal_toy_nowhere'")):
@@ -116,7 +117,7 @@ def test_a_plugin_format_is_registered_checked_and_offered(toy_registered):
     assert CompensationScenario(format="toy-csv", text=text).format == "toy-csv"
     schema = Scenario.model_json_schema()["$defs"]["CompensationScenario"]["properties"]["format"]
     assert schema["enum"][-1] == "toy-csv"
-    with pytest.raises(ValueError, match="Input should be 'linuxcnc', .* 'heidenhain' or 'toy-csv'"):
+    with pytest.raises(ValueError, match="Input should be 'linuxcnc', .* 'isg-volcomp' or 'toy-csv'"):
         CompensationScenario(format="missing", text=text)
 
 

@@ -121,3 +121,52 @@ def test_resume_of_a_finished_run_changes_nothing(tmp_path):
 def test_resume_without_a_run_is_a_user_error(tmp_path, capsys):
     assert main(["resume", str(tmp_path / "nothing")]) == 2
     assert "nothing to resume" in capsys.readouterr().err
+
+
+def _grid_procedure(tmp_path: Path, k: int) -> Path:
+    """The shipped multi-station procedure with a k × k × k grid of CMM points (the bench named on the command line)."""
+    text = PROCEDURE.read_text(encoding="utf-8")
+    grid = "layers: 4\n  columns: 4\n  rows: 4"
+    assert grid in text
+    lines = [line for line in text.replace(grid, f"layers: {k}\n  columns: {k}\n  rows: {k}").splitlines()
+             if not line.startswith("bench:")]
+    path = tmp_path / f"grid{k}.yaml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def test_a_long_run_killed_at_half_resumes_with_every_reading_and_verifies(tmp_path):
+    """Issue 43 item 3 at a moderate size (5³ points × 11 stations, 1 375 readings; benchmarks/bench_run_scale.py
+    kills 36 000): SIGKILL once half the planned readings are stored, `rtcal resume` takes every other one once, and
+    `rtcal verify` recomputes the same results from the store."""
+    run_dir = tmp_path / "long"
+    db = run_dir / "run.sqlite"
+    procedure = _grid_procedure(tmp_path, 5)
+    assert _run_and_kill(["run", str(procedure), "--scenario", str(NOISE_FREE), "--out", str(run_dir)], db, 1375 // 2)
+    assert 1375 // 2 <= _stored(db) < 1375
+    assert main(["resume", str(run_dir)]) == 0
+    _check_store(db, 1375, "laser_tracer")
+    assert json.loads((run_dir / "results.json").read_text())["raw_readings"] == 1375
+    assert main(["verify", str(run_dir)]) == 0
+
+
+def test_a_simulated_run_commits_each_reading_to_the_os_and_a_store_otherwise_to_the_disk(tmp_path):
+    """Issue 43: a sync of the disk per reading cost a simulated run of 36 000 readings minutes; on the virtual clock
+    a commit goes to the operating system (a killed process keeps it: the tests above), in real time to the disk."""
+    from rtcal.engine.subscribers import StoreWriter
+    from rtcal.run.runner import run_procedure
+    from rtcal.store.runstore import RunStore
+
+    seen = []
+
+    def on_engine(engine, run_dir):
+        store = next(s.store for s in engine.subscribers if isinstance(s, StoreWriter))
+        seen.append(store._db.execute("PRAGMA synchronous").fetchone()[0])
+
+    run_procedure(PROCEDURE, NOISE_FREE, out_dir=tmp_path / "sim", show_progress=False, outputs=False, on_engine=on_engine)
+    assert seen == [1]  # NORMAL
+    store = RunStore.create(tmp_path, {"method": "x"})
+    assert store._db.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL unless the run is on the virtual clock
+    store.sync_each_commit(to_disk=False)
+    assert store._db.execute("PRAGMA synchronous").fetchone()[0] == 1
+    store.close()

@@ -5,6 +5,7 @@ results.json of a schema that always carries digests but carries none is refused
 
 from __future__ import annotations
 
+from rtcal.results.model import SCHEMA_VERSION
 import hashlib
 import json
 import os
@@ -13,6 +14,8 @@ import sqlite3
 from pathlib import Path
 
 import pytest
+
+from rtcal.results import SCHEMA_VERSION
 
 from rtcal.cli import main
 
@@ -97,9 +100,9 @@ def test_results_of_a_schema_that_writes_digests_but_carrying_none_are_refused(s
         capsys.readouterr()
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
-        assert "records no digests of its certificate" in err and "schema_version 1.3" in err, err
-    # the same file as a 1.2 run wrote it: read, and verify says what it could not check
-    _rewrite_results(run, lambda d: d.update(schema_version="1.2"))
+        assert "records no digests of its certificate" in err and f"schema_version {SCHEMA_VERSION}" in err, err
+    # the same file as a 1.2 run wrote it (rtcal 0.1.0 wrote 1.0 to 1.3): read, and verify says what it could not check
+    _rewrite_results(run, lambda d: d.update(schema_version="1.2", rtcal_version="0.1.0"))
     assert main(["evaluate", str(run)]) == 0
     capsys.readouterr()
     assert main(["verify", str(run)]) == 0

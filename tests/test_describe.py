@@ -18,7 +18,8 @@ import pytest
 from drivers.errors import InstrumentFault
 from drivers.fence import fenced
 from drivers.interfaces import (DESCRIPTIONS, Autocollimator, Cmm, DialIndicator, Encoder, EnvironmentReading,
-                                EnvironmentSensor, LaserTracer, LengthReading, RotaryStage, Value)
+                                EnvironmentSensor, LaserTracer, LengthReading, MachineTarget, MachineTool, RotaryStage,
+                                Value)
 from drivers.kinds import describe_kind, recorded
 from drivers.kinds import BUILTIN
 from rtcal.clock import VirtualClock
@@ -94,6 +95,17 @@ class Dial(DialIndicator):
         return 7.5
 
 
+class Mill(MachineTool):
+    def home(self) -> None: ...
+
+    def move_to(self, target: MachineTarget) -> None: ...
+
+    def joint_positions(self) -> dict[str, float]:
+        return {"x": 1.0, "y": 2.0, "z": 3.0, "a": 4.0, "c": 5.0}
+
+    def stop(self) -> None: ...
+
+
 class Weather(EnvironmentSensor):
     def read(self) -> EnvironmentReading:
         return EnvironmentReading(20.1, 101_325.0, 45.0)  # no material probe: NaN
@@ -101,7 +113,7 @@ class Weather(EnvironmentSensor):
 
 def test_every_kind_describes_itself_by_its_one_table_and_reads_named_values_with_units():
     devices = {"stage": Stage(10.0, 10.002), "cmm": Probe(), "laser_tracer": Tracer(), "encoder": Counter(),
-               "autocollimator": Elcomat(), "dial_indicator": Dial(), "environment": Weather()}
+               "autocollimator": Elcomat(), "dial_indicator": Dial(), "environment": Weather(), "machine_tool": Mill()}
     assert sorted(devices) == sorted(BUILTIN) == sorted(DESCRIPTIONS)
     for kind, device in devices.items():
         assert device.kind == kind and device.describe() == describe_kind(kind)

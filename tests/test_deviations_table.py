@@ -38,3 +38,13 @@ def test_model_round_trip():
 def test_bad_csv_names_file_and_line(text, message):
     with pytest.raises(DeviationTableError, match=message):
         PositioningDeviations.parse_csv(text, "d.csv")
+
+
+def test_a_rounding_zero_is_written_without_a_sign():
+    """A deviation of −4e-16″ (a reference row, zero but for rounding, whose sign any reordering of the arithmetic
+    flips) is 0.0000 in the CSV and 0.0 in results.json, never −0.0000 (issue 43: the structured operators flipped it)."""
+    table = PositioningDeviations(np.array([0.0, 90.0]), np.array([1, 1]), np.array([1, 1]), np.array([-4.4e-16, -0.00004]),
+                                  np.array([0.3, -1e-9]), estimator="x")
+    assert ",-0.0000" not in table.to_csv() and table.to_csv().count(",0.0000") == 3
+    model = table.to_model()
+    assert all(np.copysign(1.0, v) > 0 for v in model.deviation_arcsec + [model.uncertainty_arcsec[1]])

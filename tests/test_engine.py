@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from drivers.errors import InstrumentFault
-from drivers.interfaces import FieldDescription, Instrument, Value
+from drivers.interfaces import FieldDescription, Instrument, StopSeen, Value
 from rtcal.clock import VirtualClock
 from rtcal.engine.engine import AbortRequested, Engine
 from rtcal.engine.faults import RunAborted
@@ -53,6 +53,9 @@ class FakeStage:
 
     def stop(self) -> None:
         self.stopped += 1
+
+    def wait_stopped(self) -> StopSeen:
+        return StopSeen(True, f"{self.at:g}°")
 
 
 class FakeProbe(Instrument):
@@ -235,7 +238,8 @@ def test_abort_policy_stops_the_moved_devices_and_keeps_the_attempt():
     assert isinstance(error, RunAborted)
     assert stage.stopped == 1 and engine.state == "failed"
     assert [r.quantity for r in readings if r.plan_index == 1] == ["skipped"]  # the attempt in hand, marked
-    assert [e["kind"] for e in events][-2:] == ["fault", "abort"]
+    assert [e["kind"] for e in events][-3:] == ["fault", "abort", "stopped"]
+    assert events[-1]["instrument"] == "stage" and events[-1]["message"] == "stopped: seen at rest at 10°"
 
 
 def test_ctrl_c_mid_attempt_stops_the_stage_and_keeps_what_was_read():
@@ -382,4 +386,38 @@ def test_store_writer_keeps_where_the_engine_is(tmp_path):
     meta = store.meta()
     assert (meta["planned_readings"], meta["engine_state"]) == ("3", "running")
     assert json.loads(meta["current"]) == {"target_deg": 15.0, "plan_index": 1}
+    store.close()
+
+
+def test_store_writer_writes_the_time_left_with_the_readings_not_in_a_transaction_of_its_own(tmp_path):
+    """Issue 43: every planned reading done cost a second durable transaction for the time left (two fsyncs a
+    reading). It now rides in the next reading's transaction, and has one of its own only after a second of
+    wall time without; the store then holds the time left as of the last reading done."""
+    from rtcal.engine.subscribers import ETA_KEY, Eta, StoreWriter
+    from rtcal.store.runstore import Reading, RunStore
+
+    store = RunStore.create(tmp_path, {"method": "test"})
+    wall = [0.0]
+    eta = Eta({k: (10.0, 0.0) for k in range(100)}, virtual_clock=True)
+    writer = StoreWriter(store, eta, now=lambda: wall[0])
+    transactions = []
+    real = store._transaction
+    store._transaction = lambda: (transactions.append(1), real())[1]  # type: ignore[method-assign]
+    for doc in (("start", {"planned": 100, "done": 0, "t_s": 0.0}), ("state", {"state": "running", "t_s": 0.0})):
+        eta(*doc)
+        writer(*doc)
+    transactions.clear()
+    for k in range(50):
+        writer("readings", {"readings": [Reading(10.0 * k, "probe", "x", 1.0, "deg", plan_index=k, attempt=k)]})
+        done = ("done", {"index": k, "done": k + 1, "t_s": 10.0 * (k + 1)})
+        eta(*done)
+        writer(*done)
+        wall[0] += 0.01  # a simulated run: 10 ms of wall time a reading
+    assert len(transactions) <= 50 + 2  # one per reading (and one when a second has passed)
+    writer("readings", {"readings": [Reading(500.0, "probe", "x", 1.0, "deg", plan_index=50, attempt=50)]})
+    assert store.meta()[ETA_KEY] == f"{eta.eta_s():.1f}"  # as of the last reading done
+    wall[0] += 5.0  # a run in real time: the time left is written when the reading is done
+    eta("done", {"index": 50, "done": 51, "t_s": 510.0})
+    writer("done", {"index": 50, "done": 51, "t_s": 510.0})
+    assert store.meta()[ETA_KEY] == f"{eta.eta_s():.1f}"
     store.close()

@@ -14,6 +14,7 @@ from drivers.errors import InstrumentFault, OutOfLimits
 from drivers.ipp_cmm import IppCmm
 from simulators.scenario import CmmScenario, Scenario
 from simulators.servers.hub import SimulatorHub
+from simulators.servers.ipp_server import DME_VERSION
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +52,7 @@ def _session(hub, lines: list[str]) -> list[str]:
 def test_raw_session_start_get_end(hub):
     replies = _session(hub, ["00001 StartSession()", "00002 GetDMEVersion()", "00003 GoTo(X(100), Y(200), Z(300))",
                              "00004 Get(X(), Y(), Z())", "00005 EndSession()"])
-    assert replies == ["00001 &", "00001 %", "00002 &", '00002 # DMEVersion("1.4")', "00002 %", "00003 &", "00003 %",
+    assert replies == ["00001 &", "00001 %", "00002 &", f'00002 # DMEVersion("{DME_VERSION}")', "00002 %", "00003 &", "00003 %",
                        "00004 &", "00004 # X(100.000000), Y(200.000000), Z(300.000000)", "00004 %", "00005 &", "00005 %"]
 
 
@@ -74,7 +75,7 @@ def test_after_an_error_every_command_gets_0514_until_clear_all_errors(hub):
                              "00004 GetDMEVersion()", "00005 ClearAllErrors()", "00006 GetDMEVersion()"])
     assert replies[6] == '00003 ! Error(2, 0514, "Get", "Use ClearAllErrors to continue")'
     assert replies[9].startswith("00004 ! Error(2, 0514,")
-    assert replies[11:] == ["00005 &", "00005 %", "00006 &", '00006 # DMEVersion("1.4")', "00006 %"]
+    assert replies[11:] == ["00005 &", "00005 %", "00006 &", f'00006 # DMEVersion("{DME_VERSION}")', "00006 %"]
 
 
 def test_commands_before_start_session_are_refused(hub):
@@ -107,7 +108,7 @@ def test_ptmeas_probes_the_table_top_and_can_miss_it(hub, command, reply):
 def test_driver(hub):
     cmm = IppCmm(parse_address(hub.addresses["cmm"]), tool="CatEye")
     try:
-        assert cmm.identity() == "I++ DME server, DMEVersion 1.4, coordinate system MachineCsy"
+        assert cmm.identity() == f"I++ DME server, DMEVersion {DME_VERSION}, coordinate system MachineCsy"
         cmm.home()
         cmm.move_to(np.array([10.0, 20.0, 30.0]))
         assert np.allclose(cmm.position_mm(), [10, 20, 30])
@@ -117,9 +118,36 @@ def test_driver(hub):
         with pytest.raises(InstrumentFault, match="0501"):
             cmm.command("Fly()")
         cmm.recover()  # what a fault policy's retry does
-        assert cmm.command("GetDMEVersion()") == ['DMEVersion("1.4")']
+        assert cmm.command("GetDMEVersion()") == [f'DMEVersion("{DME_VERSION}")']
     finally:
         cmm.close()
+
+
+def test_a_second_client_is_told_the_cmm_is_busy(hub):
+    """Issue 46: a second rtcal (or `rtcal probe cmm`) beside a run got the server's bare refusal, or —
+    from a server that leaves it unanswered, as NIST's reference server does — a timeout. Both now say
+    the CMM is busy and what to do."""
+    import threading
+
+    from drivers.errors import InstrumentTimeout
+
+    first = IppCmm(parse_address(hub.addresses["cmm"]), tool="CatEye")
+    try:
+        with pytest.raises(InstrumentFault, match="the CMM is busy: another client holds its I\\+\\+ session .*close the "
+                                                  "other client"):
+            IppCmm(parse_address(hub.addresses["cmm"]), tool="CatEye")
+    finally:
+        first.close()
+    silent = socket.create_server(("127.0.0.1", 0))  # accepts, never answers: a server busy with another client
+    held: list[socket.socket] = []
+    threading.Thread(target=lambda: held.append(silent.accept()[0]), daemon=True).start()
+    try:
+        with pytest.raises(InstrumentTimeout, match=r"no reply to StartSession\(\) within 0.3 s: the CMM may be busy"):
+            IppCmm(parse_address(f"ipp://127.0.0.1:{silent.getsockname()[1]}"), timeout_s=0.3)
+    finally:
+        for s in held:
+            s.close()
+        silent.close()
 
 
 def test_driver_refuses_an_unknown_tool(hub):

@@ -95,7 +95,7 @@ def test_the_registry_reads_entry_points_and_names_what_it_refuses(toy_kinds):
     from rtcal_toy_kind import Inclinometer
 
     assert list(toy_kinds) == ["stage", "cmm", "laser_tracer", "encoder", "autocollimator", "dial_indicator", "environment",
-                               "inclinometer"]
+                               "machine_tool", "inclinometer"]
     assert toy_kinds["inclinometer"].interface is Inclinometer and toy_kinds["inclinometer"].plugin == "?"
     assert toy_kinds["stage"].interface is RotaryStage, "a plugin never replaces a built-in kind"
     assert {n: f.unit for n, f in describe_kind("inclinometer").items()} == TILT
@@ -118,7 +118,7 @@ def test_the_registry_reads_entry_points_and_names_what_it_refuses(toy_kinds):
 
 
 def test_the_probe_commands_choices_name_installed_kinds_without_loading_them(toy_kinds):
-    assert toy_kinds.names()[-6:] == ("environment", "inclinometer", "gyro", "not_an_instrument", "undescribed", "unadapted")
+    assert toy_kinds.names()[-6:] == ("machine_tool", "inclinometer", "gyro", "not_an_instrument", "undescribed", "unadapted")
     assert toy_kinds._plugins is None, "listing the names loads no plugin"
 
 

@@ -26,7 +26,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("rtcal/engine/",),
     ("rtcal/deliverables/",),
     ("rtcal/methods/protocol.py", "rtcal/methods/estimates.py", "rtcal/methods/conditions.py", "rtcal/methods/planner.py",
-     "rtcal/methods/base.py", "rtcal/methods/cycle.py", "rtcal/api.py"),  # what methods share, and the public face
+     "rtcal/methods/recalibration.py", "rtcal/methods/base.py", "rtcal/methods/cycle.py", "rtcal/api.py"),
+    # what methods share, and the public face
     ("rtcal/methods/multistation/", "rtcal/methods/abbe/"),  # peers: one method never reaches into another
     ("rtcal/methods/__init__.py",),  # the registry (a face: its table names the methods as strings)
     ("rtcal/run/",),

@@ -256,7 +256,7 @@ def test_a_type_0_table_loaded_as_type_1_is_refused_at_connect(tmp_path):
         linuxcnc = LinuxCncProcess(comp_file=table, comp_type=1)
         try:
             port = linuxcnc.start()
-            address = f"linuxcncrsh://127.0.0.1:{port}?axis=C&joint=0"
+            address = f"linuxcncrsh://127.0.0.1:{port}?axis=C&joint=0&take_control=1"
             with pytest.raises(InstrumentFault, match=r"COMP_FILE_TYPE = 1 corrects by up to .*type 0"):
                 open_stage(address, (-400.0, 400.0), 5.0)
             # what the fault prevents: the operator's G0 C30 puts the motor near 60°, LinuxCNC shows 30°

@@ -11,6 +11,7 @@ import os
 import select
 import shutil
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -176,6 +177,21 @@ def test_remote_abort_exits_130_and_resume_finishes(tmp_path):
     assert gone.returncode == 1  # no engine runs for that directory any more
 
 
+def start_for_a_person(procedure: Path, hub: SimulatorHub, run_dir: Path) -> tuple[subprocess.Popen, str, str, dict]:
+    """`rtcal run --live` on the hub without its simulated operator (a person confirms each operator
+    step; the polygon's certificate in ``procedure`` taken from that operator): the process, its
+    page's URL, its token and the instruments' addresses."""
+    from rtcal.engine.operator import RemoteSimOperator
+
+    data = yaml.safe_load(procedure.read_text(encoding="utf-8"))
+    data["polygon"]["certificate_arcsec"] = RemoteSimOperator(hub.addresses["operator"]).hands().polygon_certificate_arcsec()
+    procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
+    addresses = {k: v for k, v in hub.addresses.items() if k != "operator"}
+    proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(run_dir),
+                           "--live", "127.0.0.1:0")
+    return proc, seen["live view"], seen["control token"], addresses
+
+
 def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path):
     """A wired ISO run with --live and no terminal (as under nohup): the polygon's seating waits for a person
     instead of stopping the run; the page's state shows the instruction; `rtcal control … confirm` continues it
@@ -187,17 +203,11 @@ def test_an_operator_step_without_a_terminal_waits_for_a_remote_confirm(tmp_path
 
     procedure = fast_iso(tmp_path, settle_s=0.05, runs=2)
     with SimulatorHub(_scenario(tmp_path, "none"), seed=1) as hub:
-        addresses = {k: v for k, v in hub.addresses.items() if k != "operator"}  # a person, not the simulated one
-        data = yaml.safe_load(procedure.read_text(encoding="utf-8"))  # who then gives the polygon's certificate
-        data["polygon"]["certificate_arcsec"] = RemoteSimOperator(hub.addresses["operator"]).hands().polygon_certificate_arcsec()
-        procedure.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True), encoding="utf-8")
         run_dir = tmp_path / "run"
-        proc, seen = start_run("run", str(procedure), "--instruments", json.dumps(addresses), "--out", str(run_dir),
-                               "--live", "127.0.0.1:0")
-        url, token = seen["live view"], seen["control token"]
+        proc, url, token, addresses = start_for_a_person(procedure, hub, run_dir)
         try:
             asked = wait_for(lambda: (s := state(url))["operator"] and s)
-            assert asked["state"] == "running" and "Seat the polygon turned by 0 face(s)" in asked["operator"]["instruction"]
+            assert asked["state"] == "running" and "Seat the polygon in its home seating" in asked["operator"]["instruction"]
             time.sleep(1.0)
             assert proc.poll() is None and state(url)["done_readings"] == 0  # it waits, nothing measured
             assert post(url, "confirm", None) == 401 and main(["control", str(run_dir), "confirm", "--token", "x" + token]) == 2
@@ -272,6 +282,10 @@ def test_every_early_end_stops_the_stage_and_the_cmm(tmp_path, how):
                                                         "paper000_bench.yaml", faults), how, cmm=True)
     assert hub.drive.stops >= 1, err
     assert hub.ipp_machine.aborts >= 1, err
+    # each then seen at rest (the drive's feedback, the CMM's Get(X(), Y(), Z()) read until unchanged)
+    with sqlite3.connect(f"file:{tmp_path / 'run' / 'run.sqlite'}?mode=ro", uri=True) as db:
+        seen = dict(db.execute("SELECT instrument, kind FROM events WHERE kind IN ('stopped', 'moving')"))
+    assert seen == {"stage": "stopped", "cmm": "stopped"} and "may still be moving" not in err, (seen, err)
 
 
 @pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "abort", "fault"])

@@ -575,3 +575,35 @@ def test_a_store_from_before_attempts_is_read_as_it_is(tmp_path):
     assert state["state"] == "finished" and state["done_readings"] == 4 and len(readings) == 28
     assert json.loads(readings[0]["data"])["attempt"] is None
     assert (run_dir / "run.sqlite").read_bytes() == before
+
+
+def test_a_poll_of_a_long_run_touches_the_new_readings_not_every_planned_reading(tmp_path):
+    """Issue 43: each state counted every planned reading done and laid out the whole grid again (36 000 cells a
+    poll for 36 stations × 1 000 points). The count is a running total and the grid is rebuilt only in the rows a
+    new reading touched; it stays the grid of every planned reading as the store holds it."""
+    from rtcal.live.storeview import StoreView
+    from rtcal.store.runstore import Reading, RunStore
+
+    store = RunStore.create(tmp_path, {"method": "laser_tracer_multistation", "planned_readings": "1200"})
+
+    def reading(k: int, skipped: bool = False) -> list[Reading]:
+        point, station = divmod(k, 12)
+        r = [Reading(float(k), "laser_tracer", "length_mm", 100.0 + k, "mm", point=point, station=station,
+                     plan_index=k, attempt=k + (10_000 if skipped else 0))]
+        return r + ([Reading(float(k), "laser_tracer", "skipped", 0.0, "", point=point, station=station,
+                             plan_index=k, attempt=k + 10_000)] if skipped else [])
+
+    store.add_readings([r for k in range(1000) for r in reading(k, skipped=k == 500)])
+    view = StoreView(tmp_path, 0.0)
+    before = view.state()
+    assert before["done_readings"] == 999
+    rows = before["progress"]["rows"]
+    assert len(rows) == 84 and rows[41]["cells"][8] == "skipped" and rows[0]["cells"] == ["done"] * 12
+    store.add_readings(reading(500) + reading(1000))  # the skipped one retaken, one more begun on a new row
+    after = view.state()
+    assert after["done_readings"] == 1001
+    new_rows = after["progress"]["rows"]
+    assert len(new_rows) == 84 and new_rows[41]["cells"][8] == "done" and new_rows[83]["cells"][4] == "done"
+    untouched = [k for k in range(84) if k not in (41, 83)]
+    assert all(new_rows[k] is rows[k] for k in untouched)  # the rows no new reading touched are not laid out again
+    store.close()

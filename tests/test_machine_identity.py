@@ -18,7 +18,7 @@ import pytest
 from rtcal.cli import main
 from rtcal.methods import load_procedure
 from rtcal.run.runner import with_machine_identity
-from simulators.opcua_machine import DEFAULT_IDENTITY, OpcUaMachine
+from simulators.opcua_machine import DECOY_SERIAL, DEFAULT_IDENTITY, SECOND_MACHINE, OpcUaMachine
 
 REPO = Path(__file__).resolve().parents[1]
 PROCEDURE = REPO / "procedures" / "iso230_2_verification.yaml"
@@ -50,13 +50,16 @@ def test_a_machine_that_does_not_answer_is_exit_1_in_one_line(capsys):
 
 
 def _procedure(tmp_path: Path, address: str, serial: str | None) -> Path:
+    """The shipped ISO verification naming the machine's server (and ``serial``, or none), its bench beside it."""
     text = PROCEDURE.read_text()
     line = "  serial_number: SIM-230-2\n"
     assert line in text
-    text = text.replace(line, (f"  serial_number: {serial}\n" if serial else "") + f"  machine_identity: {address}\n")
+    text = text.replace(line, (f"  serial_number: {serial}\n" if serial else "") + f"  machine_identity: '{address}'\n")
     path = tmp_path / "proc.yaml"
     path.write_text(text)
-    (tmp_path / "scenarios").symlink_to(REPO / "procedures" / "scenarios")
+    (tmp_path / "scenarios").mkdir(exist_ok=True)  # the bench lies in the procedure's folder (a link would not)
+    bench = REPO / "procedures" / "scenarios" / "abbe_bench.yaml"
+    (tmp_path / "scenarios" / bench.name).write_text(bench.read_text())
     return path
 
 
@@ -72,7 +75,8 @@ def test_another_machines_serial_number_refuses_the_run_before_anything(machine,
 def test_the_machines_identification_fills_the_item(machine, tmp_path):
     path = _procedure(tmp_path, machine.address, None)
     proc = load_procedure(path)
-    filled = with_machine_identity(proc, path, path.read_text())
+    filled, read = with_machine_identity(proc, path, path.read_text())
+    assert read is not None and read["serial_number"] == "SN-4711"
     assert filled.metadata.serial_number == "SN-4711"
     assert filled.metadata.machine == proc.metadata.machine  # the procedure's own name is kept
 
@@ -89,10 +93,18 @@ def test_sim_serve_opcua_serves_the_identity():
                 address = m.group(1)
                 break
         assert address, "no OPC UA address printed"
-        r = subprocess.run([sys.executable, "-m", "rtcal.cli", "probe", "machine", address, "--json"], cwd=REPO,
-                           capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+        def probe(where: str) -> subprocess.CompletedProcess:
+            return subprocess.run([sys.executable, "-m", "rtcal.cli", "probe", "machine", where, "--json"], cwd=REPO,
+                                  capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(REPO)})
+
+        r = probe(f"{address}?serial={DEFAULT_IDENTITY['SerialNumber']}")
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["serial_number"] == DEFAULT_IDENTITY["SerialNumber"]
+        # laid out as OPC 40001-1 does: a second machine beside the table, so a choice is needed
+        r = probe(address)
+        assert r.returncode == 1 and "2 machines under Machines" in r.stderr and len(r.stderr.splitlines()) == 1
+        r = probe(f"{address}?machine={SECOND_MACHINE[0]}")
+        assert json.loads(r.stdout)["serial_number"] == SECOND_MACHINE[1]["SerialNumber"] != DECOY_SERIAL
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(30)

@@ -62,7 +62,7 @@ def test_a_remote_confirm_continues_and_a_stray_one_is_refused():
     assert op.confirm() is False  # nothing waits: refused, nothing changes
     t = Waiting(op)
     wait_for(lambda: op.asking)
-    assert "Seat the polygon turned by 1 face(s)" in op.asking
+    assert "Seat the polygon turned by 1 face from its home seating" in op.asking
     time.sleep(0.1)
     assert t.is_alive()  # it waits
     assert op.confirm() is True
@@ -175,7 +175,8 @@ def test_the_engine_hands_the_confirm_to_the_waiting_operator():
     engine, stage, docs, result, thread = engine_run(ReseatPlan([0.0, 10.0, 20.0, 30.0], FaultPolicy(), groups=2), op)
     for seating in (1, 2):
         wait_for(lambda: len(asked(docs)) == 2 * seating - 1)  # asked, not yet answered
-        assert f"turned by {seating - 1:g} face(s)" in asked(docs)[-1]
+        assert ("Seat the polygon in its home seating (faces in front of the autocollimator at table angles k·"
+                if seating == 1 else "Seat the polygon turned by 1 face from") in asked(docs)[-1]  # not "by 0 face(s)"
         engine.request_confirm()
     thread.join(10)
     assert result == {"stored": 4}
@@ -237,3 +238,16 @@ def test_rtcal_control_confirm_over_the_control_socket(tmp_path, capsys):
         assert main(["control", str(run_dir), "confirm", "--token", token, "--step", "1"]) == 0
         t.join(5)
         assert t.error is None and not t.is_alive()
+
+
+def test_the_seating_instruction_counts_faces_as_a_person_reads_them():
+    """Issue 46: "turned by 0 face(s)" for the home seating; one face, two faces, a fraction in degrees."""
+    from rtcal.methods.abbe.plan import reseat_instruction
+
+    home = reseat_instruction(0.0, 15.0)
+    assert home.startswith("Seat the polygon in its home seating (faces in front of the autocollimator at table angles "
+                           "k·15°)") and "0 face" not in home
+    assert reseat_instruction(15.0, 15.0).startswith("Seat the polygon turned by 1 face from its home seating")
+    assert reseat_instruction(30.0, 15.0).startswith("Seat the polygon turned by 2 faces from")
+    assert reseat_instruction(7.5, 15.0).startswith("Seat the polygon turned by 7.5° from")
+    assert reseat_instruction(0.0, 15.0, resumed=True).startswith("The run resumes with the polygon in its home seating.")

@@ -26,8 +26,16 @@ def test_probe_reads_the_position_and_moves_nothing(capsys):
     assert code == 0, err
     r = json.loads(out)
     assert r["model"] == "pi-gcs" and r["identity"].startswith("(c)2019 Physik Instrumente (PI)")
+    # issue 46: the probe said nothing of the unreferenced axis a run then refused
+    assert "axis 1 NOT referenced (FRF? 1 = 0): a run refuses it" in r["identity"]
     assert r["reading"] == {"position_deg": 12.5}
-    assert [line.split()[0] for line in controller.requests] == [b"*IDN?", b"ERR?", b"POS?"]  # no SVO, FRF or MOV
+    assert [line.split()[0] for line in controller.requests] == [b"*IDN?", b"ERR?", b"FRF?", b"POS?"]  # no SVO, FRF or MOV
+
+
+def test_probe_says_nothing_of_a_referenced_axis(capsys):
+    with Emulator(emu.pi_gcs(position_deg=1.0, referenced=True), b"\n") as controller:
+        assert main(["probe", "stage", f"{controller.url()}?model=pi-gcs&axis=1", "--json", "--timeout-s", "1"]) == 0
+    assert "referenced" not in json.loads(capsys.readouterr().out)["identity"]
 
 
 def test_driver_references_only_when_allowed_moves_and_stops():
@@ -45,6 +53,8 @@ def test_driver_references_only_when_allowed_moves_and_stops():
                 stage.move_to(350.0)  # the controller's travel range is ±180° here, rtcal's limits ±360°
             stage.stop()
             assert stage.position_deg() == 45.25
+            seen = stage.wait_stopped()  # the default of every stage: POS? read until it no longer changes
+            assert seen.still and seen.where == "45.250000°", seen
         finally:
             stage.close()
     sent = [line.decode() for line in controller.requests]

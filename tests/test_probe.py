@@ -120,6 +120,11 @@ def test_modbus_rtu_framing_defaults_to_8e1(monkeypatch):
         def connect(self):
             return True
 
+        def read_device_information(self, **kw):  # an AZ drive implements no FC 43: an exception reply
+            from pymodbus.exceptions import ModbusException
+
+            raise ModbusException("Exception Response(171, 43, IllegalFunction)")
+
     monkeypatch.setattr("drivers.modbus_stage.ModbusSerialClient", Client)
     ModbusStage(parse_address("modbus-rtu:///dev/ttyUSB0?unit=1"), 1.0)
     assert (seen["baudrate"], seen["bytesize"], seen["parity"], seen["stopbits"]) == (115200, 8, "E", 1)

@@ -275,7 +275,8 @@ def _written_tables() -> dict[str, str]:
     grid = np.linspace(0.0, 360.0, 25)
     trims = 1e-3 * np.sin(np.radians(grid))
     table = CompensationTable(grid, trims, -trims)
-    return {fmt: write(table) for fmt, write in WRITERS.items()}
+    required = {"fanuc": {"unit_deg": 0.0001, "first_point": 0}}  # no default (issue 46)
+    return {fmt: write(table, **required.get(fmt, {})) for fmt, write in WRITERS.items()}
 
 
 WRITTEN = _written_tables()

@@ -16,7 +16,8 @@ import yaml
 from rtcal.methods.multistation.method import noise_model, not_included
 from rtcal.planning.montecarlo import plan_trials, run_trial, summarize
 from rtcal.methods import load_procedure
-from rtcal.solvers.uncertainty import FALSE_ALARM_RATE, residual_check
+from rtcal.solvers.structure import Grouped
+from rtcal.solvers.uncertainty import FALSE_ALARM_RATE, Covariance, residual_check
 from simulators.scenario import Scenario
 
 ROOT = Path(__file__).parents[1]
@@ -64,14 +65,15 @@ def test_the_warming_table_read_with_no_alpha_is_corrected_and_covered():
 
 
 def _correlated_bench(rng: np.random.Generator, n_points: int = 12, stations: int = 6):
-    """An unweighted fit whose residuals share errors (one per point, seen by every station) and one per residual."""
+    """An unweighted fit whose residuals share errors (one per point, seen by every station) and one per residual:
+    J, V as its sources (rtcal.solvers.uncertainty.Covariance) and a Cholesky factor of V to draw from."""
     N = n_points * stations
     point = np.repeat(np.arange(n_points), stations)
-    F = np.zeros((N, n_points))
-    F[np.arange(N), point] = 1.5
-    V = F @ F.T + np.diag(rng.uniform(0.5, 1.0, N))
+    shared = Grouped(np.full((N, 1), 1.5), point, n_points)
+    own = np.sqrt(rng.uniform(0.5, 1.0, N))
+    V = Covariance((shared, own))
     J = np.column_stack([np.ones(N), np.tile(np.arange(stations), n_points), rng.standard_normal((N, 4))])
-    return J, V, np.linalg.cholesky(V)
+    return J, V, np.linalg.cholesky(shared.dense() @ shared.dense().T + np.diag(own**2))
 
 
 def test_an_uncorrected_air_course_is_free_in_the_residual_test():
@@ -93,16 +95,16 @@ def test_the_residual_test_against_the_whole_budget_fails_at_its_stated_rate():
     far above the rate); the projected χ² is, so clean draws fail at 1 % and a model error fails."""
     rng = np.random.default_rng(36)
     J, V, L = _correlated_bench(rng)
-    M = np.eye(len(V)) - J @ np.linalg.pinv(J)
+    M = np.eye(len(L)) - J @ np.linalg.pinv(J)
     new, old = [], []
     for _ in range(600):
-        r = M @ (L @ rng.standard_normal(len(V)))
+        r = M @ (L @ rng.standard_normal(len(L)))
         new.append(residual_check(r, V, 0, jacobian=J).passed)
         old.append(residual_check(r, V, J.shape[1]).p_value >= FALSE_ALARM_RATE)
     false_alarm = 1 - np.mean(new)
     assert false_alarm <= 0.03  # 1 % of 600: 6 expected, 18 is 5σ away
     assert 1 - np.mean(old) > 3 * max(false_alarm, 0.01)
-    r = M @ (L @ rng.standard_normal(len(V)) + 3.0 * np.sin(np.linspace(0, 40, len(V))))
+    r = M @ (L @ rng.standard_normal(len(L)) + 3.0 * np.sin(np.linspace(0, 40, len(L))))
     bad = residual_check(r, V, 0, jacobian=J)
     assert not bad.passed and bad.whole_budget and "FAILS" in bad.words() and "not a coverage interval" in bad.words()
 

@@ -13,7 +13,7 @@ import pytest
 
 from drivers.addresses import parse_address
 from drivers.errors import InstrumentFault, InstrumentTimeout
-from drivers.serial_instruments import ElcomatAutocollimator, LineLaserTracer, QsbEncoder, SylvacIndicator
+from drivers.serial_instruments import QSB_SIMULATED_VERSION, ElcomatAutocollimator, LineLaserTracer, QsbEncoder, SylvacIndicator
 from simulators.bench import Bench
 from simulators.instruments import SimAutocollimator, SimDialIndicator, SimEncoder, SimLaserTracer
 from simulators.scenario import Scenario
@@ -27,11 +27,13 @@ QSB_OPEN = [(b"W1503\r\n", b"w1500000003!\r\n"), (b"W0000\r\n", b"w0000000000!\r
 
 
 ELCOMAT_OPEN = [(b"d\r\n", b"8 30123 15 01 2026 300\r")]  # dls-controls/elcomat3000: serial, date, focal length
-SYLVAC_OPEN = [(b"MM\r", None), (b"UNI?\r", b"MM\r")]  # the reply carries no unit: mm set and confirmed at open
+SYLVAC_OPEN = [(b"MM\r", None), (b"UNI?\r", b"MM\r"),  # the reply carries no unit: mm set and confirmed at open
+               (b"ID?\r", b"SY289.A\r")]  # then its identification (OPTO-RS: SY, instrument, option)
+TRACER_OPEN = [(b"ID?\r\n", b"ERR CMD\r\n")]  # a bridge that does not name itself
 
 
 def _read(make, request: bytes, reply: bytes | None, call: str):
-    opening = {ENCODER: QSB_OPEN, INDICATOR: SYLVAC_OPEN, AUTOCOLLIMATOR: ELCOMAT_OPEN}.get(make, [])
+    opening = {ENCODER: QSB_OPEN, INDICATOR: SYLVAC_OPEN, AUTOCOLLIMATOR: ELCOMAT_OPEN, TRACER: TRACER_OPEN}.get(make, [])
     with ScriptedDevice(opening + [(request, reply)]) as dev:
         driver = make(dev.path)
         try:
@@ -71,7 +73,9 @@ BAD = [
     (AUTOCOLLIMATOR, b"a\r\n", b"4 003 +12.34", InstrumentTimeout, "truncated"),
     (AUTOCOLLIMATOR, b"a\r\n", None, InstrumentTimeout, "no reply"),
     (INDICATOR, b"?\r", b"\r", InstrumentFault, "initialising"),
-    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "indicator error ERR1"),
+    (INDICATOR, b"?\r", b"ERR1\r", InstrumentFault, "indicator error ERR1 .incorrect command"),
+    (INDICATOR, b"?\r", b"ERR2\r", InstrumentFault, "indicator error ERR2 .parity error: check the line's framing"),
+    (INDICATOR, b"?\r", b"ERR0\r", InstrumentFault, "indicator error ERR0 .sensor error"),
     (INDICATOR, b"?\r", b"ERR3\r", InstrumentFault, "ERR3 .measuring range exceeded"),
     (INDICATOR, b"?\r", b"+0.0100 in\r", InstrumentFault, "unexpected reply"),  # no unit but mm is ever right
     (INDICATOR, b"?\r", b"\xff\xfe\r", InstrumentFault, "not ASCII"),
@@ -149,7 +153,7 @@ def test_simulator_ends_answer_as_documented():
     assert elcomat.handle(b"a\r") == b"4 003 0.0000 0.0000\r"
     assert elcomat.handle(b"r\r") == b"2 103 0.0000 0.0000\r"
     assert elcomat.handle(b"X\r") == b""
-    assert elcomat.handle(b"d\r") == b"8 SIM3000 15 01 2026 300\r"
+    assert elcomat.handle(b"d\r") == b"8 SIMULATED 15 01 2026 300\r"
     assert SylvacHandler(SimDialIndicator(bench, 0)).handle(b"?") == b" 0.0000\r"  # OPTO-RS: space for +, CR
     inch = SylvacHandler(SimDialIndicator(bench, 0), echo=True, inch=True)
     assert (inch.handle(b"UNI?"), inch.handle(b"MM"), inch.handle(b"UNI?")) == (b"UNI?\rIN\r", b"MM\r", b"UNI?\rMM\r")
@@ -159,7 +163,7 @@ def test_simulator_ends_answer_as_documented():
     qsb = QsbHandler(SimEncoder(bench), 2**20)
     assert qsb.handle(b"R0E") == f"r0E{round(0.5 / 6.283185307179586 * 2**20):08X}!\r\n".encode()
     assert qsb.handle(b"W1509") == b"w 15 00000009 !\n"  # EOR: LF only, spaces between fields (from this reply on)
-    assert qsb.handle(b"R14") == b"r 14 00000100 !\n"
+    assert qsb.handle(b"R14") == f"r 14 {QSB_SIMULATED_VERSION:08X} !\n".encode()
     assert qsb.handle(b"R0E0") == b"e00000000!\r\n"
     tracer = TracerHandler(SimLaserTracer(bench))
     assert tracer.handle(b"REF\r") == b"OK REF 0\r\n"

@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from drivers.interfaces import StopSeen
 from rtcal.clock import RealClock
 from rtcal.engine.engine import AbortRequested, Engine, MeasuringFinished
 from rtcal.engine.signals import Interrupted, ending_signals
@@ -57,6 +58,11 @@ def abort_events(run_dir: Path) -> list[str]:
         return [m for (m,) in db.execute("SELECT message FROM events WHERE kind = 'abort' ORDER BY id")]
 
 
+def stopped_events(run_dir: Path) -> list[str]:
+    with sqlite3.connect(f"file:{run_dir / 'run.sqlite'}?mode=ro", uri=True) as db:
+        return [m for (m,) in db.execute("SELECT message FROM events WHERE kind = 'stopped' ORDER BY id")]
+
+
 def mid_long_move(hub: SimulatorHub, proc: subprocess.Popen) -> None:
     """Wait until the table is well into its long move."""
     wait_for(lambda: proc.poll() is not None or hub.drive.moving_to_deg == pytest.approx(LONG_MOVE_TO_DEG, abs=0.01), 60)
@@ -90,6 +96,9 @@ def test_a_signal_mid_move_stops_the_drive_records_it_and_resume_finishes(tmp_pa
         took_s = stopped_mid_move(hub, sent_s)
         print(f"{name}: STOP at the drive {took_s * 1000:.1f} ms after the signal")
         assert took_s < BOUND_S
+        # the drive's feedback read until it no longer changed: the store says where the table came to rest
+        (stopped,) = stopped_events(run_dir)
+        assert abs(float(stopped.split("at rest at ")[1].rstrip("°")) - hub.drive.stopped[0][1]) < 0.01, stopped
         assert proc.returncode == 130, err
         assert f"rtcal: interrupted by {name}; every reading taken so far is in {run_dir}/run.sqlite" in err
         assert f"rtcal resume {run_dir}" in err
@@ -163,6 +172,9 @@ class SlowStage:
         self.stopped.append(time.monotonic())
         self._stop.set()
 
+    def wait_stopped(self) -> StopSeen:
+        return StopSeen(True, f"{self.at:g}°")
+
     def recover(self) -> None:
         pass
 
@@ -186,7 +198,7 @@ def test_an_abort_interrupts_the_move_in_the_engines_thread():
     assert stage.stopped and stage.stopped[0] - asked[0] < BOUND_S
     assert engine.state == "aborted"
     assert [d["message"] for n, d in docs if n == "event" and d["kind"] == "abort"] == [
-        "aborted by a test: every machine the run moved was stopped; `rtcal resume` goes on"]
+        "aborted by a test: every machine the run moved was stopped (stage seen at rest at 0°); `rtcal resume` goes on"]
     assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL  # the run's routing is gone with it
 
 
@@ -287,3 +299,102 @@ def test_a_second_signal_does_not_cut_the_stop_short():
     assert isinstance(caught.value, Interrupted) and str(caught.value) == "interrupted by SIGINT (Ctrl-C)"
     assert docs[-1][0] == "stop" and engine.state == "aborted"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+class StillTurning(SlowStage):
+    """A table that keeps turning after its stop (a stop the controller queued behind the move), read
+    through the default watch of every RotaryStage; ``settles_s`` > 0: it comes to rest that long after."""
+
+    still_within_deg = 1e-4
+
+    def __init__(self, move_s: float, settles_s: float | None = None):
+        super().__init__(move_s)
+        self.settles_s = settles_s
+
+    def feedback_deg(self) -> float:
+        if not self.stopped:
+            return self.at
+        turning_s = time.monotonic() - self.stopped[0]
+        if self.settles_s is not None:
+            turning_s = min(turning_s, self.settles_s)
+        return 21.0 + 10.0 * turning_s  # 10 °/s on from 21°
+
+    def wait_stopped(self) -> StopSeen:
+        from drivers.interfaces import RotaryStage
+        return RotaryStage.wait_stopped(self, timeout_s=1.0)  # type: ignore[arg-type]
+
+
+def aborted_after(stage: SlowStage, after_s: float) -> tuple[list[dict], pytest.ExceptionInfo]:
+    """The engine's events when a remote abort comes ``after_s`` into its first move, and the abort raised."""
+    docs: list[tuple[str, dict]] = []
+    engine = Engine({"stage": stage, "probe": FakeProbe(stage)}, RealClock(), Operator(), [lambda n, d: docs.append((n, d))])
+    threading.Timer(after_s, engine.request_abort, ("a test",)).start()
+    with pytest.raises(AbortRequested) as caught:
+        engine.run(TwoDevicePlan([0.0, 10.0], FaultPolicy()))
+    return [d for n, d in docs if n == "event"], caught
+
+
+def test_a_machine_not_seen_at_rest_is_named_with_its_last_position_never_called_stopped():
+    """Issue 40: the run wrote "every machine the run moved was stopped" while LinuxCNC's table went on
+    turning. A position that still changes after the watch is a `moving` event naming the machine and
+    its last position, the abort event says so, and the exception carries it for the console."""
+    events, caught = aborted_after(StillTurning(3.0), 0.3)
+    moving = [e for e in events if e["kind"] == "moving"]
+    assert len(moving) == 1 and moving[0]["instrument"] == "stage", events
+    last_deg = float(moving[0]["message"].split("last seen at ")[1].split("°")[0])
+    assert 21.0 + 10.0 * 0.9 < last_deg < 21.0 + 10.0 * 1.5  # the position read as the 1 s watch ended
+    assert "position still changed 1 s after the stop" in moving[0]["message"]
+    (abort,) = [e["message"] for e in events if e["kind"] == "abort"]
+    assert "was stopped" not in abort and "stage may still be moving (last seen at" in abort
+    assert any("stage may still be moving" in note for note in caught.value.__notes__)
+
+
+def test_a_machine_that_comes_to_rest_is_stopped_where_it_was_seen():
+    events, caught = aborted_after(StillTurning(3.0, settles_s=0.3), 0.3)
+    assert not [e for e in events if e["kind"] == "moving"]
+    assert [e["message"] for e in events if e["kind"] == "stopped"] == ["stopped: seen at rest at 24.000000°"]
+    (abort,) = [e["message"] for e in events if e["kind"] == "abort"]
+    assert "every machine the run moved was stopped (stage seen at rest at 24.000000°)" in abort
+    assert not getattr(caught.value, "__notes__", [])
+
+
+def test_a_machine_whose_position_cannot_be_read_after_the_stop_may_still_be_moving():
+    from drivers.interfaces import watch_still
+
+    def dead() -> float:
+        raise ConnectionResetError("the line died")
+
+    seen = watch_still(dead, lambda deg: f"{deg}°", 1e-4, timeout_s=0.5)
+    assert not seen.still and seen.where == "" and "could not be read" in seen.why and "the line died" in seen.why
+
+
+def test_a_report_repeated_while_the_controller_still_executes_its_move_is_not_a_machine_at_rest():
+    """Seen on a loaded host: linuxcncrsh repeated one position for 0.3 s while the table turned on 3°
+    (LinuxCNC's status not refreshed), and the stop was said seen at rest there. The same status said
+    RUNNING: while the controller says a move executes, no unchanged position is rest."""
+    from drivers.interfaces import watch_still
+
+    reads = []
+
+    def read() -> float:  # 20 readings (≥ 0.4 s at one per 20 ms, > STILL_S) the same, then where it stopped
+        reads.append(1)
+        return 21.0 if len(reads) <= 20 else 24.0
+
+    seen = watch_still(read, lambda deg: f"{deg}°", 1e-4, busy=lambda: len(reads) <= 20)
+    assert seen.still and seen.where == "24.0°"
+    reads.clear()
+    assert watch_still(read, lambda deg: f"{deg}°", 1e-4).where == "21.0°"  # without the controller's word: fooled
+    reads.clear()
+    never = watch_still(read, lambda deg: f"{deg}°", 1e-4, timeout_s=0.3, busy=lambda: True)
+    assert not never.still and "still executed a move" in never.why
+
+
+def test_the_console_says_which_machine_may_still_be_moving(capsys):
+    from rtcal.cli.run import _say_still_moving
+
+    exc = KeyboardInterrupt("interrupted by SIGINT (Ctrl-C)")
+    exc.__notes__ = ["(the status could not be recorded)", "WARNING: stage may still be moving (last seen at 45.100000°): "
+                     "its position still changed 5 s after the stop; stop it at the machine"]
+    _say_still_moving(exc)
+    assert capsys.readouterr().err == ("rtcal: WARNING: stage may still be moving (last seen at 45.100000°): its position "
+                                       "still changed 5 s after the stop; stop it at the machine\n")

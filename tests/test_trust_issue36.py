@@ -162,6 +162,41 @@ def test_a_drive_that_never_moves_is_named_not_the_encoder(tmp_path):
     assert "drive did not move the table" in str(exc.value) and "encoder's count is frozen" in str(exc.value)
 
 
+def test_a_drive_that_never_moves_from_the_first_step_is_named_beside_the_encoder(tmp_path):
+    """Issue 46: stuck from the very first step, the visit retried compared the encoder with its own
+    failed attempt at the same target, and the run ended blaming the encoder alone ("it misreads").
+    Where the table stood before is the target before: the stage is named, the encoder beside it."""
+    from rtcal.run.runner import RunAborted, run_procedure
+    from tests.test_cross_checks import ISO, _scenario_file
+
+    scenario = _scenario_file(tmp_path, [{"instrument": "stage", "kind": "stuck", "at_request": list(range(1, 60))}])
+    with pytest.raises(RunAborted, match="the table did not turn") as exc:
+        run_procedure(ISO, scenario, out_dir=tmp_path / "run", show_progress=False)
+    assert exc.value.instrument == "stage"
+    assert "drive did not move the table" in str(exc.value) and "encoder's count is frozen" in str(exc.value)
+
+
+def test_an_encoder_whole_faces_off_names_the_stage_too():
+    """The encoder two faces from the command while a face is square: the autocollimator cannot tell
+    the table there from the table two faces short, so the message names both causes."""
+    from rtcal.methods.abbe.checks import EncoderCheck
+    from rtcal.engine.checks import Contradiction
+
+    check = EncoderCheck(600.0, pitch_deg=15.0, face_still_arcsec=1.4)
+    check.check(0.0, 0.0, table_seen=True, face_arcsec=-5.7)
+    check.check(15.0, 15.0, table_seen=True, face_arcsec=3.0)
+    with pytest.raises(Contradiction, match="it misreads — or the stage did not turn the table as commanded: the "
+                                            r"encoder reads 2 faces \(30°\) from the command") as exc:
+        check.check(15.0 - 15.0, 30.0, table_seen=True, face_arcsec=-2.0)
+    assert exc.value.instrument == "encoder"
+    other = EncoderCheck(600.0, pitch_deg=15.0, face_still_arcsec=1.4)
+    other.check(0.0, 0.0, table_seen=True, face_arcsec=-5.7)
+    other.check(15.0, 15.0, table_seen=True, face_arcsec=3.0)
+    with pytest.raises(Contradiction) as exc:  # 7° off: no whole number of faces, the encoder alone
+        other.check(23.0, 30.0, table_seen=True, face_arcsec=-2.0)
+    assert "stage" not in str(exc.value)
+
+
 def _abbe_run(tmp_path, procedure: str, faults: list[dict], seed: int) -> subprocess.CompletedProcess:
     from tests.test_cross_checks import REPO, _scenario_file
 

@@ -4,6 +4,7 @@ serves each connection on its own, and `resume` of a finished run."""
 
 from __future__ import annotations
 
+from rtcal.results.model import SCHEMA_VERSION
 import json
 import math
 import os
@@ -53,7 +54,7 @@ def _copy(run: Path, tmp_path: Path, name: str = "copy") -> Path:
 
 def test_results_and_store_record_each_others_digests_and_a_copied_run_stays_valid(solved, tmp_path, capsys):
     results = json.loads((solved / "results.json").read_text())
-    assert results["schema_version"] == "1.3"
+    assert results["schema_version"] == SCHEMA_VERSION
     d = results["digests"]
     with sqlite3.connect(solved / "run.sqlite") as db:
         readings = db.execute("SELECT COUNT(*) FROM readings").fetchone()[0]

@@ -56,7 +56,7 @@ def test_hub_paces_and_echoes(capsys):
         took_s = time.monotonic() - started
         handler = hub.handlers["environment"].handler
     assert code == 0, err
-    assert r["identity"].startswith("PTU300 / 1.12, serial number SIM30001")
+    assert r["identity"].startswith("PTU300 / 1.12, serial number SIMULATED")
     assert set(r["reading"]) == {"air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c"}
     assert handler.echo is False  # the driver turned the factory default off
     assert took_s > len(handler.listing()) * 10 / 4800

@@ -16,7 +16,7 @@ from typing import Any, Callable
 from drivers.addresses import AddressError, redact_tokens
 from drivers.errors import InstrumentError
 from rtcal import __version__
-from rtcal.cli import catalog, files, live, planning, results, run, sim
+from rtcal.cli import catalog, files, keys, live, planning, results, run, sim
 from rtcal.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NOT_CONVERGED, EXIT_OK, EXIT_USAGE, MAX_SEED, Parser,
                               UserError, disk_failure, json_text, parse_instruments_option)
 from rtcal.cli.common import seed as _seed
@@ -42,6 +42,7 @@ COMMANDS: tuple[Callable[[Any], None], ...] = (
     planning.add_solve,
     live.add_view, live.add_control,
     catalog.add_catalog,
+    keys.add_key,
 )
 
 

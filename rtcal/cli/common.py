@@ -82,11 +82,20 @@ def parse_instruments_option(text: str) -> dict[str, str]:
 def json_text(data: Any, indent: str = "") -> str:
     """JSON with a line per key and per row of a table (a list of objects), each line written by
     json's C encoder — ``indent=`` would send the whole document through its pure-Python one,
-    which takes seconds for a table of 100 000 rows."""
+    which takes seconds for a table of 100 000 rows. Strict JSON: a NaN or infinity is null."""
     inner = indent + "  "
     if isinstance(data, dict) and data:
         items = ",\n".join(f"{inner}{json.dumps(str(k))}: {json_text(v, inner)}" for k, v in data.items())
         return "{\n" + items + "\n" + indent + "}"
     if isinstance(data, list) and data and all(isinstance(v, dict) for v in data):
-        return "[\n" + ",\n".join(inner + json.dumps(v) for v in data) + "\n" + indent + "]"
-    return json.dumps(data)
+        return "[\n" + ",\n".join(inner + _strict(v) for v in data) + "\n" + indent + "]"
+    return _strict(data)
+
+
+def _strict(data: Any) -> str:
+    try:
+        return json.dumps(data, allow_nan=False)
+    except ValueError:  # a NaN or infinity somewhere (rare): each one null
+        from rtcal.results.io import finite
+
+        return json.dumps(finite(data), allow_nan=False)

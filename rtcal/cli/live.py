@@ -43,6 +43,8 @@ def _view_catalog(args: argparse.Namespace) -> int:
         return serve_catalog(args.db, host, port or 0)
     except CatalogUsage as exc:
         raise UserError(str(exc)) from None
+    except OSError as exc:  # the port is taken, or the host is not this computer's
+        raise UserError(f"view --catalog: cannot listen on {args.live or 'a free port'}: {exc.strerror or exc}") from None
     except CatalogError as exc:
         print(f"rtcal: {exc}", file=sys.stderr)
         return EXIT_FAILED

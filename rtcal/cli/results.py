@@ -19,16 +19,38 @@ if TYPE_CHECKING:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    """ISO 230-2 or VDI 3441 parameters of a positioning test, as JSON."""
-    from rtcal.deliverables.evaluation import evaluate
+    """A standard's parameters of a positioning test, as JSON: ISO 230-2 (with UPR beside R↑ and R↓),
+    its 1988 edition or VDI 3441 keyed by their symbols as results.json holds them, and every
+    figure (these and the other labels') with its edition, coverage and definition."""
+    from rtcal.deliverables.evaluation import STANDARDS, evaluate
+    from rtcal.deliverables.standards import standard_figures, upr
+    from rtcal.procedure.standards import standard_named
 
-    table, _ = read_deviation_table(args.source)
+    table, results = read_deviation_table(args.source)
     try:
-        result = evaluate(table, args.standard)
+        label = standard_named(args.standard).label
+        uncertainties, conformity = None, None
+        if results is not None:
+            from rtcal.deliverables.conformity import parameter_uncertainties
+
+            uncertainties, conformity = parameter_uncertainties(results), results.conformity
+        figures = standard_figures(label, table, uncertainties, conformity)
+        if label in STANDARDS:  # the keys results.json holds, then the figures in words
+            result = evaluate(table, label)
+            if label == "iso230-2":  # UPR beside R↑ and R↓
+                result = {**{k: v for k, v in result.items() if k not in _AFTER_R_DOWN},
+                          "UPR": upr(result), **{k: result[k] for k in _AFTER_R_DOWN}}
+            result = {**result, "title": figures.title, "edition": figures.edition,
+                      "figures": [f.as_json() for f in figures.figures]}
+        else:
+            result = figures.as_json()
     except ValueError as exc:
         raise UserError(f"{args.source}: {exc}") from None
     print(json_text(result))
     return EXIT_OK
+
+
+_AFTER_R_DOWN = ("R", "A_up", "A_down", "A", "per_target", "notes")
 
 
 def cmd_compensate(args: argparse.Namespace) -> int:
@@ -38,10 +60,12 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     from rtcal.compensation import CompensationError, get_format, options_given, write_table
     from rtcal.deliverables.compensation import table_from_deviations
 
-    table, _ = read_deviation_table(args.source)
+    table, results = read_deviation_table(args.source)
     try:
         comp = table_from_deviations(table, args.step_deg, args.max_gap_deg, args.allow_one_direction, args.format)
         options = options_given(vars(args))
+        for keyword in getattr(get_format(args.format), "run_options", ()):  # options that name a run: its data
+            options[keyword] = _iso230_1_errors(keyword, options.get(keyword), results, args.source)
         text = write_table(args.format, comp, **options)
     except CompensationError as exc:
         raise UserError(f"{args.source}: {exc}") from None
@@ -49,12 +73,38 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     worst = max(float(abs(comp.trim_up_deg).max()), float(abs(comp.trim_down_deg).max())) * 3600
     print(f"{args.format} table written to {out} ({len(text.splitlines())} lines): {comp.summary()}, trims up to {worst:.2f}″ "
           "(docs/compensation.md: the format's rules and sign)")
-    for step in get_format(args.format).instructions(comp, **options):  # what to do on the control
+    fmt = get_format(args.format)
+    for step in fmt.instructions(comp, **options):  # what to do on the control
         print(f"on the control: {step}")
+    for reading in fmt.readings(comp, **options):  # what no manual settles, and the check on the machine
+        print(f"unsettled: {reading}")
+    note = fmt.comment_note(**options)
     for warning in comp.warnings:
-        where = "" if get_format(args.format).takes_comments else f" (not in {out}: a {args.format} file takes no comment)"
-        print(f"rtcal: warning: {warning}{where}", file=sys.stderr)
+        print(f"rtcal: warning: {warning}{f' (not in {out}: {note})' if note else ''}", file=sys.stderr)
     return EXIT_OK
+
+
+def _iso230_1_errors(which: str, run: str | None, source: RunResults | None, source_text: str) -> Any:
+    """The ISO 230-1 error motions or location errors (``which``) of ``run`` — or of the source run
+    when none is named (None: it has none, or the source is a CSV) — as its method's outputs give
+    them (``iso230_1_errors()``); a named run without them is a UserError."""
+    from rtcal.methods import METHODS
+
+    if run is not None:
+        _, results = read_deviation_table(run) if Path(run).is_dir() else (None, None)
+        if results is None:
+            raise UserError(f"{run}: not a run directory (its results.json gives the {which.replace('_', ' ')})")
+    else:
+        results = source
+    if results is None:
+        return None
+    found = getattr(METHODS[results.method].outputs(results), "iso230_1_errors", None)
+    motions, location = found() if found is not None else (None, None)
+    value = motions if which == "error_motions" else location
+    if value is None and run is not None:
+        raise UserError(f"{run}: its {results.method} run gives no {which.replace('_', ' ')} (error motions: the Abbe "
+                        "method's dial indicators or seed 000's second tracer mount; location: seed 000's network)")
+    return value
 
 
 def run_label(path_text: str) -> str:
@@ -98,7 +148,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
     from rtcal.methods import METHODS
-    from rtcal.run.verify import verify
+    from rtcal.run.verify import ALTERED, verify
 
     run = Path(args.run_dir)
     if not run.is_dir():
@@ -133,15 +183,16 @@ def cmd_verify(args: argparse.Namespace) -> int:
           "(each records the other's)")
     for name, status in found.files:
         print(f"{run / name}: {status}")
+    if found.signature is not None:
+        print(f"{run}: signature: {found.signature.text if found.signature.state != 'REFUSED' else 'REFUSED (above)'}")
+    if found.results is not None and found.results.simulation is not None:
+        print(f"{run}: {found.results.simulation.statement}")
     verdict = "agrees" if found.agrees else "does NOT agree"
     print(f"{run} {verdict}: {len(found.differences)} differ of {found.compared} values, {len(found.altered_files)} of {len(found.files)} "
           f"deliverables changed, digests {'match' if not found.integrity else 'do not match'}")
     return EXIT_OK if found.agrees else EXIT_FAILED
 
 
-ALTERED = {"EDITED": "changed after the run wrote it: its SHA-256 is not the one results.json records for it",
-           "missing": "results.json records it as written by the run, and it is gone",
-           "not a regular file": "a link or a folder stands where the run wrote this file"}
 
 
 def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,
@@ -215,13 +266,15 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def add_evaluate(sub: Any) -> None:
-    from rtcal.deliverables.evaluation import STANDARDS
+    from rtcal.procedure.standards import ALIASES, LABELS, STANDARDS
 
-    ev = sub.add_parser("evaluate", help="ISO 230-2 or VDI/DGQ 3441 parameters of a positioning test, as JSON")
+    ev = sub.add_parser("evaluate", help="a positioning test's figures to a standard (ISO 230-2 by default), as JSON")
     ev.add_argument("source", help="a run directory (its results.json) or a CSV with the header "
                                    "target_deg,direction,run,deviation_arcsec[,uncertainty_arcsec] (direction 1 or -1, runs from 1)")
-    ev.add_argument("--standard", choices=STANDARDS, default="iso230-2",
-                    help="ISO 230-2 (1997/2006/2014), its 1988 edition (±3s), or VDI/DGQ 3441 (default iso230-2)")
+    ev.add_argument("--standard", choices=LABELS + tuple(ALIASES), default="iso230-2", metavar="LABEL",
+                    help="the standard whose figures to give (default iso230-2), each with its edition, coverage and "
+                         "definition: " + "; ".join(f"{s.label}: {s.title}" for s in STANDARDS.values())
+                         + f" ({', '.join(ALIASES)}: the same as iso230-2; docs/evaluation.md)")
     ev.set_defaults(func=cmd_evaluate)
 
 

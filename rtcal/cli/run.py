@@ -25,6 +25,13 @@ def _how_to_go_on(run_dir: str, instruments: str | None = None, instruments_fail
     return "nothing was measured"
 
 
+def _say_still_moving(exc: BaseException) -> None:
+    """The machines the engine's safe stop did not see at rest (its WARNING notes), said on the console."""
+    for note in getattr(exc, "__notes__", ()):
+        if note.startswith("WARNING: "):
+            print(f"rtcal: {note}", file=sys.stderr, flush=True)
+
+
 def out_of_descriptors(exc: BaseException) -> bool:
     """The process (EMFILE) or the system (ENFILE) has no file descriptor left, anywhere in the chain of
     causes: the computer's fault during a run, not the user's input."""
@@ -66,6 +73,7 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         return EXIT_FAILED
     except InstrumentError as exc:
         print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
+        _say_still_moving(exc)
         print(f"rtcal: {_how_to_go_on(run_dir, instruments, instruments_failed=True)}", file=sys.stderr)
         return EXIT_FAILED
     except OSError as exc:
@@ -86,6 +94,7 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         try:  # after SIGHUP the terminal may be gone: the status is recorded, the exit code still says it
             print(f"\nrtcal: {why}; {_how_to_go_on(run_dir, instruments)}",
                   file=sys.stderr, flush=True)
+            _say_still_moving(exc)
         except OSError:
             pass
         return EXIT_INTERRUPTED
@@ -103,6 +112,11 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")
+    from rtcal.deliverables.certificate import marking, signature_line
+
+    if marking(results):  # a run that calibrated nothing says so last, where the eye lands
+        print(marking(results))
+    print(signature_line(results))
     for other in certificates_numbered_alike(outcome.run_dir):
         print(f"rtcal: warning: {other} carries the same certificate number: give each certificate its own "
               "(`rtcal run --certificate-number NUMBER`, or metadata.certificate_number)", file=sys.stderr)
@@ -161,17 +175,39 @@ def _real_controller_in_real_time(addresses: dict[str, str] | None, virtual_cloc
                         "drop --virtual-clock (the procedure's settle_time_s may be short)")
 
 
+def _unsigned_where_checked() -> None:
+    """A warning before a run that will be written unsigned where the lab checks signatures."""
+    import os
+
+    from rtcal.run.signing import LAB_KEY_ENV, LAB_PUBLIC_KEYS_ENV
+
+    if os.environ.get(LAB_PUBLIC_KEYS_ENV) and not os.environ.get(LAB_KEY_ENV):
+        print(f"rtcal: warning: {LAB_PUBLIC_KEYS_ENV} is set but {LAB_KEY_ENV} is not: this run is written unsigned, and "
+              "refused wherever the lab's keys are checked", file=sys.stderr)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from rtcal.run.runner import default_run_dir, run_procedure
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     _real_controller_in_real_time(addresses, args.virtual_clock)
     out = args.out or str(default_run_dir(Path(args.procedure).stem))
+    if args.catalog is not None:
+        from rtcal.cli.catalog import check_location
+
+        check_location(args.catalog)
+    _unsigned_where_checked()
     control = _run_control(args.live)
-    return _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
+    code = _execute(lambda: run_procedure(args.procedure, args.scenario, args.seed, out, addresses=addresses,
                                           virtual_clock=args.virtual_clock, large=args.large, on_engine=control,
-                                          certificate_number=args.certificate_number, rehearse=args.rehearse), out,
+                                          certificate_number=args.certificate_number, rehearse=args.rehearse,
+                                          item_state=args.item_state), out,
                     args.instruments)
+    if args.catalog is not None and code == EXIT_OK:
+        from rtcal.cli.catalog import file_finished_run
+
+        return file_finished_run(Path(out), args.catalog, args.allow_simulated)
+    return code
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
@@ -179,6 +215,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
 
     addresses = parse_instruments_option(args.instruments) if args.instruments else None
     _real_controller_in_real_time(addresses, bool(args.virtual_clock))  # None: the run's own clock, checked there
+    _unsigned_where_checked()
     control = _run_control(args.live)
     return _execute(lambda: resume_run(args.run_dir, addresses=addresses, virtual_clock=args.virtual_clock,
                                        on_engine=control, rehearse=args.rehearse), args.run_dir, args.instruments)
@@ -202,20 +239,24 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
 
 def _probe_machine(args: argparse.Namespace) -> int:
-    """`rtcal probe machine opc.tcp://HOST:PORT`: the machine's OPC 40001-1 identification."""
-    from drivers.opcua_identity import read_identity
+    """`rtcal probe machine opc.tcp://HOST:PORT[?machine=NAME|serial=SN]` or `http://AGENT:PORT/DEVICE`: the
+    machine's identification (OPC 40001-1, or an MTConnect agent's probe), each value printable and bounded
+    (JSON escapes what is not ASCII)."""
+    from drivers.machine_identity import read_machine_identity
+    from drivers.opcua_identity import shown
 
-    if not args.address.startswith("opc.tcp://"):
-        raise UserError(f"{args.address[:80]}: a machine's identification is read over OPC UA: opc.tcp://HOST:PORT")
+    if not args.address.startswith(("opc.tcp://", "http://", "https://")):
+        raise UserError(f"{args.address[:80]}: a machine's identification is read over OPC UA (opc.tcp://HOST:PORT) or "
+                        "from an MTConnect agent (http://HOST:PORT/DEVICE)")
     try:
-        ident = read_identity(args.address, args.timeout_s)
+        ident = read_machine_identity(args.address, args.timeout_s)
     except InstrumentError as exc:
         print(f"rtcal: machine at {args.address}: {one_line(exc)}", file=sys.stderr)
         return EXIT_FAILED
     if args.json:
         print(json.dumps(ident))
     else:
-        print("\n".join(f"{k}: {v}" for k, v in ident.items()))
+        print("\n".join(f"{k}: {'' if v is None else shown(str(v), 200)}" for k, v in ident.items()))
     return EXIT_OK
 
 
@@ -261,6 +302,15 @@ def add_run(sub: Any) -> None:
                      help="this run's certificate number (replaces the procedure's metadata.certificate_number: a "
                           "procedure serves many runs, each certificate needs its own)")
     run.add_argument("--rehearse", action="store_true", help=REHEARSE_HELP)
+    state = run.add_mutually_exclusive_group()
+    state.add_argument("--as-found", dest="item_state", action="store_const", const="as_found",
+                       help="the item as received, before any adjustment (sets metadata.item_state; the certificate says so)")
+    state.add_argument("--as-left", dest="item_state", action="store_const", const="as_left",
+                       help="the item after adjustment or compensation (metadata.item_state)")
+    run.add_argument("--catalog", metavar="URL", help="when the run is finished, add it to this catalogue (a SQLite file "
+                                                     "or postgresql://…) and send what waits in the rig's outbox")
+    run.add_argument("--allow-simulated", action="store_true", help="with --catalog: file the run even though it "
+                                                                     "calibrated nothing (every listing marks it SIMULATED)")
     run.set_defaults(func=cmd_run)
 
 
@@ -284,7 +334,9 @@ def add_probe(sub: Any) -> None:
     pr = sub.add_parser("probe", help="connect to one instrument, identify it where its protocol allows, take one "
                                       "reading and print it; exit 1 if it does not answer or answers wrongly")
     pr.add_argument("kind", choices=(*KINDS.names(), "machine"), help="the kind of instrument (machine: the machine's OPC "
-                                                               "40001-1 identification at opc.tcp://HOST:PORT)")
+                                                               "40001-1 identification at opc.tcp://HOST:PORT, one of "
+                                                               "several chosen by ?machine=NAME or ?serial=SN; or its "
+                                                               "MTConnect agent's probe at http://HOST:PORT/DEVICE)")
     pr.add_argument("address", help="its address, e.g. socket://10.0.0.5:4001?model=sylvac or ipp://cmm:1294 "
                                     "(model= picks the product; docs/protocols/)")
     pr.add_argument("--json", action="store_true",

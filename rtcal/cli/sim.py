@@ -54,24 +54,29 @@ def cmd_sim_serve(args: argparse.Namespace) -> int:
     elif args.comp:
         raise UserError("--comp: a table for LinuxCNC; give --stage linuxcnc (the simulated controller takes its table "
                         "in the scenario's stage.compensation)")
+    if args.machine == "linuxcnc":
+        _check_linuxcnc_machine(args, scenario, stage)
+    elif args.kins:
+        raise UserError("--kins: the kinematics LinuxCNC loads; give --machine linuxcnc")
     hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
                        environment=args.environment, ipp_idle_timeout_s=args.ipp_idle_timeout_s,
-                       pace_serial=not args.no_pacing, comp=args.comp, **STAGES[stage])  # type: ignore[arg-type]
+                       pace_serial=not args.no_pacing, comp=args.comp, machine=args.machine, kins=args.kins,
+                       **STAGES[stage])  # type: ignore[arg-type]
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):  # before LinuxCNC starts: a signal then still shuts it down
         signal.signal(sig, lambda *_: stop.set())
     try:
         addresses = hub.start()
     except (RuntimeError, OSError) as exc:
-        if stage == "linuxcnc":  # the controller failed, not the user's input
+        if "linuxcnc" in (stage, args.machine):  # the controller failed, not the user's input
             print(f"rtcal: LinuxCNC could not start: {one_line(exc)}", file=sys.stderr)
             return EXIT_FAILED
         raise UserError(f"simulators could not start: {exc}") from None
     machine = None
     if args.opcua:  # the machine's identity server: its address on stderr (not an instrument of --instruments)
-        from simulators.opcua_machine import OpcUaMachine
+        from simulators.opcua_machine import OpcUaMachine, default_machines
 
-        machine = OpcUaMachine(host=args.host)
+        machine = OpcUaMachine(host=args.host, machines=default_machines())  # laid out as OPC 40001-1: two machines
         print(f"rtcal: machine identity (OPC UA): {machine.address}", file=sys.stderr, flush=True)
     if not stop.is_set():
         print(json.dumps(addresses), flush=True)
@@ -102,6 +107,32 @@ def _check_linuxcnc_serve(args: argparse.Namespace, scenario: Any) -> None:
             raise UserError(f"--comp {args.comp}: not a LinuxCNC table (COMP_FILE_TYPE 0): {one_line(exc)}") from None
 
 
+def _check_linuxcnc_machine(args: argparse.Namespace, scenario: Any, stage: str) -> None:
+    """`sim serve --machine linuxcnc`: LinuxCNC installed, one LinuxCNC, a scenario with a machine whose nest
+    zero point is the controlled point, a --kins file LinuxCNC would read as rtcal does."""
+    from simulators.servers.linuxcnc import available, kins_hal
+
+    why = available()
+    if why:
+        raise UserError(f"--machine linuxcnc: {why}")
+    if stage == "linuxcnc":
+        raise UserError("--machine linuxcnc with --stage linuxcnc: one LinuxCNC runs on a machine; give one of them")
+    machine = scenario.machine
+    if machine is None:
+        raise UserError(f"--machine linuxcnc: the scenario {args.scenario or '(none)'} has no `machine:` (a five-axis "
+                        "machine with a trunnion table) for LinuxCNC to drive")
+    if any(machine.nest.offset_mm):
+        raise UserError("--machine linuxcnc: the scenario's machine.nest.offset_mm must be 0 0 0: LinuxCNC's kinematics "
+                        "put the controlled point, which is the nest's zero point here (no tool offset is loaded)")
+    if args.kins:
+        try:
+            kins_hal(machine, args.kins)
+        except OSError as exc:
+            raise UserError(f"--kins {args.kins}: cannot read: {exc.strerror or exc}") from None
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise UserError(f"--kins {args.kins}: not xyzac-trt-kins pins LinuxCNC would load: {one_line(exc)}") from None
+
+
 def add_sim(sub: Any) -> None:
     sim = sub.add_parser("sim", help="simulated instruments")
     sim_sub = sim.add_subparsers(dest="sim_command", required=True)
@@ -128,6 +159,13 @@ def add_sim(sub: Any) -> None:
                             "(default 600 s; docs/faults.md)")
     serve.add_argument("--comp", help="with --stage linuxcnc: a LinuxCNC compensation table (what `rtcal compensate "
                                       "--format linuxcnc` writes) loaded as the joint's COMP_FILE")
+    serve.add_argument("--machine", choices=("sim", "linuxcnc"), default="sim",
+                       help="the scenario's machine tool: its protocol-less simulation (sim, the default: no address), "
+                            "or a real LinuxCNC with xyzac-trt-kins started headless (linuxcnc-uspace installed) whose "
+                            "joints the simulated machine follows (address machine_tool)")
+    serve.add_argument("--kins", help="with --machine linuxcnc: the xyzac-trt-kins pins LinuxCNC loads at start (a .hal "
+                                      "file of setp lines, what `rtcal compensate --format linuxcnc-xyzac-trt` writes; "
+                                      "default: the scenario's nominal kinematics)")
     serve.add_argument("--opcua", action="store_true",
                        help="also serve the simulated machine's OPC 40001-1 identification over OPC UA (its opc.tcp:// "
                             "address on stderr; `rtcal probe machine` reads it, metadata.machine_identity uses it)")

@@ -5,10 +5,11 @@ and siemens_cec.py build on it."""
 from __future__ import annotations
 
 import re
+import textwrap
 
 import numpy as np
 
-from rtcal.compensation.base import FormatOption, axis_option
+from rtcal.compensation.base import ASCII, FormatOption, axis_option
 from rtcal.compensation.table import CompensationError, CompensationTable
 
 AXIS = axis_option(r"[A-Z][A-Z0-9_]{0,15}", "C1")
@@ -20,6 +21,9 @@ AXIS = axis_option(r"[A-Z][A-Z0-9_]{0,15}", "C1")
 # MD value, up to MAX_POINTS, the bound rtcal's parser reads (one turn at 0.01°)
 DEFAULT_POINTS = 200
 MAX_POINTS = 36001
+# the longest line a SINUMERIK NC reads is stated in no manual rtcal has (the examples' lines are
+# short): rtcal wraps its `;` lines at this width rather than write lines of 600 characters
+LINE_WIDTH = 100
 POINTS = FormatOption("max_points", "--max-points", "the most points the control's table takes (SINUMERIK: MD38000 "
                       "for LEC, MD18342 for CEC)", f"default {DEFAULT_POINTS}, the 808D/828D limit (K3 p. 264)", type=int)
 
@@ -31,6 +35,33 @@ def mean_from_reference(table: CompensationTable, reference_deg: float) -> np.nd
     offset of the whole curve changes no ISO 230-2 parameter."""
     mean = -(np.asarray(table.trim_up_deg) + np.asarray(table.trim_down_deg)) / 2
     return mean - float(np.interp(reference_deg, table.positions_deg, mean, period=360.0))
+
+
+def memory_warning(md: str) -> str:
+    """What a change of a memory-configuring machine datum (MD38000, MD18342) does: "The memory
+    required in the static user memory is 6.4 KB (8 bytes per compensation value)" (K3 p. 242)."""
+    return f"a change of {md} reorganises the NC memory (8 bytes of static user memory a point, K3 p. 242): back it up first"
+
+
+def semicolon_lines(texts: list[str]) -> list[str]:
+    """``;`` comment lines of at most LINE_WIDTH characters, plain ASCII; a text too long for one
+    line goes on under ``;   ``."""
+    out = []
+    for text in texts:
+        plain = "".join(c if c in "()" else ASCII.get(c, c) for c in text.removeprefix("; "))
+        plain = plain.encode("ascii", "replace").decode()
+        wrapped = textwrap.wrap(plain, LINE_WIDTH - 2, subsequent_indent="  ", break_long_words=True,
+                                break_on_hyphens=False) or [""]
+        out += [f"; {line}" for line in wrapped]
+    return out
+
+
+def line_length_reading() -> str:
+    """The longest line the NC reads: not stated; the check on the machine."""
+    return (f"the line length: no SINUMERIK manual rtcal has states the longest line the NC reads; rtcal keeps every "
+            f"line within {LINE_WIDTH} characters (its `;` lines wrapped). Check when loading: an alarm naming a line of "
+            "this file means the NC refuses it: delete the `;` lines (comments only, the table does not need them) and "
+            "load it again")
 
 
 def check_reference(reference_deg: float) -> float:

@@ -27,6 +27,11 @@ ASCII = {"″": " arcsec", "°": " deg", "—": "-", "–": "-", "−": "-", "�
 DEFAULT_MAX_TRIM_ARCSEC = 3600.0
 
 
+def plain_ascii(text: str) -> str:
+    """``text`` in a controller's character set: plain ASCII, no parentheses (they end a FANUC comment)."""
+    return "".join(ASCII.get(c, c) for c in text).encode("ascii", "replace").decode()
+
+
 @dataclass(frozen=True)
 class FormatOption:
     """An option a format's writer takes besides the table: the writer's ``keyword``, the
@@ -45,11 +50,16 @@ class FormatOption:
     noun: str = "value"
     example: str = ""
     flag_only: bool = False  # a switch (``--listing``): given or not, no value
+    required: bool = False  # no default a table could be silently wrong by (FANUC's detection unit): refused without it
 
     @property
     def dest(self) -> str:
         """The argparse attribute the flag fills (``--detection-unit-deg`` → ``detection_unit_deg``)."""
         return self.flag.lstrip("-").replace("-", "_")
+
+    def missing(self, fmt: str) -> CompensationError:
+        """The refusal of a table written without this required option: what it is and an example."""
+        return CompensationError(f"{fmt} needs {self.flag}: {self.help} ({self.default})")
 
     def check(self, fmt: str, value: Any) -> None:
         """A text option against its pattern; CompensationError naming the flag, the value and an example."""
@@ -92,6 +102,17 @@ class CompensationFormat:
         POWER ON, reference point...), one line each: `rtcal compensate` prints them."""
         return []
 
+    def readings(self, table: CompensationTable, **options: Any) -> list[str]:
+        """What rtcal assumes where no manual text it has settles how the control reads the file,
+        each with the one-point check that settles it on the machine, as commands an operator
+        types (docs/compensation.md): `rtcal compensate` prints them as `unsettled:` lines."""
+        return []
+
+    def comment_note(self, **options: Any) -> str | None:
+        """None when the file written with ``options`` carries the table's warnings; else why
+        it does not (`rtcal compensate` says so beside each warning on the console)."""
+        return None if self.comment is not None else f"a {self.name} file takes no comment"
+
     # ``write(table, **options) -> str``: the file's text for ``table`` (trims, deg), each of the
     # format's ``options`` a keyword with its default (declared so a subclass names its own); it
     # calls ``self.check_points(table)`` first unless, like LinuxCNC's, it checks its lines itself
@@ -118,11 +139,7 @@ class CompensationFormat:
         if self.comment is None:
             return []
         start, end = self.comment
-        lines = []
-        for text in table.warnings:
-            plain = "".join(ASCII.get(c, c) for c in f"rtcal warning: {text}").encode("ascii", "replace").decode()
-            lines.append(f"{start}{plain}{end}")
-        return lines
+        return [f"{start}{plain_ascii(f'rtcal warning: {text}')}{end}" for text in table.warnings]
 
     def check_points(self, table: CompensationTable, max_points: int | None = None) -> None:
         """The grid rule and the point limit (``max_points``: the control's as configured, else the
@@ -160,5 +177,8 @@ class CompensationFormat:
         if extra:
             raise CompensationError(f"{self.name} takes no {', '.join(flags.get(o, o) for o in extra)} "
                                     f"(its options: {', '.join(o.flag for o in self.options)})")
+        for option in self.options:
+            if option.required and options.get(option.keyword) is None:
+                raise option.missing(self.name)
         for keyword, value in options.items():
             own[keyword].check(self.name, value)

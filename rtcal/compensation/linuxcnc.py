@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from rtcal.compensation.base import CompensationFormat, FormatOption
+from rtcal.compensation.base import CompensationFormat, FormatOption, plain_ascii
 from rtcal.compensation.table import CompensationError, CompensationTable, sane
 
 
@@ -24,6 +24,7 @@ class LinuxCncFormat(CompensationFormat):
     options = (FormatOption("range_deg", "--range-deg", "the joint's travel to cover",
                             "default 0 360; LinuxCNC does not wrap a table", type=float, nargs=2, metavar=("LO", "HI")),)
     wraps = False
+    comment = ("# rtcal: ", "")  # after the table only: LinuxCNC stops reading at the first line that is not three numbers
     loading: ClassVar[str] = ("load it with COMP_FILE_TYPE = 0 in the joint's INI section (nominal, measured forward, measured reverse); "
                "read as type 1 (trims) it would move the joint by about its own position")
     footer = "# rtcal: "
@@ -56,8 +57,9 @@ class LinuxCncFormat(CompensationFormat):
         up = np.array([table.trim_deg(a, +1) for a in nominal])
         down = np.array([table.trim_deg(a, -1) for a in nominal])
         rows = "".join(f"{p:.6f} {p - u:.8f} {p - d:.8f}\n" for p, u, d in zip(nominal, up, down))
+        warnings = "".join(f"{self.footer}{plain_ascii(f'warning: {w}')}\n" for w in table.warnings)
         return (rows + f"{self.footer}COMP_FILE_TYPE = 0: {self.loading}\n"
-                f"{self.footer}LinuxCNC stops reading at the first line that is not three numbers (this one)\n")
+                f"{self.footer}LinuxCNC stops reading at the first line that is not three numbers (this one)\n" + warnings)
 
     def parse(self, text: str, where: str = "<linuxcnc>") -> CompensationTable:
         """As LinuxCNC reads it (usrmotintf.cc): three numbers a line, trims = nominal − actual; but

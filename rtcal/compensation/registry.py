@@ -18,7 +18,8 @@ from rtcal.registry import Registry
 ENTRY_POINT_GROUP = "rtcal.compensation_formats"
 BUILTIN = {"linuxcnc": "rtcal.compensation.linuxcnc:LinuxCncFormat", "siemens-lec": "rtcal.compensation.siemens_lec:SiemensLecFormat",
            "siemens-cec": "rtcal.compensation.siemens_cec:SiemensCecFormat", "fanuc": "rtcal.compensation.fanuc:FanucFormat",
-           "heidenhain": "rtcal.compensation.heidenhain:HeidenhainFormat"}
+           "heidenhain": "rtcal.compensation.heidenhain:HeidenhainFormat",
+           "isg-volcomp": "rtcal.compensation.isg_volcomp:IsgVolcompFormat"}
 """The built-in formats, registered as a plugin's are (by name and ``module:Class``, loaded on first use)."""
 # `rtcal compensate`'s own flags: a format's option may not take one
 RESERVED_FLAGS = frozenset({"--format", "--out", "--step-deg", "--allow-one-direction", "--max-gap-deg", "--help"})

@@ -45,8 +45,8 @@ class SiemensLecFormat(CompensationFormat):
         _siemens.check_size(max_points)
         self.check_points(table, max_points)
         values = _siemens.mean_from_reference(table, _siemens.check_reference(reference_deg))
-        lines = ["%_N_AX_EEC_INI", *self.comment_lines(table),
-                 *(f"; {line}" for line in self.instructions(table, axis=axis, reference_deg=reference_deg)), "CHANDATA(1)"]
+        lines = ["%_N_AX_EEC_INI", *_siemens.semicolon_lines(self.comment_lines(table) + self.instructions(
+                     table, axis=axis, reference_deg=reference_deg)), "CHANDATA(1)"]
         lines += [f"$AA_ENC_COMP[0,{i},{axis}]={v + 0.0:.8f}" for i, v in enumerate(values)]
         lines += [f"$AA_ENC_COMP_STEP[0,{axis}]={table.step_deg:.6f}", f"$AA_ENC_COMP_MIN[0,{axis}]=0.0",
                   f"$AA_ENC_COMP_MAX[0,{axis}]=360.0", f"$AA_ENC_COMP_IS_MODULO[0,{axis}]=1", "M17"]
@@ -65,12 +65,15 @@ class SiemensLecFormat(CompensationFormat):
                        "the backlash compensation's; 808D Parameter Manual p. 228: positive when the encoder leads the "
                        "machine part); NEW CONF")
         return [f"MD38000 $MA_MM_ENC_COMP_MAX_POINTS[0,{axis}] >= {n} (the table's {n} points; K3 p. 242; on an 808D at "
-                "most 200, p. 106); a change of MD38000 reorganises the NC memory: back it up first",
+                f"most 200, p. 106); {_siemens.memory_warning('MD38000')}",
                 f"load this file while MD32700 $MA_ENC_COMP_ENABLE[0,{axis}] = 0, then set it to 1 and POWER ON (K3 p. 238, "
                 "808D p. 106)",
                 f"the compensation acts only once {axis} is referenced; the table is 0 at its reference point, {reference:g} deg "
                 "(K3 p. 238: no position jump when the LEC is activated)",
                 md32450]
+
+    def readings(self, table: CompensationTable, **options: Any) -> list[str]:
+        return [_siemens.line_length_reading()]
 
     def parse(self, text: str, where: str = "<siemens-lec>") -> CompensationTable:
         points, settings, _ = _siemens.values(text, where, "AA_ENC_COMP")

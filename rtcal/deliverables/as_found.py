@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from rtcal.deliverables.certificate import (ISO_KEYS, ISO_MEANING, ISO_SYMBOL, Certificate, CertifiedMethod, Item, KeyResult,
-                                           ParameterRow, Table, build_certificate, iso_departures, measurement_dates)
+                                           ParameterRow, Table, build_certificate, iso_departures, marking,
+                                           measurement_dates, signature_line)
 from rtcal.deliverables.conformity import parameter_uncertainties
 from rtcal.deliverables.rounding import u_text, value_text
 from rtcal.results.model import RunResults
@@ -65,10 +66,17 @@ def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict
     parameters = cert.parameters.model_copy(update={
         "heading": "ISO 230-2 parameters: as found → as left (U as found / as left, k = 2)", "rows": table, "vdi_rows": []}) \
         if cert.parameters else None
+    marks = [m for m in (marking(found), marking(left)) if m]  # either run calibrating nothing makes this no calibration
+    signed = (f"Not itself signed: written from two runs. As found: {signature_line(found)} As left: "
+              f"{signature_line(left)}")
     return cert.model_copy(update={
         "header": cert.header.model_copy(update={
             "title": "Calibration certificate",
-            "subtitle": "Angular positioning deviation of a rotary axis, as found and as left"}),
+            "subtitle": "Angular positioning deviation of a rotary axis, as found and as left",
+            "marking": marks[0] if marks else "",
+            "footer": cert.header.footer if cert.header.marking or not marks
+            else f"{marks[0].partition(':')[0]} · {cert.header.footer}"}),
+        "sign_off": cert.sign_off.model_copy(update={"electronic_signature": signed}),
         "identification": cert.identification.model_copy(update={"items": identification}),
         "result_in_brief": cert.result_in_brief.model_copy(update={"rows": [
             KeyResult(quantity="change of the deviation per target and direction (as left − as found)",

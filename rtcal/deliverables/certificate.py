@@ -28,7 +28,7 @@ from rtcal.deliverables.deviations import PositioningDeviations
 from rtcal.deliverables.evaluation import UNCONFIRMED
 from rtcal.deliverables.departures import departures, parameters_label
 from rtcal.deliverables.method_outputs import MethodOutputs
-from rtcal.deliverables.rounding import fmt, u_text, value_text
+from rtcal.deliverables.rounding import fmt, significant, u_text, value_text
 from rtcal.results.model import EnvironmentSummary, InstrumentRecord, QuantityEstimate, RunResults
 
 SCHEMA_VERSION = "1.0"
@@ -309,6 +309,11 @@ def key_results(results: RunResults, uncertainties: dict[str, float | None]) -> 
                 continue
             u = uncertainties.get(key)
             rows.append((f"{ISO_SYMBOL[key]}: {prefix}{ISO_MEANING[key]}", f"{value_text(value, u)}″", "U " + u_text(u) + "″"))
+    p = results.periodic_error
+    if p is not None:
+        rows.append((f"periodic positioning error over {period_text(p.period_deg, 1.0 if p.worm_ratio else None)} (ISO 230-2:2014 "
+                     "Annex C as rtcal reads it)", f"{value_text(p.periodic_error_arcsec, p.expanded_uncertainty_arcsec)}″",
+                     "U " + u_text(p.expanded_uncertainty_arcsec) + "″"))
     return rows
 
 
@@ -317,6 +322,8 @@ def plural(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
+ITEM_STATES = {"as_found": "as found: as received, before any adjustment or compensation",
+               "as_left": "as left: after adjustment or compensation"}
 NOTABLE_EVENTS = ("fault", "retry", "reacquire", "skip", "pause", "abort", "resume")
 
 
@@ -342,6 +349,8 @@ class Header(Part):
     laboratory_address: str = Field(description="its address")
     certificate_number: str = Field(description="the certificate's unique identification (empty: not given)")
     not_certificate: str = Field(description="why this is not a certificate (empty: it is one)")
+    marking: str = Field("", description="SIMULATED / REHEARSED — not a calibration, and why: every page's header and "
+                                         "footer carry it (empty: real instruments, not rehearsed)")
     footer: str = Field(description="the left part of every page's footer")
     closing: str = Field(description="the document's last line")
 
@@ -404,6 +413,8 @@ class SignOff(Part):
     approved_by: str
     date_of_issue: str = Field(description="YYYY-MM-DD")
     signing: str = Field(description="how the document was approved for issue")
+    electronic_signature: str = Field("", description="who signed the run's digests and with which key (its fingerprint), "
+                                                      "or that the run is unsigned")
 
     def items(self) -> list[Item]:
         return [Item(label="Performed by", value=self.performed_by), Item(label="Approved by", value=self.approved_by),
@@ -437,6 +448,51 @@ class Parameters(Part):
     vdi_header: list[str] = ["VDI 3441 symbol", "VDI 3441 meaning", "value / ″"]
     vdi_rows: list[ParameterRow] = []
     notes: list[str] = []
+
+
+class FigureRow(Part):
+    """One figure of another standard, as the page states it."""
+
+    symbol: str = Field(description="the standard's own symbol (e.g. UPR, No. 346, TUR (E))")
+    value: str = Field(description="the value with its unit (″), rounded as its U; a ratio without unit")
+    expanded_uncertainty: str = Field(description="its U (k = 2) in arcsec, or – where not evaluated for this form")
+    edition: str = Field(description="the edition whose definition gives it")
+    coverage: str = Field(description="the coverage of the scatter in it (k = 2, 3s, 6s, none)")
+    definition: str = Field(description="the definition in words")
+    beside: str = Field("", description="what it stands beside (a TUR: the verdict it belongs to)")
+
+
+class StandardBlock(Part):
+    """One standard's figures under its own title, never another's."""
+
+    label: str = Field(description="the label the procedure's evaluation.standards names it by")
+    title: str = Field(description="the standard's title and edition, as the figures are headed")
+    rows: list[FigureRow]
+    rule: str = Field(description="how these figures relate to ISO 230-2:2014's (empty: they are its own)")
+    notes: list[str] = Field(description="undefined figures, what is not confirmed")
+
+
+class OtherStandards(Part):
+    """The figures the procedure's ``evaluation.standards`` asks for, from the same readings."""
+
+    heading: str = "Figures to other standards (from the same readings)"
+    note: str = Field(description="what the figures are made from")
+    header: list[str] = ["symbol", "value", "U (k = 2) / ″", "definition (edition; coverage)"]
+    blocks: list[StandardBlock]
+
+
+class PeriodicErrorSection(Part):
+    """ISO 230-2:2014 Annex C's periodic positioning error: the figure and the period's harmonics when
+    the run made the fine-step test, "not tested" otherwise."""
+
+    heading: str = "Periodic positioning error (ISO 230-2:2014 Annex C)"
+    tested: bool = Field(description="the run made a fine-step test through a period")
+    statement: str = Field(description="not tested, or the figure's definition and what it rests on")
+    header: list[str] = ["quantity", "value", "U (k = 2)"]
+    rows: list[KeyResult] = Field(description="the figure per direction and of the axis (empty: not tested)")
+    harmonic_header: list[str] = ["order per turn", "period", "amplitude / ″", "1σ / ″", "significant"]
+    harmonic_rows: list[list[str]] = Field(description="the period's harmonics (empty: not tested)")
+    notes: list[str] = Field(description="the reference read and what the figure leaves out")
 
 
 class Figure(Part):
@@ -541,6 +597,8 @@ class Certificate(BaseModel):
     sign_off: SignOff
     deviations: Table | None = Field(description="the positioning deviation per target and direction")
     parameters: Parameters | None = Field(description="None: no ISO 230-2 evaluation")
+    other_standards: OtherStandards | None = Field(description="None: the procedure asks for no other standard's figures")
+    periodic_error: PeriodicErrorSection = Field(description="ISO 230-2:2014 Annex C: the figure, or not tested")
     tables: list[Table] = Field(description="the method's own tables (ISO 230-7 location, error motions)")
     figures: list[Figure]
     budget: Budget | None = Field(description="None: no recommended estimate")
@@ -583,9 +641,28 @@ def subject(results: RunResults) -> str:
     return "Angular positioning deviation of a rotary axis"
 
 
+def marking(results: RunResults) -> str:
+    """What every page says of a run that measured no real item or was rehearsed ("": a calibration):
+    results.json's statement, or for a file from before 1.4 its in-process instruments."""
+    if results.simulation is not None:
+        return results.simulation.statement
+    if isinstance(results.instruments, str):
+        return "SIMULATED — NOT A CALIBRATION: every instrument and the table were simulated in process on a model bench"
+    return ""
+
+
+def signature_line(results: RunResults) -> str:
+    """Who signed the run's digests, with which key; or that it is unsigned."""
+    sig = results.signature
+    if sig is None:
+        return "Unsigned: no laboratory key was configured (its digests show accidents, not forgery)."
+    return f"Signed electronically by {sig.signer}, Ed25519 key {sig.key_fingerprint} (signature.json)."
+
+
 def _header(s: Sources) -> Header:
     meta, results = s.results.metadata, s.results
-    footer = " · ".join(x for x in (meta.laboratory or results.procedure.name or results.method,
+    footer = " · ".join(x for x in (marking(results).partition(":")[0],  # first: a long name never cuts it off
+                                    meta.laboratory or results.procedure.name or results.method,
                                     f"Certificate {meta.certificate_number}" if meta.certificate_number else "") if x)
     return Header(title="Calibration certificate" if not s.missing else "Calibration report",
                   subtitle=subject(results),
@@ -593,6 +670,7 @@ def _header(s: Sources) -> Header:
                   certificate_number=meta.certificate_number,
                   not_certificate=("Not a calibration certificate: the procedure's metadata does not give "
                                    + ", ".join(s.missing) + "." if s.missing else ""),
+                  marking=marking(results),
                   footer=footer, closing="End of report." if s.missing else "End of certificate.")
 
 
@@ -607,10 +685,13 @@ def _identification(s: Sources) -> Identification:
                                  f"serial number {meta.serial_number}" if meta.serial_number else "") if x)
     rows = [
         ("Certificate number", meta.certificate_number or "not given"),
+        *([("Replaces", f"certificate {meta.replaces}, which this certificate supersedes (that one is withdrawn, "
+                        "and kept)")] if meta.replaces else []),
         ("Date of issue", s.issued),
         ("Customer", ", ".join(x for x in (meta.customer, meta.customer_address) if x) or "not given"),
         ("Item calibrated", item or "not given"),
         ("Condition on receipt", getattr(meta, "condition_on_receipt", "") or "not recorded"),
+        *([("State of the item", ITEM_STATES[meta.item_state])] if meta.item_state else []),
         ("Place of calibration", meta.location or "not given"),
         ("Date of measurement", measurement_dates(results)),
         ("Method", s.outputs.method_name() or results.method),
@@ -625,6 +706,8 @@ def _identification(s: Sources) -> Identification:
         rows.append(("Instruments", "simulated: every instrument and the table are simulated on a model bench "
                                     f"({Path(results.bench or '').name or 'ideal'}, random sequence no. {results.seed}); "
                                     "a demonstration, not a measurement of a real item"))
+    if results.simulation is not None and (results.simulation.simulators or results.simulation.rehearsed):
+        rows.append(("Simulation", results.simulation.statement))  # what each said: results.json, `simulation`
     notes = [f"Estimator {n} {st.status}: {st.message}" for n, st in results.solver_status.items()
              if st.status != "converged"]
     if results.bench is not None and results.bench.startswith("ideal bench"):
@@ -673,7 +756,8 @@ def _sign_off(s: Sources) -> SignOff:
     signing = (SIGNING_STATEMENT.format(doc=s.doc, approver=meta.approved_by, date=s.issued) if meta.approved_by else
                f"This {s.doc} has not been approved for issue (the procedure's metadata names no approver).")
     return SignOff(performed_by=meta.performed_by or meta.operator or "not stated",
-                   approved_by=meta.approved_by or "not approved", date_of_issue=s.issued, signing=signing)
+                   approved_by=meta.approved_by or "not approved", date_of_issue=s.issued, signing=signing,
+                   electronic_signature=signature_line(s.results))
 
 
 def _deviations(s: Sources) -> Table | None:
@@ -721,6 +805,81 @@ def _parameters(s: Sources) -> Parameters | None:
         if vdi else [], notes=notes)
 
 
+def _other_standards(s: Sources) -> OtherStandards | None:
+    from rtcal.deliverables.conformity import parameter_uncertainties
+    from rtcal.deliverables.standards import ARCSEC, standard_figures
+
+    results = s.results
+    labels = results.procedure.standards or []
+    if not labels or results.positioning_deviations is None:
+        return None
+    table = PositioningDeviations.from_model(results.positioning_deviations)
+    u = parameter_uncertainties(results)
+    blocks = []
+    for label in labels:
+        try:
+            found = standard_figures(label, table, u, results.conformity)
+        except ValueError as exc:  # a TUR without a verdict: said, not skipped
+            blocks.append(StandardBlock(label=label, title=label, rows=[], rule="", notes=[str(exc)]))
+            continue
+        rows = [FigureRow(symbol=f.symbol,
+                          value=(value_text(f.value, f.expanded_uncertainty) + "″" if f.unit == ARCSEC and f.value is not None
+                                 else "–" if f.value is None else f"{f.value:.1f}"),
+                          expanded_uncertainty=u_text(f.expanded_uncertainty), edition=f.edition, coverage=f.coverage,
+                          definition=f.definition, beside=f.beside) for f in found.figures]
+        notes = [n for n in found.notes if n not in UNCONFIRMED.values()]
+        blocks.append(StandardBlock(label=found.label, title=found.title, rows=rows, rule=found.rule, notes=notes))
+    prefix = "" if not s.departed else "Computed as each standard defines them from a test that departs from ISO 230-2's (see page 1). "
+    return OtherStandards(note=prefix + "Each figure is computed from the same positioning deviations as the ISO 230-2 "
+                          "parameters, by its own standard's definition and under its own title; U (k = 2) is given where "
+                          "the figure is the same quantity as an ISO 230-2:2014 parameter.", blocks=blocks)
+
+
+NOT_TESTED = ("Not tested: this run made no fine-step test through a period of the axis (procedures/periodic_error.yaml "
+              "makes one).")
+
+
+def period_text(period_deg: float, worm_revolutions: float | None) -> str:
+    """A period in degrees and, where the worm ratio is stated, in worm revolutions."""
+    revs = "" if worm_revolutions is None else f" = {worm_revolutions:.4g} worm revolution" + (
+        "" if abs(worm_revolutions - 1) < 1e-9 else "s")
+    return f"{period_deg:.4g}°{revs}"
+
+
+def _periodic_error(s: Sources) -> PeriodicErrorSection:
+    p = s.results.periodic_error
+    if p is None:
+        return PeriodicErrorSection(tested=False, statement=NOT_TESTED, rows=[], harmonic_rows=[], notes=[])
+    U = p.expanded_uncertainty_arcsec
+    over = f"over one period of {period_text(p.period_deg, 1.0 if p.worm_ratio else None)}"
+    up, down = p.expanded_uncertainty_up_arcsec, p.expanded_uncertainty_down_arcsec
+    rows = [KeyResult(quantity=f"periodic positioning error ↑ {over}", value_arcsec=value_text(p.periodic_error_up_arcsec, up) + "″",
+                      expanded_uncertainty_arcsec=u_text(up) + "″"),
+            KeyResult(quantity=f"periodic positioning error ↓ {over}",
+                      value_arcsec=value_text(p.periodic_error_down_arcsec, down) + "″", expanded_uncertainty_arcsec=u_text(down) + "″"),
+            KeyResult(quantity="periodic positioning error of the axis (the larger)",
+                      value_arcsec=value_text(p.periodic_error_arcsec, U) + "″", expanded_uncertainty_arcsec=u_text(U) + "″")]
+    harmonics = [[str(h.order), period_text(h.period_deg, h.period_worm_revolutions), f"{h.amplitude_arcsec:.2f}",
+                  f"{h.amplitude_sigma_arcsec:.2f}", "yes" if h.significant else "no"] for h in p.harmonics]
+    return PeriodicErrorSection(
+        tested=True, statement=p.definition + f". Steps of {p.step_deg:g}° from {p.start_deg:g}°, "
+        f"{p.targets_per_period} targets per period, both directions as the procedure states.", rows=rows,
+        harmonic_rows=harmonics, notes=[f"Reference: {p.reference}."] + list(p.notes))
+
+
+def standards_on_certificate(results: RunResults) -> str:
+    """The standards whose figures the certificate states, in a sentence (the method section's)."""
+    from rtcal.procedure.standards import STANDARDS as LABELLED
+
+    named = ["ISO 230-2:2014 (E, M, B, R, A)", "VDI/DGQ 3441:1977 (Pa, P, Ps, U)"] if results.evaluation else []
+    named += [LABELLED[label].title for label in results.procedure.standards or []]
+    if results.periodic_error is not None:
+        named.append("the periodic positioning error of ISO 230-2:2014 Annex C (as rtcal reads the annex: see its section)")
+    periodic = "" if results.periodic_error is not None else " The periodic positioning error (ISO 230-2:2014 Annex C) was not tested."
+    return ("Figures on this certificate: " + "; ".join(named) + "." if named else
+            "No positioning-test figures are on this certificate (no positioning deviations).") + periodic
+
+
 def _tables(s: Sources) -> list[Table]:
     return [Table(heading=t["heading"], note=t["note"], header=list(t["header"]), rows=[list(r) for r in t["rows"]],
                   numeric_from_column=1) for t in s.outputs.certificate_tables()]  # the method's own, e.g. ISO 230-7's
@@ -738,7 +897,7 @@ def _budget(s: Sources) -> Budget | None:
     b = e.uncertainty_budget
     rows = []
     for c in b.components:
-        stated = c.note if "," in c.unit else f"{c.input_sigma:.3g} {c.unit}"  # several inputs: say them
+        stated = c.note if "," in c.unit else f"{significant(c.input_sigma)} {c.unit}"  # several inputs: say them
         rows.append(BudgetRow(source=c.source, type=c.type, input=stated + (" (from the data)" if c.estimated_from_data else ""),
                               contribution_arcsec=_fmt(largest(c.contribution_arcsec), 3)))
     comb = largest(b.combined_arcsec)
@@ -749,7 +908,8 @@ def _budget(s: Sources) -> Budget | None:
 
 
 def _method(s: Sources) -> Method:
-    return Method(name=s.outputs.method_name() or s.results.method, paragraphs=list(s.outputs.method_text()))
+    return Method(name=s.outputs.method_name() or s.results.method,
+                  paragraphs=list(s.outputs.method_text()) + [standards_on_certificate(s.results)])
 
 
 def _standards(s: Sources) -> Standards:
@@ -802,7 +962,8 @@ def _report_body(s: Sources) -> list[str]:
 SECTION_BUILDERS: list[tuple[str, Callable[[Sources], Any]]] = [
     ("header", _header), ("identification", _identification), ("result_in_brief", _result_in_brief),
     ("conformity", _conformity), ("traceability", _traceability), ("sign_off", _sign_off), ("deviations", _deviations),
-    ("parameters", _parameters), ("tables", _tables), ("figures", _figures), ("budget", _budget), ("method", _method),
+    ("parameters", _parameters), ("other_standards", _other_standards),
+    ("periodic_error", _periodic_error), ("tables", _tables), ("figures", _figures), ("budget", _budget), ("method", _method),
     ("standards", _standards), ("conditions", _conditions), ("control", _control), ("run", _run),
     ("report_body", _report_body),
 ]

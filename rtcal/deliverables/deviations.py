@@ -32,6 +32,11 @@ MAX_DEVIATION_ARCSEC = 1_296_000.0  # one turn: no positioning deviation or unce
 PLAUSIBLE_DEVIATION_ARCSEC = 3600.0
 
 
+def _rounded(value: float, digits: int) -> float:
+    """``value`` to ``digits`` places, a rounding zero as 0 (never −0: a deviation of −1e-16 is no sign)."""
+    return round(float(value), digits) + 0.0
+
+
 class DeviationTableError(ValueError):
     """A deviation table (CSV or results.json) that cannot be read; the message says where."""
 
@@ -82,7 +87,7 @@ class PositioningDeviations:
         there: the estimate has it)."""
         def col(a: np.ndarray, d: int | None = None) -> list[float | None]:
             a = np.asarray(a, float)
-            return [None if not np.isfinite(v) else (round(float(v), d) if d is not None else float(v)) for v in a]
+            return [None if not np.isfinite(v) else (_rounded(v, d) if d is not None else float(v)) for v in a]
 
         return DeviationTable(
             estimator=self.estimator,
@@ -116,13 +121,14 @@ class PositioningDeviations:
         w = csv.writer(out, lineterminator="\n")
         w.writerow(CSV_HEADER + CSV_OPTIONAL)
         for t, d, r, x, u in zip(self.target_deg, self.direction, self.run, self.deviation_arcsec, self.uncertainty_arcsec):
-            w.writerow([f"{float(t):.9g}", int(d), int(r), "" if not np.isfinite(x) else f"{float(x):.4f}",
-                        "" if not np.isfinite(u) else f"{float(u):.4f}"])
+            w.writerow([f"{float(t):.9g}", int(d), int(r), "" if not np.isfinite(x) else f"{_rounded(x, 4):.4f}",
+                        "" if not np.isfinite(u) else f"{_rounded(u, 4):.4f}"])
         return out.getvalue()
 
     def write_csv(self, path: Path) -> Path:
         path.write_text(self.to_csv(), encoding="utf-8")
         return path
+
 
     @classmethod
     def read_csv(cls, path: str | Path, max_rows: int = 1_000_000) -> "PositioningDeviations":

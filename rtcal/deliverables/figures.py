@@ -7,6 +7,7 @@ import textwrap
 import matplotlib
 
 matplotlib.use("Agg")
+matplotlib.rcParams["text.parse_math"] = False  # every text drawn as written: a serial or a name with `$…$` is no formula
 import matplotlib.pyplot as plt  # noqa: E402  (re-exported for the modules that plot)
 
 __all__ = ["legend_below", "plt"]

@@ -9,7 +9,11 @@ from typing import Any, Protocol
 
 
 class MethodOutputs(Protocol):
-    """What a method adds to a run directory, the report and the console, from its results alone."""
+    """What a method adds to a run directory, the report and the console, from its results alone.
+
+    Optional members, read with ``getattr`` where present: ``estimate_words()`` (the recommended
+    estimate in words) and ``iso230_1_errors()`` (the axis's error motions and location errors,
+    :mod:`rtcal.compensation.geometry`, for a volumetric compensation table)."""
 
     def write_files(self, run_dir: Path) -> list[Path]:
         """The method's own files (CSV, figures) into ``run_dir``; returns their paths."""

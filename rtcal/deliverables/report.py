@@ -35,8 +35,9 @@ def write_html(certificate: Certificate, path: Path) -> Path:
     env = Environment(loader=FileSystemLoader(Path(__file__).parent / "templates"), autoescape=select_autoescape(["j2"]))
     figures = [(base64.b64encode(certificate.figure_path(f, path).read_bytes()).decode("ascii"), f.caption) for f in certificate.figures]
     footer_css = "".join(ch for ch in certificate.header.footer if ch not in '"\\<>&\n\r')
-    path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css),
-                    encoding="utf-8")
+    marking_css = "".join(ch for ch in certificate.header.marking if ch not in '"\\<>&\n\r')
+    path.write_text(env.get_template("report.html.j2").render(c=certificate, figures=figures, footer_css=footer_css,
+                                                              marking_css=marking_css), encoding="utf-8")
     return path
 
 
@@ -131,6 +132,24 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                                     table([(r.symbol, r.meaning, r.value_arcsec) for r in p.vdi_rows], p.vdi_header,
                                           [26 * mm, width - 48 * mm, 22 * mm])])]
         story += [Paragraph(esc(n), small) for n in p.notes]
+    if c.other_standards:
+        o = c.other_standards
+        story += [Paragraph(esc(o.heading), h2), Paragraph(esc(o.note), small)]
+        title = ParagraphStyle("block", parent=body, keepWithNext=1, spaceBefore=3)
+        for blk in o.blocks:  # a long table splits over pages (its header repeated); its title stays with it
+            story += [Paragraph(f"<b>{esc(blk.title)}</b>", title)]
+            if blk.rows:
+                story.append(table([(r.symbol, r.value, r.expanded_uncertainty, figure_definition(r)) for r in blk.rows],
+                                   o.header, [20 * mm, 24 * mm, 20 * mm, width - 64 * mm]))
+            story += [Paragraph(esc(t), small) for t in [blk.rule] + blk.notes if t] + [Spacer(1, 1.5 * mm)]
+    pe = c.periodic_error
+    story += [Paragraph(esc(pe.heading), h2), Paragraph(esc(pe.statement), small)]
+    if pe.tested:
+        story += [Spacer(1, 1.5 * mm), table([(k.quantity, k.value_arcsec, k.expanded_uncertainty_arcsec) for k in pe.rows],
+                                              pe.header, [width - 60 * mm, 36 * mm, 24 * mm]),
+                  Spacer(1, 1.5 * mm), table(pe.harmonic_rows, pe.harmonic_header,
+                                             [26 * mm, width - 104 * mm, 26 * mm, 26 * mm, 26 * mm])]
+        story += [Paragraph(esc(n), small) for n in pe.notes]
     for t in c.tables:
         story += [KeepTogether([Paragraph(esc(t.heading), h2), Paragraph(esc(t.note), small), Spacer(1, 1.5 * mm),
                                 table(t.rows, t.header, [18 * mm, width - 74 * mm, 28 * mm, 28 * mm]
@@ -165,6 +184,7 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
               Spacer(1, 4 * mm), Paragraph(f"<b>{esc(hd.closing)}</b>", body)]
 
     footer_left = hd.footer
+    marking = hd.marking
 
     class NumberedCanvas(Canvas):
         """Keeps each page until the count is known, then draws its footer last: "page N of M"."""
@@ -181,6 +201,11 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
             total = len(self._pages)
             for state in self._pages:
                 self.__dict__.update(state)
+                if marking:  # every page's head: a page taken alone still says it is no calibration
+                    self.setFont(bold, 7)
+                    self.setFillColor(colors.HexColor("#c0392b"))
+                    self.drawCentredString(A4[0] / 2, A4[1] - 8 * mm, marking[:150])
+                    self.setFillColor(colors.black)
                 self.setFont(font, 7)
                 self.setStrokeColor(colors.HexColor("#3a5a80"))
                 self.line(15 * mm, 13 * mm, A4[0] - 15 * mm, 13 * mm)
@@ -189,9 +214,9 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                 super().showPage()
             super().save()
 
-    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()], [c.sign_off.signing, "", ""]], None,
-                       [width / 3] * 3)
-    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed, under who signed it
+    signatures = table([[f"{i.label}: {i.value}" for i in c.sign_off.items()],
+                        [f"{c.sign_off.signing} {c.sign_off.electronic_signature}".strip(), "", ""]], None, [width / 3] * 3)
+    signatures.setStyle(TableStyle([("SPAN", (0, 1), (-1, 1))]))  # how it is signed and by which key, under who
     sign_h = signatures.wrap(width, 40 * mm)[1] + 4 * mm
 
     def sign(canvas, doc):  # page 1's foot: who performed and approved it, whatever the page holds above
@@ -206,6 +231,12 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                           PageTemplate("later", [later])])
     doc.build(story, canvasmaker=NumberedCanvas)
     return path
+
+
+def figure_definition(row: Any) -> str:
+    """A figure's definition with its edition and coverage (and the verdict a TUR stands beside), in one cell."""
+    text = f"{row.definition} ({row.edition}; coverage: {row.coverage})"
+    return f"{text}. {row.beside}" if row.beside else text
 
 
 def _fonts(pdfmetrics, TTFont) -> tuple[str, str]:
@@ -227,6 +258,8 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
     table, the method's body, the run's events."""
     c, r = certificate, certificate.run
     lines = [f"# {r.report_title}", ""]
+    if c.header.marking:
+        lines += [f"> **{c.header.marking}**", ""]
     for issue in r.solver_issues:
         lines.append(f"> **Estimator `{issue.estimator}` {issue.status}**: {issue.message}")
         lines.append(">")
@@ -247,6 +280,7 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
         lines += [f"- instruments: {r.simulated}"]
     if r.recommended:
         lines.append(f"- recommended estimate: `{r.recommended}` (converged, smallest uncertainty)")
+    lines.append(f"- signature: {c.sign_off.electronic_signature}")
     lines.append("")
     if c.conformity:
         v = c.conformity
@@ -255,6 +289,23 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
         lines += [f"| {x.symbol} | {x.value_arcsec} | {x.limit_arcsec} | {x.expanded_uncertainty_arcsec} | "
                   f"{x.guard_band_arcsec} | {x.verdict} |" for x in v.rows]
         lines += [""] + [f"- {n}" for n in v.notes] + [""]
+    pe = c.periodic_error
+    lines += [f"## {pe.heading}", "", pe.statement, ""]
+    if pe.tested:
+        lines += ["| " + " | ".join(pe.header) + " |", "|---|---|---|"]
+        lines += [f"| {k.quantity} | {k.value_arcsec} | {k.expanded_uncertainty_arcsec} |" for k in pe.rows]
+        lines += ["", "| " + " | ".join(pe.harmonic_header) + " |", "|---|---|---|---|---|"]
+        lines += ["| " + " | ".join(r) + " |" for r in pe.harmonic_rows] + [""] + [f"- {n}" for n in pe.notes] + [""]
+    if c.other_standards:
+        o = c.other_standards
+        lines += [f"## {o.heading}", "", o.note, ""]
+        for blk in o.blocks:
+            lines += [f"### {blk.title}", ""]
+            if blk.rows:
+                lines += ["| " + " | ".join(o.header) + " |", "|---|---|---|---|"]
+                lines += [f"| {r.symbol} | {r.value} | {r.expanded_uncertainty} | {figure_definition(r)} |" for r in blk.rows]
+                lines.append("")
+            lines += [f"- {t}" for t in [blk.rule] + blk.notes if t] + [""]
     lines += c.report_body
     if r.event_counts != "none":
         lines += ["## Events", "", r.event_counts, ""] + [f"- {e}" for e in r.notable_events]

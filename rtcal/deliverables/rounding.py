@@ -55,3 +55,13 @@ def value_text(value: float | None, uncertainty: float | None, sign: str = "") -
 def fmt(v: float | None, spec: str) -> str:
     """A value as ``format(v, spec)``; "–" for a missing one."""
     return "–" if v is None else format(v, spec)
+
+
+def significant(value: float, digits: int = 3) -> str:
+    """``value`` to ``digits`` significant digits as a person writes it — 1000, 2500, 0.0123, 2.5 —
+    never in exponent form ("1e+03" on a certificate reads as a typo)."""
+    if not math.isfinite(value) or value == 0:
+        return format(value, "g")
+    places = digits - 1 - math.floor(math.log10(abs(value)))
+    text = format(round(value, places), f".{max(places, 0)}f")
+    return text.rstrip("0").rstrip(".") if "." in text else text

@@ -23,10 +23,14 @@ Written once here, for every method:
   operator is asked is published as an ``operator`` document, its answer as a ``confirm`` event.
 - **one safe-state path** — however a run ends early (a fault abort, a remote abort, Ctrl-C,
   SIGTERM, SIGHUP, SIGQUIT or any other signal that would end the process, an unexpected error)
-  every device the engine moved is stopped before the exception goes on to the caller, which
+  every device the engine moved is sent its stop, then each is watched until its position is
+  seen not to change (``wait_stopped``), before the exception goes on to the caller, which
   records the status and closes the connections; a second signal does not cut the stop short.
-  Each abort and interruption is an ``abort`` event naming who asked (the live page, `rtcal
-  control`, the signal).
+  Each machine is then a ``stopped`` event (where it was seen at rest) or a ``moving`` event
+  (it may still be moving: its last position and why it was not seen still), and the exception
+  carries a note naming it. Each abort and interruption is an ``abort`` event naming who asked
+  (the live page, `rtcal control`, the signal), which says "every machine the run moved was
+  stopped" only when each was seen at rest.
 
 Documents (``subscriber(name, doc)``, called in the engine's thread, in order): ``start``,
 ``state``, ``attempt``, ``readings``, ``event``, ``operator``, ``done``, ``stop``. The store writer, the console
@@ -43,7 +47,7 @@ from typing import Any, Callable, Collection, Iterable, Mapping, Protocol, Seque
 import numpy as np
 
 from drivers.errors import InstrumentError, InstrumentFault, TrackingLost
-from drivers.interfaces import FieldDescription, Instrument, Value
+from drivers.interfaces import FieldDescription, Instrument, StopSeen, Value
 from rtcal.clock import Clock, VirtualClock
 from rtcal.engine import signals
 from rtcal.engine.walk import Motion, Timing
@@ -67,14 +71,16 @@ class Device(Protocol):
 
 @runtime_checkable
 class Mover(Device, Protocol):
-    """A device the engine moves (a stage, a CMM): it checks targets, moves, and stops (what the one
-    safe-state path asks of everything moved)."""
+    """A device the engine moves (a stage, a CMM): it checks targets, moves, stops at once, and says
+    whether it was then seen at rest (what the one safe-state path asks of everything moved)."""
 
     def check_target(self, target: Any, /) -> None: ...
 
     def move_to(self, target: Any, /) -> None: ...
 
     def stop(self) -> None: ...
+
+    def wait_stopped(self) -> StopSeen: ...
 
 
 class Reader(Device, Protocol):
@@ -137,6 +143,7 @@ class Engine:
         self.faults_seen = 0
         self._moved: dict[str, Mover] = {}  # devices this engine has commanded, in order: what a safe stop stops
         self._safe = False
+        self.stops: dict[str, StopSeen] = {}  # what the safe stop saw of each machine moved
         self._pause = threading.Event()
         self._abort = threading.Event()
         self._abort_by = ""
@@ -241,11 +248,15 @@ class Engine:
                 with signals.held():  # nothing cuts the stop short; what comes meanwhile is raised after it
                     if not self._safe:
                         self._safe_state()
+                    moving = self.still_moving()
+                    if moving:  # whoever prints the error says it too (the console)
+                        exc.__notes__ = [*getattr(exc, "__notes__", []), *(f"WARNING: {m}" for m in moving.values())]
+                    stopped = ("; ".join(moving.values()) if moving else "every machine the run moved was stopped" +
+                               (f" ({self._where_stopped()})" if self.stops else ""))
                     if isinstance(exc, KeyboardInterrupt):
-                        self._event("abort", None, f"{self._why(exc)}: every machine the run moved was stopped; "
-                                                   "`rtcal resume` goes on")
+                        self._event("abort", None, f"{self._why(exc)}: {stopped}; `rtcal resume` goes on")
                     elif not isinstance(exc, RunAborted):  # a policy's abort said why already; anything else says it here
-                        self._event("abort", None, f"{_what_stopped(exc)}: every machine the run moved was stopped")
+                        self._event("abort", None, f"{_what_stopped(exc)}: {stopped}")
                     self._set_state("failed" if isinstance(exc, RunAborted) or not isinstance(exc, KeyboardInterrupt)
                                     else "aborted")
                     self.emit("stop", state=self.state, reason=str(exc) or type(exc).__name__, t_s=self.clock.now_s())
@@ -263,6 +274,14 @@ class Engine:
                 row_context(entry.context, self.context_columns)
             except ValueError as exc:
                 raise PlanError(f"{plan.method}: planned reading {entry.index}: {exc}") from None
+
+    def still_moving(self) -> dict[str, str]:
+        """Each machine the safe stop did not see at rest → a line saying so, with its last position and why."""
+        return {name: f"{name} may still be moving" + (f" (last seen at {seen.where})" if seen.where else "")
+                + f": {seen.why}; stop it at the machine" for name, seen in self.stops.items() if not seen.still}
+
+    def _where_stopped(self) -> str:
+        return ", ".join(f"{name} seen at rest at {seen.where}" for name, seen in self.stops.items())
 
     def _why(self, exc: KeyboardInterrupt) -> str:
         """Who ended the run: the remote abort's sender, the signal, or Ctrl-C."""
@@ -620,8 +639,9 @@ class Engine:
         self._event(why, instrument, f"tracking segment {self.segment} referenced at {where}")
 
     def _safe_state(self) -> None:
-        """Stop every device this engine moved; a device that cannot be stopped is an event, and the
-        others are still stopped."""
+        """Stop every device this engine moved — every stop sent first, then each machine watched
+        until seen at rest (``stops``); a device that cannot be stopped is an event, and the others
+        are still stopped. Each machine is then a ``stopped`` or a ``moving`` event."""
         self._safe = True
         with signals.held():  # a second signal, or an abort, does not cut the stop short
             failed: list[tuple[str, Exception]] = []
@@ -631,9 +651,22 @@ class Engine:
                 except Exception as exc:  # noqa: BLE001 — a half-dead transport must not keep the others moving
                     failed.append((name, exc))
             try:
-                self._set_state("stopping")
+                self._set_state("stopping")  # (the page shows it while the machines are watched)
+            except Exception:  # the store is gone too: the machines are watched all the same
+                pass
+            for name, device in self._moved.items():
+                try:
+                    self.stops[name] = device.wait_stopped()
+                except Exception as exc:  # noqa: BLE001 — not seen at rest, whatever the reason
+                    self.stops[name] = StopSeen(False, "", f"it could not be watched ({exc})")
+            try:
                 for name, error in failed:
                     self._event("fault", name, f"while stopping: {error}")
+                for name, seen in self.stops.items():
+                    if seen.still:
+                        self._event("stopped", name, f"stopped: seen at rest at {seen.where}")
+                for name, line in self.still_moving().items():
+                    self._event("moving", name, line)
             except Exception:  # the store is gone too: nothing more to record
                 pass
 

@@ -10,6 +10,7 @@ the store's metadata.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from typing import Any, Callable, TextIO
@@ -27,7 +28,8 @@ class Eta:
     settles, samples, and each operator step at its stated duration), the machine part scaled by
     the pace this start has kept against the walk once it has ``MIN_BASIS_S`` of it. Time paused and
     an operator's wait for a person are no machine time and not counted; a resume walks only
-    the entries still to take."""
+    the entries still to take. The pending entries' machine and operator time are running totals:
+    a document costs O(1), whatever the plan's length."""
 
     MIN_BASIS_S = 30.0
 
@@ -35,6 +37,8 @@ class Eta:
         self.entry_s = entry_s
         self.virtual_clock = virtual_clock  # a virtual clock counts an operator step's stated time itself
         self.pending = set(entry_s)
+        self._pending_machine_s = math.fsum(total - operator for total, operator in entry_s.values())
+        self._pending_operator_s = math.fsum(operator for _, operator in entry_s.values())
         self.machine_s = 0.0  # measured machine time of the entries done in this start …
         self.walked_s = 0.0  # … and the walk's for them
         self._t_s: float | None = None
@@ -66,6 +70,8 @@ class Eta:
             if k in self.pending and self._t_s is not None:
                 self.pending.discard(k)
                 total, operator = self.entry_s[k]
+                self._pending_machine_s -= total - operator
+                self._pending_operator_s -= operator
                 spent = doc["t_s"] - self._t_s - self._excluded_s - (operator if self.virtual_clock else 0.0)
                 self.machine_s += max(0.0, spent)
                 self.walked_s += total - operator
@@ -75,21 +81,38 @@ class Eta:
         pace = 1.0
         if self.walked_s >= self.MIN_BASIS_S and self.machine_s > 0:
             pace = min(max(self.machine_s / self.walked_s, 0.2), 5.0)
-        machine = sum(self.entry_s[k][0] - self.entry_s[k][1] for k in self.pending)
-        operator = sum(self.entry_s[k][1] for k in self.pending)
-        return pace * machine + operator
+        if not self.pending:  # what the running totals hold beyond this is rounding
+            return 0.0
+        return pace * max(self._pending_machine_s, 0.0) + max(self._pending_operator_s, 0.0)
 
 
 class StoreWriter:
     """Commits each ``readings`` and ``event`` document to the run's store before the engine goes on,
-    and keeps ``engine_state``, ``planned_readings``, ``current`` and ``operator_waiting`` (what the
-    operator is asked now, as JSON ``{"instruction", "t_s"}``; empty when nothing waits) in its metadata."""
+    and keeps ``engine_state``, ``planned_readings``, ``current``, the time left and ``operator_waiting`` (what
+    the operator is asked now, as JSON ``{"instruction", "t_s"}``; empty when nothing waits) in its metadata.
 
-    def __init__(self, store: RunStore, eta: Eta | None = None):
+    The time left changes at every planned reading done; it rides in the next reading's transaction and
+    has a transaction of its own only when none was written for ``ETA_EVERY_S`` of wall time (a run in real
+    time: every reading; a simulated one: one durable write per reading, not two)."""
+
+    ETA_EVERY_S = 1.0
+
+    def __init__(self, store: RunStore, eta: Eta | None = None, now: Callable[[], float] = time.monotonic):
         self.store = store
         self.eta = eta  # subscribed before this writer: the time left it keeps in the store's meta
         self.current: dict[str, Any] = {}
-        store.keep_meta_also(lambda: {"current": json.dumps(self.current, sort_keys=True)})
+        self.now = now
+        self._eta_text: str | None = None
+        self._eta_at = -1e9  # when the time left last went into a transaction (wall clock)
+        store.keep_meta_also(self._kept)
+
+    def _kept(self) -> dict[str, str]:
+        """What every reading's and event's transaction also writes."""
+        kept = {"current": json.dumps(self.current, sort_keys=True)}
+        if self._eta_text is not None:
+            kept[ETA_KEY] = self._eta_text
+            self._eta_at = self.now()
+        return kept
 
     def __call__(self, name: str, doc: dict[str, Any]) -> None:
         if name == "readings":
@@ -107,11 +130,14 @@ class StoreWriter:
             if self.store.meta().get(OPERATOR_WAITING):  # a run killed while it waited: nothing waits now
                 self.store.set_meta({OPERATOR_WAITING: ""})
         elif name == "state":
-            self.store.set_meta({"engine_state": doc["state"]})
+            self.store.set_meta({"engine_state": doc["state"], **({ETA_KEY: self._eta_text} if self._eta_text else {})})
         elif name == "attempt":
             self.current = {**doc["label"], "plan_index": doc["index"]}
         elif name == "done" and self.eta is not None:
-            self.store.set_meta({ETA_KEY: f"{self.eta.eta_s():.1f}"})
+            self._eta_text = f"{self.eta.eta_s():.1f}"
+            if self.now() - self._eta_at >= self.ETA_EVERY_S:
+                self.store.set_meta({ETA_KEY: self._eta_text})
+                self._eta_at = self.now()
         elif name == "operator":
             asked = doc["instruction"]
             self.store.set_meta({OPERATOR_WAITING: json.dumps({"instruction": asked, "t_s": doc["t_s"], "step": doc.get("step")},

@@ -18,7 +18,6 @@ operator step (or another one) waits → 409.
 from __future__ import annotations
 
 import bisect
-import ipaddress
 import json
 import socket
 import sqlite3
@@ -31,20 +30,17 @@ from typing import Any, AsyncIterator, Callable
 
 import anyio
 import uvicorn
-from uvicorn.protocols.http.h11_impl import H11Protocol
 from starlette.applications import Starlette
-from starlette.middleware import Middleware
-from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from rtcal.live.control import COMMANDS, Controllable, dispatch, step_of, token_matches
 from rtcal.live.storeview import FINAL_STATES, REPORT_FILES, StoreView
+from rtcal.live.web import LOOPBACK, Slots, bind, host_guard, serve, url_of, warn_exposed
 from rtcal.engine.operator import NothingToConfirm
 
 DEFAULT_PORT = 8765
-LOOPBACK = "127.0.0.1"
 STATIC_FILES = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; charset=utf-8",
                 "index.html": "text/html; charset=utf-8"}
 SECURITY_HEADERS = {
@@ -58,48 +54,8 @@ SECURITY_HEADERS = {
 REPORT_HEADERS = {**SECURITY_HEADERS, "Content-Security-Policy": ("default-src 'none'; style-src 'unsafe-inline'; "
                                                                  "img-src data:; frame-ancestors 'none'; base-uri 'none'")}
 MAX_LAST_EVENT_ID = 2**63 - 1
-MAX_CONNECTIONS = 64
-"""Connections served at once (a browser opens about six): one more is closed as it is accepted, so
-idle connections from anyone on the computer can never take the run's process to its descriptor
-limit (1,024 by default), which the store and the instruments need."""
-IDLE_S = 10.0  # a connection that sends no request this long is closed
 FINISHED_LINGER_S = 3.0  # how long a finished run's page is still served so every stream ends with `finished`
-
-
-class _CappedH11(H11Protocol):
-    """uvicorn's HTTP/1.1 protocol with a cap on open connections and an idle timeout before the
-    first request (uvicorn's own keep-alive timeout starts only after a response)."""
-
-    cap = MAX_CONNECTIONS
-    idle_s = IDLE_S
-
-    def connection_made(self, transport: Any) -> None:  # type: ignore[override]
-        self._refused = len(self.connections) >= self.cap
-        self._idle: Any = None
-        if self._refused:  # closed at once, quietly: the descriptor comes back before the next accept
-            transport.abort()
-            return
-        super().connection_made(transport)
-        self._idle = self.loop.call_later(self.idle_s, self._idle_timeout)
-
-    def _idle_timeout(self) -> None:
-        self._idle = None
-        if self.cycle is None:  # nothing asked yet
-            self.transport.close()
-
-    def data_received(self, data: bytes) -> None:
-        if self._idle is not None:
-            self._idle.cancel()
-            self._idle = None
-        super().data_received(data)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        if self._refused:
-            return
-        if self._idle is not None:
-            self._idle.cancel()
-            self._idle = None
-        super().connection_lost(exc)
+EVENTS_PATH = "/api/events"
 
 
 class LiveSpecError(ValueError):
@@ -126,15 +82,6 @@ def parse_live_spec(spec: str) -> tuple[str, int]:
     if not (port_text.isascii() and port_text.isdigit()) or len(port_text) > 5 or int(port_text) > 65535:
         raise LiveSpecError(f"--live {spec!r}: the port must be a number 0 … 65535 (0: any free port)")
     return host, int(port_text)
-
-
-def is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def _json(data: Any, status: int = 200, headers: dict[str, str] | None = None) -> Response:
@@ -253,22 +200,30 @@ class LiveServer:
         self._sock: socket.socket | None = None
         self._stopping = threading.Event()
         self._finishing = threading.Event()  # the run has ended: each stream ends once it has sent the final state
-        self._streams = 0
-        self._streams_lock = threading.Lock()
+        self._slots: Slots | None = None  # counts the event streams being served
+        self._control_limiter: anyio.CapacityLimiter | None = None
         self.url: str | None = None
 
     # -- the application ----------------------------------------------------------------------
-    def app(self) -> Starlette:
+    def app(self) -> Slots:
+        """The page's routes behind the Host check, counted by :class:`~rtcal.live.web.Slots`
+        (event streams apart; a request with the token never waits behind others)."""
         routes = [
             Route("/", self._index),
             Route("/static/{name}", self._static),
             Route("/api/state", self._state),
-            Route("/api/events", self._events),
+            Route(EVENTS_PATH, self._events),
             Route("/api/{command}", self._control, methods=["POST"]),
             Route("/files/{name}", self._file),
         ]
-        allowed = ["*"] if not is_loopback(self.host) else sorted({"127.0.0.1", "localhost", "[::1]", "::1", self.host})
-        return Starlette(routes=routes, middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=allowed)])
+        self._slots = Slots(Starlette(routes=routes, middleware=[host_guard(self.host)]), stream_paths=[EVENTS_PATH])
+        return self._slots
+
+    def _streams(self) -> int:
+        if self._slots is None:
+            return 0
+        with self._slots.lock:
+            return self._slots.busy["stream"]
 
     async def _index(self, request: Request) -> Response:
         return Response(_asset("index.html"), media_type=STATIC_FILES["index.html"], headers=SECURITY_HEADERS)
@@ -296,16 +251,6 @@ class LiveServer:
         Every viewer takes the same encoded events from one shared :class:`_Feed`; one that is
         further behind than the feed keeps reads its own way up from the store first. Once the run
         has ended (:meth:`stop` with a linger) the stream ends with the run's final state."""
-        with self._streams_lock:
-            self._streams += 1
-        try:
-            async for chunk in self._stream_parts(request, after):
-                yield chunk
-        finally:
-            with self._streams_lock:
-                self._streams -= 1
-
-    async def _stream_parts(self, request: Request, after: int) -> AsyncIterator[str]:
         yield "retry: 2000\n\n"
         feed = self._feed
         last_event = 0
@@ -354,8 +299,10 @@ class LiveServer:
             step = step_of(int(request.query_params["step"])) if "step" in request.query_params else None
         except ValueError:
             return _json({"error": "step: an operator step is a number from 1"}, 400)
+        if self._control_limiter is None:  # threads of its own: never queued behind the streams' reads
+            self._control_limiter = anyio.CapacityLimiter(2)
         try:
-            await anyio.to_thread.run_sync(dispatch, self.control, command, step)
+            await anyio.to_thread.run_sync(dispatch, self.control, command, step, limiter=self._control_limiter)
         except NothingToConfirm as exc:  # pressed twice, a second tablet's, or a step answered already: nothing changed
             return _json({"error": f"{exc} (nothing was changed)"}, 409)
         except Exception as exc:  # the engine refused (e.g. already finished): nothing changed
@@ -373,34 +320,13 @@ class LiveServer:
     def start(self) -> str:
         """Bind (OSError if the port is taken), serve in a background thread and return the URL
         with the real port. A host other than loopback gets a warning on stderr."""
-        if not is_loopback(self.host):
-            print(f"rtcal: warning: the live view listens on {self.host}, not only this computer: anyone who reaches "
-                  "it sees the run (control still needs the token, sent unencrypted)", file=sys.stderr)
-        family, _, _, _, address = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)[0]
-        sock = socket.socket(family, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            sock.bind(address)
-            sock.listen(64)
-        except OSError:
-            sock.close()
-            raise
-        port = sock.getsockname()[1]
-        config = uvicorn.Config(self.app(), log_level="warning", access_log=False, lifespan="off", http=_CappedH11,
-                                timeout_graceful_shutdown=2, server_header=False,
-                                backlog=MAX_CONNECTIONS)  # asyncio accepts up to `backlog` at a time before any is served
-        self._server = uvicorn.Server(config)
-        self._thread = threading.Thread(target=self._server.run, kwargs={"sockets": [sock]}, name="rtcal-live",
-                                        daemon=True)
-        self._thread.start()
-        deadline = time.monotonic() + 10
-        while not self._server.started and self._thread.is_alive() and time.monotonic() < deadline:
-            time.sleep(0.02)
+        warn_exposed(self.host, "live view", "the run (control still needs the token, sent unencrypted)")
+        sock = bind(self.host, self.port)
+        self._server, self._thread = serve(self.app(), sock, "rtcal-live", stream_paths=[EVENTS_PATH])
         self._sock = sock
         threading.Thread(target=self.view.state, name="rtcal-live-warm", daemon=True).start()  # first reads import the methods
-        shown = f"[{self.host}]" if ":" in self.host else self.host
-        self.port = port
-        self.url = f"http://{shown}:{port}/"
+        self.port = sock.getsockname()[1]
+        self.url = url_of(self.host, sock)
         return self.url
 
     def stop(self, linger_s: float = 0.0) -> None:
@@ -412,10 +338,7 @@ class LiveServer:
             self._feed.refresh(now=True)
             self._finishing.set()
             deadline = time.monotonic() + linger_s
-            while time.monotonic() < deadline:
-                with self._streams_lock:
-                    if self._streams == 0:
-                        break
+            while time.monotonic() < deadline and self._streams() > 0:
                 time.sleep(0.05)
         self._stopping.set()
         if self._server is not None:

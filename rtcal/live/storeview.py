@@ -4,8 +4,9 @@ Every poll opens a fresh read-only connection (``mode=ro``) and reads one snapsh
 transaction: in WAL mode a reader never blocks the engine's writes, and nothing here writes, so
 `rtcal view` can watch a run of another process, in progress or finished, without touching it.
 What only grows (the planned readings done, the latest value of each instrument, completion
-times for the rate) is accumulated from the readings added since the last poll, so a poll costs
-the new rows, not the whole store.
+times for the rate, the progress grid) is accumulated from the readings added since the last poll,
+so a poll costs the new rows, not the whole store nor every planned reading: the count done is a
+running total and the grid changes only in the rows a new reading touched.
 
 The engine writes its state into the store's meta (``engine_state``, ``planned_readings``,
 ``current``, and ``operator_waiting`` while an operator step waits for a person); a store written
@@ -14,6 +15,7 @@ before it knew them is read from ``status``, the stored procedure and the last r
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import os
@@ -73,10 +75,83 @@ class _Planned:
     status: str = "pending"  # done | rejected | skipped (the last attempt's fate until one is done)
 
 
+class _Progress:
+    """The planned readings by row (run and direction, or CMM point) and column (target angle, or station),
+    kept as readings arrive: a planned reading that changes touches its one cell and its row; the page's
+    grid is rebuilt only in the rows touched since it was last asked for."""
+
+    def __init__(self) -> None:
+        self.by_run: bool | None = None
+        self.plans: dict[int, _Planned] = {}
+        self.columns: dict[str, float] = {}
+        self.cols_sorted: list[str] = []
+        self.order: dict[str, tuple] = {}
+        self.rows_sorted: list[str] = []
+        self.cells: dict[str, dict[str, dict[int, str]]] = {}  # row → column → {plan index: status}
+        self.row_out: dict[str, dict[str, Any]] = {}
+        self.dirty: set[str] = set()
+        self.out: dict[str, Any] | None = None
+
+    def place(self, k: int, p: _Planned) -> tuple[str, str, tuple, float]:
+        if self.by_run:
+            arrow = "↑" if (p.direction or 0) > 0 else "↓"
+            row = (f"seating {p.seating + 1} · " if p.seating else "") + f"run {(p.run or 0) + 1} {arrow}"
+            col_key = p.target_deg if p.target_deg is not None else float(p.station or 0)
+            return row, f"{col_key:g}°", (p.seating or 0, p.run or 0, -(p.direction or 0)), col_key
+        row = (f"mount {p.seating + 1} · " if p.seating else "") + f"point {(p.point or 0) + 1}"
+        return row, f"station {(p.station or 0) + 1}", (p.seating or 0, p.point or 0), float(p.station or 0)
+
+    def update(self, k: int, p: _Planned) -> None:
+        """A planned reading seen for the first time or whose status changed."""
+        self.plans[k] = p
+        by_run = bool(self.by_run) or (p.run is not None and p.direction is not None)
+        if by_run != self.by_run:  # the grid's kind is decided (or changes): lay every planned reading out again
+            self.by_run = by_run
+            self.columns, self.cols_sorted, self.order, self.rows_sorted, self.cells = {}, [], {}, [], {}
+            self.row_out = {}
+            for index in sorted(self.plans):
+                self._put(index, self.plans[index])
+        else:
+            self._put(k, p)
+        self.out = None
+
+    def _put(self, k: int, p: _Planned) -> None:
+        row, col, row_key, col_key = self.place(k, p)
+        if row not in self.order:
+            self.order[row] = row_key
+            bisect.insort(self.rows_sorted, row, key=lambda r: self.order[r])
+            self.cells[row] = {}
+        if col not in self.columns:
+            self.columns[col] = col_key
+            bisect.insort(self.cols_sorted, col, key=lambda c: self.columns[c])
+            self.dirty.update(self.rows_sorted)  # every row gains the column
+        self.cells[row].setdefault(col, {})[k] = p.status
+        self.dirty.add(row)
+
+    def _cell(self, statuses: dict[int, str]) -> str:
+        """Done once any planned reading of the cell is; else the latest one's status."""
+        return "done" if "done" in statuses.values() else statuses[max(statuses)]
+
+    def snapshot(self) -> dict[str, Any] | None:
+        if not self.plans:
+            return None
+        if self.out is None:
+            for row in self.dirty:
+                values = {col: self._cell(st) for col, st in self.cells[row].items()}
+                self.row_out[row] = {"label": row, "cells": [values.get(c, "pending") for c in self.cols_sorted],
+                                     "done": sum(1 for v in values.values() if v == "done")}
+            self.dirty.clear()
+            self.out = {"axis": "target" if self.by_run else "station", "columns": list(self.cols_sorted),
+                        "rows": [self.row_out[r] for r in self.rows_sorted]}
+        return self.out
+
+
 @dataclass
 class _Accumulated:
     last_id: int = 0
     plans: dict[int, _Planned] = field(default_factory=dict)
+    done: int = 0  # planned readings stored whole: a running total
+    progress: _Progress = field(default_factory=_Progress)
     completions: deque = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))  # (reading id, t_s)
     latest: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
     newest_t_s: float | None = None
@@ -144,7 +219,7 @@ class StoreView:
         acc = self._acc
         state = engine_state(meta)
         planned = self._planned(meta)
-        done = sum(1 for p in acc.plans.values() if p.status == "done")
+        done = acc.done
         return {
             "state": state,
             "method": meta.get("method"),
@@ -181,13 +256,15 @@ class StoreView:
             plan = acc.plans.get(k)
             if plan is None:
                 plan = acc.plans[k] = _Planned(run, direction, target, point, station, seating)
-            if plan.status == "done":
+            elif plan.status == "done":
                 continue
             if not markers:
                 plan.status = "done"
+                acc.done += 1
                 acc.completions.append((int(max_id), float(max_t)))
             else:
                 plan.status = "rejected" if rejected else "skipped"
+            acc.progress.update(k, plan)
         for instrument, quantity, value, unit, t_s, rid in db.execute(
                 "SELECT instrument, quantity, value, unit, t_s, MAX(id) FROM readings WHERE id > ? AND id <= ? "
                 "AND quantity NOT IN (" + _MARKS + ") GROUP BY instrument, quantity", (acc.last_id, hi)):
@@ -239,34 +316,7 @@ class StoreView:
     def _progress(self) -> dict[str, Any] | None:
         """Planned readings by row (run and direction, or CMM point) and column (target angle, or
         station), as far as the store shows them: pending cells appear once a row has begun."""
-        plans = self._acc.plans
-        if not plans:
-            return None
-        by_run = any(p.run is not None and p.direction is not None for p in plans.values())
-        rows: dict[str, dict[str, str]] = {}
-        columns: dict[str, float] = {}
-        order: dict[str, tuple] = {}
-        for k, p in sorted(plans.items()):
-            if by_run:
-                arrow = "↑" if (p.direction or 0) > 0 else "↓"
-                row = (f"seating {p.seating + 1} · " if p.seating else "") + f"run {(p.run or 0) + 1} {arrow}"
-                order.setdefault(row, (p.seating or 0, p.run or 0, -(p.direction or 0)))
-                col_key = p.target_deg if p.target_deg is not None else float(p.station or 0)
-                col = f"{col_key:g}°"
-            else:
-                row = (f"mount {p.seating + 1} · " if p.seating else "") + f"point {(p.point or 0) + 1}"
-                order.setdefault(row, (p.seating or 0, p.point or 0))
-                col_key = float(p.station or 0)
-                col = f"station {(p.station or 0) + 1}"
-            columns.setdefault(col, col_key)
-            cells = rows.setdefault(row, {})
-            if cells.get(col) != "done":
-                cells[col] = p.status
-        cols = sorted(columns, key=lambda c: columns[c])
-        return {"axis": "target" if by_run else "station", "columns": cols,
-                "rows": [{"label": r, "cells": [rows[r].get(c, "pending") for c in cols],
-                          "done": sum(1 for v in rows[r].values() if v == "done")}
-                         for r in sorted(rows, key=lambda r: order[r])]}
+        return self._acc.progress.snapshot()
 
     def _planned(self, meta: dict[str, str]) -> int | None:
         """Planned readings: the engine's count, else the stored procedure's plan length."""

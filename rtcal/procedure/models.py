@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 from pydantic import (BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, field_validator, model_serializer,
                       model_validator)
 
+from rtcal.procedure.standards import LABELS, STANDARDS, standard_named
+
 ANGLE_LIMIT_DEG = 36_000.0  # 100 turns either way: beyond any table's travel
 COORD_LIMIT_MM = 1e6  # 1 km: beyond any CMM
 Coord_mm = Annotated[float, Field(ge=-COORD_LIMIT_MM, le=COORD_LIMIT_MM)]
@@ -99,21 +101,30 @@ class Metadata(_Strict):
     condition_on_receipt: str = Field("", max_length=500, description="the item's condition on receipt (ISO/IEC 17025 "
                                                                      "7.8.2.1 j; e.g. clean, no visible damage, table "
                                                                      "at room temperature overnight)")
-    machine_identity: str = Field("", max_length=300, description="the machine's OPC UA server, opc.tcp://HOST:PORT: its "
-                                                                 "OPC 40001-1 identification fills the certificate's item "
-                                                                 "at run time, and a serial number other than "
-                                                                 "`serial_number` refuses the run")
+    machine_identity: str = Field("", max_length=300, description="the machine's OPC UA server, opc.tcp://HOST:PORT, or "
+                                                                 "its MTConnect agent, http://HOST:PORT/DEVICE: its "
+                                                                 "identification (OPC 40001-1; MTConnect's Device and "
+                                                                 "Description) fills the certificate's item at run time, "
+                                                                 "and a serial number other than `serial_number` refuses "
+                                                                 "the run")
+    item_state: Literal["", "as_found", "as_left"] = Field("", description=(
+        "what the run measured: `as_found` (the item as received, before any adjustment or compensation) or `as_left` "
+        "(after it); empty: not said (`rtcal run --as-found` / `--as-left` set it)"))
+    replaces: str = Field("", max_length=100, description=(
+        "the number of the certificate this one replaces (empty: none); the certificate says so, and `rtcal catalog "
+        "add --reason` files it as superseding that one"))
 
     @field_validator("machine_identity")
     @classmethod
     def _opc_tcp(cls, text: str) -> str:
-        if text and not text.startswith("opc.tcp://"):
-            raise ValueError(f"{text[:60]!r} is not an OPC UA address (opc.tcp://HOST:PORT)")
+        if text and not text.startswith(("opc.tcp://", "http://", "https://")):
+            raise ValueError(f"{text[:60]!r} is not an OPC UA address (opc.tcp://HOST:PORT) or an MTConnect agent's "
+                             "(http://HOST:PORT/DEVICE)")
         return _check_text(text)
 
     _plain = field_validator("customer", "machine", "axis", "serial_number", "location", "operator", "certificate_number",
                              "laboratory", "laboratory_address", "customer_address", "performed_by", "approved_by",
-                             "traceability", "condition_on_receipt")(lambda cls, text: _check_text(text))
+                             "traceability", "condition_on_receipt", "replaces")(lambda cls, text: _check_text(text))
     _issued = field_validator("date_of_issue")(lambda cls, text: _check_date(text))
 
 
@@ -196,6 +207,13 @@ class StageChoice(InstrumentChoice):
     def _ordered_limits(self) -> "StageChoice":
         if self.soft_limits_deg[0] >= self.soft_limits_deg[1]:
             raise ValueError("soft_limits_deg: the lower limit must be below the upper one")
+        if self.address is not None:  # a run moves its stage: taking a LinuxCNC's control is said in its address
+            from drivers.addresses import AddressError, check_take_control, parse_address
+
+            try:
+                check_take_control(parse_address(self.address))
+            except AddressError as exc:
+                raise ValueError(f"address: {exc}") from None
         return self
 
 
@@ -331,6 +349,26 @@ def acceptance_problem(acceptance: Acceptance, directions: set[int], runs: int) 
     return None
 
 
+class EvaluationChoice(_Strict):
+    """The standards whose figures the certificate carries besides ISO 230-2:2014's parameters and
+    VDI/DGQ 3441's (labels: `rtcal evaluate --help`, docs/evaluation.md)."""
+
+    standards: list[str] = Field(
+        [], max_length=len(LABELS), json_schema_extra={"items": {"enum": list(LABELS)}},
+        description="labels of the standards whose figures the certificate states, each under its own title, e.g. "
+                    "[upr, iso230-2:1988-vs-2014, jis-b6190-2] (one of: " + ", ".join(LABELS) + ")")
+
+    @field_validator("standards")
+    @classmethod
+    def _known(cls, labels: list[str]) -> list[str]:
+        """Each a known label (an edition alias of ISO 230-2 is its label), none twice."""
+        names = [standard_named(label).label for label in labels]  # ValueError naming the labels
+        twice = next((n for n in names if names.count(n) > 1), None)
+        if twice is not None:
+            raise ValueError(f"{twice} is named twice")
+        return names
+
+
 class _Procedure(_Strict):
     """What every procedure has besides its method: a title, the report's header, its bench."""
 
@@ -347,6 +385,9 @@ class _Procedure(_Strict):
     acceptance: Acceptance | None = Field(None, description="acceptance limits and decision rule: a conformity verdict "
                                           "(pass, fail, undecided) in results.json, the console and the certificate "
                                           "(docs/conformity.md)")
+    evaluation: EvaluationChoice | None = Field(None, description="which other standards' figures the certificate "
+                                                "states from the same readings (docs/evaluation.md), e.g. "
+                                                "{standards: [upr, jis-b6190-2]}")
 
     _plain_name = field_validator("name")(lambda cls, name: _check_name(name))
 
@@ -374,6 +415,15 @@ class _Procedure(_Strict):
             problem = acceptance_problem(self.acceptance, *self.approaches())
             if problem:
                 raise ValueError(f"acceptance.{problem}")
+        return self
+
+    @model_validator(mode="after")
+    def _standards_decidable(self) -> "_Procedure":
+        """A standard whose figures need the verdicts (ASME B5.64's TUR) needs acceptance limits."""
+        for label in self.evaluation.standards if self.evaluation is not None else []:
+            if STANDARDS[label].needs_limits and self.acceptance is None:
+                raise ValueError(f"evaluation.standards: {label} states the test uncertainty ratio of each acceptance "
+                                 "limit: give `acceptance:` limits (docs/conformity.md), or leave it out")
         return self
 
     @model_validator(mode="after")

@@ -10,6 +10,7 @@ passes (the registry of methods does: :func:`rtcal.methods.read_results`).
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import stat
@@ -44,6 +45,18 @@ def _adapter_of(models: tuple[type[RunResults], ...]) -> TypeAdapter[RunResults]
 
 class ResultsError(ValueError):
     """A results.json that cannot be used; the message names the file and the field."""
+
+
+def finite(data: Any) -> Any:
+    """``data`` with every NaN and ±infinity (in lists and dicts too) as None: strict JSON has no
+    such numbers, and ``json.dumps(..., allow_nan=False)`` then holds."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: finite(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [finite(v) for v in data]
+    return data
 
 
 def results_json(results: RunResults) -> str:

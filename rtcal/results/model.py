@@ -20,11 +20,15 @@ from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler
 
 from rtcal.moved import moved
 
-SCHEMA_VERSION = "1.3"
+SCHEMA_VERSION = "1.5"
 # the first schema_version whose files carry each digest: a file of that version or later without it
 # was not written by rtcal (rtcal/run/integrity.py refuses it)
 STORE_DIGESTS_SINCE = (1, 2)
 DELIVERABLE_DIGESTS_SINCE = (1, 3)
+SCHEMA_WRITTEN_SINCE: tuple[tuple[tuple[int, int, int], tuple[int, int]], ...] = ((0, 2, 0), (1, 4)),
+"""(rtcal release, the schema_version it and every later release writes at least): a file that claims
+a release and an older schema had its schema_version set back by hand (rtcal/run/integrity.py). Releases
+before the first entry wrote 1.0 to 1.3 under one version number, 0.1.0, and are not told apart."""
 
 # -- bounded numbers ------------------------------------------------------------------------------
 Arcsec = Annotated[float, Field(ge=-1e7, le=1e7)]
@@ -210,7 +214,7 @@ class QuantityEstimate(ResultsModel):
     """An estimate of a quantity of its own per target and direction — a runout in µm, a location in mm —, as a
     method declares it: its ``quantity`` in words and its ``unit``, the values with their standard and
     expanded uncertainty and budget. Not an angular positioning deviation: no ISO 230-2 evaluation,
-    conformity or compensation follows from it (1.3)."""
+    conformity or compensation follows from it (a method's own results model; the built-in methods' files hold none)."""
 
     quantity: Name = Field(description="what is estimated, in words (e.g. `radial displacement of the test ball`)")
     unit: Name = Field(description="the unit of every value and uncertainty (e.g. `µm`)")
@@ -611,8 +615,13 @@ class Event(ResultsModel):
 class ProcedureRef(ResultsModel):
     """The procedure the run followed."""
 
+    OPTIONAL_KEYS = frozenset({"standards"})
+
     name: Name = Field(description="the procedure's title")
     path: Text = Field(description="the procedure file the run started from")
+    standards: list[Annotated[str, Field(pattern=r"^[a-z0-9.:-]{1,40}$")]] | None = Field(
+        None, max_length=20, description="the labels of the standards whose figures the certificate states besides ISO "
+                                         "230-2 and VDI 3441 (the procedure's `evaluation.standards`; absent: none) (1.4)")
 
 
 class InstrumentRecord(ResultsModel):
@@ -647,6 +656,75 @@ class RunMetadata(ResultsModel):
                                                "certificates) (1.1)")
     condition_on_receipt: Text = Field("", description="the item's condition on receipt, as the laboratory recorded it "
                                                        "(empty: not recorded) (1.2)")
+    item_state: Literal["", "as_found", "as_left"] = Field(
+        "", description="what the run measured: `as_found` (before any adjustment), `as_left` (after it), empty: not "
+                        "said (1.5)")
+    replaces: Name = Field("", description="the number of the certificate this one replaces, or empty (1.5)")
+
+
+class Simulation(ResultsModel):
+    """A run that measured no real item, or rehearsed one: every page of its certificate says so, and
+    `rtcal catalog add` refuses it unless told (1.4)."""
+
+    in_process: bool = Field(description="every instrument and the table simulated in this process on a model bench")
+    simulators: dict[Name, Text] = Field(
+        description="per instrument (and `machine`, `operator`) that answered from rtcal's protocol simulators "
+                    "(`rtcal sim serve`, whose identity replies say SIMULATED): what it said it is")
+    rehearsed: bool = Field(description="`--rehearse`: a person confirmed each operator step, the simulated operator "
+                                        "carried it out")
+    statement: Text = Field(description="the marking every page of the certificate and the console carry")
+
+
+class Signature(ResultsModel):
+    """Who signs this run's digests: the laboratory's Ed25519 key (signature.json beside results.json
+    holds the signature over this file's SHA-256, its digests and every deliverable's) (1.4)."""
+
+    algorithm: Literal["ed25519"] = Field(description="the signature algorithm")
+    signer: Name = Field(description="who the key signs for, as the key file names it")
+    key_fingerprint: Annotated[str, Field(pattern=r"^SHA256:[A-Za-z0-9+/]{43}$")] = Field(
+        description="SHA256: and the unpadded base64 of the SHA-256 of the raw public key")
+
+
+class PeriodicTerm(ResultsModel):
+    """One harmonic of the tested period, named by its period in degrees and in worm revolutions (1.4)."""
+
+    OPTIONAL_KEYS = frozenset({"period_worm_revolutions"})
+
+    order: Annotated[int, Field(ge=1, le=10_000_000)] = Field(description="cycles per table turn")
+    period_deg: Deg = Field(description="its period, degrees (360° / order)")
+    period_worm_revolutions: Number | None = Field(None, description="its period in worm revolutions (worm ratio / order; "
+                                                                     "absent: the procedure states no worm ratio)")
+    amplitude_arcsec: SigmaArcsec = Field(description="amplitude A of A·sin(order·θ + φ), arcsec")
+    amplitude_sigma_arcsec: SigmaArcsec = Field(description="its standard uncertainty (1σ), arcsec")
+    phase_deg: Annotated[float, Field(ge=-360.0, le=360.0)] = Field(description="phase φ, degrees")
+    significant: bool = Field(description="above the family-wise 1 % threshold (rtcal.solvers.harmonics)")
+    threshold_arcsec: SigmaArcsec = Field(description="the amplitude above which it counts as significant, arcsec")
+
+
+class PeriodicError(ResultsModel):
+    """The periodic positioning error of a fine-step test over one period and a little more (ISO
+    230-2:2014 Annex C, as rtcal reads it: the annex's text was not reached; docs/evaluation.md) (1.4)."""
+
+    definition: Text = Field(description="what the figure is, in words, and what it rests on")
+    reference: Text = Field(description="what the table's positioning error at each fine step was read from")
+    period_deg: Deg = Field(description="the period tested, degrees")
+    worm_ratio: Number | None = Field(description="worm (motor) turns per table turn the procedure states (null: none)")
+    start_deg: Deg = Field(description="the first target, degrees")
+    step_deg: Deg = Field(description="the fine step, degrees")
+    targets_per_period: Count = Field(description="targets within one period (both ends included)")
+    trend_degree: Count = Field(description="degree of the slow error removed over the arc, per direction")
+    periodic_error_up_arcsec: Parameter | None = Field(description="range over one period of the mean deviation ↑ "
+                                                                   "less the slow part, arcsec (null: not measured)")
+    periodic_error_down_arcsec: Parameter | None = Field(description="the same ↓, arcsec (null: not measured)")
+    periodic_error_arcsec: Parameter = Field(description="the axis's periodic positioning error: the larger of ↑ and ↓")
+    expanded_uncertainty_arcsec: SigmaArcsec = Field(description="its U (k = 2), arcsec: 2·√(u² + u²) of its two means")
+    expanded_uncertainty_up_arcsec: SigmaArcsec | None = Field(description="U (k = 2) of the ↑ figure, arcsec (null: not measured)")
+    expanded_uncertainty_down_arcsec: SigmaArcsec | None = Field(description="U (k = 2) of the ↓ figure, arcsec (null: not measured)")
+    harmonics: list[PeriodicTerm] = Field(description="the harmonic analysis at the period's orders")
+    target_deg: list[Deg] = Field(description="the curve the figure is the range of: each (direction, target)'s angle")
+    direction: list[Direction] = Field(description="its direction")
+    residual_arcsec: list[Arcsec] = Field(description="its mean deviation less the slow part, arcsec")
+    notes: list[Text] = Field(description="what the figure leaves out and what is not confirmed")
 
 
 # -- the three parts of a run's results, and the results of each method ------------------------------
@@ -671,6 +749,10 @@ class RunInfo(ResultsModel):
     starts: Annotated[int, Field(ge=1, le=1_000_000)] = Field(description="how many times the run was started (1 + resumes)")
     measurement_duration_s: Seconds = Field(description="time the measurement took on `clock`, s")
     clock: Literal["virtual", "real"] = Field(description="`virtual`: simulated time (settle waits skipped); `real`: wall clock")
+    simulation: Simulation | None = Field(
+        None, description="why this run is not a calibration: its instruments were simulated in process or answered "
+                          "from rtcal's protocol simulators, or it was rehearsed (absent: real instruments, not "
+                          "rehearsed) (1.4)")
 
 
 def _without_none(annotation: Any) -> Any:
@@ -682,7 +764,7 @@ def _without_none(annotation: Any) -> Any:
 class Analysis(ResultsModel):
     """What a method's analysis of the logged readings gives (every method)."""
 
-    OPTIONAL_KEYS = frozenset({"positioning_deviations", "truth"})
+    OPTIONAL_KEYS = frozenset({"positioning_deviations", "truth", "periodic_error"})
 
     nominal_angles_deg: list[Deg] = Field(description="commanded angle of each station or step, degrees")
     raw_readings: Count = Field(description="planned readings taken whole")
@@ -695,6 +777,9 @@ class Analysis(ResultsModel):
     positioning_deviations: DeviationTable | None = Field(
         None, description="the recommended estimate as the positioning-deviation table (absent: no estimate)")
     truth: Truth | None = Field(None, description="what the simulated bench really had (absent: a run on instruments)")
+    periodic_error: PeriodicError | None = Field(
+        None, description="the periodic positioning error of a fine-step test over a period (ISO 230-2:2014 Annex C; "
+                          "absent: not tested) (1.4)")
 
     @model_validator(mode="after")
     def _declared_names(self) -> Analysis:
@@ -813,7 +898,7 @@ class Digests(ResultsModel):
 class RunLog(ResultsModel):
     """What the runner adds after the analysis: the evaluation and the run's log."""
 
-    OPTIONAL_KEYS = frozenset({"conformity", "control", "digests"})
+    OPTIONAL_KEYS = frozenset({"conformity", "control", "digests", "signature"})
 
     evaluation: Evaluation | None = Field(description="ISO 230-2 and VDI 3441 parameters (null: no positioning deviations)")
     skipped_readings: Count = Field(description="planned readings a fault policy skipped and no start took again")
@@ -826,12 +911,15 @@ class RunLog(ResultsModel):
     digests: Digests | None = Field(
         None, description="digests of the store's readings, events and procedure these results were computed from; "
                           "every command that reads the run checks them (1.2)")
+    signature: Signature | None = Field(
+        None, description="the laboratory key that signs this run (signature.json); absent: unsigned, no lab key was "
+                          "configured when the run was written (1.4)")
 
 
 class RunResults(RunLog, Analysis, RunInfo):
     """results.json of any method: the run, its analysis, its log (the fields in that order)."""
 
-    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | RunLog.OPTIONAL_KEYS
+    OPTIONAL_KEYS = Analysis.OPTIONAL_KEYS | RunLog.OPTIONAL_KEYS | frozenset({"simulation"})
 
     @model_validator(mode="after")
     def _names_its_estimate(self) -> RunResults:

@@ -80,7 +80,7 @@ def probe(kind: str, address: str, timeout_s: float = 2.0, **context: Any) -> Pr
     _, model = factory.resolve(kind, address)
     if kind == "dial_indicator":
         context.setdefault("name", "dial_indicator")
-    if kind in ("cmm", "stage"):
+    if kind in ("cmm", "stage", "machine_tool"):
         context["may_move"] = False  # a probe never moves a machine: an unhomed CMM is refused, never homed
     instrument = factory.open_instrument(kind, address, timeout_s, **context)
     try:

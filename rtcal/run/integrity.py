@@ -9,6 +9,11 @@ SHA-256 of every other file the run wrote — certificate.json, report.md/.html/
 positioning_deviations.csv, the figures — taken after they were written and before results.json
 was: ``rtcal verify`` checks each (:func:`check_deliverables`). No digest covers a path: a run
 directory copied elsewhere stays valid.
+
+Digests catch accidents, not someone who recomputes them: with the lab's key configured a run is
+signed (signature.json, rtcal/run/signing.py) and :func:`check_run` checks the signature against the
+lab's public keys (:func:`check_signature`); a file that claims an older ``schema_version`` than its
+``rtcal_version`` writes is refused (:func:`schema_set_back`).
 """
 
 from __future__ import annotations
@@ -16,15 +21,22 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import sqlite3
+import stat
 from contextlib import closing
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import Annotated, Any, Iterable, Literal, Mapping
 from urllib.parse import quote
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from drivers.addresses import redact_tokens
 from rtcal.results.io import FILENAME as RESULTS_FILENAME, ResultsError, results_json
-from rtcal.results.model import DELIVERABLE_DIGESTS_SINCE, STORE_DIGESTS_SINCE, Digests, RunResults
+from rtcal.results.model import DELIVERABLE_DIGESTS_SINCE, SCHEMA_WRITTEN_SINCE, STORE_DIGESTS_SINCE, Digests, RunResults
+from rtcal.run.signing import (LAB_KEY_ENV, LAB_PUBLIC_KEYS_ENV, MAX_SIGNATURE_BYTES, SIGNATURE_FILENAME, PublicKey,
+                               signature_valid, trusted_keys)
 from rtcal.store.runstore import CONTEXT, EVENT_COLUMNS, READING_COLUMNS, RunStore
 
 RESULTS_DIGEST_KEY = "results_sha256"  # store meta: the digest of the results.json the run wrote
@@ -114,9 +126,31 @@ def _version(results: RunResults) -> tuple[int, int]:
     return int(major), int(minor)
 
 
+def _release(text: str) -> tuple[int, int, int] | None:
+    m = re.match(r"(\d{1,6})\.(\d{1,6})\.(\d{1,6})(?![\d.])", text)
+    return (int(m.group(1)), int(m.group(2)), int(m.group(3))) if m else None
+
+
+def schema_set_back(results: RunResults, path: Path) -> str:
+    """Why a results.json whose ``schema_version`` is older than what the rtcal it names (``rtcal_version``)
+    writes is not rtcal's, or "": a schema set back by hand would exempt the file from the digests
+    its real schema requires (SCHEMA_WRITTEN_SINCE)."""
+    release = _release(results.rtcal_version)
+    if release is None:
+        return f"{path}: its rtcal_version {results.rtcal_version[:40]!r} is not a version rtcal writes: not a file rtcal wrote"
+    least = max((schema for since, schema in SCHEMA_WRITTEN_SINCE if release >= since), default=(1, 0))
+    if _version(results) < least:
+        return (f"{path}: claims schema_version {results.schema_version}, yet rtcal {results.rtcal_version} writes "
+                f"{least[0]}.{least[1]} or later: its schema_version was set back by hand; not a file rtcal wrote")
+    return ""
+
+
 def missing_digests(results: RunResults, path: Path) -> str:
     """Why a results.json that should carry digests but carries none is not rtcal's, or "": a file
-    of schema 1.2 or later always records its store's, one of 1.3 or later its deliverables'."""
+    of schema 1.2 or later always records its store's, one of 1.3 or later its deliverables', and none
+    claims an older schema than its rtcal writes (:func:`schema_set_back`)."""
+    if schema_set_back(results, path):
+        return schema_set_back(results, path)
     version = results.schema_version
     if results.digests is None and _version(results) >= STORE_DIGESTS_SINCE:
         return (f"{path}: records no digests of its run's store, yet its schema_version {version} is one rtcal always "
@@ -134,10 +168,114 @@ def _read_only(path: Path) -> sqlite3.Connection:
     return sqlite3.connect(f"file:{quote(str(path.absolute()))}?{mode}", uri=True, timeout=10.0)
 
 
-def check_run(run_dir: str | Path, results: RunResults) -> list[str]:
+def check_run(run_dir: str | Path, results: RunResults, keys: Mapping[str, PublicKey] | None = None) -> list[str]:
     """Refuse (IntegrityError, naming the mismatch) a results.json that does not match its run's
-    store. Returns warnings: a file from before schema 1.2 without a store cannot be checked."""
+    store, or whose signature the lab's keys (``keys``; default: those configured, rtcal/run/signing.py)
+    do not confirm. Returns warnings: a file from before schema 1.2 without a store cannot be checked."""
+    warnings = _check_store(Path(run_dir), results)
+    check_signature(Path(run_dir), results, keys)
+    return warnings
+
+
+@dataclass(frozen=True)
+class SignatureStatus:
+    """What a run's signature is: ``valid`` (checked against a lab key), ``unchecked`` (signed, no lab key
+    configured to check it with) or ``unsigned``; ``text`` says it in a line."""
+
+    state: str
+    text: str
+    signer: str = ""
+    fingerprint: str = ""
+
+
+class _SignatureFile(BaseModel):
+    """signature.json as rtcal writes it (rtcal/run/signing.py), read strictly."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    format: Literal["rtcal-run-signature/1"]
+    algorithm: Literal["ed25519"]
+    signer: Annotated[str, Field(min_length=1, max_length=200)]
+    key_fingerprint: Annotated[str, Field(pattern=r"^SHA256:[A-Za-z0-9+/]{43}$")]
+    signed_utc: Annotated[str, Field(max_length=40)]
+    results_sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
+    digests: dict[str, Any]
+    deliverables_sha256: dict[Annotated[str, Field(max_length=1000)], Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]]
+    signature: Annotated[str, Field(max_length=200)]
+
+
+def _signature_file(path: Path) -> dict[str, Any]:
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW)
+    except OSError as exc:
+        raise IntegrityError(f"{path}: cannot be read ({exc.strerror or exc}): the run's signature cannot be checked") from None
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+            raise IntegrityError(f"{path}: not a regular file: not the signature rtcal wrote")
+        data = fh.read(MAX_SIGNATURE_BYTES + 1)
+    try:
+        if len(data) > MAX_SIGNATURE_BYTES:
+            raise ValueError("too large")
+        document = json.loads(data)
+        _SignatureFile.model_validate(document)
+    except (ValueError, RecursionError, UnicodeDecodeError) as exc:  # pydantic's ValidationError is a ValueError
+        raise IntegrityError(f"{path}: not a signature rtcal wrote ({' '.join(str(exc).split())[:160]})") from None
+    return dict(document)
+
+
+def signature_digests(results: RunResults) -> tuple[dict[str, Any], dict[str, str]]:
+    """What a signature covers besides results.json's own SHA-256: its digests of the store, and of every deliverable."""
+    digests = results.digests.model_dump(mode="json", exclude={"deliverables_sha256"}) if results.digests else {}
+    deliverables = dict(results.digests.deliverables_sha256 or {}) if results.digests else {}
+    return digests, deliverables
+
+
+def check_signature(run_dir: Path, results: RunResults, keys: Mapping[str, PublicKey] | None = None) -> SignatureStatus:
+    """The run's signature against the lab's public keys (``keys``; default: those configured). Refused
+    (IntegrityError, one line): a run unsigned where a lab key is configured, signed by a key that is not
+    the lab's, a signature that does not verify, a results.json or a digest other than the ones signed."""
     run_dir = Path(run_dir)
+    keys = trusted_keys() if keys is None else keys
+    path, results_path = run_dir / SIGNATURE_FILENAME, run_dir / RESULTS_FILENAME
+    claim = results.signature
+    present = os.path.lexists(path)
+    if claim is None and not present:
+        if keys:
+            raise IntegrityError(f"{run_dir}: unsigned (no {SIGNATURE_FILENAME}, results.json names no signer), yet the "
+                                 f"lab's keys are configured ({LAB_PUBLIC_KEYS_ENV}, {LAB_KEY_ENV}): a run the lab did "
+                                 "not sign is refused where it signs its runs")
+        return SignatureStatus("unsigned", "unsigned: no lab key was configured when the run was written (RTCAL_LAB_KEY)")
+    if claim is None:
+        raise IntegrityError(f"{path}: a signature, yet {results_path} names no signer: the results were replaced")
+    if not present:
+        raise IntegrityError(f"{results_path}: names the signer {claim.signer!r} (key {claim.key_fingerprint}), but "
+                             f"{path} is missing: the signature was removed (copy the whole run folder)")
+    document = _signature_file(path)
+    if (document["signer"], document["key_fingerprint"]) != (claim.signer, claim.key_fingerprint):
+        raise IntegrityError(f"{path}: signed by {document['key_fingerprint']}, yet {results_path} names "
+                             f"{claim.key_fingerprint}: not this run's signature")
+    who = f"signed by {claim.signer} with key {claim.key_fingerprint}"
+    if not keys:
+        return SignatureStatus("unchecked", f"{who}: NOT checked, no lab public key is configured ({LAB_PUBLIC_KEYS_ENV})",
+                               claim.signer, claim.key_fingerprint)
+    key = keys.get(claim.key_fingerprint)
+    if key is None:
+        raise IntegrityError(f"{path}: {who}, which is not one of the lab's keys ({LAB_PUBLIC_KEYS_ENV}): a forgery, or "
+                             "another laboratory's run")
+    if not signature_valid(document, key):
+        raise IntegrityError(f"{path}: its signature does not verify with the lab's key {key.fingerprint}: the signature "
+                             "or what it covers was edited; a forgery")
+    actual = hashlib.sha256(results_path.read_bytes()).hexdigest()
+    if document["results_sha256"] != actual:
+        raise IntegrityError(f"{results_path}: not the file the lab signed (sha256 {actual[:12]}…, signed "
+                             f"{document['results_sha256'][:12]}…): edited after the run, its digests recomputed; a forgery")
+    digests, deliverables = signature_digests(results)
+    if (document["digests"], document["deliverables_sha256"]) != (digests, deliverables):
+        raise IntegrityError(f"{results_path}: its digests are not those the lab signed: a forgery")
+    return SignatureStatus("valid", f"{who}: valid (checked against the lab's key)", claim.signer, claim.key_fingerprint)
+
+
+def _check_store(run_dir: Path, results: RunResults) -> list[str]:
+    """The store half of :func:`check_run`."""
     path, store_path = run_dir / RESULTS_FILENAME, run_dir / RunStore.FILENAME
     if not store_path.is_file() or store_path.is_symlink():
         if missing_digests(results, path):

@@ -30,7 +30,7 @@ from rtcal.procedure.loader import bench_path
 from rtcal.procedure.models import Procedure, plan_outside_limits
 from rtcal.results import SCHEMA_VERSION, RunResults, write_results
 from rtcal.results.model import (Analysis, Conformity, Evaluation, Event, Iso230Evaluation, ProcedureRef, RunInfo, RunLog,
-                                 RunMetadata, VdiEvaluation, assemble)
+                                 RunMetadata, Signature, Simulation, VdiEvaluation, assemble)
 from rtcal.deliverables.conformity import assess
 from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
@@ -45,7 +45,9 @@ from simulators.bench import Bench
 from simulators.scenario import Scenario
 from simulators.scenario_file import load_scenario
 from drivers.addresses import REDACTED, redact_tokens
-from rtcal.run.integrity import RESULTS_DIGEST_KEY, check_run, deliverable_digests, digests_of, results_digest
+from rtcal.run.integrity import (RESULTS_DIGEST_KEY, check_run, deliverable_digests, digests_of, results_digest,
+                                 signature_digests)
+from rtcal.run.signing import SIGNATURE_FILENAME, KeyConfigError, LabKey, load_lab_key, signed_document
 from rtcal.store.hint import OPERATOR_TOKEN_ENV, resume_hint
 
 OnEngine = Callable[[Engine, Path], "Callable[[], None] | None"]
@@ -114,13 +116,14 @@ def expired_instruments(proc: Procedure, on: _dt.date) -> list[tuple[str, str]]:
             if rec.calibration_due and _dt.date.fromisoformat(rec.calibration_due) < on]
 
 
-def with_certificate_number(procedure_yaml: str, number: str, name: str) -> str:
-    """The procedure's text with ``metadata.certificate_number`` set to ``number``: what the run
-    stores, so resume, verify and the live view read the certificate's own number. A procedure is a
-    template used for many runs; each certificate needs its own number (ISO/IEC 17025 7.8.2.1)."""
+def with_metadata(procedure_yaml: str, values: dict[str, str], name: str) -> str:
+    """The procedure's text with these ``metadata`` keys set (by `rtcal run --certificate-number`,
+    `--as-found`, `--as-left`): what the run stores, and says so in its first line, so resume, verify
+    and the live view read them. A procedure is a template used for many runs; each certificate needs
+    its own number (ISO/IEC 17025 7.8.2.1)."""
     data = yaml.safe_load(procedure_yaml)
-    data.setdefault("metadata", {})["certificate_number"] = number
-    return (f"# {name}, as run: metadata.certificate_number given by `rtcal run --certificate-number`\n"
+    data.setdefault("metadata", {}).update(values)
+    return (f"# {name}, as run: metadata.{', metadata.'.join(values)} given on `rtcal run`'s command line\n"
             + yaml.safe_dump(data, sort_keys=False, allow_unicode=True))
 
 
@@ -217,26 +220,60 @@ def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
         store.keep_meta(lambda: {"fault_requests": json.dumps(dict(bench.faults.requests), sort_keys=True)})
 
 
-def with_machine_identity(proc: Procedure, path: Path, text: str) -> Procedure:
-    """``metadata.machine_identity``: the machine's OPC 40001-1 identification read before anything
-    moves; a serial number other than the procedure's refuses the run (FileProblems, exit 2), else
-    the certificate's item takes the machine's serial number, manufacturer and model where the
-    procedure leaves them empty. An unreachable server is an InstrumentError (exit 1)."""
+IDENTITY_KEY = "machine_identity"
+"""The store's meta key of the machine's identification read at the start (JSON): a resume applies it
+again rather than lose it (the stored procedure is the template, without what the machine said)."""
+
+
+def read_machine_identity(proc: Procedure) -> dict[str, Any] | None:
+    """``metadata.machine_identity``'s identification (OPC 40001-1, or an MTConnect agent's probe), read
+    before anything moves (None: the procedure names no server). With several machines the address (``?machine=``, ``?serial=``) or the
+    procedure's ``serial_number`` chooses; an unreachable server or a nameplate of the wrong types is an
+    InstrumentError (exit 1)."""
     address = proc.metadata.machine_identity
     if not address:
-        return proc
-    from drivers.opcua_identity import read_identity
+        return None
+    from drivers.machine_identity import read_machine_identity as read
 
-    ident = read_identity(address)
-    said = str(ident.get("serial_number") or "")
+    return read(address, serial=proc.metadata.serial_number or None)
+
+
+def apply_machine_identity(proc: Procedure, ident: dict[str, Any], where: str, line: int) -> Procedure:
+    """The procedure whose certificate item takes the machine's serial number, manufacturer and model
+    where the procedure leaves them empty, through the same validators as the procedure's own metadata
+    (a control character, a right-to-left override or a 100 kB serial number refuse the run at ``where``
+    before anything moves); a serial number other than the procedure's refuses it (FileProblems, exit 2)."""
+    from drivers.opcua_identity import shown
+
+    address = proc.metadata.machine_identity
+    said = ident.get("serial_number")
+    said = "" if said is None else str(said)
     if proc.metadata.serial_number and said != proc.metadata.serial_number:
-        line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
-        raise FileProblems([Problem(str(path), line, 1, "metadata.machine_identity",
-                                    f"the machine at {address} says serial number {said[:100]!r}, the procedure "
+        raise FileProblems([Problem(where, line, 1, "metadata.machine_identity",
+                                    f"the machine at {address} says serial number {shown(said, 100)!r}, the procedure "
                                     f"{proc.metadata.serial_number!r}: another machine; nothing was moved")])
     machine = proc.metadata.machine or " ".join(str(ident.get(k) or "") for k in ("manufacturer", "model")).strip()
-    meta = proc.metadata.model_copy(update={"serial_number": proc.metadata.serial_number or said, "machine": machine})
+    data = {**proc.metadata.model_dump(), "serial_number": proc.metadata.serial_number or said, "machine": machine}
+    try:
+        meta = type(proc.metadata).model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field = ".".join(map(str, first["loc"]))
+        value = shown(first.get("input", ""), 60)
+        raise FileProblems([Problem(where, line, 1, "metadata.machine_identity",
+                                    f"the machine at {address} gives {field} {value!r}, which a certificate cannot "
+                                    f"carry: {str(first['msg']).removeprefix('Value error, ')}; nothing was moved")]) from None
     return proc.model_copy(update={"metadata": meta})
+
+
+def with_machine_identity(proc: Procedure, path: Path, text: str) -> tuple[Procedure, dict[str, Any] | None]:
+    """The procedure with the machine's identification applied (:func:`apply_machine_identity`, located
+    at the procedure's ``machine_identity`` line), and the identification as read (None: none asked)."""
+    ident = read_machine_identity(proc)
+    if ident is None:
+        return proc, None
+    line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
+    return apply_machine_identity(proc, ident, str(path), line), ident
 
 
 def run_procedure(
@@ -253,10 +290,11 @@ def run_procedure(
     on_engine: OnEngine | None = None,
     certificate_number: str | None = None,
     rehearse: bool = False,
+    item_state: str | None = None,
 ) -> RunOutcome:
     """Run a procedure and write the run directory (``outputs=False``: the store only, no
-    results.json, figures or report — for Monte Carlo trials). ``certificate_number`` replaces the
-    procedure's ``metadata.certificate_number`` for this run (the stored procedure says so).
+    results.json, figures or report — for Monte Carlo trials). ``certificate_number`` and ``item_state``
+    (as_found, as_left) replace the procedure's metadata for this run (the stored procedure says so).
 
     All instruments ``sim``: an in-process bench (from the scenario) with a virtual clock, and
     the results carry its truth. Otherwise real transports at the procedure's addresses (or
@@ -267,13 +305,14 @@ def run_procedure(
     procedure_path = Path(procedure_path)
     procedure_yaml = read_text(procedure_path)
     proc = load_procedure(procedure_path, large, procedure_yaml)
-    if certificate_number is not None:
-        procedure_yaml = with_certificate_number(procedure_yaml, certificate_number, procedure_path.name)
+    given = {k: v for k, v in (("certificate_number", certificate_number), ("item_state", item_state)) if v is not None}
+    if given:
+        procedure_yaml = with_metadata(procedure_yaml, given, procedure_path.name)
         proc = load_procedure(procedure_path, large, procedure_yaml)
     if addresses:
         proc = with_addresses(proc, addresses)
     check_calibration_due(proc)
-    proc = with_machine_identity(proc, procedure_path, procedure_yaml)
+    proc, identity = with_machine_identity(proc, procedure_path, procedure_yaml)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
     bench, scenario_text = None, ""
@@ -285,6 +324,7 @@ def run_procedure(
     bench_timing = _wired_motion_timing(procedure_path, proc, scenario_path) if not simulated else None
     motion_timing = bench_timing if virtual_clock else None
     run_dir = Path(out_dir) if out_dir is not None else default_run_dir(proc.method)
+    key = load_lab_key(run_dir=run_dir) if outputs else None  # a key that cannot sign refuses the run before anything moves
     operator = _operator(bench, addresses, on_engine, run_dir, rehearse)
     prepared = method.prepare(proc, operator)
     lock = claim_new_run_dir(run_dir)
@@ -298,10 +338,12 @@ def run_procedure(
             "operator_address": (addresses or {}).get("operator", ""),
             CLOCK_KEY: "virtual" if simulated or virtual_clock else "real",
             **({CONTEXT_COLUMNS_KEY: json.dumps(dict(method.context_columns))} if method.context_columns else {}),
+            **({IDENTITY_KEY: json.dumps(identity, sort_keys=True)} if identity is not None else {}),
+            **({REHEARSED_KEY: "1"} if rehearse else {}),
         })
         _keep_fault_counters(store, bench)
         return _measure_and_solve(method, proc, run_dir, store, bench, operator, virtual_clock, show_progress, 0, outputs,
-                                  estimate_noise, on_engine, motion_timing, bench_timing)
+                                  estimate_noise, on_engine, motion_timing, bench_timing, key)
     finally:
         lock.release()
 
@@ -346,6 +388,12 @@ def resume_run(
         instruments = _stored(meta, "instruments", type(proc.instruments).model_validate_json, run_dir,
                               "the procedure's instrument section as JSON")
         proc = proc.model_copy(update={"instruments": instruments})
+        if IDENTITY_KEY in meta:  # the machine's identification read at the start: the certificate's item keeps it
+            identity = _stored(meta, IDENTITY_KEY, _identity, run_dir, "the machine's identification as JSON")
+            try:
+                proc = apply_machine_identity(proc, identity, f"{where} (stored procedure)", 1)
+            except FileProblems as exc:
+                raise RunDirError(f"cannot resume: {exc.problems[0]}") from None
         previous_generation = _stored(meta, "generation", _count, run_dir, "a whole number ≥ 0")
         twice = store.readings_stored_twice()
         if twice:
@@ -381,6 +429,13 @@ def resume_run(
             _stored(meta, "fault_requests", _counters, run_dir, "a JSON object of request counts", "{}")
             bench = Bench(scenario, VirtualClock(store.last_time_s()), seed, generation)
             _keep_fault_counters(store, bench)
+        try:
+            key = load_lab_key(run_dir=run_dir)  # before anything moves: a key that cannot sign refuses the resume
+        except KeyConfigError:
+            store.close()
+            raise
+        if rehearse:  # a rehearsal at any start makes the whole run one
+            store.set_meta({REHEARSED_KEY: "1"})
         if done < planned:
             try:
                 check_calibration_due(proc)
@@ -396,7 +451,7 @@ def resume_run(
         motion_timing = bench_timing if virtual_clock else None
         return _measure_and_solve(method, proc, run_dir, store, bench, _operator(bench, addresses, on_engine, run_dir, rehearse),
                                   virtual_clock, show_progress, generation, on_engine=on_engine, motion_timing=motion_timing,
-                                  eta_timing=bench_timing)
+                                  eta_timing=bench_timing, key=key)
     finally:
         lock.release()
 
@@ -465,6 +520,15 @@ def _stored(meta: dict[str, str], key: str, parse, run_dir: Path, expected: str,
     return parsed
 
 
+def _identity(text: str) -> dict[str, Any]:
+    """A stored machine identification: a JSON object of text, whole numbers and nulls."""
+    data = json.loads(text)
+    if not isinstance(data, dict) or not all(isinstance(k, str) and (v is None or type(v) in (str, int))
+                                             for k, v in data.items()):
+        raise ValueError(text)
+    return data
+
+
 def _count(text: str) -> int:
     """A whole number ≥ 0 written in decimal digits (no sign, no spaces)."""
     if not (text.isascii() and text.isdigit()) or len(text) > 30:
@@ -522,7 +586,8 @@ def _wired_motion_timing(procedure_path: Path, proc: Procedure, scenario_path: s
 def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None, operator,
                        virtual_clock: bool, show_progress: bool | None, generation: int, outputs: bool = True,
                        estimate_noise: bool = True, on_engine: OnEngine | None = None,
-                       motion_timing: Timing | None = None, eta_timing: Timing | None = None) -> RunOutcome:
+                       motion_timing: Timing | None = None, eta_timing: Timing | None = None,
+                       key: LabKey | None = None) -> RunOutcome:
     """Open the instruments, take every pending planned reading, then analyse and write the outputs
     (``motion_timing``: a wired run on a virtual clock counts each motion at these speeds;
     ``eta_timing``: the speeds the time left is walked at, a simulated bench's own by default)."""
@@ -530,6 +595,7 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
     clock = bench.clock if bench else (VirtualClock(goes_on_s) if virtual_clock else RealClock(goes_on_s))
     try:
         store.reserve_space()  # a disk that fills up mid-run must still take the run's last status
+        store.sync_each_commit(to_disk=isinstance(clock, RealClock))  # a simulation's readings to the OS, not the disk
         inst = method.sim_instruments(proc, bench) if bench else method.transport_instruments(proc)
     except BaseException as exc:
         if isinstance(exc, KeyboardInterrupt):  # nothing moved yet
@@ -539,6 +605,8 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
         raise
     done = store.done_plan_indices()
     devices = inst.devices()
+    if bench is None:  # what each instrument says it is: rtcal's simulators say SIMULATED
+        _record_simulators(store, devices)
     step_deg = float(getattr(devices.get("stage"), "step_deg", 0.0) or 0.0)
     plan = method.plan(proc, done, generation, step_deg)
     shown = show_progress is not False or on_engine is not None  # a Monte Carlo trial shows no one the time left
@@ -564,7 +632,7 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
         finally:
             inst.close()
         try:
-            return _solve_and_write(method, proc, run_dir, store, bench, clock, generation, outputs, estimate_noise)
+            return _solve_and_write(method, proc, run_dir, store, bench, clock, generation, outputs, estimate_noise, key)
         except KeyboardInterrupt as exc:  # a signal while solving or writing: no results, recorded as any stop
             _record_interruption(store, clock.now_s(), exc, "interrupted", "while the results were computed: none were "
                                  "written; `rtcal resume` computes them again")
@@ -575,8 +643,9 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
 
 
 def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, store: RunStore, bench: Bench | None,
-                     clock: Any, generation: int, outputs: bool, estimate_noise: bool) -> RunOutcome:
-    """The measured run's analysis, its typed results and every output file."""
+                     clock: Any, generation: int, outputs: bool, estimate_noise: bool, key: LabKey | None = None) -> RunOutcome:
+    """The measured run's analysis, its typed results and every output file; with the lab's ``key``,
+    signature.json (written last, over results.json's SHA-256 and every digest it records)."""
     simulated = bench is not None
     store.set_meta({"status": "measured", "finished_utc": _now()})
     meta = store.meta()
@@ -608,7 +677,9 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
             schema_version=SCHEMA_VERSION,
             rtcal_version=__version__,
             method=proc.method,
-            procedure=ProcedureRef(name=proc.name, path=meta.get("procedure_path", "")),
+            procedure=ProcedureRef(name=proc.name, path=meta.get("procedure_path", ""),
+                                   standards=list(proc.evaluation.standards) if proc.evaluation is not None
+                                   and proc.evaluation.standards else None),
             metadata=RunMetadata.model_validate(proc.metadata.model_dump(exclude={"machine_identity"})),
             seed=int(meta["seed"]) if simulated else None,
             instruments="simulated in process" if simulated else {
@@ -619,6 +690,7 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
             starts=generation + 1,
             measurement_duration_s=round(clock.now_s(), 1),
             clock="virtual" if virtual else "real",
+            simulation=simulation_of(meta, simulated),
         )
         evaluation = evaluation_of(analysis) if method.positioning_deviation else None  # the method says what its result is
         log = RunLog(evaluation=evaluation, skipped_readings=len(store.skipped_plan_indices()),
@@ -626,7 +698,9 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
                      conformity=conformity_of(proc, analysis, evaluation),
                      control=control_record(proc, method, simulated, meta.get("operator_address", ""),
                                             len(store.rejected_attempts())),
-                     digests=digests_of(store))
+                     digests=digests_of(store),
+                     signature=Signature(algorithm="ed25519", signer=key.signer, key_fingerprint=key.fingerprint)
+                     if key is not None and outputs else None)
         results = assemble(info, analysis, log, method.results_model)
     except ValidationError as exc:  # a value beyond what results.json admits: the readings stay, the file is not written
         store.close()
@@ -656,6 +730,11 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
             # last: results.json records the digest of every file above as written (the certificate shows none)
             results = with_deliverable_digests(results, deliverable_digests(out))
             write_results(out, results)
+            if key is not None:  # the lab's signature over what the run hands over: results.json and every digest in it
+                document = signed_document(key, results_digest(results), *signature_digests(results), _now())
+                (out / SIGNATURE_FILENAME).write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+        if key is None and os.path.lexists(run_dir / SIGNATURE_FILENAME):  # an earlier start's, over results now replaced
+            os.unlink(run_dir / SIGNATURE_FILENAME)
     except BaseException as exc:  # measured and solved, the results not (all) written: a resume writes them
         if not isinstance(exc, KeyboardInterrupt):  # (an interruption is recorded by the caller)
             _stop(store, "measured", exc)
@@ -664,6 +743,75 @@ def _solve_and_write(method: Method[Any, Any], proc: Procedure, run_dir: Path, s
     store.set_meta({"status": "solved", "engine_state": "finished", RESULTS_DIGEST_KEY: results_digest(results)})
     store.close()
     return RunOutcome(run_dir, results, counted)
+
+
+SIMULATORS_KEY = "simulators"
+"""The store's meta key of the instruments that answered from rtcal's simulators, over every start (JSON)."""
+REHEARSED_KEY = "rehearsed"
+"""The store's meta key set when any start of the run was a rehearsal (`--rehearse`)."""
+
+
+def _record_simulators(store: RunStore, devices: dict[str, Any]) -> None:
+    """Each instrument whose identity reply says SIMULATED (rtcal's protocol simulators: drivers/interfaces.py
+    SIMULATED_MARK), added to those of earlier starts: a run resumed on real instruments stays marked."""
+    from drivers.errors import InstrumentError
+    from drivers.interfaces import SIMULATED_MARK
+
+    found = _simulators(store.meta().get(SIMULATORS_KEY, "{}"))
+    for name, device in devices.items():
+        try:
+            said = str(device.identity())
+        except InstrumentError:
+            said = ""
+        if SIMULATED_MARK in said:
+            found[name] = said[:1000]
+    store.set_meta({SIMULATORS_KEY: json.dumps(found, sort_keys=True)})
+
+
+def _simulators(text: str) -> dict[str, str]:
+    try:
+        data = json.loads(text)
+    except ValueError:
+        data = None
+    if not isinstance(data, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in data.items()):
+        return {"(store)": f"its record of simulated instruments is not rtcal's ({text[:60]!r}): taken as simulated"}
+    return data
+
+
+def simulation_of(meta: dict[str, str], in_process: bool) -> Simulation | None:
+    """Why the run is no calibration, from the store: in process, instruments (the machine's nameplate,
+    the simulated operator) that said they were rtcal's simulators, a rehearsal; None: none of these."""
+    from drivers.interfaces import SIMULATED_MARK
+
+    simulators = _simulators(meta.get(SIMULATORS_KEY, "{}"))
+    if meta.get("operator_address"):  # only `rtcal sim serve` serves an operator that carries out the steps
+        simulators["operator"] = f"rtcal's simulated operator at {redact_tokens(meta['operator_address'])}"
+    if IDENTITY_KEY in meta:
+        try:
+            plate = {k: v for k, v in json.loads(meta[IDENTITY_KEY]).items() if isinstance(v, (str, int))}
+        except (ValueError, AttributeError):
+            plate = {}
+        if any(SIMULATED_MARK in str(v) for v in plate.values()):
+            simulators["machine"] = ", ".join(f"{k} {v}" for k, v in sorted(plate.items()))[:1000]
+    rehearsed = meta.get(REHEARSED_KEY) == "1"
+    if not (in_process or simulators or rehearsed):
+        return None
+    return Simulation(in_process=in_process, simulators=simulators, rehearsed=rehearsed,
+                      statement=simulation_statement(in_process, sorted(simulators), rehearsed))
+
+
+def simulation_statement(in_process: bool, simulators: list[str], rehearsed: bool) -> str:
+    """The marking every page of the certificate and the console carry, in one line."""
+    what = "SIMULATED" if in_process or simulators else ""
+    what = " AND ".join(x for x in (what, "REHEARSED" if rehearsed else "") if x)
+    why = []
+    if in_process:
+        why.append("every instrument and the table were simulated in process on a model bench")
+    if simulators:
+        why.append(f"{', '.join(simulators)} answered from rtcal's simulators (rtcal sim serve)")
+    if rehearsed:
+        why.append("a rehearsal (--rehearse): the simulated operator carried out the operator's steps")
+    return f"{what} — NOT A CALIBRATION: {'; '.join(why)}"
 
 
 def _record_interruption(store: RunStore, t_s: float, exc: KeyboardInterrupt, status: str, when: str) -> None:

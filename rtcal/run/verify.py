@@ -14,13 +14,14 @@ import json
 import math
 from contextlib import closing
 from dataclasses import dataclass, field
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rtcal.results.io import read_results
 from rtcal.results.model import RunResults
-from rtcal.run.integrity import IntegrityError, _read_only, check_deliverables, check_run, missing_digests
+from rtcal.run.integrity import (IntegrityError, SignatureStatus, _read_only, check_deliverables, check_run, check_signature,
+                                 missing_digests)
 from rtcal.store.runstore import RunStore
 
 if TYPE_CHECKING:
@@ -31,6 +32,10 @@ if TYPE_CHECKING:
 RECOMPUTED = ("nominal_angles_deg", "raw_readings", "recommended", "solver_status", "estimates", "positioning_deviations",
               "environment", "evaluation", "conformity", "skipped_readings", "faults", "events")
 REL_TOLERANCE = 1e-9  # a full-precision float recomputed on another machine's BLAS
+ALTERED = {"EDITED": "changed after the run wrote it: its SHA-256 is not the one results.json records for it",
+           "missing": "results.json records it as written by the run, and it is gone",
+           "not a regular file": "a link or a folder stands where the run wrote this file"}
+"""What each status of a deliverable (Verification.files) means, as `rtcal verify` and `catalog add` say it."""
 
 
 @dataclass
@@ -44,6 +49,10 @@ class Verification:
     differences: list[tuple[str, Any, Any]] = field(default_factory=list)
     files: list[tuple[str, str]] = field(default_factory=list)
     """Each deliverable results.json records a digest of, and its status (integrity.check_deliverables)."""
+    signature: SignatureStatus | None = None
+    """The run's signature against the lab's keys (integrity.check_signature); None: not checked."""
+    results: RunResults | None = None
+    """results.json as read (its simulation and signature marks)."""
 
     @property
     def altered_files(self) -> list[tuple[str, str]]:
@@ -99,9 +108,13 @@ def compare(stored: Any, recomputed: Any, path: str, out: Verification) -> None:
         out.differences.append((path, stored, recomputed))
 
 
-def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]]) -> tuple[RunResults, dict[str, Any], int]:
+def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]],
+              adjust: Callable[[Method[Any, Any], Any, RunStore], tuple[Any, RunStore]] | None = None,
+              ) -> tuple[RunResults, dict[str, Any], int]:
     """results.json as read, the parts of it the store determines recomputed, and the readings used
-    (``methods``: the known methods, by name: the store names the run's)."""
+    (``methods``: the known methods, by name: the store names the run's; ``adjust``: the procedure and
+    store the analysis takes instead of the stored ones — a reference instrument's new calibration,
+    rtcal/run/reassess.py)."""
     from rtcal.procedure.yamlfile import validate_text
     from rtcal.results.model import Event
     from rtcal.run.rundir import RunDirError
@@ -124,7 +137,10 @@ def recompute(run_dir: Path, methods: Mapping[str, Method[Any, Any]]) -> tuple[R
             proc = proc.model_copy(update={"instruments": type(proc.instruments).model_validate_json(meta.get("instruments", ""))})
         except ValueError:
             raise RunDirError(f"{path}: its `instruments` is not the procedure's instrument section: the store was edited") from None
-        analysis = methods[proc.method].analyse(proc, store, None, True)  # no bench: truth is the simulator's, not the readings'
+        source = store
+        if adjust is not None:
+            proc, source = adjust(methods[proc.method], proc, store)
+        analysis = methods[proc.method].analyse(proc, source, None, True)  # no bench: truth is the simulator's, not the readings'
 
         evaluation = evaluation_of(analysis) if methods[proc.method].positioning_deviation else None
         events = [Event(**e) for e in store.events()]
@@ -147,11 +163,17 @@ def verify(run_dir: str | Path, methods: Mapping[str, Method[Any, Any]]) -> Veri
     results, recomputed, readings = recompute(run_dir, methods)
     if missing_digests(results, run_dir / "results.json"):  # exit 2: not a results.json rtcal wrote
         raise IntegrityError(missing_digests(results, run_dir / "results.json"))
-    out = Verification(readings=readings)
+    out = Verification(readings=readings, results=results)
     try:
         out.warnings += check_run(run_dir, results)
     except IntegrityError as exc:
         out.integrity.append(str(exc))
+    try:
+        out.signature = check_signature(run_dir, results)
+    except IntegrityError as exc:  # a forgery: named once, whichever check found it first
+        out.signature = SignatureStatus("REFUSED", str(exc))
+        if str(exc) not in out.integrity:
+            out.integrity.append(str(exc))
     out.files = check_deliverables(run_dir, results)
     if results.digests is not None and results.digests.deliverables_sha256 is None and not out.integrity:
         out.warnings.append(f"{run_dir / 'results.json'} (schema {results.schema_version}) records no digests of the "

@@ -35,6 +35,7 @@ visit out, not its series.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -251,16 +252,33 @@ def _mean_operator(keys: np.ndarray, n_keys: int) -> np.ndarray:
     return np.divide(M, counts, out=np.zeros_like(M), where=counts > 0)
 
 
-def _centring_operator(groups: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """n×n: subtract from each entry the mean of its group's ``reference`` entries."""
-    n = len(groups)
-    C = np.eye(n)
+def _centring_groups(groups: np.ndarray, reference: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(members, reference members) of each group that has a reference."""
+    out = []
     for g in np.unique(groups):
         members = np.flatnonzero(groups == g)
         ref = members[reference[members]]
         if ref.size:
-            C[np.ix_(members, ref)] -= 1.0 / ref.size
-    return C
+            out.append((members, ref))
+    return out
+
+
+def _centred(X: np.ndarray, groups: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """X·C, C (n×n) subtracting from each entry the mean of its group's ``reference`` entries, without C:
+    (X·C)[:, ref] −= Σ over the group's members of X[:, member] / |ref| — O(rows·n), not O(rows·n²)."""
+    X = np.asarray(X, float)
+    out = X.copy()
+    for members, ref in _centring_groups(groups, reference):
+        out[:, ref] -= X[:, members].sum(axis=1, keepdims=True) / ref.size
+    return out
+
+
+def _centre(x: np.ndarray, groups: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """C·x: each entry less the mean of its group's ``reference`` entries."""
+    out = np.array(x, float)
+    for members, ref in _centring_groups(groups, reference):
+        out[members] -= np.mean(x[ref])
+    return out
 
 
 def steps_within_directions(directions: np.ndarray) -> np.ndarray:
@@ -401,19 +419,38 @@ def _visit_geometry(v: AbbeVisits, setup: AbbeSetup) -> _Geometry:
 
 @dataclass(frozen=True)
 class _FaceErrors:
-    """The face visits' readings and the face errors they are corrected by: ε̂ = to_eps·y exactly,
-    the linear map the covariances propagate through."""
+    """The face visits' readings and the face errors they are corrected by: ε̂ = (I − B·K_f)·y exactly
+    (K_f None: the certificate's, ε̂ = y − B·f), the linear map the covariances propagate through —
+    applied as X − (X·B)·K_f, never as an n×n matrix (:meth:`through`)."""
 
     ac: np.ndarray  # the visits with a reference reading
     y: np.ndarray  # their autocollimator readings
     B: np.ndarray  # face visit × face: 1 where that face was in front
     face_error: np.ndarray  # used: the certificate or the closure result
-    to_eps: np.ndarray  # ε̂ ← y
+    K_f: np.ndarray | None  # faces ← y: closure's map to the face errors (None: the certificate's)
     eps: np.ndarray  # εz + the seating's constant, per face visit
     closure: ClosureResult | None
     closure_angles_deg: np.ndarray | None
     closure_dirs: np.ndarray | None
     n_closure: int  # face visits the closure used (0: the certificate)
+
+    def through(self, X: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """X·(I − B·K_f), or X·(I − B·K_f)[rows] for X over those rows only (X·I[rows] puts X's columns at rows)."""
+        n = len(self.ac)
+        if rows is None:
+            spread = np.asarray(X, float)
+            B = self.B
+        else:
+            spread = np.zeros((X.shape[0], n))
+            spread[:, np.flatnonzero(rows) if rows.dtype == bool else rows] = X
+            B = self.B[rows]
+        return spread if self.K_f is None else spread - (X @ B) @ self.K_f
+
+    def closure_part(self, X: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """X·(B·K_f)[rows]: the part of ε̂ the closure's face errors carry (zero with a certificate)."""
+        if self.K_f is None:
+            return np.zeros((X.shape[0], len(self.ac)))
+        return (X @ self.B[rows]) @ self.K_f
 
 
 def _closure(v: AbbeVisits, setup: AbbeSetup, g: _Geometry, ac: np.ndarray, y: np.ndarray
@@ -446,10 +483,34 @@ def _face_errors(v: AbbeVisits, setup: AbbeSetup, g: _Geometry) -> _FaceErrors:
     if setup.certificate_arcsec is None:
         closure, K_f, angles, dirs, n_closure = _closure(v, setup, g, ac, y)
         face_error = closure.face_error
-        to_eps = np.eye(len(ac)) - B @ K_f  # ε̂ = (I − B·K_f)·y
-        return _FaceErrors(ac, y, B, face_error, to_eps, y - B @ face_error, closure, angles, dirs, n_closure)
+        return _FaceErrors(ac, y, B, face_error, K_f, y - B @ face_error, closure, angles, dirs, n_closure)  # ε̂ = (I − B·K_f)·y
     face_error = np.asarray(setup.certificate_arcsec, float)
-    return _FaceErrors(ac, y, B, face_error, np.eye(len(ac)), y - B @ face_error, None, None, None, 0)
+    return _FaceErrors(ac, y, B, face_error, None, y - B @ face_error, None, None, None, 0)
+
+
+@dataclass(frozen=True)
+class _RowMap:
+    """rows ← ε̂ per face visit as T = S − U·Wᵀ: S sparse (each (step, run) row the mean of its visits), U·Wᵀ of
+    low rank (each seating's mean and the reference step taken out): T·X costs O(visits) and each row's norm a
+    chunk of rows at a time, where the rows × visits matrix (rows ≈ visits: one per step and run) times the
+    visits × visits map cost O(visits³) and O(visits²) of memory."""
+
+    S: Any  # scipy.sparse (rows, n)
+    U: np.ndarray  # (rows, k)
+    W: np.ndarray  # (n, k)
+
+    def times(self, X: np.ndarray) -> np.ndarray:
+        """T·X."""
+        return np.asarray(self.S @ X) - self.U @ (self.W.T @ X)
+
+    def row_norms2(self, f: "_FaceErrors", chunk_rows: int = 256) -> np.ndarray:
+        """‖(T·(I − B·K_f))_r‖² per row (T's own rows with a certificate), rows formed a chunk at a time."""
+        out = np.empty(self.S.shape[0])
+        for start in range(0, len(out), chunk_rows):
+            stop = min(start + chunk_rows, len(out))
+            T = self.S[start:stop].toarray() - self.U[start:stop] @ self.W.T
+            out[start:stop] = np.sum(f.through(T) ** 2, axis=1)
+        return out
 
 
 @dataclass(frozen=True)
@@ -458,31 +519,43 @@ class _EpsOperators:
     removed (mean over the seating's visits), averaged, referred to the first target of the first
     direction (ECC) — linear, so that the budget is T·Σ·Tᵀ."""
 
-    centre: np.ndarray  # face visits ← ε̂, each seating's mean removed
+    centred_eps: np.ndarray  # ε̂ per face visit, each seating's mean removed
     T_eps: np.ndarray  # steps ← ε̂ per face visit
     face_steps: np.ndarray  # the steps with a reference reading
     eps_steps: np.ndarray  # εz per step, NaN off the faces
     row_keys: list[tuple[int, int]]  # (step, run)
-    T_rows: np.ndarray  # rows ← ε̂ per face visit
+    T_rows: _RowMap  # rows ← ε̂ per face visit
 
 
 def _eps_operators(g: _Geometry, f: _FaceErrors) -> _EpsOperators:
     """The maps of :class:`_EpsOperators`; each run's rows referred to the same zero (the mean
     over runs at the first target), so that runs stay comparable."""
+    import scipy.sparse as sp
+
     n_s, step_idx = g.steps.n, g.steps.index
-    centre = _centring_operator(g.seating[f.ac], np.ones(len(f.ac), bool))
+    seating, every = g.seating[f.ac], np.ones(len(f.ac), bool)
     M = _mean_operator(step_idx[f.ac], n_s)
     face_steps = np.flatnonzero(M.sum(axis=1) > 0)
     ref_step = face_steps[0]  # the first target of the first direction
     R = np.eye(n_s) - np.outer(np.ones(n_s), np.eye(n_s)[ref_step])
-    T_eps = R @ M @ centre
+    T_eps = _centred(R @ M, seating, every)
     eps_steps = T_eps @ f.eps
     eps_steps[np.setdiff1d(np.arange(n_s), face_steps)] = np.nan
     row_keys = sorted({(int(step_idx[i]), int(g.run[i])) for i in f.ac})
     row_of = {k: r for r, k in enumerate(row_keys)}
-    M_rows = _mean_operator(np.array([row_of[(int(step_idx[i]), int(g.run[i]))] for i in f.ac]), len(row_keys))
-    T_rows = (M_rows - np.outer(np.ones(len(row_keys)), M[ref_step])) @ centre
-    return _EpsOperators(centre, T_eps, face_steps, eps_steps, row_keys, T_rows)
+    rows = np.array([row_of[(int(step_idx[i]), int(g.run[i]))] for i in f.ac], int)
+    n = len(f.ac)
+    count = np.bincount(rows, minlength=len(row_keys))
+    M_rows = sp.csr_matrix((1.0 / count[rows], (rows, np.arange(n))), shape=(len(row_keys), n))
+    # (M_rows − 1·M[ref])·C = M_rows − Σ_g (M_rows·1_g)·1_gᵀ/|g| − 1·(M[ref]·C): sparse less rank seatings + 1
+    groups = _centring_groups(seating, every)
+    U = np.column_stack([np.asarray(M_rows[:, members].sum(axis=1)).ravel() for members, _ in groups]
+                        + [np.ones(len(row_keys))])
+    W = np.zeros((n, len(groups) + 1))
+    for k, (members, ref) in enumerate(groups):
+        W[ref, k] = 1.0 / ref.size
+    W[:, -1] = _centred(M[ref_step][None, :], seating, every)[0]
+    return _EpsOperators(_centre(f.eps, seating, every), T_eps, face_steps, eps_steps, row_keys, _RowMap(M_rows, U, W))
 
 
 _RandomPart = tuple[str, SourceType, float, str]  # name, GUM type, 1σ per visit (″), note
@@ -509,7 +582,7 @@ def _budget_components(noise: AbbeNoise, g: _Geometry, f: _FaceErrors, ops: _Eps
                        random_parts: list[_RandomPart], pooled: tuple[float, int] | None) -> list[BudgetComponent]:
     """εz's budget, one component per independent source, each its covariance over the face steps:
     the random parts, then what repeats run after run (a digit, the certificates) and the scale."""
-    fs, T_y = ops.face_steps, ops.T_eps @ f.to_eps
+    fs, T_y = ops.face_steps, f.through(ops.T_eps)
     components = [BudgetComponent(name, typ, sigma, "″", _cov(T_y[fs], sigma**2), typ == "A", note)
                   for name, typ, sigma, note in random_parts if sigma > 0]
     if f.closure is None and pooled is not None and noise.estimate and noise.autocollimator_resolution_arcsec > 0:
@@ -545,16 +618,16 @@ def _reference_deviation(noise: AbbeNoise, g: _Geometry, f: _FaceErrors, ops: _E
     """εz per step with its budget, and per run with each row's own 1σ (random parts and, with a
     certificate, its uncertainty); and εz's 1σ per step (NaN off the faces)."""
     budget = DeviationBudget(_budget_components(noise, g, f, ops, random_parts, pooled))
-    row_var = sum(sigma**2 * np.sum((ops.T_rows @ f.to_eps) ** 2, axis=1) for _, _, sigma, _ in random_parts)
+    row_var = sum(sigma**2 * ops.T_rows.row_norms2(f) for _, _, sigma, _ in random_parts)
     if f.closure is None:
-        row_var = row_var + noise.certificate_uncertainty_arcsec**2 * np.sum((ops.T_rows @ f.B) ** 2, axis=1)
+        row_var = row_var + noise.certificate_uncertainty_arcsec**2 * np.sum(ops.T_rows.times(f.B) ** 2, axis=1)
     eps_sigma = np.full(g.steps.n, np.nan)
     eps_sigma[ops.face_steps] = budget.uncertainty_arcsec
     s_angle, s_dir, fs, rows = g.steps.angle_deg, g.steps.direction, ops.face_steps, ops.row_keys
     reference = ReferenceDeviation(
         s_angle[fs], s_dir[fs], ops.eps_steps[fs], budget, steps_within_directions(s_dir[fs]),
         s_angle[[k[0] for k in rows]], s_dir[[k[0] for k in rows]], np.array([k[1] + 1 for k in rows]),
-        ops.T_rows @ f.eps, np.sqrt(row_var), source)
+        ops.T_rows.times(f.eps), np.sqrt(row_var), source)
     return reference, eps_sigma
 
 
@@ -569,7 +642,7 @@ def _measured(noise: AbbeNoise, g: _Geometry, f: _FaceErrors, ops: _EpsOperators
     key_m = g.key[ac]
     meas_visit = g.enc_vs_cmd_arcsec[ac] - f.eps
     fm = np.isfinite(meas_visit)
-    T_meas = _mean_operator(step_idx[ac][fm], n_s) @ _centring_operator(g.seating[ac][fm], np.ones(int(fm.sum()), bool))
+    T_meas = _centred(_mean_operator(step_idx[ac][fm], n_s), g.seating[ac][fm], np.ones(int(fm.sum()), bool))
     meas_steps = T_meas @ meas_visit[fm]
     meas_steps[T_meas.any(axis=1) == 0] = np.nan
     pooled_m = _pooled_sigma(meas_visit[fm], key_m[fm]) if g.n_runs > 1 and noise.estimate else None
@@ -584,8 +657,7 @@ def _measured(noise: AbbeNoise, g: _Geometry, f: _FaceErrors, ops: _EpsOperators
         # repeatability s only through the face errors the closure estimated from every visit
         rep2 = noise.stage_repeatability_arcsec**2
         ac2 = max(random_variance - rep2, 0.0) if noise.estimate else noise.autocollimator_noise_arcsec**2 + ac_res2
-        BK = np.eye(len(ac)) - f.to_eps
-        meas_cov = (_cov(T_meas @ f.to_eps[fm], ac2) + _cov(T_meas @ BK[fm], rep2)
+        meas_cov = (_cov(f.through(T_meas, fm), ac2) + _cov(f.closure_part(T_meas, fm), rep2)
                     + _cov(T_meas, noise.encoder_noise_arcsec**2 + enc_res2))
     meas_steps[np.setdiff1d(np.arange(n_s), ops.face_steps)] = np.nan
     return meas_steps, meas_cov
@@ -608,7 +680,7 @@ def _predicted(v: AbbeVisits, noise: AbbeNoise, g: _Geometry) -> _Prediction:
     n_s, step_idx, a_fac, per_um = g.steps.n, g.steps.index, g.a_fac, g.arcsec_per_um
     through = ((1 - a_fac) ** 2 + a_fac**2) * per_um**2  # an indicator's µm² into the prediction's ″²
     fp = np.isfinite(g.predicted_arcsec)
-    T_pred = _mean_operator(step_idx[fp], n_s) @ _centring_operator(g.seating[fp], g.has_ac[fp])  # reference: the face visits
+    T_pred = _centred(_mean_operator(step_idx[fp], n_s), g.seating[fp], g.has_ac[fp])  # reference: the face visits
     pred_steps = T_pred @ g.predicted_arcsec[fp]
     pred_steps[T_pred.any(axis=1) == 0] = np.nan
     pooled_p = _pooled_sigma(g.predicted_arcsec[fp], g.key[fp]) if g.n_runs > 1 and noise.estimate else None
@@ -722,7 +794,7 @@ def analyse_abbe(v: AbbeVisits, setup: AbbeSetup) -> AbbeEstimate:
               "radial_y_um": g.steps.mean(g.radial_mm * 1e3)}
     e_cmd = g.steps.mean(g.enc_vs_cmd_arcsec)
     eps_visit = np.full(len(g.angle_deg), np.nan)
-    eps_visit[f.ac] = ops.centre @ f.eps
+    eps_visit[f.ac] = ops.centred_eps
     harmonics = _harmonic_fits(v, setup, g, eps_visit, series, _indicator_rounding(v, setup, g, pred))
     return AbbeEstimate(
         angle_deg=g.steps.angle_deg, direction=g.steps.direction,

@@ -95,6 +95,7 @@ class HarmonicFit:
     residual_rms: float
     sigma: float  # residual standard deviation, with the fit's degrees of freedom
     warnings: list[str] = field(default_factory=list)
+    trend: np.ndarray | None = None  # the offsets (and a trend_degree's polynomial) at each sample
 
 
 def distinct_angles(angles_rad: np.ndarray) -> np.ndarray:
@@ -133,12 +134,17 @@ def grid_nyquist(angles_rad: np.ndarray, cap: int) -> int:
 
 
 def _design(theta: np.ndarray, orders: list[int], groups: np.ndarray, aliased_order: int | None,
-            theta0: float = 0.0) -> tuple[np.ndarray, int]:
+            theta0: float = 0.0, trend_degree: int = 0) -> tuple[np.ndarray, int]:
     groups = np.unique(np.asarray(groups), return_inverse=True)[1]
     n_groups = int(groups.max()) + 1 if len(groups) else 1
     cols = [np.sin(n * theta) for n in orders] + [np.cos(n * theta) for n in orders]
     if aliased_order is not None:
         cols.append(np.cos(aliased_order * (theta - theta0)))  # the part the grid through θ0 sees
+    if trend_degree and len(theta):  # a slow error over a short arc: powers of the centred, scaled angle per group
+        t = theta - 0.5 * (theta.min() + theta.max())
+        t = t / (np.max(np.abs(t)) or 1.0)
+        for g in range(n_groups):
+            cols += [np.where(groups == g, t**p, 0.0) for p in range(1, trend_degree + 1)]
     offsets = np.zeros((len(theta), n_groups))
     offsets[np.arange(len(theta)), groups] = 1.0
     return (np.column_stack(cols + [offsets]) if cols else offsets), n_groups
@@ -162,16 +168,20 @@ def smooth_values(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
 def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int], groups: np.ndarray | None = None,
                   floor_sigma: float = 0.0, aliased_order: int | None = None, max_order: int | None = None,
                   alpha: float = FAMILY_ALPHA, quantisation_threshold: dict[int, float] | None = None,
-                  alternatives_up_to: int | None = None) -> HarmonicFit:
+                  alternatives_up_to: int | None = None, trend_degree: int = 0) -> HarmonicFit:
     """Fit A_n, φ_n for the given orders (and the cosine part of ``aliased_order``) plus one offset
     per group (all one group by default). ``floor_sigma`` is the smallest per-sample σ the
     readings can have (resolution/√12); ``max_order`` the highest order asked for (for the warning);
     ``alternatives_up_to``: test each significant order against unmodelled orders up to this one
-    (separability, module docstring; None: not tested)."""
+    (separability, module docstring; None: not tested). ``trend_degree``: a polynomial of that
+    degree in the angle per group besides its offset — the slow error over a short arc of fine steps
+    (a periodic-error test), which would otherwise leak into the orders; ``offsets`` then holds
+    each group's constant, and ``trend`` the whole fitted slow part at each sample."""
     theta = np.asarray(angles_rad, dtype=float)
     y = np.asarray(values, dtype=float)
     theta0 = float(distinct_angles(theta)[0]) if aliased_order is not None and len(theta) else 0.0
-    A, n_groups = _design(theta, orders, np.zeros(len(y), int) if groups is None else groups, aliased_order, theta0)
+    A, n_groups = _design(theta, orders, np.zeros(len(y), int) if groups is None else groups, aliased_order, theta0,
+                          trend_degree)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     quantisation_threshold = quantisation_threshold or {}
     resid = y - A @ coef
@@ -227,7 +237,9 @@ def fit_harmonics(angles_rad: np.ndarray, values: np.ndarray, orders: list[int],
             if max_order is not None and max_order > aliased_order:
                 warnings.append(f"orders above {aliased_order} cannot be resolved by this sampling: any such error "
                                 "aliases onto lower orders")
-    return HarmonicFit(terms, coef[A.shape[1] - n_groups:], float(np.sqrt(np.mean(resid**2))), sigma, warnings)
+    slow = 2 * k + (aliased_order is not None)  # the trend's columns and the offsets follow the orders'
+    return HarmonicFit(terms, coef[A.shape[1] - n_groups:], float(np.sqrt(np.mean(resid**2))), sigma, warnings,
+                       A[:, slow:] @ coef[slow:])
 
 
 def _separability(theta: np.ndarray, y: np.ndarray, groups: np.ndarray | None, terms: list[HarmonicTerm],

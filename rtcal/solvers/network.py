@@ -21,7 +21,14 @@ axis line is also reported as ISO 230-7 location errors (X0C, Y0C, A0C, B0C; rtc
 
 Normal equations are solved with the points eliminated (Schur complement: each point is a
 3×3 block), so a network of thousands of points costs O(points·globals²): the globals (axis,
-radius, angles, dead paths, CMM) are a few dozen.
+radius, angles, dead paths, CMM) are a few dozen. The budget keeps the same structure: the
+estimator's influence is globals × residuals (H = S⁻¹·Zᵀ·W, the points eliminated), each source's
+effect on the residuals (lengths, then the points' coordinates) is a vector (one input per residual:
+tracer, CMM point noise, a visit of one length, sensor noise), a :class:`Grouped` (a visit of several
+lengths), a dense column or two (air, table expansion) or a :class:`Factored` map (the CMM field on the
+points' rows, the error motions through the stations), and the residual test's V₀ is those effects
+(:class:`rtcal.solvers.uncertainty.Covariance`), never N×N. A new term of the budget is one more
+source of one of these shapes (rtcal/solvers/structure.py).
 """
 
 from __future__ import annotations
@@ -43,7 +50,9 @@ from rtcal.solvers.station_budget import (
     sensor_noise_sources,
     cmm_field_as_source,
     course_nuisance,
+    covariance_root,
     cmm_field_root_mm,
+    field_mix,
     sensor_noise_variance_mm2,
     table_expansion_sources,
     cmm_matrix_derivatives,
@@ -51,15 +60,16 @@ from rtcal.solvers.station_budget import (
 )
 from rtcal.solvers.location import location_from_axis, location_jacobian, stated_motion_covariance
 from rtcal.solvers.station_data import MultistationData
+from rtcal.solvers.structure import Effect, Factored, Grouped, padded, scaled
 from rtcal.solvers.uncertainty import (
     BudgetComponent,
+    Covariance,
     DeviationBudget,
     ResidualCheck,
     Source,
     VarianceEstimate,
     propagate,
     residual_check,
-    stated_covariance,
 )
 from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
 
@@ -663,37 +673,38 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         e = d / np.linalg.norm(d, axis=1)[:, None]
         axis, _, _ = axis_basis(*x[lay.a])
         t = np.cross(axis, P[st] - x[lay.c])
-        F = np.zeros((N_len + len(zeros_pts), len(uv)))
         rows = np.flatnonzero(multi)
-        F[rows, vidx] = -np.einsum("ij,ij->i", e[rows], t[rows]) * arcsec_to_rad(noise.stage_repeatability_arcsec)
-        sources.append(Source("stage repeatability (shared by a visit's lengths)", "B", F, noise.stage_repeatability_arcsec,
-                              "″", "per visit, as stated"))
+        group = np.full(N_len + len(zeros_pts), -1)
+        group[rows] = vidx
+        values = np.zeros((len(group), 1))
+        values[rows, 0] = -np.einsum("ij,ij->i", e[rows], t[rows]) * arcsec_to_rad(noise.stage_repeatability_arcsec)
+        sources.append(Source("stage repeatability (shared by a visit's lengths)", "B", Grouped(values, group, len(uv)),
+                              noise.stage_repeatability_arcsec, "″", "per visit, as stated"))
     if noise.air_index_sigma > 0:  # one error of the index for the whole run scales every counted distance
         L_abs = np.linalg.norm(A[pi] - P[st], axis=1)
         sources.append(Source("air refractive index", "B", np.concatenate([L_abs, zeros_pts])[:, None] * noise.air_index_sigma,
                               noise.air_index_sigma * 1e6, "ppm", "from the environment sensor's stated uncertainty"))
     if noise.air_index_bound > 0:  # no sensor: the air drifts within the stated ranges, uncorrected
         drift = air_drift_source(np.linalg.norm(A[pi] - P[st], axis=1), run_fraction, noise)
-        sources.append(replace(drift, effect=np.vstack([drift.effect, np.zeros((len(zeros_pts), 2))])))
+        sources.append(replace(drift, effect=padded(drift.effect, len(zeros_pts))))
     axis_dir, _, _ = axis_basis(*x[lay.a])
     d_len = A[pi] - P[st]
     L_abs = np.linalg.norm(d_len, axis=1)
     unit = d_len / L_abs[:, None]
     for src in table_expansion_sources(unit, P[st], x[lay.c], axis_dir, material_offset, noise):
-        sources.append(replace(src, effect=np.vstack([src.effect, np.zeros((len(zeros_pts), 1))])))
+        sources.append(replace(src, effect=padded(src.effect, len(zeros_pts))))
     for src in sensor_noise_sources(L_abs, radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, noise):
-        sources.append(replace(src, effect=np.concatenate([src.effect, zeros_pts]), note=src.note + "; in the weights"))
+        sources.append(replace(src, effect=padded(src.effect, len(zeros_pts)), note=src.note + "; in the weights"))
     if noise.cmm_field_um > 0:  # the CMM reports each point off by the field: in the points' rows, or the lengths'
+        import scipy.sparse as sp
+
         root = cmm_field_root_mm(A, noise)
         n_pts = len(root)
-        if lay.free_points:
-            F_pts = np.zeros((3 * n_pts, 3 * n_pts))
-            for c in range(3):
-                F_pts[c::3, c * n_pts:(c + 1) * n_pts] = root
-            F_field = np.vstack([np.zeros((N_len, 3 * n_pts)), F_pts])
+        if lay.free_points:  # point row 3i + c moved by the field's coordinate c at point i
+            F_field: Effect = Factored(sp.vstack([sp.csr_matrix((N_len, 3 * n_pts)), sp.identity(3 * n_pts, format="csr")]).tocsr(),
+                                       field_mix(root))
         else:
-            F_field = np.vstack([np.hstack([root[pi] * unit[:, c][:, None] for c in range(3)]),
-                                 np.zeros((len(zeros_pts), 3 * n_pts))])
+            F_field = padded(Factored(Grouped(unit, pi, n_pts).sparse(), field_mix(root)), len(zeros_pts))
         sources.append(cmm_field_as_source(F_field, noise))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
@@ -727,14 +738,15 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     if check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
         # the residuals (lengths, then the points' coordinates) against the noise as stated: θ = 1, the Type B
         # sources acting on them, and the error motions the stated bounds allow where the model has none
-        stated = [replace(src, effect=src.effect / np.sqrt(theta[0])) if src.name == "tracer length noise" else
-                  replace(src, effect=src.effect / np.sqrt(theta[1])) if src.name == "CMM point noise" else src
+        stated = [replace(src, effect=scaled(src.effect, 1 / np.sqrt(theta[0]))) if src.name == "tracer length noise" else
+                  replace(src, effect=scaled(src.effect, 1 / np.sqrt(theta[1]))) if src.name == "CMM point noise" else src
                   for src in sources if src.name != AIR_DRIFT_SOURCE or noise.air_index_bound > 0]
-        V0 = stated_covariance(stated, len(f_len) + len(f_pts))
+        V0 = Covariance.of_sources(stated)
         if not lay.error_motions:
-            Ud = U.toarray()
-            for *_, cov in error_motion_covariances(P, nominal, x[lay.c], noise):
-                V0[:N_len, :N_len] += Ud @ cov @ Ud.T
+            station_motions = error_motion_covariances(P, nominal, x[lay.c], noise)
+            if station_motions:  # through the stations: each length by −u·δP of its station
+                V0 = V0.plus(padded(Factored(U, covariance_root(np.sum([cov for *_, cov in station_motions], axis=0))),
+                                    len(f_pts)))
         tested = residual_check(np.concatenate([f_len, f_pts]), V0, lay.size - len(prior[0]))
         # weighted: rᵀV₀⁻¹r is its χ²(ν); an uncorrected air or table (no sensor) takes any course, which this V₀ does
         # not hold (free knots as the station estimators' test has them did not take it up here: open, docs/paper000.md),

@@ -165,19 +165,17 @@ def solve_paper(
         rows.append(np.flatnonzero(np.isfinite(lengths_mm[:, j])))
     centers = np.array([f.center_mm for f in fits])
     chain = chain_from_stations(centers, nominal_angles_rad)
-    # all stations' fits as one block-diagonal problem, residuals station by station
-    widths = [f.jacobian.shape[1] for f in fits]
-    offsets = np.concatenate([[0], np.cumsum(widths)])
-    J = np.zeros((sum(len(r) for r in rows), offsets[-1]))
-    r0 = 0
-    for j, f in enumerate(fits):
-        J[r0 : r0 + len(rows[j]), offsets[j] : offsets[j + 1]] = f.jacobian
-        r0 += len(rows[j])
+    # all stations' fits as one block-diagonal problem, residuals station by station (sparse: a length
+    # touches only its station's unknowns)
+    import scipy.sparse as sp
+
+    J = sp.block_diag([f.jacobian for f in fits], format="csr")
     obs_point = np.concatenate(rows)
     obs_station = np.concatenate([np.full(len(r), j) for j, r in enumerate(rows)])
     obs = StationObservations(obs_point, obs_station, data.stage_visits[obs_point, obs_station], points_mm,
                               data.point_visit_counts, data.run_fraction()[0][obs_point, obs_station],
                               None if (mo := data.material_offsets_k()) is None else mo[0][obs_point, obs_station])
+    offsets = np.concatenate([[0], np.cumsum([f.jacobian.shape[1] for f in fits])])
     budget = station_budget(J, np.concatenate([f.residuals for f in fits]),
                             offsets[:-1, None] + np.arange(3), obs, centers, nominal_angles_rad, chain.center_mm,
                             chain.plane.normal, cumulative_function(nominal_angles_rad), noise)

@@ -8,12 +8,15 @@ dead path D_s. Solving all stations together with
 removes the near-degeneracy of the per-station model (a station's position along the line of
 sight against its own d): with the paper's geometry and 0.2 µm noise the deviation error drops
 from about 3″ to about 0.5″ RMS (docs/paper000.md; measured in tests/test_shared_dead_path.py).
-CMM points are taken as exact, as in the paper. Lengths in mm.
+CMM points are taken as exact, as in the paper. Lengths in mm. A length touches one station's three
+coordinates and one dead path: the Jacobian is sparse and the normal equations are (3m + segments)²,
+whatever the number of lengths (:func:`least_squares_sparse`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Callable
 
 import numpy as np
 
@@ -72,28 +75,73 @@ def solve_shared_dead_path(
         centers = x[: 3 * m].reshape(m, 3)
         return np.linalg.norm(points[pi] - centers[sj], axis=1) - x[3 * m :][seg_index] - obs
 
-    def jacobian(x: np.ndarray) -> np.ndarray:
+    def jacobian(x: np.ndarray) -> Any:
+        import scipy.sparse as sp
+
         centers = x[: 3 * m].reshape(m, 3)
         diff = centers[sj] - points[pi]
         unit = diff / np.linalg.norm(diff, axis=1)[:, None]
-        J = np.zeros((len(obs), 3 * m + k))
-        for c in range(3):
-            J[rows, 3 * sj + c] = unit[:, c]
-        J[rows, 3 * m + seg_index] = -1.0
-        return J
+        values = np.column_stack([unit, -np.ones(len(obs))])
+        cols = np.column_stack([3 * sj[:, None] + np.arange(3), 3 * m + seg_index])
+        return sp.csr_matrix((values.ravel(), (np.repeat(rows, 4), cols.ravel())), shape=(len(obs), 3 * m + k))
 
-    from scipy.optimize import least_squares  # here: scipy.optimize costs every command 0.2 s at import
-
-    sol = least_squares(residuals, x0, jac=jacobian, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    centers = sol.x[: 3 * m].reshape(m, 3)
+    x, f, J, converged, message = least_squares_sparse(residuals, jacobian, x0)
+    centers = x[: 3 * m].reshape(m, 3)
     chain = chain_from_stations(centers, nominal_angles_rad)
     observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts,
                                        data.run_fraction()[0][pi, sj],
                                        None if (mo := data.material_offsets_k()) is None else mo[0][pi, sj])
-    budget = station_budget(sol.jac, sol.fun, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
+    budget = station_budget(J, f, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
                             chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise)
-    converged = bool(sol.success) and sol.status > 0
     return SharedDeadPathEstimate(
-        centers, sol.x[3 * m :].copy(), seg_ids, float(np.sqrt(np.mean(sol.fun**2))) * 1e3,
-        chain, budget, converged, str(sol.message),
+        centers, x[3 * m :].copy(), seg_ids, float(np.sqrt(np.mean(f**2))) * 1e3,
+        chain, budget, converged, message,
     )
+
+
+STEP_TOLERANCE = 1e-13  # converged: the Gauss–Newton step below this share of the unknowns' size (mm: 0.1 pm at 1 m)
+
+
+def least_squares_sparse(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], Any], x0: np.ndarray,
+                         max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, Any, bool, str]:
+    """min ½‖f(x)‖² for a sparse Jacobian with few unknowns (stations and dead paths): Gauss–Newton on the p×p
+    normal equations, Levenberg–Marquardt damped (µ·diag JᵀJ) while a full step does not lower the cost. Converged
+    when the undamped step is below :data:`STEP_TOLERANCE` of the unknowns, that last step taken (the
+    least-squares optimum to rounding, as MINPACK's xtol = 1e-15 before it), or when no step lowers the cost and the step is within 1e-9 of them
+    (the rounding floor of many residuals). Returns x, f(x), J(x) (sparse), converged, how it ended."""
+    x = np.asarray(x0, float).copy()
+    f = fun(x)
+    cost = float(f @ f)
+    mu = 0.0
+    for it in range(1, max_iterations + 1):
+        J = jac(x)
+        g = np.asarray(J.T @ f)
+        normal = np.asarray((J.T @ J).toarray())
+        gn = _solve_normal(normal, -g)
+        size = 1.0 + float(np.max(np.abs(x)))
+        if np.max(np.abs(gn)) <= STEP_TOLERANCE * size:  # taken too: the optimum to rounding, whatever the unknowns' size
+            x = x + gn
+            return x, fun(x), jac(x), True, (f"converged in {it} iterations (the last Gauss–Newton step below "
+                                               f"{STEP_TOLERANCE:g} of the unknowns)")
+        step, trial = gn, fun(x + gn)
+        diag = np.diag(normal).copy()
+        while float(trial @ trial) > cost:
+            mu = max(mu * 10.0, 1e-3)
+            if mu > 1e10:
+                if np.max(np.abs(gn)) <= 1e-9 * size:
+                    return x, f, J, True, f"converged in {it - 1} iterations (at the rounding floor)"
+                return x, f, J, False, "not converged: no step lowers the cost"
+            step = _solve_normal(normal + mu * np.diag(diag), -g)
+            trial = fun(x + step)
+        mu = mu / 10.0 if mu > 1e-3 else 0.0
+        x, f, cost = x + step, trial, float(trial @ trial)
+    return x, f, jac(x), False, f"not converged: iteration limit ({max_iterations}) reached"
+
+
+def _solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    try:
+        from scipy.linalg import cho_factor, cho_solve
+
+        return np.asarray(cho_solve(cho_factor(normal), rhs))
+    except np.linalg.LinAlgError:
+        return np.asarray(np.linalg.lstsq(normal, rhs, rcond=None)[0])

@@ -30,24 +30,34 @@ Sources (the procedure's ``uncertainty`` section states them; docs/paper000.md d
 
 Each source is propagated through the estimator's own linearisation and the plane/circle/angle
 chain to the cumulative deviation (and its per-step differences).
+
+Every source keeps its structure (:mod:`rtcal.solvers.structure`), so that a budget costs in
+proportion to the lengths, not their cube: one error per length is a vector (tracer, sensor noise,
+a stage visit of one length), a CMM point's three errors a :class:`Grouped` block (c = 3, the
+point's lengths its group; a stage visit of several lengths c = 1), a few errors common to every
+length a dense (N, q) (the CMM's scales and squarenesses, the air's index, the table's
+expansion), and the error motions a :class:`Factored` map of the stations' displacements times
+the root of their covariance. A new physical term is added as one of these; the estimator's
+Jacobian is sparse (a length touches one station's coordinates and one dead path).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
+from rtcal.solvers.structure import Effect, Factored, Grouped, dense_effect, pseudo_inverse_gram, r_factor
 from rtcal.solvers.uncertainty import (
     BudgetComponent,
+    Covariance,
     DeviationBudget,
     Source,
     ResidualCheck,
     VarianceEstimate,
     difference_matrix,
     residual_check,
-    stated_covariance,
     propagate,
     reml_scales,
 )
@@ -207,18 +217,16 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
     sources = [Source("tracer length noise", "A", ref_len, at_1m if np.max(shape) > 0 else 1.0, "µm at 1 m",
                       f"a + b·L with b/a as stated ({noise.length_noise_um:g} µm + {noise.length_noise_ppm:g} ppm); size from the residuals")]
     s_p = noise.point_noise_um * 1e-3 if noise.point_noise_um > 0 else 1e-3
-    F = np.zeros((N, 3 * n))
     w = s_p / np.sqrt(np.maximum(np.asarray(obs.point_visits, float), 1.0))[obs.point]
-    for c in range(3):
-        F[np.arange(N), 3 * obs.point + c] = u[:, c] * w
+    F = Grouped(u * w[:, None], np.asarray(obs.point), n)  # a point's 3 errors move each of its lengths by u·δA
     sources.append(Source("CMM point noise", "A", F, noise.point_noise_um if noise.point_noise_um > 0 else 1.0, "µm",
                           "per point and coordinate, common to all stations; size from the residuals"))
     if noise.stage_repeatability_arcsec > 0:
         visits, vidx = np.unique(obs.visit, return_inverse=True)
         axis = np.asarray(axis_direction, float) / np.linalg.norm(axis_direction)
         tangent = np.cross(axis, P - np.asarray(axis_center_mm, float))  # δP per rad about the axis
-        Fv = np.zeros((N, len(visits)))
-        Fv[np.arange(N), vidx] = -np.einsum("ij,ij->i", u, tangent) * arcsec_to_rad(noise.stage_repeatability_arcsec)
+        Fv = Grouped((-np.einsum("ij,ij->i", u, tangent) * arcsec_to_rad(noise.stage_repeatability_arcsec))[:, None],
+                     vidx, len(visits))  # one turn per visit, shared by the visit's lengths
         sources.append(Source("stage repeatability", "B", Fv, noise.stage_repeatability_arcsec, "″",
                               "per visit, as stated"))
     if noise.air_index_sigma > 0:  # one error of the index for the whole run scales every counted distance
@@ -252,9 +260,18 @@ def cmm_field_source(unit_mm: np.ndarray, point: np.ndarray, points_mm: np.ndarr
     alike, which bends the point cloud the stations are fitted to — a distortion the stations and dead
     paths partly take up, so the residuals barely show it while the angles carry it. Each length moves by
     u·e(A) of its point's error."""
-    rows = cmm_field_root_mm(points_mm, noise)[np.asarray(point)]
-    F = np.hstack([rows * np.asarray(unit_mm, float)[:, c][:, None] for c in range(3)])
-    return cmm_field_as_source(F, noise)
+    root = cmm_field_root_mm(points_mm, noise)
+    pointwise = Grouped(np.asarray(unit_mm, float), np.asarray(point), len(root)).sparse()  # u·δA of each length's point
+    return cmm_field_as_source(Factored(pointwise, field_mix(root)), noise)
+
+
+def field_mix(root: np.ndarray) -> np.ndarray:
+    """(3n, 3n): the points' errors (x, y, z of each point in turn) from the field's inputs (every x, then y, then z)."""
+    n = len(root)
+    mix = np.zeros((3 * n, 3 * n))
+    for c in range(3):
+        mix[c::3, c * n:(c + 1) * n] = root
+    return mix
 
 
 def cmm_field_root_mm(points_mm: np.ndarray, noise: StationNoiseModel) -> np.ndarray:
@@ -266,7 +283,7 @@ def cmm_field_root_mm(points_mm: np.ndarray, noise: StationNoiseModel) -> np.nda
     return vec * np.sqrt(np.clip(w, 0.0, None))[None, :] * noise.cmm_field_um * 1e-3
 
 
-def cmm_field_as_source(effect: np.ndarray, noise: StationNoiseModel) -> Source:
+def cmm_field_as_source(effect: Effect, noise: StationNoiseModel) -> Source:
     """The field's budget line, ``effect`` its (N, 3n) effect on an estimator's residuals."""
     return Source(CMM_FIELD_SOURCE, "B", effect, noise.cmm_field_um, "µm",
                   f"1σ per coordinate as stated, correlated over {noise.cmm_field_length_mm:g} mm (exp(−d²/2ℓ²)), "
@@ -357,7 +374,7 @@ def sensor_noise_variance_mm2(distances_mm: np.ndarray, radial_mm: np.ndarray, m
     """(N,): each length's variance from :func:`sensor_noise_sources`, mm² (for a weighted estimator's weights)."""
     total = np.zeros(len(np.asarray(distances_mm)))
     for src in sensor_noise_sources(distances_mm, radial_mm, material_offset_k, noise):
-        total = total + src.effect**2
+        total = total + dense_effect(src.effect) ** 2  # each one vector: one input per length
     return total
 
 
@@ -471,7 +488,7 @@ class StationBudget:
 
 
 def station_budget(
-    jacobian: np.ndarray,
+    jacobian: np.ndarray | Any,
     residuals: np.ndarray,
     station_columns: np.ndarray,
     obs: StationObservations,
@@ -482,25 +499,36 @@ def station_budget(
     cumulative_of_stations: Callable[[np.ndarray], np.ndarray],
     noise: StationNoiseModel,
 ) -> StationBudget:
-    """The budget of the cumulative deviation of an estimate with Jacobian J (N×p) and residuals f.
+    """The budget of the cumulative deviation of an estimate with Jacobian J (N×p, dense or
+    scipy.sparse: a length touches one station and one dead path) and residuals f.
 
     ``station_columns`` (m×3) says which unknowns are the stations' X, Y, Z; the cumulative
-    deviation follows from the stations by ``cumulative_of_stations``.
+    deviation follows from the stations by ``cumulative_of_stations``. The estimator's influence
+    on the stations, J⁺ = (JᵀJ)⁺Jᵀ, goes through J's R factor (p×p, from row chunks); with the
+    chain's G only G·J⁺ (m×N) is formed.
     """
-    J = np.asarray(jacobian, float)
+    J = _as_sparse(jacobian)
     sources = observation_sources(obs, stations_mm, axis_center_mm, axis_direction, noise)
     variances = reml_scales(J, residuals, sources) if noise.estimate else VarianceEstimate({}, {}, 0, True)
-    influence = np.linalg.pinv(J)[np.asarray(station_columns).ravel()]  # ∂(stations)/∂f, up to sign
     G = chain_jacobian(stations_mm, cumulative_of_stations)
-    components = propagate(influence, sources, variances, G)
+    P = np.asarray(stations_mm, float)[obs.station]
+    diff = np.asarray(obs.points_mm, float)[obs.point] - P
+    L = np.linalg.norm(diff, axis=1)
+    radial = radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction)
+    stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
+    N = len(np.asarray(residuals))
+    course = None if stated_zero else course_nuisance(L, radial, obs.run_fraction if obs.run_fraction is not None
+                                                      else np.linspace(-1, 1, N), noise)
+    tested = J if course is None else _hstack(J, course)  # the residual test's J: the air's course free beside it
+    R = r_factor(tested)  # J's R factor is its leading block: one pass over the rows for both
+    # G·(rows of J⁺ for the stations) = (G·(JᵀJ)⁺[stations])·Jᵀ: the influence of every length on the output
+    p = J.shape[1]
+    influence = np.asarray((J @ (G @ pseudo_inverse_gram(R[:p, :p])[np.asarray(station_columns).ravel()]).T).T)
+    components = propagate(influence, sources, variances, np.eye(len(G)))
     if noise.air_index_bound > 0 or noise.material_temperature_bound_k > 0:
         # the uncorrected air and table as any course within their ranges, not the straight line the REML's V assumes
         components = [c for c in components if c.name != AIR_DRIFT_SOURCE]
-        P = np.asarray(stations_mm, float)[obs.station]
-        diff = np.asarray(obs.points_mm, float)[obs.point] - P
-        L = np.linalg.norm(diff, axis=1)
-        radial = radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction)
-        components += bounded_components(G @ influence, L, radial, obs.run_fraction if obs.run_fraction is not None
+        components += bounded_components(influence, L, radial, obs.run_fraction if obs.run_fraction is not None
                                          else np.linspace(-1, 1, len(L)), noise)
     motions = error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise)
     for name, bound, unit, cov in motions:
@@ -508,20 +536,29 @@ def station_budget(
                                           f"within ±bound (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one "
                                           "mount cannot separate them from the rotation"))
     check = None
-    stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
     if not stated_zero:  # the whole budget as stated (Type A at θ = 1), every source that moves the residuals
-        N = len(np.asarray(residuals))
-        V = stated_covariance(sources, N)
+        V = Covariance.of_sources(sources)
         if motions:  # the error motions move the stations: each length by −u·δP of its station
-            diff = np.asarray(obs.points_mm, float)[obs.point] - np.asarray(stations_mm, float)[obs.station]
-            D = np.zeros((N, 3 * len(stations_mm)))
-            for c in range(3):
-                D[np.arange(N), 3 * np.asarray(obs.station) + c] = -diff[:, c] / np.linalg.norm(diff, axis=1)
-            V += sum(D @ cov @ D.T for *_, cov in motions)
-        P = np.asarray(stations_mm, float)[obs.station]
-        diff = np.asarray(obs.points_mm, float)[obs.point] - P
-        L = np.linalg.norm(diff, axis=1)
-        course = course_nuisance(L, radial_sensitivity_mm(diff / L[:, None], P, axis_center_mm, axis_direction),
-                                 obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, N), noise)
-        check = residual_check(residuals, V, 0, jacobian=J if course is None else np.hstack([J, course]))
+            V = V.plus(Factored(Grouped(-diff / L[:, None], np.asarray(obs.station), len(stations_mm)).sparse(),
+                                covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
+        check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R)
     return StationBudget(DeviationBudget(components), variances, sources, check)
+
+
+def covariance_root(cov: np.ndarray) -> np.ndarray:
+    """R with R·Rᵀ = cov for a positive semi-definite cov (an eigen-root: cov may be singular)."""
+    w, vec = np.linalg.eigh(np.asarray(cov, float))
+    keep = w > 0
+    return np.asarray(vec[:, keep] * np.sqrt(w[keep])[None, :])
+
+
+def _as_sparse(matrix: Any) -> Any:
+    import scipy.sparse as sp
+
+    return matrix.tocsr() if sp.issparse(matrix) else sp.csr_matrix(np.asarray(matrix, float))
+
+
+def _hstack(J: Any, dense: np.ndarray) -> Any:
+    import scipy.sparse as sp
+
+    return sp.hstack([J, sp.csr_matrix(dense)]).tocsr()

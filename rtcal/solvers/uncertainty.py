@@ -16,32 +16,56 @@ CMM point seen from every station) and one per residual (tracer noise) leave dif
 patterns in the residuals, so the data tell their sizes apart. The stated σ of a Type A source
 only sets its reference scale.
 
-Everything here is arrays in, arrays out: the models that build F live with their methods.
+Everything here is arrays in, arrays out: the models that build F live with their methods. F keeps
+its source's structure (:mod:`rtcal.solvers.structure`: a vector for one input per residual,
+:class:`~rtcal.solvers.structure.Grouped` for inputs shared by a group of residuals — a CMM point,
+a stage visit —, a dense (N, q) or :class:`~rtcal.solvers.structure.Factored` for a few inputs
+common to many), and V = Σ θ·F·Fᵀ is never formed: REML, the residual test and the propagation
+work in that structure at a cost linear in the residuals. A new source is a new effect of one of
+those shapes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
+from rtcal.solvers.structure import (
+    Arrow,
+    Effect,
+    Grouped,
+    Restricted,
+    column_basis,
+    diagonal_of,
+    effect_rows,
+    grouped_of,
+    scaled,
+    sum_of_squares,
+    times_effect,
+    transposed_times,
+)
+
 SourceType = Literal["A", "B"]
+Placement = tuple[str, np.ndarray]
 
 
 @dataclass(frozen=True)
 class Source:
     """One source of input uncertainty, by its effect on the residuals per 1σ of its inputs.
 
-    ``effect``: (N,) for one independent input per residual, or (N, q) for q inputs that each
-    move several residuals (a CMM point, a stage visit, a CMM scale). ``sigma`` is the 1σ the
-    effect is scaled to, in ``unit``; for Type A it is the reference the estimated scale
+    ``effect``: (N,) for one independent input per residual, (N, q) dense for q inputs that each
+    move many residuals (a CMM scale, the air's index), :class:`~rtcal.solvers.structure.Grouped`
+    for inputs each shared by a group of residuals (a CMM point, a stage visit) or
+    :class:`~rtcal.solvers.structure.Factored` (a sparse map times a dense mix). ``sigma`` is the 1σ
+    the effect is scaled to, in ``unit``; for Type A it is the reference the estimated scale
     multiplies.
     """
 
     name: str
     type: SourceType
-    effect: np.ndarray
+    effect: Effect
     sigma: float
     unit: str
     note: str = ""
@@ -61,96 +85,146 @@ class VarianceEstimate:
         return source.sigma * float(np.sqrt(self.scale.get(source.name, 1.0)))
 
 
-def _as_diagonal(effect: np.ndarray) -> np.ndarray | None:
-    """The diagonal of F·Fᵀ when it is diagonal (each input touches one residual), else None."""
-    e = np.asarray(effect, float)
-    if e.ndim == 1:
-        return e**2
-    if np.all(np.count_nonzero(e, axis=0) <= 1):
-        return np.sum(e**2, axis=1)
-    return None
+@dataclass(frozen=True)
+class _Layout:
+    """Where each effect's columns go in :class:`rtcal.solvers.structure.Restricted`: the diagonal sources
+    summed into d, the grouped sources over the grouping with the most groups as the block, the rest as random
+    globals. ``places[k]``: ("diagonal", diag(F·Fᵀ)), ("block", its block columns) or ("global", its global
+    columns)."""
+
+    places: list[Placement]
+    block_group: np.ndarray | None
+    block_groups: int
+    block_members: list[int]  # the effects in the block, in column order
+    randoms: list[int]  # the effects among the random globals, in column order
+
+    @classmethod
+    def of(cls, effects: list[Effect]) -> "_Layout":
+        places: list[Placement] = [("diagonal", np.zeros(0))] * len(effects)
+        grouped: list[tuple[int, Grouped]] = []
+        others: list[int] = []
+        for k, e in enumerate(effects):
+            diagonal = diagonal_of(e)
+            if diagonal is not None:
+                places[k] = ("diagonal", diagonal)
+                continue
+            g = grouped_of(e)
+            if g is not None:
+                grouped.append((k, g))
+            else:
+                others.append(k)
+        members: list[int] = []
+        group, groups = None, 0
+        if grouped:
+            _, widest = max(grouped, key=lambda kg: kg[1].groups)
+            group, groups = widest.group, widest.groups
+            c = 0
+            for k, g in grouped:
+                if g.groups == groups and np.array_equal(g.group, group):
+                    members.append(k)
+                    places[k] = ("block", np.arange(c, c + g.width))
+                    c += g.width
+                else:
+                    others.append(k)
+        q = 0
+        randoms = sorted(others)
+        for k in randoms:
+            e = effects[k]
+            width = np.asarray(e).shape[1] if isinstance(e, np.ndarray) else e.shape[1]
+            places[k] = ("global", np.arange(q, q + width))
+            q += width
+        return cls(places, group, groups, members, randoms)
+
+    def restricted(self, effects: list[Effect], scales: list[float], rows: int, floor: float = 0.0, jacobian: Any = None,
+                   jacobian_mix: np.ndarray | None = None) -> Restricted:
+        """P for V = Σ scale_k·F_k·F_kᵀ (the block unscaled, its columns scaled by √scale)."""
+        d = np.full(rows, floor)
+        for k, (kind, where) in enumerate(self.places):
+            if kind == "diagonal":
+                d = d + scales[k] * where
+        block = None
+        block_scale = None
+        if self.block_members:
+            assert self.block_group is not None
+            grouped = [grouped_of(effects[k]) for k in self.block_members]
+            block = Grouped(np.hstack([g.values for g in grouped if g is not None]), self.block_group, self.block_groups)
+            block_scale = np.concatenate([np.full(len(self.places[k][1]), np.sqrt(scales[k])) for k in self.block_members])
+        randoms = [scaled(effects[k], float(np.sqrt(scales[k]))) if scales[k] != 1.0 else effects[k] for k in self.randoms]
+        return Restricted(d, block, randoms, jacobian, jacobian_mix, block_scale)
 
 
-def reml_scales(jacobian: np.ndarray, residuals: np.ndarray, sources: list[Source],
+def reml_scales(jacobian: np.ndarray | Any, residuals: np.ndarray, sources: list[Source],
                 max_iterations: int = 60, tolerance: float = 1e-4, floor: float = 1e-14) -> VarianceEstimate:
     """Estimate the variance scales θ of the Type A sources by REML (Fisher scoring).
 
     The Type B sources enter V with θ = 1. Scales are kept ≥ ``floor`` (a noise-free bench
     estimates them ≈ 0 and V must stay invertible). One source must act on every residual
-    (V positive definite). V = D + U·Uᵀ is kept as a diagonal part and a low-rank part, so that
-    with P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁻¹JᵀV⁻¹ = D⁻¹ − Y·H·Yᵀ (Woodbury; Y = D⁻¹[U J]) every trace costs
-    O(N·(q + p)²) instead of O(N³).
+    (V positive definite). ``jacobian``: dense or scipy.sparse (N×p). V is kept in its sources'
+    structure (:mod:`rtcal.solvers.structure`: diagonal, one block per CMM point, low rank), so that
+    P·r, every tr(P·V_k) and tr(P·V_k·P·V_l) cost O(N·(c + G)²), G the global columns (the
+    estimator's unknowns and the low-rank sources): linear in the readings. With C the mixed-model
+    matrix and P·F_k = D⁻¹X·C⁻¹Λ_k·θ_k^(−½) (the dense form is tests/dense_reference.py):
+
+    - diagonal V_k = diag(x): tr(P·V_k) = Σ x/d − Σ x·h/d², h_i = x_i·C⁻¹·x_iᵀ, and
+      tr(P·diag(x)·P·diag(y)) = Σ x·y/d² − 2Σ x·y·h/d³ + tr(C⁻¹Q_x·C⁻¹Q_y), Q_x = XᵀD⁻¹diag(x)D⁻¹X;
+    - a source of the block (the CMM points): F_kᵀPF_l = (A_u·N_u)_kl − B_u,k·M·B_u,lᵀ per group plus low
+      rank, and tr(P·diag(x)·P·V_k) = tr(C⁻¹Q_x·C⁻¹·Λ_k/θ_k), both taken of F_k unscaled
+      (:class:`~rtcal.solvers.structure.Restricted`): θ → 0 on a noise-free bench does not underflow;
+    - a random global source: the same through (I − ΛC⁻¹) over its columns, divided by θ.
     """
-    J = np.asarray(jacobian, float)
     r = np.asarray(residuals, float)
-    N, p = J.shape
+    N = len(r)
+    p = int(jacobian.shape[1])
     a_sources = [s for s in sources if s.type == "A"]
     if not a_sources:
         return VarianceEstimate({}, {}, 0, True)
-    # per source: (True, diagonal of F·Fᵀ) when it is diagonal, else (False, F)
-    effects: list[tuple[bool, np.ndarray]] = []
-    for s in sources:
-        diagonal_k = _as_diagonal(s.effect)
-        effects.append((True, diagonal_k) if diagonal_k is not None else (False, np.asarray(s.effect, float)))
     is_a = [s.type == "A" for s in sources]
     a_index = [k for k, a in enumerate(is_a) if a]
     # a first guess that already fits the residuals' size: scale every Type A source together
-    total_trace = sum(float(np.sum(e)) if diagonal else float(np.sum(e**2))
-                      for (diagonal, e), a in zip(effects, is_a) if a)
+    total_trace = sum(sum_of_squares(s.effect) for s in a_sources)
     theta = np.full(len(a_index), max(float(r @ r) / max(total_trace * (1.0 - p / max(N, 1)), 1e-300), floor))
+    effects = [s.effect for s in sources]
+    layout = _Layout.of(effects)  # where each source's columns go (θ moves none)
+    kinds = [layout.places[k] for k in a_index]
     info = np.eye(len(theta))
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
         scale = dict(zip(a_index, theta))
-        d = np.full(N, 1e-300)
-        cols = []
-        for k, (diagonal, e) in enumerate(effects):
-            t = scale.get(k, 1.0)
-            if diagonal:
-                d = d + t * e
-            else:
-                cols.append(np.sqrt(t) * e)
-        U = np.column_stack(cols) if cols else np.zeros((N, 0))
-        dinv = 1.0 / d
-        DU, DJ = U * dinv[:, None], J * dinv[:, None]
-        S = np.eye(U.shape[1]) + U.T @ DU
-        S_inv = np.linalg.inv(S) if U.shape[1] else np.zeros((0, 0))
-        a_mat = np.vstack([-S_inv @ (U.T @ DJ), np.eye(p)])  # V⁻¹J = Y·a
-        Y = np.hstack([DU, DJ])
-        VJ = Y @ a_mat
-        M = np.linalg.pinv(J.T @ VJ)
-        H = a_mat @ M @ a_mat.T
-        H[: U.shape[1], : U.shape[1]] += S_inv
-        YH = Y @ H
-        Pr = dinv * r - YH @ (Y.T @ r)
-        yhy_diag = np.sum(YH * Y, axis=1)
-        diagP = dinv - yhy_diag
-        terms: list[tuple[np.ndarray, np.ndarray | None]] = []  # per Type A source: (e², None) or (F, P·F)
-        for k in a_index:
-            diagonal, X = effects[k]
-            terms.append((X, None) if diagonal else (X, dinv[:, None] * X - YH @ (Y.T @ X)))
+        R = layout.restricted(effects, [scale.get(k, 1.0) for k in range(len(sources))], N, 1e-300, jacobian)
+        Pr = R.apply(r)
+        h = R.hat() if any(kind == "diagonal" for kind, _ in kinds) else np.zeros(N)
+        dinv = R.dinv
+        diagP = dinv - h * dinv**2
+        arrows: dict[int, Arrow] = {}
         score = np.empty(len(theta))
-        for i, (X, PX) in enumerate(terms):
-            if PX is None:
-                score[i] = 0.5 * (float(np.sum(Pr**2 * X)) - float(np.sum(diagP * X)))
-            else:
-                FtPr = X.T @ Pr
-                score[i] = 0.5 * (float(FtPr @ FtPr) - float(np.sum(X * PX)))
-        for i, (Xi, PXi) in enumerate(terms):
-            for j in range(i, len(terms)):
-                Xj, PXj = terms[j]
-                if PXi is None:
-                    if PXj is None:
-                        Qi, Qj = Y.T @ (Xi[:, None] * Y), Y.T @ (Xj[:, None] * Y)
-                        val = (float(np.sum(Xi * Xj * dinv**2)) - 2.0 * float(np.sum(Xi * Xj * dinv * yhy_diag))
-                               + float(np.sum((H @ Qi) * (H @ Qj).T)))
-                    else:
-                        val = float(np.sum(Xi[:, None] * PXj**2))
-                elif PXj is None:
-                    val = float(np.sum(Xj[:, None] * PXi**2))
+        for i, (k, (kind, where)) in enumerate(zip(a_index, kinds)):
+            if kind == "diagonal":
+                arrows[i] = R.arrow(where * dinv**2)
+                score[i] = 0.5 * (float(np.sum(Pr**2 * where)) - float(np.sum(diagP * where)))
+                continue
+            FtPr = transposed_times(sources[k].effect, Pr)
+            trace = (R.trace_block_complement(where) if kind == "block"
+                     else float(np.trace(R.global_complement(where, where))) / theta[i])
+            score[i] = 0.5 * (float(FtPr @ FtPr) - trace)
+        for i in range(len(theta)):
+            for j in range(i, len(theta)):
+                (ki, wi), (kj, wj) = kinds[i], kinds[j]
+                if ki == "diagonal" and kj == "diagonal":
+                    val = (float(np.sum(wi * wj * dinv**2)) - 2.0 * float(np.sum(wi * wj * dinv**3 * h))
+                           + R.trace_hqhq(arrows[i], arrows[j]))
+                elif "diagonal" in (ki, kj):
+                    d_i, c_j = (i, j) if ki == "diagonal" else (j, i)
+                    kind, where = kinds[c_j]
+                    val = (R.trace_block(arrows[d_i], where) if kind == "block"
+                           else R.trace_hqhq(arrows[d_i], R.global_selector(where)) / theta[c_j])
+                elif ki == "block" and kj == "block":
+                    val = R.norm2_block(wi, wj)
+                elif "block" in (ki, kj):
+                    b, g = (i, j) if ki == "block" else (j, i)
+                    val = R.norm2_block_global(kinds[b][1], kinds[g][1], float(np.sqrt(theta[g])))
                 else:
-                    val = float(np.sum((Xi.T @ PXj) ** 2))
+                    val = float(np.sum(R.global_complement(wi, wj) ** 2)) / (theta[i] * theta[j])
                 info[i, j] = info[j, i] = 0.5 * val
         step = np.linalg.lstsq(info, score, rcond=None)[0]
         new = np.maximum(theta + step, floor * np.max(np.abs(theta)) + 1e-300)
@@ -206,12 +280,12 @@ class DeviationBudget:
 def propagate(influence: np.ndarray, sources: list[Source], variances: VarianceEstimate,
               output_jacobian: np.ndarray) -> list[BudgetComponent]:
     """Each source through the estimator (``influence`` = H restricted to the parameters the
-    output depends on) and the output's Jacobian: G·H·F·θ·(G·H·F)ᵀ per source."""
+    output depends on, m' × N) and the output's Jacobian: G·H·F·θ·(G·H·F)ᵀ per source, F in its
+    structure (m × q, never N × N)."""
     G = np.asarray(output_jacobian, float) @ np.asarray(influence, float)
     out = []
     for s in sources:
-        e = np.asarray(s.effect, float)
-        GF = G * e[None, :] if e.ndim == 1 else G @ e
+        GF = times_effect(G, s.effect)
         theta = variances.scale.get(s.name, 1.0) if s.type == "A" else 1.0
         out.append(BudgetComponent(s.name, s.type, variances.sigma(s), s.unit, theta * (GF @ GF.T), s.type == "A", s.note))
     return out
@@ -257,16 +331,73 @@ class ResidualCheck:
                 f"degrees of freedom against {against}{'' if self.passed else failed})")
 
 
-def residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: int,
-                   jacobian: np.ndarray | None = None) -> ResidualCheck | None:
+@dataclass(frozen=True)
+class Covariance:
+    """V = Σ F·Fᵀ over some effects (the sources at their stated sizes, the error motions through the
+    stations), kept as those effects: never N×N (:mod:`rtcal.solvers.structure`)."""
+
+    effects: tuple[Effect, ...]
+
+    @classmethod
+    def of_sources(cls, sources: list[Source]) -> "Covariance":
+        """V of the sources at their stated sizes (θ = 1)."""
+        return cls(tuple(s.effect for s in sources))
+
+    def plus(self, *effects: Effect) -> "Covariance":
+        return Covariance(self.effects + tuple(effects))
+
+    @property
+    def rows(self) -> int:
+        return effect_rows(self.effects[0]) if self.effects else 0
+
+    def restricted(self, jacobian: Any = None, jacobian_mix: np.ndarray | None = None) -> Restricted | None:
+        """P for V and J (None when V has no positive diagonal part to build it on)."""
+        layout = _Layout.of(list(self.effects))
+        d = sum((w for kind, w in layout.places if kind == "diagonal"), np.zeros(self.rows))
+        if not np.all(d > 0):
+            return None
+        return layout.restricted(list(self.effects), [1.0] * len(self.effects), self.rows, 0.0, jacobian, jacobian_mix)
+
+
+def residual_check(residuals: np.ndarray, covariance: Covariance | np.ndarray, parameters: int,
+                   jacobian: Any = None, jacobian_r: np.ndarray | None = None) -> ResidualCheck | None:
     """χ² of the residuals under the covariance V of what moves them (None when nothing is left to test:
-    ν < 1 or V not positive definite).
+    ν < 1, or V without a positive diagonal part).
 
     Without ``jacobian``: χ² = rᵀV⁻¹r with ν = N − parameters (exact when the estimator weighted with V⁻¹).
-    With the Jacobian J of an unweighted least-squares estimator: its residuals are r = Q·Qᵀ·e (Q an
-    orthonormal basis of J's left null space, e the inputs' errors), so z = Qᵀr has covariance QᵀVQ and
-    χ² = zᵀ(QᵀVQ)⁻¹z is exactly χ²(N − rank J) when e ~ N(0, V), whatever V's correlations (a CMM point
-    common to every station's length): the test is then the whole budget's (``whole_budget``)."""
+    With the Jacobian J (dense or sparse) of an unweighted least-squares estimator: its residuals are
+    r = Q·Qᵀ·e (Q an orthonormal basis of J's left null space, e the inputs' errors), so z = Qᵀr has
+    covariance QᵀVQ and χ² = zᵀ(QᵀVQ)⁻¹z is exactly χ²(N − rank J) when e ~ N(0, V), whatever V's
+    correlations (a CMM point common to every station's length): the test is then the whole budget's
+    (``whole_budget``). Q(QᵀVQ)⁻¹Qᵀ is REML's P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁺JᵀV⁻¹, so χ² = rᵀPr, computed in V's
+    structure with J's column space of the rank the SVD of J counts (:func:`rtcal.solvers.structure.column_basis`;
+    ``jacobian_r``: J's R factor when at hand). A dense V (a small problem: the R-test's poses) is taken as it is
+    (:func:`_dense_residual_check`, O(N³))."""
+    from scipy.stats import chi2 as chi2_dist
+
+    if isinstance(covariance, np.ndarray):
+        return _dense_residual_check(residuals, covariance, parameters,
+                                     None if jacobian is None else np.asarray(jacobian.toarray() if hasattr(jacobian, "toarray")
+                                                                              else jacobian, float))
+    r = np.asarray(residuals, float)
+    if jacobian is not None:
+        basis, rank = column_basis(jacobian if hasattr(jacobian, "tocsr") else _sparse(jacobian), jacobian_r)
+        dof = len(r) - rank
+        P = covariance.restricted(jacobian, basis) if dof >= 1 else None
+    else:
+        dof = len(r) - int(parameters)
+        P = covariance.restricted() if dof >= 1 else None
+    if P is None:
+        return None
+    chi2 = P.quadratic(r)
+    return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
+
+
+def _dense_residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: int,
+                          jacobian: np.ndarray | None = None) -> ResidualCheck | None:
+    """:func:`residual_check` with V an N×N array: with the Jacobian, z = Qᵀr (Q the left null space of J, from
+    its full SVD) against QᵀVQ by its Cholesky factor; without it rᵀV⁻¹r with ν = N − parameters (None: ν < 1 or V
+    not positive definite). The statement the structured form is checked against (tests/test_structured_budget.py)."""
     from scipy.stats import chi2 as chi2_dist
 
     r = np.asarray(residuals, float)
@@ -290,16 +421,15 @@ def residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: in
     return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
 
 
-def stated_covariance(sources: list[Source], rows: int) -> np.ndarray:
-    """V = Σ F·Fᵀ of the sources at their stated sizes (θ = 1), N×N."""
-    V = np.zeros((rows, rows))
-    for s in sources:
-        e = np.asarray(s.effect, float)[:rows]
-        if e.ndim == 1:
-            V[np.diag_indices(rows)] += e**2
-        else:
-            V += e @ e.T
-    return V
+def _sparse(matrix: np.ndarray) -> Any:
+    import scipy.sparse as sp
+
+    return sp.csr_matrix(np.asarray(matrix, float))
+
+
+def stated_covariance(sources: list[Source]) -> Covariance:
+    """V = Σ F·Fᵀ of the sources at their stated sizes (θ = 1), in their structure."""
+    return Covariance.of_sources(sources)
 
 
 def difference_matrix(n: int) -> np.ndarray:

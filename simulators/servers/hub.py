@@ -38,10 +38,12 @@ from simulators.instruments import (
     SimEncoder,
     SimEnvironmentSensor,
     SimLaserTracer,
+    SimNestIndicator,
     SimStage,
 )
-from simulators.scenario import Scenario
+from simulators.scenario import NEST_INDICATORS, Scenario
 from simulators.servers import modbus_stage
+from simulators.servers.joints_feed import FollowingLine, JointsFeed
 from simulators.servers.ipp_server import IDLE_TIMEOUT_S as IPP_IDLE_TIMEOUT_S, IppMachine, serve_ipp
 from simulators.servers.ports import free_port  # importable from here too (tests)
 
@@ -63,10 +65,13 @@ from simulators.servers.serial_protocols import (
 MAX_REQUEST_BYTES = 1024  # the longest request line of the serial protocols
 MAX_PENDING_REQUESTS = 16  # requests answered from one read of a line; the rest of a flood is dropped
 MAX_OPERATOR_LINE = 1024
+# the feeds of the LinuxCNC machine tool's address: a simulated machine has no reason to crawl
+MACHINE_SPEED_DEG_PER_S, MACHINE_SPEED_MM_PER_S = 90.0, 200.0
 # the product each line emulates, and the framing options a pseudo-terminal line's address carries:
 # this machine's kind of pseudo-terminal accepts 8N1 everywhere, other framings only on some kernels
 LINE_MODELS = {"laser_tracer": "rtcal-line", "encoder": "qsb", "autocollimator": "elcomat", "dial_indicator_1": "sylvac",
-               "dial_indicator_2": "sylvac", "environment": "vaisala-ptu300"}
+               "dial_indicator_2": "sylvac", "environment": "vaisala-ptu300",
+               **{name: "sylvac" for name in NEST_INDICATORS}}
 PTY_FRAMING = "bytesize=8&parity=N&stopbits=1"
 
 
@@ -156,6 +161,11 @@ class SimulatorHub:
     # bench's table following its compensated motor command; ``comp``: its COMP_FILE (type 0)
     stage: Literal["modbus", "linuxcnc"] = "modbus"
     comp: str | None = None
+    # "linuxcnc": the scenario's machine tool is a real LinuxCNC with xyzac-trt-kins started headless, the
+    # simulated machine's joints following its motor commands; ``kins``: the pins it loads (a .hal file of
+    # setp lines), else the scenario's nominal kinematics
+    machine: Literal["sim", "linuxcnc"] = "sim"
+    kins: str | None = None
 
     def __post_init__(self) -> None:
         self.bench = Bench(self.scenario, VirtualClock(), self.seed)
@@ -177,6 +187,12 @@ class SimulatorHub:
             "dial_indicator_1": SylvacHandler(SimDialIndicator(b, 0, inject=False), echo=self.echo, inch=self.sylvac_inch),
             "dial_indicator_2": SylvacHandler(SimDialIndicator(b, 1, inject=False), echo=self.echo, inch=self.sylvac_inch),
         }
+        # a LinuxCNC machine tool: the simulated machine follows its joints' feed (a thread of its own)
+        self.joints_feed = JointsFeed(b, self.host) if self.machine == "linuxcnc" else None
+        if self.scenario.machine is not None:  # the R-test's nest: three Sylvac indicators around the sphere
+            for i, name in enumerate(NEST_INDICATORS):
+                nest = SylvacHandler(SimNestIndicator(b, i, inject=False), echo=self.echo, inch=self.sylvac_inch)
+                lines[name] = nest if self.joints_feed is None else FollowingLine(nest, self.joints_feed)
         # referenced, as a lab leaves its controller (an extra reference move would draw the table's noise anew)
         self.pi_gcs = PiGcsHandler(SimStage(b, inject=False), referenced=True) if self.stage_model == "pi-gcs" else None
         self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
@@ -195,6 +211,10 @@ class SimulatorHub:
         self.linuxcnc: LinuxCncProcess | None = None  # the LinuxCncProcess of a `stage="linuxcnc"` hub
         self.feed_updates = 0  # motor positions the LinuxCNC bench feed delivered
         self._feed_address = ""
+        if self.machine == "linuxcnc" and self.stage == "linuxcnc":
+            raise ValueError("one LinuxCNC per machine: the stage or the machine tool, not both")
+        if self.machine == "linuxcnc" and self.scenario.machine is None:
+            raise ValueError("a LinuxCNC machine tool drives the scenario's `machine:`, and it has none")
 
     # -- life cycle
     def start(self, timeout_s: float = 10.0) -> dict[str, str]:
@@ -214,12 +234,29 @@ class SimulatorHub:
             except BaseException:
                 self.stop()
                 raise
-            self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0"
+            self.addresses["stage"] = f"linuxcncrsh://{self.host}:{port}?axis=C&joint=0&take_control=1"
+        if self.machine == "linuxcnc":
+            from simulators.servers.linuxcnc import LinuxCncProcess, kins_hal
+
+            assert self.scenario.machine is not None
+            assert self.joints_feed is not None
+            self.linuxcnc = LinuxCncProcess(self.host, feed=self.joints_feed.address, machine="trt",
+                                            kins_hal=kins_hal(self.scenario.machine, self.kins))
+            try:
+                port = self.linuxcnc.start()
+            except BaseException:
+                self.stop()
+                raise
+            self.addresses["machine_tool"] = (f"linuxcncrsh://{self.host}:{port}?take_control=1&"
+                                              f"speed_deg_per_s={MACHINE_SPEED_DEG_PER_S:g}&"
+                                              f"speed_mm_per_s={MACHINE_SPEED_MM_PER_S:g}")
         return dict(self.addresses)
 
     def stop(self) -> None:
         if self.linuxcnc is not None:
             self.linuxcnc.stop()  # first: its bench feed must not outlive the bench
+        if self.joints_feed is not None:
+            self.joints_feed.close()
         if self._thread and self._thread.is_alive():
             asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop)
             self._thread.join(5)

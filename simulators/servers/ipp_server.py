@@ -34,7 +34,7 @@ from drivers.errors import OutOfLimits
 from simulators.instruments import SimCmm
 
 MAX_LINE_BYTES = 64 * 1024
-DME_VERSION = "1.4"
+DME_VERSION = "1.4 rtcal SIMULATED"  # the version string is the server's only identity: it says it
 TOOLS = ("Probe", "CatEye", "RefTool")  # what ChangeTool/SetTool find
 SEARCH_MM = 5.0  # PtMeas looks for the surface this far either side of the nominal point
 HOLDER_GRACE_S = 0.5  # a StartSession waits this long for a holder whose connection is closing

@@ -30,10 +30,21 @@ import time
 import uuid
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 from simulators.servers.ports import free_port
+
+if TYPE_CHECKING:
+    from simulators.scenario import MachineToolScenario
 
 CONFIG = Path(__file__).resolve().parents[1] / "linuxcnc"
 INI, HAL, FEED = "rtcal_c.ini", "rtcal_c.hal", "rtcal_bench_feed.py"
+# the machines rtcal ships: the rotary table alone (C, joint 0), X Y Z with the table as joint 3, and the
+# five-axis machine with a trunnion table (xyzac-trt-kins; its pins in KINS_HAL, written at each start)
+MACHINES = {"c": ("rtcal_c.ini", "rtcal_c.hal"), "xyzc": ("rtcal_xyzc.ini", "rtcal_xyzc.hal"),
+            "trt": ("rtcal_trt.ini", "rtcal_trt.hal")}
+KINS_HAL = "rtcal_trt_kins.hal"
+JOINTS = {"c": 1, "xyzc": 4, "trt": 5}
 SYSTEM_PYTHON = "/usr/bin/python3"  # LinuxCNC's hal module is built for it alone
 NOBODY_UID = 65534
 NML_FILE = Path("/usr/share/linuxcnc/linuxcnc.nml")  # the default NML_FILE the linuxcnc script uses
@@ -49,6 +60,29 @@ def available() -> str:
     return ""
 
 
+def kins_hal(machine: "MachineToolScenario", kins_file: str | None = None) -> str:
+    """The text of KINS_HAL: ``setp`` lines of xyzac-trt-kins' five pins — those ``kins_file`` sets (a .hal
+    file or INI [HAL] lines, what `rtcal compensate --format linuxcnc-xyzac-trt` writes; a pin it does not
+    set is 0, as in LinuxCNC), else the scenario's nominal kinematics (C's line through the rot point, A's
+    through rot point + (0, y-offset, z-offset): trtfuncs.c). Only these pins are written, whatever else
+    the file holds. ValueError (with the file's line) for a file LinuxCNC would read otherwise."""
+    from rtcal.compensation.linuxcnc_kins import PINS, PREFIX, LinuxCncTrtFormat
+    from rtcal.compensation.table import CompensationError
+
+    if kins_file is not None:
+        try:
+            pins = LinuxCncTrtFormat().parse(Path(kins_file).read_text(), kins_file)
+        except CompensationError as exc:
+            raise ValueError(str(exc)) from None
+    else:
+        c, a = machine.kinematics.c_point_mm, machine.kinematics.a_point_mm
+        pins = {"x-rot-point": c[0], "y-rot-point": c[1], "z-rot-point": c[2], "y-offset": a[1] - c[1],
+                "z-offset": a[2] - c[2]}
+    source = kins_file or "the scenario's nominal kinematics"
+    return f"# rtcal sim serve: xyzac-trt-kins' pins from {source}\n" + "".join(
+        f"setp {PREFIX}.{pin} {pins[pin]!r}\n" for pin in PINS)
+
+
 def with_comp(ini_text: str, comp_file: Path, comp_type: int = 0, joint: int = 0) -> str:
     """The INI with ``COMP_FILE`` and ``COMP_FILE_TYPE`` in ``[JOINT_<joint>]``."""
     head = f"[JOINT_{joint}]\n"
@@ -57,12 +91,12 @@ def with_comp(ini_text: str, comp_file: Path, comp_type: int = 0, joint: int = 0
     return ini_text.replace(head, f"{head}COMP_FILE = {comp_file}\nCOMP_FILE_TYPE = {comp_type}\n", 1)
 
 
-def console(host: str, port: int, *requests: str, timeout_s: float = 30.0) -> list[str]:
+def console(host: str, port: int, *requests: str, timeout_s: float = 30.0, joints: int = 1) -> list[str]:
     """An operator at a linuxcncrsh console of their own: ``requests`` (e.g. ``set estop off``, ``set
     machine on``, ``set home 0``, ``get estop``), each answered before the next (``set_wait done``);
     their replies. A refused ``set`` is tried again (seen: ``set machine on`` or ``set mode manual``
     refused just after the step before it), RuntimeError if it is still refused after ``timeout_s``;
-    after ``set home`` it waits until the joint is homed."""
+    after ``set home`` it waits until the joint is homed (``set home -1``: each of the ``joints``)."""
     replies = []
     with socket.create_connection((host, port), timeout=timeout_s) as s, s.makefile("rb") as lines:
         def ask(line: str) -> str:
@@ -82,18 +116,32 @@ def console(host: str, port: int, *requests: str, timeout_s: float = 30.0) -> li
                 time.sleep(0.1)
                 reply = ask(line)
             replies.append(reply)
-            while line.startswith("set home") and not ask("get joint_homed 0").upper().endswith("YES"):
+            # `set home -1` homes every joint: each must say YES (2.9's all-joints reply has one word too many)
+            homing = range(joints) if line.strip() == "set home -1" else [int(line.split()[-1])] if line.startswith("set home") else []
+            while any(not ask(f"get joint_homed {j}").upper().endswith("YES") for j in homing):
                 if time.monotonic() > deadline:
-                    raise RuntimeError("LinuxCNC's joint 0 did not home")
+                    raise RuntimeError(f"LinuxCNC's joints {list(homing)} did not home")
                 time.sleep(0.05)
     return replies[3:]
 
 
+SERVER_NAME = "rtcal-SIMULATED"
+"""The simulated machine's linuxcncrsh server name: its HELLO ACK, and so the stage's identity, says SIMULATED."""
+
 class LinuxCncProcess:
     """One headless LinuxCNC: ``start()`` → linuxcncrsh's port; ``stop()`` shuts it down."""
 
-    def __init__(self, host: str = "127.0.0.1", feed: str = "", comp_file: Path | None = None, comp_type: int = 0):
+    def __init__(self, host: str = "127.0.0.1", feed: str = "", comp_file: Path | None = None, comp_type: int = 0,
+                 machine: str = "c", rsh_options: str = "", kins_hal: str = ""):
+        """``machine``: one of MACHINES; ``rsh_options``: more linuxcncrsh options (e.g. ``-s 2``, its session limit);
+        ``kins_hal`` (machine "trt"): the text of KINS_HAL, the kinematics' ``setp`` lines LinuxCNC loads at start."""
         self.host, self.feed, self.comp_file, self.comp_type = host, feed, comp_file, comp_type
+        self.machine = machine
+        self.ini_name, self.hal_name = MACHINES[machine]
+        if machine == "trt" and not kins_hal.strip():
+            raise ValueError("the trunnion machine needs its kinematics' pins (kins_hal)")
+        self.kins_hal = kins_hal
+        self.rsh_options = rsh_options
         self.proc: subprocess.Popen | None = None
         self.marker = uuid.uuid4().hex
         self.env: dict[str, str] = dict(os.environ)
@@ -122,15 +170,20 @@ class LinuxCncProcess:
     def _write_config(self) -> Path:
         folder = Path(tempfile.mkdtemp(prefix="rtcal-linuxcnc-"))
         folder.chmod(0o755)  # rtapi_app runs as the fallback uid
-        ini = (CONFIG / INI).read_text().replace("linuxcncrsh --port 5007", f"linuxcncrsh --port {self.port}")
+        # --name: the server name linuxcncrsh gives in HELLO ACK (linuxcncrsh(1)); it says the machine is simulated
+        ini = (CONFIG / self.ini_name).read_text().replace(
+            "linuxcncrsh --port 5007",
+            " ".join(["linuxcncrsh", "--port", str(self.port), "--name", SERVER_NAME, *self.rsh_options.split()]))
         if self.comp_file is not None:
             table = folder / "c.comp"
             shutil.copyfile(self.comp_file, table)
             ini = with_comp(ini, table, self.comp_type)
-        (folder / INI).write_text(ini)
-        for name in (HAL, FEED):
+        (folder / self.ini_name).write_text(ini)
+        for name in (self.hal_name, FEED):
             shutil.copyfile(CONFIG / name, folder / name)
-        (folder / "rtcal_c.var").write_text("")
+        if self.machine == "trt":
+            (folder / KINS_HAL).write_text(self.kins_hal)
+        (folder / "rtcal_c.var").write_text("")  # every shipped INI names these two
         (folder / "rtcal_c.tbl").write_text("T1 P1 D0 Z0 ;rtcal: no tools\n")
         for p in folder.iterdir():
             p.chmod(0o644)
@@ -152,7 +205,7 @@ class LinuxCncProcess:
             env.update(RTAPI_UID=str(NOBODY_UID), RTAPI_FIFO_PATH=str(self.fifo))
         self.log = folder / "linuxcnc.log"
         with open(self.log, "wb") as log:
-            self.proc = subprocess.Popen(["linuxcnc", str(folder / INI)], cwd=folder, env=env, stdin=subprocess.DEVNULL,
+            self.proc = subprocess.Popen(["linuxcnc", str(folder / self.ini_name)], cwd=folder, env=env, stdin=subprocess.DEVNULL,
                                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         atexit.register(self.stop)
         deadline = time.monotonic() + timeout_s
@@ -163,7 +216,17 @@ class LinuxCncProcess:
                 self.stop()
                 raise RuntimeError(f"LinuxCNC exited at start ({code}): {tail}")
             if self._hello():
-                self.operator("set estop off", "set machine on", "set mode manual", "set home 0")
+                steps = ("set estop off", "set machine on", "set mode manual",
+                         "set home 0" if self.ini_name == INI else "set home -1")
+                try:
+                    self.operator(*steps)
+                except (RuntimeError, OSError):
+                    # seen on a loaded host: "USRMOT: ERROR: command timeout" as the machine came on, after
+                    # which it stays off and every mode change is refused; the operator starts over once
+                    try:
+                        self.operator("set estop on", *steps)
+                    except (RuntimeError, OSError) as exc:
+                        raise RuntimeError(f"{exc}; LinuxCNC's log: {self.tail(20)}") from None
                 return self.port
             time.sleep(0.2)
         tail = self.tail()
@@ -180,7 +243,7 @@ class LinuxCncProcess:
 
     def operator(self, *requests: str, timeout_s: float = 30.0) -> list[str]:
         """The operator at a console of their own (``console``) on this LinuxCNC."""
-        return console(self.host, self.port, *requests, timeout_s=timeout_s)
+        return console(self.host, self.port, *requests, timeout_s=timeout_s, joints=JOINTS[self.machine])
 
     def tail(self, lines: int = 8) -> str:
         try:

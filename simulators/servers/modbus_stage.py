@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 from typing import Callable
 
-from pymodbus import FramerType
+from pymodbus import FramerType, ModbusDeviceIdentification
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
@@ -101,12 +101,23 @@ class PerConnectionTcpServer(ModbusTcpServer):
         return ServerRequestHandler(self, self._hook_factory(), self.trace_pdu, self.trace_connect)
 
 
+IDENTIFICATION = {"VendorName": "rtcal simulated drives", "ProductCode": "AZ drive SIMULATED", "MajorMinorRevision": "1.0"}
+"""What the simulator answers to Modbus Read Device Identification (FC 43 / MEI 14, the basic objects:
+Modbus Application Protocol V1.1b3 §6.21). A real AZ drive implements no FC 43 (its manual lists 03h,
+06h, 08h, 10h, 17h) and answers it with an exception; the simulator says what it is."""
+
+
+def identification() -> ModbusDeviceIdentification:
+    return ModbusDeviceIdentification(info_name=dict(IDENTIFICATION))
+
+
 def tcp_server(model: AzDriveModel, host: str, port: int, unit: int = 1) -> ModbusTcpServer:
     return PerConnectionTcpServer(drive_device(model, unit), address=(host, port),
-                                  hook_factory=lambda: frame_hook(model, rtu=False, unit=unit),
+                                  hook_factory=lambda: frame_hook(model, rtu=False, unit=unit), identity=identification(),
                                   ignore_missing_devices=True)  # another unit id: no reply, as on a bus
 
 
 def rtu_server(model: AzDriveModel, device_path: str, unit: int = 1, baudrate: int = 115200) -> ModbusSerialServer:
     return ModbusSerialServer(drive_device(model, unit), framer=FramerType.RTU, port=device_path, baudrate=baudrate,
-                              trace_packet=frame_hook(model, rtu=True, unit=unit), ignore_missing_devices=True)
+                              trace_packet=frame_hook(model, rtu=True, unit=unit), ignore_missing_devices=True,
+                              identity=identification())

@@ -11,6 +11,7 @@ import re
 from typing import Protocol
 
 from drivers.errors import InstrumentFault, OutOfLimits, TrackingLost
+from drivers.serial_instruments import QSB_SIMULATED_VERSION
 from drivers.interfaces import EnvironmentReading
 from simulators.scenario import STATE_KINDS
 from simulators.instruments import (
@@ -73,7 +74,7 @@ class ElcomatHandler:
     """Möller-Wedel ELCOMAT: ``a`` → ``4 003 <x> <y>\\r`` (absolute), ``r`` → ``2 103 <x> <y>\\r``
     (relative; the simulated unit's zero is its absolute zero), arcsec; the status's last digit
     says which axes are valid (dls-controls/elcomat3000: 3 both, 1 X, 2 Y, 0 none — no face in
-    range). ``d`` → ``8 <serial> <day> <month> <year> <focal length>``. ``valid_axes`` "x" or "y"
+    range). ``d`` → ``8 <serial> <day> <month> <year> <focal length>``, serial ``SIMULATED``. ``valid_axes`` "x" or "y"
     makes a unit that validates only that axis."""
 
     reply_terminator = b"\r"
@@ -89,7 +90,7 @@ class ElcomatHandler:
     def handle(self, request: bytes) -> bytes:
         command = request.strip()
         if command == b"d":
-            return b"8 SIM3000 15 01 2026 300\r"
+            return b"8 SIMULATED 15 01 2026 300\r"  # the serial field says it: a run on it is marked simulated
         if command not in (b"a", b"r"):
             return b""  # what a unit answers to other commands is not published: nothing
         mode, valid = (b"4", b"00" + self.valid_digit) if command == b"a" else (b"2", b"10" + self.valid_digit)
@@ -103,12 +104,14 @@ class ElcomatHandler:
 class SylvacHandler:
     """Sylvac indicator on its Opto-RS cable (OPTO-RS manual): ``?`` (or ``PRI?``) → the displacement
     in the display unit, ``[sign or space][digits].[decimals]`` and CR, no unit; ``MM`` / ``IN`` set
-    the unit, ``UNI?`` answers it; ``BAT?`` → ``BAT1``. ``echo=True`` sends the command back first
+    the unit, ``UNI?`` answers it; ``BAT?`` → ``BAT1``; ``ID?`` → ``SY289.1.SIMULATED`` (the identification's
+    options field says what it is). ``echo=True`` sends the command back first
     (the UniCal manual: "the instrument echoes the command"); ``inch=True`` starts with an inch
     display; ``accepts_mm=False`` is a unit that stays in inches. Another command: ``ERR1``."""
 
     reply_terminator = b"\r"
     terminator = b"\r"
+    IDENTITY = b"SY289.1.SIMULATED"
 
     def __init__(self, instrument: SimDialIndicator, echo: bool = False, inch: bool = False, accepts_mm: bool = True):
         self.instrument = instrument
@@ -124,6 +127,8 @@ class SylvacHandler:
     def _answer(self, command: bytes) -> bytes:
         if command == b"BAT?":
             return b"BAT1\r"
+        if command == b"ID?":  # OPTO-RS: "SY" instrument "." option {"." options}; the options say it
+            return self.IDENTITY + b"\r"
         if command in (b"MM", b"IN"):
             self.inch = command == b"IN" or not self.accepts_mm
             return b""
@@ -141,7 +146,8 @@ class SylvacHandler:
 
 class QsbHandler:
     """US Digital QSB: ``R<reg>``, ``W<reg><hex>``; reply ``r|w<reg><8 hex>[timestamp]!`` + the end of
-    response that register 0x15 (EOR) chooses: bit 0 LF, bit 1 CR, bit 2 timestamp, bit 3 spaces."""
+    response that register 0x15 (EOR) chooses: bit 0 LF, bit 1 CR, bit 2 timestamp, bit 3 spaces. The
+    VERSION register (0x14) holds rtcal's simulator value (its only identity is 8 hex digits)."""
 
     reply_terminator = b"\r\n"
     terminator = b"\r"  # requests end in CR, LF or CR LF: a lone LF left over is an empty line
@@ -151,8 +157,8 @@ class QsbHandler:
     def __init__(self, instrument: SimEncoder, counts_per_rev: int):
         self.instrument = instrument
         self.counts_per_rev = counts_per_rev
-        self.registers = {0x00: 0, 0x03: 0, 0x04: 0, 0x08: 0, 0x0B: 0, 0x0C: 0, self.VERSION: 0x00000100, self.EOR: 0x03,
-                          0x16: 0}
+        self.registers = {0x00: 0, 0x03: 0, 0x04: 0, 0x08: 0, 0x0B: 0, 0x0C: 0, self.VERSION: QSB_SIMULATED_VERSION,
+                          self.EOR: 0x03, 0x16: 0}
 
     def counted(self, request: bytes) -> bool:
         return request.strip().upper() == b"R0E"
@@ -195,6 +201,8 @@ class TracerHandler:
 
     def handle(self, request: bytes) -> bytes:
         command = request.strip()
+        if command == b"ID?":  # rtcal's own protocol: the bridge names what it is
+            return b"ID rtcal-line laser tracer SIMULATED\r\n"
         if command == b"REF":
             return f"OK REF {self.instrument.reference()}\r\n".encode()
         if command == b"LEN?":
@@ -254,7 +262,7 @@ class VaisalaHandler:
         """The ``?`` listing: model / version, then Key : value lines ending with the module lines
         (the layout of the PTB330 manual's p. 83 as the references describe it; msl-equipment reads
         to "Module 2" on a PTU300 and "Module 4" on a PTB330)."""
-        lines = [f"{self.model} / 1.12", f"Serial number  : SIM{self.model[-3:]}01", "Batch number   : SIM-BATCH",
+        lines = [f"{self.model} / 1.12", "Serial number  : SIMULATED", "Batch number   : SIM-BATCH",
                  "Adjust. date   : 2026-01-15", "Adjust. info   : VAISALA/HEL", "Date           : 2026-11-27",
                  "Time           : 12:00:00", f"Start mode     : {'RUN' if self.run else 'STOP'}",
                  f"Output format  : {self.form.replace('#', chr(92))}", "Pressure unit  : hPa",
@@ -371,7 +379,7 @@ class PiGcsHandler:
 
     reply_terminator = b"\n"
     terminator = b"\n"
-    IDN = "(c)2026 Physik Instrumente (PI) GmbH & Co. KG, C-863.11, SIM0000001, 01.00.00"
+    IDN = "(c)2026 Physik Instrumente (PI) GmbH & Co. KG, C-863.11, SIMULATED, 01.00.00"  # the serial field says it
     AXIS = "1"
 
     MOTION_ERROR = 1024

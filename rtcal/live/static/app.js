@@ -427,6 +427,19 @@ function drawPlot(svg, legend, series, xLabel, yLabel) {
 }
 
 // ---- control -----------------------------------------------------------------------------------
+// A control request that got no answer is sent again (five tries, 0.25 s apart): someone flooding the
+// server with connections can have it closed before it was read — never once read, so never done twice.
+async function sendControl(path) {
+  for (let attempt = 1; ; attempt++) {
+    try {
+      return await fetch(path, { method: "POST", headers: { Authorization: "Bearer " + S.token }, cache: "no-store" });
+    } catch (e) {
+      if (attempt >= 5) throw e;
+      await new Promise((done) => setTimeout(done, 250));
+    }
+  }
+}
+
 async function control(command) {
   const typed = $("token").value.trim();
   if (typed) S.token = typed;
@@ -438,7 +451,7 @@ async function control(command) {
   msg.textContent = command + "…"; msg.className = "";
   try {
     const step = command === "confirm" && S.operatorStep ? "?step=" + S.operatorStep : "";
-    const res = await fetch("api/" + command + step, { method: "POST", headers: { Authorization: "Bearer " + S.token }, cache: "no-store" });
+    const res = await sendControl("api/" + command + step);
     if (res.status === 202 && command === "confirm") { msg.textContent = "confirmed: the run goes on"; msg.className = "ok"; }
     else if (res.status === 202) { msg.textContent = command + " requested: it takes effect at the next checkpoint"; msg.className = "ok"; }
     else if (res.status === 401) { msg.textContent = "refused: wrong control token"; msg.className = "bad"; S.token = null; }

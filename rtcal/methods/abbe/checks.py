@@ -57,6 +57,19 @@ class EncoderCheck:
                 "faces). The drive did not move the table (stuck, or not enabled) — or it did, the encoder's count is "
                 "frozen or stale, and this face happens to read as the last one")
 
+    def _faces_off(self, apart_deg: float) -> str:
+        """The other cause when the encoder is whole faces from the command: a face square to the
+        autocollimator cannot tell a table that many faces off (a drive that did not move it) from
+        one where it was commanded ("" when the gap is no whole number of faces)."""
+        if not self.pitch_deg > 0:
+            return ""
+        faces = round(apart_deg / self.pitch_deg)
+        if faces == 0 or abs(apart_deg - faces * self.pitch_deg) * 3600.0 > self.tolerance_arcsec:
+            return ""
+        return (f" — or the stage did not turn the table as commanded: the encoder reads {abs(faces)} "
+                f"{'face' if abs(faces) == 1 else 'faces'} ({abs(faces) * self.pitch_deg:g}°) from the command, and a face "
+                "square to the autocollimator cannot tell a whole face from none (the drive stuck, or not enabled)")
+
     def check(self, encoder_deg: float, command_deg: float, table_seen: bool = False, face_arcsec: float | None = None) -> None:
         """``table_seen``: the autocollimator saw the face the command puts in view square, so the
         table did turn; an encoder that disagrees is then the encoder's fault, and one that fits
@@ -75,7 +88,11 @@ class EncoderCheck:
         if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec and table_seen and previous is not None:
             lag_deg = (encoder_deg - previous[1] - self.offset_deg + 180.0) % 360.0 - 180.0
             stood = encoder_deg == previous[0] or abs(lag_deg) * 3600.0 <= self.tolerance_arcsec
-            why = self._nothing_turned(face_arcsec, command_deg, self.came_from) if stood and self.came_from else ""
+            # a retried visit's previous request is its own failed attempt: where the table stood before is came_from's
+            back = self.came_from
+            stayed = back is not None and (encoder_deg == back[0] or abs((encoder_deg - back[1] - self.offset_deg + 180.0)
+                                                                         % 360.0 - 180.0) * 3600.0 <= self.tolerance_arcsec)
+            why = self._nothing_turned(face_arcsec, command_deg, back) if (stood or stayed) and back else ""
             if why:
                 raise Contradiction("stage", f"at {command_deg:g}°: {why}")
             if encoder_deg == previous[0]:
@@ -88,7 +105,8 @@ class EncoderCheck:
                 raise Contradiction("encoder", f"at {command_deg:g}°: {self.suspect}")
             raise Contradiction("encoder", f"the encoder is {apart_deg * 3600:+.0f}″ from the commanded motion while the "
                                            "autocollimator sees the commanded face square (tolerance "
-                                           f"{self.tolerance_arcsec:g}″, verification.encoder_tolerance_arcsec): it misreads")
+                                           f"{self.tolerance_arcsec:g}″, verification.encoder_tolerance_arcsec): it misreads"
+                                           + self._faces_off(apart_deg))
         if not abs(apart_deg) * 3600.0 <= self.tolerance_arcsec:
             commanded = command_deg - self.first_command_deg
             raise Contradiction("stage", f"the encoder turned {commanded + apart_deg:.4f}° where {commanded:.4f}° was "

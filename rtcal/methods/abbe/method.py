@@ -7,6 +7,7 @@ sections are the output layer's (:mod:`rtcal.methods.abbe.outputs`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from typing import TYPE_CHECKING, Callable
 
@@ -28,15 +29,18 @@ from rtcal.methods.protocol import DataContradiction, PreparationError, address_
 from rtcal.results import model as rm
 from rtcal.methods.abbe import results as abr
 from rtcal.methods.abbe.plan import AbbeInstrumentSet, AbbePlan, planned_visits
+from rtcal.methods.abbe.recalibration import AbbeRecalibration
 from rtcal.engine.operator import Operator
 from rtcal.solvers.abbe import (
     AbbeEstimate,
     AbbeNoise,
     AbbeSetup,
+    AbbeVisits,
     analyse_abbe,
     steps_within_directions,
 )
 from rtcal.solvers.harmonics import HarmonicFit
+from rtcal.solvers.periodic import periodic_error
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
 from rtcal.store.runstore import RunReadings
 from simulators.bench import Bench
@@ -200,6 +204,57 @@ def closure_estimate(est: AbbeEstimate) -> abr.ClosureEstimate:
     )
 
 
+PERIODIC_REFERENCE = (
+    "the stage's shaft encoder at every fine step (encoder − command, one constant per direction); its own slow error "
+    "(eccentricity, the Abbe shift of seed 001's model: orders 1–3 per turn) is part of the slow error removed over the "
+    "arc, its interpolation error at its line period is not separated from the table's (a period of the encoder's "
+    "lines is its own test); the autocollimator reads the polygon face at the start")
+PERIODIC_DEFINITION = (
+    "rtcal's reading of ISO 230-2:2014 Annex C (\"considerations related to periodic positioning error\", the 2014 "
+    "scope; the annex's text was not reached): per direction, the range over one period of the mean positional "
+    "deviation x̄_i less the slow error of the arc (a polynomial of degree {degree} per direction fitted jointly with "
+    "the period's harmonics); the axis's figure is the larger of the two directions")
+
+
+def periodic_block(proc: EncoderAbbeError, visits: AbbeVisits) -> rm.PeriodicError:
+    """The periodic positioning error of a fine-step run (ISO 230-2:2014 Annex C as rtcal reads it) and
+    the harmonics of its period, from the encoder at every step."""
+    test = proc.periodic
+    assert test is not None
+    enc_vs_cmd = ((np.asarray(visits.encoder_deg) - np.asarray(visits.commanded_deg) + 180.0) % 360.0 - 180.0) * 3600.0
+    angle = np.round(np.mod(np.asarray(visits.commanded_deg, float), 360.0), 9)
+    floor = proc.uncertainty.encoder_resolution_arcsec / np.sqrt(12.0)
+    found = periodic_error(angle, np.asarray(visits.direction), enc_vs_cmd, test.period, test.start_deg, test.worm_ratio,
+                           float(floor), PERIODIC_TREND_DEGREE)
+    up, down = found.per_direction_arcsec.get(1), found.per_direction_arcsec.get(-1)
+    worst = max(found.per_direction_arcsec, key=lambda d: found.per_direction_arcsec[d])
+    notes = ["The repeatability of the table is in the scatter over the runs, hence in U; with one run U holds the "
+             "encoder's digit only." if proc.steps.runs > 1 else "One run: U holds the encoder's digit only, not the "
+             "table's repeatability."]
+    return rm.PeriodicError(
+        definition=PERIODIC_DEFINITION.format(degree=PERIODIC_TREND_DEGREE), reference=PERIODIC_REFERENCE,
+        period_deg=round(test.period, 9), worm_ratio=test.worm_ratio, start_deg=test.start_deg, step_deg=test.step_deg,
+        targets_per_period=found.targets_per_period, trend_degree=PERIODIC_TREND_DEGREE,
+        periodic_error_up_arcsec=None if up is None else round(up, 4),
+        periodic_error_down_arcsec=None if down is None else round(down, 4),
+        periodic_error_arcsec=round(found.per_direction_arcsec[worst], 4),
+        expanded_uncertainty_arcsec=round(2.0 * found.per_direction_u_arcsec[worst], 4),
+        expanded_uncertainty_up_arcsec=None if up is None else round(2.0 * found.per_direction_u_arcsec[1], 4),
+        expanded_uncertainty_down_arcsec=None if down is None else round(2.0 * found.per_direction_u_arcsec[-1], 4),
+        harmonics=[rm.PeriodicTerm(order=t.order, period_deg=round(t.period_deg, 9),
+                                   period_worm_revolutions=None if t.period_worm_revolutions is None
+                                   else round(t.period_worm_revolutions, 6),
+                                   amplitude_arcsec=round(t.amplitude_arcsec, 4),
+                                   amplitude_sigma_arcsec=round(t.amplitude_sigma_arcsec, 4),
+                                   phase_deg=round(t.phase_deg, 3), significant=t.significant,
+                                   threshold_arcsec=round(t.threshold_arcsec, 4)) for t in found.terms],
+        target_deg=[round(float(a), 6) for a in found.target_deg], direction=[int(d) for d in found.direction],
+        residual_arcsec=[round(float(x), 4) for x in found.residual_arcsec], notes=notes)
+
+
+PERIODIC_TREND_DEGREE = 2  # the slow error over a few degrees: the turn's orders 1–12 are smooth there
+
+
 class AbbeMethod:
     """Seed 001's encoder Abbe-error method (:class:`rtcal.methods.protocol.Method`)."""
 
@@ -210,6 +265,7 @@ class AbbeMethod:
     context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
     estimators = ("abbe", "closure")
     positioning_deviation = True  # εz: evaluation, conformity and compensation follow
+    recalibration = AbbeRecalibration()  # a reference instrument's new calibration, taken into a run (catalog reassess)
 
     def plan_length(self, proc: EncoderAbbeError) -> int:
         return len(planned_visits(proc))
@@ -275,10 +331,15 @@ class AbbeMethod:
     def analyse(self, proc: EncoderAbbeError, store: RunReadings, bench: Bench | None,
                 estimate_noise: bool = True) -> abr.AbbeAnalysis:
         visits = abbe_visits(store, proc.polygon.seatings_deg)
+        if proc.uncertainty.autocollimator_scale_error_ppm:  # its certificate's scale error, corrected
+            visits = dataclasses.replace(visits, autocollimator_arcsec=visits.autocollimator_arcsec
+                                         / (1.0 + proc.uncertainty.autocollimator_scale_error_ppm * 1e-6))
         recorded = json.loads(store.meta().get("polygon_certificate_arcsec", "null"))
         cert = None if recorded is None else np.asarray(recorded, float)
+        # a fine-step test spans a few degrees: harmonics per turn mean nothing there (its own are per period)
         setup = AbbeSetup(proc.polygon.faces, proc.geometry.indicator_heights_mm, proc.geometry.grating_offset_mm,
-                          proc.geometry.encoder_radius_mm, cert, proc.max_harmonic_order, noise_model(proc, estimate_noise))
+                          proc.geometry.encoder_radius_mm, cert, 0 if proc.periodic is not None else proc.max_harmonic_order,
+                          noise_model(proc, estimate_noise))
         omitted = not_included(proc)
         source = "closure" if cert is None else "certificate"
         solved: list[AbbeEstimate] = []
@@ -316,6 +377,7 @@ class AbbeMethod:
             positioning_deviations=table,
             truth=truth,
             environment=None if (conditions := abbe_conditions(store)) is None else rm.EnvironmentSummary.model_validate(conditions),
+            periodic_error=None if proc.periodic is None else periodic_block(proc, visits),
         )
 
     def draw_systematics(self, proc: EncoderAbbeError, scenario: Scenario, rng: np.random.Generator) -> Scenario:

@@ -11,30 +11,57 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 
+from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.rounding import u_text
-from rtcal.deliverables.certificate import largest, smallest, status_lines
-from rtcal.deliverables.rounding import fmt
+from rtcal.deliverables.certificate import largest, period_text, smallest, status_lines
+from rtcal.deliverables.rounding import fmt, significant
 from rtcal.methods.abbe.results import AbbeResults, ClosureEstimate
-from rtcal.results.model import AbbeEstimate, Estimate, HarmonicTerm, TargetedEstimate
+from rtcal.results.model import AbbeEstimate, Estimate, HarmonicTerm, PeriodicError, PeriodicTerm, TargetedEstimate
 
 ARROW = {1: "↑", -1: "↓"}
 # ↑ filled circles, ↓ larger hollow squares: where the two directions agree, both stay visible
 MARKER: dict[int, dict[str, Any]] = {1: {"marker": "o", "ms": 4}, -1: {"marker": "s", "ms": 7, "mfc": "none"}}
 
 
-def _figure(run_dir: Path, name: str, draw: Callable[[Axes], None]) -> Path:
+def _figure(run_dir: Path, name: str, draw: Callable[[Axes], None], arc_deg: tuple[float, float] | None = None) -> Path:
+    """One per-step figure over the turn, or over ``arc_deg`` (a fine-step test's few degrees)."""
     fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
     draw(ax)
     ax.set_xlabel("table angle / °")
-    ax.set_xlim(-8, 368)  # a point at 0° (or 360°) stays whole, not cut by the frame
-    ax.set_xticks(range(0, 361, 30))
+    if arc_deg is not None:
+        pad = 0.02 * (arc_deg[1] - arc_deg[0])
+        ax.set_xlim(arc_deg[0] - pad, arc_deg[1] + pad)
+    else:
+        ax.set_xlim(-8, 368)  # a point at 0° (or 360°) stays whole, not cut by the frame
+        ax.set_xticks(range(0, 361, 30))
     ax.grid(alpha=0.3)
     legend_below(fig)
     path = run_dir / name
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def period_words(h: PeriodicTerm) -> str:
+    """A harmonic's period in degrees and, where the worm ratio is stated, in worm revolutions."""
+    return "period " + period_text(h.period_deg, h.period_worm_revolutions)
+
+
+def periodic_lines(p: PeriodicError | None) -> list[str]:
+    """report.md's section on the fine-step test (none without one)."""
+    if p is None:
+        return []
+    lines = ["## Periodic positioning error (ISO 230-2:2014 Annex C)", "", p.definition + ".", "",
+             f"- period {p.period_deg:g}°" + (f" (one revolution of the {p.worm_ratio:g}:1 worm)" if p.worm_ratio else "")
+             + f"; steps of {p.step_deg:g}° from {p.start_deg:g}°, {p.targets_per_period} targets per period",
+             f"- periodic positioning error: **{p.periodic_error_arcsec:.2f}″** (U {u_text(p.expanded_uncertainty_arcsec)}″, "
+             f"k = 2); ↑ {fmt(p.periodic_error_up_arcsec, '.2f')}″, ↓ {fmt(p.periodic_error_down_arcsec, '.2f')}″",
+             f"- reference: {p.reference}", "", "| order (per turn) | period | amplitude / ″ | 1σ / ″ | phase / ° | significant |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| {h.order} | {period_words(h)} | {h.amplitude_arcsec:.3f} | {h.amplitude_sigma_arcsec:.3f} | "
+              f"{h.phase_deg:.1f} | {'yes' if h.significant else 'no'} |" for h in p.harmonics]
+    return lines + [""] + [f"- {n}" for n in p.notes] + ["", "![periodic_error](periodic_error.png)", ""]
 
 
 class AbbeOutputs:
@@ -134,10 +161,15 @@ class AbbeOutputs:
             ax.set_ylabel("residual / ″")
             ax.set_title(f"Residual (RMS {a.residual_rms_arcsec}″)")
 
-        paths = [csv_path] + [_figure(run_dir, n, f) for n, f in (
+        p = self.results.periodic_error
+        arc = None if p is None else (min(a.angle_deg), max(a.angle_deg))
+        paths = [csv_path] + [_figure(run_dir, n, f, arc) for n, f in (
             ("fig09_tilt_radial.png", fig9), ("fig10_positioning.png", fig10),
             ("fig11_encoder_error.png", fig11), ("fig12_residual.png", fig12))]
-        paths.append(self._plot_harmonics(run_dir))
+        if p is not None:
+            paths.append(self._plot_periodic(run_dir, p))
+        else:
+            paths.append(self._plot_harmonics(run_dir))
         if self.results.estimates.closure is not None:
             paths.append(self._plot_closure(run_dir, self.results.estimates.closure))
         return paths
@@ -175,6 +207,31 @@ class AbbeOutputs:
         ax.set_title("Harmonic analysis")
         legend_below(fig)
         path = run_dir / "harmonics.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return path
+
+    def _plot_periodic(self, run_dir: Path, p: PeriodicError) -> Path:
+        """The fine-step curve less the slow part per direction, the period's harmonics over it, the
+        period marked: what the periodic positioning error is the range of."""
+        fig, ax = plt.subplots(figsize=(8, 4.6), layout="constrained")
+        t, d, x = np.array(p.target_deg), np.array(p.direction), np.array(p.residual_arcsec)
+        theta = np.radians(np.linspace(t.min(), t.max(), 800))
+        fitted = sum((h.amplitude_arcsec * np.sin(h.order * theta + np.radians(h.phase_deg)) for h in p.harmonics),
+                     np.zeros(len(theta)))
+        for k, sense in enumerate(sorted(set(d.tolist()), reverse=True)):
+            sel = d == sense
+            ax.plot(t[sel], x[sel], **MARKER[sense], ls="none", color=f"C{k}",
+                    label=f"mean deviation less the slow part {ARROW[sense]} (runs averaged)")
+        ax.plot(np.degrees(theta), fitted, color="0.3", lw=1, label="harmonics of the period (fitted, both directions)")
+        ax.axvspan(p.start_deg, p.start_deg + p.period_deg, color="0.9", zorder=0, label=f"one period ({p.period_deg:g}°)")
+        ax.set_xlabel("table angle / °")
+        ax.set_ylabel("deviation less the slow part / ″")
+        ax.grid(alpha=0.3)
+        ax.set_title(f"Periodic positioning error {p.periodic_error_arcsec:.2f}″ (U {u_text(p.expanded_uncertainty_arcsec)}″, "
+                     f"k = 2) over {p.period_deg:g}°")
+        legend_below(fig)
+        path = run_dir / "periodic_error.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
         return path
@@ -229,7 +286,7 @@ class AbbeOutputs:
         for c in b.components:
             contrib = np.array([np.nan if v is None else v for v in c.contribution_arcsec], float)
             origin = " (from the data)" if c.estimated_from_data else ""
-            lines.append(f"| {c.source} | {c.type} | {c.input_sigma:.3g} {c.unit}{origin} | {contrib[worst]:.3f} | "
+            lines.append(f"| {c.source} | {c.type} | {significant(c.input_sigma)} {c.unit}{origin} | {contrib[worst]:.3f} | "
                          f"{float(np.sqrt(np.mean(contrib[1:] ** 2))):.3f} |")
         lines += [f"| **combined u** | | | **{comb[worst]:.3f}** | **{float(np.sqrt(np.mean(comb[1:] ** 2))):.3f}** |", ""]
         lines += [f"- not included: {n}" for n in b.not_included] + [""]
@@ -258,7 +315,9 @@ class AbbeOutputs:
             lines += ["## Closure", "", f"Face errors and table errors separated from {len(closure.seating_offset_arcsec)} "
                       f"seatings; residual RMS {closure.residual_rms_arcsec}″; 1σ of a face error up to "
                       f"{fmt(largest(closure.face_uncertainty_arcsec), '.3f')}″.", "", "![closure](closure.png)", ""]
-        lines += [f"![{n}]({n}.png)" for n in ("fig09_tilt_radial", "fig11_encoder_error", "fig12_residual", "harmonics")]
+        lines += periodic_lines(r.periodic_error)
+        lines += [f"![{n}]({n}.png)" for n in ("fig09_tilt_radial", "fig11_encoder_error", "fig12_residual",
+                                                 "harmonics" if r.periodic_error is None else "periodic_error")]
         lines += ["", "## Notes", ""] + [f"- {n}" for n in a.notes] + [""]
         return lines
 
@@ -270,10 +329,36 @@ class AbbeOutputs:
                 ("fig11_encoder_error.png", "encoder error, predicted from tilt and radial motion (Abbe) and "
                                             "measured; bars ±U (k = 2)."),
                 ("fig12_residual.png", "measured − predicted encoder error; bars ±U (k = 2).")]
+        if self.results.periodic_error is not None:
+            figs.append(("periodic_error.png", "the fine-step test: mean deviation less the slow error of the arc per "
+                                               "direction, the period's harmonics, one period shaded (ISO 230-2:2014 "
+                                               "Annex C as rtcal reads it)."))
         if self.results.estimates.closure is not None:
             figs.append(("closure.png", "polygon face errors and table errors separated by closure, the table errors on "
                                         "the zero of Figure 1 (the first target); bars ±U (k = 2)."))
         return figs
+
+    def iso230_1_errors(self) -> tuple[ErrorMotions | None, MeasuredLocation | None]:
+        """The error motions the dial indicators measured, as a volumetric compensation takes them: EYC
+        (radial motion in Y at the tilt centre, mm) and EAC (tilt about X, rad) per step, the two
+        directions averaged and the mean over the turn removed (the indicators' zeros are arbitrary:
+        the axis's location is not measured here). EXC and EBC are not measured (one plane)."""
+        a = self.abbe
+        per: dict[float, list[tuple[float, float]]] = {}
+        for angle, t, y in zip(a.angle_deg, a.tilt_x_arcsec, a.radial_y_um):
+            if t is not None and y is not None:
+                per.setdefault(round(angle % 360.0, 6), []).append((t, y))
+        if len(per) < 3:
+            return None, None
+        angles = np.array(sorted(per))
+        tilt = np.array([np.mean([t for t, _ in per[k]]) for k in angles])
+        radial = np.array([np.mean([y for _, y in per[k]]) for k in angles])
+        r = self.results
+        return ErrorMotions(angles, {"EYC": (radial - radial.mean()) * 1e-3, "EAC": (tilt - tilt.mean()) * RAD_PER_ARCSEC},
+                            f"{Path(r.procedure.path).name or r.method} (encoder Abbe-error method, {r.started_utc or 'time not recorded'})",
+                            "EYC radial motion in Y at the tilt centre, EAC tilt about X, from two dial indicators below "
+                            "it (seed 001's model), both directions averaged, mean over the turn removed (the indicators' "
+                            "zeros are arbitrary); EXC, EBC not measured (indicators in Y only)"), None
 
     def estimate_words(self) -> str:
         """The recommended estimate as the certificate names it."""
@@ -327,6 +412,14 @@ class AbbeOutputs:
                 lines.append(f"{name}: not separable at these targets (not significant): "
                              + ", ".join(f"{t.order}× {t.amplitude:.2f}″ ~ order {'/'.join(map(str, t.not_separable_from or []))}"
                                          for t in mixed))
+        p = r.periodic_error
+        if p is not None:
+            lines.append(f"periodic positioning error (ISO 230-2:2014 Annex C, rtcal's reading): {p.periodic_error_arcsec:.2f}″ "
+                         f"(U {u_text(p.expanded_uncertainty_arcsec)}″, k = 2) over {p.period_deg:g}°; ↑ "
+                         f"{fmt(p.periodic_error_up_arcsec, '.2f')}″, ↓ {fmt(p.periodic_error_down_arcsec, '.2f')}″")
+            found = [h for h in p.harmonics if h.significant]
+            lines.append("harmonics of the period: " + (", ".join(f"{h.order}× ({period_words(h)}) {h.amplitude_arcsec:.2f}″"
+                                                                  for h in found) or "none significant"))
         closure = r.estimates.closure
         if closure is not None:
             lines.append(f"closure: polygon face errors 1σ ≤ {fmt(largest(closure.face_uncertainty_arcsec), '.3f')}″, "

@@ -33,12 +33,16 @@ INDICATOR = "y_um"
 def reseat_instruction(offset_deg: float, face_pitch_deg: float, resumed: bool = False) -> str:
     """What the person is asked before a polygon seating (the console and the live page say the same)."""
     faces = offset_deg / face_pitch_deg
-    what = f"{faces:g} face(s)" if abs(faces - round(faces)) < 1e-9 else f"{offset_deg:g}°"
+    whole = abs(faces - round(faces)) < 1e-9
+    what = (f"{round(faces):d} {'face' if abs(round(faces)) == 1 else 'faces'}" if whole else f"{offset_deg:g}°")
+    home = whole and round(faces) == 0  # not "turned by 0 faces": the home seating itself
+    seated = "in its home seating" if home else f"seated turned by {what}"
     if resumed:
-        return (f"The run resumes with the polygon seated turned by {what}. Do not move it; "
+        return (f"The run resumes with the polygon {seated}. Do not move it; "
                 "if it was moved, abort and start the seating again.")
-    return (f"Seat the polygon turned by {what} from its home seating "
-            f"(faces in front of the autocollimator at table angles {offset_deg:g}° + k·{face_pitch_deg:g}°), "
+    where = f"{offset_deg:g}° + k·{face_pitch_deg:g}°" if not home else f"k·{face_pitch_deg:g}°"
+    return (f"Seat the polygon {'in its home seating' if home else f'turned by {what} from its home seating'} "
+            f"(faces in front of the autocollimator at table angles {where}), "
             "and align it to the autocollimator within its range.")
 
 

@@ -114,6 +114,51 @@ class AbbeSteps(_Strict):
         return self
 
 
+class PeriodicTest(_Strict):
+    """A fine-step test of the periodic positioning error (ISO 230-2:2014 Annex C): the stage steps by
+    ``step_deg`` from ``start_deg`` through ``span_periods`` periods (one and a little more), in each
+    direction of ``steps.directions``, ``steps.runs`` times; the encoder is read at every step and the
+    autocollimator where a face is in front (the start is a face). The period is one worm revolution
+    (360°/worm_ratio) unless ``period_deg`` names another (an encoder's line period, …)."""
+
+    worm_ratio: float = Field(gt=0.0, le=100_000.0, description="worm (motor) turns per table turn, e.g. 90: one "
+                                                                "worm revolution turns the table 4°")
+    period_deg: float | None = Field(None, gt=0.0, le=90.0, description="the period to test, deg (default: one worm "
+                                                                         "revolution, 360°/worm_ratio; must divide 360°)")
+    step_deg: float = Field(gt=0.0, le=10.0, description="the fine step, deg: at least 8 steps per period (e.g. 0.1)")
+    start_deg: float = Field(0.0, ge=0.0, lt=360.0, description="the first target, deg: a polygon face position, where "
+                                                                 "the autocollimator ties the test to the polygon (e.g. 0)")
+    span_periods: float = Field(1.25, ge=1.0, le=4.0, description="how far the steps go, in periods: one and a little "
+                                                                   "more (e.g. 1.25)")
+
+    @property
+    def period(self) -> float:
+        return self.period_deg if self.period_deg is not None else 360.0 / self.worm_ratio
+
+    def targets_deg(self) -> np.ndarray:
+        """start, start + step, … up to one step past ``span_periods`` periods."""
+        n = int(np.ceil(self.span_periods * self.period / self.step_deg - 1e-9))
+        return np.round(self.start_deg + self.step_deg * np.arange(n + 1), 9)
+
+    @model_validator(mode="after")
+    def _resolvable(self) -> "PeriodicTest":
+        period = self.period
+        if period > 90.0:
+            raise ValueError(f"worm_ratio: a period of {period:g}° is no fine-step test (at most 90°; the ISO test "
+                             "covers the turn)")
+        if abs(360.0 / period - round(360.0 / period)) > 1e-6:
+            raise ValueError(f"period_deg: {period:g}° does not divide the turn (360°/period must be a whole number)")
+        if period / self.step_deg < 8:
+            raise ValueError(f"step_deg: {period / self.step_deg:.3g} steps per period of {period:g}°; at least 8 are "
+                             "needed to see its shape (a smaller step)")
+        last = float(self.targets_deg()[-1])
+        if last >= 360.0:
+            raise ValueError(f"start_deg: the steps would end at {last:g}°, past 360°: start earlier")
+        if len(self.targets_deg()) > 2000:
+            raise ValueError(f"step_deg: {len(self.targets_deg())} targets per pass (at most 2000)")
+        return self
+
+
 class PolygonSetup(_Strict):
     """The polygon as the user knows it.
 
@@ -206,6 +251,9 @@ class AbbeUncertainty(_Strict):
         "expanded uncertainty (k = 2) of an indication from the autocollimator's calibration certificate, arcsec (e.g. 0.1)"))
     indicator_scale_u_ppm: float = Field(0.0, ge=0.0, le=1e5, description=(
         "standard uncertainty of each dial indicator's scale, from its calibration certificate, ppm (e.g. 5000)"))
+    autocollimator_scale_error_ppm: float = Field(0.0, ge=-1e5, le=1e5, description=(
+        "the autocollimator's scale error from its calibration certificate, ppm: each reading is divided by 1 + e before "
+        "the analysis (e.g. 120; 0: none stated, nothing corrected)"))
 
 
 class EncoderAbbeError(_Procedure):
@@ -222,6 +270,9 @@ class EncoderAbbeError(_Procedure):
     on_fault: AbbeOnFault = Field(AbbeOnFault(), description="what to do when an instrument fails (docs/faults.md)")
     verification: AbbeVerification = Field(AbbeVerification(), description="what every motion and reading is checked against "
                                            "(docs/faults.md)")
+    periodic: PeriodicTest | None = Field(None, description="a fine-step test of the periodic positioning error through "
+                                          "one period and a little more instead of the turn (ISO 230-2:2014 Annex C; "
+                                          "procedures/periodic_error.yaml), e.g. {worm_ratio: 90, step_deg: 0.1}")
     max_harmonic_order: int = Field(24, ge=1, le=360, description="highest harmonic order fitted per revolution")
     uncertainty: AbbeUncertainty = Field(AbbeUncertainty(), description="inputs of the uncertainty budget")
 
@@ -236,7 +287,8 @@ class EncoderAbbeError(_Procedure):
 
     def visit_count(self) -> int:
         """Planned stage visits, without building them."""
-        per_pass = self.polygon.faces * self.steps.steps_per_face
+        per_pass = (len(self.periodic.targets_deg()) if self.periodic is not None
+                    else self.polygon.faces * self.steps.steps_per_face)
         return len(self.polygon.seatings_deg) * self.steps.runs * len(self.steps.directions) * per_pass
 
     def plan_size(self, max_cells: int, hint: str) -> tuple[int, str, str, str | None]:
@@ -257,6 +309,12 @@ class EncoderAbbeError(_Procedure):
         problem = plan_outside_limits(self, self.instruments.stage.soft_limits_deg)
         if problem:
             raise ValueError(problem)
+        if self.periodic is not None:
+            if self.steps.targets_deg is not None:
+                raise ValueError("periodic: a fine-step test has its own targets: leave out steps.targets_deg")
+            if not self.face_in_front(self.periodic.start_deg, 0.0):
+                raise ValueError(f"periodic.start_deg: {self.periodic.start_deg:g}° is not a polygon face position "
+                                 f"(multiples of {self.polygon.pitch_deg:g}°): the autocollimator could not read there")
         if self.steps.targets_deg is not None:
             off = [t for t in self.steps.targets_deg if not self.face_in_front(t, 0.0)]
             if off:
@@ -267,6 +325,8 @@ class EncoderAbbeError(_Procedure):
     def pass_angles_deg(self, seating_deg: float) -> np.ndarray:
         """Commanded angles of one positive pass (in [0, 360)) for a seating: the named targets
         (shifted with the seating), or a full turn in steps."""
+        if self.periodic is not None:
+            return np.sort(np.round(np.mod(seating_deg + self.periodic.targets_deg(), 360.0), 9) % 360.0)
         if self.steps.targets_deg is not None:
             return np.sort(np.round(np.mod(seating_deg + np.array(self.steps.targets_deg), 360.0), 9) % 360.0)
         n = self.polygon.faces * self.steps.steps_per_face

@@ -25,6 +25,7 @@ from rtcal.results import model as rm
 from rtcal.methods.multistation import results as msr
 from rtcal.engine.operator import Operator
 from rtcal.methods.multistation.plan import MultistationInstrumentSet, MultistationPlan, planned_readings
+from rtcal.methods.multistation.recalibration import MultistationRecalibration
 from rtcal.solvers.air import correct_lengths
 from rtcal.solvers.lm import LMParameters
 from rtcal.solvers.network import CMM_NAMES, NetworkEstimate, solve_network
@@ -318,6 +319,7 @@ class MultistationMethod:
     context_columns: dict[str, str] = {}  # its plan's entries carry the store's own columns only
     estimators = ("paper", "shared_dead_path", "network")
     positioning_deviation = True  # εz: evaluation, conformity and compensation follow
+    recalibration = MultistationRecalibration()  # a reference instrument's new calibration (catalog reassess)
 
     def plan_length(self, proc: LaserTracerMultistation) -> int:
         return len(planned_readings(proc))

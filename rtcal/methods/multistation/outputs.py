@@ -10,9 +10,11 @@ from typing import Any
 
 import numpy as np
 
+from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
+from rtcal.compensation.kinematics import LocationErrors
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.certificate import largest, status_lines
-from rtcal.deliverables.rounding import fmt
+from rtcal.deliverables.rounding import fmt, significant
 from rtcal.deliverables.rounding import decimals, round_up, u_text
 from rtcal.methods.multistation.results import MultistationResults
 from rtcal.results.model import AXIS_CONVENTION, Estimate, NetworkEstimate, PaperEstimate, StationChainEstimate
@@ -26,11 +28,6 @@ ESTIMATOR_LABELS = {
 
 def _values(values: list[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in values], float)
-
-
-def _mathtext_safe(text: str) -> str:
-    """A title exactly as the user wrote it: matplotlib would read ``$…$`` as mathtext."""
-    return text.replace("$", r"\$")
 
 
 def expanded(u: float, scale: float = 1.0) -> tuple[str, int]:
@@ -91,6 +88,32 @@ class MultistationOutputs:
 
     def __init__(self, results: MultistationResults):
         self.results = results
+
+    def iso230_1_errors(self) -> tuple[ErrorMotions | None, MeasuredLocation | None]:
+        """The axis's location errors from the network (X0C, Y0C in mm, A0C, B0C in rad, CMM frame) and,
+        with a second tracer mount, its error motions per target (EXC, EYC in mm, EAC, EBC in rad), as a
+        volumetric compensation takes them."""
+        r = self.results
+        source = f"{Path(r.procedure.path).name or r.method} (laser-tracer multi-station method, {r.started_utc or 'time not recorded'})"
+        motions = location = None
+        if r.error_motions:
+            t = r.error_motions
+            values = {"EXC": np.array([m.exc_um for m in t]) * 1e-3, "EYC": np.array([m.eyc_um for m in t]) * 1e-3,
+                      "EAC": np.array([m.eac_arcsec for m in t]) * RAD_PER_ARCSEC,
+                      "EBC": np.array([m.ebc_arcsec for m in t]) * RAD_PER_ARCSEC}
+            u = {"EXC": max(m.exc_um_u for m in t) * 1e-3, "EYC": max(m.eyc_um_u for m in t) * 1e-3,
+                 "EAC": max(m.eac_arcsec_u for m in t) * RAD_PER_ARCSEC, "EBC": max(m.ebc_arcsec_u for m in t) * RAD_PER_ARCSEC}
+            motions = ErrorMotions(np.array([m.target_deg % 360.0 for m in t]), values, source,
+                                   "EXC, EYC radial at the tracer mounts' plane, EAC, EBC tilt about X and Y, their mean and "
+                                   "the once-per-turn part that turns with the table removed (ISO 230-7); the tilt about "
+                                   "the line joining the mounts is not seen", u)
+        if r.axis_location is not None:
+            loc = r.axis_location
+            location = MeasuredLocation(LocationErrors.of({
+                "X0C_um": (loc.x0c_mm * 1e3, loc.x0c_mm_u * 1e3), "Y0C_um": (loc.y0c_mm * 1e3, loc.y0c_mm_u * 1e3),
+                "A0C_arcsec": (loc.a0c_arcsec, loc.a0c_arcsec_u), "B0C_arcsec": (loc.b0c_arcsec, loc.b0c_arcsec_u)},
+                loc.frame), source)
+        return motions, location
 
     def _by_recommended(self) -> list[tuple[str, Estimate]]:
         """Every estimate, the recommended one first."""
@@ -162,7 +185,7 @@ class MultistationOutputs:
         ax2.set_xlabel("commanded table angle / °  (" + ("positive" if angles[-1] > angles[0] else "negative") + " approach)")
         ax2.set_xticks(angles, [f"{a:g}" for a in angles], fontsize=8)
         legend_below(fig)
-        ax.set_title(_mathtext_safe(r.procedure.name or r.method), fontsize=11)
+        ax.set_title(r.procedure.name or r.method, fontsize=11)  # as written: figures.py reads no mathtext
         path = run_dir / "deviation.png"
         fig.savefig(path, dpi=120)
         plt.close(fig)
@@ -176,7 +199,7 @@ class MultistationOutputs:
         lines = [head, "|" + "---|" * (3 + len(angles) - 1)]
         for c in b.components:
             origin = " (from the data)" if c.estimated_from_data else ""
-            cells = [c.source, c.type, f"{c.input_sigma:.3g} {c.unit}{origin}"]
+            cells = [c.source, c.type, f"{significant(c.input_sigma)} {c.unit}{origin}"]
             cells += [fmt(v, ".3f") for v in c.contribution_arcsec[1:]]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("| **combined u** | | | " + " | ".join(f"**{fmt(v, '.3f')}**" for v in b.combined_arcsec[1:]) + " |")
