@@ -401,7 +401,8 @@ def test_cli_on_csv_and_run_directory(tmp_path, capsys):
 
 
 def results_json_with(table: PositioningDeviations) -> str:
-    """A valid results.json (a run validates as a whole) whose positioning deviations are ``table``."""
+    """A valid results.json (a run validates as a whole) whose positioning deviations are ``table``: one
+    as rtcal 0.1.0 wrote them (schema 1.1, before the digests), so no store need stand beside it."""
     from rtcal.results.io import results_json
     from rtcal.methods.multistation.results import MultistationResults
 
@@ -414,7 +415,7 @@ def results_json_with(table: PositioningDeviations) -> str:
                 "plane": {"a": 0.0, "b": 0.0, "c": 1.0, "e": 0.0}, "projected_stations_mm": [], "center_mm": [0.0, 0.0, 0.0],
                 "stations_mm": [], "dead_paths_mm": {}, "rms_residual_um": 0.0}
     results = MultistationResults.model_validate({
-        "rtcal_version": "test", "method": "laser_tracer_multistation", "procedure": {"name": "", "path": ""},
+        "rtcal_version": "0.1.0", "schema_version": "1.1", "method": "laser_tracer_multistation", "procedure": {"name": "", "path": ""},
         "metadata": {"customer": "", "machine": "", "axis": "", "serial_number": "", "location": "", "operator": "",
                      "certificate_number": "", "instruments": {}},
         "seed": None, "instruments": {}, "bench": None, "started_utc": None, "finished_utc": None, "starts": 1,

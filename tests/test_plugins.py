@@ -41,11 +41,12 @@ def test_replay_names_the_byte_that_differed():
 
 
 def test_replay_silence_and_an_unfinished_exchange():
-    with replay([(b"MM\r", None), (b"UNI?\r", b"MM\r"), (b"?\r", None), (b"?\r", b"+1.0\r")]) as line:
+    with replay([(b"MM\r", None), (b"UNI?\r", b"MM\r"), (b"ID?\r", b"ERR1\r"), (b"?\r", None),
+                 (b"?\r", b"+1.0\r")]) as line:
         indicator = factory.open_instrument("dial_indicator", "socket://device:1", 1.0, name="dial_indicator_1")
         with pytest.raises(InstrumentTimeout, match="no reply"):
             indicator.read_um()
-    with pytest.raises(ExchangeMismatch, match=r"stopped after request 3 of 4; request 4 \(b'\?\\r'\) never came"):
+    with pytest.raises(ExchangeMismatch, match=r"stopped after request 4 of 5; request 5 \(b'\?\\r'\) never came"):
         line.assert_done()
 
 

@@ -117,11 +117,16 @@ def test_modbus_tcp_short_reply_is_typed():
     """A reply with one register where two were asked (was: IndexError)."""
 
     def one_register(conn: socket.socket) -> None:
-        request = conn.recv(4096)
-        tid, unit = request[:2], request[6:7]
-        pdu = bytes([3, 2, 0x12, 0x34])  # read holding registers: 2 bytes, one register
-        conn.sendall(tid + b"\0\0" + struct.pack(">H", len(pdu) + 1) + unit + pdu)
-        time.sleep(0.5)
+        while request := conn.recv(4096):
+            tid, unit, function = request[:2], request[6:7], request[7]
+            if function == 0x2B:  # Read Device Identification at connect: an AZ drive answers "illegal function"
+                pdu = bytes([0x2B | 0x80, 0x01])
+            else:
+                pdu = bytes([3, 2, 0x12, 0x34])  # read holding registers: 2 bytes, one register
+            conn.sendall(tid + b"\0\0" + struct.pack(">H", len(pdu) + 1) + unit + pdu)
+            if function != 0x2B:
+                time.sleep(0.5)
+                return
 
     peer = TcpPeer(one_register)
     stage = ModbusStage(parse_address(f"modbus-tcp://127.0.0.1:{peer.port}"), timeout_s=TIMEOUT_S)
