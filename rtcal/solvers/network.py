@@ -44,10 +44,15 @@ if TYPE_CHECKING:  # scipy.sparse loads where it is used: at import it costs eve
 from rtcal.solvers.station_budget import (
     AIR_DRIFT_SOURCE,
     StationNoiseModel,
+    COURSE_KNOTS,
+    StationObservations,
     air_drift_source,
+    observation_sources,
     bounded_components,
     radial_sensitivity_mm,
     sensor_noise_sources,
+    mount_gradient_sources,
+    sphere_form_source,
     cmm_field_as_source,
     course_nuisance,
     covariance_root,
@@ -60,7 +65,7 @@ from rtcal.solvers.station_budget import (
 )
 from rtcal.solvers.location import location_from_axis, location_jacobian, stated_motion_covariance
 from rtcal.solvers.station_data import MultistationData
-from rtcal.solvers.structure import Effect, Factored, Grouped, padded, scaled
+from rtcal.solvers.structure import Effect, Factored, Grouped, padded, r_factor, scaled
 from rtcal.solvers.uncertainty import (
     BudgetComponent,
     Covariance,
@@ -528,7 +533,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         if settled:
             break
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
-                   (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals)
+                   (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals,
+                   (seg, obs, points, data.point_visit_counts))
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -633,8 +639,47 @@ def _unseen_motions(S_inv: np.ndarray, lay: _Layout, prior, nominal: np.ndarray,
     return cov
 
 
+def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, material_offset, noise, seg, obs, reported,
+                   point_visits) -> ResidualCheck | None:
+    """The network's residual test, exact whatever its weights: the lengths evaluated at the reported points through
+    the solved CMM matrix (A = M(q̂)·Ã), r = |A − P| − D − l, against the whole budget as stated on the lengths
+    (:func:`rtcal.solvers.station_budget.observation_sources`: the CMM point noise as each point's grouped error, the
+    field, the air, the table, the tracer's sphere) with the globals' Jacobian J (N × globals, the CMM's q through
+    A = M·Ã). The points integrated out, rᵀPr (P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁺JᵀV⁻¹, structured) is exactly χ²(N − rank J) on a
+    bench as budgeted, for any estimate of the globals (PJ = 0); the uncorrected air's or table's course is free beside
+    J as in the station estimators' test (:func:`rtcal.solvers.station_budget.course_nuisance`). No N×N, no 3n columns."""
+    import scipy.sparse as sp
+
+    q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
+    A = np.asarray(reported, float) @ cmm_matrix(q).T
+    d = A[pi] - P[st]
+    L = np.linalg.norm(d, axis=1)
+    e = d / L[:, None]
+    r = L - x[lay.d][seg] - obs
+    J = np.array(Jg, float)
+    if lay.q.stop > lay.q.start:
+        for kq, (_, dM) in enumerate(cmm_matrix_derivatives()):
+            J[:, lay.q.start + kq] = np.einsum("ij,ij->i", e, (np.asarray(reported, float) @ dM.T)[pi])
+    axis_dir, _, _ = axis_basis(*x[lay.a])
+    stated = noise if lay.q.stop == lay.q.start else replace(noise, cmm_scale_ppm=0.0, cmm_squareness_arcsec=0.0)
+    obs_info = StationObservations(pi, st, visits, A, np.asarray(point_visits), run_fraction, material_offset)
+    V = Covariance.of_sources(observation_sources(obs_info, P, x[lay.c], axis_dir, stated))
+    motions = error_motion_covariances(P, nominal, x[lay.c], noise)
+    if motions:  # the error motions move the stations: each length by −u·δP of its station
+        V = V.plus(Factored(Grouped(-e, np.asarray(st), len(P)).sparse(),
+                            covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
+    course = course_nuisance(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis_dir), run_fraction, noise)
+    if course is not None and lay.q.stop > lay.q.start:  # a constant course (the hats sum to 1) is a scale of every length, or of the radius: the
+        # CMM's scales and the circle take it up exactly, so the first hat of each course goes (the span is the same,
+        # without a direction of J that is null to rounding and would be counted in its rank)
+        J = np.hstack([J, np.delete(course, np.arange(0, course.shape[1], COURSE_KNOTS), axis=1)])
+    J = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)  # unit columns: the span is the test's, the CMM's ppm columns
+    tested = sp.csr_matrix(J)  # (1e-3 mm) beside the angles' (1e3 mm/rad) would otherwise fall under its rank cut
+    return residual_check(r, V, 0, jacobian=tested, jacobian_r=r_factor(tested))
+
+
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
-            run_fraction, material_offset=None, check_residuals=True):
+            run_fraction, material_offset=None, check_residuals=True, test_inputs=None):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
         x, lay, evaluate, weights, theta, pi, prior)
@@ -695,6 +740,11 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(replace(src, effect=padded(src.effect, len(zeros_pts))))
     for src in sensor_noise_sources(L_abs, radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, noise):
         sources.append(replace(src, effect=padded(src.effect, len(zeros_pts)), note=src.note + "; in the weights"))
+    extra = mount_gradient_sources(radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, run_fraction,
+                                   noise)
+    if noise.sphere_form_um > 0:
+        extra.append(sphere_form_source(unit, P[st], x[lay.c], axis_dir, noise))
+    sources += [replace(src, effect=padded(src.effect, len(zeros_pts))) for src in extra]
     if noise.cmm_field_um > 0:  # the CMM reports each point off by the field: in the points' rows, or the lengths'
         import scipy.sparse as sp
 
@@ -735,7 +785,10 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
                 f"within ±{bound:g} {unit} (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one mount cannot "
                 "separate them from the rotation"))
     check = None
-    if check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
+    if check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0) \
+            and not lay.error_motions and test_inputs is not None:
+        check = _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, material_offset, noise, *test_inputs)
+    elif check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
         # the residuals (lengths, then the points' coordinates) against the noise as stated: θ = 1, the Type B
         # sources acting on them, and the error motions the stated bounds allow where the model has none
         stated = [replace(src, effect=scaled(src.effect, 1 / np.sqrt(theta[0]))) if src.name == "tracer length noise" else
