@@ -55,6 +55,7 @@ from rtcal.solvers.station_budget import (
     sphere_form_source,
     cmm_field_as_source,
     course_nuisance,
+    course_refinement,
     covariance_root,
     cmm_field_root_mm,
     field_mix,
@@ -669,10 +670,14 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
         V = V.plus(Factored(Grouped(-e, np.asarray(st), len(P)).sparse(),
                             covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
     course = course_nuisance(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis_dir), run_fraction, noise)
+    steps = None if course is None else course_refinement(r, V, sp.csr_matrix(J / np.maximum(np.linalg.norm(J, axis=0),
+                                                                                            1e-300)), course, run_fraction)
     if course is not None and lay.q.stop > lay.q.start:  # a constant course (the hats sum to 1) is a scale of every length, or of the radius: the
         # CMM's scales and the circle take it up exactly, so the first hat of each course goes (the span is the same,
         # without a direction of J that is null to rounding and would be counted in its rank)
         J = np.hstack([J, np.delete(course, np.arange(0, course.shape[1], COURSE_KNOTS), axis=1)])
+    if steps is not None and steps.shape[1]:  # the course's fast moves, free at every reading there
+        J = np.hstack([J, steps])
     J = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)  # unit columns: the span is the test's, the CMM's ppm columns
     tested = sp.csr_matrix(J)  # (1e-3 mm) beside the angles' (1e3 mm/rad) would otherwise fall under its rank cut
     return residual_check(r, V, 0, jacobian=tested, jacobian_r=r_factor(tested))
