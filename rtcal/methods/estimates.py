@@ -89,6 +89,9 @@ def not_covered(not_included: list[str], check: ResidualCheck | None, causes: It
         return not_included
     said = list(causes)
     meaning = ("" if not said else "; the readings contradict what the budget assumed — one of: " + "; ".join(said))
+    if check.source_failed:  # one stated source is off: say which, first
+        meaning = (f"; the readings contradict what the budget assumed — one of: '{check.worst_source}' is beyond its "
+                   f"stated uncertainty (p = {check.worst_source_p:.2g})" + "".join(f"; {c}" for c in said))
     return [*not_included, f"a systematic error the residuals show and the budget does not model ({RESIDUAL_FAILURE}: "
             f"χ² = {check.chi2:.0f} for {check.dof} degrees of freedom, p = {check.p_value:.2g}): U is not a "
             f"coverage interval for it{meaning}"]

@@ -76,6 +76,7 @@ from rtcal.solvers.uncertainty import (
     VarianceEstimate,
     propagate,
     residual_check,
+    scorable,
 )
 from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
 
@@ -194,7 +195,8 @@ class _Layout:
     table frame (x, y, z each) and each station's error motions: a translation δ_j (3) and a
     tilt ε_j (2, about the axis frame's x and y)."""
 
-    def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool, mounts: int = 1):
+    def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool, mounts: int = 1,
+                 growth_mm_per_ppm: np.ndarray | None = None):
         self.m, self.k, self.n, self.mounts = m, k, n, mounts
         self.c = slice(0, 3)
         self.a = slice(3, 5)
@@ -206,7 +208,11 @@ class _Layout:
         self.mount = slice(self.q.stop, self.q.stop + extra)
         self.delta = slice(self.mount.stop, self.mount.stop + (3 * m if mounts > 1 else 0))
         self.eps = slice(self.delta.stop, self.delta.stop + (2 * m if mounts > 1 else 0))
-        self.g = self.eps.stop  # number of global unknowns
+        # the table's growth per sensed kelvin beyond the α the lengths were corrected with (ppm/K), when solved:
+        # each length moves by −growth·κ
+        self.growth = growth_mm_per_ppm
+        self.kappa = slice(self.eps.stop, self.eps.stop + (0 if growth_mm_per_ppm is None else 1))
+        self.g = self.kappa.stop  # number of global unknowns
         self.free_points = free_points
         self.size = self.g + (3 * n if free_points else 0)
 
@@ -251,6 +257,8 @@ def _residuals(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg:
     P = _stations(x, lay)[0]
     A = x[lay.g :].reshape(-1, 3) if lay.free_points else reported
     f_len = np.linalg.norm(A[pi] - P[st], axis=1) - x[lay.d][seg] - obs
+    if lay.growth is not None:
+        f_len = f_len - lay.growth * x[lay.kappa.start]
     if not lay.free_points:
         return f_len, None
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
@@ -273,6 +281,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
     e = diff / L[:, None]
     eb = e @ Rb  # the unit vectors in the axis frame: −∂f/∂t
     f_len = L - dead[seg] - obs
+    if lay.growth is not None:
+        f_len = f_len - lay.growth * x[lay.kappa.start]
     N = len(obs)
     rows = np.arange(N)
     Jg = np.zeros((N, lay.g))
@@ -309,6 +319,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
         Jg[rows, lay.eps.start + 2 * sj] = -(eb[:, 1] * -sr[:, 2] + eb[:, 2] * sr[:, 1])  # x̂ × s = (0, −s_z, s_y)
         Jg[rows, lay.eps.start + 2 * sj + 1] = -(eb[:, 0] * sr[:, 2] - eb[:, 2] * sr[:, 0])  # ŷ × s = (s_z, 0, −s_x)
     Jg[rows, lay.d.start + seg] = -1.0
+    if lay.growth is not None:
+        Jg[:, lay.kappa.start] = -lay.growth
     if not lay.free_points:
         return f_len, Jg, None, None, None, P, A
     M = cmm_matrix(q)
@@ -414,7 +426,9 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     material_offset = None if offsets is None else np.concatenate(
         [offsets[k][np.isfinite(mounts[k][0])] for k in range(len(mounts))])
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
-    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts))
+    growth = None if data.growth_mm_per_ppm is None else np.concatenate(
+        [np.asarray(data.growth_mm_per_ppm[k], float)[np.isfinite(mounts[k][0])] for k in range(len(mounts))])
+    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts), growth)
     if len(obs) < lay.g + 1:
         raise ValueError(f"{len(obs)} lengths for {lay.g} unknowns of the network")
     if len(mounts) > 1 and (mount_guesses_mm is None or len(mount_guesses_mm) != len(mounts) - 1):
@@ -471,7 +485,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         model = _model(x, lay, pi, st, seg, obs, points, q_fixed)
         f_len, Jg, Jp, f_pts, Jg_pts, P, A = model[:7]
         Minv = model[7] if lay.free_points else None
-        L = f_len + x[lay.d][seg] + obs
+        L = f_len + x[lay.d][seg] + obs + (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
         return f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L
 
     def cost_of(x: np.ndarray, w_len, w_pts) -> float:
@@ -656,7 +670,7 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
     d = A[pi] - P[st]
     L = np.linalg.norm(d, axis=1)
     e = d / L[:, None]
-    r = L - x[lay.d][seg] - obs
+    r = L - x[lay.d][seg] - obs - (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
     J = np.array(Jg, float)
     if lay.q.stop > lay.q.start:
         for kq, (_, dM) in enumerate(cmm_matrix_derivatives()):
@@ -664,7 +678,8 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
     axis_dir, _, _ = axis_basis(*x[lay.a])
     stated = noise if lay.q.stop == lay.q.start else replace(noise, cmm_scale_ppm=0.0, cmm_squareness_arcsec=0.0)
     obs_info = StationObservations(pi, st, visits, A, np.asarray(point_visits), run_fraction, material_offset)
-    V = Covariance.of_sources(observation_sources(obs_info, P, x[lay.c], axis_dir, stated))
+    stated_sources = observation_sources(obs_info, P, x[lay.c], axis_dir, stated)
+    V = Covariance.of_sources(stated_sources)
     motions = error_motion_covariances(P, nominal, x[lay.c], noise)
     if motions:  # the error motions move the stations: each length by −u·δP of its station
         V = V.plus(Factored(Grouped(-e, np.asarray(st), len(P)).sparse(),
@@ -680,7 +695,8 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
         J = np.hstack([J, steps])
     J = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)  # unit columns: the span is the test's, the CMM's ppm columns
     tested = sp.csr_matrix(J)  # (1e-3 mm) beside the angles' (1e3 mm/rad) would otherwise fall under its rank cut
-    return residual_check(r, V, 0, jacobian=tested, jacobian_r=r_factor(tested))
+    return residual_check(r, V, 0, jacobian=tested, jacobian_r=r_factor(tested),
+                          scored=scorable(stated_sources, skip=(AIR_DRIFT_SOURCE,)))
 
 
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,

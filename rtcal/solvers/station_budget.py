@@ -59,6 +59,7 @@ from rtcal.solvers.uncertainty import (
     difference_matrix,
     residual_check,
     propagate,
+    scorable,
     reml_scales,
 )
 from rtcal.units import arcsec_to_rad
@@ -646,7 +647,8 @@ def station_budget(
             residuals, V, J, course, obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, N))
         if steps.shape[1]:  # the course's fast moves, free at every reading there
             tested = _hstack(tested, steps / np.linalg.norm(steps, axis=0))
-        check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R if not steps.shape[1] else None)
+        check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R if not steps.shape[1] else None,
+                               scored=scorable(sources, skip=(AIR_DRIFT_SOURCE,)))
     return StationBudget(DeviationBudget(components), variances, sources, check)
 
 

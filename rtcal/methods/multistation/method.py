@@ -87,6 +87,41 @@ def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistatio
     return replace(data, lengths_mm=fix(data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm), other_mounts=others)
 
 
+GROWTH_SOLVED_FROM_K = 0.2  # the table's sensed change over the run from which its growth per kelvin is solved
+
+
+def with_growth_unknown(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
+    """The lengths' sensitivity to the table's growth per sensed kelvin beyond the α they were corrected with
+    (:func:`corrected_for_expansion`'s increment per ppm/K), so that the shared-dead-path and network estimators solve
+    it: a table of another material than stated or assumed, or a mount that warms faster than the sensor reads (a
+    gradient) grows the stations by the same pattern in time, which the readings determine far better than any
+    stated α. Only where a sensor reads the table and its reading changes by :data:`GROWTH_SOLVED_FROM_K` or more over
+    the run (a steady table leaves it undetermined); ``uncertainty.table_expansion_ppm_per_k: 0`` states a table that
+    does not grow, and nothing is solved."""
+    offsets = data.material_offsets_k()
+    if offsets is None or table_expansion(proc)[0] == 0:
+        return data
+    spread = max(float(np.nanmax(o) - np.nanmin(o)) for o in offsets)
+    if spread < GROWTH_SOLVED_FROM_K:
+        return data
+    nominal = np.deg2rad(data.nominal_angles_deg)
+    axis = np.array(proc.solver.axis_point_mm, float)
+
+    def sensitivity(lengths: np.ndarray, offset: np.ndarray, guess: Sequence[float]) -> np.ndarray:
+        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
+        diff = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
+        unit = diff / np.linalg.norm(diff, axis=2)[..., None]
+        rho = stations - axis
+        rho[:, 2] = 0.0
+        out: np.ndarray = 1e-6 * offset * np.einsum("ijk,jk->ij", unit, rho)
+        return out
+
+    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
+    columns = [sensitivity(data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm)]
+    columns += [sensitivity(o.lengths_mm, off, second) for o, off in zip(data.other_mounts, offsets[1:])]
+    return replace(data, growth_mm_per_ppm=tuple(columns))
+
+
 def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
     """The lengths as geometric lengths, each corrected with the air's index at its reading."""
     if data.air_index is None:
@@ -418,7 +453,7 @@ class MultistationMethod:
         recommended one, its positioning-deviation table, and the truth of a simulated run."""
         angles = proc.stations.angles_deg()
         data = corrected_for_air(multistation_data(store, angles, len(proc.points_array()), proc.mounts), proc)
-        data = corrected_for_expansion(data, proc)
+        data = with_growth_unknown(corrected_for_expansion(data, proc), proc)
         guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
         noise, omitted = noise_model(proc, estimate_noise), not_included(proc, data)
         if table_sensor(proc) and data.material_offsets_k() is None:  # the sensor read no table temperature
