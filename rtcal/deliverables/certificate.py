@@ -149,7 +149,8 @@ def failed_test_notes(results: RunResults) -> list[str]:
     passing = [n for n, other in results.estimates.items() if n != results.recommended
                and getattr(getattr(other, "residual_test", None), "passed", False)
                and getattr(results.solver_status.get(n), "status", None) == "converged"]
-    instead = (f"No other estimate is quoted instead, though {', '.join(passing)} passed its test: the estimates share "
+    others = "another estimate passed its test" if len(passing) == 1 else f"{len(passing)} other estimates passed theirs"
+    instead = (f"No other estimate is quoted instead, though {others}: the estimates share "
                "the readings and the budget's assumptions, and a weaker test passes what it cannot see."
                if passing else "No estimate passed its test.")
     return [f"The quoted estimate FAILED its residual test (χ² = {test.chi2:.0f} for {test.dof} degrees of freedom, "

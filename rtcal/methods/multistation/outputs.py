@@ -338,8 +338,8 @@ class MultistationOutputs:
         if any(n.startswith("thermal expansion: the tracer's mount") for n in names):
             parts.append("the table's sensor does not sit where the tracer is mounted: the mount's temperature change may "
                          "differ from the sensor's by the stated share (or ±50 % when none is stated), a line of its own; "
-                         "where the sensor reads the table change by 0.2 K or more over the run, shared_dead_path and "
-                         "the network solve the table's growth per sensed kelvin from the readings (another material "
+                         "where the sensor reads the table change by 0.2 K or more over the run, the estimates that solve "
+                         "all stations together and the whole network solve the table's growth per sensed kelvin from the readings (another material "
                          "than the α assumed, or such a gradient, moves the stations in a pattern the lengths "
                          "determine), and these lines then contribute only what the solution leaves; a gradient that "
                          "changes while the sensor's reading does not is not included")
