@@ -62,29 +62,39 @@ def _round(values: Iterable[float] | np.ndarray, digits: int = 6) -> list[float]
     return rounded
 
 
+def _growth_mm_per_ppm(data: MultistationData, proc: LaserTracerMultistation, lengths: np.ndarray, offset: np.ndarray,
+                       guess: Sequence[float]) -> np.ndarray:
+    """How much each length shortens per ppm/K of the table's growth about the axis: 1e-6·(T − 20 °C)·u·ρ (u from
+    station to point, ρ the station's distance vector from the axis, the stations from the nominal geometry)."""
+    nominal = np.deg2rad(data.nominal_angles_deg)
+    axis = np.array(proc.solver.axis_point_mm, float)
+    stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
+    diff = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
+    unit = diff / np.linalg.norm(diff, axis=2)[..., None]
+    rho = stations - axis
+    rho[:, 2] = 0.0
+    out: np.ndarray = 1e-6 * offset * np.einsum("ijk,jk->ij", unit, rho)
+    return out
+
+
+def _per_mount(data: MultistationData, proc: LaserTracerMultistation, offsets: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """:func:`_growth_mm_per_ppm` for the first mount and each other mount, in that order."""
+    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
+    out = [_growth_mm_per_ppm(data, proc, data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm)]
+    return out + [_growth_mm_per_ppm(data, proc, o.lengths_mm, off, second) for o, off in zip(data.other_mounts, offsets[1:])]
+
+
 def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
     """The lengths as if the table were at 20 °C: each station, grown by g = α·(T − 20 °C) about the
     axis when its length was read (T the sensor's table temperature then), moved the length by
     −g·u·ρ (u from station to point, ρ the station's distance vector from the axis), which is added back."""
-    alpha = table_expansion(proc)[0] * 1e-6
+    alpha_ppm = table_expansion(proc)[0]
     offsets = data.material_offsets_k()
-    if alpha == 0 or offsets is None:
+    if alpha_ppm == 0 or offsets is None:
         return data
-    nominal = np.deg2rad(data.nominal_angles_deg)
-    axis = np.array(proc.solver.axis_point_mm, float)
-
-    def fix(lengths: np.ndarray, offset: np.ndarray, guess: Sequence[float]) -> np.ndarray:
-        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
-        diff = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
-        unit = diff / np.linalg.norm(diff, axis=2)[..., None]
-        rho = stations - axis
-        rho[:, 2] = 0.0
-        grown: np.ndarray = lengths + alpha * offset * np.einsum("ijk,jk->ij", unit, rho)
-        return grown
-
-    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
-    others = tuple(replace(o, lengths_mm=fix(o.lengths_mm, off, second)) for o, off in zip(data.other_mounts, offsets[1:]))
-    return replace(data, lengths_mm=fix(data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm), other_mounts=others)
+    first, *rest = _per_mount(data, proc, offsets)
+    others = tuple(replace(o, lengths_mm=o.lengths_mm + alpha_ppm * g) for o, g in zip(data.other_mounts, rest))
+    return replace(data, lengths_mm=data.lengths_mm + alpha_ppm * first, other_mounts=others)
 
 
 GROWTH_SOLVED_FROM_K = 0.2  # the table's sensed change over the run from which its growth per kelvin is solved
@@ -104,22 +114,7 @@ def with_growth_unknown(data: MultistationData, proc: LaserTracerMultistation) -
     spread = max(float(np.nanmax(o) - np.nanmin(o)) for o in offsets)
     if spread < GROWTH_SOLVED_FROM_K:
         return data
-    nominal = np.deg2rad(data.nominal_angles_deg)
-    axis = np.array(proc.solver.axis_point_mm, float)
-
-    def sensitivity(lengths: np.ndarray, offset: np.ndarray, guess: Sequence[float]) -> np.ndarray:
-        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
-        diff = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
-        unit = diff / np.linalg.norm(diff, axis=2)[..., None]
-        rho = stations - axis
-        rho[:, 2] = 0.0
-        out: np.ndarray = 1e-6 * offset * np.einsum("ijk,jk->ij", unit, rho)
-        return out
-
-    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
-    columns = [sensitivity(data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm)]
-    columns += [sensitivity(o.lengths_mm, off, second) for o, off in zip(data.other_mounts, offsets[1:])]
-    return replace(data, growth_mm_per_ppm=tuple(columns))
+    return replace(data, growth_mm_per_ppm=tuple(_per_mount(data, proc, offsets)))
 
 
 def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
