@@ -195,19 +195,20 @@ class Bench:
         delta = np.array([evaluate(self._dx, commanded_rad), evaluate(self._dy, commanded_rad), evaluate(self._dz, commanded_rad)])
         return delta, float(evaluate(self._ex, commanded_rad)), float(evaluate(self._ey, commanded_rad))
 
-    def table_point_in_axis_frame(self, p_table_mm: np.ndarray) -> np.ndarray:
-        """A table point in the housing frame (origin at the axis point, z along the axis)."""
+    def table_point_in_axis_frame(self, p_table_mm: np.ndarray, growth: float | None = None) -> np.ndarray:
+        """A table point in the housing frame (origin at the axis point, z along the axis); ``growth``: the
+        relative radial growth of the region it sits in (default: the table's)."""
         delta, ex, ey = self.error_motions(self.commanded_rad)
         c = self.tilt_center
         p = np.asarray(p_table_mm, dtype=float)
-        growth = self.table_growth()
+        growth = self.table_growth() if growth is None else growth
         if growth:  # the table top and what is mounted on it grow radially about the axis
             p = np.array([p[0] * (1.0 + growth), p[1] * (1.0 + growth), p[2]])
         rotated = rot_z(self.actual_rad) @ p
         return c + delta + rot_y(ey) @ rot_x(ex) @ (rotated - c)
 
-    def table_point_in_cmm(self, p_table_mm: np.ndarray) -> np.ndarray:
-        return self.axis_point_mm + self.axis_rotation @ self.table_point_in_axis_frame(p_table_mm)
+    def table_point_in_cmm(self, p_table_mm: np.ndarray, growth: float | None = None) -> np.ndarray:
+        return self.axis_point_mm + self.axis_rotation @ self.table_point_in_axis_frame(p_table_mm, growth)
 
     # -- CMM and tracer
     def move_probe(self, target_mm: np.ndarray) -> None:
@@ -224,11 +225,23 @@ class Bench:
         return actual
 
     def tracer_center_mm(self) -> np.ndarray:
-        return self.table_point_in_cmm(self.tracer_in_table_mm)
+        """The tracer's reference centre: on the table, grown with the temperature of the region that carries it."""
+        return self.table_point_in_cmm(self.tracer_in_table_mm, self.mount_growth())
 
     def tracer_length_mm(self) -> float:
         """True distance from the tracer's reference centre to the reflector."""
         return float(np.linalg.norm(self.reflector_mm() - self.tracer_center_mm()))
+
+    def sphere_deviation_mm(self) -> float:
+        """The reference sphere's radius deviation where the beam touches it: the sphere is fixed to the tracer's base,
+        which turns with the table, so the beam's azimuth in the base frame is its azimuth in the housing frame less
+        the table's angle (the tilts, µrad, left out)."""
+        lobes = self.scenario.laser_tracer.sphere_form
+        if not lobes:
+            return 0.0
+        beam = self.axis_rotation.T @ (self.reflector_mm() - self.tracer_center_mm())
+        psi = math.atan2(beam[1], beam[0]) - self.actual_rad
+        return sum(um_to_mm(lobe.amplitude_um) * math.cos(lobe.order * psi + math.radians(lobe.phase_deg)) for lobe in lobes)
 
     def _mount_point(self, index: int) -> np.ndarray:
         lt = self.scenario.laser_tracer
@@ -332,6 +345,17 @@ class Bench:
         """The table's relative radial growth about the axis now: α·(material temperature − 20 °C)."""
         alpha = self.scenario.stage.thermal_expansion_ppm_per_k
         return alpha * 1e-6 * (self.environment()[3] - 20.0) if alpha else 0.0
+
+    def mount_growth(self) -> float:
+        """The relative radial growth of the region that carries the tracer: the table's, or with a gradient its own
+        temperature's (the table's start, drifting at ``mount_temperature_drift_k_per_h``, plus the table's profile)."""
+        e = self.scenario.environment
+        alpha = self.scenario.stage.thermal_expansion_ppm_per_k
+        if e.mount_temperature_drift_k_per_h is None or not alpha:
+            return self.table_growth()
+        now = self.clock.now_s()
+        dm = e.offsets(None if self.first_reading_s is None else now - self.first_reading_s)[3]
+        return alpha * 1e-6 * (e.material_temperature_c + e.mount_temperature_drift_k_per_h * now / 3600.0 + dm - 20.0)
 
     def air_index(self) -> float:
         """The refractive index of the air the tracer's beam runs through, now (Ciddor, He-Ne)."""

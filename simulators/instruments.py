@@ -219,7 +219,9 @@ class SimLaserTracer(_Injecting, LaserTracer):
         self._creep_readings = 0
 
     def _optical_mm(self) -> float:
-        return self.bench.tracer_length_mm() * self.bench.air_index() / self._n_std
+        """The optical path counted, standard-air mm; the reference sphere's form where the beam touches it shortens
+        the distance from the sphere's surface, which the tracer reports (a bump toward the beam: shorter)."""
+        return (self.bench.tracer_length_mm() - self.bench.sphere_deviation_mm()) * self.bench.air_index() / self._n_std
 
     def reference(self) -> int:
         self._take_reference()

@@ -219,6 +219,15 @@ class TracerMount(_Strict):
     height_mm: Size_mm = Field(122.5, description="its height above the axis point (the CMM origin), mm")
 
 
+class SphereLobe(_Strict):
+    """One lobe of the reference sphere's form: its radius off by amplitude·cos(order·ψ + phase), ψ the beam's
+    azimuth about the sphere's vertical axis in the tracer's base frame (the same at every elevation)."""
+
+    order: int = Field(ge=1, le=100, description="lobes per turn (2: oval, 3: three-lobed)")
+    amplitude_um: float = Field(ge=0.0, le=10.0, description="the lobe's amplitude, µm (e.g. 0.03)")
+    phase_deg: Phase_deg = Field(0.0, description="its phase, deg")
+
+
 class LaserTracerScenario(_Strict):
     """Interferometric length noise a + b·L (1σ), the mount, and where the tracer goes when the
     operator moves it to its second mount (a procedure's ``second_mount``)."""
@@ -229,6 +238,9 @@ class LaserTracerScenario(_Strict):
     length_noise_um: float = _noise(0.0, "µm", "1σ of every length, constant part a", MAX_LENGTH_NOISE_UM)
     length_noise_ppm: float = _noise(0.0, "µm per m", "1σ of every length, part b proportional to the length",
                                      MAX_LENGTH_NOISE_PPM)
+    sphere_form: list[SphereLobe] = Field([], max_length=32, description=(
+        "the form error of the tracer's reference sphere: lobes about its vertical axis, fixed to the tracer's base "
+        "(which turns with the table), so each length reads off by the sphere's deviation where its beam touches it"))
 
 
 class StepperScenario(_Strict):
@@ -464,6 +476,9 @@ class EnvironmentScenario(_Strict):
     humidity_drift_pct_per_h: float = Field(0.0, ge=-100.0, le=100.0, description="its drift, % per hour")
     material_temperature_c: float = Field(20.0, ge=-10.0, le=60.0, description="the table's temperature at the start, °C")
     material_temperature_drift_k_per_h: float = Field(0.0, ge=-20.0, le=20.0, description="its drift, K per hour")
+    mount_temperature_drift_k_per_h: float | None = Field(None, ge=-20.0, le=20.0, description=(
+        "the drift of the table region that carries the tracer, K per hour, from the table's start temperature (a "
+        "gradient: a motor under the table warms the mount faster than the rim the sensor reads; None: the table's)"))
     temperature_noise_k: float = Field(0.0, ge=0.0, le=10.0, description="the sensor's temperature noise, K (1σ, e.g. 0.01)")
     pressure_noise_pa: float = Field(0.0, ge=0.0, le=1000.0, description="the sensor's pressure noise, Pa (1σ, e.g. 2)")
     humidity_noise_pct: float = Field(0.0, ge=0.0, le=50.0, description="the sensor's humidity noise, % (1σ, e.g. 0.5)")

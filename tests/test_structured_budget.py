@@ -148,15 +148,17 @@ def test_the_network_residual_test_equals_its_dense_form(monkeypatch, noise):
     data = _measurement(station_major=noise is NO_SENSOR)
     spy = _Spy(monkeypatch, network_module, "residual_check")
     est = solve_network(data, FIRST_GUESS_MM, noise=noise)
-    (r, covariance, parameters), _ = spy.calls[0]
+    (r, covariance, parameters), kwargs = spy.calls[0]
     assert isinstance(covariance, Covariance)
     V = np.zeros((len(r), len(r)))
     for e in covariance.effects:
         F = dense_effect(e)
         V += np.diag(F**2) if F.ndim == 1 else F @ F.T
-    expected = dense_residual_check(r, V, parameters)
+    # the lengths at the reported points against the whole budget, the globals' Jacobian (and the air's free course)
+    assert len(r) == int(np.sum(np.isfinite(data.lengths_mm))) and kwargs["jacobian"].shape[0] == len(r)
+    expected = dense_residual_check(r, V, parameters, jacobian=kwargs["jacobian"].toarray())
     assert est.residual_check is not None and expected is not None
-    assert est.residual_check.dof == expected.dof
+    assert (est.residual_check.dof, est.residual_check.whole_budget) == (expected.dof, True)
     _close(est.residual_check.chi2, expected.chi2)
 
 

@@ -268,6 +268,13 @@ def _print_uncertainty(summary: UncertaintySummary, data: dict[str, Any], n_ok: 
               + ("" if e.residual_test_failed is None else f"; residual test failed in {e.residual_test_failed:.0%} of the trials"))
         for line in montecarlo.table_lines(summary.targets, data["estimators"][name]):
             print(line)
+    r = summary.recommended_estimate
+    if r is not None:
+        quoted = "" if r.coverage_k2_quoted is None else f", {r.coverage_k2_quoted:.1%} where it passed"
+        print(f"recommended, trial by trial ({', '.join(f'{k} {v}' for k, v in r.estimators.items())}): U (k = 2) covers "
+              f"{r.coverage_k2:.1%}{quoted}; RMS 1σ / RMS error {r.ratio}; bias {r.mean_error_arcsec:+.3f}″ (largest "
+              f"{r.largest_mean_error_arcsec:+.3f}″); residual test failed in {r.residual_test_failed:.0%} (said on the "
+              "certificate)")
     print(f"results in {out}/ (uncertainty.json, uncertainty.png)")
 
 

@@ -149,6 +149,29 @@ def status_lines(results: RunResults) -> list[str]:
             if st.status != "converged"]
 
 
+def failed_test_notes(results: RunResults) -> list[str]:
+    """When the quoted estimate failed its residual test: that its U cannot be quoted as a coverage interval, and
+    what the failure means (its budget's not_included entry says which assumptions the readings contradict). The
+    recommendation does not move to an estimate whose weaker test passed: that one shares the error."""
+    e = results.recommended_estimate()
+    test = getattr(e, "residual_test", None)
+    if e is None or test is None or test.passed:
+        return []
+    said = [n for n in e.uncertainty_budget.not_included if "residual test failed" in n]
+    passing = [n for n, other in results.estimates.items() if n != results.recommended
+               and getattr(getattr(other, "residual_test", None), "passed", False)
+               and getattr(results.solver_status.get(n), "status", None) == "converged"]
+    others = "another estimate passed its test" if len(passing) == 1 else f"{len(passing)} other estimates passed theirs"
+    instead = (f"No other estimate is quoted instead, though {others}: the estimates share "
+               "the readings and the budget's assumptions, and a weaker test passes what it cannot see."
+               if passing else "No estimate passed its test.")
+    return [f"The quoted estimate FAILED its residual test (χ² = {test.chi2:.0f} for {test.dof} degrees of freedom, "
+            f"p = {test.p_value:.2g}): the readings contradict the uncertainty budget, so the expanded uncertainties "
+            f"stated here are NOT coverage intervals and the result cannot be quoted with them. {instead}"
+            + (f" What it means: {said[0].split('; the readings contradict what the budget assumed — ')[-1]}."
+               if said and "— one of:" in said[0] else "")]
+
+
 def _when(stamp: str | None) -> str:
     """An ISO 8601 UTC time as ``YYYY-MM-DD HH:MM`` ("?" when unknown)."""
     if not stamp:
@@ -710,6 +733,7 @@ def _identification(s: Sources) -> Identification:
         rows.append(("Simulation", results.simulation.statement))  # what each said: results.json, `simulation`
     notes = [f"Estimator {n} {st.status}: {st.message}" for n, st in results.solver_status.items()
              if st.status != "converged"]
+    notes += failed_test_notes(results)
     if results.bench is not None and results.bench.startswith("ideal bench"):
         notes.append(results.bench)
     if results.faults or results.skipped_readings:

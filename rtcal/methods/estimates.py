@@ -5,7 +5,8 @@ Every estimate under ``estimates.<name>`` of results.json carries the same block
 cumulative positioning deviation (actual − commanded relative to the first target; ISO 230-1
 ECC for a C axis) with its standard uncertainty, expanded uncertainty (k = 2), covariance and
 budget, and its per-step differences (seed 000's eq. 33 Δθ) with theirs. ``recommended`` names
-the estimate to quote: converged, and the smallest uncertainty among those that did.
+the estimate to quote: converged, and the smallest uncertainty among those that did, whether or not its residual
+test passed (a failure is stated, never solved by quoting a worse estimate: :func:`choose_recommended`).
 """
 
 from __future__ import annotations
@@ -111,14 +112,23 @@ def with_residual_test(message: str, check: ResidualCheck | None) -> str:
     return message if check is None else f"{message}; {check.words()}"
 
 
-def not_covered(not_included: list[str], check: ResidualCheck | None) -> list[str]:
+RESIDUAL_FAILURE = "its residual test failed"  # the words every failed estimate's not_included entry carries
+
+
+def not_covered(not_included: list[str], check: ResidualCheck | None, causes: Iterable[str] = ()) -> list[str]:
     """The budget's ``not_included`` and, when its residual test failed, the error it failed on: a certificate
-    that quotes the estimate (none passed) then says its U leaves that error out, as the message does."""
+    that quotes the estimate then says its U leaves that error out, and what the failure means — the budget's
+    assumptions the data contradict (``causes``: the method's, in words)."""
     if check is None or check.passed:
         return not_included
-    return [*not_included, f"a systematic error the residuals show and the budget does not model (its residual test "
-            f"failed: χ² = {check.chi2:.0f} for {check.dof} degrees of freedom, p = {check.p_value:.2g}): U is not a "
-            "coverage interval for it"]
+    said = list(causes)
+    meaning = ("" if not said else "; the readings contradict what the budget assumed — one of: " + "; ".join(said))
+    if check.source_failed:  # one stated source is off: say which, first
+        meaning = (f"; the readings contradict what the budget assumed — one of: '{check.worst_source}' is beyond its "
+                   f"stated uncertainty (p = {check.worst_source_p:.2g})" + "".join(f"; {c}" for c in said))
+    return [*not_included, f"a systematic error the residuals show and the budget does not model ({RESIDUAL_FAILURE}: "
+            f"χ² = {check.chi2:.0f} for {check.dof} degrees of freedom, p = {check.p_value:.2g}): U is not a "
+            f"coverage interval for it{meaning}"]
 
 
 class Result(Protocol):
@@ -145,14 +155,17 @@ def _uncertainties(result: Result) -> list[float | None]:
 
 
 def choose_recommended(estimates: dict[str, R], status: dict[str, SolverStatus]) -> str | None:
-    """The estimate a certificate should quote: converged first, then one whose residuals pass its own
-    noise model's test (one that fails it never, while another passes), then the smallest RMS uncertainty."""
-    def key(name: str) -> tuple[bool, bool, float]:
+    """The estimate a certificate should quote: converged first, then the smallest RMS uncertainty.
+
+    A failed residual test does not move the choice. The estimators share the readings and the budget's model of
+    the room (the same α, air, CMM, tracer); the test of the most precise one sees the most, so a failure there is
+    an error the others share while their weaker tests pass (an aluminium table corrected as steel: the network
+    fails, shared_dead_path passes and is as wrong). Quoting another would hide it; the certificate quotes the
+    best estimate and states that its U is not a coverage interval, and why (:func:`not_covered`)."""
+    def key(name: str) -> tuple[bool, float]:
         u = np.array([v for v in _uncertainties(estimates[name]) if v is not None], float)
         st = status.get(name)
-        test = getattr(estimates[name], "residual_test", None)
-        return (st is None or st.status != "converged", test is not None and not test.passed,
-                float(np.sqrt(np.mean(u**2))) if u.size else np.inf)
+        return (st is None or st.status != "converged", float(np.sqrt(np.mean(u**2))) if u.size else np.inf)
 
     names = sorted(estimates, key=key)
     return names[0] if names else None

@@ -213,7 +213,37 @@ def summarize(trials: list[dict[str, Any]], target_labels: list[str]) -> dict[st
                         # the share of (trial, target) pairs whose error the reported U (k = 2) covers
                         "coverage_k2": round(float(np.sum(covered & counted) / max(int(np.sum(counted)), 1)), 4)},
         }
+    out["recommended_estimate"] = recommended_summary(ok)
     return out
+
+
+def recommended_summary(ok: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """What a certificate quotes, trial by trial: each trial's own recommended estimate (it may change between trials)
+    — its coverage (k = 2), RMS reported 1σ over RMS error, bias, and how often its residual test failed, when the
+    certificate says its U is not a coverage interval; ``coverage_k2_quoted``: the coverage over the trials whose test
+    passed, the ones whose U the certificate quotes without that warning (None: none passed)."""
+    rows = [(t["per_estimator"][t["recommended"]]) for t in ok if t.get("recommended") in t.get("per_estimator", {})]
+    if not rows:
+        return None
+    err = np.array([r["error"] for r in rows], float)[:, 1:]
+    u = np.array([r["u"] for r in rows], float)[:, 1:]
+    counted = np.isfinite(err) & np.isfinite(u)
+    with np.errstate(invalid="ignore"):
+        covered = (np.abs(err) <= 2.0 * u) & counted
+    failed = np.array([r.get("residual_test_passed") is False for r in rows])
+    quoted = ~failed
+    names = [t["recommended"] for t in ok if t.get("recommended") in t.get("per_estimator", {})]
+    mean = np.nanmean(err, axis=0)
+    return {
+        "trials": len(rows), "estimators": {n: names.count(n) for n in sorted(set(names))},
+        "coverage_k2": round(float(np.sum(covered) / max(int(np.sum(counted)), 1)), 4),
+        "ratio": round(float(np.sqrt(np.nanmean(u**2)) / np.sqrt(np.nanmean(err**2))), 3) if np.nanmean(err**2) > 0 else None,
+        "mean_error_arcsec": round(float(np.nanmean(mean)), 4),
+        "largest_mean_error_arcsec": round(float(mean[np.nanargmax(np.abs(mean))]), 4),
+        "residual_test_failed": round(float(np.mean(failed)), 4),
+        "coverage_k2_quoted": round(float(np.sum(covered[quoted]) / max(int(np.sum(counted[quoted])), 1)), 4)
+        if np.any(quoted) else None,
+    }
 
 
 def _r(a: np.ndarray, digits: int = 4) -> list:

@@ -195,6 +195,22 @@ class EstimatorTrials(_Document):
     overall: OverallTrials
 
 
+class RecommendedTrials(_Document):
+    """What the certificate quotes: each trial's own recommended estimate, over every target after the first."""
+
+    trials: int = Field(description="trials that recommended an estimate")
+    estimators: dict[str, int] = Field(description="how many trials recommended each estimator")
+    coverage_k2: float = Field(description="share of (trial, target) pairs whose error the recommended U (k = 2) covers")
+    ratio: float | None = Field(description="RMS reported 1σ / RMS error over the trials and targets (0.8–1.25: U as stated)")
+    mean_error_arcsec: float = Field(description="the bias: the mean error over trials and targets, arcsec")
+    largest_mean_error_arcsec: float = Field(description="the target whose mean error over the trials is largest: that mean")
+    residual_test_failed: float = Field(description=(
+        "share of the trials whose recommended estimate failed its residual test: their certificate says its U is not a "
+        "coverage interval, and why (rtcal.methods.estimates.choose_recommended)"))
+    coverage_k2_quoted: float | None = Field(description=(
+        "the coverage over the trials whose test passed: the U a certificate quotes without that warning (null: none)"))
+
+
 class UncertaintySummary(_Document):
     """`rtcal uncertainty`: the reported 1σ beside the errors against truth, per estimator and target."""
 
@@ -203,6 +219,8 @@ class UncertaintySummary(_Document):
     targets: list[str] = Field(description="target labels")
     estimators: dict[str, EstimatorTrials] = Field(description="each estimator over the trials")
     recommended: str | None = Field(description="the estimator most trials recommended")
+    recommended_estimate: RecommendedTrials | None = Field(None, description=(
+        "each trial's recommended estimate, as its certificate quotes it (null: none recommended)"))
     procedure: str = Field(description="the procedure file")
     bench: str = Field(description="the bench scenario file ('ideal': none)")
     seed: int = Field(description="seed of the trials")

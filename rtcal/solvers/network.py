@@ -44,12 +44,18 @@ if TYPE_CHECKING:  # scipy.sparse loads where it is used: at import it costs eve
 from rtcal.solvers.station_budget import (
     AIR_DRIFT_SOURCE,
     StationNoiseModel,
+    COURSE_KNOTS,
+    StationObservations,
     air_drift_source,
+    observation_sources,
     bounded_components,
     radial_sensitivity_mm,
     sensor_noise_sources,
+    mount_gradient_sources,
+    sphere_form_source,
     cmm_field_as_source,
     course_nuisance,
+    course_refinement,
     covariance_root,
     cmm_field_root_mm,
     field_mix,
@@ -60,7 +66,7 @@ from rtcal.solvers.station_budget import (
 )
 from rtcal.solvers.location import location_from_axis, location_jacobian, stated_motion_covariance
 from rtcal.solvers.station_data import MultistationData
-from rtcal.solvers.structure import Effect, Factored, Grouped, padded, scaled
+from rtcal.solvers.structure import Effect, Factored, Grouped, padded, r_factor, scaled
 from rtcal.solvers.uncertainty import (
     BudgetComponent,
     Covariance,
@@ -70,6 +76,7 @@ from rtcal.solvers.uncertainty import (
     VarianceEstimate,
     propagate,
     residual_check,
+    scorable,
 )
 from rtcal.units import ARCSEC_PER_RAD, arcsec_to_rad
 
@@ -188,7 +195,8 @@ class _Layout:
     table frame (x, y, z each) and each station's error motions: a translation δ_j (3) and a
     tilt ε_j (2, about the axis frame's x and y)."""
 
-    def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool, mounts: int = 1):
+    def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool, mounts: int = 1,
+                 growth_mm_per_ppm: np.ndarray | None = None):
         self.m, self.k, self.n, self.mounts = m, k, n, mounts
         self.c = slice(0, 3)
         self.a = slice(3, 5)
@@ -200,7 +208,11 @@ class _Layout:
         self.mount = slice(self.q.stop, self.q.stop + extra)
         self.delta = slice(self.mount.stop, self.mount.stop + (3 * m if mounts > 1 else 0))
         self.eps = slice(self.delta.stop, self.delta.stop + (2 * m if mounts > 1 else 0))
-        self.g = self.eps.stop  # number of global unknowns
+        # the table's growth per sensed kelvin beyond the α the lengths were corrected with (ppm/K), when solved:
+        # each length moves by −growth·κ
+        self.growth = growth_mm_per_ppm
+        self.kappa = slice(self.eps.stop, self.eps.stop + (0 if growth_mm_per_ppm is None else 1))
+        self.g = self.kappa.stop  # number of global unknowns
         self.free_points = free_points
         self.size = self.g + (3 * n if free_points else 0)
 
@@ -245,6 +257,8 @@ def _residuals(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg:
     P = _stations(x, lay)[0]
     A = x[lay.g :].reshape(-1, 3) if lay.free_points else reported
     f_len = np.linalg.norm(A[pi] - P[st], axis=1) - x[lay.d][seg] - obs
+    if lay.growth is not None:
+        f_len = f_len - lay.growth * x[lay.kappa.start]
     if not lay.free_points:
         return f_len, None
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
@@ -267,6 +281,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
     e = diff / L[:, None]
     eb = e @ Rb  # the unit vectors in the axis frame: −∂f/∂t
     f_len = L - dead[seg] - obs
+    if lay.growth is not None:
+        f_len = f_len - lay.growth * x[lay.kappa.start]
     N = len(obs)
     rows = np.arange(N)
     Jg = np.zeros((N, lay.g))
@@ -303,6 +319,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
         Jg[rows, lay.eps.start + 2 * sj] = -(eb[:, 1] * -sr[:, 2] + eb[:, 2] * sr[:, 1])  # x̂ × s = (0, −s_z, s_y)
         Jg[rows, lay.eps.start + 2 * sj + 1] = -(eb[:, 0] * sr[:, 2] - eb[:, 2] * sr[:, 0])  # ŷ × s = (s_z, 0, −s_x)
     Jg[rows, lay.d.start + seg] = -1.0
+    if lay.growth is not None:
+        Jg[:, lay.kappa.start] = -lay.growth
     if not lay.free_points:
         return f_len, Jg, None, None, None, P, A
     M = cmm_matrix(q)
@@ -408,7 +426,9 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     material_offset = None if offsets is None else np.concatenate(
         [offsets[k][np.isfinite(mounts[k][0])] for k in range(len(mounts))])
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
-    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts))
+    growth = None if data.growth_mm_per_ppm is None else np.concatenate(
+        [np.asarray(data.growth_mm_per_ppm[k], float)[np.isfinite(mounts[k][0])] for k in range(len(mounts))])
+    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts), growth)
     if len(obs) < lay.g + 1:
         raise ValueError(f"{len(obs)} lengths for {lay.g} unknowns of the network")
     if len(mounts) > 1 and (mount_guesses_mm is None or len(mount_guesses_mm) != len(mounts) - 1):
@@ -465,7 +485,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         model = _model(x, lay, pi, st, seg, obs, points, q_fixed)
         f_len, Jg, Jp, f_pts, Jg_pts, P, A = model[:7]
         Minv = model[7] if lay.free_points else None
-        L = f_len + x[lay.d][seg] + obs
+        L = f_len + x[lay.d][seg] + obs + (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
         return f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L
 
     def cost_of(x: np.ndarray, w_len, w_pts) -> float:
@@ -528,7 +548,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         if settled:
             break
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
-                   (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals)
+                   (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals,
+                   (seg, obs, points, data.point_visit_counts))
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -633,8 +654,53 @@ def _unseen_motions(S_inv: np.ndarray, lay: _Layout, prior, nominal: np.ndarray,
     return cov
 
 
+def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, material_offset, noise, seg, obs, reported,
+                   point_visits) -> ResidualCheck | None:
+    """The network's residual test, exact whatever its weights: the lengths evaluated at the reported points through
+    the solved CMM matrix (A = M(q̂)·Ã), r = |A − P| − D − l, against the whole budget as stated on the lengths
+    (:func:`rtcal.solvers.station_budget.observation_sources`: the CMM point noise as each point's grouped error, the
+    field, the air, the table, the tracer's sphere) with the globals' Jacobian J (N × globals, the CMM's q through
+    A = M·Ã). The points integrated out, rᵀPr (P = V⁻¹ − V⁻¹J(JᵀV⁻¹J)⁺JᵀV⁻¹, structured) is exactly χ²(N − rank J) on a
+    bench as budgeted, for any estimate of the globals (PJ = 0); the uncorrected air's or table's course is free beside
+    J as in the station estimators' test (:func:`rtcal.solvers.station_budget.course_nuisance`). No N×N, no 3n columns."""
+    import scipy.sparse as sp
+
+    q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
+    A = np.asarray(reported, float) @ cmm_matrix(q).T
+    d = A[pi] - P[st]
+    L = np.linalg.norm(d, axis=1)
+    e = d / L[:, None]
+    r = L - x[lay.d][seg] - obs - (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
+    J = np.array(Jg, float)
+    if lay.q.stop > lay.q.start:
+        for kq, (_, dM) in enumerate(cmm_matrix_derivatives()):
+            J[:, lay.q.start + kq] = np.einsum("ij,ij->i", e, (np.asarray(reported, float) @ dM.T)[pi])
+    axis_dir, _, _ = axis_basis(*x[lay.a])
+    stated = noise if lay.q.stop == lay.q.start else replace(noise, cmm_scale_ppm=0.0, cmm_squareness_arcsec=0.0)
+    obs_info = StationObservations(pi, st, visits, A, np.asarray(point_visits), run_fraction, material_offset)
+    stated_sources = observation_sources(obs_info, P, x[lay.c], axis_dir, stated)
+    V = Covariance.of_sources(stated_sources)
+    motions = error_motion_covariances(P, nominal, x[lay.c], noise)
+    if motions:  # the error motions move the stations: each length by −u·δP of its station
+        V = V.plus(Factored(Grouped(-e, np.asarray(st), len(P)).sparse(),
+                            covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
+    course = course_nuisance(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis_dir), run_fraction, noise)
+    steps = None if course is None else course_refinement(r, V, sp.csr_matrix(J / np.maximum(np.linalg.norm(J, axis=0),
+                                                                                            1e-300)), course, run_fraction)
+    if course is not None and lay.q.stop > lay.q.start:  # a constant course (the hats sum to 1) is a scale of every length, or of the radius: the
+        # CMM's scales and the circle take it up exactly, so the first hat of each course goes (the span is the same,
+        # without a direction of J that is null to rounding and would be counted in its rank)
+        J = np.hstack([J, np.delete(course, np.arange(0, course.shape[1], COURSE_KNOTS), axis=1)])
+    if steps is not None and steps.shape[1]:  # the course's fast moves, free at every reading there
+        J = np.hstack([J, steps])
+    J = J / np.maximum(np.linalg.norm(J, axis=0), 1e-300)  # unit columns: the span is the test's, the CMM's ppm columns
+    tested = sp.csr_matrix(J)  # (1e-3 mm) beside the angles' (1e3 mm/rad) would otherwise fall under its rank cut
+    return residual_check(r, V, 0, jacobian=tested, jacobian_r=r_factor(tested),
+                          scored=scorable(stated_sources, skip=(AIR_DRIFT_SOURCE,)))
+
+
 def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, iterations, converged, message, prior,
-            run_fraction, material_offset=None, check_residuals=True):
+            run_fraction, material_offset=None, check_residuals=True, test_inputs=None):
     """The estimate, its covariance and its budget at the solution."""
     (f_len, f_pts, Jg, Jp, Jg_pts, Minv, w_len, w_pts, shape, rep, S_inv, blocks, P, A) = _inverse_pieces(
         x, lay, evaluate, weights, theta, pi, prior)
@@ -695,6 +761,11 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(replace(src, effect=padded(src.effect, len(zeros_pts))))
     for src in sensor_noise_sources(L_abs, radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, noise):
         sources.append(replace(src, effect=padded(src.effect, len(zeros_pts)), note=src.note + "; in the weights"))
+    extra = mount_gradient_sources(radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, run_fraction,
+                                   noise)
+    if noise.sphere_form_um > 0:
+        extra.append(sphere_form_source(unit, P[st], x[lay.c], axis_dir, noise))
+    sources += [replace(src, effect=padded(src.effect, len(zeros_pts))) for src in extra]
     if noise.cmm_field_um > 0:  # the CMM reports each point off by the field: in the points' rows, or the lengths'
         import scipy.sparse as sp
 
@@ -735,7 +806,10 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
                 f"within ±{bound:g} {unit} (σ = bound/√2, orders 1..{noise.error_motion_max_order}): one mount cannot "
                 "separate them from the rotation"))
     check = None
-    if check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
+    if check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0) \
+            and not lay.error_motions and test_inputs is not None:
+        check = _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, material_offset, noise, *test_inputs)
+    elif check_residuals and noise.point_noise_um > 0 and (noise.length_noise_um > 0 or noise.length_noise_ppm > 0):
         # the residuals (lengths, then the points' coordinates) against the noise as stated: θ = 1, the Type B
         # sources acting on them, and the error motions the stated bounds allow where the model has none
         stated = [replace(src, effect=scaled(src.effect, 1 / np.sqrt(theta[0]))) if src.name == "tracer length noise" else

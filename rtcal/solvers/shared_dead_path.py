@@ -68,12 +68,16 @@ def solve_shared_dead_path(
     guess = initial_guesses(first_station_guess_mm, nominal_angles_rad, np.asarray(axis_point_mm, float), points, lengths)
     start = np.linalg.norm(points[pi] - guess[sj, :3], axis=1) - obs
     d0 = [float(np.mean(start[seg_index == s])) for s in range(k)]
-    x0 = np.concatenate([guess[:, :3].ravel(), d0])
+    # the table's growth per sensed kelvin beyond the α the lengths were corrected with, ppm/K (solved when given)
+    growth = None if data.growth_mm_per_ppm is None else np.asarray(data.growth_mm_per_ppm[0], float)[valid]
+    g = 0 if growth is None else 1
+    x0 = np.concatenate([guess[:, :3].ravel(), d0, np.zeros(g)])
     rows = np.arange(len(obs))
 
     def residuals(x: np.ndarray) -> np.ndarray:
         centers = x[: 3 * m].reshape(m, 3)
-        return np.linalg.norm(points[pi] - centers[sj], axis=1) - x[3 * m :][seg_index] - obs
+        f = np.linalg.norm(points[pi] - centers[sj], axis=1) - x[3 * m : 3 * m + k][seg_index] - obs
+        return f if growth is None else f - growth * x[-1]
 
     def jacobian(x: np.ndarray) -> Any:
         import scipy.sparse as sp
@@ -81,9 +85,10 @@ def solve_shared_dead_path(
         centers = x[: 3 * m].reshape(m, 3)
         diff = centers[sj] - points[pi]
         unit = diff / np.linalg.norm(diff, axis=1)[:, None]
-        values = np.column_stack([unit, -np.ones(len(obs))])
-        cols = np.column_stack([3 * sj[:, None] + np.arange(3), 3 * m + seg_index])
-        return sp.csr_matrix((values.ravel(), (np.repeat(rows, 4), cols.ravel())), shape=(len(obs), 3 * m + k))
+        values = np.column_stack([unit, -np.ones(len(obs))] + ([] if growth is None else [-growth]))
+        cols = np.column_stack([3 * sj[:, None] + np.arange(3), 3 * m + seg_index]
+                               + ([] if growth is None else [np.full(len(obs), 3 * m + k)]))
+        return sp.csr_matrix((values.ravel(), (np.repeat(rows, 4 + g), cols.ravel())), shape=(len(obs), 3 * m + k + g))
 
     x, f, J, converged, message = least_squares_sparse(residuals, jacobian, x0)
     centers = x[: 3 * m].reshape(m, 3)
@@ -94,7 +99,7 @@ def solve_shared_dead_path(
     budget = station_budget(J, f, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
                             chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise)
     return SharedDeadPathEstimate(
-        centers, x[3 * m :].copy(), seg_ids, float(np.sqrt(np.mean(f**2))) * 1e3,
+        centers, x[3 * m : 3 * m + k].copy(), seg_ids, float(np.sqrt(np.mean(f**2))) * 1e3,
         chain, budget, converged, message,
     )
 

@@ -48,7 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from rtcal.solvers.structure import Effect, Factored, Grouped, dense_effect, pseudo_inverse_gram, r_factor
+from rtcal.solvers.structure import Effect, Factored, Grouped, column_basis, dense_effect, pseudo_inverse_gram, r_factor
 from rtcal.solvers.uncertainty import (
     BudgetComponent,
     Covariance,
@@ -59,6 +59,7 @@ from rtcal.solvers.uncertainty import (
     difference_matrix,
     residual_check,
     propagate,
+    scorable,
     reml_scales,
 )
 from rtcal.units import arcsec_to_rad
@@ -93,6 +94,11 @@ class StationNoiseModel:
     material_temperature_noise_k: float = 0.0  # the table sensor's noise per reading, K (1σ), with the lengths corrected
     cmm_field_um: float = 0.0  # the CMM's smooth geometric error beyond scales and squarenesses, 1σ per coordinate
     cmm_field_length_mm: float = 150.0  # its correlation length
+    mount_gradient_share: float = 0.0  # with a sensor reading the table: how far the tracer's mount's temperature change
+    #                                    may differ from the sensor's, as a share of the sensor's change (1σ)
+    mount_gradient_assumed: bool = False  # the share is the default, not stated
+    sphere_form_um: float = 0.0  # the tracer's reference sphere's form error, bound (the lobes σ = bound/√2)
+    sphere_max_order: int = 6  # its lobes' highest order
 
 
 @dataclass(frozen=True)
@@ -241,6 +247,10 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
                                     noise)
     if noise.cmm_field_um > 0:
         sources.append(cmm_field_source(u, obs.point, pts, noise))
+    sources += mount_gradient_sources(radial_sensitivity_mm(u, P, axis_center_mm, axis_direction), obs.material_offset_k,
+                                      obs.run_fraction, noise)
+    if noise.sphere_form_um > 0:
+        sources.append(sphere_form_source(u, P, axis_center_mm, axis_direction, noise))
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
         columns = [-np.einsum("ij,ij->i", u, (pts @ dM.T)[obs.point]) * sigma
@@ -339,6 +349,61 @@ def thermal_source_name(noise: StationNoiseModel) -> str:
         return THERMAL_SOURCE
     return (f"{THERMAL_SOURCE}: not stated, {noise.table_expansion_assumed}'s {noise.table_expansion_ppm_per_k:g} ± "
             f"{noise.table_expansion_u_ppm_per_k:g} ppm/K assumed")
+
+
+MOUNT_GRADIENT_SOURCE = "thermal expansion: the tracer's mount against the table's sensor (gradient)"
+
+
+def mount_gradient_sources(radial_mm: np.ndarray, material_offset_k: np.ndarray | None, run_fraction: np.ndarray | None,
+                           noise: StationNoiseModel) -> list[Source]:
+    """The sensor reads the table where it sits, not where the tracer is mounted (a motor under the table warms the
+    mount faster than the rim): the lengths are corrected with the sensor's change ΔT_s(t) while the mount's region
+    changed by (1 + γ)·ΔT_s(t), γ unknown with σ ``mount_gradient_share``. Each length then keeps α·γ·ΔT_s(t)·ρ of
+    growth (ΔT_s from the run's first length: a constant gradient only scales the circle, which every estimator
+    takes up), one input γ for the run (Type B, dense (N, 1)). A gradient that changes while the sensor's reading
+    does not (a heat source with the sensor steady) is not this term: the method section says so."""
+    if material_offset_k is None or noise.mount_gradient_share <= 0 or noise.table_expansion_ppm_per_k <= 0 \
+            or noise.material_temperature_bound_k > 0:
+        return []
+    dT = np.nan_to_num(np.asarray(material_offset_k, float))
+    first = int(np.argmin(np.nan_to_num(np.asarray(run_fraction, float), nan=np.inf))) if run_fraction is not None else 0
+    change = dT - dT[first]
+    share = noise.mount_gradient_share
+    return [Source(MOUNT_GRADIENT_SOURCE, "B", (np.asarray(radial_mm, float) * noise.table_expansion_ppm_per_k * 1e-6 * share
+                                                * change)[:, None], share * 100.0, "% of ΔT",
+                   f"the region carrying the tracer changes temperature by (1 ± {share:g}) × the sensor's change "
+                   f"({float(np.min(change)):+.2f}…{float(np.max(change)):+.2f} K over the run), times α = "
+                   f"{noise.table_expansion_ppm_per_k:g} ppm/K"
+                   + ("; not stated (uncertainty.environment.mount_gradient_share): ±50 % (1σ) assumed"
+                      if noise.mount_gradient_assumed else "; as stated"))]
+
+
+SPHERE_SOURCE = "laser tracer reference sphere form"
+
+
+def sphere_form_source(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center_mm: np.ndarray,
+                       axis_direction: np.ndarray, noise: StationNoiseModel) -> Source:
+    """The tracer's reference sphere is not round: each length reads off by the sphere's departure where its beam
+    touches it, a function of the beam's direction in the tracer's base frame — fixed to the base, which turns with
+    the table, so each station sees the points through another part of the sphere. Modelled as lobes about the
+    tracer's vertical (the axis) of orders 2..K (order 0 is the dead path's, order 1 a shift of the centre that the
+    stations take up), a random series with σ = bound/√2 at every azimuth (as the error motions: the σ of a lobe that
+    reaches the bound) spread equally over the orders. The beam's azimuth in the base frame is its azimuth about the
+    axis less the station's own (the base turns with the station; the sign of the axis then does not matter: it turns
+    ψ into −ψ, which the random phases do not see). One set of 2(K − 1) inputs for the run (Type B, dense)."""
+    a = np.asarray(axis_direction, float) / np.linalg.norm(axis_direction)
+    e1 = np.cross(a, [0.0, 1.0, 0.0] if abs(a[0]) > 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    u = np.asarray(unit_mm, float)
+    rel = np.asarray(stations_mm, float) - np.asarray(axis_center_mm, float)
+    psi = np.arctan2(u @ e2, u @ e1) - np.arctan2(rel @ e2, rel @ e1)
+    orders = np.arange(2, max(noise.sphere_max_order, 2) + 1)
+    s = noise.sphere_form_um * 1e-3 / np.sqrt(2.0) / np.sqrt(len(orders))
+    F = np.hstack([np.cos(np.outer(psi, orders)) * s, np.sin(np.outer(psi, orders)) * s])
+    return Source(SPHERE_SOURCE, "B", F, noise.sphere_form_um, "µm (bound)",
+                  f"the sphere's form within ±{noise.sphere_form_um:g} µm as stated: lobes of orders 2..{orders[-1]} about "
+                  "the tracer's vertical, fixed to its base that turns with the table (σ = bound/√2 in every direction)")
 
 
 AIR_NOISE_SOURCE = "air refractive index: sensor noise per reading"
@@ -456,6 +521,43 @@ def course_nuisance(distances_mm: np.ndarray, radial_mm: np.ndarray, run_fractio
     return np.hstack([hats * s[:, None] for s in sensitivities])
 
 
+STEEP_SHARE = 0.125  # a knot interval over which the fitted course moves by more than this share of its bound is refined
+
+
+def course_refinement(residuals: np.ndarray, covariance: Covariance, jacobian: Any, course: np.ndarray,
+                      run_fraction: np.ndarray) -> np.ndarray:
+    """(N, s): steps of the uncorrected course at every reading inside the knot intervals where it moves fast.
+
+    :func:`course_nuisance`'s hats follow a course that is smooth between their knots; a step of the air within its
+    range (1.8 K in a minute) falls between two knots, and on a low-noise tracer the misfit alone fails the test. The
+    course's total variation is bounded (one swing across the range and back), so it can move fast in few knot
+    intervals only: the hats are fitted (generalised least squares beside J), and in each interval where the fitted
+    course moves by more than :data:`STEEP_SHARE` of its bound a free step is added at every reading, so that the
+    course there takes any value at each reading. The test then holds any course within the bounds (ν drops by the
+    steps added: on a bench as budgeted it fails at most at its stated rate); what the course cannot take up
+    (another error) is tested against the rest of the budget."""
+    C = np.asarray(course, float)
+    N = C.shape[0]
+    basis, _ = column_basis(jacobian)
+    P = covariance.restricted(jacobian, basis)
+    if P is None or C.shape[1] == 0:
+        return np.zeros((N, 0))
+    PC = np.column_stack([P.apply(c) for c in C.T])
+    g = np.linalg.lstsq(C.T @ PC, PC.T @ np.asarray(residuals, float), rcond=None)[0]
+    t = np.nan_to_num(np.asarray(run_fraction, float))
+    knots = np.linspace(-1.0, 1.0, COURSE_KNOTS)
+    steps = []
+    for block in range(C.shape[1] // COURSE_KNOTS):
+        cols = C[:, block * COURSE_KNOTS:(block + 1) * COURSE_KNOTS]
+        sensitivity = cols.sum(axis=1)  # the hats sum to 1: each length's sensitivity to the course (per bound)
+        for k in np.flatnonzero(np.abs(np.diff(g[block * COURSE_KNOTS:(block + 1) * COURSE_KNOTS])) > STEEP_SHARE):
+            inside = np.unique(t[(t > knots[k]) & (t <= knots[k + 1])])
+            steps += [sensitivity * (t >= tj) for tj in inside]
+    if len(steps) > N // 4:  # more than a bounded course can need: leave the test to say so
+        return np.zeros((N, 0))
+    return np.column_stack(steps) if steps else np.zeros((N, 0))
+
+
 def air_drift_source(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel) -> Source:
     """The uncorrected air as a Type B source (:func:`air_drift_effect`), its σ in ppm of index."""
     return Source(AIR_DRIFT_SOURCE, "B", air_drift_effect(distances_mm, run_fraction, noise.air_index_bound),
@@ -541,7 +643,12 @@ def station_budget(
         if motions:  # the error motions move the stations: each length by −u·δP of its station
             V = V.plus(Factored(Grouped(-diff / L[:, None], np.asarray(obs.station), len(stations_mm)).sparse(),
                                 covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
-        check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R)
+        steps = np.zeros((N, 0)) if course is None else course_refinement(
+            residuals, V, J, course, obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, N))
+        if steps.shape[1]:  # the course's fast moves, free at every reading there
+            tested = _hstack(tested, steps / np.linalg.norm(steps, axis=0))
+        check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R if not steps.shape[1] else None,
+                               scored=scorable(sources, skip=(AIR_DRIFT_SOURCE,)))
     return StationBudget(DeviationBudget(components), variances, sources, check)
 
 

@@ -40,6 +40,9 @@ class MultistationData:
     environment: dict | None = None  # summary of the recorded air and material conditions, for the report
     times_s: np.ndarray | None = None  # n×m time of each length on the run's clock, s (None: not known)
     material_temperature_c: np.ndarray | None = None  # n×m the table's temperature at each length (None: not measured)
+    # per mount n×m: how much each length shortens per ppm/K of the table's growth per sensed kelvin beyond the α it
+    # was corrected with, mm (None: not solved — no sensor on a table that changes temperature)
+    growth_mm_per_ppm: tuple[np.ndarray, ...] | None = None
 
     @classmethod
     def from_arrays(cls, points_mm, lengths_mm, nominal_angles_deg, segments=None) -> "MultistationData":

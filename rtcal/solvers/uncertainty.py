@@ -27,7 +27,7 @@ those shapes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -306,27 +306,44 @@ class ResidualCheck:
 
     ``whole_budget``: the covariance is every source of the budget that moves the residuals and χ² is
     exactly χ²(ν) on a bench as budgeted (:func:`residual_check` with the estimator's Jacobian), so the
-    test fails at p < :data:`FALSE_ALARM_RATE` alone, which is then its false-alarm rate. Otherwise (the
-    stated noise alone) it fails only at Birge > 1.5 and p < 0.001."""
+    test fails at p < :data:`FALSE_ALARM_RATE` alone, which is then its false-alarm rate; with ``sources_scored``
+    stated Type B sources also scored one by one (:func:`source_scores`), the whole χ² at half that and the worst
+    source at half that over their number (Bonferroni: the same rate together). Otherwise (the stated noise alone)
+    it fails only at Birge > 1.5 and p < 0.001."""
 
     chi2: float
     dof: int
     birge_ratio: float
     p_value: float
     whole_budget: bool = False
+    sources_scored: int = 0  # Type B sources of few inputs whose inputs the residuals were also tested on
+    worst_source: str = ""  # the one the residuals put furthest from its stated σ
+    worst_source_p: float = 1.0  # its p-value (χ² of its score, :func:`source_scores`)
 
     @property
     def passed(self) -> bool:
+        if self.whole_budget and self.sources_scored:  # the two tests share the false-alarm rate (Bonferroni)
+            return (self.p_value >= FALSE_ALARM_RATE / 2
+                    and self.worst_source_p >= FALSE_ALARM_RATE / (2 * self.sources_scored))
         if self.whole_budget:
             return self.p_value >= FALSE_ALARM_RATE
         return not (self.p_value < P_LIMIT and self.birge_ratio > BIRGE_LIMIT)
 
+    @property
+    def source_failed(self) -> bool:
+        """Failed on one source's inputs: the readings put a stated systematic error beyond its stated σ."""
+        return bool(self.sources_scored) and self.worst_source_p < FALSE_ALARM_RATE / (2 * self.sources_scored)
+
     def words(self) -> str:
         verdict = "passes" if self.passed else "FAILS"
-        against = (f"the whole budget, p = {self.p_value:.2g}, failing below {FALSE_ALARM_RATE:g}" if self.whole_budget
+        limit = FALSE_ALARM_RATE / 2 if self.sources_scored else FALSE_ALARM_RATE
+        against = (f"the whole budget, p = {self.p_value:.2g}, failing below {limit:g}" if self.whole_budget
                    else "the stated noise")
         failed = ("; the budget does not explain the data — a systematic error it does not model (CMM geometry "
                   "beyond scales and squarenesses, a warming table, air); its U is not a coverage interval")
+        if self.source_failed:
+            failed = (f"; the readings put '{self.worst_source}' beyond its stated uncertainty (p = {self.worst_source_p:.2g}"
+                      f" over {self.sources_scored} stated sources) — a stated value is wrong; its U is not a coverage interval")
         return (f"{verdict} its residual test: Birge ratio {self.birge_ratio:.2f} (χ² = {self.chi2:.0f} for {self.dof} "
                 f"degrees of freedom against {against}{'' if self.passed else failed})")
 
@@ -359,8 +376,42 @@ class Covariance:
         return layout.restricted(list(self.effects), [1.0] * len(self.effects), self.rows, 0.0, jacobian, jacobian_mix)
 
 
+SCORED_MAX_INPUTS = 12  # a Type B source of at most this many inputs (a scale, a coefficient, a few lobes) is scored
+SEEN_SHARE = 1e-3  # directions of a source the residuals see at less than this share of its variance are not scored
+
+
+def source_scores(P: Restricted, residuals: np.ndarray, scored: list[tuple[str, np.ndarray]]) -> list[tuple[str, float, int]]:
+    """(name, p, rank) per source: are the residuals consistent with the source's inputs at their stated σ?
+
+    A source of few inputs ζ ~ N(0, I) (its effect F per 1σ) moves the residuals along F; its score s = FᵀPr has
+    covariance FᵀPVPF = FᵀPF on a bench as budgeted (PVP = P), so T = sᵀ(FᵀPF)⁺s is χ²(rank) exactly. The whole χ²
+    spreads one source's excursion over ν degrees of freedom (an α 5.75σ off adds ≈ 33 to a χ² of 680 ± 37, which
+    passes); its own score keeps it in one (T ≈ 33 on 1 degree of freedom). Directions the residuals see at less
+    than :data:`SEEN_SHARE` of their variance (taken up by the estimator's unknowns) are not scored."""
+    from scipy.stats import chi2 as chi2_dist
+
+    out = []
+    r = np.asarray(residuals, float)
+    for name, F in scored:
+        PF = np.column_stack([P.apply(f) for f in F.T])
+        w, vec = np.linalg.eigh(0.5 * (F.T @ PF + PF.T @ F))
+        keep = w > SEEN_SHARE
+        if not np.any(keep):
+            continue
+        z = vec[:, keep].T @ (PF.T @ r)
+        out.append((name, float(chi2_dist.sf(float(np.sum(z**2 / w[keep])), int(np.sum(keep)))), int(np.sum(keep))))
+    return out
+
+
+def scorable(sources: list[Source], skip: tuple[str, ...] = ()) -> list[tuple[str, np.ndarray]]:
+    """The Type B sources of few inputs, dense (:data:`SCORED_MAX_INPUTS`), for :func:`source_scores`."""
+    return [(s.name, np.asarray(s.effect, float)) for s in sources if s.type == "B" and s.name not in skip
+            and isinstance(s.effect, np.ndarray) and s.effect.ndim == 2 and 0 < s.effect.shape[1] <= SCORED_MAX_INPUTS]
+
+
 def residual_check(residuals: np.ndarray, covariance: Covariance | np.ndarray, parameters: int,
-                   jacobian: Any = None, jacobian_r: np.ndarray | None = None) -> ResidualCheck | None:
+                   jacobian: Any = None, jacobian_r: np.ndarray | None = None,
+                   scored: list[tuple[str, np.ndarray]] | None = None) -> ResidualCheck | None:
     """χ² of the residuals under the covariance V of what moves them (None when nothing is left to test:
     ν < 1, or V without a positive diagonal part).
 
@@ -390,7 +441,12 @@ def residual_check(residuals: np.ndarray, covariance: Covariance | np.ndarray, p
     if P is None:
         return None
     chi2 = P.quadratic(r)
-    return ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
+    check = ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
+    scores = source_scores(P, r, scored) if scored and jacobian is not None else []
+    if not scores:
+        return check
+    name, p, _ = min(scores, key=lambda x: x[1])
+    return replace(check, sources_scored=len(scores), worst_source=name, worst_source_p=p)
 
 
 def _dense_residual_check(residuals: np.ndarray, covariance: np.ndarray, parameters: int,

@@ -42,7 +42,7 @@ from simulators.instruments import (
     SimLaserTracer,
     SimStage,
 )
-from simulators.scenario import AngularHarmonic, CmmFieldTerm, EnvironmentScenario, LinearHarmonic, Scenario
+from simulators.scenario import AngularHarmonic, CmmFieldTerm, EnvironmentScenario, LinearHarmonic, Scenario, SphereLobe
 from simulators.truth import station_truth
 
 from rtcal.methods.multistation.noise import (AIR_QUANTITIES, DEFAULT_TABLE_EXPANSION_PPM_PER_K, DEFAULT_TABLE_EXPANSION_U_PPM_PER_K,
@@ -60,29 +60,59 @@ def _round(values: Iterable[float] | np.ndarray, digits: int = 6) -> list[float]
     return rounded
 
 
+def _growth_mm_per_ppm(data: MultistationData, proc: LaserTracerMultistation, lengths: np.ndarray, offset: np.ndarray,
+                       guess: Sequence[float]) -> np.ndarray:
+    """How much each length shortens per ppm/K of the table's growth about the axis: 1e-6·(T − 20 °C)·u·ρ (u from
+    station to point, ρ the station's distance vector from the axis, the stations from the nominal geometry)."""
+    nominal = np.deg2rad(data.nominal_angles_deg)
+    axis = np.array(proc.solver.axis_point_mm, float)
+    stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
+    diff = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
+    unit = diff / np.linalg.norm(diff, axis=2)[..., None]
+    rho = stations - axis
+    rho[:, 2] = 0.0
+    out: np.ndarray = 1e-6 * offset * np.einsum("ijk,jk->ij", unit, rho)
+    return out
+
+
+def _per_mount(data: MultistationData, proc: LaserTracerMultistation, offsets: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """:func:`_growth_mm_per_ppm` for the first mount and each other mount, in that order."""
+    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
+    out = [_growth_mm_per_ppm(data, proc, data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm)]
+    return out + [_growth_mm_per_ppm(data, proc, o.lengths_mm, off, second) for o, off in zip(data.other_mounts, offsets[1:])]
+
+
 def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
     """The lengths as if the table were at 20 °C: each station, grown by g = α·(T − 20 °C) about the
     axis when its length was read (T the sensor's table temperature then), moved the length by
     −g·u·ρ (u from station to point, ρ the station's distance vector from the axis), which is added back."""
-    alpha = table_expansion(proc)[0] * 1e-6
+    alpha_ppm = table_expansion(proc)[0]
     offsets = data.material_offsets_k()
-    if alpha == 0 or offsets is None:
+    if alpha_ppm == 0 or offsets is None:
         return data
-    nominal = np.deg2rad(data.nominal_angles_deg)
-    axis = np.array(proc.solver.axis_point_mm, float)
+    first, *rest = _per_mount(data, proc, offsets)
+    others = tuple(replace(o, lengths_mm=o.lengths_mm + alpha_ppm * g) for o, g in zip(data.other_mounts, rest))
+    return replace(data, lengths_mm=data.lengths_mm + alpha_ppm * first, other_mounts=others)
 
-    def fix(lengths: np.ndarray, offset: np.ndarray, guess: Sequence[float]) -> np.ndarray:
-        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
-        diff = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
-        unit = diff / np.linalg.norm(diff, axis=2)[..., None]
-        rho = stations - axis
-        rho[:, 2] = 0.0
-        grown: np.ndarray = lengths + alpha * offset * np.einsum("ijk,jk->ij", unit, rho)
-        return grown
 
-    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
-    others = tuple(replace(o, lengths_mm=fix(o.lengths_mm, off, second)) for o, off in zip(data.other_mounts, offsets[1:]))
-    return replace(data, lengths_mm=fix(data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm), other_mounts=others)
+GROWTH_SOLVED_FROM_K = 0.2  # the table's sensed change over the run from which its growth per kelvin is solved
+
+
+def with_growth_unknown(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
+    """The lengths' sensitivity to the table's growth per sensed kelvin beyond the α they were corrected with
+    (:func:`corrected_for_expansion`'s increment per ppm/K), so that the shared-dead-path and network estimators solve
+    it: a table of another material than stated or assumed, or a mount that warms faster than the sensor reads (a
+    gradient) grows the stations by the same pattern in time, which the readings determine far better than any
+    stated α. Only where a sensor reads the table and its reading changes by :data:`GROWTH_SOLVED_FROM_K` or more over
+    the run (a steady table leaves it undetermined); ``uncertainty.table_expansion_ppm_per_k: 0`` states a table that
+    does not grow, and nothing is solved."""
+    offsets = data.material_offsets_k()
+    if offsets is None or table_expansion(proc)[0] == 0:
+        return data
+    spread = max(float(np.nanmax(o) - np.nanmin(o)) for o in offsets)
+    if spread < GROWTH_SOLVED_FROM_K:
+        return data
+    return replace(data, growth_mm_per_ppm=tuple(_per_mount(data, proc, offsets)))
 
 
 def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
@@ -131,6 +161,10 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
                    "(uncertainty.cmm_field_um); each estimate's residual test (against the whole budget) shows a field "
                    "only where the stations and dead paths cannot take it up: a smooth 1 µm field passes it unseen "
                    "while it moves the angles")
+    if u.laser_tracer_sphere_form_um == 0:
+        out.append("laser tracer reference sphere form: not stated (uncertainty.laser_tracer_sphere_form_um); the sphere is "
+                   "fixed to the tracer's base, which turns with the table, so its form (a LaserTRACER's: up to 50 nm) reads "
+                   "each point differently from each station and moves the angles")
     if u.cmm_scale_ppm == 0 and u.cmm_squareness_arcsec == 0:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
@@ -145,6 +179,37 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
     return out
 
 
+def failure_causes(proc: LaserTracerMultistation, noise: StationNoiseModel) -> list[str]:
+    """What a failed residual test means on this procedure: the budget's assumptions about the room and the
+    instruments that readings could contradict, most telling first (a certificate states them with the failure)."""
+    u = proc.uncertainty
+    out = []
+    if noise.table_expansion_assumed:
+        out.append(f"the table's expansion coefficient is not the assumed {noise.table_expansion_assumed}'s "
+                   f"{noise.table_expansion_ppm_per_k:g} ± {noise.table_expansion_u_ppm_per_k:g} ppm/K (another material: "
+                   "state uncertainty.table_expansion_ppm_per_k)")
+    elif noise.table_expansion_ppm_per_k > 0 and noise.material_temperature_bound_k <= 0:
+        out.append(f"the table's expansion coefficient is not the stated {noise.table_expansion_ppm_per_k:g} ± "
+                   f"{noise.table_expansion_u_ppm_per_k:g} ppm/K")
+    if noise.mount_gradient_share > 0 and noise.table_expansion_ppm_per_k > 0:
+        out.append(f"the tracer's mount changes temperature otherwise than the table's sensor reads (beyond ± "
+                   f"{noise.mount_gradient_share:.0%} of its change{', assumed' if noise.mount_gradient_assumed else ''}: "
+                   "a heat source under the table)")
+    if noise.material_temperature_bound_k > 0:
+        out.append(f"the table left the stated 20 ± {noise.material_temperature_bound_k:g} °C")
+    if noise.air_index_bound > 0:
+        out.append(f"the air left the stated ranges ({noise.air_note})")
+    out.append("the CMM's geometry beyond its scales and squarenesses" + (f" exceeds the stated {u.cmm_field_um:g} µm field"
+                                                                           if u.cmm_field_um > 0 else " (not stated)"))
+    if u.laser_tracer_sphere_form_um == 0:
+        out.append("the tracer's reference sphere is out of round (its form not stated)")
+    em = u.error_motions
+    out.append("the table's error motions exceed their stated bounds" if max(em.radial_um, em.axial_um, em.tilt_arcsec) > 0
+               else "the table's error motions (no bounds stated)")
+    out.append("the tracer's or the CMM's noise is larger than stated")
+    return out
+
+
 def _estimated_sigma(budget: StationBudget, source: str) -> float:
     sigma = budget.estimated_sigma(source)
     if sigma is None:
@@ -152,11 +217,11 @@ def _estimated_sigma(budget: StationBudget, source: str) -> float:
     return round(float(sigma), 5)
 
 
-def chain_fields(ch: StationChain, budget: StationBudget, omitted: list[str]) -> dict[str, object]:
+def chain_fields(ch: StationChain, budget: StationBudget, omitted: list[str], causes: Sequence[str] = ()) -> dict[str, object]:
     """What every station-based estimator reports: the deviations and their budget, eq. 34 and 36, the chain."""
     return {
         **dict(deviation_block(ch.cumulative_deviation_arcsec, budget.cumulative,
-                               not_included=not_covered(omitted, budget.residual_check))),
+                               not_included=not_covered(omitted, budget.residual_check, causes))),
         "eq34_sigma_arcsec": round(float(ch.sigma_arcsec), 4),
         "algorithm_error_arcsec": float(ch.algorithm_error_arcsec),
         "estimated_noise": rm.EstimatedNoise(tracer_length_noise_um_at_1m=_estimated_sigma(budget, "tracer length noise"),
@@ -167,10 +232,10 @@ def chain_fields(ch: StationChain, budget: StationBudget, omitted: list[str]) ->
     }
 
 
-def paper_estimate(est: PaperEstimate, omitted: list[str], notes: list[str]) -> rm.PaperEstimate:
+def paper_estimate(est: PaperEstimate, omitted: list[str], notes: list[str], causes: Sequence[str] = ()) -> rm.PaperEstimate:
     """``estimates.paper``: the printed method, station by station."""
     return rm.PaperEstimate(
-        **chain_fields(est.chain, est.budget, omitted),
+        **chain_fields(est.chain, est.budget, omitted, causes),
         stations_mm=[_round([*f.center_mm, f.dead_path_mm]) for f in est.stations],
         station_rms_residual_um=_round([f.rms_residual_um for f in est.stations], 4),
         station_iterations=[f.iterations for f in est.stations],
@@ -185,10 +250,10 @@ def _dead_paths(segment_ids: np.ndarray, dead_paths_mm: np.ndarray) -> dict[str,
     return {str(int(s)): round(float(d), 6) for s, d in zip(segment_ids, dead_paths_mm)}
 
 
-def shared_dead_path_estimate(est: SharedDeadPathEstimate, omitted: list[str]) -> rm.SharedDeadPathEstimate:
+def shared_dead_path_estimate(est: SharedDeadPathEstimate, omitted: list[str], causes: Sequence[str] = ()) -> rm.SharedDeadPathEstimate:
     """``estimates.shared_dead_path``: all stations jointly, one dead path per segment."""
     return rm.SharedDeadPathEstimate(
-        **chain_fields(est.chain, est.budget, omitted),
+        **chain_fields(est.chain, est.budget, omitted, causes),
         stations_mm=[_round(c) for c in est.centers_mm],
         dead_paths_mm=_dead_paths(est.segment_ids, est.dead_paths_mm),
         rms_residual_um=round(est.rms_residual_um, 4),
@@ -207,7 +272,7 @@ ERROR_MOTIONS_NOTE = (
     "axial motion EZC apart from it")
 
 
-def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEstimate:
+def network_estimate(est: NetworkEstimate, omitted: list[str], causes: Sequence[str] = ()) -> rm.NetworkEstimate:
     """``estimates.network``: one adjustment of axis, angles, dead paths, CMM and points (and, with
     a second mount, the error motions it separated)."""
     omitted = [o for o in omitted if not o.startswith("CMM scale")]  # solved here, not a Type B input
@@ -225,7 +290,7 @@ def network_estimate(est: NetworkEstimate, omitted: list[str]) -> rm.NetworkEsti
     cmm = {name: rm.CmmError(value=round(float(v), 4), sigma=round(float(s), 4) if np.isfinite(s) else None)
            for name, v, s in zip(CMM_NAMES, est.cmm_errors, est.cmm_errors_sigma)}
     return rm.NetworkEstimate(
-        **dict(deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=not_covered(omitted, est.residual_check))),
+        **dict(deviation_block(est.cumulative_deviation_arcsec, est.budget, not_included=not_covered(omitted, est.residual_check, causes))),
         estimated_noise=rm.EstimatedNoise(tracer_length_noise_um_at_1m=round(est.sigma_length_um, 5),
                                           cmm_point_noise_um=round(est.sigma_point_um, 5)),
         cmm_errors=rm.CmmErrors(**cmm),
@@ -293,6 +358,18 @@ def _random_field(sigma_um: float, length_mm: float, rng: np.random.Generator) -
             terms.append(CmmFieldTerm(axis=axis, amplitude_um=sigma_um * np.sqrt(2.0 / k), wavelength_mm=min(2 * np.pi / size, 1e6),
                                       direction=tuple(float(v) for v in omega / size), phase_deg=float(phase - 270.0)))
     return terms
+
+
+def _random_lobes(bound_um: float, max_order: int, rng: np.random.Generator) -> list[SphereLobe]:
+    """A reference sphere's form as the budget models it (:func:`rtcal.solvers.station_budget.sphere_form_source`):
+    per order 2..K a cosine and a sine coefficient N(0, σ²/(K − 1)), σ = bound/√2."""
+    orders = range(2, max(max_order, 2) + 1)
+    s = bound_um / np.sqrt(2.0) / np.sqrt(len(orders))
+    lobes = []
+    for k in orders:
+        a, b = (float(v) for v in rng.normal(0.0, s, 2))
+        lobes.append(SphereLobe(order=k, amplitude_um=float(np.hypot(a, b)), phase_deg=float(np.degrees(np.arctan2(-b, a)))))
+    return lobes
 
 
 def lm_parameters(proc: LaserTracerMultistation) -> LMParameters:
@@ -379,7 +456,7 @@ class MultistationMethod:
         recommended one, its positioning-deviation table, and the truth of a simulated run."""
         angles = proc.stations.angles_deg()
         data = corrected_for_air(multistation_data(store, angles, len(proc.points_array()), proc.mounts), proc)
-        data = corrected_for_expansion(data, proc)
+        data = with_growth_unknown(corrected_for_expansion(data, proc), proc)
         guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
         noise, omitted = noise_model(proc, estimate_noise), not_included(proc, data)
         if table_sensor(proc) and data.material_offsets_k() is None:  # the sensor read no table temperature
@@ -394,11 +471,14 @@ class MultistationMethod:
 
         def network() -> rm.Estimate:
             solved["network"] = solve_network(data, guess, axis, noise, mount_guesses_mm=second)
-            return network_estimate(solved["network"], omitted)
+            return network_estimate(solved["network"], omitted, causes)
 
+        causes = failure_causes(proc, noise)
         solvers: dict[str, Callable[[], rm.Estimate]] = {
-            "paper": lambda: paper_estimate(solve_paper(data, guess, axis, lm_parameters(proc), noise), omitted, paper_notes),
-            "shared_dead_path": lambda: shared_dead_path_estimate(solve_shared_dead_path(data, guess, axis, noise), omitted),
+            "paper": lambda: paper_estimate(solve_paper(data, guess, axis, lm_parameters(proc), noise), omitted, paper_notes,
+                                            causes),
+            "shared_dead_path": lambda: shared_dead_path_estimate(solve_shared_dead_path(data, guess, axis, noise), omitted,
+                                                                  causes),
             "network": network,
         }
         estimates, status = run_estimators({k: f for k, f in solvers.items() if k in proc.solver.estimators})
@@ -445,6 +525,9 @@ class MultistationMethod:
             "tilt_motion_x": _random_series(t, k, rng, AngularHarmonic), "tilt_motion_y": _random_series(t, k, rng, AngularHarmonic),
             "tilt_center_height_mm": em.tilt_center_z_mm - scenario.stage.axis_point_mm[2]})
         update = {"cmm": cmm, "stage": stage}
+        if u.laser_tracer_sphere_form_um > 0:  # the stated form replaces the bench's, drawn as the budget models it
+            update["laser_tracer"] = scenario.laser_tracer.model_copy(update={"sphere_form": _random_lobes(
+                u.laser_tracer_sphere_form_um, u.laser_tracer_sphere_max_order, rng)})
         ranges = stated_air_ranges(proc)
         if ranges:  # no sensor: the air at the run's first and last length anywhere in its range, linear between
             update["environment"] = self._drawn_air(proc, scenario, ranges, rng)

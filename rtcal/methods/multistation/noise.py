@@ -35,7 +35,10 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         material_temperature_sigma_k=u.environment.material_temperature_k if table_sensor(proc) else 0.0,
         material_temperature_bound_k=stated_table_range(proc), air_index_noise=air_index_noise(proc),
         material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0,
-        cmm_field_um=u.cmm_field_um, cmm_field_length_mm=u.cmm_field_length_mm)
+        cmm_field_um=u.cmm_field_um, cmm_field_length_mm=u.cmm_field_length_mm,
+        mount_gradient_share=u.environment.mount_gradient_share if table_sensor(proc) else 0.0,
+        mount_gradient_assumed=table_sensor(proc) and "mount_gradient_share" not in u.environment.model_fields_set,
+        sphere_form_um=u.laser_tracer_sphere_form_um, sphere_max_order=u.laser_tracer_sphere_max_order)
 
 
 AIR_QUANTITIES = (("air_temperature_k", "temperature", "K", 0), ("air_pressure_pa", "pressure", "Pa", 1),

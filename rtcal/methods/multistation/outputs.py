@@ -321,11 +321,35 @@ class MultistationOutputs:
             "dead path per station, then a plane and a circle through the centres); all stations together with one tracer "
             "dead path per tracking segment; and one adjustment of the whole network (axis, radius, station angles, the "
             "CMM points as weighted observations, the CMM's scales and squarenesses). The certificate quotes the one that "
-            f"converged with the smallest uncertainty: {self.estimate_words()}.",
+            f"converged with the smallest uncertainty: {self.estimate_words()}. Each estimate's residuals are tested "
+            "against its whole budget; a failure is stated with the quoted estimate, never answered by quoting another, "
+            "which shares the readings and the budget's assumptions.",
             "Uncertainty (GUM): the tracer's and the CMM's noise are estimated from the readings (Type A); stage "
             "repeatability, CMM geometry, error motions and the air's refractive index as the procedure states them "
             "(Type B); all propagated through the estimator with their correlations.",
+            *self._room_paragraph(),
         ]
+
+    def _room_paragraph(self) -> list[str]:
+        """Where the budget allows for the room and the tracer beyond the sensors' readings (the lines it carries)."""
+        e = self.results.recommended_estimate()
+        names = {c.source for c in e.uncertainty_budget.components} if e is not None else set()
+        parts = []
+        if any(n.startswith("thermal expansion: the tracer's mount") for n in names):
+            parts.append("the table's sensor does not sit where the tracer is mounted: the mount's temperature change may "
+                         "differ from the sensor's by the stated share (or ±50 % when none is stated), a line of its own; "
+                         "where the sensor reads the table change by 0.2 K or more over the run, the estimates that solve "
+                         "all stations together and the whole network solve the table's growth per sensed kelvin from the readings (another material "
+                         "than the α assumed, or such a gradient, moves the stations in a pattern the lengths "
+                         "determine), and these lines then contribute only what the solution leaves; a gradient that "
+                         "changes while the sensor's reading does not is not included")
+        if any(n.startswith("laser tracer reference sphere form") for n in names):
+            parts.append("the tracer's reference sphere is out of round within its stated form, fixed to the tracer's "
+                         "base that turns with the table, so each station reads the points through another part of it "
+                         "(a direction-dependent systematic of the tracer)")
+        if not parts:
+            return []
+        return ["Beyond the sensors' readings the budget allows for: " + "; ".join(parts) + "."]
 
     def summary(self) -> list[str]:
         """The console: the recommended cumulative deviation with U, then what did not converge."""
@@ -338,9 +362,9 @@ class MultistationOutputs:
             lines.append(f"expanded uncertainty U (k = 2) up to {u_text(largest(e.cumulative_expanded_uncertainty_arcsec))}″")
             lines += [f"assumed: {c.source}" for c in e.uncertainty_budget.components if c.source.endswith("assumed")]
             test = getattr(e, "residual_test", None)
-            if test is not None and not test.passed:  # none passed: quoted, with what its U leaves out
-                lines.append(f"{r.recommended} FAILS its residual test (p = {test.p_value:.2g}, no estimate passes): "
-                             "its U is not a coverage interval for the error the residuals show")
+            if test is not None and not test.passed:  # quoted, with what its U leaves out (never another instead)
+                lines.append(f"{r.recommended} FAILS its residual test (p = {test.p_value:.2g}): its U is not a coverage "
+                             "interval for the error the residuals show; the certificate says so")
         for name, est in r.estimates.items():
             if name != r.recommended:
                 lines.append(f"also {name}: U (k = 2) up to {u_text(largest(est.cumulative_expanded_uncertainty_arcsec))}″")

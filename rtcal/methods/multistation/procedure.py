@@ -181,6 +181,11 @@ class EnvironmentUncertainty(_Strict):
         "with a sensor: its humidity noise per reading, % RH (1σ; 0: at 0.009 ppm of index per % RH, negligible)"))
     material_temperature_noise_k: float = Field(0.03, ge=0.0, le=10.0, description=(
         "with a sensor reading the table: its noise per reading, K (1σ, e.g. 0.03: a one-decimal thermometer's 0.1/√12)"))
+    mount_gradient_share: float = Field(0.5, ge=0.0, le=10.0, description=(
+        "with a sensor reading the table: how far the temperature change of the region that carries the tracer may "
+        "differ from the sensor's, as a share of the sensor's change over the run (1σ, e.g. 0.2; a motor under the "
+        "table warms the mount faster than a sensor on the rim). Not stated: 0.5 is assumed and the budget says so; "
+        "0: the sensor sits at the tracer's mount"))
 
 
 class MultistationUncertainty(_Strict):
@@ -210,6 +215,13 @@ class MultistationUncertainty(_Strict):
         "budget says so; 0: a table that does not grow)"))
     table_expansion_u_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
         "standard uncertainty of that coefficient, ppm/K (e.g. 1.0)"))
+    laser_tracer_sphere_form_um: float = Field(0.0, ge=0.0, le=100.0, description=(
+        "the form error of the tracer's reference sphere, µm: the bound of its departure from a sphere, from the "
+        "tracer's specification or certificate (Type B, e.g. 0.05 for the LaserTRACER class). Fixed to the tracer's "
+        "base, which turns with the table, it reads each point differently from each station: lobes about the "
+        "tracer's vertical, σ = bound/√2 in every direction (0: not stated, named in not_included)"))
+    laser_tracer_sphere_max_order: int = Field(6, ge=2, le=360, description=(
+        "the highest lobe order (lobes per turn) of that form (e.g. 6)"))
 
 
 class MultistationVerification(_Verification):
