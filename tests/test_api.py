@@ -99,6 +99,20 @@ def test_a_moved_name_still_works_for_one_release_and_says_where_it_went(old, na
     assert found is getattr(importlib.import_module(new), name)
 
 
+def test_the_seed_methods_take_from_the_face_what_it_serves():
+    """A seed method's folder imports a name from where rtcal.api takes it only when the face does not serve every
+    name of that import (its solvers, its simulation, its own results blocks): what the face serves, it takes from
+    the face, as a plugin does."""
+    where = api._WHERE
+    around = []
+    for path in sorted((REPO / "rtcal" / "methods").glob("*/*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module in where and all(a.name in where[node.module]
+                                                                                 for a in node.names):
+                around.append(f"{path.relative_to(REPO)}:{node.lineno} from {node.module}")
+    assert not around, around
+
+
 def test_the_certificates_roles_moved_into_the_methods():
     from rtcal.methods import METHODS
 

@@ -106,8 +106,9 @@ class NamedSet(ResultsModel, Generic[V]):
 
 
 # -- the uncertainty budget and the block every estimate shares ------------------------------------
-class BudgetComponent(ResultsModel):
-    """One source of the GUM uncertainty budget."""
+class BudgetSource(ResultsModel):
+    """What one source of an uncertainty budget is (its contribution per target is the budget's own: in arcsec for
+    an angular estimate, in the result's unit for a :class:`QuantityEstimate`)."""
 
     source: Text = Field(description="what the source is (e.g. `tracer length noise`)")
     type: Literal["A", "B"] = Field(description="GUM type: A estimated from the readings, B as the procedure states it")
@@ -115,6 +116,11 @@ class BudgetComponent(ResultsModel):
     unit: Name = Field(description="unit of `input_sigma` (e.g. `µm`, `″`, `ppm`; several inputs: listed in `note`)")
     estimated_from_data: bool = Field(description="true when `input_sigma` was estimated from this run's readings")
     note: Text = Field(description="what the source covers, or its several inputs")
+
+
+class BudgetComponent(BudgetSource):
+    """One source of the GUM uncertainty budget of an angular estimate."""
+
     contribution_arcsec: list[SigmaArcsec | None] = Field(
         description="its contribution to the standard uncertainty per target, arcsec (null: not defined)")
 
@@ -197,15 +203,9 @@ SigmaNumber = Annotated[float, Field(ge=0.0, le=1e12)]
 """A standard (or expanded) uncertainty of any other quantity (its unit given beside it)."""
 
 
-class QuantityComponent(ResultsModel):
+class QuantityComponent(BudgetSource):
     """One source of a :class:`QuantityEstimate`'s uncertainty budget, its contribution in the result's unit."""
 
-    source: Text = Field(description="what the source is (e.g. `indicator repeatability`)")
-    type: Literal["A", "B"] = Field(description="GUM type: A estimated from the readings, B as the procedure states it")
-    input_sigma: Number = Field(description="the source's standard uncertainty (1σ) in `unit`")
-    unit: Name = Field(description="unit of `input_sigma`")
-    estimated_from_data: bool = Field(description="true when `input_sigma` was estimated from this run's readings")
-    note: Text = Field(description="what the source covers")
     contribution: list[SigmaNumber | None] = Field(
         description="its contribution to the standard uncertainty per target, in the result's `unit` (null: not defined)")
 

@@ -9,11 +9,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.interfaces import DESCRIPTIONS
-from rtcal.engine.checks import Contradiction, combined_sigma
+from rtcal.api import Contradiction, combined_sigma
 
 if TYPE_CHECKING:
     from rtcal.methods.abbe.procedure import EncoderAbbeError
-    from rtcal.store.runstore import Reading
+    from rtcal.api import Reading
 
 
 def check_face(x_arcsec: float, tolerance_arcsec: float, command_deg: float) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 
 from rtcal.methods.conditions import summarise_conditions
 from rtcal.solvers.abbe import AbbeVisits
-from rtcal.store.runstore import RunReadings
+from rtcal.api import RunReadings
 
 
 def abbe_conditions(store: RunReadings) -> dict[str, dict[str, float]] | None:

@@ -15,22 +15,14 @@ import numpy as np
 
 from drivers import factory
 from rtcal.methods.abbe.dataset import abbe_conditions, abbe_visits
-from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.api import (DataContradiction, Operator, PositioningDeviations, PreparationError, RunReadings, Scenario,
+                       address_of, choose_recommended, deviation_block, finite_or_none, residual_test, run_estimators,
+                       with_residual_test)
 from rtcal.methods.abbe.procedure import EncoderAbbeError
-from rtcal.methods.estimates import (
-    choose_recommended,
-    deviation_block,
-    finite_or_none,
-    residual_test,
-    run_estimators,
-    with_residual_test,
-)
-from rtcal.methods.protocol import DataContradiction, PreparationError, address_of
 from rtcal.results import model as rm
 from rtcal.methods.abbe import results as abr
 from rtcal.methods.abbe.plan import AbbeInstrumentSet, AbbePlan, planned_visits
 from rtcal.methods.abbe.recalibration import AbbeRecalibration
-from rtcal.engine.operator import Operator
 from rtcal.solvers.abbe import (
     AbbeEstimate,
     AbbeNoise,
@@ -42,7 +34,6 @@ from rtcal.solvers.abbe import (
 from rtcal.solvers.harmonics import HarmonicFit
 from rtcal.solvers.periodic import periodic_error
 from rtcal.solvers.uncertainty import BudgetComponent, DeviationBudget
-from rtcal.store.runstore import RunReadings
 from simulators.bench import Bench
 from simulators.instruments import (
     SimAutocollimator,
@@ -51,7 +42,6 @@ from simulators.instruments import (
     SimEnvironmentSensor,
     SimStage,
 )
-from simulators.scenario import Scenario
 from simulators.truth import abbe_truth
 
 if TYPE_CHECKING:

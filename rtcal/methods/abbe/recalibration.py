@@ -12,7 +12,7 @@ import json
 from collections.abc import Mapping
 
 from rtcal.methods.abbe.procedure import EncoderAbbeError
-from rtcal.methods.recalibration import CannotRecalibrate, InstrumentCalibration
+from rtcal.api import CannotRecalibrate, InstrumentCalibration
 
 
 def _face_errors(meta: Mapping[str, str]) -> list[float] | None:

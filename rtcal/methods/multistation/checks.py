@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rtcal.engine.checks import Contradiction
+from rtcal.api import Contradiction
 
 
 class TracerCheck:

@@ -28,7 +28,7 @@ from rtcal.units import ARCSEC_PER_RAD
 from rtcal.procedure.yamlfile import load_yaml, read_text
 
 if TYPE_CHECKING:
-    from simulators.scenario import Scenario
+    from rtcal.api import Scenario
 
 
 def point_information(x_globals: np.ndarray, lay_template: _Layout, points_mm: np.ndarray,

@@ -15,15 +15,13 @@ import numpy as np
 from drivers import factory
 from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
 from rtcal.methods.multistation.dataset import multistation_data
-from rtcal.deliverables.deviations import PositioningDeviations
+from rtcal.api import Operator, PositioningDeviations, RunReadings, address_of
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
 from rtcal.engine.walk import Timing, walk
 from rtcal.methods.estimates import (choose_recommended, deviation_block, not_covered, residual_test, run_estimators,
                                      with_residual_test)
-from rtcal.methods.protocol import address_of
 from rtcal.results import model as rm
 from rtcal.methods.multistation import results as msr
-from rtcal.engine.operator import Operator
 from rtcal.methods.multistation.plan import MultistationInstrumentSet, MultistationPlan, planned_readings
 from rtcal.methods.multistation.recalibration import MultistationRecalibration
 from rtcal.solvers.air import correct_lengths
@@ -37,7 +35,6 @@ from rtcal.solvers.shared_dead_path import (
 )
 from rtcal.solvers.station_budget import StationBudget, StationNoiseModel
 from rtcal.solvers.station_data import MultistationData
-from rtcal.store.runstore import RunReadings
 from simulators.bench import Bench
 from simulators.instruments import (
     SimCmm,

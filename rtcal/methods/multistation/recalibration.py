@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
-from rtcal.methods.recalibration import CannotRecalibrate, InstrumentCalibration
+from rtcal.api import CannotRecalibrate, InstrumentCalibration
 
 
 class MultistationRecalibration:
