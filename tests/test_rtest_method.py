@@ -149,3 +149,11 @@ def test_the_method_folder_uses_rtcal_only_through_its_public_face():
                         name in ("rtcal", "rtcal.api") or name.startswith(("rtcal.solvers", "rtcal.methods.rtest")))):
                     wrong.append(f"{path.name}: {name}")
     assert wrong == []
+
+
+def test_rtcal_plan_prints_the_prediction_before_anything_moves(capsys):
+    assert main(["plan", str(PROCEDURE), "--no-levers"]) == 0
+    out = capsys.readouterr().out
+    assert "71 planned readings" in out
+    assert "predicted U (k = 2) of each location error: X0C" in out and "C0A" in out
+    assert "not determined with this set-up: Z0C" in out and "not determined with this set-up: A0A" in out

@@ -55,7 +55,7 @@ class RTestPlanner:
         lines = ["predicted U (k = 2) of each location error: " + ", ".join(
             f"{s.split('_')[0]} {u:.2f} {'µm' if s.endswith('_um') else '″'}" for s, u in p.U.items())]
         for s, why in {**p.identifiability.refused, **p.identifiability.structural}.items():
-            lines.append(f"not determined with this set-up: {s}: {why}")
+            lines.append(f"not determined with this set-up: {s.split('_')[0]}: {why}")
         return lines
 
 
