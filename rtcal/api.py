@@ -63,6 +63,7 @@ if TYPE_CHECKING:
     from drivers.interfaces import Instrument as Instrument
     from drivers.interfaces import LaserTracer as LaserTracer
     from drivers.interfaces import LengthReading as LengthReading
+    from drivers.interfaces import MachineTarget as MachineTarget
     from drivers.interfaces import MachineTool as MachineTool
     from drivers.interfaces import RotaryStage as RotaryStage
     from drivers.interfaces import Value as Value
@@ -73,6 +74,9 @@ if TYPE_CHECKING:
     from rtcal.compensation import CompensationTable as CompensationTable
     from rtcal.compensation import FormatOption as FormatOption
     from rtcal.compensation import sane as sane
+    from rtcal.compensation.kinematics import KinematicsOutput as KinematicsOutput
+    from rtcal.compensation.kinematics import LocationErrors as LocationErrors
+    from rtcal.compensation.kinematics_registry import kinematics_format as kinematics_format
     from rtcal.deliverables.deviations import PositioningDeviations as PositioningDeviations
     from rtcal.deliverables.method_outputs import MethodOutputs as MethodOutputs
     from rtcal.deliverables.method_outputs import OutputsBase as OutputsBase
@@ -144,6 +148,7 @@ if TYPE_CHECKING:
     from rtcal.results.model import NamedSet as NamedSet
     from rtcal.results.model import Number as Number
     from rtcal.results.model import QuantityEstimate as QuantityEstimate
+    from rtcal.results.model import ResidualTest as ResidualTest
     from rtcal.results.model import ResultsModel as ResultsModel
     from rtcal.results.model import RunResults as RunResults
     from rtcal.results.model import SigmaArcsec as SigmaArcsec
@@ -157,6 +162,9 @@ if TYPE_CHECKING:
     from simulators.facade import SimBench as SimBench
     from simulators.facade import ideal_bench as ideal_bench
     from simulators.facade import simulated_instrument as simulated_instrument
+    from simulators.facade import simulated_nest_indicator as simulated_nest_indicator
+    from simulators.facade import true_c_deviation_arcsec as true_c_deviation_arcsec
+    from simulators.facade import true_location_errors as true_location_errors
     from simulators.scenario import Scenario as Scenario
 
 # where each name lives (what the TYPE_CHECKING imports above say to the type checker; tests/test_api.py holds
@@ -166,10 +174,13 @@ _WHERE = {
     "drivers.errors": ("InstrumentError", "InstrumentFault", "InstrumentTimeout", "TrackingLost"),
     "drivers.factory": ("open_choice", "open_instrument"),
     "drivers.interfaces": ("Autocollimator", "Cmm", "DialIndicator", "Encoder", "EnvironmentSensor", "FieldDescription",
-                           "Instrument", "LaserTracer", "LengthReading", "MachineTool", "RotaryStage", "Value"),
+                           "Instrument", "LaserTracer", "LengthReading", "MachineTarget", "MachineTool", "RotaryStage",
+                           "Value"),
     "drivers.models": ("Framing",),
     "drivers.serial_line": ("SerialLine",),
     "rtcal.compensation": ("CompensationError", "CompensationFormat", "CompensationTable", "FormatOption", "sane"),
+    "rtcal.compensation.kinematics": ("KinematicsOutput", "LocationErrors"),
+    "rtcal.compensation.kinematics_registry": ("kinematics_format",),
     "rtcal.deliverables.deviations": ("PositioningDeviations",),
     "rtcal.deliverables.method_outputs": ("MethodOutputs", "OutputsBase"),
     "rtcal.engine.checks": ("Contradiction", "MotionChecks", "UncommandedMotion", "arrive", "combined_sigma", "stood_still"),
@@ -190,10 +201,11 @@ _WHERE = {
                                "plan_size_problem"),
     "rtcal.results.model": ("Analysis", "Arcsec", "Count", "Deg", "DeviationBlock", "DeviationTable", "Direction",
                             "EnvironmentSummary", "Estimate", "Mm", "NamedSet", "Number", "QuantityEstimate",
-                            "ResultsModel", "RunResults", "SigmaArcsec", "SolverStatus", "TargetedEstimate", "Text",
+                            "ResidualTest", "ResultsModel", "RunResults", "SigmaArcsec", "SolverStatus", "TargetedEstimate", "Text",
                             "Truth", "Um"),
     "rtcal.store.runstore": ("Reading", "RunReadings"),
-    "simulators.facade": ("SimBench", "ideal_bench", "simulated_instrument"),
+    "simulators.facade": ("SimBench", "ideal_bench", "simulated_instrument", "simulated_nest_indicator",
+                          "true_c_deviation_arcsec", "true_location_errors"),
     "simulators.scenario": ("Scenario",),
 }
 _MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}

@@ -92,7 +92,8 @@ def ideal_bench(seed: int = 0) -> SimBench:
 
 
 SIMULATED = {"stage": "SimStage", "encoder": "SimEncoder", "autocollimator": "SimAutocollimator", "cmm": "SimCmm",
-             "laser_tracer": "SimLaserTracer", "environment": "SimEnvironmentSensor", "dial_indicator": "SimDialIndicator"}
+             "laser_tracer": "SimLaserTracer", "environment": "SimEnvironmentSensor", "dial_indicator": "SimDialIndicator",
+             "machine_tool": "SimMachineTool"}
 """The built-in kinds' simulations (simulators/instruments.py)."""
 
 
@@ -110,3 +111,28 @@ def simulated_instrument(bench: SimBench, kind: str, index: int = 0) -> Instrume
     cls = getattr(instruments, SIMULATED[kind])
     instrument: Instrument = cls(bench, index) if kind == "dial_indicator" else cls(bench)
     return instrument
+
+
+# -- the five-axis machine of a scenario's ``machine:`` (simulators/machine_tool.py), for the R-test
+def simulated_nest_indicator(bench: SimBench, index: int) -> Instrument:
+    """The R-test nest's sensor ``index`` (0–2) on the simulated machine, read as a dial indicator."""
+    from simulators.bench import Bench
+    from simulators.instruments import SimNestIndicator
+
+    if not isinstance(bench, Bench):
+        raise TypeError("the built-in simulations read rtcal's own bench")
+    return SimNestIndicator(bench, index)
+
+
+def true_location_errors(bench: SimBench) -> dict[str, float]:
+    """The simulated machine's true location errors (X0C_um … C0A_arcsec), docs/rtest.md's signs."""
+    from simulators.machine_tool import machine_of
+
+    return machine_of(bench).truth_location_errors()  # type: ignore[arg-type]
+
+
+def true_c_deviation_arcsec(bench: SimBench, c_deg: float, direction: int) -> float:
+    """The simulated machine's C positioning deviation (actual − commanded) at ``c_deg`` approached in ``direction``."""
+    from simulators.machine_tool import machine_of
+
+    return machine_of(bench).truth_ecc_arcsec(c_deg, direction)  # type: ignore[arg-type]

@@ -28,13 +28,13 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("rtcal/methods/protocol.py", "rtcal/methods/estimates.py", "rtcal/methods/conditions.py", "rtcal/methods/planner.py",
      "rtcal/methods/recalibration.py", "rtcal/methods/base.py", "rtcal/methods/cycle.py", "rtcal/api.py"),
     # what methods share, and the public face
-    ("rtcal/methods/multistation/", "rtcal/methods/abbe/"),  # peers: one method never reaches into another
+    ("rtcal/methods/multistation/", "rtcal/methods/abbe/", "rtcal/methods/rtest/"),  # peers: one method never reaches into another
     ("rtcal/methods/__init__.py",),  # the registry (a face: its table names the methods as strings)
     ("rtcal/run/",),
     ("rtcal/planning/", "rtcal/live/", "rtcal/catalog/"),
     ("rtcal/cli/",),
 )
-PEERS = ("rtcal/methods/multistation/", "rtcal/methods/abbe/")
+PEERS = ("rtcal/methods/multistation/", "rtcal/methods/abbe/", "rtcal/methods/rtest/")
 REGISTRY = "rtcal/methods/__init__.py"  # the one file outside a method's folder that may name it (for the type checker)
 # (importer, imported): what no layer order allows besides — the engine, the store and the procedures are handed
 # a bench, they never reach for the simulators

@@ -70,7 +70,7 @@ def _check_results(results: dict, run_dir: Path) -> None:
 
 
 def test_the_registry_reads_entry_points(toy_registry, tmp_path):
-    assert list(toy_registry) == ["laser_tracer_multistation", "encoder_abbe_error", "encoder_vs_command"]
+    assert list(toy_registry) == ["laser_tracer_multistation", "encoder_abbe_error", "rtest", "encoder_vs_command"]
     assert toy_registry["encoder_abbe_error"] is methods.ABBE, "a plugin never replaces a built-in method"
     assert "rtcal_no_such_module" in toy_registry.broken["broken_method"] and "broken_method" not in toy_registry
     path = tmp_path / "p.yaml"

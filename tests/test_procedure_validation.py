@@ -105,7 +105,7 @@ def test_missing_file_is_a_located_error(tmp_path, capsys):
 def test_schema_is_json_schema_with_the_procedure_keys(capsys):
     assert main(["schema"]) == 0
     schema = json.loads(capsys.readouterr().out)
-    assert set(schema["discriminator"]["mapping"]) == {"laser_tracer_multistation", "encoder_abbe_error"}
+    assert set(schema["discriminator"]["mapping"]) == {"laser_tracer_multistation", "encoder_abbe_error", "rtest"}
     multistation = schema["$defs"]["LaserTracerMultistation"]["properties"]
     assert {"method", "stations", "points", "order", "solver", "instruments"} <= set(multistation)
     assert {"steps", "polygon", "geometry"} <= set(schema["$defs"]["EncoderAbbeError"]["properties"])

@@ -186,7 +186,7 @@ def test_path_at_names_the_key_path_of_an_offset():
 def test_both_methods_implement_the_protocol():
     for method in (MultistationMethod(), AbbeMethod()):
         assert isinstance(method, Method)
-    assert set(METHODS) == {"laser_tracer_multistation", "encoder_abbe_error"}
+    assert set(METHODS) == {"laser_tracer_multistation", "encoder_abbe_error", "rtest"}
     assert all(isinstance(m, Method) and m.name == key for key, m in METHODS.items())
 
 

@@ -90,7 +90,9 @@ def _print_plan(path: Path, plan: PlanPrediction, lever_outcomes: list[Outcome])
         print(f"{name}{rec}: RMS {e.rms_predicted_sigma_arcsec}″")
         print("  target    " + " ".join(f"{t:>8}" for t in plan.targets[1:]))
         print("  1σ / ″    " + " ".join(f"{v:8.3f}" for v in e.predicted_sigma_arcsec[1:]))
-    if plan.expanded_uncertainty_max_arcsec is None:
+    if plan.expanded_uncertainty_max_arcsec is None:  # no angular estimate: the method's notes say what it predicts
+        for note in plan.lever_notes:
+            print(f"  ({note})")
         return
     top = ", ".join(f"{d.source} {100 * d.share:.0f} %" for d in plan.dominant_sources[:4])
     print(f"U (k = 2) of {plan.recommended}: at most {plan.expanded_uncertainty_max_arcsec:.2f}″; its variance: {top}")

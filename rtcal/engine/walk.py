@@ -27,10 +27,13 @@ class Timing:
     cmm_speed_mm_per_s: float = 50.0
     stage_start_deg: float = 0.0
     cmm_start_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    machine_speeds: tuple[float, float] = (50.0, 20.0)  # a machine tool's linear mm/s and rotary deg/s
 
     @classmethod
     def of_scenario(cls, scenario: Any) -> "Timing":
-        return cls(scenario.stage.speed_deg_per_s, scenario.cmm.speed_mm_per_s)
+        m = getattr(scenario, "machine", None)
+        speeds = (m.linear_speed_mm_per_s, m.rotary_speed_deg_per_s) if m is not None else (50.0, 20.0)
+        return cls(scenario.stage.speed_deg_per_s, scenario.cmm.speed_mm_per_s, machine_speeds=speeds)
 
 
 @dataclass
@@ -59,6 +62,19 @@ class Motion:
         self.timing = timing
         self.stage_deg = timing.stage_start_deg
         self.cmm_mm = np.asarray(timing.cmm_start_mm, float)
+        self.machine: dict[str, float] = {}
+
+    def _machine_time(self, points: Any) -> float:
+        """A machine tool's coordinated move through its points (drivers.interfaces.MachineTarget): each leg as long
+        as its slowest axis at the timing's speeds (a tool-centre-point target's linear axes counted as its point's)."""
+        seconds = 0.0
+        for point in points:
+            here = self.machine or {k: 0.0 for k in point}
+            lin = max((abs(point[k] - here.get(k, 0.0)) for k in "xyz" if k in point), default=0.0)
+            rot = max((abs(point[k] - here.get(k, 0.0)) for k in "abc" if k in point), default=0.0)
+            seconds += max(lin / self.timing.machine_speeds[0], rot / self.timing.machine_speeds[1])
+            self.machine = dict(point)
+        return seconds
 
     def _stage_time(self, move: Move) -> float:
         """The table's travel: through the overshoot when it would arrive the other way (as
@@ -79,6 +95,8 @@ class Motion:
     def seconds(self, move: Move) -> float:
         if move.instrument == "stage":
             return self._stage_time(move)
+        if hasattr(move.target, "points"):
+            return self._machine_time(move.target.points())
         target = np.asarray(move.target, float)
         seconds = float(np.linalg.norm(target - self.cmm_mm)) / self.timing.cmm_speed_mm_per_s
         self.cmm_mm = target

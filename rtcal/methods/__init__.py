@@ -34,7 +34,8 @@ if TYPE_CHECKING:
 
 ENTRY_POINT_GROUP = "rtcal.methods"
 BUILTIN = {"laser_tracer_multistation": "rtcal.methods.multistation.method:MultistationMethod",
-           "encoder_abbe_error": "rtcal.methods.abbe.method:AbbeMethod"}
+           "encoder_abbe_error": "rtcal.methods.abbe.method:AbbeMethod",
+           "rtest": "rtcal.methods.rtest.method:RTestMethod"}
 """The built-in methods, registered as a plugin is (by name and ``module:Class``)."""
 MEMBERS = tuple(sorted({*Method.__annotations__, *(n for n in vars(Method) if not n.startswith("_"))}))  # what a method must have
 

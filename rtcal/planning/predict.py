@@ -34,6 +34,7 @@ def simulated(data: dict[str, Any]) -> dict[str, Any]:
 def predict(procedure_path: Path, proc: Procedure, scenario, workdir: Path | None = None) -> dict[str, Any]:
     """Predicted 1σ per target for every estimator, the recommended one, and the run's duration."""
     from rtcal.procedure.yamlfile import load_yaml, read_text
+    from rtcal.results.model import Estimate
     from rtcal.run.runner import run_procedure
 
     tmp = Path(tempfile.mkdtemp(prefix="plan-", dir=workdir))
@@ -62,5 +63,6 @@ def predict(procedure_path: Path, proc: Procedure, scenario, workdir: Path | Non
                               "rms_predicted_sigma_arcsec": round(float(np.sqrt(np.mean(np.square(
                                   [v for v in est.cumulative_uncertainty_arcsec[1:] if v is not None])))), 4),
                               "budget": {c.source: c.contribution_arcsec for c in est.uncertainty_budget.components}}
-                       for name, est in r.estimates.items()},
+                       for name, est in r.estimates.items()
+                       if isinstance(est, Estimate)},  # a quantity of its own: its method's planner notes say it
     }

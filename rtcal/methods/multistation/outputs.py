@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
-from rtcal.compensation.kinematics import LocationErrors
+from rtcal.api import LocationErrors
 from rtcal.deliverables.figures import legend_below, plt
 from rtcal.deliverables.certificate import largest, status_lines
 from rtcal.deliverables.rounding import fmt, significant

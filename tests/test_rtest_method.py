@@ -1,0 +1,159 @@
+"""The R-test as a method (rtcal/methods/rtest/, issue 42): `rtcal run procedures/rtest_trunnion.yaml` on the
+simulated trunnion machine recovers the scenario's true location errors within their U, writes them under
+`location_errors` with the certificate's ISO 230-7 table and the control's corrected kinematics; a set-up that
+cannot separate a location error refuses to report it and says why; `rtcal plan` predicts each U before anything
+moves; the method's folder uses rtcal only through rtcal.api (and rtcal.solvers for its mathematics)."""
+
+from __future__ import annotations
+
+import ast
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rtcal.cli import main
+from rtcal.compensation.linuxcnc_kins import LinuxCncTrtFormat
+from rtcal.methods import load_procedure, read_results
+from rtcal.methods.rtest.method import RTestPlanner, predict
+from rtcal.methods.rtest.results import RTestResults
+from rtcal.solvers.rtest import LOCATION_SYMBOLS
+
+REPO = Path(__file__).resolve().parents[1]
+PROCEDURE = REPO / "procedures" / "rtest_trunnion.yaml"
+SCENARIO = REPO / "procedures" / "scenarios" / "rtest_trunnion.yaml"
+
+
+@pytest.fixture(scope="module")
+def shipped_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("rtest") / "run"
+    assert main(["run", str(PROCEDURE), "--out", str(out)]) == 0
+    return out
+
+
+def test_the_shipped_r_test_recovers_the_true_location_errors_within_u(shipped_run):
+    results = read_results(shipped_run)
+    assert isinstance(results, RTestResults) and results.truth is not None
+    truth = yaml.safe_load(SCENARIO.read_text())["machine"]["location_errors"]
+    assert set(results.location_errors) == set(LOCATION_SYMBOLS)
+    for symbol, e in results.location_errors.items():
+        assert 0 < e.expanded_uncertainty < 5.0, (symbol, e)  # µm and arcsec: an R-test's, not a guess
+        assert abs(e.value - truth[symbol]) <= 2 * e.expanded_uncertainty, (symbol, e.value, truth[symbol], e.expanded_uncertainty)
+        assert results.truth.location_errors[symbol] == pytest.approx(truth[symbol])
+    within = sum(abs(e.value - truth[s]) <= e.expanded_uncertainty for s, e in results.location_errors.items())
+    assert within >= 7, within
+    # the structural parameters of a table are refused, each with why
+    assert {"Z0C_um", "X0A_um", "C0C_arcsec", "A0A_arcsec"} <= set(results.not_determined)
+    assert results.residual_test is not None and results.residual_test.passed
+    path = results.sphere_path
+    assert max(path.after_um) * 5 <= max(path.before_um), (max(path.before_um), max(path.after_um))
+    assert max(results.nest_calibration.direction_u_deg) < 0.1
+
+
+def test_the_run_writes_the_controls_kinematics_with_the_measured_lines(shipped_run):
+    """The LinuxCNC pins written for this run move C's rot point and A's offsets by the measured offsets, with the
+    signs of docs/rtest.md: the pins the truth would give are within the measured U."""
+    results = read_results(shipped_run)
+    assert isinstance(results, RTestResults)
+    truth = yaml.safe_load(SCENARIO.read_text())["machine"]["location_errors"]
+    fmt = LinuxCncTrtFormat()
+    written = fmt.parse((shipped_run / "compensation" / "linuxcnc-xyzac-trt.hal").read_text())
+    nominal = {"x-rot-point": 0.0, "y-rot-point": 0.0, "z-rot-point": 0.0, "y-offset": 0.0, "z-offset": -50.0}
+    assert results.control_records["linuxcnc-xyzac-trt"] == nominal
+    from rtcal.compensation.kinematics import LocationErrors
+    ideal = fmt.parse(fmt.write(nominal, LocationErrors.of(truth)).text)
+    U = {s: e.expanded_uncertainty for s, e in results.location_errors.items()}
+    assert abs(written["x-rot-point"] - ideal["x-rot-point"]) * 1e3 <= 2 * U["X0C_um"]
+    assert abs(written["z-offset"] - ideal["z-offset"]) * 1e3 <= 2 * U["Z0A_um"]
+    assert abs(written["y-offset"] - ideal["y-offset"]) * 1e3 <= 2 * U["Y0C_um"]
+    assert abs(written["x-rot-point"] - nominal["x-rot-point"]) * 1e3 > 30  # it did move (X0C is 40 µm)
+    carr = (shipped_run / "compensation" / "siemens-tc-carr.mpf").read_text()
+    assert "$TC_CARR" in carr
+    assert (shipped_run / "compensation" / "fanuc-tcp-table.txt").read_text().strip()
+    cert = json.loads((shipped_run / "certificate.json").read_text())
+    text = json.dumps(cert, ensure_ascii=False)
+    assert "location errors of the rotary axes (ISO 230-7)" in text and "Not determined with this set-up" in text
+    assert "X0C" in text and "C0A" in text
+    assert main(["verify", str(shipped_run)]) == 0
+
+
+def _variant(tmp_path: Path, **changes: object) -> Path:
+    data = yaml.safe_load(PROCEDURE.read_text())
+    for key, value in changes.items():
+        section, _, field = key.partition("__")
+        if field:
+            data[section][field] = value
+        else:
+            data[section] = value
+    data["bench"] = str(SCENARIO)
+    path = tmp_path / "rtest.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def test_c_turned_alone_reports_only_what_it_separates_and_says_why_not_the_rest(tmp_path):
+    path = _variant(tmp_path, tests={"c_angles_deg": [0, 45, 90, 135, 180, 225, 270, 315], "a_angles_deg": [],
+                                     "tilt_deg": None, "both_directions": False})
+    assert main(["run", str(path), "--scenario", str(SCENARIO), "--out", str(tmp_path / "run")]) == 0
+    results = read_results(tmp_path / "run")
+    assert isinstance(results, RTestResults)
+    assert set(results.location_errors) == {"X0C_um", "A0C_arcsec"}
+    refused = results.not_determined
+    assert {"Y0C_um", "B0C_arcsec", "Y0A_um", "Z0A_um", "B0A_arcsec", "C0A_arcsec"} <= set(refused)
+    assert "cannot be separated" in refused["Y0C_um"] and "Y0A" in refused["Y0C_um"]
+    assert "no pose" in refused["Z0A_um"]
+    # the plan said so before anything moved
+    proc = load_procedure(path)
+    predicted = predict(proc)
+    assert set(predicted.U) == {"X0C_um", "A0C_arcsec"}
+    assert set(predicted.identifiability.refused) == set(refused) - {"Z0C_um", "X0A_um", "C0C_arcsec", "A0A_arcsec"}
+
+
+def test_rtcal_plan_predicts_each_u_near_what_the_run_reports(shipped_run):
+    proc = load_procedure(PROCEDURE)
+    predicted = predict(proc)
+    results = read_results(shipped_run)
+    assert isinstance(results, RTestResults)
+    for symbol, e in results.location_errors.items():
+        assert predicted.U[symbol] == pytest.approx(e.expanded_uncertainty, rel=0.25), symbol
+    notes = RTestPlanner().notes(proc)
+    assert notes[0].startswith("predicted U (k = 2) of each location error: X0C")
+    assert any(n.startswith("not determined with this set-up: C0C") for n in notes)
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"instruments": {"machine": {"backend": "sim"}, **{f"nest_indicator_{i}": {"kind": "dial_indicator", "backend": "sim"}
+                                                      for i in (1, 2, 3)}}}, "machine.kind"),
+    ({"compensation": {"records": {"linuxcnc-xyzac-trt": {"x-rot-point": 0.1, "y-rot-point": 0.0, "z-rot-point": 0.0,
+                                                          "y-offset": 0.0, "z-offset": -50.0}}}}, "100.0 µm from `kinematics`"),
+    ({"tests": {"c_angles_deg": [0, 30, 30]}}, "each angle once"),
+])
+def test_a_wrong_procedure_is_one_line_and_exit_2(tmp_path, capsys, change, words):
+    path = _variant(tmp_path, **change)
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err, err
+
+
+def test_the_method_folder_uses_rtcal_only_through_its_public_face():
+    folder = REPO / "rtcal" / "methods" / "rtest"
+    wrong = []
+    for path in folder.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            for name in names:
+                top = name.split(".")[0]
+                if top in ("drivers", "simulators") or (top == "rtcal" and not (
+                        name in ("rtcal", "rtcal.api") or name.startswith(("rtcal.solvers", "rtcal.methods.rtest")))):
+                    wrong.append(f"{path.name}: {name}")
+    assert wrong == []
+
+
+def test_rtcal_plan_prints_the_prediction_before_anything_moves(capsys):
+    assert main(["plan", str(PROCEDURE), "--no-levers"]) == 0
+    out = capsys.readouterr().out
+    assert "71 planned readings" in out
+    assert "predicted U (k = 2) of each location error: X0C" in out and "C0A" in out
+    assert "not determined with this set-up: Z0C" in out and "not determined with this set-up: A0A" in out
