@@ -109,6 +109,7 @@ def test_closure_needs_connected_seatings():
         _closure_data(rng, np.zeros(24), np.zeros(24), [0], 0.1)
 
 
+@pytest.mark.campaign  # a Monte Carlo of the family error rate
 def test_harmonic_significance_holds_its_family_error_rate_on_white_noise():
     """1000 series of pure white noise (96 angles in two directions' groups, orders 1–23 and the
     aliased Nyquist term tested): the chance of any order flagged is the family α = 1 %. The

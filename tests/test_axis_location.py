@@ -302,6 +302,7 @@ def _assert_covers(rows: list[dict], least: float, rms_range: tuple[float, float
         assert r["covered"] >= least and rms_range[0] < r["rms"] < rms_range[1], lines
 
 
+@pytest.mark.campaign  # 100 benches per mount; CI has test_monte_carlo_location_within_u
 @pytest.mark.parametrize("mounts", [1, 2])
 def test_bounded_monte_carlo_100_benches(mounts):
     """100 benches per case (the CI's bound on the campaign below): each of X0C, Y0C, A0C, B0C within U of

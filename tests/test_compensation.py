@@ -558,6 +558,7 @@ def _noise_tolerance_arcsec() -> float:
     return float(4 * np.sqrt(2) * mean)
 
 
+@pytest.mark.campaign  # minutes: every figure of docs/compensation.md; CI has test_calibrate_compensate_verify per format
 def test_the_loop_on_the_shipped_bench_gives_what_the_docs_say(tmp_path):
     """calibrate → compensate → load → verify at the calibration targets and between them
     (procedures/iso230_2_verification.yaml), on the shipped bench: every E of the docs' table
@@ -860,6 +861,7 @@ def test_compensate_says_what_to_do_on_the_control(tmp_path, capsys):
         assert code == 0 and any(line.startswith("on the control: ") and needed in line for line in out.splitlines())
 
 
+@pytest.mark.campaign  # minutes: each format on the shipped bench; CI has test_calibrate_compensate_verify per format
 @pytest.mark.slow
 def test_every_format_cuts_e_on_the_shipped_bench(tmp_path):
     """The ISO 230-2 test on the shipped bench, its table with --step-deg 15 in every format as
