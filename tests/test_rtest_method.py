@@ -157,3 +157,32 @@ def test_rtcal_plan_prints_the_prediction_before_anything_moves(capsys):
     assert "71 planned readings" in out
     assert "predicted U (k = 2) of each location error: X0C" in out and "C0A" in out
     assert "not determined with this set-up: Z0C" in out and "not determined with this set-up: A0A" in out
+
+
+def test_the_certificate_says_what_the_r_test_measured_and_leaves_out_what_it_did_not(shipped_run):
+    """Page 1's subtitle names the location errors of A and C (ISO 230-7) and C's deviation, the standards applied
+    begin with ISO 230-7; Annex C's periodic error (a positioning test) is absent from the certificate, report.md,
+    report.html and report.pdf, and so is the method section's sentence on positioning-test figures. The method's
+    declared flag decides it: the same results certified as a positioning method's carry the section again."""
+    import pymupdf
+
+    from rtcal.deliverables.certificate import Certificate, build_certificate
+    from rtcal.methods.rtest.method import RTestMethod
+
+    cert = Certificate.model_validate_json((shipped_run / "certificate.json").read_text())
+    assert cert.header.subtitle.startswith("Location errors of the rotary axes A and C (ISO 230-7)")
+    assert "angular positioning deviation of C" in cert.header.subtitle
+    standards = next(i.value for i in cert.identification.items if i.label == "Standards applied")
+    assert standards.startswith("ISO 230-7") and "ISO 10791-6" in standards
+    assert cert.periodic_error is None
+    assert not any("positioning-test" in p or "Annex C" in p for p in cert.method.paragraphs)
+    pdf = " ".join(page.get_text() for page in pymupdf.open(shipped_run / "report.pdf").pages())
+    for text in ((shipped_run / "report.md").read_text(), (shipped_run / "report.html").read_text(), pdf):
+        assert "Periodic positioning error" not in text and "Annex C" not in text
+    assert "Location errors of the rotary axes A and C" in " ".join(pymupdf.open(shipped_run / "report.pdf")[0].get_text().split())
+
+    class AsPositioning(RTestMethod):
+        positioning_deviation = True
+
+    again = build_certificate(read_results(shipped_run), shipped_run, AsPositioning())
+    assert again.periodic_error is not None and again.periodic_error.statement.startswith("Not tested")

@@ -31,15 +31,19 @@ from rtcal.deliverables.method_outputs import MethodOutputs
 from rtcal.deliverables.rounding import fmt, significant, u_text, value_text
 from rtcal.results.model import EnvironmentSummary, InstrumentRecord, QuantityEstimate, RunResults
 
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"  # 1.1: periodic_error may be null (a method whose result is no positioning deviation)
 
 
 class CertifiedMethod(Protocol):
     """What the certificate needs of the run's method (:class:`rtcal.methods.protocol.Method` has it):
-    its procedure model (which instruments it has), the conditions and roles it states, its outputs."""
+    its procedure model (which instruments it has), whether its result is a positioning deviation (a
+    positioning test's sections apply, or are left out), the conditions and roles it states, its outputs."""
 
     @property
     def procedure_model(self) -> type[BaseModel]: ...
+
+    @property
+    def positioning_deviation(self) -> bool: ...
 
     def conditions(self, results: RunResults) -> EnvironmentSummary | None: ...
 
@@ -621,7 +625,9 @@ class Certificate(BaseModel):
     deviations: Table | None = Field(description="the positioning deviation per target and direction")
     parameters: Parameters | None = Field(description="None: no ISO 230-2 evaluation")
     other_standards: OtherStandards | None = Field(description="None: the procedure asks for no other standard's figures")
-    periodic_error: PeriodicErrorSection = Field(description="ISO 230-2:2014 Annex C: the figure, or not tested")
+    periodic_error: PeriodicErrorSection | None = Field(description="ISO 230-2:2014 Annex C: the figure, or not tested; "
+                                                                    "None: the method's result is no positioning deviation "
+                                                                    "and the run made no such test (e.g. the R-test)")
     tables: list[Table] = Field(description="the method's own tables (ISO 230-7 location, error motions)")
     figures: list[Figure]
     budget: Budget | None = Field(description="None: no recommended estimate")
@@ -656,8 +662,12 @@ class Sources:
         return "report" if self.missing else "certificate"
 
 
-def subject(results: RunResults) -> str:
-    """What the certificate is of: the angular positioning deviation, or the quantity the method's result declares."""
+def subject(results: RunResults, outputs: MethodOutputs | None = None) -> str:
+    """What the certificate is of: what the method's outputs say it measured (their optional ``subject()``), else
+    the angular positioning deviation, or the quantity the method's result declares."""
+    said = getattr(outputs, "subject", lambda: "")()
+    if said:
+        return str(said)
     q = results.recommended_result()
     if isinstance(q, QuantityEstimate):
         return f"{q.quantity[:1].upper()}{q.quantity[1:]} ({q.unit})"
@@ -688,7 +698,7 @@ def _header(s: Sources) -> Header:
                                     meta.laboratory or results.procedure.name or results.method,
                                     f"Certificate {meta.certificate_number}" if meta.certificate_number else "") if x)
     return Header(title="Calibration certificate" if not s.missing else "Calibration report",
-                  subtitle=subject(results),
+                  subtitle=subject(results, s.outputs),
                   laboratory=meta.laboratory or "Laboratory not stated", laboratory_address=meta.laboratory_address,
                   certificate_number=meta.certificate_number,
                   not_certificate=("Not a calibration certificate: the procedure's metadata does not give "
@@ -704,6 +714,7 @@ def _identification(s: Sources) -> Identification:
     standards = list(STANDARDS if evaluated else STANDARDS[2:]) + ([DECISION_STANDARDS[conformity.decision_rule]] if conformity else [])
     if s.departed:
         standards[0] = "ISO 230-2:2014 (its formulas for E, M, B, R, A applied to a test that departs from its test: see Departures)"
+    standards = list(getattr(s.outputs, "standards_applied", lambda: [])()) + standards  # the method's own, e.g. ISO 230-7
     item = ", ".join(x for x in (meta.machine, f"axis {meta.axis}" if meta.axis else "",
                                  f"serial number {meta.serial_number}" if meta.serial_number else "") if x)
     rows = [
@@ -870,8 +881,10 @@ def period_text(period_deg: float, worm_revolutions: float | None) -> str:
     return f"{period_deg:.4g}°{revs}"
 
 
-def _periodic_error(s: Sources) -> PeriodicErrorSection:
+def _periodic_error(s: Sources) -> PeriodicErrorSection | None:
     p = s.results.periodic_error
+    if p is None and not s.method.positioning_deviation:  # Annex C is a positioning test: not this method's to make
+        return None
     if p is None:
         return PeriodicErrorSection(tested=False, statement=NOT_TESTED, rows=[], harmonic_rows=[], notes=[])
     U = p.expanded_uncertainty_arcsec
@@ -891,14 +904,17 @@ def _periodic_error(s: Sources) -> PeriodicErrorSection:
         harmonic_rows=harmonics, notes=[f"Reference: {p.reference}."] + list(p.notes))
 
 
-def standards_on_certificate(results: RunResults) -> str:
-    """The standards whose figures the certificate states, in a sentence (the method section's)."""
+def standards_on_certificate(results: RunResults, positioning: bool = True) -> str:
+    """The standards whose positioning-test figures the certificate states, in a sentence (the method section's);
+    nothing of a method whose result is no positioning deviation (``positioning`` False) and that made no such test."""
     from rtcal.procedure.standards import STANDARDS as LABELLED
 
     named = ["ISO 230-2:2014 (E, M, B, R, A)", "VDI/DGQ 3441:1977 (Pa, P, Ps, U)"] if results.evaluation else []
     named += [LABELLED[label].title for label in results.procedure.standards or []]
     if results.periodic_error is not None:
         named.append("the periodic positioning error of ISO 230-2:2014 Annex C (as rtcal reads the annex: see its section)")
+    if not named and not positioning:
+        return ""
     periodic = "" if results.periodic_error is not None else " The periodic positioning error (ISO 230-2:2014 Annex C) was not tested."
     return ("Figures on this certificate: " + "; ".join(named) + "." if named else
             "No positioning-test figures are on this certificate (no positioning deviations).") + periodic
@@ -932,8 +948,9 @@ def _budget(s: Sources) -> Budget | None:
 
 
 def _method(s: Sources) -> Method:
+    figures = standards_on_certificate(s.results, s.method.positioning_deviation)
     return Method(name=s.outputs.method_name() or s.results.method,
-                  paragraphs=list(s.outputs.method_text()) + [standards_on_certificate(s.results)])
+                  paragraphs=list(s.outputs.method_text()) + ([figures] if figures else []))
 
 
 def _standards(s: Sources) -> Standards:

@@ -12,8 +12,10 @@ class MethodOutputs(Protocol):
     """What a method adds to a run directory, the report and the console, from its results alone.
 
     Optional members, read with ``getattr`` where present: ``estimate_words()`` (the recommended
-    estimate in words) and ``iso230_1_errors()`` (the axis's error motions and location errors,
-    :mod:`rtcal.compensation.geometry`, for a volumetric compensation table)."""
+    estimate in words), ``iso230_1_errors()`` (the axis's error motions and location errors,
+    :mod:`rtcal.compensation.geometry`, for a volumetric compensation table), ``subject()`` (what was
+    measured, the certificate's subtitle; "": the recommended result's quantity says it) and
+    ``standards_applied()`` (the method's own standards, listed before the GUM on page 1)."""
 
     def write_files(self, run_dir: Path) -> list[Path]:
         """The method's own files (CSV, figures) into ``run_dir``; returns their paths."""
@@ -69,4 +71,10 @@ class OutputsBase:
         return []
 
     def certificate_tables(self) -> list[dict[str, Any]]:
+        return []
+
+    def subject(self) -> str:
+        return ""
+
+    def standards_applied(self) -> list[str]:
         return []

@@ -143,8 +143,9 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                                    o.header, [20 * mm, 24 * mm, 20 * mm, width - 64 * mm]))
             story += [Paragraph(esc(t), small) for t in [blk.rule] + blk.notes if t] + [Spacer(1, 1.5 * mm)]
     pe = c.periodic_error
-    story += [Paragraph(esc(pe.heading), h2), Paragraph(esc(pe.statement), small)]
-    if pe.tested:
+    if pe is not None:
+        story += [Paragraph(esc(pe.heading), h2), Paragraph(esc(pe.statement), small)]
+    if pe is not None and pe.tested:
         story += [Spacer(1, 1.5 * mm), table([(k.quantity, k.value_arcsec, k.expanded_uncertainty_arcsec) for k in pe.rows],
                                               pe.header, [width - 60 * mm, 36 * mm, 24 * mm]),
                   Spacer(1, 1.5 * mm), table(pe.harmonic_rows, pe.harmonic_header,
@@ -290,8 +291,9 @@ def write_markdown(certificate: Certificate, path: Path) -> Path:
                   f"{x.guard_band_arcsec} | {x.verdict} |" for x in v.rows]
         lines += [""] + [f"- {n}" for n in v.notes] + [""]
     pe = c.periodic_error
-    lines += [f"## {pe.heading}", "", pe.statement, ""]
-    if pe.tested:
+    if pe is not None:
+        lines += [f"## {pe.heading}", "", pe.statement, ""]
+    if pe is not None and pe.tested:
         lines += ["| " + " | ".join(pe.header) + " |", "|---|---|---|"]
         lines += [f"| {k.quantity} | {k.value_arcsec} | {k.expanded_uncertainty_arcsec} |" for k in pe.rows]
         lines += ["", "| " + " | ".join(pe.harmonic_header) + " |", "|---|---|---|---|---|"]

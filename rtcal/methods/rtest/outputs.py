@@ -103,6 +103,21 @@ class RTestOutputs(api.OutputsBase):
                 "repeated at the end for the drift. The location errors are the least-squares adjustment of the exact "
                 "kinematic model to the sphere-centre displacements, with a GUM budget per parameter (k = 2)."]
 
+    def subject(self) -> str:
+        """The subtitle: what the R-test measured, its location errors axis by axis, then C's deviation."""
+        axes = sorted({e.axis for e in self.results.location_errors.values()})
+        parts = [f"location errors of the rotary {'axes' if len(axes) > 1 else 'axis'} {' and '.join(axes)} (ISO 230-7)"] \
+            if axes else []
+        q = self.results.recommended_result()
+        if isinstance(q, api.QuantityEstimate):
+            parts.append(f"{q.quantity} ({q.unit})")
+        text = "; ".join(parts)
+        return text[:1].upper() + text[1:]
+
+    def standards_applied(self) -> list[str]:
+        return ["ISO 230-7:2015 (location errors of the axes of rotation)",
+                "ISO 10791-6:2014 (the kinematic tests of the rotary axes)"]
+
     def method_name(self) -> str:
         return "R-test of a trunnion table's rotary axes (ISO 230-7 location errors)"
 
