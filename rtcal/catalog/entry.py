@@ -4,6 +4,7 @@ history needs taken from its results.json."""
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import re
 import sqlite3
@@ -112,6 +113,24 @@ def _location_errors(results: RunResults) -> dict[str, Any]:
     return out
 
 
+def location_error_rows(doc: Any) -> list[dict[str, Any]]:
+    """The run's ISO 230-7 location errors (``location_errors`` of its results.json ``doc``, the R-test's) as the
+    catalogue's rows: symbol as results.json keys it (its unit in it), axis, value, U and k; none for a method
+    without them. (Migration 0005 holds a copy: keep the two alike.)"""
+    found = doc.get("location_errors") if isinstance(doc, dict) else None
+    out = []
+    for symbol, e in (found.items() if isinstance(found, dict) else ()):
+        if not isinstance(e, dict):
+            continue
+        numbers = [e.get("value"), e.get("expanded_uncertainty"), e.get("coverage_factor", 2.0)]
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in numbers):
+            continue
+        value, U, k = (float(x) for x in numbers)  # type: ignore[arg-type]  # (checked above)
+        out.append({"symbol": str(symbol)[:40], "axis": str(e.get("axis", ""))[:10], "value": value,
+                    "expanded_uncertainty": U, "coverage_factor": k})
+    return out
+
+
 def instruments_of(run_dir: Path, results: RunResults) -> list[dict[str, Any]]:
     """The instruments and reference standards the run names (metadata.instruments), each with what of
     its calibration the run's analysis applied (its method's words; rtcal/run/reassess.py)."""
@@ -155,6 +174,7 @@ def entry_of(run_dir: Path, results: RunResults, signature: str = "unsigned", ch
         "test": results.procedure.name or results.method,
         "state": meta.item_state, "replaces": meta.replaces, "origin": "run",
         "instruments": instruments_of(run_dir, results),
+        "location_error_rows": location_error_rows(json.loads(text)),
     }
     uncertainties = parameter_uncertainties(results)
     for p in PARAMETERS:

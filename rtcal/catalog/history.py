@@ -79,6 +79,34 @@ def entry_json(row: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+UNITS = {"um": "µm", "arcsec": "″"}
+
+
+def location_series(rows: list[dict[str, Any]], located: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    """Each ISO 230-7 location error's values over time (``located``: the catalogue's rows of ``rows``' entries),
+    by axis and symbol, each value with its U, k, entry and time, oldest first."""
+    order = {r["run_id"]: k for k, r in enumerate(oldest_first(rows))}
+    out: dict[str, list[dict[str, Any]]] = {}
+    for e in sorted((e for e in located if e["run_id"] in order), key=lambda e: order[e["run_id"]]):
+        out.setdefault(e["symbol"], []).append({
+            "run_id": e["run_id"], "measured_utc": e["measured_utc"], "axis": e["axis"], "value": e["value"],
+            "expanded_uncertainty": e["expanded_uncertainty"], "coverage_factor": e["coverage_factor"]})
+    return dict(sorted(out.items(), key=lambda kv: (kv[1][-1]["axis"], kv[0])))
+
+
+def location_lines(series: dict[str, list[dict[str, Any]]]) -> list[str]:
+    """``history``'s lines of the location errors: per symbol, its value ± U at each entry, oldest first."""
+    if not series:
+        return []
+    lines = ["location errors (ISO 230-7), value ± U (k = 2), oldest first:"]
+    for symbol, points in series.items():
+        name, _, unit = symbol.partition("_")
+        values = " · ".join(f"{p['measured_utc'][:16].replace('T', ' ')} {value_text(p['value'], p['expanded_uncertainty'], '+')}"
+                            f" ± {u_text(p['expanded_uncertainty'])}" for p in points)
+        lines.append(f"  {name} ({UNITS.get(unit, unit)}, axis {points[0]['axis']}): {values}")
+    return lines
+
+
 @dataclass(frozen=True)
 class Pair:
     """An as-found / as-left pair of one axis's rows (indices): ``declared`` by the runs, or guessed."""

@@ -110,6 +110,18 @@ retirements = Table(
     Column("reason", Text, nullable=False),
 )
 
+location_errors = Table(
+    "location_errors", metadata,  # revision 0005: an entry's ISO 230-7 location errors (the R-test's), one row each
+    Column("run_id", String(64), primary_key=True),
+    Column("symbol", String(40), primary_key=True),  # as results.json keys it, its unit in it: X0C_um, B0A_arcsec
+    Column("axis", String(10), nullable=False),  # the rotary axis it locates (A, C)
+    Column("value", Float, nullable=False),  # in the symbol's unit
+    Column("expanded_uncertainty", Float, nullable=False),  # U, same unit
+    Column("coverage_factor", Float, nullable=False),  # k
+    Column("measured_utc", String(40), nullable=False),  # the entry's
+    Column("site", String(100), nullable=False, server_default=""),  # the entry's (a rig's row-level policy)
+)
+
 usage = Table(
     "usage", metadata,  # a machine's hours of use (ILAC-G24 method 3), given or read from its control
     Column("serial_number", String(100), primary_key=True),

@@ -30,7 +30,7 @@ from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, InterfaceError, OperationalError, SQLAlchemyError
 
 from rtcal.catalog.audit import ENTRY_HASH_VERSION, GENESIS, Findings, chained, check, entry_hash
-from rtcal.catalog.schema import audit, calibrations, instruments, normal_text
+from rtcal.catalog.schema import audit, calibrations, instruments, location_errors, normal_text
 
 ENV = "RTCAL_CATALOG"
 CONNECT_TIMEOUT_S = 10
@@ -39,6 +39,7 @@ MIGRATIONS = Path(__file__).with_name("migrations")
 ADVISORY_LOCK = 42302  # one migration at a time on a shared PostgreSQL (any number; ours)
 NORMALISED_SINCE = "0002"  # the migration that brought every entry's names to normal_text
 PROGRAMME_SINCE = "0004"  # instruments, the audit trail, policies, retirements, machine hours
+LOCATIONS_SINCE = "0005"  # each entry's ISO 230-7 location errors, a row each
 AUDIT_LOCK = 42303  # one audit row at a time on a shared PostgreSQL: the chain stays one line
 ENTRY_DEFAULTS: dict[str, Any] = {"simulated": "", "signature": "unsigned",
                                   "test": "", "site": "", "rig": "", "state": "", "replaces": "", "supersedes": None,
@@ -191,6 +192,7 @@ class Catalog:
         self.empty = False  # no calibrations table yet (a new database nobody has added to)
         self.normalised = True  # every entry's names are normal_text (migration 0002 ran)
         self.programme = True  # instruments, audit trail, policies (migration 0004 ran)
+        self.locations = True  # the location errors' table (migration 0005 ran)
         self.present = {c.name for c in calibrations.c}  # the table's columns (fewer in a catalogue not migrated)
         if write:
             with self._failures("cannot be opened"):
@@ -206,6 +208,7 @@ class Catalog:
                 if "alembic_version" in tables else None
             self.normalised = revision is not None and str(revision) >= NORMALISED_SINCE
             self.programme = revision is not None and str(revision) >= PROGRAMME_SINCE
+            self.locations = revision is not None and str(revision) >= LOCATIONS_SINCE
 
     def __enter__(self) -> Catalog:
         return self
@@ -241,6 +244,7 @@ class Catalog:
         certificate number. An entry that ``supersedes`` another is filed as a supersede (``reason``)."""
         entry = {**ENTRY_DEFAULTS, **entry, "added_by": entry.get("added_by") or who or os_user()}
         found = entry.pop("instruments", None) or []
+        located = entry.pop("location_error_rows", None) or []  # (an outbox file of an older rtcal has none)
         if self.engine.dialect.name == "postgresql":
             from sqlalchemy.dialects.postgresql import insert
         else:
@@ -258,6 +262,9 @@ class Catalog:
                             for i in found]
                     if rows:
                         conn.execute(instruments.insert(), rows)
+                    if located:
+                        conn.execute(location_errors.insert(), [{**e, "run_id": entry["run_id"], "site": entry["site"],
+                                                                 "measured_utc": entry["measured_utc"]} for e in located])
                     action = "supersede" if entry.get("supersedes") else "add"
                     append(conn, action, entry["run_id"], entry["added_by"], reason or "", entry["site"],
                            {"run_id": entry["run_id"], "entry_sha256": entry_hash(entry, found),
@@ -350,6 +357,25 @@ class Catalog:
             return []
         with self._failures("cannot be read"), self.engine.connect() as conn:
             return [dict(r._mapping) for r in conn.execute(select(instruments).where(instruments.c.run_id.in_(run_ids)))]
+
+    def location_errors_of(self, run_ids: list[str]) -> list[dict[str, Any]]:
+        """The entries' ISO 230-7 location errors, a row each (none in a catalogue before revision 0005)."""
+        if not self.locations or not run_ids:
+            return []
+        with self._failures("cannot be read"), self.engine.connect() as conn:
+            q = select(location_errors).where(location_errors.c.run_id.in_(run_ids))
+            return [dict(r._mapping) for r in conn.execute(q.order_by(location_errors.c.measured_utc))]
+
+    def location_errors_by_run(self) -> dict[str, dict[str, tuple[float, float]]]:
+        """Every filed location error, run id → symbol → (value, U) (``verify --deep`` checks them)."""
+        out: dict[str, dict[str, tuple[float, float]]] = {}
+        if not self.locations:
+            return out
+        with self._failures("cannot be read"), self.engine.connect() as conn:
+            le = location_errors.c
+            for run_id, symbol, value, U in conn.execute(select(le.run_id, le.symbol, le.value, le.expanded_uncertainty)):
+                out.setdefault(str(run_id), {})[str(symbol)] = (float(value), float(U))
+        return out
 
     def table(self, table: Table, order: str) -> list[dict[str, Any]]:
         """Every row of one of the programme's tables (audit, policies, retirements, usage) in ``order``."""

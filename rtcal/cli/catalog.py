@@ -183,11 +183,13 @@ def _due_of(cat: Any) -> Any:
 
 def _history(args: argparse.Namespace) -> int:
     from rtcal.catalog.entry import marks
-    from rtcal.catalog.history import by_axis, certificate_words, e_text, entry_json, history_document
+    from rtcal.catalog.history import (by_axis, certificate_words, e_text, entry_json, history_document, location_lines,
+                                       location_series)
 
     with _open(args) as cat:
         rows = [r for rs in by_axis(cat.history(args.serial, args.axis)).values() for r in rs]
         due = _due_of(cat)
+        located = cat.location_errors_of([r["run_id"] for r in rows])
     if not rows:
         print(f"rtcal: no calibration of {args.serial}{' axis ' + args.axis if args.axis else ''} in {cat.name}",
               file=sys.stderr)
@@ -209,6 +211,10 @@ def _history(args: argparse.Namespace) -> int:
             e["superseded_by"] = axis["superseded"].get(e["run_id"])
             e["trend"] = axis["trend"]
             e["next_due"] = dues[e["axis"]]
+        for e in entries:  # its ISO 230-7 location errors (the R-test's) by symbol: value, U, k
+            e["location_errors_iso230_7"] = {x["symbol"]: {k: x[k] for k in ("axis", "value", "expanded_uncertainty",
+                                                                             "coverage_factor")}
+                                              for x in located if x["run_id"] == e["run_id"]}
         print(json_text(entries))
         return EXIT_OK
     print(f"{'measured (UTC)':17} {'axis':5} {'test':34} {'E ± U (″)':>16} {'verdict':10} {'state':9} certificate (marks)")
@@ -220,6 +226,8 @@ def _history(args: argparse.Namespace) -> int:
         note += f" [{marks(r)}]" if marks(r) else ""
         print(f"{r['measured_utc'][:16].replace('T', ' '):17} {r['axis'][:5]:5} {(r.get('test') or r['method'])[:34]:34} "
               f"{e_text(r):>16} {r['verdict']:10} {state:9} {r['certificate_number'] or '–'}{note}")
+    for line in location_lines(location_series(rows, located)):
+        print(line)
     if any(r["simulated"] for r in rows):
         print(f"{sum(1 for r in rows if r['simulated'])} of {len(rows)} entries are SIMULATED (added with "
               "--allow-simulated): not calibrations")
