@@ -63,7 +63,8 @@ class MethodBase:
     """The names the method's analysis may recommend (its results model's ``recommended``)."""
     positioning_deviation: bool = True
     """Whether the recommended result is an angular positioning deviation (ISO 230-2 evaluation, conformity and
-    compensation follow)."""
+    compensation follow, and the certificate's positioning-test sections: Annex C's "not tested" is left out
+    of a method whose result is none)."""
     operator_steps: bool = False
     context_columns: Mapping[str, str] = {}
     planner: Any = None

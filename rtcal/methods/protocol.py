@@ -97,7 +97,8 @@ class Method(Protocol[ProcedureT, InstrumentsT]):
     def positioning_deviation(self) -> bool:
         """Whether its recommended result is an angular positioning deviation: the runner then evaluates ISO 230-2
         and VDI 3441 parameters and the procedure's acceptance from it, and `rtcal compensate` takes it; a result
-        of its own quantity and unit (a runout in µm) is not (results' ``QuantityEstimate``)."""
+        of its own quantity and unit (a runout in µm) is not (results' ``QuantityEstimate``), and its certificate
+        has no positioning-test section it never made (Annex C's "not tested")."""
         ...
 
     @property
