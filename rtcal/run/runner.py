@@ -40,7 +40,7 @@ from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
 from rtcal.engine.walk import Timing, walk
 from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
 from rtcal.store.runstore import RunStore, StoreUnusable
-from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
+from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 from drivers.addresses import REDACTED, redact_tokens
@@ -266,12 +266,22 @@ def apply_machine_identity(proc: Procedure, ident: dict[str, Any], where: str, l
 
 def with_machine_identity(proc: Procedure, path: Path, text: str) -> tuple[Procedure, dict[str, Any] | None]:
     """The procedure with the machine's identification applied (:func:`apply_machine_identity`, located
-    at the procedure's ``machine_identity`` line), and the identification as read (None: none asked)."""
+    at the line of the file's ``metadata.machine_identity`` key), and the identification as read (None:
+    none asked). ``text``: the file as the user wrote it (not the text a --certificate-number rewrote)."""
     ident = read_machine_identity(proc)
     if ident is None:
         return proc, None
-    line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
-    return apply_machine_identity(proc, ident, str(path), line), ident
+    return apply_machine_identity(proc, ident, str(path), key_line(text, str(path), ("metadata", "machine_identity"))), ident
+
+
+def key_line(text: str, where: str, key: tuple[str, ...]) -> int:
+    """The line of ``key`` (a path of keys) in the YAML ``text`` as its parser sees it: a comment, a string
+    value or another section naming the key is not it (1 if the text cannot be read)."""
+    try:
+        _, locations = load_yaml(text, where)
+    except FileProblems:
+        return 1
+    return locate(key, locations)[0]
 
 
 def run_procedure(
@@ -300,7 +310,7 @@ def run_procedure(
     ``out_dir`` must be new or empty; it is locked (RunBusy) until the run ends.
     """
     procedure_path = Path(procedure_path)
-    procedure_yaml = read_text(procedure_path)
+    procedure_yaml = as_written = read_text(procedure_path)
     proc = load_procedure(procedure_path, large, procedure_yaml)
     if certificate_number is not None:
         procedure_yaml = with_certificate_number(procedure_yaml, certificate_number, procedure_path.name)
@@ -308,7 +318,7 @@ def run_procedure(
     if addresses:
         proc = with_addresses(proc, addresses)
     check_calibration_due(proc)
-    proc, identity = with_machine_identity(proc, procedure_path, procedure_yaml)
+    proc, identity = with_machine_identity(proc, procedure_path, as_written)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
     bench, scenario_text = None, ""
