@@ -38,7 +38,7 @@ from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
 from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
 from rtcal.engine.walk import Timing, walk
-from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
+from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator, stdin_terminal
 from rtcal.store.runstore import RunStore, StoreUnusable
 from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 from simulators.bench import Bench
@@ -205,8 +205,19 @@ def _operator(bench: Bench | None, addresses: dict[str, str] | None, on_engine: 
             raise RunDirError("--rehearse: a person confirms each operator step and the simulated operator then does "
                               "it on the simulators: give its address (`operator` in --instruments, as `rtcal sim "
                               "serve` printed it); on hardware leave --rehearse out")
+        check_rehearsal_reachable(on_engine)
         return RehearsalOperator(simulated, remote=remote, run_dir=run_dir)
     return simulated if simulated is not None else WaitingOperator(remote=remote, run_dir=run_dir)
+
+
+def check_rehearsal_reachable(on_engine: OnEngine | None) -> None:
+    """A rehearsal waits for a person at every operator step: at the terminal or on the live page. With
+    neither it could only fail at its first step, so it is refused before a run folder is made or a
+    stored run is changed (RunDirError, exit 2)."""
+    if stdin_terminal() is None and not getattr(on_engine, "remote_operator", False):
+        raise RunDirError("--rehearse: each operator step waits for a person to confirm it (Enter at the terminal, "
+                          "Done on the live page) and this run has neither a terminal nor --live: run it from a "
+                          "terminal, or add --live [HOST:]PORT")
 
 
 def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
@@ -375,6 +386,8 @@ def resume_run(
     run_dir = Path(run_dir)
     if addresses:
         check_address_names(addresses)
+    if rehearse:
+        check_rehearsal_reachable(on_engine)
     lock = claim_run_dir(run_dir)  # RunDirError: no such directory, no store in it
     try:
         try:
