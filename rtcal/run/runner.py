@@ -36,7 +36,7 @@ from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.engine.engine import Engine
 from rtcal.engine.faults import RunAborted
-from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
+from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter, solve_estimate_s
 from rtcal.engine.walk import Timing, walk
 from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator, stdin_terminal
 from rtcal.store.runstore import RunStore, StoreUnusable
@@ -630,7 +630,10 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
     shown = show_progress is not False or on_engine is not None  # a Monte Carlo trial shows no one the time left
     timing = (eta_timing or (Timing.of_scenario(bench.scenario) if bench is not None else None)) if shown else None
     virtual = not isinstance(clock, RealClock)
-    eta = Eta(walk(method.plan(proc, done, generation, step_deg), timing, done).entry_s, virtual) if timing else None
+    person = isinstance(operator, WaitingOperator)  # a simulated operator's steps take no time on a real clock
+    eta = Eta(walk(method.plan(proc, done, generation, step_deg), timing, done).entry_s, virtual,
+              operator_timed=virtual or person,  # the solving is wall time, not the bench's: on a real clock only
+              after_s=0.0 if virtual else solve_estimate_s(len(plan.entries))) if timing else None
     subscribers: list = ([eta] if eta else []) + [StoreWriter(store, eta)]  # the estimate first: both read it
     if show_progress is not False:
         subscribers.append(ConsoleProgress(virtual_clock=virtual, eta=eta))
