@@ -203,3 +203,36 @@ def test_a_terminal_gets_a_drawn_bar():
     shown = terminal.getvalue().split("\r")[-1]
     assert re.search(r"readings 20/40 \(50 %\) \|█+ *\| target 300°, run 1, direction ↑ · about 3:20 left, ends about "
                      r"\d", shown), shown
+
+
+def test_a_terminal_that_reports_no_width_still_gets_its_bar():
+    """A terminal whose size reads 0 × 0 (a new pseudo-terminal, `script`, a serial console) got nothing at all:
+    the bar was cut to its width of 0. It is drawn uncut, as on a terminal that cannot be asked."""
+    import os
+    import pty
+
+    from rtcal.engine.subscribers import ConsoleProgress
+
+    master, slave = pty.openpty()  # a new pseudo-terminal's size is 0 × 0
+    try:
+        assert os.get_terminal_size(slave).columns == 0
+        with open(slave, "w", encoding="utf-8", closefd=False) as terminal:
+            progress = ConsoleProgress(terminal)
+            assert progress.bar
+            progress("start", {"planned": 4, "done": 0, "t_s": 0.0})
+            progress("done", {"done": 2, "faults": 0, "t_s": 20.0})
+            progress("stop", {"state": "measured"})
+        shown = b""
+        os.set_blocking(master, False)
+        while True:
+            try:
+                chunk = os.read(master, 65536)
+            except BlockingIOError:
+                break
+            if not chunk:
+                break
+            shown += chunk
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert re.search(r"readings 2/4 \(50 %\) \|█+ *\| about 0:20 left", shown.decode("utf-8")), shown

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from typing import Any, Callable, TextIO
@@ -206,6 +207,15 @@ class _Gone:
         pass
 
 
+def _columns(stream: Any) -> int | None:
+    """The terminal's width now; None (the line uncut) when it cannot be asked or says 0 (a new
+    pseudo-terminal, `script`, a serial console), where a bar cut to 0 columns would show nothing."""
+    try:
+        return os.get_terminal_size(stream.fileno()).columns or None
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
 def _hms(seconds: float) -> str:
     seconds = max(0, int(round(seconds)))
     h, rem = divmod(seconds, 3600)
@@ -310,8 +320,9 @@ class ConsoleProgress:
         if self._drawn is None:
             from tqdm import tqdm
 
-            self._drawn = tqdm(total=max(self.planned, 1), initial=self.done, file=self.stream, dynamic_ncols=True,
-                               mininterval=0.0, bar_format="readings {n}/{total} ({percentage:.0f} %) |{bar:20}| {desc}")
+            self._drawn = tqdm(total=max(self.planned, 1), initial=self.done, file=self.stream, mininterval=0.0,
+                               bar_format="readings {n}/{total} ({percentage:.0f} %) |{bar:20}| {desc}")
+        self._drawn.ncols = _columns(self.stream)
         self._drawn.n = self.done
         self._drawn.set_description_str(self.tail(), refresh=False)  # a terminal narrower than the line cuts its end
         self._drawn.refresh()
