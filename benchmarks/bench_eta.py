@@ -9,7 +9,8 @@ A thread reads the page's state (rtcal.live.storeview, as `rtcal view` reads it)
 10, 20, 30 and 60 minutes the time left it then showed is compared with the time the run then still took
 to its results (measuring, solving and writing). Prints per procedure the walk's duration, the real one,
 the error at each mark (page − real, in % of the real time left), the worst error from the first minute on
-while at least 30 s remained, and the estimate before the first reading. ``--stage-speed``: the simulated
+while at least 30 s remained, the estimate before the first reading, and the time from the last reading to
+the results against the solving and writing the estimate held. ``--stage-speed``: the simulated
 drive turns at the bench's speed in wall time (a real table) instead of at once. Goal (issue 46): within
 10 % from the first minute on.
 """
@@ -43,6 +44,8 @@ class PageWatch:
     def __init__(self, every_s: float = 0.5):
         self.every_s = every_s
         self.samples: list[tuple[float, float | None]] = []  # (wall s since the start, the page's time left)
+        self.last_reading_s: float | None = None  # when the page first showed every planned reading done
+        self.solving_s: float | None = None  # the solving and writing the page's time left holds
         self.t0: float | None = None
         self._stop = threading.Event()
 
@@ -53,8 +56,13 @@ class PageWatch:
         def watch() -> None:
             while not self._stop.wait(self.every_s):
                 state = view.state()
+                t = time.monotonic() - self.t0
                 if state["state"] == "running":
-                    self.samples.append((time.monotonic() - self.t0, state["eta_s"]))
+                    self.samples.append((t, state["eta_s"]))
+                    self.solving_s = state["solving_s"]
+                if self.last_reading_s is None and state["planned_readings"] and \
+                        state["done_readings"] >= state["planned_readings"]:
+                    self.last_reading_s = t
 
         threading.Thread(target=watch, name="bench-eta-watch", daemon=True).start()
         return None
@@ -86,7 +94,8 @@ def one(name: str, stage_speed: bool) -> dict:
     late = [100 * abs(eta - (end_s - t)) / (end_s - t) for t, eta in samples if t >= 60 and end_s - t >= 30]
     first = samples[0] if samples else (0.0, None)
     return {"name": name, "walked_s": walked, "end_s": end_s, "errors": errors, "worst": max(late, default=None),
-            "first": first}
+            "first": first, "after_s": None if watch.last_reading_s is None else end_s - watch.last_reading_s,
+            "solving_s": watch.solving_s}
 
 
 def main() -> None:
@@ -97,15 +106,17 @@ def main() -> None:
     print(f"time left on the live page against the real time left (page − real, % of the real), real clock, "
           f"rtcal's simulators{' (drive at the bench speed)' if args.stage_speed else ' (drive moves at once)'}")
     head = " | ".join(f"{m:>3} min" for m in MARKS_MIN)
-    print(f"| procedure | walked | real (to results) | before the first reading | {head} | worst from 1 min |")
-    print("|---|---|---|---|" + "---|" * len(MARKS_MIN) + "---|")
+    print(f"| procedure | walked | real (to results) | before the first reading | {head} | worst from 1 min "
+          f"| after the last reading: real / estimated |")
+    print("|---|---|---|---|" + "---|" * len(MARKS_MIN) + "---|---|")
     for name in args.procedures:
         r = one(name, args.stage_speed)
         t, eta = r["first"]
         start = "–" if eta is None else f"{eta:.0f} s for {r['end_s'] - t:.0f} s"
         cells = " | ".join(f"{r['errors'][m]:+6.1f} %" if m in r["errors"] else "      " for m in MARKS_MIN)
         worst = "–" if r["worst"] is None else f"{r['worst']:.1f} %"
-        print(f"| {name} | {r['walked_s']:.0f} s | {r['end_s']:.0f} s | {start} | {cells} | {worst} |", flush=True)
+        after = "–" if r["after_s"] is None else f"{r['after_s']:.0f} s / {r['solving_s'] or 0:.0f} s"
+        print(f"| {name} | {r['walked_s']:.0f} s | {r['end_s']:.0f} s | {start} | {cells} | {worst} | {after} |", flush=True)
 
 
 if __name__ == "__main__":
