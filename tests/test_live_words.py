@@ -111,16 +111,17 @@ def test_the_finished_page_states_the_certificates_result(tmp_path):
             assert page.inner_text("#marking") == certificate["header"]["marking"] != ""
             offsets = page.evaluate("""() => {
                 const table = document.querySelector("#grid table");
-                const heads = [...table.tHead.rows[0].cells].slice(1, -1);
-                const cells = [...table.tBodies[0].rows[0].cells].slice(1, -1);
+                const heads = [...table.tHead.rows[0].cells].slice(1);
+                const cells = [...table.tBodies[0].rows[0].cells].slice(1);
                 const centre = (r) => (r.left + r.right) / 2;
-                return heads.map((th, i) => {
-                    const range = document.createRange();
-                    range.selectNodeContents(th);
-                    return centre(range.getBoundingClientRect()) - centre(cells[i].querySelector(".cell").getBoundingClientRect());
-                });
+                const text = (node) => { const range = document.createRange(); range.selectNodeContents(node);
+                                         return range.getBoundingClientRect(); };
+                return heads.map((th, i) => centre(text(th)) - centre(
+                    (cells[i].querySelector(".cell") || cells[i]) === cells[i] ? text(cells[i])
+                        : cells[i].querySelector(".cell").getBoundingClientRect()));
             }""")
-            assert len(offsets) == 12 and max(abs(x) for x in offsets) <= 3.0, offsets  # (was 17–20 px to the right)
+            # each target's label over its cells (was 17–20 px to the right), "done" over its counts (was 30 px left)
+            assert len(offsets) == 13 and max(abs(x) for x in offsets) <= 3.0, offsets
             page.evaluate("""() => renderEta({state: "running", eta_s: 5400, clock: "virtual",
                 ends_utc: "2026-03-02T09:30:00+00:00", operator: null, solving_s: null})""")
             assert "on the virtual clock" in page.inner_text("#eta") and "virtual" in page.inner_text("#eta-note")
