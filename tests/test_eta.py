@@ -236,3 +236,25 @@ def test_a_terminal_that_reports_no_width_still_gets_its_bar():
         os.close(master)
         os.close(slave)
     assert re.search(r"readings 2/4 \(50 %\) \|█+ *\| about 0:20 left", shown.decode("utf-8")), shown
+
+
+def test_motions_and_settles_keep_a_pace_each():
+    """Issue 46 item 6, the polygon closure on a drive that moves at once: 23 faces a seating (1.5 s of motion
+    and 1 s of settle walked, 1 s taken) then a re-seat's return (34.5 s of motion walked, 1.2 s taken). One
+    pace for both was right only at whole seatings and rose within each (+19 % half-way through the second);
+    a pace for the motions and one for the rest hold within 5 % from the first re-seat on."""
+    from rtcal.engine.subscribers import Eta
+
+    def entry(k: int) -> tuple[float, float, float]:  # walked, of which motion, taken
+        return (35.7, 34.5, 1.2) if k % 24 == 0 and k else (2.5, 1.5, 1.0)
+
+    entries = {k: (entry(k)[0], 0.0) for k in range(144)}
+    eta = Eta(entries, virtual_clock=False, motion_s={k: entry(k)[1] for k in range(144)})
+    eta("start", {"t_s": 0.0})
+    t = 0.0
+    for k in range(144):
+        t += entry(k)[2]
+        eta("done", {"index": k, "t_s": t})
+        if k >= 26:
+            left = sum(entry(j)[2] for j in range(k + 1, 144))
+            assert abs(eta.eta_s() - left) <= 0.05 * left + 0.5, (k, eta.eta_s(), left)

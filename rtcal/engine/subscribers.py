@@ -42,7 +42,11 @@ class Eta:
     settles, samples), times the pace this start has kept against the walk: the walk's own pace (1)
     counts as ``PRIOR_S`` of walked time, so the first estimate is the plan's walked duration and the
     measured pace takes over within the first readings (on a bench whose motions are not the walk's
-    speeds the walk alone is 2–3× off). Each operator step counts at its stated duration until it
+    speeds the walk alone is 2–3× off). Given each entry's motions (``motion_s``:
+    :attr:`PlanWalk.entry_motion_s`) the motions and the rest (settles, samples: the procedure's own
+    times) have a pace each, fitted by least squares over the entries done (each weighted by 1 / its
+    walked time, so that without motions it is the ratio of the sums): where one entry in 24 holds a long
+    return the one pace was right only at whole cycles, the estimate rising within each. Each operator step counts at its stated duration until it
     begins (``operator_step``); from then on the step is the person's, and the time until their Done
     (``operator``), like time paused, is neither counted again nor taken into the pace. A simulated
     operator on a real clock (``operator_timed`` False) does its steps at once: they count nothing. The
@@ -53,8 +57,9 @@ class Eta:
     PRIOR_S = 1.0
 
     def __init__(self, entry_s: dict[int, tuple[float, float]], virtual_clock: bool, operator_timed: bool = True,
-                 after_s: float = 0.0):
+                 after_s: float = 0.0, motion_s: dict[int, float] | None = None):
         self.entry_s = entry_s
+        self.motion_s = motion_s or {}
         self.virtual_clock = virtual_clock  # a virtual clock counts an operator step's stated time itself
         self.operator_timed = operator_timed
         self.after_s = after_s
@@ -62,8 +67,10 @@ class Eta:
         self._pending_machine_s = math.fsum(total - operator for total, operator in entry_s.values())
         self._pending_operator_s = math.fsum(operator for _, operator in entry_s.values())
         self._begun_s = 0.0  # stated operator time of steps begun since the last entry done: no longer to come
+        self._pending_motion_s = math.fsum(self.motion_s.get(k, 0.0) for k in entry_s)
         self.machine_s = 0.0  # measured machine time of the entries done in this start …
         self.walked_s = 0.0  # … and the walk's for them
+        self._fit = [0.0] * 5  # Σ m²/t, Σ m·d/t, Σ d²/t, Σ m·s/t, Σ d·s/t: walked motion m, rest d, t = m + d, spent s
         self._t_s: float | None = None
         self._excluded_s = 0.0
         self._paused_at: float | None = None
@@ -98,24 +105,36 @@ class Eta:
         if k in self.pending and self._t_s is not None:
             self.pending.discard(k)
             total, operator = self.entry_s[k]
+            motion = self.motion_s.get(k, 0.0)
             self._pending_machine_s -= total - operator
             self._pending_operator_s -= operator
-            spent = doc["t_s"] - self._t_s - self._excluded_s - (operator if self.virtual_clock else 0.0)
-            self.machine_s += max(0.0, spent)
+            self._pending_motion_s -= motion
+            spent = max(0.0, doc["t_s"] - self._t_s - self._excluded_s - (operator if self.virtual_clock else 0.0))
+            self.machine_s += spent
             self.walked_s += total - operator
+            walked = total - operator
+            if walked > 0:
+                m, d = min(max(motion, 0.0), walked), walked - min(max(motion, 0.0), walked)
+                for i, add in enumerate((m * m, m * d, d * d, m * spent, d * spent)):
+                    self._fit[i] += add / walked
         self._t_s, self._excluded_s, self._begun_s = doc["t_s"], 0.0, 0.0
 
-    @property
-    def pace(self) -> float:
-        """Measured machine time per walked second, the walk's 1 weighing ``PRIOR_S`` (within 0.05–5)."""
-        return min(max((self.machine_s + self.PRIOR_S) / (self.walked_s + self.PRIOR_S), 0.05), 5.0)
+    def paces(self) -> tuple[float, float]:
+        """Measured time per walked second of the motions (within 0–5: a simulated drive moves at once) and
+        of the rest (within 0.05–5), each drawn to the walk's 1 with the weight of ``PRIOR_S``."""
+        mm, md, dd, ms, ds = self._fit
+        a, c, y1, y2 = mm + self.PRIOR_S, dd + self.PRIOR_S, ms + self.PRIOR_S, ds + self.PRIOR_S
+        det = a * c - md * md  # > 0: the prior makes the normal matrix positive definite
+        return (min(max((y1 * c - md * y2) / det, 0.0), 5.0), min(max((a * y2 - md * y1) / det, 0.05), 5.0))
 
     def measuring_s(self) -> float:
         """The time left to the last reading."""
         if not self.pending:  # what the running totals hold beyond this is rounding
             return 0.0
         operator = max(self._pending_operator_s - self._begun_s, 0.0) if self.operator_timed else 0.0
-        return self.pace * max(self._pending_machine_s, 0.0) + operator
+        motion_pace, rest_pace = self.paces()
+        motion = min(max(self._pending_motion_s, 0.0), max(self._pending_machine_s, 0.0))
+        return motion_pace * motion + rest_pace * (max(self._pending_machine_s, 0.0) - motion) + operator
 
     def eta_s(self) -> float:
         """The time left to the results: to the last reading, then the solving and writing."""

@@ -631,9 +631,9 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
     timing = (eta_timing or (Timing.of_scenario(bench.scenario) if bench is not None else None)) if shown else None
     virtual = not isinstance(clock, RealClock)
     person = isinstance(operator, WaitingOperator)  # a simulated operator's steps take no time on a real clock
-    eta = Eta(walk(method.plan(proc, done, generation, step_deg), timing, done).entry_s, virtual,
-              operator_timed=virtual or person,  # the solving is wall time, not the bench's: on a real clock only
-              after_s=0.0 if virtual else solve_estimate_s(len(plan.entries))) if timing else None
+    walked = walk(method.plan(proc, done, generation, step_deg), timing, done) if timing else None
+    eta = Eta(walked.entry_s, virtual, operator_timed=virtual or person, motion_s=walked.entry_motion_s,
+              after_s=0.0 if virtual else solve_estimate_s(len(plan.entries))) if walked is not None else None  # solving: wall
     subscribers: list = ([eta] if eta else []) + [StoreWriter(store, eta)]  # the estimate first: both read it
     if show_progress is not False:
         subscribers.append(ConsoleProgress(virtual_clock=virtual, eta=eta))
