@@ -113,6 +113,89 @@ def test_the_seed_methods_take_from_the_face_what_it_serves():
     assert not around, around
 
 
+# What the seed methods' folders still take from inside rtcal (neither rtcal.api nor rtcal.solvers nor their own
+# folder): (folder, module) → (file, names). Why each stays is in the folder's __init__ docstring; a new one fails
+# test_the_seed_methods_take_from_inside_only_what_is_listed until it comes from the face or is listed with its reason.
+SEED_INTERNAL = {
+    ("multistation", "drivers"): {"method.py": {"factory"}},  # typed openers: limits, volume, tool
+    ("multistation", "rtcal.results"): {"method.py": {"model"}},  # rm: its estimate blocks
+    ("multistation", "rtcal.results.model"): {  # its estimate blocks, in the shared model
+        "outputs.py": {"AXIS_CONVENTION", "NetworkEstimate", "PaperEstimate", "StationChainEstimate"},
+        "results.py": {"AxisLocation", "ErrorMotionTarget", "NetworkEstimate", "PaperEstimate", "SharedDeadPathEstimate"}},
+    ("multistation", "rtcal.deliverables.certificate"): {"outputs.py": {"largest"}},
+    ("multistation", "simulators.bench"): {"method.py": {"Bench"}},  # its own simulation on rtcal's bench
+    ("multistation", "simulators.instruments"): {"method.py": {"SimCmm", "SimEnvironmentSensor", "SimLaserTracer",
+                                                               "SimStage"}},
+    ("multistation", "simulators.scenario"): {"method.py": {"AngularHarmonic", "CmmFieldTerm", "EnvironmentScenario",
+                                                            "LinearHarmonic", "SphereLobe"}},  # the Monte Carlo's draws
+    ("multistation", "simulators.truth"): {"method.py": {"station_truth"}},
+    # rtcal plan --optimize's design of CMM points: a command's work (a run's store in, a procedure's YAML out)
+    ("multistation", "rtcal.methods.planner"): {"design.py": {"keep_bench"}},
+    ("multistation", "rtcal.outputs"): {"design.py": {"write_output"}},
+    ("multistation", "rtcal.procedure.yamlfile"): {"design.py": {"load_yaml", "read_text"}},
+    ("multistation", "rtcal.store.runstore"): {"design.py": {"RunStore"}},
+    ("multistation", "rtcal.units"): {"design.py": {"ARCSEC_PER_RAD"}},
+    ("abbe", "drivers"): {"method.py": {"factory"}},
+    ("abbe", "rtcal.results"): {"method.py": {"model"}},
+    ("abbe", "rtcal.results.model"): {"outputs.py": {"AbbeEstimate", "HarmonicTerm", "PeriodicError", "PeriodicTerm"},
+                                      "results.py": {"AbbeEstimate"}},
+    ("abbe", "rtcal.deliverables.certificate"): {"outputs.py": {"largest", "period_text", "smallest"}},
+    ("abbe", "simulators.bench"): {"method.py": {"Bench"}},
+    ("abbe", "simulators.instruments"): {"method.py": {"SimAutocollimator", "SimDialIndicator", "SimEncoder",
+                                                       "SimEnvironmentSensor", "SimStage"}},
+    ("abbe", "simulators.truth"): {"method.py": {"abbe_truth"}},
+}
+
+
+def seed_internal_imports(folder: Path) -> dict[tuple[str, str], dict[str, set[str]]]:
+    """Every import of rtcal, drivers or simulators in a method's folder that is not rtcal.api, rtcal.solvers or the
+    folder itself: (folder, module) → file → names (``import x.y`` counted as module x.y, name ``*``)."""
+    own = f"rtcal.methods.{folder.name}"
+    found: dict[tuple[str, str], dict[str, set[str]]] = {}
+    for path in sorted(folder.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                taken = [(node.module, a.name) for a in node.names]
+            elif isinstance(node, ast.Import):
+                taken = [(a.name, "*") for a in node.names]
+            else:
+                continue
+            for module, name in taken:
+                if module.split(".")[0] not in PROJECT or module == "rtcal.api" or module == "rtcal.solvers" \
+                        or module.startswith(("rtcal.solvers.", own + ".")) or module == own:
+                    continue
+                found.setdefault((folder.name, module), {}).setdefault(path.name, set()).add(name)
+    return found
+
+
+def test_the_seed_methods_take_from_inside_only_what_is_listed():
+    """Issue 41 item 1: the seed folders take rtcal through the face as far as their own solvers and simulation
+    allow; what they still take from inside is the explicit list above, each entry with its reason."""
+    found: dict[tuple[str, str], dict[str, set[str]]] = {}
+    for folder in ("multistation", "abbe"):
+        found.update(seed_internal_imports(REPO / "rtcal" / "methods" / folder))
+    new = []
+    for (f, m), files in sorted(found.items()):
+        for file, names in sorted(files.items()):
+            unlisted = names - SEED_INTERNAL.get((f, m), {}).get(file, set())
+            if unlisted:
+                new.append(f"rtcal/methods/{f}/{file}: from {m} import {', '.join(sorted(unlisted))}")
+    assert not new, ("take these from rtcal.api (add a name to the face where a plugin would need it too), or list "
+                     f"them in SEED_INTERNAL with why (the folder's __init__): {new}")
+    assert found == SEED_INTERNAL, "an import listed in SEED_INTERNAL is gone: take it off the list"
+
+
+def test_the_internal_imports_check_sees_a_new_one(tmp_path):
+    """The check above reads every form of import: one more from inside is found, one through the face is not."""
+    folder = tmp_path / "abbe"
+    folder.mkdir()
+    (folder / "x.py").write_text("from rtcal.api import Move\nfrom rtcal.solvers.abbe import AbbeVisits\n"
+                                 "from rtcal.methods.abbe.plan import AbbePlan\nimport rtcal.engine.walk\n"
+                                 "def f():\n    from rtcal.engine.checks import arrive\n")
+    assert seed_internal_imports(folder) == {("abbe", "rtcal.engine.walk"): {"x.py": {"*"}},
+                                             ("abbe", "rtcal.engine.checks"): {"x.py": {"arrive"}}}
+
+
 def test_the_certificates_roles_moved_into_the_methods():
     from rtcal.methods import METHODS
 

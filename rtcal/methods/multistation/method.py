@@ -15,7 +15,7 @@ import numpy as np
 from drivers import factory
 from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
 from rtcal.methods.multistation.dataset import multistation_data
-from rtcal.api import (EnvironmentSummary, Estimate, Operator, PositioningDeviations, RunReadings, RunResults, Timing,
+from rtcal.api import (EnvironmentSummary, Estimate, Operator, PositioningDeviations, RunReadings, RunResults, Scenario, Timing,
                        address_of, choose_recommended, deviation_block, not_covered, residual_test, run_estimators, walk,
                        with_residual_test)
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
@@ -41,7 +41,7 @@ from simulators.instruments import (
     SimLaserTracer,
     SimStage,
 )
-from simulators.scenario import AngularHarmonic, CmmFieldTerm, EnvironmentScenario, LinearHarmonic, Scenario, SphereLobe
+from simulators.scenario import AngularHarmonic, CmmFieldTerm, EnvironmentScenario, LinearHarmonic, SphereLobe
 from simulators.truth import station_truth
 
 from rtcal.methods.multistation.noise import (AIR_QUANTITIES, DEFAULT_TABLE_EXPANSION_PPM_PER_K, DEFAULT_TABLE_EXPANSION_U_PPM_PER_K,
