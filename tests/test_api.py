@@ -196,6 +196,43 @@ def test_the_internal_imports_check_sees_a_new_one(tmp_path):
                                              ("abbe", "rtcal.engine.checks"): {"x.py": {"arrive"}}}
 
 
+def test_recover_imports_for_one_release_and_says_what_replaced_it():
+    """The sample method of the commit before the method-folder move imported ``Recover`` from rtcal.engine.steps
+    (removed with redo, no plan yields it): the name imports again for one release, its warning naming what replaced
+    it — the instrument's fault policy, which recovers the device before each retry, and a Read's check."""
+    import warnings
+
+    import rtcal.engine.steps as steps
+
+    with pytest.warns(DeprecationWarning, match=r"steps\.Recover was removed: .*fault policy.*recover\(\).*Read's check"):
+        from rtcal.engine.steps import Recover
+    assert Recover("stage").instrument == "stage" and Recover.__name__ == "Recover"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the other names of the module warn of nothing
+        assert steps.Move("stage", 1.0).target == 1.0
+    with pytest.raises(AttributeError, match="no attribute 'Redo'"):
+        steps.Redo  # noqa: B018
+
+
+def test_a_plan_that_yields_the_old_recover_stops_as_failed_naming_the_steps_it_knows():
+    """The stand-in only imports: the engine executes no Recover; a plan that still yields one is a failed run with
+    an event, as any step the engine does not know is (tests/test_plan_contracts.py)."""
+    from rtcal.engine.engine import PlanError
+    from rtcal.procedure.models import FaultPolicy
+    from tests.test_engine import TwoDevicePlan, run_plan
+
+    with pytest.warns(DeprecationWarning):
+        from rtcal.engine.steps import Recover
+
+    class OldPlan(TwoDevicePlan):
+        def attempt(self, entry):
+            yield Recover("stage")
+
+    stored, error, readings, events, stage, engine, docs = run_plan(OldPlan([0.0], FaultPolicy()))
+    assert isinstance(error, PlanError) and "Recover is not a step the engine knows" in str(error)
+    assert engine.state == "failed" and events[-1]["kind"] == "abort"
+
+
 def test_the_certificates_roles_moved_into_the_methods():
     from rtcal.methods import METHODS
 
