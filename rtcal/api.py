@@ -28,7 +28,12 @@ object, registered under the entry-point group ``rtcal.methods`` (``name = "modu
 - ``analyse(proc, store, bench, estimate_noise)``: the readings that count (:class:`RunReadings`'s
   ``counted``) → its :class:`Analysis`, with :func:`run_estimators`, :func:`choose_recommended`,
   :func:`deviation_block` or :func:`quantity_estimate`;
-- ``outputs(results)``: an :class:`OutputsBase` (files, figures, report and certificate sections);
+- ``outputs(results)``: an :class:`OutputsBase` (files, figures, report and certificate sections: numbers
+  rounded as the certificate rounds them, :func:`u_text`, :func:`fmt`, :func:`significant`; figures on rtcal's
+  backend, :data:`plt`, :func:`legend_below`; :func:`status_lines` for estimators that did not converge; the
+  axis's :class:`ErrorMotions` and :class:`MeasuredLocation` for ISO 230-1 outputs);
+- optionally ``planner``: what ``rtcal plan`` may vary (each a :class:`Candidate`; :func:`walk` with a
+  :class:`Timing` is a plan's duration without any instrument);
 - optionally ``recalibration``: a :class:`Recalibration`, how a reference instrument's new calibration
   (:class:`InstrumentCalibration`) enters a run already made (``rtcal catalog reassess``; a part it does not take
   raises :class:`CannotRecalibrate`).
@@ -54,6 +59,7 @@ if TYPE_CHECKING:
     from drivers.errors import TrackingLost as TrackingLost
     from drivers.factory import open_choice as open_choice
     from drivers.factory import open_instrument as open_instrument
+    from drivers.interfaces import DESCRIPTIONS as DESCRIPTIONS
     from drivers.interfaces import Autocollimator as Autocollimator
     from drivers.interfaces import Cmm as Cmm
     from drivers.interfaces import DialIndicator as DialIndicator
@@ -74,12 +80,23 @@ if TYPE_CHECKING:
     from rtcal.compensation import CompensationTable as CompensationTable
     from rtcal.compensation import FormatOption as FormatOption
     from rtcal.compensation import sane as sane
+    from rtcal.compensation.geometry import ErrorMotions as ErrorMotions
+    from rtcal.compensation.geometry import MeasuredLocation as MeasuredLocation
+    from rtcal.compensation.geometry import RAD_PER_ARCSEC as RAD_PER_ARCSEC
     from rtcal.compensation.kinematics import KinematicsOutput as KinematicsOutput
     from rtcal.compensation.kinematics import LocationErrors as LocationErrors
     from rtcal.compensation.kinematics_registry import kinematics_format as kinematics_format
+    from rtcal.deliverables.certificate import status_lines as status_lines
     from rtcal.deliverables.deviations import PositioningDeviations as PositioningDeviations
+    from rtcal.deliverables.figures import legend_below as legend_below
+    from rtcal.deliverables.figures import plt as plt
     from rtcal.deliverables.method_outputs import MethodOutputs as MethodOutputs
     from rtcal.deliverables.method_outputs import OutputsBase as OutputsBase
+    from rtcal.deliverables.rounding import decimals as decimals
+    from rtcal.deliverables.rounding import fmt as fmt
+    from rtcal.deliverables.rounding import round_up as round_up
+    from rtcal.deliverables.rounding import significant as significant
+    from rtcal.deliverables.rounding import u_text as u_text
     from rtcal.engine.checks import Contradiction as Contradiction
     from rtcal.engine.checks import MotionChecks as MotionChecks
     from rtcal.engine.checks import UncommandedMotion as UncommandedMotion
@@ -102,9 +119,12 @@ if TYPE_CHECKING:
     from rtcal.engine.steps import Skipped as Skipped
     from rtcal.engine.steps import Step as Step
     from rtcal.engine.steps import Validate as Validate
+    from rtcal.engine.walk import Timing as Timing
+    from rtcal.engine.walk import walk as walk
     from rtcal.methods.base import Instruments as Instruments
     from rtcal.methods.base import MethodBase as MethodBase
     from rtcal.methods.conditions import environment_read as environment_read
+    from rtcal.methods.conditions import summarise_conditions as summarise_conditions
     from rtcal.methods.cycle import CycleProcedureBase as CycleProcedureBase
     from rtcal.methods.cycle import TargetCycle as TargetCycle
     from rtcal.methods.cycle import Visit as Visit
@@ -113,10 +133,12 @@ if TYPE_CHECKING:
     from rtcal.methods.estimates import choose_recommended as choose_recommended
     from rtcal.methods.estimates import deviation_block as deviation_block
     from rtcal.methods.estimates import finite_or_none as finite_or_none
+    from rtcal.methods.estimates import not_covered as not_covered
     from rtcal.methods.estimates import quantity_estimate as quantity_estimate
     from rtcal.methods.estimates import residual_test as residual_test
     from rtcal.methods.estimates import run_estimators as run_estimators
     from rtcal.methods.estimates import with_residual_test as with_residual_test
+    from rtcal.methods.planner import Candidate as Candidate
     from rtcal.methods.protocol import DataContradiction as DataContradiction
     from rtcal.methods.protocol import InstrumentSet as InstrumentSet
     from rtcal.methods.protocol import Method as Method
@@ -126,12 +148,15 @@ if TYPE_CHECKING:
     from rtcal.methods.recalibration import InstrumentCalibration as InstrumentCalibration
     from rtcal.methods.recalibration import Recalibration as Recalibration
     from rtcal.procedure.models import Acceptance as Acceptance
+    from rtcal.procedure.models import Angle_deg as Angle_deg
+    from rtcal.procedure.models import CmmChoice as CmmChoice
     from rtcal.procedure.models import FaultPolicy as FaultPolicy
     from rtcal.procedure.models import InstrumentChoice as InstrumentChoice
     from rtcal.procedure.models import InstrumentsBase as InstrumentsBase
     from rtcal.procedure.models import ProcedureBase as ProcedureBase
     from rtcal.procedure.models import StageChoice as StageChoice
     from rtcal.procedure.models import StrictModel as StrictModel
+    from rtcal.procedure.models import Vec3 as Vec3
     from rtcal.procedure.models import VerificationBase as VerificationBase
     from rtcal.procedure.models import plan_outside_limits as plan_outside_limits
     from rtcal.procedure.models import plan_size_problem as plan_size_problem
@@ -173,32 +198,39 @@ _WHERE = {
     "drivers.addresses": ("Address",),
     "drivers.errors": ("InstrumentError", "InstrumentFault", "InstrumentTimeout", "TrackingLost"),
     "drivers.factory": ("open_choice", "open_instrument"),
-    "drivers.interfaces": ("Autocollimator", "Cmm", "DialIndicator", "Encoder", "EnvironmentSensor", "FieldDescription",
+    "drivers.interfaces": ("DESCRIPTIONS",
+                           "Autocollimator", "Cmm", "DialIndicator", "Encoder", "EnvironmentSensor", "FieldDescription",
                            "Instrument", "LaserTracer", "LengthReading", "MachineTarget", "MachineTool", "RotaryStage",
                            "Value"),
     "drivers.models": ("Framing",),
     "drivers.serial_line": ("SerialLine",),
     "rtcal.compensation": ("CompensationError", "CompensationFormat", "CompensationTable", "FormatOption", "sane"),
+    "rtcal.compensation.geometry": ("ErrorMotions", "MeasuredLocation", "RAD_PER_ARCSEC"),
     "rtcal.compensation.kinematics": ("KinematicsOutput", "LocationErrors"),
     "rtcal.compensation.kinematics_registry": ("kinematics_format",),
+    "rtcal.deliverables.certificate": ("status_lines",),
     "rtcal.deliverables.deviations": ("PositioningDeviations",),
+    "rtcal.deliverables.figures": ("legend_below", "plt"),
     "rtcal.deliverables.method_outputs": ("MethodOutputs", "OutputsBase"),
+    "rtcal.deliverables.rounding": ("decimals", "fmt", "round_up", "significant", "u_text"),
     "rtcal.engine.checks": ("Contradiction", "MotionChecks", "UncommandedMotion", "arrive", "combined_sigma", "stood_still"),
     "rtcal.engine.operator": ("Operator",),
     "rtcal.engine.plan": ("Attempt", "Entry", "Plan", "PlanBase"),
     "rtcal.engine.steps": ("Move", "OperatorStep", "Parallel", "Read", "ReadSamples", "Reference", "Samples", "Settle",
                            "Skipped", "Step", "Validate"),
+    "rtcal.engine.walk": ("Timing", "walk"),
     "rtcal.methods.base": ("Instruments", "MethodBase"),
-    "rtcal.methods.conditions": ("environment_read",),
+    "rtcal.methods.conditions": ("environment_read", "summarise_conditions"),
     "rtcal.methods.cycle": ("CycleProcedureBase", "TargetCycle", "Visit"),
     "rtcal.methods.estimates": ("COVERAGE_FACTOR", "QuantitySource", "choose_recommended", "deviation_block",
-                                "finite_or_none", "quantity_estimate", "residual_test", "run_estimators",
-                                "with_residual_test"),
+                                "finite_or_none", "not_covered", "quantity_estimate", "residual_test",
+                                "run_estimators", "with_residual_test"),
+    "rtcal.methods.planner": ("Candidate",),
     "rtcal.methods.protocol": ("DataContradiction", "InstrumentSet", "Method", "PreparationError", "address_of"),
     "rtcal.methods.recalibration": ("CannotRecalibrate", "InstrumentCalibration", "Recalibration"),
-    "rtcal.procedure.models": ("Acceptance", "FaultPolicy", "InstrumentChoice", "InstrumentsBase", "ProcedureBase",
-                               "StageChoice", "StrictModel", "VerificationBase", "plan_outside_limits",
-                               "plan_size_problem"),
+    "rtcal.procedure.models": ("Acceptance", "Angle_deg", "CmmChoice", "FaultPolicy", "InstrumentChoice",
+                               "InstrumentsBase", "ProcedureBase", "StageChoice", "StrictModel", "Vec3",
+                               "VerificationBase", "plan_outside_limits", "plan_size_problem"),
     "rtcal.results.model": ("Analysis", "Arcsec", "Count", "Deg", "DeviationBlock", "DeviationTable", "Direction",
                             "EnvironmentSummary", "Estimate", "Mm", "NamedSet", "Number", "QuantityEstimate",
                             "ResidualTest", "ResultsModel", "RunResults", "SigmaArcsec", "SolverStatus", "TargetedEstimate", "Text",

@@ -113,6 +113,126 @@ def test_the_seed_methods_take_from_the_face_what_it_serves():
     assert not around, around
 
 
+# What the seed methods' folders still take from inside rtcal (neither rtcal.api nor rtcal.solvers nor their own
+# folder): (folder, module) → (file, names). Why each stays is in the folder's __init__ docstring; a new one fails
+# test_the_seed_methods_take_from_inside_only_what_is_listed until it comes from the face or is listed with its reason.
+SEED_INTERNAL = {
+    ("multistation", "drivers"): {"method.py": {"factory"}},  # typed openers: limits, volume, tool
+    ("multistation", "rtcal.results"): {"method.py": {"model"}},  # rm: its estimate blocks
+    ("multistation", "rtcal.results.model"): {  # its estimate blocks, in the shared model
+        "outputs.py": {"AXIS_CONVENTION", "NetworkEstimate", "PaperEstimate", "StationChainEstimate"},
+        "results.py": {"AxisLocation", "ErrorMotionTarget", "NetworkEstimate", "PaperEstimate", "SharedDeadPathEstimate"}},
+    ("multistation", "rtcal.deliverables.certificate"): {"outputs.py": {"largest"}},
+    ("multistation", "simulators.bench"): {"method.py": {"Bench"}},  # its own simulation on rtcal's bench
+    ("multistation", "simulators.instruments"): {"method.py": {"SimCmm", "SimEnvironmentSensor", "SimLaserTracer",
+                                                               "SimStage"}},
+    ("multistation", "simulators.scenario"): {"method.py": {"AngularHarmonic", "CmmFieldTerm", "EnvironmentScenario",
+                                                            "LinearHarmonic", "SphereLobe"}},  # the Monte Carlo's draws
+    ("multistation", "simulators.truth"): {"method.py": {"station_truth"}},
+    # rtcal plan --optimize's design of CMM points: a command's work (a run's store in, a procedure's YAML out)
+    ("multistation", "rtcal.methods.planner"): {"design.py": {"keep_bench"}},
+    ("multistation", "rtcal.outputs"): {"design.py": {"write_output"}},
+    ("multistation", "rtcal.procedure.yamlfile"): {"design.py": {"load_yaml", "read_text"}},
+    ("multistation", "rtcal.store.runstore"): {"design.py": {"RunStore"}},
+    ("multistation", "rtcal.units"): {"design.py": {"ARCSEC_PER_RAD"}},
+    ("abbe", "drivers"): {"method.py": {"factory"}},
+    ("abbe", "rtcal.results"): {"method.py": {"model"}},
+    ("abbe", "rtcal.results.model"): {"outputs.py": {"AbbeEstimate", "HarmonicTerm", "PeriodicError", "PeriodicTerm"},
+                                      "results.py": {"AbbeEstimate"}},
+    ("abbe", "rtcal.deliverables.certificate"): {"outputs.py": {"largest", "period_text", "smallest"}},
+    ("abbe", "simulators.bench"): {"method.py": {"Bench"}},
+    ("abbe", "simulators.instruments"): {"method.py": {"SimAutocollimator", "SimDialIndicator", "SimEncoder",
+                                                       "SimEnvironmentSensor", "SimStage"}},
+    ("abbe", "simulators.truth"): {"method.py": {"abbe_truth"}},
+}
+
+
+def seed_internal_imports(folder: Path) -> dict[tuple[str, str], dict[str, set[str]]]:
+    """Every import of rtcal, drivers or simulators in a method's folder that is not rtcal.api, rtcal.solvers or the
+    folder itself: (folder, module) → file → names (``import x.y`` counted as module x.y, name ``*``)."""
+    own = f"rtcal.methods.{folder.name}"
+    found: dict[tuple[str, str], dict[str, set[str]]] = {}
+    for path in sorted(folder.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                taken = [(node.module, a.name) for a in node.names]
+            elif isinstance(node, ast.Import):
+                taken = [(a.name, "*") for a in node.names]
+            else:
+                continue
+            for module, name in taken:
+                if module.split(".")[0] not in PROJECT or module == "rtcal.api" or module == "rtcal.solvers" \
+                        or module.startswith(("rtcal.solvers.", own + ".")) or module == own:
+                    continue
+                found.setdefault((folder.name, module), {}).setdefault(path.name, set()).add(name)
+    return found
+
+
+def test_the_seed_methods_take_from_inside_only_what_is_listed():
+    """Issue 41 item 1: the seed folders take rtcal through the face as far as their own solvers and simulation
+    allow; what they still take from inside is the explicit list above, each entry with its reason."""
+    found: dict[tuple[str, str], dict[str, set[str]]] = {}
+    for folder in ("multistation", "abbe"):
+        found.update(seed_internal_imports(REPO / "rtcal" / "methods" / folder))
+    new = []
+    for (f, m), files in sorted(found.items()):
+        for file, names in sorted(files.items()):
+            unlisted = names - SEED_INTERNAL.get((f, m), {}).get(file, set())
+            if unlisted:
+                new.append(f"rtcal/methods/{f}/{file}: from {m} import {', '.join(sorted(unlisted))}")
+    assert not new, ("take these from rtcal.api (add a name to the face where a plugin would need it too), or list "
+                     f"them in SEED_INTERNAL with why (the folder's __init__): {new}")
+    assert found == SEED_INTERNAL, "an import listed in SEED_INTERNAL is gone: take it off the list"
+
+
+def test_the_internal_imports_check_sees_a_new_one(tmp_path):
+    """The check above reads every form of import: one more from inside is found, one through the face is not."""
+    folder = tmp_path / "abbe"
+    folder.mkdir()
+    (folder / "x.py").write_text("from rtcal.api import Move\nfrom rtcal.solvers.abbe import AbbeVisits\n"
+                                 "from rtcal.methods.abbe.plan import AbbePlan\nimport rtcal.engine.walk\n"
+                                 "def f():\n    from rtcal.engine.checks import arrive\n")
+    assert seed_internal_imports(folder) == {("abbe", "rtcal.engine.walk"): {"x.py": {"*"}},
+                                             ("abbe", "rtcal.engine.checks"): {"x.py": {"arrive"}}}
+
+
+def test_recover_imports_for_one_release_and_says_what_replaced_it():
+    """The sample method of the commit before the method-folder move imported ``Recover`` from rtcal.engine.steps
+    (removed with redo, no plan yields it): the name imports again for one release, its warning naming what replaced
+    it — the instrument's fault policy, which recovers the device before each retry, and a Read's check."""
+    import warnings
+
+    import rtcal.engine.steps as steps
+
+    with pytest.warns(DeprecationWarning, match=r"steps\.Recover was removed: .*fault policy.*recover\(\).*Read's check"):
+        from rtcal.engine.steps import Recover
+    assert Recover("stage").instrument == "stage" and Recover.__name__ == "Recover"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the other names of the module warn of nothing
+        assert steps.Move("stage", 1.0).target == 1.0
+    with pytest.raises(AttributeError, match="no attribute 'Redo'"):
+        steps.Redo  # noqa: B018
+
+
+def test_a_plan_that_yields_the_old_recover_stops_as_failed_naming_the_steps_it_knows():
+    """The stand-in only imports: the engine executes no Recover; a plan that still yields one is a failed run with
+    an event, as any step the engine does not know is (tests/test_plan_contracts.py)."""
+    from rtcal.engine.engine import PlanError
+    from rtcal.procedure.models import FaultPolicy
+    from tests.test_engine import TwoDevicePlan, run_plan
+
+    with pytest.warns(DeprecationWarning):
+        from rtcal.engine.steps import Recover
+
+    class OldPlan(TwoDevicePlan):
+        def attempt(self, entry):
+            yield Recover("stage")
+
+    stored, error, readings, events, stage, engine, docs = run_plan(OldPlan([0.0], FaultPolicy()))
+    assert isinstance(error, PlanError) and "Recover is not a step the engine knows" in str(error)
+    assert engine.state == "failed" and events[-1]["kind"] == "abort"
+
+
 def test_the_certificates_roles_moved_into_the_methods():
     from rtcal.methods import METHODS
 

@@ -249,3 +249,36 @@ def test_each_certificate_its_own_number(iso_run):
     with pytest.raises(SystemExit) as refused:
         main(["run", str(ISO), "--out", str(first.parent / "bad"), "--certificate-number", "EML\u202e-1"])
     assert refused.value.code == 2 and not (first.parent / "bad").exists()
+
+
+def _measured(results, start: str, end: str, clock: str):
+    return results.model_copy(update={"started_utc": start, "finished_utc": end, "clock": clock})
+
+
+def test_overlapping_measurement_periods_are_no_as_found_as_left_pair(iso_run, tmp_path, monkeypatch, capsys):
+    """Issue 46 item 9: two runs whose measurement periods overlap were printed as an as-found / as-left pair.
+    Two real measurements that overlap (or come in the other order) are refused before anything is written;
+    simulated ones (virtual clocks) are said to overlap, on the certificate's page 1 and on the console."""
+    import rtcal.cli.results as cli_results
+    from rtcal.deliverables.as_found import NotAPair, periods_overlap
+
+    out, _ = iso_run
+    run = read_results(out)
+    labels = ("runs/a", "runs/b")
+    found = _measured(run, "2026-03-02T08:00:00+00:00", "2026-03-02T11:00:00+00:00", "real")
+    assert periods_overlap(found, _measured(run, "2026-03-02T12:00:00+00:00", "2026-03-02T15:00:00+00:00", "real"),
+                           labels) == ""  # one after the other: a pair
+    for left in (_measured(run, "2026-03-02T10:00:00+00:00", "2026-03-02T13:00:00+00:00", "real"),
+                 _measured(run, "2026-03-01T08:00:00+00:00", "2026-03-01T11:00:00+00:00", "real")):
+        with pytest.raises(NotAPair):
+            periods_overlap(found, left, labels)
+        table = cli_results.read_deviation_table(str(out))[0]
+        monkeypatch.setattr(cli_results, "read_deviation_table", lambda p, left=left: (table, found if p == "A" else left))
+        code, printed, err = _run(["compare", "A", "B", "--certificate", "--out", str(tmp_path / "refused")])
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "as-found / as-left pair" in err, err
+        assert not (tmp_path / "refused").exists()
+    monkeypatch.undo()
+    code, printed, err = _run(["compare", str(out), str(out), "--certificate", "--out", str(tmp_path / "simulated")])
+    assert code == 0 and "measurement periods" in err
+    page1 = _flat(pymupdf.open(tmp_path / "simulated" / "as_found_as_left.pdf")[0].get_text())
+    assert "Note: The measurement periods are not those of an as-found / as-left pair" in page1

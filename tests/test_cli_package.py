@@ -98,7 +98,7 @@ def test_the_uncertainty_summary_is_what_the_trials_give(tmp_path):
     assert summary.systematics == systematics_text(True, True) and "balanced" in summary.systematics
     assert systematics_text(False, False) == "fixed as in the scenario"
     data = json.loads(summary.to_json())
-    assert list(data) == ["trials", "failed_trials", "targets", "estimators", "recommended", "procedure", "bench", "seed",
+    assert list(data) == ["trials", "failed_trials", "targets", "estimators", "recommended", "recommended_estimate", "procedure", "bench", "seed",
                           "systematics"]
     jsonschema.validate(data, json.loads(uncertainty_schema()))
     assert UncertaintySummary.model_validate(data) == summary

@@ -362,7 +362,8 @@ def test_console_progress_writes_a_line_every_10_percent_or_60_s_in_a_log():
         progress("done", {"done": k, "faults": 1 if k > 30 else 0, "t_s": 10.0 * k})
     progress("stop", {"state": "measured"})
     lines = stream.getvalue().splitlines()
-    assert lines[0].startswith("rtcal: readings 2/40 (5 %) · target 30°, run 1, direction ↑ · about 6:20 left · 0 faults")
+    assert lines[0].startswith("rtcal: readings 2/40 (5 %) · target 30°, run 1, direction ↑ · about 6:20 left, ends about ")
+    assert lines[0].endswith(" · 0 faults")
     assert [line.split()[2] for line in lines[1:]] == [f"{4 * k}/40" for k in range(1, 11)]
     assert lines[-1].endswith("· 1 fault") and "left" in lines[-2]
     simulated = ConsoleProgress(io.StringIO(), bar=False, virtual_clock=True)  # the bench's time, not the wall's

@@ -11,6 +11,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import re
 import time
 import urllib.request
 from pathlib import Path
@@ -159,7 +160,8 @@ def test_the_finished_page_of_24_targets(tmp_path):
             age = page.eval_on_selector_all("#latest th", "ths => ths[ths.length - 1].getBoundingClientRect().right")
             card = page.eval_on_selector("#latest-card", "e => e.getBoundingClientRect().right")
             assert age <= card <= 1300
-            assert page.inner_text("#result-headline").startswith("Positioning error of the axis E = ")
+            assert re.match(r"Bidirectional systematic positional deviation E = \d+\.\d+″ \(U \d",
+                            page.inner_text("#result-headline")), page.inner_text("#result-headline")
             assert not page.is_visible("#result-lines")  # the console's lines are one click away
             page.click("#result-details summary")
             assert "positioning deviation" in page.inner_text("#result-lines")

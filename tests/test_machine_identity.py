@@ -108,3 +108,17 @@ def test_sim_serve_opcua_serves_the_identity():
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(30)
+
+
+def test_the_refusal_names_the_line_of_metadata_machine_identity(machine, tmp_path, capsys):
+    """Issue 46 item 9: the line was that of the first text naming machine_identity (a comment above it, here)
+    and, with --certificate-number, of the text rtcal had rewritten; it is the key's own line in the user's file."""
+    path = _procedure(tmp_path, machine.address, "SIM-230-2")
+    text = "# metadata.machine_identity: the machine's nameplate, read over OPC UA\n" + path.read_text()
+    path.write_text(text)
+    line = next(i for i, t in enumerate(text.splitlines(), 1) if t.startswith("  machine_identity:"))
+    assert line > 2
+    for extra in ([], ["--certificate-number", "EML-1"]):
+        assert main(["run", str(path), "--virtual-clock", "--out", str(tmp_path / "run"), *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith(f"{path}:{line}:") and "metadata.machine_identity" in err, err

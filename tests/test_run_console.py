@@ -35,3 +35,14 @@ def test_faults_and_conditions_are_summarised(tmp_path, capsys):
     assert r.environment is not None and r.environment.air_temperature_c is not None
     report = (out / "report.md").read_text()
     assert "faults: 18" in report and "air temperature" in report
+
+
+def test_execute_reads_in_one_screen():
+    """Issue 46 item 9: `rtcal/cli/run.py:_execute` was 85 lines (the run, every way it ends, the console's
+    outcome); it is split into named helpers, each under 60 lines (its behaviour: the tests above and
+    tests/test_live_end.py, test_live_run.py, test_crash_resume.py)."""
+    import ast
+
+    tree = ast.parse((REPO / "rtcal" / "cli" / "run.py").read_text(encoding="utf-8"))
+    lengths = {n.name: n.end_lineno - n.lineno + 1 for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+    assert lengths["_execute"] < 60, lengths["_execute"]

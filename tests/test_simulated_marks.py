@@ -178,3 +178,22 @@ def test_catalog_add_refuses_a_simulated_run_unless_allowed_and_every_listing_th
     assert "SIMULATED" in entry["marks"] and entry["simulated"].startswith("SIMULATED")
     page = _page(db, "SIM-230-2")
     assert page.count('<td class="marks">SIMULATED') == 2  # the fleet's row and the history's
+
+
+def test_a_rehearsal_nobody_can_confirm_is_refused_before_its_run_folder_is_made(tmp_path, capsys):
+    """Issue 46 item 9: `--rehearse` without a terminal (pytest's stdin is none) and without --live made the run
+    folder and failed at the first operator step; it is refused first (exit 2, one line), for a resume too."""
+    with SimulatorHub(_scenario(), seed=1) as hub:
+        instruments = json.dumps(dict(hub.addresses))
+        assert main(["run", str(_fast_iso(tmp_path)), "--instruments", instruments, "--virtual-clock",
+                     "--out", str(tmp_path / "run"), "--rehearse"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--rehearse" in err and "--live" in err and "terminal" in err, err
+        assert not (tmp_path / "run").exists()
+        assert main(["run", str(_fast_iso(tmp_path)), "--instruments", instruments, "--virtual-clock",
+                     "--out", str(tmp_path / "run")]) == 0
+        before = (tmp_path / "run" / "run.sqlite").read_bytes()
+        capsys.readouterr()
+        assert main(["resume", str(tmp_path / "run"), "--instruments", instruments, "--rehearse"]) == 2
+        assert "--live" in capsys.readouterr().err
+        assert (tmp_path / "run" / "run.sqlite").read_bytes() == before

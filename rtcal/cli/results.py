@@ -126,6 +126,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     result = compare(a, b, (run_label(args.run_a), run_label(args.run_b)))
     if result["targets_compared"] == 0:
         raise UserError(f"{args.run_a} and {args.run_b} share no target and direction: nothing to compare")
+    if args.certificate:
+        _as_found_pair(a[1], b[1], (result["a"], result["b"]))  # refused before anything is written
     out = Path(args.out) if args.out else Path(".")  # the current directory: never inside either run
     make_folder(out, "--out")
     with output_file(out / "compare.png") as png:
@@ -195,6 +197,20 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 
+def _as_found_pair(found: RunResults | None, left: RunResults | None, labels: tuple[str, str]) -> None:
+    """Two runs that can be as found and as left (UserError if not), with a warning when simulated periods overlap."""
+    from rtcal.deliverables.as_found import NotAPair, periods_overlap
+
+    if found is None or left is None:
+        raise UserError("--certificate: give two run directories (a certificate needs their results.json, not a CSV)")
+    try:
+        overlap = periods_overlap(found, left, labels)
+    except NotAPair as exc:
+        raise UserError(f"--certificate: {exc}") from None
+    if overlap:  # simulated: said on the certificate, and here
+        print(f"rtcal: warning: {overlap}", file=sys.stderr)
+
+
 def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, left: RunResults | None,
                           result: dict[str, Any], out: Path) -> str:
     """``compare --certificate``: the as-found / as-left certificate of two run directories."""
@@ -202,8 +218,8 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
     from rtcal.deliverables.certificate import write_certificate_json
     from rtcal.deliverables.report import write_html, write_pdf
 
-    if found is None or left is None:
-        raise UserError("--certificate: give two run directories (a certificate needs their results.json, not a CSV)")
+    assert found is not None and left is not None  # cmd_compare checked the pair (_as_found_pair)
+    labels = (result["a"], result["b"])
     if args.certificate_number is not None:  # a document of its own: its own number
         left = left.model_copy(update={"metadata": left.metadata.model_copy(update={
             "certificate_number": args.certificate_number})})
@@ -212,7 +228,7 @@ def _as_found_certificate(args: argparse.Namespace, found: RunResults | None, le
               f"{left.metadata.certificate_number}: give it its own (--certificate-number NUMBER)", file=sys.stderr)
     from rtcal.methods import METHODS
 
-    model = as_found_as_left_model(found, left, result, out, "compare.png", (result["a"], result["b"]), METHODS[left.method])
+    model = as_found_as_left_model(found, left, result, out, "compare.png", labels, METHODS[left.method])
     with output_file(out / "as_found_as_left.pdf") as pdf:
         write_pdf(model, pdf)
     with output_file(out / "as_found_as_left.html") as html:

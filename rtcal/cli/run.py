@@ -50,46 +50,47 @@ def out_of_descriptors(exc: BaseException) -> bool:
 def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = None) -> int:
     """Run or resume; print the outcome, or what went wrong and how to go on (``instruments``: the
     --instruments text given, for the resume command)."""
-    from rtcal.methods import METHODS
-    from rtcal.deliverables.report import console_lines
     from rtcal.methods.protocol import PreparationError
     from rtcal.results import ResultsError
     from rtcal.run.rundir import RunDirError
     from rtcal.engine.engine import PlanError
     from rtcal.engine.signals import routed
-    from rtcal.run.runner import IDEAL_BENCH, AnalysisFailed
+    from rtcal.run.runner import AnalysisFailed
 
     try:
         with routed():  # `kill`, SIGHUP (a closed SSH session), SIGQUIT …: each stops like Ctrl-C, status recorded
             outcome = start()
     except (FileExistsError, PreparationError, RunDirError, ResultsError, OutputRefused) as exc:
         raise UserError(str(exc)) from None
-    except AnalysisFailed as exc:
+    except (AnalysisFailed, PlanError, InstrumentError, OSError, KeyboardInterrupt) as exc:
+        code = _ended_without_results(exc, run_dir, instruments)
+        if code is None:  # not one a run ends with: the traceback is the report
+            raise
+        return code
+    _print_outcome(outcome, run_dir)
+    return _exit_code(outcome.results)
+
+
+def _ended_without_results(exc: BaseException, run_dir: str, instruments: str | None) -> int | None:
+    """What a run that ended without results says, and its exit code (None: an error no run ends with)."""
+    from rtcal.engine.engine import PlanError
+    from rtcal.run.runner import AnalysisFailed
+
+    if isinstance(exc, AnalysisFailed):
         print(f"rtcal: {redact_tokens(str(exc))}", file=sys.stderr)
         return EXIT_FAILED
-    except PlanError as exc:  # the method's mistake: the run stopped safely, `failed`, with an event saying it
+    if isinstance(exc, PlanError):  # the method's mistake: the run stopped safely, `failed`, with an event saying it
         print(f"rtcal: the method's plan cannot be carried out: {redact_tokens(str(exc))}; every reading taken is in "
               f"{run_dir}; the run's method must be fixed before it can go on", file=sys.stderr)
         return EXIT_FAILED
-    except InstrumentError as exc:
+    if isinstance(exc, InstrumentError):
         print(f"rtcal: instrument error: {redact_tokens(str(exc))}", file=sys.stderr)
         _say_still_moving(exc)
         print(f"rtcal: {_how_to_go_on(run_dir, instruments, instruments_failed=True)}", file=sys.stderr)
         return EXIT_FAILED
-    except OSError as exc:
-        if out_of_descriptors(exc):
-            print(f"rtcal: this process ran out of file descriptors ({exc.strerror or exc}): close what holds them "
-                  "(`ulimit -n` is the limit)", file=sys.stderr)
-            print(f"rtcal: {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
-            return EXIT_FAILED
-        if not is_disk_failure(exc):
-            raise
-        print(disk_failure(exc, run_dir), file=sys.stderr)
-        for note in getattr(exc, "__notes__", ()):
-            print(f"rtcal: {note}", file=sys.stderr)
-        print(f"rtcal: {_how_to_go_on(run_dir, instruments)} once there is space", file=sys.stderr)
-        return EXIT_FAILED
-    except KeyboardInterrupt as exc:  # Ctrl-C, a signal, an abort from the page or `rtcal control`
+    if isinstance(exc, OSError):
+        return _computer_failed(exc, run_dir, instruments)
+    if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, a signal, an abort from the page or `rtcal control`
         why = str(exc) if str(exc).startswith(("interrupted by", "aborted by")) else "interrupted"
         try:  # after SIGHUP the terminal may be gone: the status is recorded, the exit code still says it
             print(f"\nrtcal: {why}; {_how_to_go_on(run_dir, instruments)}",
@@ -98,6 +99,32 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         except OSError:
             pass
         return EXIT_INTERRUPTED
+    return None
+
+
+def _computer_failed(exc: OSError, run_dir: str, instruments: str | None) -> int | None:
+    """Out of file descriptors or of disk space: the computer's fault, said with how to go on (None: another OSError)."""
+    if out_of_descriptors(exc):
+        print(f"rtcal: this process ran out of file descriptors ({exc.strerror or exc}): close what holds them "
+              "(`ulimit -n` is the limit)", file=sys.stderr)
+        print(f"rtcal: {_how_to_go_on(run_dir, instruments)}", file=sys.stderr)
+        return EXIT_FAILED
+    if not is_disk_failure(exc):
+        return None
+    print(disk_failure(exc, run_dir), file=sys.stderr)
+    for note in getattr(exc, "__notes__", ()):
+        print(f"rtcal: {note}", file=sys.stderr)
+    print(f"rtcal: {_how_to_go_on(run_dir, instruments)} once there is space", file=sys.stderr)
+    return EXIT_FAILED
+
+
+def _print_outcome(outcome: Any, run_dir: str) -> None:
+    """A finished run's console: what was taken, the summary, the files, and what it is (simulated, signed)."""
+    from rtcal.methods import METHODS
+    from rtcal.deliverables.certificate import marking, signature_line
+    from rtcal.deliverables.report import console_lines
+    from rtcal.run.runner import IDEAL_BENCH
+
     results = outcome.results
     if outcome.finished:
         print(f"run already finished: {run_dir} was measured and solved ({results.raw_readings} planned readings, "
@@ -112,14 +139,16 @@ def _execute(start: Callable[[], Any], run_dir: str, instruments: str | None = N
         print(line)
     files = ", ".join(sorted(p.name for p in outcome.run_dir.iterdir() if not p.name.startswith((".", "run.sqlite-"))))
     print(f"results in {outcome.run_dir}/ ({files})")
-    from rtcal.deliverables.certificate import marking, signature_line
-
     if marking(results):  # a run that calibrated nothing says so last, where the eye lands
         print(marking(results))
     print(signature_line(results))
     for other in certificates_numbered_alike(outcome.run_dir):
         print(f"rtcal: warning: {other} carries the same certificate number: give each certificate its own "
               "(`rtcal run --certificate-number NUMBER`, or metadata.certificate_number)", file=sys.stderr)
+
+
+def _exit_code(results: Any) -> int:
+    """0, or EXIT_NOT_CONVERGED (said on stderr) when the recommended estimator did not converge."""
     rec = results.recommended
     status = results.solver_status.get(rec) if rec else None
     if rec and status is not None and status.status != "converged":

@@ -6,10 +6,16 @@ budget) with the results replaced by both runs': per target and direction the de
 and as left, their difference and U_c = 2·√(u_A² + u_B²) (the runs are independent
 measurements), and the ISO 230-2 parameters of both with their U. The same renderers as every
 certificate write it (:func:`rtcal.deliverables.report.write_pdf`, ``write_html``).
+
+The as-left run is measured after the as-found run has ended (the adjustment lies between): two real
+measurements whose periods overlap, or that come in the other order, are no such pair and are refused
+(:class:`NotAPair`); on a virtual clock (a simulation: its period is the one it stands for, not when it
+ran) the certificate says that the periods overlap.
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +29,39 @@ from rtcal.results.model import RunResults
 BRIEF = ("E", "M", "B", "R", "A")
 
 
+class NotAPair(ValueError):
+    """Two real measurements that cannot be as found and as left: their periods overlap or come in the other order."""
+
+
+def _utc(stamp: str | None) -> _dt.datetime | None:
+    if not stamp:
+        return None
+    try:
+        when = _dt.datetime.fromisoformat(stamp)
+    except ValueError:
+        return None
+    return when if when.tzinfo is not None else when.replace(tzinfo=_dt.timezone.utc)
+
+
+def periods_overlap(found: RunResults, left: RunResults, labels: tuple[str, str]) -> str:
+    """"" when the as-left measurement began after the as-found one ended (or a period is unknown); else
+    what is wrong, in a sentence. Two real-clock measurements that are no pair raise :class:`NotAPair`."""
+    a0, a1, b0, b1 = (_utc(t) for t in (found.started_utc, found.finished_utc, left.started_utc, left.finished_utc))
+    if a0 is None or a1 is None or b0 is None or b1 is None or b0 >= a1:
+        return ""
+    periods = (f"as found ({labels[0]}) measured {measurement_dates(found)}, as left ({labels[1]}) "
+               f"{measurement_dates(left)}")
+    order = ("the as-left measurement ended before the as-found one began" if b1 <= a0 else
+             "the two measurement periods overlap")
+    if found.clock != "virtual" and left.clock != "virtual":
+        give = " (give the as-found run first)" if b1 <= a0 else ""
+        raise NotAPair(f"{periods}: {order}, so they cannot be an as-found / as-left pair: the as-left run is measured "
+                       f"after the as-found run has ended, the adjustment between{give}")
+    return (f"The measurement periods are not those of an as-found / as-left pair ({order}: {periods}). A simulated "
+            "measurement's period is the one it stands for on its virtual clock, not when it ran: these two runs "
+            "show how the certificate reads, not an adjustment between two measurements.")
+
+
 def _value(v: float | None, u: float | None) -> str:
     return "–" if v is None else value_text(v, u) + "″"
 
@@ -32,6 +71,7 @@ def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict
     """The certificate: the as-left run's (of ``method``), its results replaced by both runs' side by side."""
     caption = ("mean positioning deviation per target and direction as found (A) and as left (B), each with its U band "
                "(k = 2).")
+    overlap = periods_overlap(found, left, labels)  # NotAPair: two real measurements that cannot be one
     cert = build_certificate(left, out_dir, method, [(figure, caption)])
     identification = []
     for item in cert.identification.items:
@@ -77,7 +117,8 @@ def as_found_as_left_model(found: RunResults, left: RunResults, comparison: dict
             "footer": cert.header.footer if cert.header.marking or not marks
             else f"{marks[0].partition(':')[0]} · {cert.header.footer}"}),
         "sign_off": cert.sign_off.model_copy(update={"electronic_signature": signed}),
-        "identification": cert.identification.model_copy(update={"items": identification}),
+        "identification": cert.identification.model_copy(update={
+            "items": identification, "notes": ([overlap] if overlap else []) + list(cert.identification.notes)}),
         "result_in_brief": cert.result_in_brief.model_copy(update={"rows": [
             KeyResult(quantity="change of the deviation per target and direction (as left − as found)",
                       value_arcsec=f"{changed} of {compared} beyond U_c", expanded_uncertainty_arcsec="U_c: page 2")] + brief}),

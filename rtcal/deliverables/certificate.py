@@ -1010,20 +1010,34 @@ SECTION_BUILDERS: list[tuple[str, Callable[[Sources], Any]]] = [
 ]
 
 
+def _sources(results: RunResults, run_dir: Path, method: CertifiedMethod,
+             figures: list[tuple[str, str]] | None = None) -> Sources:
+    outputs = method.outputs(results)
+    meta = results.metadata
+    return Sources(results=results, run_dir=run_dir, method=method, outputs=outputs,
+                   figures=list(outputs.certificate_figures() if figures is None else figures),
+                   issued=meta.date_of_issue or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"),
+                   missing=[what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)],
+                   departed=iso_departures(results))
+
+
 def build_certificate(results: RunResults, run_dir: Path, method: CertifiedMethod,
                       figures: list[tuple[str, str]] | None = None) -> Certificate:
     """The document, once, from the results, their metadata and the ``method`` they are of; ``figures``
     (file, caption) default to the method's own, shown only when the file is in ``run_dir``."""
-    outputs = method.outputs(results)
-    meta = results.metadata
-    sources = Sources(results=results, run_dir=run_dir, method=method, outputs=outputs,
-                      figures=list(outputs.certificate_figures() if figures is None else figures),
-                      issued=meta.date_of_issue or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"),
-                      missing=[what for key, what in CERTIFICATE_NEEDS if not getattr(meta, key)],
-                      departed=iso_departures(results))
+    sources = _sources(results, run_dir, method, figures)
     certificate = Certificate(**{name: build(sources) for name, build in SECTION_BUILDERS})
     certificate._figures_dir = run_dir
     return certificate
+
+
+def certificate_sections(results: RunResults, run_dir: Path, method: CertifiedMethod, names: tuple[str, ...]) -> dict[str, Any]:
+    """Some of the certificate's sections (``names``: header, result_in_brief, …), built by the builders
+    :func:`build_certificate` uses: what another view of the run (the live page) shows, in the same words
+    and rounded numbers."""
+    sources = _sources(results, run_dir, method)
+    builders = dict(SECTION_BUILDERS)
+    return {name: builders[name](sources) for name in names}
 
 
 def write_certificate_json(certificate: Certificate, path: Path) -> Path:

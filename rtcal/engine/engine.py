@@ -33,7 +33,8 @@ Written once here, for every method:
   stopped" only when each was seen at rest.
 
 Documents (``subscriber(name, doc)``, called in the engine's thread, in order): ``start``,
-``state``, ``attempt``, ``readings``, ``event``, ``operator``, ``done``, ``stop``. The store writer, the console
+``state``, ``attempt``, ``readings``, ``event``, ``operator_step`` (an operator step begins: its stated
+``seconds``), ``operator``, ``done``, ``stop``. The store writer, the console
 progress and the live view are subscribers (:mod:`rtcal.engine.subscribers`).
 """
 
@@ -500,6 +501,7 @@ class Engine:
                          step.why, context, readings)
             return True
         if isinstance(step, OperatorStep):  # logged once done ("polygon seated at …"), not when asked
+            self.emit("operator_step", seconds=step.seconds, t_s=self.clock.now_s())  # the time left stops counting it
             self.operator.perform(step)
             self._event("operator", step.instrument, step.message)
             self._spend(step.seconds)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Union
 
 from drivers.errors import InstrumentError
+from rtcal.moved import moved
 
 
 class Skipped(Exception):
@@ -163,3 +164,20 @@ class OperatorStep:
 
 
 Step = Union[Validate, Move, Parallel, Settle, Read, ReadSamples, Reference, OperatorStep]
+
+
+@dataclass(frozen=True)
+class _RemovedRecover:
+    """What ``Recover(instrument)`` was — "reset what a device latched" as a plan's step —, importable for one
+    release so that a plan written for it still imports. The engine executes no such step (a plan that yields one
+    stops as failed, naming the steps it knows): the instrument's fault policy resets the device itself."""
+
+    instrument: str
+
+
+_RemovedRecover.__name__ = _RemovedRecover.__qualname__ = "Recover"
+
+__getattr__ = moved(__name__, {}, removed={"Recover": (
+    _RemovedRecover, "the engine resets a device itself — a Move or Read that faults is retried under the "
+    "instrument's fault policy (the procedure's on_fault), which calls the device's recover() before each retry, and "
+    "a Read's check rejects a reading that contradicts the command, which the policy retakes; a plan yields no Recover")})

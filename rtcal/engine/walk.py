@@ -52,6 +52,9 @@ class PlanWalk:
     entry_s: dict[int, tuple[float, float]] = field(default_factory=dict)
     """Per plan entry walked: (seconds, of which an operator's stated steps) it adds to the run, the steps
     before it since the last entry (a set-up, a re-seat) and, for the last, the steps after it counted in."""
+    entry_motion_s: dict[int, float] = field(default_factory=dict)
+    """… and of those seconds the motions' (at the timing's speeds, the walk's guess; settles and samples are
+    the procedure's own): the time left fits the two paces apart."""
 
 
 class Motion:
@@ -183,7 +186,7 @@ def walk(plan: Plan, timing: Timing, done: Iterable[int] = (), listing: bool = F
     group: int | None = None
     first = True
     w = walker.walk
-    mark = (0.0, 0.0)
+    mark = (0.0, 0.0, 0.0)
     last: int | None = None
     for entry in plan.entries:
         if entry.index in done:
@@ -196,10 +199,12 @@ def walk(plan: Plan, timing: Timing, done: Iterable[int] = (), listing: bool = F
         walker.drive(plan.attempt(entry))
         w.planned_readings += 1
         w.entry_s[entry.index] = (w.duration_s - mark[0], w.operator_s - mark[1])
-        mark, last = (w.duration_s, w.operator_s), entry.index
+        w.entry_motion_s[entry.index] = w.motion_s - mark[2]
+        mark, last = (w.duration_s, w.operator_s, w.motion_s), entry.index
     if group is not None:
         walker.leave(plan, group)
     if last is not None:  # what follows the last entry is the last entry's to finish
         total, operator = w.entry_s[last]
         w.entry_s[last] = (total + w.duration_s - mark[0], operator + w.operator_s - mark[1])
+        w.entry_motion_s[last] += w.motion_s - mark[2]
     return w

@@ -41,6 +41,7 @@ READING_FIELDS = ("id", "t_s", "instrument", "quantity", "value", "unit", "plan_
                   "commanded_angle_deg", "station", "point", "seating", "sample")
 EVENT_FIELDS = ("id", "t_s", "kind", "instrument", "message")
 RATE_WINDOW = 50  # completions the rate (and so the ETA) is taken from
+MARKING_KEYS = ("seed", "simulators", "operator_address", "machine_identity", "rehearsed")  # what the marking reads
 _MARKS = ", ".join(f"'{m}'" for m in MARKERS)
 
 
@@ -172,6 +173,7 @@ class StoreView:
         self._planned_cache: tuple[str, int | None] | None = None
         self._result_cache: tuple[tuple[int, int], dict[str, Any] | None] | None = None
         self._result_stamp: tuple[int, int] | None = None
+        self._marking_cache: tuple[str, str] | None = None
 
     # -- connections ------------------------------------------------------------------------
     def _connect(self) -> sqlite3.Connection | None:
@@ -198,6 +200,7 @@ class StoreView:
 
     def _empty_state(self, note: str) -> dict[str, Any]:
         return {"state": "starting", "method": None, "planned_readings": None, "done_readings": 0, "eta_s": None,
+                "clock": "real", "ends_utc": None, "solving_s": None, "marking": "",
                 "faults": 0, "current": {}, "name": None, "last_reading_id": 0, "latest": [], "progress": None,
                 "events_count": 0, "result": None, "note": note, "operator": None}
 
@@ -220,12 +223,22 @@ class StoreView:
         state = engine_state(meta)
         planned = self._planned(meta)
         done = acc.done
+        operator = operator_of(meta) if state not in FINAL_STATES else None
+        eta_s = self._eta_s(state, planned, done, meta.get("eta_s"))
+        clock = "virtual" if meta.get("clock") == "virtual" else "real"
+        at = eta_at(meta)
+        if eta_s is not None and at is not None and clock == "real" and state == "running" and operator is None:
+            eta_s = round(max(eta_s - max(time.time() - at["utc"], 0.0), 0.0), 0)  # counted down since it was estimated
         return {
             "state": state,
             "method": meta.get("method"),
             "planned_readings": planned,
             "done_readings": done,
-            "eta_s": self._eta_s(state, planned, done, meta.get("eta_s")),
+            "eta_s": eta_s,
+            "clock": clock,
+            "ends_utc": ends_utc(meta, clock, at, eta_s) if state not in FINAL_STATES else None,
+            "solving_s": at["after_s"] if at is not None and clock == "real" else None,
+            "marking": self._marking(meta),
             "faults": faults,
             "current": current_of(meta, last),
             "name": _procedure_name(meta),
@@ -235,7 +248,7 @@ class StoreView:
             "events_count": n_events,
             "result": self._result() if state == "finished" else None,
             "note": None,
-            "operator": operator_of(meta) if state not in FINAL_STATES else None,
+            "operator": operator,
         }
 
     def _accumulate(self, db: sqlite3.Connection, hi: int) -> None:
@@ -301,6 +314,17 @@ class StoreView:
             return None
         rate_s = (tail[-1][1] - tail[0][1]) / (len(tail) - 1)
         return round(rate_s * max(planned - done, 0), 1)
+
+    def _marking(self, meta: dict[str, str]) -> str:
+        """What the run is if it calibrates nothing — simulated, rehearsed — in the words its certificate will
+        carry (:func:`rtcal.run.runner.simulation_of` over the store's meta); "" for real instruments."""
+        key = "\0".join(meta.get(k, "") for k in MARKING_KEYS)
+        if self._marking_cache is None or self._marking_cache[0] != key:
+            from rtcal.run.runner import simulation_of
+
+            found = simulation_of(meta, in_process=bool(meta.get("seed")))  # only an in-process bench has a seed
+            self._marking_cache = (key, found.statement if found is not None else "")
+        return self._marking_cache[1]
 
     def _latest(self) -> list[dict[str, Any]]:
         """The newest value of each instrument and quantity, with its age behind the newest
@@ -396,6 +420,34 @@ def _finite(row: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+def eta_at(meta: dict[str, str]) -> dict[str, float] | None:
+    """When the stored time left was estimated (``{"t_s", "utc", "after_s"}``), None for a store from before."""
+    try:
+        value = json.loads(meta.get("eta_at") or "null")
+        found = {k: float(value[k]) for k in ("t_s", "utc", "after_s")}
+    except (ValueError, TypeError, KeyError):
+        return None
+    return found if all(math.isfinite(v) for v in found.values()) else None
+
+
+def ends_utc(meta: dict[str, str], clock: str, at: dict[str, float] | None, eta_s: float | None) -> str | None:
+    """The expected end, ISO 8601 UTC: on a real clock the wall's time when it was estimated plus the time
+    left; on a virtual clock the run's start plus the virtual time then and the time left (as its
+    certificate dates a simulated measurement)."""
+    import datetime as _dt
+
+    if at is None or eta_s is None:
+        return None
+    try:
+        if clock == "real":
+            end = _dt.datetime.fromtimestamp(at["utc"], _dt.timezone.utc) + _dt.timedelta(seconds=float(meta["eta_s"]))
+        else:
+            end = _dt.datetime.fromisoformat(meta["started_utc"]) + _dt.timedelta(seconds=at["t_s"] + eta_s)
+    except (KeyError, ValueError, OverflowError):
+        return None
+    return end.isoformat(timespec="seconds")
+
+
 def engine_state(meta: dict[str, str]) -> str:
     """The engine's state, or the runner's status mapped onto the engine's states."""
     state = meta.get("engine_state")
@@ -473,45 +525,60 @@ def planned_from_procedure(meta: dict[str, str]) -> int | None:
 
 
 def result_brief(run_dir: Path) -> dict[str, Any] | None:
-    """The lines `rtcal run` prints at the end, the deviation table with U (k = 2) and the report
+    """The finished run's result as its certificate states it — the marking, the result in brief, the
+    conformity and the departures, from the certificate's own builders (the same words and rounded
+    numbers) — the lines `rtcal run` prints at the end, the deviation table with U (k = 2) and the report
     files present, from the run's validated results.json."""
+    from rtcal.deliverables.certificate import certificate_sections
     from rtcal.deliverables.report import console_lines
+    from rtcal.deliverables.rounding import u_text, value_text
     from rtcal.methods import METHODS, read_results
     from rtcal.results import ResultsError
 
     try:
         results = read_results(run_dir)
-        lines = METHODS[results.method].outputs(results).summary() + console_lines(results)
+        method = METHODS[results.method]
+        lines = method.outputs(results).summary() + console_lines(results)
+        parts = certificate_sections(results, run_dir, method, ("header", "identification", "result_in_brief", "conformity"))
     except (ResultsError, ValueError, KeyError, OSError) as exc:
         return {"error": f"results.json cannot be read: {exc}"[:300], "lines": [], "deviations": None, "files": []}
     table = results.positioning_deviations
     deviations = None
     if table is not None:
+        U = [None if u is None else 2.0 * u for u in table.uncertainty_arcsec]
         deviations = {"estimator": table.estimator, "target_deg": table.target_deg, "direction": table.direction,
-                      "run": table.run, "deviation_arcsec": table.deviation_arcsec,
-                      "U_arcsec": [None if u is None else 2.0 * u for u in table.uncertainty_arcsec]}
+                      "run": table.run, "deviation_arcsec": table.deviation_arcsec, "U_arcsec": U,
+                      "text": [f"{value_text(d, u, '+')}″" + (f" (U {u_text(u)}″)" if u is not None else "")
+                               for d, u in zip(table.deviation_arcsec, U)]}
     files = [f for f in REPORT_FILES if os.path.isfile(run_dir / f) and not os.path.islink(run_dir / f)]
-    return {"error": None, "headline": headline(results, lines), "lines": lines, "deviations": deviations,
-            "files": files}
+    brief, conformity = parts["result_in_brief"], parts["conformity"]
+    departed = next((i.value for i in parts["identification"].items if i.label == "Departures from the method"), "none")
+    return {"error": None, "headline": headline(brief, conformity, lines), "marking": parts["header"].marking,
+            "not_certificate": parts["header"].not_certificate, "departures": "" if departed == "none" else departed,
+            "brief": {"heading": brief.heading, "header": brief.header,
+                      "rows": [[k.quantity, k.value_arcsec, k.expanded_uncertainty_arcsec] for k in brief.rows]},
+            "conformity": None if conformity is None else {
+                "heading": conformity.heading, "verdict": conformity.verdict, "rule": conformity.rule,
+                "header": conformity.header,
+                "rows": [[r.symbol, r.parameter, r.limit_arcsec, r.value_arcsec, r.expanded_uncertainty_arcsec,
+                          r.guard_band_arcsec, r.verdict] for r in conformity.rows]},
+            "lines": lines, "deviations": deviations, "files": files}
 
 
-def headline(results: Any, lines: list[str]) -> str:
-    """The result in a lab's words: the axis' positioning error E with its U (k = 2) and the
-    verdict against the limit under the procedure's decision rule; a method without ISO 230-2
-    parameters says its first summary line."""
-    from rtcal.deliverables.conformity import parameter_uncertainties
-
-    iso = results.evaluation.iso230_2 if results.evaluation else None
-    if iso is None or iso.E is None:
+def headline(brief: Any, conformity: Any, lines: list[str]) -> str:
+    """The result in a sentence, in the certificate's words and numbers: its E row of the result in brief
+    (else its first row), U (k = 2), and the conformity verdict with its decision rule; a method with no
+    row says its first summary line."""
+    rows = list(brief.rows)
+    row = next((k for k in rows if k.quantity.startswith("E:")), rows[0] if rows else None)
+    if row is None:
         return lines[0] if lines else "measured and solved"
-    u = parameter_uncertainties(results).get("E")
-    text = f"Positioning error of the axis E = {iso.E:.2f}″" + (f" (U = {u:.2f}″, k = 2)" if u is not None else "")
-    c = results.conformity
-    if c is None:
-        return text + "; the procedure states no acceptance limit."
-    limit = c.per_limit.get("E")
-    n = len(c.per_limit)
-    which = (f"its {n} acceptance limits (E ≤ {limit.limit_arcsec:g}″ among them)" if n > 1 and limit is not None
-             else f"its acceptance limit E ≤ {limit.limit_arcsec:g}″" if limit is not None else "its acceptance limits")
-    rule = "guarded acceptance, ISO 14253-1" if c.decision_rule == "guarded" else "simple acceptance, ILAC-G8"
-    return f"{text}. Against {which}: {c.verdict.upper()} ({rule})."
+    symbol, _, what = row.quantity.partition(": ") if row.quantity.startswith("E:") else ("", "", row.quantity)
+    qualifier, _, meaning = what.rpartition(": ")  # "as ISO 230-2 defines it, not an ISO 230-2 result (…): meaning"
+    text = (f"{meaning[:1].upper() + meaning[1:]} {symbol} = {row.value_arcsec} ({row.expanded_uncertainty_arcsec}, k = 2)"
+            if symbol else f"{what}: {row.value_arcsec} ({row.expanded_uncertainty_arcsec}, k = 2)")
+    text += f", {qualifier}" if symbol and qualifier else ""
+    if conformity is None:
+        return text + ". The procedure states no acceptance limit."
+    rule = conformity.rule.split(")")[0] + ")" if ")" in conformity.rule else conformity.rule
+    return f"{text}. {conformity.heading}: {conformity.verdict.upper()} under {rule[:1].lower() + rule[1:]}."

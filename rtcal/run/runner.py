@@ -36,11 +36,11 @@ from rtcal.run.control import control_record
 from rtcal.run.rundir import RunDirError, claim_new_run_dir, claim_run_dir, staged_outputs, stored_results
 from rtcal.engine.engine import Engine, PlanError
 from rtcal.engine.faults import RunAborted
-from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter
+from rtcal.engine.subscribers import ConsoleProgress, Eta, StoreWriter, solve_estimate_s
 from rtcal.engine.walk import Timing, walk
-from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator
+from rtcal.engine.operator import BenchOperator, RehearsalOperator, RemoteSimOperator, WaitingOperator, stdin_terminal
 from rtcal.store.runstore import CONTEXT_COLUMNS_KEY, RunStore, StoreUnusable
-from rtcal.procedure.yamlfile import FileProblems, Problem, problem_at, read_text, validate_text
+from rtcal.procedure.yamlfile import FileProblems, Problem, load_yaml, locate, problem_at, read_text, validate_text
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 from simulators.scenario_file import load_scenario
@@ -207,8 +207,19 @@ def _operator(bench: Bench | None, addresses: dict[str, str] | None, on_engine: 
             raise RunDirError("--rehearse: a person confirms each operator step and the simulated operator then does "
                               "it on the simulators: give its address (`operator` in --instruments, as `rtcal sim "
                               "serve` printed it); on hardware leave --rehearse out")
+        check_rehearsal_reachable(on_engine)
         return RehearsalOperator(simulated, remote=remote, run_dir=run_dir)
     return simulated if simulated is not None else WaitingOperator(remote=remote, run_dir=run_dir)
+
+
+def check_rehearsal_reachable(on_engine: OnEngine | None) -> None:
+    """A rehearsal waits for a person at every operator step: at the terminal or on the live page. With
+    neither it could only fail at its first step, so it is refused before a run folder is made or a
+    stored run is changed (RunDirError, exit 2)."""
+    if stdin_terminal() is None and not getattr(on_engine, "remote_operator", False):
+        raise RunDirError("--rehearse: each operator step waits for a person to confirm it (Enter at the terminal, "
+                          "Done on the live page) and this run has neither a terminal nor --live: run it from a "
+                          "terminal, or add --live [HOST:]PORT")
 
 
 def _keep_fault_counters(store: RunStore, bench: Bench | None) -> None:
@@ -268,12 +279,22 @@ def apply_machine_identity(proc: Procedure, ident: dict[str, Any], where: str, l
 
 def with_machine_identity(proc: Procedure, path: Path, text: str) -> tuple[Procedure, dict[str, Any] | None]:
     """The procedure with the machine's identification applied (:func:`apply_machine_identity`, located
-    at the procedure's ``machine_identity`` line), and the identification as read (None: none asked)."""
+    at the line of the file's ``metadata.machine_identity`` key), and the identification as read (None:
+    none asked). ``text``: the file as the user wrote it (not the text a --certificate-number rewrote)."""
     ident = read_machine_identity(proc)
     if ident is None:
         return proc, None
-    line = next((i for i, t in enumerate(text.splitlines(), 1) if "machine_identity" in t), 1)
-    return apply_machine_identity(proc, ident, str(path), line), ident
+    return apply_machine_identity(proc, ident, str(path), key_line(text, str(path), ("metadata", "machine_identity"))), ident
+
+
+def key_line(text: str, where: str, key: tuple[str, ...]) -> int:
+    """The line of ``key`` (a path of keys) in the YAML ``text`` as its parser sees it: a comment, a string
+    value or another section naming the key is not it (1 if the text cannot be read)."""
+    try:
+        _, locations = load_yaml(text, where)
+    except FileProblems:
+        return 1
+    return locate(key, locations)[0]
 
 
 def run_procedure(
@@ -303,7 +324,7 @@ def run_procedure(
     ``out_dir`` must be new or empty; it is locked (RunBusy) until the run ends.
     """
     procedure_path = Path(procedure_path)
-    procedure_yaml = read_text(procedure_path)
+    procedure_yaml = as_written = read_text(procedure_path)
     proc = load_procedure(procedure_path, large, procedure_yaml)
     given = {k: v for k, v in (("certificate_number", certificate_number), ("item_state", item_state)) if v is not None}
     if given:
@@ -312,7 +333,7 @@ def run_procedure(
     if addresses:
         proc = with_addresses(proc, addresses)
     check_calibration_due(proc)
-    proc, identity = with_machine_identity(proc, procedure_path, procedure_yaml)
+    proc, identity = with_machine_identity(proc, procedure_path, as_written)
     method = METHODS[proc.method]
     simulated = proc.instruments.all_sim()
     bench, scenario_text = None, ""
@@ -370,6 +391,8 @@ def resume_run(
     run_dir = Path(run_dir)
     if addresses:
         check_address_names(addresses)
+    if rehearse:
+        check_rehearsal_reachable(on_engine)
     lock = claim_run_dir(run_dir)  # RunDirError: no such directory, no store in it
     try:
         try:
@@ -612,7 +635,10 @@ def _measure_and_solve(method: Method[Any, Any], proc: Procedure, run_dir: Path,
     shown = show_progress is not False or on_engine is not None  # a Monte Carlo trial shows no one the time left
     timing = (eta_timing or (Timing.of_scenario(bench.scenario) if bench is not None else None)) if shown else None
     virtual = not isinstance(clock, RealClock)
-    eta = Eta(walk(method.plan(proc, done, generation, step_deg), timing, done).entry_s, virtual) if timing else None
+    person = isinstance(operator, WaitingOperator)  # a simulated operator's steps take no time on a real clock
+    walked = walk(method.plan(proc, done, generation, step_deg), timing, done) if timing else None
+    eta = Eta(walked.entry_s, virtual, operator_timed=virtual or person, motion_s=walked.entry_motion_s,
+              after_s=0.0 if virtual else solve_estimate_s(len(plan.entries))) if walked is not None else None  # solving: wall
     subscribers: list = ([eta] if eta else []) + [StoreWriter(store, eta)]  # the estimate first: both read it
     if show_progress is not False:
         subscribers.append(ConsoleProgress(virtual_clock=virtual, eta=eta))

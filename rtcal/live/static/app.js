@@ -142,6 +142,7 @@ function render() {
   if (st) renderState(st);
   renderPlot();
   renderEvents();
+  renderAbort();
 }
 
 function renderState(st) {
@@ -158,9 +159,10 @@ function renderState(st) {
   $("bar-fill").style.width = pct.toFixed(1) + "%";
   $("bar").setAttribute("aria-valuenow", pct.toFixed(0));
   $("percent").textContent = st.planned_readings ? pct.toFixed(0) + " %" : "";
-  $("eta").textContent = st.state === "finished" ? "done" : st.eta_s === null
-    ? (st.operator ? "– (waiting for the operator)" : "– (no rate yet)")
-    : fmtDuration(st.eta_s) + (st.operator ? " once the operator's step is done" : "");
+  renderEta(st);
+  const marking = $("marking");
+  marking.hidden = !st.marking;
+  marking.textContent = st.marking || "";
   $("current").textContent = FINAL.has(st.state) ? "–" : fmtCurrent(st.current);
   $("faults").textContent = st.faults;
   $("faults").className = st.faults ? "has" : "";
@@ -176,6 +178,30 @@ function renderState(st) {
   renderLatest(st.latest || []);
   renderResult(st.result);
   $("events-count").textContent = st.events_count ? "(" + st.events_count + ")" : "";
+}
+
+function fmtClockTime(iso) {  // the expected end in this computer's local time (the date too when not today)
+  const d = new Date(iso);
+  if (isNaN(d)) return "";
+  const time = d.toLocaleTimeString([], { hour: "2-digit", minute: "2-digit" });
+  return d.toDateString() === new Date().toDateString() ? time : d.toLocaleDateString() + " " + time;
+}
+
+function renderEta(st) {
+  const virtual = st.clock === "virtual";
+  let text, note = "";
+  if (st.state === "finished") text = "done";
+  else if (FINAL.has(st.state)) text = "–";
+  else if (st.eta_s === null || st.eta_s === undefined) text = st.operator ? "– (waiting for the operator)" : "– (no rate yet)";
+  else {
+    text = fmtDuration(st.eta_s) + (virtual ? " on the virtual clock" : "") + (st.operator ? " once the operator's step is done" : "");
+    const end = st.ends_utc ? fmtClockTime(st.ends_utc) : "";
+    if (end) text += " · ends about " + end + (virtual ? " (virtual clock)" : "");
+    if (virtual) note = "the virtual clock's: the simulated measurement's time, as its certificate dates it (the run itself takes far less)";
+    else if (st.solving_s) note = "includes about " + fmtDuration(st.solving_s) + " to solve and write the results (estimated from the plan's size)";
+  }
+  $("eta").textContent = text;
+  $("eta-note").textContent = note;
 }
 
 function renderOperator(st) {
@@ -212,8 +238,12 @@ function renderGrid(st) {
   table.className = "grid";
   const head = table.createTHead().insertRow();
   head.appendChild(document.createElement("th"));
-  for (const c of p.columns) { const th = document.createElement("th"); th.textContent = c; head.appendChild(th); }
-  const done = document.createElement("th"); done.textContent = "done"; head.appendChild(done);
+  const label = (text) => {  // turned upright in a span, centred over its column's cells
+    const th = document.createElement("th"), span = document.createElement("span");
+    span.textContent = text; th.appendChild(span); head.appendChild(th);
+  };
+  p.columns.forEach(label);
+  label("done");
   const body = table.createTBody();
   for (const row of p.rows) {
     const tr = body.insertRow();
@@ -290,6 +320,14 @@ function renderResult(result) {
     const span = document.createElement("span"); span.append(a, "  "); return span;
   }));
   $("result-headline").textContent = result.error ? result.error : (result.headline || "");
+  const departed = $("result-departures");
+  departed.hidden = !result.departures;
+  departed.textContent = result.departures ? "Departures from the method: " + result.departures : "";
+  renderTable($("result-brief"), result.brief ? result.brief.heading + " (as on the certificate)" : "",
+    result.brief ? result.brief.header : [], result.brief ? result.brief.rows : [], [1, 2]);
+  const c = result.conformity;
+  renderTable($("result-conformity"), c ? c.heading + ": " + c.verdict.toUpperCase() : "", c ? c.header : [],
+    c ? c.rows : [], [2, 3, 4, 5], c ? c.rule : "");
   $("result-details").hidden = !!result.error || !(result.lines || []).length;
   $("result-lines").textContent = (result.lines || []).join("\n");
   const d = result.deviations;
@@ -300,11 +338,27 @@ function renderResult(result) {
     if (y === null) return;
     const key = "run " + d.run[i] + " " + (d.direction[i] > 0 ? "↑" : "↓");
     if (!series.has(key)) series.set(key, { label: key, run: d.run[i], dir: d.direction[i], points: [] });
-    series.get(key).points.push({ x: x, y: y, err: d.U_arcsec[i] });
+    series.get(key).points.push({ x: x, y: y, err: d.U_arcsec[i], text: d.text ? d.text[i] : null });
   });
   drawPlot($("result-plot"), $("result-legend"), [...series.values()], "target (°)", "deviation (″), bars: U (k = 2)");
   $("result-note").textContent = "positioning deviations of the recommended estimate (" + d.estimator +
     "), relative to the first target of the first direction; bars ± U (k = 2)";
+}
+
+function renderTable(box, heading, header, rows, numeric, note) {  // a certificate's table, its words as they are
+  if (!rows.length) { box.replaceChildren(); return; }
+  const h = document.createElement("h3"); h.textContent = heading;
+  const table = document.createElement("table"); table.className = "brief";
+  const tr = table.createTHead().insertRow();
+  for (const text of header) { const th = document.createElement("th"); th.textContent = text; tr.appendChild(th); }
+  const body = table.createTBody();
+  for (const row of rows) {
+    const r = body.insertRow();
+    row.forEach((text, i) => { const td = r.insertCell(); td.textContent = text; if (numeric.includes(i)) td.className = "num"; });
+  }
+  const parts = [h, table];
+  if (note) { const p = document.createElement("p"); p.className = "muted small"; p.textContent = note; parts.push(p); }
+  box.replaceChildren(...parts);
 }
 
 // ---- the plot of readings per target ------------------------------------------------------------
@@ -414,7 +468,7 @@ function drawPlot(svg, legend, series, xLabel, yLabel) {
     for (const q of p) {
       if (q.err) svg.appendChild(el("line", { x1: X(q.x), x2: X(q.x), y1: Y(q.y - q.err), y2: Y(q.y + q.err), stroke: color, "stroke-width": 1.2, opacity: 0.7 }));
       const mk = marker(X(q.x), Y(q.y), s.dir, color);
-      mk.appendChild(el("title", {}, s.label + ": " + q.x + "°, " + fmtNum(q.y, 3) + (q.err ? " ± " + fmtNum(q.err, 3) : "")));
+      mk.appendChild(el("title", {}, s.label + ": " + q.x + "°, " + (q.text || fmtNum(q.y, 3) + (q.err ? " ± " + fmtNum(q.err, 3) : ""))));
       svg.appendChild(mk);
     }
     const span = document.createElement("span");
@@ -453,12 +507,33 @@ async function control(command) {
     const step = command === "confirm" && S.operatorStep ? "?step=" + S.operatorStep : "";
     const res = await sendControl("api/" + command + step);
     if (res.status === 202 && command === "confirm") { msg.textContent = "confirmed: the run goes on"; msg.className = "ok"; }
-    else if (res.status === 202) { msg.textContent = command + " requested: it takes effect at the next checkpoint"; msg.className = "ok"; }
+    else if (res.status === 202 && command === "abort") {
+      S.abortAfter = S.events.length ? Math.max(...S.events.map((e) => e.id)) : 0; // its stops are the events after it
+      msg.textContent = ABORT_SENT; msg.className = "ok";
+    }
+    else if (res.status === 202) { msg.textContent = REQUESTED[command]; msg.className = "ok"; }
     else if (res.status === 401) { msg.textContent = "refused: wrong control token"; msg.className = "bad"; S.token = null; }
     else { const body = await res.json().catch(() => ({})); msg.textContent = "refused (" + res.status + "): " + (body.error || ""); msg.className = "bad"; }
   } catch (e) {
     msg.textContent = "cannot reach the run: " + e; msg.className = "bad";
   }
+}
+
+const REQUESTED = {
+  pause: "pause requested: the run holds at the next checkpoint (the reading in hand is stored first)",
+  resume: "resume requested: the next reading approaches its targets anew",
+};
+const ABORT_SENT = "abort requested: the run stops at once; each machine is being watched until it is seen at rest…";
+
+function renderAbort() {  // after the page's abort: each machine's stop as the engine saw it (stopped / moving events)
+  if (S.abortAfter === undefined) return;
+  const seen = S.events.filter((e) => e.id > S.abortAfter && (e.kind === "stopped" || e.kind === "moving"));
+  if (!seen.length) return;
+  const moving = seen.filter((e) => e.kind === "moving");
+  const msg = $("control-msg");
+  msg.textContent = (moving.length ? "aborted, but not every machine was seen to stop: " : "aborted: ")
+    + seen.map((e) => (e.instrument ? e.instrument + " " : "") + e.message).join("; ");
+  msg.className = moving.length ? "bad" : "ok";
 }
 
 function armAbort() {

@@ -8,8 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drivers.interfaces import DESCRIPTIONS
-from rtcal.api import Contradiction, combined_sigma
+from rtcal.api import DESCRIPTIONS, Contradiction, combined_sigma
 
 if TYPE_CHECKING:
     from rtcal.methods.abbe.procedure import EncoderAbbeError

@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rtcal.methods.conditions import summarise_conditions
 from rtcal.solvers.abbe import AbbeVisits
-from rtcal.api import RunReadings
+from rtcal.api import RunReadings, summarise_conditions
 
 
 def abbe_conditions(store: RunReadings) -> dict[str, dict[str, float]] | None:

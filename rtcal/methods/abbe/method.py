@@ -15,11 +15,11 @@ import numpy as np
 
 from drivers import factory
 from rtcal.methods.abbe.dataset import abbe_conditions, abbe_visits
-from rtcal.api import (DataContradiction, Operator, PositioningDeviations, PreparationError, RunReadings, Scenario,
-                       address_of, choose_recommended, deviation_block, finite_or_none, residual_test, run_estimators,
-                       with_residual_test)
+from rtcal.api import (DataContradiction, EnvironmentSummary, Estimate, Operator, PositioningDeviations, PreparationError,
+                       RunReadings, RunResults, Scenario, address_of, choose_recommended, deviation_block, finite_or_none,
+                       residual_test, run_estimators, with_residual_test)
 from rtcal.methods.abbe.procedure import EncoderAbbeError
-from rtcal.results import model as rm
+from rtcal.results import model as rm  # its estimate blocks stay in the shared model (docs/architecture.md)
 from rtcal.methods.abbe import results as abr
 from rtcal.methods.abbe.plan import AbbeInstrumentSet, AbbePlan, planned_visits
 from rtcal.methods.abbe.recalibration import AbbeRecalibration
@@ -271,10 +271,10 @@ class AbbeMethod:
         return [f"encoder: its change since the run's first visit within {v.encoder_tolerance_arcsec:g}″ of the commanded change",
                 f"autocollimator: the face the commanded angle puts in view read within ±{v.autocollimator_tolerance_arcsec:g}″"]
 
-    def conditions(self, results: rm.RunResults) -> rm.EnvironmentSummary | None:
+    def conditions(self, results: RunResults) -> EnvironmentSummary | None:
         return results.environment if isinstance(results, abr.AbbeResults) else None
 
-    def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
+    def instrument_roles(self, results: RunResults) -> dict[str, str]:
         """Each instrument's role on the certificate (reference standards first, in the order the traceability
         statement cites them); a polygon whose face errors this run separated by closure is an artefact."""
         abbe = results.estimates.abbe if isinstance(results, abr.AbbeResults) else None
@@ -288,7 +288,7 @@ class AbbeMethod:
 
         return AbbePlanner()
 
-    def outputs(self, results: rm.RunResults) -> AbbeOutputs:
+    def outputs(self, results: RunResults) -> AbbeOutputs:
         from rtcal.methods.abbe.outputs import AbbeOutputs
 
         if not isinstance(results, abr.AbbeResults):
@@ -334,11 +334,11 @@ class AbbeMethod:
         source = "closure" if cert is None else "certificate"
         solved: list[AbbeEstimate] = []
 
-        def abbe() -> rm.Estimate:
+        def abbe() -> Estimate:
             solved.append(analyse_abbe(visits, setup))
             return abbe_estimate(solved[0], source, omitted)
 
-        solvers: dict[str, Callable[[], rm.Estimate]] = {"abbe": abbe}
+        solvers: dict[str, Callable[[], Estimate]] = {"abbe": abbe}
         if cert is None:
             solvers["closure"] = lambda: closure_estimate(solved[0])
         estimates, status = run_estimators(solvers)
@@ -366,7 +366,7 @@ class AbbeMethod:
             estimates=abr.AbbeEstimates(**estimates),
             positioning_deviations=table,
             truth=truth,
-            environment=None if (conditions := abbe_conditions(store)) is None else rm.EnvironmentSummary.model_validate(conditions),
+            environment=None if (conditions := abbe_conditions(store)) is None else EnvironmentSummary.model_validate(conditions),
             periodic_error=None if proc.periodic is None else periodic_block(proc, visits),
         )
 

@@ -11,13 +11,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from matplotlib.axes import Axes
 
-from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
-from rtcal.deliverables.figures import legend_below, plt
-from rtcal.deliverables.rounding import u_text
-from rtcal.deliverables.certificate import largest, period_text, smallest, status_lines
-from rtcal.deliverables.rounding import fmt, significant
+from rtcal.api import (RAD_PER_ARCSEC, ErrorMotions, Estimate, MeasuredLocation, TargetedEstimate, fmt, legend_below, plt,
+                       significant, status_lines, u_text)
+from rtcal.deliverables.certificate import largest, period_text, smallest
 from rtcal.methods.abbe.results import AbbeResults, ClosureEstimate
-from rtcal.results.model import AbbeEstimate, Estimate, HarmonicTerm, PeriodicError, PeriodicTerm, TargetedEstimate
+from rtcal.results.model import AbbeEstimate, HarmonicTerm, PeriodicError, PeriodicTerm
 
 ARROW = {1: "↑", -1: "↓"}
 # ↑ filled circles, ↓ larger hollow squares: where the two directions agree, both stay visible

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from rtcal.methods.abbe.procedure import EncoderAbbeError
-from rtcal.methods.planner import Candidate
+from rtcal.api import Candidate
 
 
 def more_runs(plan: Candidate, runs: int) -> Candidate:

@@ -9,11 +9,11 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
-from rtcal.procedure.models import (FaultPolicy, InstrumentChoice, StageChoice, _Instruments, _Procedure,
-                                    _Strict, _Verification, plan_outside_limits, plan_size_problem)
+from rtcal.api import (FaultPolicy, InstrumentChoice, InstrumentsBase, ProcedureBase, StageChoice, StrictModel,
+                       VerificationBase, plan_outside_limits, plan_size_problem)
 
 
-class AbbeOnFault(_Strict):
+class AbbeOnFault(StrictModel):
     stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
     encoder: FaultPolicy = Field(FaultPolicy(), description="when the encoder counter fails")
     autocollimator: FaultPolicy = Field(FaultPolicy(), description="when the autocollimator fails")
@@ -30,8 +30,8 @@ class AbbeOnFault(_Strict):
         return self
 
 
-class AbbeVerification(_Verification):
-    __doc__ = _Verification.__doc__
+class AbbeVerification(VerificationBase):
+    __doc__ = VerificationBase.__doc__
     encoder_tolerance_arcsec: float = Field(
         600.0, gt=0.0, le=648_000.0, description="how far the encoder's change since the start's first reading may be from the "
                                                  "commanded change, arcsec (e.g. 600: far more than a table's positioning "
@@ -61,14 +61,14 @@ class AbbeVerification(_Verification):
                                                "(e.g. 1)")
 
 
-class AbbeDurations(_Strict):
+class AbbeDurations(StrictModel):
     """What takes time besides the motions and settling (see MultistationDurations)."""
 
     reseat_polygon_s: float = Field(600.0, ge=0.0, le=86400.0, description="time the operator takes to seat the polygon "
                                                                            "anew and align it to the autocollimator, s")
 
 
-class AbbeInstruments(_Instruments):
+class AbbeInstruments(InstrumentsBase):
     stage: StageChoice = Field(StageChoice(), description="the rotary stage's drive")
     encoder: InstrumentChoice = Field(InstrumentChoice(), description="the counter of the stage's rotary encoder")
     autocollimator: InstrumentChoice = Field(InstrumentChoice(), description="the autocollimator facing the polygon")
@@ -79,7 +79,7 @@ class AbbeInstruments(_Instruments):
                           "summarised in results.json and the certificate (e.g. {backend: sim})")
 
 
-class AbbeSteps(_Strict):
+class AbbeSteps(StrictModel):
     """The targets and how they are approached.
 
     By default a full turn per pass: ``faces × steps_per_face`` steps from the seating's offset.
@@ -114,7 +114,7 @@ class AbbeSteps(_Strict):
         return self
 
 
-class PeriodicTest(_Strict):
+class PeriodicTest(StrictModel):
     """A fine-step test of the periodic positioning error (ISO 230-2:2014 Annex C): the stage steps by
     ``step_deg`` from ``start_deg`` through ``span_periods`` periods (one and a little more), in each
     direction of ``steps.directions``, ``steps.runs`` times; the encoder is read at every step and the
@@ -159,7 +159,7 @@ class PeriodicTest(_Strict):
         return self
 
 
-class PolygonSetup(_Strict):
+class PolygonSetup(StrictModel):
     """The polygon as the user knows it.
 
     ``certificate_arcsec``: face errors from its calibration certificate (one per face), or
@@ -206,7 +206,7 @@ class PolygonSetup(_Strict):
 MIN_ENCODER_RADIUS_MM = 1.0  # the smallest rotary encoder discs are a few mm across
 
 
-class AbbeGeometry(_Strict):
+class AbbeGeometry(StrictModel):
     """Design sizes of the stage the solver uses (from drawings or measurement), mm."""
 
     encoder_radius_mm: float = Field(32.0, gt=0.0, le=1e4, description="rE: radius of the encoder's read head, mm (seed 001: 32)")
@@ -230,7 +230,7 @@ class AbbeGeometry(_Strict):
         return self
 
 
-class AbbeUncertainty(_Strict):
+class AbbeUncertainty(StrictModel):
     """The instruments' stated noise and resolution (1σ), for the uncertainty budget.
 
     With one run they are the budget's Type B inputs; with two or more runs (or closure) the
@@ -256,7 +256,7 @@ class AbbeUncertainty(_Strict):
         "the analysis (e.g. 120; 0: none stated, nothing corrected)"))
 
 
-class EncoderAbbeError(_Procedure):
+class EncoderAbbeError(ProcedureBase):
     """Seed 001: encoder error from tilt and radial motion, against an autocollimator and polygon."""
 
     method: Literal["encoder_abbe_error"] = Field(description="seed 001's encoder Abbe-error method")

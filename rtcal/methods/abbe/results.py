@@ -7,8 +7,9 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from rtcal.results.model import (AbbeEstimate, Analysis, Arcsec, Deg, Direction, EnvironmentSummary, Estimate, NamedSet,
-                                 RunResults, SigmaArcsec, TargetedEstimate, Truth)
+from rtcal.api import (Analysis, Arcsec, Deg, Direction, EnvironmentSummary, Estimate, NamedSet, RunResults, SigmaArcsec,
+                       TargetedEstimate, Truth)
+from rtcal.results.model import AbbeEstimate
 
 AbbeEstimator = Literal["abbe", "closure"]
 """The method's estimator names (what ``recommended`` and ``solver_status`` may name)."""

@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rtcal.methods.conditions import summarise_conditions
 from rtcal.solvers.air import ciddor_n
 from rtcal.solvers.station_data import MountReadings, MultistationData
-from rtcal.api import RunReadings
+from rtcal.api import RunReadings, summarise_conditions
 
 
 def multistation_data(store: RunReadings, nominal_angles_deg: np.ndarray, n_points: int, mounts: int = 1) -> MultistationData:

@@ -15,12 +15,11 @@ import numpy as np
 from drivers import factory
 from rtcal.solvers.air import STANDARD_AIR, index_sensitivity, standard_air_n
 from rtcal.methods.multistation.dataset import multistation_data
-from rtcal.api import Operator, PositioningDeviations, RunReadings, address_of
+from rtcal.api import (EnvironmentSummary, Estimate, Operator, PositioningDeviations, RunReadings, RunResults, Scenario, Timing,
+                       address_of, choose_recommended, deviation_block, not_covered, residual_test, run_estimators, walk,
+                       with_residual_test)
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
-from rtcal.engine.walk import Timing, walk
-from rtcal.methods.estimates import (choose_recommended, deviation_block, not_covered, residual_test, run_estimators,
-                                     with_residual_test)
-from rtcal.results import model as rm
+from rtcal.results import model as rm  # its estimate blocks stay in the shared model (docs/architecture.md)
 from rtcal.methods.multistation import results as msr
 from rtcal.methods.multistation.plan import MultistationInstrumentSet, MultistationPlan, planned_readings
 from rtcal.methods.multistation.recalibration import MultistationRecalibration
@@ -42,7 +41,7 @@ from simulators.instruments import (
     SimLaserTracer,
     SimStage,
 )
-from simulators.scenario import AngularHarmonic, CmmFieldTerm, EnvironmentScenario, LinearHarmonic, Scenario, SphereLobe
+from simulators.scenario import AngularHarmonic, CmmFieldTerm, EnvironmentScenario, LinearHarmonic, SphereLobe
 from simulators.truth import station_truth
 
 from rtcal.methods.multistation.noise import (AIR_QUANTITIES, DEFAULT_TABLE_EXPANSION_PPM_PER_K, DEFAULT_TABLE_EXPANSION_U_PPM_PER_K,
@@ -408,10 +407,10 @@ class MultistationMethod:
                 "is read, and unmoved after it",
                 f"laser tracer: each length within {v.tracer_tolerance_mm:g} mm of what the nominal geometry expects"]
 
-    def conditions(self, results: rm.RunResults) -> rm.EnvironmentSummary | None:
+    def conditions(self, results: RunResults) -> EnvironmentSummary | None:
         return results.environment if isinstance(results, msr.MultistationResults) else None
 
-    def instrument_roles(self, results: rm.RunResults) -> dict[str, str]:
+    def instrument_roles(self, results: RunResults) -> dict[str, str]:
         """Each instrument's role on the certificate (a reference standard's begins with those words)."""
         return dict(ROLES)
 
@@ -421,7 +420,7 @@ class MultistationMethod:
 
         return MultistationPlanner()
 
-    def outputs(self, results: rm.RunResults) -> MultistationOutputs:
+    def outputs(self, results: RunResults) -> MultistationOutputs:
         from rtcal.methods.multistation.outputs import MultistationOutputs
 
         if not isinstance(results, msr.MultistationResults):
@@ -469,12 +468,12 @@ class MultistationMethod:
         second = [np.array(proc.second_mount.first_station_guess_mm)] if proc.second_mount else None
         solved: dict[str, NetworkEstimate] = {}  # the network's own solution: the axis and error motions come from it
 
-        def network() -> rm.Estimate:
+        def network() -> Estimate:
             solved["network"] = solve_network(data, guess, axis, noise, mount_guesses_mm=second)
             return network_estimate(solved["network"], omitted, causes)
 
         causes = failure_causes(proc, noise)
-        solvers: dict[str, Callable[[], rm.Estimate]] = {
+        solvers: dict[str, Callable[[], Estimate]] = {
             "paper": lambda: paper_estimate(solve_paper(data, guess, axis, lm_parameters(proc), noise), omitted, paper_notes,
                                             causes),
             "shared_dead_path": lambda: shared_dead_path_estimate(solve_shared_dead_path(data, guess, axis, noise), omitted,
@@ -493,7 +492,7 @@ class MultistationMethod:
         return msr.MultistationAnalysis(
             nominal_angles_deg=[float(a) for a in angles],
             raw_readings=data.raw_readings,
-            environment=None if data.environment is None else rm.EnvironmentSummary.model_validate(data.environment),
+            environment=None if data.environment is None else EnvironmentSummary.model_validate(data.environment),
             recommended=recommended,
             solver_status=status,
             estimates=msr.MultistationEstimates(**estimates),

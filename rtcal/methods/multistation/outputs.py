@@ -10,14 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from rtcal.compensation.geometry import RAD_PER_ARCSEC, ErrorMotions, MeasuredLocation
-from rtcal.api import LocationErrors
-from rtcal.deliverables.figures import legend_below, plt
-from rtcal.deliverables.certificate import largest, status_lines
-from rtcal.deliverables.rounding import fmt, significant
-from rtcal.deliverables.rounding import decimals, round_up, u_text
+from rtcal.api import (RAD_PER_ARCSEC, ErrorMotions, Estimate, LocationErrors, MeasuredLocation, decimals, fmt, legend_below,
+                       plt, round_up, significant, status_lines, u_text)
+from rtcal.deliverables.certificate import largest
 from rtcal.methods.multistation.results import MultistationResults
-from rtcal.results.model import AXIS_CONVENTION, Estimate, NetworkEstimate, PaperEstimate, StationChainEstimate
+from rtcal.results.model import AXIS_CONVENTION, NetworkEstimate, PaperEstimate, StationChainEstimate
 
 ESTIMATOR_LABELS = {
     "paper": "each station alone (as first published)",

@@ -17,9 +17,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from drivers.interfaces import DESCRIPTIONS
-from rtcal.api import (Attempt, Cmm, Contradiction, Entry, EnvironmentSensor, LaserTracer, MotionChecks, Move, OperatorStep,
-                       Parallel, Read, ReadSamples, Reference, RotaryStage, Settle, Skipped, Step, Validate, environment_read)
+from rtcal.api import (DESCRIPTIONS, Attempt, Cmm, Contradiction, Entry, EnvironmentSensor, LaserTracer, MotionChecks, Move,
+                       OperatorStep, Parallel, Read, ReadSamples, Reference, RotaryStage, Settle, Skipped, Step, Validate, environment_read)
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
 from rtcal.methods.multistation.checks import TracerCheck, TracerReturnCheck
 

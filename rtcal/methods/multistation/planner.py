@@ -12,7 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from rtcal.methods.multistation.procedure import EnvironmentUncertainty, GridPlan, LaserTracerMultistation
-from rtcal.methods.planner import Candidate
+from rtcal.api import Candidate
 
 
 # -- the multi-station method's levers ---------------------------------------------------------------------

@@ -9,12 +9,12 @@ from typing import Annotated, Any, Literal, Union
 import numpy as np
 from pydantic import Field, ValidationInfo, model_validator
 
-from rtcal.procedure.models import (Angle_deg, CmmChoice, FaultPolicy, InstrumentChoice, StageChoice, Vec3, _Instruments,
-                                    _Procedure, _Strict, _Verification, plan_outside_limits, plan_size_problem)
+from rtcal.api import (Angle_deg, CmmChoice, FaultPolicy, InstrumentChoice, InstrumentsBase, ProcedureBase, StageChoice,
+                       StrictModel, Vec3, VerificationBase, plan_outside_limits, plan_size_problem)
 PAPER_STATION_1_MM, PAPER_STATION_1_DEG = (-64.9938, -6.6256, 122.5133), -145.0
 
 
-class MultistationInstruments(_Instruments):
+class MultistationInstruments(InstrumentsBase):
     stage: StageChoice = Field(StageChoice(), description="the rotary table's drive")
     cmm: CmmChoice = Field(CmmChoice(), description="the CMM that carries the tracer's reflector")
     laser_tracer: InstrumentChoice = Field(InstrumentChoice(), description="the laser tracer on the table")
@@ -23,7 +23,7 @@ class MultistationInstruments(_Instruments):
                           "refractive index of the air of the moment (e.g. {backend: sim})")
 
 
-class MultistationOnFault(_Strict):
+class MultistationOnFault(StrictModel):
     stage: FaultPolicy = Field(FaultPolicy(), description="when the stage fails")
     cmm: FaultPolicy = Field(FaultPolicy(), description="when the CMM fails")
     laser_tracer: FaultPolicy = Field(FaultPolicy(then="reacquire"), description="when the tracer fails (default: re-acquire)")
@@ -37,7 +37,7 @@ class MultistationOnFault(_Strict):
         return self
 
 
-class Stations(_Strict):
+class Stations(StrictModel):
     """Table stations: first angle, constant step, count (eq. 2 needs m ≥ 4)."""
 
     first_angle_deg: Angle_deg = Field(-145.0, description="commanded angle of station 1, deg (the paper: -145)")
@@ -53,7 +53,7 @@ class Stations(_Strict):
         return self.first_angle_deg + sign * self.step_deg * np.arange(self.count)
 
 
-class GridPlan(_Strict):
+class GridPlan(StrictModel):
     """The paper's plan: layers of a serpentine grid in a box (4 × 16 points in 450 × 600 × 450 mm)."""
 
     kind: Literal["grid"] = Field("grid", description="`grid`: points on a serpentine grid in a box")
@@ -82,7 +82,7 @@ class GridPlan(_Strict):
         return np.array([(x, y, z) for k, z in enumerate(zs) for x, y in (layer[::-1] if back and k % 2 else layer)])
 
 
-class ListPlan(_Strict):
+class ListPlan(StrictModel):
     """An explicit list of CMM points (mm, CMM frame), measured in the order given."""
 
     kind: Literal["list"] = Field(description="`list`: the points are listed")
@@ -93,7 +93,7 @@ class ListPlan(_Strict):
         return np.array(self.points_mm, dtype=float)
 
 
-class LMSettings(_Strict):
+class LMSettings(StrictModel):
     """The paper's LM parameters (section 4.2.1)."""
 
     beta: float = Field(0.55, gt=0.0, lt=1.0, description="β of the step-length search, in (0, 1) (the paper: 0.55)")
@@ -112,7 +112,7 @@ def _turned_guess(first_angle_deg: float, axis_point_mm: tuple[float, float, flo
             round(math.sin(a) * x + math.cos(a) * y + axis_point_mm[1], 4), PAPER_STATION_1_MM[2]]
 
 
-class MultistationSolver(_Strict):
+class MultistationSolver(StrictModel):
     estimators: list[Literal["paper", "shared_dead_path", "network"]] = Field(
         ["paper", "shared_dead_path", "network"], min_length=1, max_length=3,
         description="which estimators to run: `paper` (as printed), `shared_dead_path`, `network` (one adjustment: "
@@ -132,7 +132,7 @@ class MultistationSolver(_Strict):
         return self
 
 
-class ErrorMotionBounds(_Strict):
+class ErrorMotionBounds(StrictModel):
     """Bounds of the table's error motions (ISO 230-7), for the uncertainty budget (Type B).
 
     One tracer mount cannot tell a sideways shift of the tracer from a rotation, so the error
@@ -150,7 +150,7 @@ class ErrorMotionBounds(_Strict):
                                     "(0: on the table at the CMM origin, as in seed 000)")
 
 
-class EnvironmentUncertainty(_Strict):
+class EnvironmentUncertainty(StrictModel):
     """The air the tracer's beam runs through (Type B). Its meaning depends on the procedure:
 
     - with an `environment` instrument: the sensor's standard uncertainties (1σ: its calibration,
@@ -188,7 +188,7 @@ class EnvironmentUncertainty(_Strict):
         "0: the sensor sits at the tracer's mount"))
 
 
-class MultistationUncertainty(_Strict):
+class MultistationUncertainty(StrictModel):
     """What the lab knows about its instruments (1σ unless a bound): the uncertainty budget's inputs.
 
     The sizes of the tracer's and the CMM's random errors are estimated from the readings
@@ -224,8 +224,8 @@ class MultistationUncertainty(_Strict):
         "the highest lobe order (lobes per turn) of that form (e.g. 6)"))
 
 
-class MultistationVerification(_Verification):
-    __doc__ = _Verification.__doc__
+class MultistationVerification(VerificationBase):
+    __doc__ = VerificationBase.__doc__
     cmm_tolerance_mm: float = Field(0.05, gt=0.0, le=1000.0, description="how far the CMM's reported position may be from the "
                                                                         "commanded point, and move during a reading, mm (e.g. 0.05)")
     tracer_tolerance_mm: float = Field(
@@ -239,7 +239,7 @@ class MultistationVerification(_Verification):
                                                "drift; e.g. 2)")
 
 
-class MultistationDurations(_Strict):
+class MultistationDurations(StrictModel):
     """What takes time besides the motions and settling: the planned and the simulated clock count it
     (a run on hardware takes what it takes)."""
 
@@ -250,7 +250,7 @@ class MultistationDurations(_Strict):
                                                                         "another mount and fix it, s")
 
 
-class SecondMount(_Strict):
+class SecondMount(StrictModel):
     """Measure the whole plan again with the tracer moved to a second place on the table: the
     network estimator then separates the table's error motions from its rotation (one mount
     cannot). Put it at the same height as the first (the tilt about the line joining the mounts
@@ -260,7 +260,7 @@ class SecondMount(_Strict):
                                                       "mm (nominal, for the solver's start; e.g. [-22.6, 128.0, 122.5])")
 
 
-class LaserTracerMultistation(_Procedure):
+class LaserTracerMultistation(ProcedureBase):
     """Seed 000: tracer on the table, CMM moves the reflector, table indexes through stations."""
 
     method: Literal["laser_tracer_multistation"] = Field(description="seed 000's laser-tracer multi-station method")

@@ -7,8 +7,8 @@ from typing import Literal
 
 from pydantic import Field
 
-from rtcal.results.model import (Analysis, Arcsec, AxisLocation, EnvironmentSummary, ErrorMotionTarget, Estimate, NamedSet,
-                                 NetworkEstimate, PaperEstimate, RunResults, SharedDeadPathEstimate, Truth)
+from rtcal.api import Analysis, Arcsec, EnvironmentSummary, Estimate, NamedSet, RunResults, Truth
+from rtcal.results.model import AxisLocation, ErrorMotionTarget, NetworkEstimate, PaperEstimate, SharedDeadPathEstimate
 
 MultistationEstimator = Literal["paper", "shared_dead_path", "network"]
 """The method's estimator names (what ``recommended`` and ``solver_status`` may name)."""
