@@ -121,6 +121,7 @@ class Bench:
         self.artefacts: dict[str, np.ndarray] = {}  # what an operator mounted on the table, at its point of the table
         self.truth = Truth()
         self.faults = FaultInjector(scenario.faults, self.rng)
+        self.sphere_mounted = 0  # which of the machine's sphere set-ups is on its table (mount_sphere)
         self.machine: Any = None  # the five-axis machine of a scenario's `machine:` (simulators/machine_tool.py, made on first use)
 
     # -- randomness: one stream per named consumer, so interleaving never changes a draw
@@ -319,8 +320,18 @@ class Bench:
         """The operator releases the emergency stop (the run may move again)."""
         self.emergency_stop = False
 
+    def mount_sphere(self, index: int) -> None:
+        """The operator sets the R-test's sphere up at the scenario's position ``index`` (machine.sphere.positions_mm)."""
+        spec = self.scenario.machine
+        n = 0 if spec is None else len(spec.sphere.positions_mm)
+        if not (isinstance(index, int) and 0 <= index < n):
+            raise ValueError(f"sphere position {index!r}: the scenario sets up {n}")
+        self.sphere_mounted = index
+        if self.machine is not None:
+            self.machine.mounted = index
+
     OPERATOR_ACTIONS = ("reseat_polygon", "mount_tracer", "mount_artefact", "polygon_certificate_arcsec",
-                        "release_emergency_stop")
+                        "release_emergency_stop", "mount_sphere")
     """What the simulated operator of `rtcal sim serve` does on request (``DO <name> <JSON arguments>``): the
     bench's hands as a method's operator step uses them, nothing else."""
 

@@ -82,6 +82,8 @@ class SimBench(Protocol):
 
     def release_emergency_stop(self) -> None: ...
 
+    def mount_sphere(self, index: int) -> None: ...
+
 
 def ideal_bench(seed: int = 0) -> SimBench:
     """A simulated bench with no error (a perfect table, instruments without noise unless they add their own)."""

@@ -148,7 +148,7 @@ class MachineModel:
         self.joints: dict[str, float] = {a: 0.0 for a in ("x", "y", "z", "a", "c")}
         self.c_direction = 1
         self.random_mm = np.zeros(3)  # this move's random positioning error of the linear axes
-        self.mounted = 0  # which sphere set-up is on the table
+        self.mounted = int(getattr(bench, "sphere_mounted", 0))  # which sphere set-up is on the table
         self.collision = ""  # where an external control (follow_joints) first drove the sphere into the nest
 
     # -- the table ---------------------------------------------------------------------------------

@@ -93,13 +93,22 @@ class RTestPoses:
 class RTestSetup:
     """The set-up: the controller's kinematics, where the path assumed each sphere (table coordinates, mm),
     the nest zero point's offset from the commanded joints (mm), the pair (first, repeat) of poses whose
-    difference is the drift (None: no drift correction) and the radius of the sensors' flat faces (mm)."""
+    difference is the drift (None: no drift correction) and the radius of the sensors' flat faces (mm).
+    ``drift_pairs`` instead: one pair per sphere set-up, each correcting the poses of its own set-up (the
+    sphere moved between them, each group's first pose repeated at its end); a single pair corrects all."""
 
     geometry: TrunnionGeometry
     spheres_mm: np.ndarray
     nest_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     drift_pair: tuple[int, int] | None = None
     flat_radius_mm: float = 2.0
+    drift_pairs: tuple[tuple[int, int], ...] = ()
+
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        """The drift pairs in use (``drift_pairs``, else ``drift_pair`` alone, else none)."""
+        if self.drift_pairs:
+            return tuple((int(a), int(b)) for a, b in self.drift_pairs)
+        return () if self.drift_pair is None else ((int(self.drift_pair[0]), int(self.drift_pair[1])),)
 
 
 @dataclass(frozen=True)
@@ -169,6 +178,7 @@ class RTestResult:
     iterations: int
     linearisation_um: float
     fitted_poses: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    drifts_um: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # per drift pair (``drift_um``: the first)
 
 
 @dataclass(frozen=True)
@@ -345,34 +355,49 @@ def _rotation_parts(poses: RTestPoses, rows: np.ndarray) -> np.ndarray:
     return R
 
 
-def _drift_map(poses: RTestPoses, setup: RTestSetup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _drift_map(poses: RTestPoses, setup: RTestSetup) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(fitted pose indices, L (3N_fit × 3N_all) the linear drift correction, w (N_fit,) each fitted
-    pose's fraction of the time between the pair)."""
+    pose's fraction of the time between its pair, g (N_fit,) the pair correcting it, −1 none). One pair
+    corrects every pose; several each correct the poses of their own sphere set-up."""
     n = len(poses.joints)
-    if setup.drift_pair is None:
+    pairs = setup.pairs()
+    if not pairs:
         rows = np.arange(n)
-        return rows, np.eye(3 * n), np.zeros(n)
-    i0, i1 = setup.drift_pair
-    if not (0 <= i0 < n and 0 <= i1 < n and i0 != i1):
-        raise RTestDataError(f"drift pair {setup.drift_pair}: two different poses of the {n}")
-    if not np.allclose(poses.joints[i0], poses.joints[i1], atol=1e-6) or poses.sphere[i0] != poses.sphere[i1]:
-        raise RTestDataError(f"drift pair: pose {i1} does not repeat pose {i0} (the same joints and sphere)")
-    t0, t1 = float(poses.time_s[i0]), float(poses.time_s[i1])
-    if not t1 > t0:
-        raise RTestDataError("drift pair: the repeat must be taken after the first")
-    rows = np.array([k for k in range(n) if k != i1])
-    w = (np.asarray(poses.time_s, float)[rows] - t0) / (t1 - t0)
+        return rows, np.eye(3 * n), np.zeros(n), np.full(n, -1)
+    sphere = np.asarray(poses.sphere)
+    group = np.full(n, -1)
+    for p, (i0, i1) in enumerate(pairs):
+        if not (0 <= i0 < n and 0 <= i1 < n and i0 != i1):
+            raise RTestDataError(f"drift pair {(i0, i1)}: two different poses of the {n}")
+        if not np.allclose(poses.joints[i0], poses.joints[i1], atol=1e-6) or sphere[i0] != sphere[i1]:
+            raise RTestDataError(f"drift pair: pose {i1} does not repeat pose {i0} (the same joints and sphere)")
+        if not float(poses.time_s[i1]) > float(poses.time_s[i0]):
+            raise RTestDataError("drift pair: the repeat must be taken after the first")
+        members = np.ones(n, bool) if len(pairs) == 1 else sphere == sphere[i0]
+        if np.any(group[members] >= 0):
+            raise RTestDataError(f"drift pairs: two pairs for sphere set-up {int(sphere[i0]) + 1} (one per set-up)")
+        group[members] = p
+    repeats = {i1 for _, i1 in pairs}
+    rows = np.array([k for k in range(n) if k not in repeats])
+    w = np.zeros(len(rows))
     L = np.zeros((3 * len(rows), 3 * n))
     for r, k in enumerate(rows):
         L[3 * r:3 * r + 3, 3 * k:3 * k + 3] += np.eye(3)
+        if group[k] < 0:
+            continue
+        i0, i1 = pairs[group[k]]
+        t0, t1 = float(poses.time_s[i0]), float(poses.time_s[i1])
+        w[r] = (float(poses.time_s[k]) - t0) / (t1 - t0)
         L[3 * r:3 * r + 3, 3 * i1:3 * i1 + 3] -= w[r] * np.eye(3)
         L[3 * r:3 * r + 3, 3 * i0:3 * i0 + 3] += w[r] * np.eye(3)
-    return rows, L, w
+    return rows, L, w, group[rows]
 
 
 def _sources(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated: StatedUncertainty,
-             d_all_mm: np.ndarray, drift_mm: np.ndarray, L: np.ndarray, w: np.ndarray) -> dict[str, np.ndarray]:
-    """Each source's effect on the fitted displacements (3N_fit × q), mm per 1σ of its q inputs."""
+             d_all_mm: np.ndarray, drift_mm: np.ndarray, L: np.ndarray, w: np.ndarray,
+             group: np.ndarray) -> dict[str, np.ndarray]:
+    """Each source's effect on the fitted displacements (3N_fit × q), mm per 1σ of its q inputs (``drift_mm``:
+    each drift pair's measured drift, (pairs, 3))."""
     n = len(poses.joints)
     Sinv = np.linalg.inv(nest.matrix)
     B = np.kron(np.eye(n), Sinv) * 1e-3  # readings µm → displacements mm
@@ -400,11 +425,13 @@ def _sources(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated
         lin[3 * np.arange(n) + a, col] = -J[:, b] * u
     out["linear axes"] = np.hstack([L @ lin, L * stated.linear_repeatability_um * 1e-3])
     out["nest zero"] = L @ np.tile(-np.eye(3), (n, 1)) * stated.nest_zero_um * 1e-3
-    if setup.drift_pair is not None:
+    if setup.pairs():
         bump = 4.0 * w * (1.0 - w)
-        drift = np.zeros((3 * len(w), 3))
-        for a in range(3):
-            drift[3 * np.arange(len(w)) + a, a] = bump * stated.drift_nonlinearity * abs(drift_mm[a]) / np.sqrt(3.0)
+        drift = np.zeros((3 * len(w), 3 * len(drift_mm)))  # each pair's miss independent of the others'
+        for p, pair_drift in enumerate(drift_mm):
+            mine = np.nonzero(group == p)[0]
+            for a in range(3):
+                drift[3 * mine + a, 3 * p + a] = bump[mine] * stated.drift_nonlinearity * abs(pair_drift[a]) / np.sqrt(3.0)
         out["drift"] = drift
     return out
 
@@ -449,7 +476,7 @@ def _analyse(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated
     n_spheres = len(np.asarray(setup.spheres_mm).reshape(-1, 3))
     if np.any(np.asarray(poses.sphere) < 0) or np.any(np.asarray(poses.sphere) >= n_spheres):
         raise RTestDataError(f"poses name sphere set-ups beyond the {n_spheres} given")
-    rows, L, w = _drift_map(poses, setup)
+    rows, L, w, group = _drift_map(poses, setup)
     layout = _layout(poses, n_spheres, rows)
     d = (L @ d_all_mm.ravel()).reshape(-1, 3)
     W_half = np.kron(np.eye(len(rows)), _whitening(nest, stated))
@@ -472,7 +499,7 @@ def _analyse(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated
         exact = _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
         linearisation = float(np.max(np.abs(exact - (f0 + J0 @ x)))) * 1e3
     H = _pinv(W_half @ J) @ W_half  # influence of the displacements (mm) on every parameter (estimable rows unique)
-    sources = _sources(poses, setup, nest, stated, d_all_mm, drift_mm, L, w)
+    sources = _sources(poses, setup, nest, stated, d_all_mm, drift_mm, L, w, group)
     variances = {name: np.sum((H @ F) ** 2, axis=1) for name, F in sources.items()}
     structural = _structural(W_half @ J, W_half @ _jacobian(x, layout, poses, setup, rows, structural_columns=True))
     ident = Identifiability(tuple(_display(layout.names[i]) for i in np.nonzero(estimable)[0] if i < 8),
@@ -507,8 +534,9 @@ def solve_rtest(poses: RTestPoses, readings_um: np.ndarray, setup: RTestSetup, n
         raise RTestDataError(f"pose {k + 1}: sensor {i + 1}'s contact left its flat face (more than "
                              f"{setup.flat_radius_mm:g} mm across it), where the nest's linear form no longer holds: "
                              "centre the sphere in the nest at the start, or use sensors with larger flats")
-    drift = np.zeros(3) if setup.drift_pair is None else d_all[setup.drift_pair[1]] - d_all[setup.drift_pair[0]]
-    adj = _analyse(poses, setup, nest, stated, d_all, drift, True)
+    drifts = np.array([d_all[i1] - d_all[i0] for i0, i1 in setup.pairs()]).reshape(-1, 3)
+    drift = drifts[0] if len(drifts) else np.zeros(3)
+    adj = _analyse(poses, setup, nest, stated, d_all, drifts, True)
     layout, rows, x, W_half = adj.layout, adj.rows, adj.x, adj.W_half
     r = adj.d.ravel() - _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
     V = sum(F @ F.T for F in adj.sources.values())
@@ -546,7 +574,7 @@ def solve_rtest(poses: RTestPoses, readings_um: np.ndarray, setup: RTestSetup, n
     d = adj.d
     return RTestResult(location, setup_offsets, ecc, adj.identifiability, check, drift * 1e3, (d - setup_only) * 1e3,
                        (d - setup_only - compensated) * 1e3, r.reshape(-1, 3) * 1e3, adj.iterations,
-                       adj.linearisation_um, rows)
+                       adj.linearisation_um, rows, drifts * 1e3)
 
 
 def predict_rtest(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated: StatedUncertainty) -> RTestPrediction:
@@ -554,7 +582,7 @@ def predict_rtest(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, s
     identifiability of the plan, at the nominal machine (no errors, the sphere where the path assumes
     it; the drift as ``stated.expected_drift_um`` on each axis)."""
     n = len(poses.joints)
-    drift = np.full(3, stated.expected_drift_um * 1e-3)
+    drift = np.full((max(len(setup.pairs()), 1), 3), stated.expected_drift_um * 1e-3)
     adj = _analyse(poses, setup, nest, stated, np.zeros((n, 3)), drift, False)
     U, budget = {}, {}
     for i, name in enumerate(LOCATION_NAMES):

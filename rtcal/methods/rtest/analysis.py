@@ -12,7 +12,7 @@ from rtcal import api
 from rtcal.methods.rtest.plan import JOINTS, SENSOR, calibration_moves_mm
 from rtcal.methods.rtest.procedure import FORMATS, NEST, RTestTrunnion
 from rtcal.methods.rtest.results import (LocationError, NestCalibrationResult, RTestAnalysis, RTestEstimates, RTestTruth,
-                                         SpherePath, SphereUsed)
+                                         SecondPosition, SpherePath, SphereUsed)
 from rtcal.solvers.rtest import LOCATION_SYMBOLS, NestCalibration, calibrate_nest
 from rtcal.solvers.rtest_fit import RTestPoses, RTestResult, RTestSetup, solve_rtest
 
@@ -44,10 +44,13 @@ def dataset(store: api.RunReadings, n: int) -> RTestData:
     return RTestData(joints, readings, t)
 
 
-def setup_of(proc: RTestTrunnion, n_poses: int) -> RTestSetup:
+def setup_of(proc: RTestTrunnion) -> RTestSetup:
+    """The solver's set-up: one sphere set-up per position, each with its own drift pair."""
     x, y, z = proc.nest.offset_mm
-    return RTestSetup(proc.kinematics.geometry(), np.array([proc.sphere.position_mm], float), (x, y, z),
-                      (0, n_poses - 1), proc.nest.flat_radius_mm)
+    pairs = proc.drift_pairs()
+    return RTestSetup(proc.kinematics.geometry(), np.array(proc.sphere.positions(), float), (x, y, z),
+                      pairs[0] if len(pairs) == 1 else None, proc.nest.flat_radius_mm,
+                      pairs if len(pairs) > 1 else ())
 
 
 def nest_calibration(proc: RTestTrunnion, data: RTestData) -> NestCalibration:
@@ -69,8 +72,8 @@ def solve(proc: RTestTrunnion, data: RTestData) -> tuple[NestCalibration, RTestR
     if missing:
         raise api.DataContradiction(f"{len(missing)} poses of the kinematic tests have no whole reading (the first: pose "
                                     f"{missing[0] + 1}): resume the run to take them")
-    rp = RTestPoses.of(J, [0] * len(poses), [d for _, _, d in poses], [float(v) for v in t])
-    return nest, solve_rtest(rp, m, setup_of(proc, len(poses)), nest, proc.stated())
+    rp = RTestPoses.of(J, proc.pose_spheres(), [d for _, _, d in poses], [float(v) for v in t])
+    return nest, solve_rtest(rp, m, setup_of(proc), nest, proc.stated())
 
 
 def _round(x: float, digits: int = 4) -> float:
@@ -104,6 +107,12 @@ def analyse(proc: RTestTrunnion, store: api.RunReadings, truth: dict[str, float]
     path = SpherePath(a_deg=[poses[int(i)][0] for i in rows], c_deg=[poses[int(i)][1] for i in rows],
                       before_um=norm(result.before_um), after_um=norm(result.after_um), residual_um=norm(result.residual_um))
     sx, sy, sz = result.setup_offsets[0]
+    second = None
+    if proc.sphere.second_position_mm is not None:
+        s2 = result.setup_offsets[1]
+        second = SecondPosition(position_mm=list(proc.sphere.second_position_mm),
+                                setup_um=[_round(p.value) for p in s2], setup_u_um=[_round(p.u) for p in s2],
+                                drift_um=[_round(v) for v in result.drifts_um[1]])
     rtruth = None
     if truth is not None:
         rtruth = RTestTruth(location_errors={s: _round(truth[s], 6) for s in LOCATION_SYMBOLS},
@@ -120,5 +129,6 @@ def analyse(proc: RTestTrunnion, store: api.RunReadings, truth: dict[str, float]
         sphere_setup_u_um=[_round(p.u) for p in (sx, sy, sz)], sphere_path=path,
         residual_test=api.residual_test(result.residual_test), linearisation_um=_round(result.linearisation_um, 6),
         sphere=SphereUsed(radius_mm=proc.sphere.certificate.radius_mm, form_um=proc.sphere.certificate.form_um,
-                          certificate=proc.sphere.certificate.number, position_mm=list(proc.sphere.position_mm)),
+                          certificate=proc.sphere.certificate.number, position_mm=list(proc.sphere.position_mm),
+                          second=second),
         control_records={fmt: proc.control_record(fmt) for fmt in FORMATS})

@@ -31,14 +31,17 @@ def nominal_directions(proc: RTestTrunnion) -> np.ndarray:
 
 def predict(proc: RTestTrunnion) -> RTestPrediction:
     """Before anything moves: each location error's U (k = 2) and what the plan cannot determine."""
-    poses = proc.poses()
-    J = joint_targets(proc.kinematics.geometry(), proc.sphere.position_mm, np.array([a for a, _, _ in poses]),
-                      np.array([c for _, c, _ in poses]),
-                      proc.nest.offset_mm)
-    rp = RTestPoses.of(J, [0] * len(poses), [d for _, _, d in poses], [10.0 * k for k in range(len(poses))])
+    poses, spheres = proc.poses(), proc.pose_spheres()
+    positions = proc.sphere.positions()
+    J = np.zeros((len(poses), 5))
+    for j, where in enumerate(positions):
+        mine = np.array(spheres) == j
+        J[mine] = joint_targets(proc.kinematics.geometry(), where, np.array([a for a, _, _ in poses])[mine],
+                                np.array([c for _, c, _ in poses])[mine], proc.nest.offset_mm)
+    rp = RTestPoses.of(J, spheres, [d for _, _, d in poses], [10.0 * k for k in range(len(poses))])
     stated = proc.stated()
     nest = nominal_nest(nominal_directions(proc), calibration_moves_mm(proc), stated.reading_sigma_um())
-    return predict_rtest(rp, analysis.setup_of(proc, len(poses)), nest, stated)
+    return predict_rtest(rp, analysis.setup_of(proc), nest, stated)
 
 
 class RTestPlanner:
@@ -79,6 +82,11 @@ class RTestMethod(api.MethodBase):
     def scenario_problem(self, proc: RTestTrunnion, scenario: api.Scenario) -> tuple[tuple[str, ...], str] | None:
         if scenario.machine is None:
             return ("bench",), "the bench's scenario has no `machine:` (the trunnion machine, its sphere and nest)"
+        n = len(proc.sphere.positions())
+        if len(scenario.machine.sphere.positions_mm) < n:
+            return (("sphere", "second_position_mm"), f"the bench's scenario sets the sphere up at "
+                    f"{len(scenario.machine.sphere.positions_mm)} position(s) (machine.sphere.positions_mm), the "
+                    f"procedure tests {n}: give the scenario the second position")
         return None
 
     def analyse(self, proc: RTestTrunnion, store: api.RunReadings, bench: api.SimBench | None,

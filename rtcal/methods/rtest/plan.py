@@ -41,6 +41,15 @@ def calibration_moves_mm(proc: RTestTrunnion) -> np.ndarray:
     return CALIBRATION_MOVES * proc.nest.calibration.move_mm
 
 
+def move_instruction(proc: RTestTrunnion) -> str:
+    """The operator's step between the two positions: the sphere moves, the nest stays as calibrated."""
+    x, y, z = proc.sphere.second_position_mm or proc.sphere.position_mm
+    return (f"The tests at the sphere's first position are done. Move the sphere to its second position, its centre "
+            f"at X {x:g}, Y {y:g}, Z {z:g} mm (machine coordinates at A = C = 0), and clamp it. Leave the nest and its "
+            f"sensors as they are (their calibration holds). The machine then moves the nest onto the sphere from "
+            f"{CLEARANCE_MM:g} mm above.")
+
+
 def mount_instruction(proc: RTestTrunnion, resumed: bool) -> str:
     s = proc.sphere
     if resumed:
@@ -62,7 +71,8 @@ class RTestPlan(api.PlanBase):
         self.resumed = bool(done)
         self.policies = {"machine": proc.on_fault.machine, **{n: proc.on_fault.nest for n in NEST}}
         self.poses = proc.poses()
-        labels = k_test_labels(proc)
+        self.spheres = proc.pose_spheres()
+        labels = k_test_labels(proc) * len(proc.sphere.positions())
         self.moves = calibration_moves_mm(proc)
         entries = []
         for k in range(len(self.moves)):
@@ -71,19 +81,37 @@ class RTestPlan(api.PlanBase):
                                      {"step": "nest calibration", "move": k}, f"nest calibration, move {k}"))
         for i, ((a, c, d), label) in enumerate(zip(self.poses, labels)):
             k = len(self.moves) + i
-            entries.append(api.Entry(k, 0, {"plan_index": k, "segment": generation, "run": 0, "direction": d,
+            j = self.spheres[i]
+            where = {"sphere": j + 1} if len(proc.sphere.positions()) > 1 else {}
+            entries.append(api.Entry(k, j, {"plan_index": k, "segment": generation, "run": 0, "direction": d,
                                             "commanded_angle_deg": c, "k_test": label, "a_deg": a, "nest_move": -1},
-                                     {"test": TESTS[label], "A": a, "C": c, "direction": "↑" if d > 0 else "↓"},
-                                     f"A {a:g}°, C {c:g}° {'↑' if d > 0 else '↓'}"))
+                                     {"test": TESTS[label], "A": a, "C": c, "direction": "↑" if d > 0 else "↓", **where},
+                                     f"A {a:g}°, C {c:g}° {'↑' if d > 0 else '↓'}"
+                                     + (f" (sphere position {j + 1})" if where else "")))
         self.entries = entries
 
     def enter_group(self, entry: api.Entry, first: bool) -> list[api.Step]:
-        return [api.OperatorStep(mount_instruction(self.proc, self.resumed),
-                                 "sphere and nest " + ("confirmed" if self.resumed else "mounted"), None,
-                                 "mount the sphere and the nest", "machine", 0.0 if self.resumed else self.proc.durations.mount_s)]
+        """Group 0: mount the sphere and the nest; group 1: move the sphere to its second position. On a simulated
+        bench with two positions the operator's hands mount the group's sphere set-up (a resume too)."""
+        group = entry.group
+        simulate = None
+        if self.proc.sphere.second_position_mm is not None:
+            def simulate(hands: Any, index: int = group) -> None:
+                hands.mount_sphere(index)
+        if group == 0 or (first and self.resumed):
+            return [api.OperatorStep(mount_instruction(self.proc, self.resumed),
+                                     "sphere and nest " + ("confirmed" if self.resumed else "mounted"), simulate,
+                                     "mount the sphere and the nest", "machine",
+                                     0.0 if self.resumed else self.proc.durations.mount_s)]
+        # the nest clear of both positions first (the operator's hands between them)
+        top = max(p[2] for p in self.proc.sphere.positions()) - self.proc.sphere.position_mm[2] + CLEARANCE_MM
+        return [api.Move("machine", api.MachineTarget({**self._point((0, 0, top)), "a": 0.0, "c": 0.0}, tcp=True),
+                         what="the nest clear of the sphere"),
+                api.OperatorStep(move_instruction(self.proc), "sphere moved to its second position", simulate,
+                                 "move the sphere to its second position", "machine", self.proc.durations.mount_s)]
 
-    def _point(self, offset_mm: Any = (0.0, 0.0, 0.0)) -> dict[str, float]:
-        x, y, z = (float(v) + float(o) for v, o in zip(self.proc.sphere.position_mm, offset_mm))
+    def _point(self, offset_mm: Any = (0.0, 0.0, 0.0), sphere: int = 0) -> dict[str, float]:
+        x, y, z = (float(v) + float(o) for v, o in zip(self.proc.sphere.positions()[sphere], offset_mm))
         return {"x": x, "y": y, "z": z}
 
     def _joints_at(self, a_deg: float, c_deg: float) -> Any:
@@ -109,9 +137,14 @@ class RTestPlan(api.PlanBase):
             yield api.Move("machine", api.MachineTarget({**self._point(move), "a": 0.0, "c": 0.0}, tcp=True),
                            what=f"nest calibration move {ctx['nest_move']}")
         else:
-            past = {**self._point(), "a": a, "c": c - d * proc.tests.overshoot_deg}
+            j = self.spheres[int(ctx["plan_index"]) - len(self.moves)]
+            if j > 0 and int(ctx["plan_index"]) == len(self.moves) + self.spheres.index(j):
+                # onto the moved sphere from above (its first pose), as at the first position
+                yield api.Move("machine", api.MachineTarget({**self._point((0, 0, CLEARANCE_MM), j), "a": a, "c": c},
+                                                            tcp=True), what="above the sphere")
+            past = {**self._point(sphere=j), "a": a, "c": c - d * proc.tests.overshoot_deg}
             via = (past,) if proc.tests.overshoot_deg > 0 else ()
-            yield api.Move("machine", api.MachineTarget({**self._point(), "a": a, "c": c}, via, tcp=True),
+            yield api.Move("machine", api.MachineTarget({**self._point(sphere=j), "a": a, "c": c}, via, tcp=True),
                            what=f"A {a:g}°, C {c:g}°")
         yield api.Settle(proc.settle_time_s)
         yield self._joints_at(a, c)

@@ -63,6 +63,15 @@ class Sphere(api.StrictModel):
     position_mm: Vec3 = Field((150.0, 0.0, 80.0), description=(
         "where the sphere's centre is set up on the table, by its machine coordinates at A = C = 0, mm"))
     certificate: SphereCertificate = Field(SphereCertificate(), description="the sphere's certificate")
+    second_position_mm: Vec3 | None = Field(None, description=(
+        "where the operator moves the sphere (e.g. a second height on a riser) once the tests at `position_mm` are "
+        "done, machine coordinates at A = C = 0, mm; the tests are repeated there, each position's first pose "
+        "repeated at its end (its own drift). Null: one position. Two heights separate C's tilts (A0C, B0C) from "
+        "the set-up better than one"))
+
+    def positions(self) -> list[Vec3]:
+        """The sphere's positions in the order they are tested."""
+        return [self.position_mm] + ([] if self.second_position_mm is None else [self.second_position_mm])
 
 
 class NestCalibrationPlan(api.StrictModel):
@@ -139,9 +148,21 @@ class RTestTrunnion(api.ProcedureBase):
     durations: Durations = Field(Durations(), description="what the operator's step takes")
 
     def poses(self) -> list[tuple[float, float, int]]:
-        """(A, C, C's approach direction) of each K-test reading, in order (the first pose repeated last)."""
+        """(A, C, C's approach direction) of each K-test reading, in order: the tests at each sphere position in
+        turn, each position's first pose repeated at its end."""
         t = self.tests
-        return k_test_sequence(t.c_angles_deg, t.tilt_deg, t.a_angles_deg, t.both_directions)
+        one = k_test_sequence(t.c_angles_deg, t.tilt_deg, t.a_angles_deg, t.both_directions)
+        return one * len(self.sphere.positions())
+
+    def pose_spheres(self) -> list[int]:
+        """The sphere position (index into ``sphere.positions()``) of each pose of ``poses()``."""
+        n = len(self.poses()) // len(self.sphere.positions())
+        return [j for j in range(len(self.sphere.positions())) for _ in range(n)]
+
+    def drift_pairs(self) -> tuple[tuple[int, int], ...]:
+        """Per sphere position, (its first pose, its repeat) as indices of ``poses()``: the drift of each."""
+        n = len(self.poses()) // len(self.sphere.positions())
+        return tuple((j * n, j * n + n - 1) for j in range(len(self.sphere.positions())))
 
     def approaches(self) -> tuple[set[int], int]:
         return ({1, -1} if self.tests.both_directions else {1}), 1

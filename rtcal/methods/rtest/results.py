@@ -47,13 +47,27 @@ class SpherePath(api.ResultsModel):
     residual_um: list[float] = Field(description="|what the whole model leaves|, µm")
 
 
+class SecondPosition(api.ResultsModel):
+    """The sphere's second position (procedure's `sphere.second_position_mm`), its tests' own set-up and drift."""
+
+    position_mm: list[float] = Field(description="where it was set up, machine coordinates at A = C = 0, mm")
+    setup_um: list[float] = Field(description="where it really sat less where the path assumed it, x, y, z, µm")
+    setup_u_um: list[float] = Field(description="their standard uncertainties, µm")
+    drift_um: list[float] = Field(description="its repeated first pose less its first, x, y, z, µm (corrected linearly)")
+
+
 class SphereUsed(api.ResultsModel):
-    """The sphere as its certificate states it."""
+    """The sphere as its certificate states it, and where it was set up."""
+
+    OPTIONAL_KEYS = frozenset({"second"})
 
     radius_mm: float = Field(gt=0.0, description="radius, mm")
     form_um: float = Field(ge=0.0, description="form deviation, peak to valley, µm")
     certificate: str = Field(description="its certificate's number (empty: not stated)")
     position_mm: list[float] = Field(description="where it was set up, machine coordinates at A = C = 0, mm")
+    second: SecondPosition | None = Field(None, description=(
+        "its second position, when the procedure moved it there (absent: one position; `drift_um`, "
+        "`sphere_setup_um` are the first position's)"))
 
 
 class RTestEstimates(api.NamedSet[api.QuantityEstimate]):
