@@ -16,7 +16,7 @@ import yaml
 from rtcal.cli import main
 from rtcal.compensation.linuxcnc_kins import LinuxCncTrtFormat
 from rtcal.methods import load_procedure, read_results
-from rtcal.methods.rtest.method import RTestPlanner, predict
+from rtcal.methods.rtest.method import RTestMethod, RTestPlanner, predict
 from rtcal.methods.rtest.results import RTestResults
 from rtcal.solvers.rtest import LOCATION_SYMBOLS
 
@@ -186,3 +186,82 @@ def test_the_certificate_says_what_the_r_test_measured_and_leaves_out_what_it_di
 
     again = build_certificate(read_results(shipped_run), shipped_run, AsPositioning())
     assert again.periodic_error is not None and again.periodic_error.statement.startswith("Not tested")
+
+
+# -- the sphere at two heights (sphere.second_position_mm) --------------------------------------------------------
+TWO_HEIGHTS = REPO / "procedures" / "rtest_two_heights.yaml"
+
+
+@pytest.fixture(scope="module")
+def two_heights_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("rtest2") / "run"
+    assert main(["run", str(TWO_HEIGHTS), "--out", str(out)]) == 0
+    return out
+
+
+def test_two_heights_recover_the_eight_within_u_and_shrink_the_tilts_u(two_heights_run, shipped_run):
+    """The tests repeated with the sphere 120 mm higher: every location error within its U of the truth, the second
+    set-up's offset found, and the four tilts (A0C, B0C of C; B0A, C0A of A) with a smaller U than one height gives
+    (the second height is a lever arm of its own for them)."""
+    two, one = read_results(two_heights_run), read_results(shipped_run)
+    assert isinstance(two, RTestResults) and isinstance(one, RTestResults)
+    truth = yaml.safe_load(SCENARIO.read_text())["machine"]
+    for symbol, e in two.location_errors.items():
+        assert abs(e.value - truth["location_errors"][symbol]) <= e.expanded_uncertainty, (symbol, e)
+    assert set(two.location_errors) == set(LOCATION_SYMBOLS)
+    U2 = {s: e.expanded_uncertainty for s, e in two.location_errors.items()}
+    U1 = {s: e.expanded_uncertainty for s, e in one.location_errors.items()}
+    for symbol in ("A0C_arcsec", "B0C_arcsec", "B0A_arcsec", "C0A_arcsec"):
+        assert U2[symbol] < U1[symbol], (symbol, U2[symbol], U1[symbol])
+    assert U2["C0A_arcsec"] < 0.7 * U1["C0A_arcsec"] and U2["A0C_arcsec"] < 0.95 * U1["A0C_arcsec"], (U2, U1)
+    second = two.sphere.second
+    assert second is not None and second.position_mm == [150.0, 0.0, 200.0]
+    for found, u, true in zip(second.setup_um, second.setup_u_um, truth["sphere"]["setup_offsets_um"][1]):
+        assert abs(found - true) <= 3 * u, (second.setup_um, truth["sphere"]["setup_offsets_um"][1])
+    assert len(two.sphere_path.before_um) == 2 * len(one.sphere_path.before_um)
+    assert two.residual_test is not None and two.residual_test.passed
+    assert one.sphere.second is None and "second" not in json.loads((shipped_run / "results.json").read_text())["sphere"]
+
+
+def test_each_height_corrects_its_own_drift(tmp_path):
+    """A warming through the run (τ = 1000 s; the operator's move of the sphere included): each height's repeated
+    first pose measures its own part of it, and the location errors stay within U."""
+    scenario = yaml.safe_load(SCENARIO.read_text())
+    scenario["machine"]["drift"] = {"amplitude_um": [30.0, -20.0, 40.0], "time_constant_s": 1e3}
+    (tmp_path / "scenario.yaml").write_text(yaml.safe_dump(scenario))
+    assert main(["run", str(TWO_HEIGHTS), "--scenario", str(tmp_path / "scenario.yaml"), "--out", str(tmp_path / "run")]) == 0
+    results = read_results(tmp_path / "run")
+    assert isinstance(results, RTestResults) and results.sphere.second is not None
+    first, second = results.drift_um, results.sphere.second.drift_um
+    assert min(abs(v) for v in second) > 0.5, (first, second)  # the noise alone: ~0.2 µm
+    # a warming that slows: the second height, later in the run, drifts less than the first did
+    assert all(abs(b) < abs(a) and a * b > 0 for a, b in zip(first, second)), (first, second)
+    for symbol, e in results.location_errors.items():
+        assert abs(e.value - scenario["machine"]["location_errors"][symbol]) <= e.expanded_uncertainty, (symbol, e)
+
+
+def test_the_plan_moves_the_sphere_between_the_heights_and_predicts_u(capsys):
+    from rtcal.api import Move, OperatorStep
+
+    proc = load_procedure(TWO_HEIGHTS)
+    plan = RTestMethod().plan(proc, set())
+    groups = [e.group for e in plan.entries]
+    assert groups == sorted(groups) and set(groups) == {0, 1}
+    entry = next(e for e in plan.entries if e.group == 1)
+    steps = list(plan.enter_group(entry, False))
+    assert isinstance(steps[0], Move) and isinstance(steps[1], OperatorStep)
+    assert "second position" in steps[1].instruction and "Z 200" in steps[1].instruction
+    assert steps[1].simulate is not None  # the simulated operator mounts the second set-up
+    assert main(["plan", str(TWO_HEIGHTS), "--no-levers"]) == 0
+    out = capsys.readouterr().out
+    assert "135 planned readings" in out and "predicted U (k = 2) of each location error: X0C" in out
+
+
+def test_a_second_height_the_scenario_lacks_is_one_line_and_exit_2(tmp_path, capsys):
+    scenario = yaml.safe_load(SCENARIO.read_text())
+    for key in ("positions_mm", "setup_offsets_um"):
+        scenario["machine"]["sphere"][key] = scenario["machine"]["sphere"][key][:1]
+    (tmp_path / "scenario.yaml").write_text(yaml.safe_dump(scenario))
+    assert main(["run", str(TWO_HEIGHTS), "--scenario", str(tmp_path / "scenario.yaml"), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "sphere.second_position_mm" in err and "Traceback" not in err, err

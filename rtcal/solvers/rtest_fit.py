@@ -355,15 +355,23 @@ def _rotation_parts(poses: RTestPoses, rows: np.ndarray) -> np.ndarray:
     return R
 
 
-def _drift_map(poses: RTestPoses, setup: RTestSetup) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _drift_map(poses: RTestPoses, setup: RTestSetup) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(fitted pose indices, L (3N_fit × 3N_all) the linear drift correction, w (N_fit,) each fitted
-    pose's fraction of the time between its pair, g (N_fit,) the pair correcting it, −1 none). One pair
-    corrects every pose; several each correct the poses of their own sphere set-up."""
+    pose's fraction of the time between its pair, g (N_fit,) the pair correcting it (−1 none), gap
+    (N_fit,) how much of the drift before its group's first pose the correction takes out, in units of
+    that group's measured drift — see below). One pair corrects every pose; several each correct the
+    poses of their own sphere set-up, in the order taken.
+
+    Between two groups the sphere is moved, so no pose measures the drift accumulated before a later
+    group's first pose — and, constant in the machine frame, no set-up offset (constant on the table) can
+    take it. It is bridged: the drift goes on at the mean of the rates its neighbours' pairs measured
+    (D_p = D_{p−1} + Δ_{p−1} + ½·gap·(Δ_{p−1}/T_{p−1} + Δ_p/T_p)), linear in the readings, so the
+    sensors' part of its uncertainty is in L; the budget's drift source adds ``drift_nonlinearity`` of it."""
     n = len(poses.joints)
     pairs = setup.pairs()
     if not pairs:
         rows = np.arange(n)
-        return rows, np.eye(3 * n), np.zeros(n), np.full(n, -1)
+        return rows, np.eye(3 * n), np.zeros(n), np.full(n, -1), np.zeros((0, 0))
     sphere = np.asarray(poses.sphere)
     group = np.full(n, -1)
     for p, (i0, i1) in enumerate(pairs):
@@ -379,6 +387,17 @@ def _drift_map(poses: RTestPoses, setup: RTestSetup) -> tuple[np.ndarray, np.nda
         group[members] = p
     repeats = {i1 for _, i1 in pairs}
     rows = np.array([k for k in range(n) if k not in repeats])
+    t = np.asarray(poses.time_s, float)
+    span = [t[i1] - t[i0] for i0, i1 in pairs]
+    # the drift before each group's first pose, as coefficients of the pairs' measured drifts Δ_q
+    before = np.zeros((len(pairs), len(pairs)))
+    for p in range(1, len(pairs)):
+        gap = t[pairs[p][0]] - t[pairs[p - 1][1]]
+        if gap < 0:
+            raise RTestDataError("drift pairs: each group's poses after the previous group's repeat")
+        before[p] = before[p - 1]
+        before[p, p - 1] += 1.0 + 0.5 * gap / span[p - 1]
+        before[p, p] += 0.5 * gap / span[p]
     w = np.zeros(len(rows))
     L = np.zeros((3 * len(rows), 3 * n))
     for r, k in enumerate(rows):
@@ -386,16 +405,18 @@ def _drift_map(poses: RTestPoses, setup: RTestSetup) -> tuple[np.ndarray, np.nda
         if group[k] < 0:
             continue
         i0, i1 = pairs[group[k]]
-        t0, t1 = float(poses.time_s[i0]), float(poses.time_s[i1])
-        w[r] = (float(poses.time_s[k]) - t0) / (t1 - t0)
-        L[3 * r:3 * r + 3, 3 * i1:3 * i1 + 3] -= w[r] * np.eye(3)
-        L[3 * r:3 * r + 3, 3 * i0:3 * i0 + 3] += w[r] * np.eye(3)
-    return rows, L, w, group[rows]
+        w[r] = (t[k] - t[i0]) / (t[i1] - t[i0])
+        coef = before[group[k]].copy()
+        coef[group[k]] += w[r]
+        for q, (j0, j1) in enumerate(pairs):
+            L[3 * r:3 * r + 3, 3 * j1:3 * j1 + 3] -= coef[q] * np.eye(3)
+            L[3 * r:3 * r + 3, 3 * j0:3 * j0 + 3] += coef[q] * np.eye(3)
+    return rows, L, w, group[rows], before
 
 
 def _sources(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated: StatedUncertainty,
              d_all_mm: np.ndarray, drift_mm: np.ndarray, L: np.ndarray, w: np.ndarray,
-             group: np.ndarray) -> dict[str, np.ndarray]:
+             group: np.ndarray, before: np.ndarray) -> dict[str, np.ndarray]:
     """Each source's effect on the fitted displacements (3N_fit × q), mm per 1σ of its q inputs (``drift_mm``:
     each drift pair's measured drift, (pairs, 3))."""
     n = len(poses.joints)
@@ -427,11 +448,14 @@ def _sources(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated
     out["nest zero"] = L @ np.tile(-np.eye(3), (n, 1)) * stated.nest_zero_um * 1e-3
     if setup.pairs():
         bump = 4.0 * w * (1.0 - w)
-        drift = np.zeros((3 * len(w), 3 * len(drift_mm)))  # each pair's miss independent of the others'
+        k = len(drift_mm)
+        drift = np.zeros((3 * len(w), 6 * k))  # each pair's miss, and each bridge's, independent of the others'
+        bridged = before @ np.asarray(drift_mm).reshape(k, 3)  # the drift bridged before each group (0 for the first)
         for p, pair_drift in enumerate(drift_mm):
             mine = np.nonzero(group == p)[0]
             for a in range(3):
                 drift[3 * mine + a, 3 * p + a] = bump[mine] * stated.drift_nonlinearity * abs(pair_drift[a]) / np.sqrt(3.0)
+                drift[3 * mine + a, 3 * (k + p) + a] = stated.drift_nonlinearity * abs(bridged[p, a]) / np.sqrt(3.0)
         out["drift"] = drift
     return out
 
@@ -476,7 +500,7 @@ def _analyse(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated
     n_spheres = len(np.asarray(setup.spheres_mm).reshape(-1, 3))
     if np.any(np.asarray(poses.sphere) < 0) or np.any(np.asarray(poses.sphere) >= n_spheres):
         raise RTestDataError(f"poses name sphere set-ups beyond the {n_spheres} given")
-    rows, L, w, group = _drift_map(poses, setup)
+    rows, L, w, group, before = _drift_map(poses, setup)
     layout = _layout(poses, n_spheres, rows)
     d = (L @ d_all_mm.ravel()).reshape(-1, 3)
     W_half = np.kron(np.eye(len(rows)), _whitening(nest, stated))
@@ -499,7 +523,7 @@ def _analyse(poses: RTestPoses, setup: RTestSetup, nest: NestCalibration, stated
         exact = _model(x, np.zeros(4), layout, poses, setup, rows).ravel()
         linearisation = float(np.max(np.abs(exact - (f0 + J0 @ x)))) * 1e3
     H = _pinv(W_half @ J) @ W_half  # influence of the displacements (mm) on every parameter (estimable rows unique)
-    sources = _sources(poses, setup, nest, stated, d_all_mm, drift_mm, L, w, group)
+    sources = _sources(poses, setup, nest, stated, d_all_mm, drift_mm, L, w, group, before)
     variances = {name: np.sum((H @ F) ** 2, axis=1) for name, F in sources.items()}
     structural = _structural(W_half @ J, W_half @ _jacobian(x, layout, poses, setup, rows, structural_columns=True))
     ident = Identifiability(tuple(_display(layout.names[i]) for i in np.nonzero(estimable)[0] if i < 8),
