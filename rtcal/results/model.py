@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler
 
 from rtcal.moved import moved
 
-SCHEMA_VERSION = "1.6"
+SCHEMA_VERSION = "1.7"
 # the first schema_version whose files carry each digest: a file of that version or later without it
 # was not written by rtcal (rtcal/run/integrity.py refuses it)
 STORE_DIGESTS_SINCE = (1, 2)

@@ -87,6 +87,12 @@ class RTestOutputs(api.OutputsBase):
         p = r.sphere_path
         lines += ["", f"Sphere path: largest deviation {max(p.before_um):.2f} µm as measured, {max(p.after_um):.2f} µm once "
                   f"the location errors are compensated; drift {', '.join(f'{v:+.2f}' for v in r.drift_um)} µm (x, y, z).", ""]
+        second = r.sphere.second
+        if second is not None:
+            lines[-1:] = [f"The sphere's second position, X {second.position_mm[0]:g}, Y {second.position_mm[1]:g}, "
+                          f"Z {second.position_mm[2]:g} mm: its set-up offset "
+                          f"{', '.join(f'{v:+.2f}' for v in second.setup_um)} µm, its drift "
+                          f"{', '.join(f'{v:+.2f}' for v in second.drift_um)} µm (x, y, z).", ""]
         return lines
 
     def certificate_figures(self) -> list[tuple[str, str]]:
@@ -100,7 +106,11 @@ class RTestOutputs(api.OutputsBase):
                 "on the table, a nest of three displacement sensors in the spindle, calibrated on the machine from seven "
                 "positions of the linear axes. C was turned at A = 0 and at a tilt, A at C = 0, both directions, the "
                 "linear axes following the sphere's nominal path by the control's own kinematics; the first pose was "
-                "repeated at the end for the drift. The location errors are the least-squares adjustment of the exact "
+                "repeated at the end for the drift. "
+                + (f"The tests were repeated with the sphere moved to a second position (Z {s.second.position_mm[2]:g} "
+                   "mm, its own drift measured; the drift while it was moved bridged at the measured rates). "
+                   if s.second is not None else "")
+                + "The location errors are the least-squares adjustment of the exact "
                 "kinematic model to the sphere-centre displacements, with a GUM budget per parameter (k = 2)."]
 
     def subject(self) -> str:
