@@ -252,6 +252,10 @@ def test_the_plan_moves_the_sphere_between_the_heights_and_predicts_u(capsys):
     assert isinstance(steps[0], Move) and isinstance(steps[1], OperatorStep)
     assert "second position" in steps[1].instruction and "Z 200" in steps[1].instruction
     assert steps[1].simulate is not None  # the simulated operator mounts the second set-up
+    resumed = RTestMethod().plan(proc, {e.index for e in plan.entries if e.group == 0})
+    again = list(resumed.enter_group(entry, True))  # a run resumed at the second position: confirmed, not mounted anew
+    assert len(again) == 1 and isinstance(again[0], OperatorStep) and "resumes at the sphere's second position" in \
+        again[0].instruction and again[0].simulate is not None
     assert main(["plan", str(TWO_HEIGHTS), "--no-levers"]) == 0
     out = capsys.readouterr().out
     assert "135 planned readings" in out and "predicted U (k = 2) of each location error: X0C" in out
@@ -265,3 +269,23 @@ def test_a_second_height_the_scenario_lacks_is_one_line_and_exit_2(tmp_path, cap
     assert main(["run", str(TWO_HEIGHTS), "--scenario", str(tmp_path / "scenario.yaml"), "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert "sphere.second_position_mm" in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("kill_after", [100])  # in the second height's tests (7 calibration + 64 poses at the first)
+def test_a_run_killed_at_the_second_height_resumes_onto_the_sphere_and_recovers_the_eight(tmp_path, kill_after):
+    """SIGKILL mid-run, `rtcal resume`: the resumed machine goes onto the sphere from above before the sphere path
+    (without it the first move strikes the nest), the simulated operator sets the second position up again, and
+    the results are as a run without the kill's: each location error within U, the second set-up found."""
+    from tests.test_crash_resume import _run_and_kill
+
+    run = tmp_path / "run"
+    assert _run_and_kill(["run", str(TWO_HEIGHTS), "--out", str(run)], run / "run.sqlite", kill_after)
+    assert main(["resume", str(run)]) == 0
+    results = read_results(run)
+    assert isinstance(results, RTestResults) and results.sphere.second is not None
+    truth = yaml.safe_load(SCENARIO.read_text())["machine"]
+    for symbol, e in results.location_errors.items():
+        assert abs(e.value - truth["location_errors"][symbol]) <= e.expanded_uncertainty, (symbol, e)
+    for found, u, true in zip(results.sphere.second.setup_um, results.sphere.second.setup_u_um,
+                              truth["sphere"]["setup_offsets_um"][1]):
+        assert abs(found - true) <= 3 * u, results.sphere.second

@@ -69,6 +69,7 @@ class RTestPlan(api.PlanBase):
     def __init__(self, proc: RTestTrunnion, done: set[int], generation: int):
         self.proc = proc
         self.resumed = bool(done)
+        self.reapproach = False
         self.policies = {"machine": proc.on_fault.machine, **{n: proc.on_fault.nest for n in NEST}}
         self.poses = proc.poses()
         self.spheres = proc.pose_spheres()
@@ -94,10 +95,17 @@ class RTestPlan(api.PlanBase):
         """Group 0: mount the sphere and the nest; group 1: move the sphere to its second position. On a simulated
         bench with two positions the operator's hands mount the group's sphere set-up (a resume too)."""
         group = entry.group
+        self.reapproach = first and self.resumed  # the machine may stand anywhere: onto the sphere from above first
         simulate = None
         if self.proc.sphere.second_position_mm is not None:
             def simulate(hands: Any, index: int = group) -> None:
                 hands.mount_sphere(index)
+        if first and self.resumed and group > 0:  # the move may or may not have been made before the run stopped
+            x, y, z = self.proc.sphere.second_position_mm or self.proc.sphere.position_mm
+            return [api.OperatorStep(f"The run resumes at the sphere's second position: its centre at X {x:g}, Y {y:g}, "
+                                     f"Z {z:g} mm (move it there if it is not). Do not move the nest.",
+                                     "sphere at its second position confirmed", simulate,
+                                     "confirm the sphere at its second position", "machine", 0.0)]
         if group == 0 or (first and self.resumed):
             return [api.OperatorStep(mount_instruction(self.proc, self.resumed),
                                      "sphere and nest " + ("confirmed" if self.resumed else "mounted"), simulate,
@@ -128,6 +136,13 @@ class RTestPlan(api.PlanBase):
         proc = self.proc
         ctx = entry.context
         a, c, d = float(ctx["a_deg"]), float(ctx["commanded_angle_deg"]), int(ctx["direction"])
+        if self.reapproach and ctx["nest_move"] != 0:  # a resumed run: the sphere path starts at the first pose
+            self.reapproach = False
+            j = 0 if ctx["nest_move"] >= 0 else self.spheres[int(ctx["plan_index"]) - len(self.moves)]
+            yield api.Move("machine", api.MachineTarget({**self._point((0, 0, CLEARANCE_MM), j), "a": 0.0, "c": 0.0},
+                                                        tcp=True), what="above the sphere")
+            yield api.Move("machine", api.MachineTarget({**self._point(sphere=j), "a": 0.0, "c": 0.0}, tcp=True),
+                           what="onto the sphere")
         if ctx["nest_move"] >= 0:
             move = self.moves[int(ctx["nest_move"])]
             if ctx["nest_move"] == 0:  # onto the sphere from above, whatever the machine's pose
