@@ -289,3 +289,24 @@ def test_a_run_killed_at_the_second_height_resumes_onto_the_sphere_and_recovers_
     for found, u, true in zip(results.sphere.second.setup_um, results.sphere.second.setup_u_um,
                               truth["sphere"]["setup_offsets_um"][1]):
         assert abs(found - true) <= 3 * u, results.sphere.second
+
+
+def test_the_simulated_operator_sets_the_sphere_up_at_a_position_the_scenario_has():
+    """`mount_sphere` is one of the bench's operator actions (what `rtcal sim serve`'s operator does on `DO
+    mount_sphere [1]`): the machine's sphere is then the second set-up, before or after the machine is made; an index
+    the scenario lacks is a ValueError (the hub's `ERR ARG`)."""
+    from simulators.bench import Bench
+    from simulators.machine_tool import machine_of
+    from simulators.scenario import Scenario
+
+    scenario = Scenario.model_validate(yaml.safe_load(SCENARIO.read_text()))
+    assert "mount_sphere" in Bench.OPERATOR_ACTIONS
+    early, late = Bench(scenario), Bench(scenario)
+    early.mount_sphere(1)
+    machine_of(late).sphere_centre_mm({"x": 0.0, "y": 0.0, "z": 0.0, "a": 0.0, "c": 0.0})
+    late.mount_sphere(1)
+    for bench in (early, late):
+        centre = machine_of(bench).sphere_centre_mm({"x": 0.0, "y": 0.0, "z": 0.0, "a": 0.0, "c": 0.0})
+        assert centre[2] == pytest.approx(200.0, abs=0.1)
+    with pytest.raises(ValueError, match="sets up 2"):
+        early.mount_sphere(2)
