@@ -440,7 +440,7 @@ def residual_check(residuals: np.ndarray, covariance: Covariance | np.ndarray, p
         P = covariance.restricted() if dof >= 1 else None
     if P is None:
         return None
-    chi2 = P.quadratic(r)
+    chi2 = max(P.quadratic(r), 0.0)  # a form of a positive semi-definite P: below 0 only by rounding (exact readings)
     check = ResidualCheck(chi2, dof, float(np.sqrt(chi2 / dof)), float(chi2_dist.sf(chi2, dof)), jacobian is not None)
     scores = source_scores(P, r, scored) if scored and jacobian is not None else []
     if not scores:
