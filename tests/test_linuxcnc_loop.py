@@ -132,6 +132,7 @@ def hal_motor_deg() -> float:
     return float(out.stdout.strip())
 
 
+@pytest.mark.campaign  # a minute and more of LinuxCNC; CI keeps the stops, the joints' kinematics and the pins (test_linuxcnc_stops, test_linuxcnc_machine)
 def test_loop_calibrate_compensate_reload_verify(tmp_path):
     """The loop on a real LinuxCNC: calibrate, compensate, restart LinuxCNC with the table, test again."""
     with linuxcnc_bench() as addresses:
@@ -194,6 +195,7 @@ def _estop_from_another_console(stage_address: str, after_s: float, done: thread
     done.set()
 
 
+@pytest.mark.campaign  # LinuxCNC restarted mid-run; CI keeps the e-stop of the simulated drive over the wires (test_faults)
 def test_estop_mid_run_is_an_instrument_fault_and_the_run_resumes_once_the_operator_releases_it(tmp_path):
     with linuxcnc_bench() as addresses:
         pressed = threading.Event()
@@ -217,6 +219,7 @@ def test_estop_mid_run_is_an_instrument_fault_and_the_run_resumes_once_the_opera
         assert result["starts"] == 3 and result["evaluation"]["iso230_2"]["targets"] == 4
 
 
+@pytest.mark.campaign  # a minute of LinuxCNC
 def test_probe_refuses_an_estopped_linuxcnc_and_refused_moves_leave_no_trace():
     """Issue 36 on the real controller: a probe while the operator holds E-stop is refused and E-stop stays
     on; after two moves LinuxCNC refuses (beyond its ±400° joint limits), a legal one succeeds."""

@@ -167,6 +167,7 @@ def test_a_linuxcnc_without_the_trunnion_kinematics_is_refused_before_anything_m
             process.stop()
 
 
+@pytest.mark.campaign  # LinuxCNC brought up and down by sim serve; CI keeps the machine's kinematics test
 def test_sim_serve_machine_linuxcnc_prints_the_machine_tools_address_and_shuts_linuxcnc_down(tmp_path):
     bad = tmp_path / "bad.hal"
     bad.write_text("setp xyzac-trt-kins.x-rot-point twelve\n")

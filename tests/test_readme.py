@@ -118,8 +118,9 @@ def environment(root: Path) -> dict[str, str]:
     for name in ("python", "python3"):
         (bin_dir / name).symlink_to(sys.executable)
     env = dict(os.environ)
-    env.update(PATH=f"{bin_dir}{os.pathsep}{env.get('PATH', '')}", PYTHONPATH=str(root), MPLBACKEND="Agg",
-               PYTHONDONTWRITEBYTECODE="1")
+    # the copy's bytecode is cached as a user's checkout's is: compiled once, not at every command
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    env.update(PATH=f"{bin_dir}{os.pathsep}{env.get('PATH', '')}", PYTHONPATH=str(root), MPLBACKEND="Agg")
     return env
 
 
@@ -171,6 +172,7 @@ def test_readme_commands_run(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.campaign  # a minute and more: README's commands run in CI (test_readme_commands_run), docs/'s with -m campaign
 @pytest.mark.parametrize("doc", DOCS, ids=[d.name for d in DOCS])
 def test_docs_commands_run(tmp_path, doc):
     """Each document's commands, in order, in a fresh copy: each must exit 0 with what the

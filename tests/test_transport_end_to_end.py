@@ -114,6 +114,7 @@ def test_mixed_sim_and_address_is_refused(tmp_path, capsys):
     assert "two different benches" in capsys.readouterr().err
 
 
+@pytest.mark.campaign  # a minute over the wires; CI keeps paper000 and seed001 over the wires
 def test_two_mounts_and_the_environment_sensor_over_the_wires(tmp_path):
     """A second tracer mount (the simulated operator moves the tracer) and the environment sensor
     (a serial line) in drifting air on a noise-free bench with error motions: the network estimate
