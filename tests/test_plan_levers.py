@@ -18,6 +18,8 @@ from rtcal.planning import levers as lv
 from rtcal.methods import load_procedure
 from rtcal.run.runner import resolve_scenario
 
+pytestmark = pytest.mark.xdist_group("plan_levers")  # one worker, in order: the module's proposal computed once
+
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = REPO / "procedures" / "laser_tracer_multistation.yaml"
 ABBE = REPO / "procedures" / "encoder_abbe_error.yaml"
@@ -41,7 +43,6 @@ def proposal(tmp_path_factory):
     return json.loads(out.getvalue()), folder
 
 
-@pytest.mark.xdist_group("plan_levers_proposal")  # one worker computes the module's proposal once
 def test_plan_json_names_the_dominant_sources_and_every_lever(proposal):
     """One JSON object: U (k = 2) of the recommended estimator at its worst target, the machine time, the
     dominant sources (the error motions one mount cannot separate: most of the variance) and a row per lever.
@@ -86,7 +87,6 @@ def test_target_u_proposes_a_plan_that_validates_and_writes_nothing_else(proposa
     assert proc.second_mount is not None
 
 
-@pytest.mark.xdist_group("plan_levers_proposal")  # one worker computes the module's proposal once
 def test_the_proposal_is_verified_by_a_small_monte_carlo(proposal, tmp_path):
     """6 simulated runs of the proposed plan (tracer, CMM and stage noise, CMM errors and error motions
     drawn within the stated uncertainties). 6 trials know a target's RMS error to ±1/√12 = 29 % (1σ);
