@@ -67,7 +67,7 @@ class RTestOutputs(api.OutputsBase):
         ax.set_xlabel("pose of the kinematic tests")
         ax.set_ylabel("|sphere centre − nest zero| / µm")
         ax.grid(alpha=0.3)
-        ax.legend()
+        api.legend_below(fig)  # inside the axes it covered the first poses' deviations
         fig.savefig(run_dir / FIGURE, dpi=110)
         return [*written, run_dir / FIGURE]
 
