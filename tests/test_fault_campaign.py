@@ -9,8 +9,8 @@ draws: a new bench generation, or a new simulator) until every planned reading i
 exactly once, whatever was skipped retaken. (At 30 % emergency stops with `abort` a start takes
 about one reading, so up to four starts per planned reading are allowed.)
 
-CI runs one case per fault kind and per policy, over each wiring (about a minute); the whole
-grid is under `pytest -m campaign` (README: Tests).
+CI runs every second (method, instrument, fault kind), each policy and each wiring met several times (about a
+minute); the whole grid is under `pytest -m campaign` (README: Tests).
 """
 
 from __future__ import annotations
