@@ -33,7 +33,7 @@ from drivers.factory import open_dial_indicator, open_machine_tool
 from drivers.interfaces import MachineTarget
 from rtcal.compensation.kinematics import LocationErrors
 from rtcal.compensation.linuxcnc_kins import LinuxCncTrtFormat
-from rtcal.procedure.loader import load_scenario
+from simulators.scenario_file import load_scenario
 from simulators.servers.hub import SimulatorHub
 from simulators.servers.linuxcnc import LinuxCncProcess, available, console
 from tests.rtest_sim import linuxcnc_xyzac_inverse
