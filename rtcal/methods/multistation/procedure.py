@@ -216,10 +216,12 @@ class MultistationUncertainty(StrictModel):
     table_expansion_u_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
         "standard uncertainty of that coefficient, ppm/K (e.g. 1.0)"))
     laser_tracer_sphere_form_um: float = Field(0.0, ge=0.0, le=100.0, description=(
-        "the form error of the tracer's reference sphere, µm: the bound of its departure from a sphere, from the "
-        "tracer's specification or certificate (Type B, e.g. 0.05 for the LaserTRACER class). Fixed to the tracer's "
-        "base, which turns with the table, it reads each point differently from each station: lobes about the "
-        "tracer's vertical, σ = bound/√2 in every direction (0: not stated, named in not_included)"))
+        "the form deviation of the tracer's reference sphere, µm, peak to valley (ISO 12181-1: the radius within ± half "
+        "of it), from the tracer's specification or certificate (Type B, e.g. 0.05 for the LaserTRACER class). Fixed to "
+        "the tracer's base, which turns with the table, it reads each point differently from each station: lobes about "
+        "the tracer's vertical, σ = PV/(2√2) in every direction. Not stated: the specified class of the product "
+        "metadata.instruments.laser_tracer.id names (an Etalon LaserTRACER's 0.05), said so in the budget; a tracer "
+        "with no published figure: named in not_included"))
     laser_tracer_sphere_max_order: int = Field(6, ge=2, le=360, description=(
         "the highest lobe order (lobes per turn) of that form (e.g. 6)"))
 
