@@ -100,6 +100,8 @@ class StationNoiseModel:
     sphere_form_um: float = 0.0  # the tracer's reference sphere's form deviation, peak to valley (σ = PV/(2√2))
     sphere_max_order: int = 6  # its lobes' highest order
     sphere_form_assumed: str = ""  # the tracer model whose specified form is assumed, none being stated ("": as stated)
+    sphere_map_u_um: float = 0.0  # the lengths corrected by the sphere's certified map: its standard uncertainty, µm
+    sphere_map_note: str = ""  # which certificate
 
 
 @dataclass(frozen=True)
@@ -250,7 +252,7 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         sources.append(cmm_field_source(u, obs.point, pts, noise))
     sources += mount_gradient_sources(radial_sensitivity_mm(u, P, axis_center_mm, axis_direction), obs.material_offset_k,
                                       obs.run_fraction, noise)
-    if noise.sphere_form_um > 0:
+    if noise.sphere_form_um > 0 or noise.sphere_map_u_um > 0:
         sources.append(sphere_form_source(u, P, axis_center_mm, axis_direction, noise))
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
@@ -403,10 +405,16 @@ def sphere_form_source(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center
     rel = np.asarray(stations_mm, float) - np.asarray(axis_center_mm, float)
     psi = np.arctan2(u @ e2, u @ e1) - np.arctan2(rel @ e2, rel @ e1)
     orders = np.arange(2, max(noise.sphere_max_order, 2) + 1)
-    s = noise.sphere_form_um * 1e-3 / (2.0 * np.sqrt(2.0)) / np.sqrt(len(orders))
+    sigma_um = noise.sphere_map_u_um if noise.sphere_map_u_um > 0 else noise.sphere_form_um / (2.0 * np.sqrt(2.0))
+    s = sigma_um * 1e-3 / np.sqrt(len(orders))
     F = np.hstack([np.cos(np.outer(psi, orders)) * s, np.sin(np.outer(psi, orders)) * s])
-    origin = (f"not stated, the {noise.sphere_form_assumed}'s {noise.sphere_form_um:g} µm assumed from its specification"
-              if noise.sphere_form_assumed else "as stated")
+    if noise.sphere_map_u_um > 0:  # the lengths were corrected by the certificate's map: what remains is its error
+        return Source(SPHERE_SOURCE + ": corrected by its certificate's map", "B", F, noise.sphere_map_u_um, "µm (1σ)",
+                      f"the lengths corrected by the sphere's map ({noise.sphere_map_note}); what remains is the map's "
+                      f"uncertainty, {noise.sphere_map_u_um:g} µm (1σ) in every direction, as lobes of orders "
+                      f"2..{orders[-1]} about the tracer's vertical")
+    origin = (f"assumed from the {noise.sphere_form_assumed}'s specification, not stated" if noise.sphere_form_assumed
+              else "as stated")
     return Source(SPHERE_SOURCE + (f": not stated, the {noise.sphere_form_assumed}'s class assumed"
                                    if noise.sphere_form_assumed else ""), "B", F, noise.sphere_form_um, "µm (peak to valley)",
                   f"the sphere's form deviation {noise.sphere_form_um:g} µm peak to valley, {origin}: lobes of orders "

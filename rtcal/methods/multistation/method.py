@@ -133,6 +133,29 @@ def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> 
                    other_mounts=others)
 
 
+def corrected_for_sphere(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
+    """The lengths corrected by the reference sphere's certified map (``uncertainty.laser_tracer_sphere_map``): each
+    reads short by the sphere's deviation where its beam touches it, at the beam's azimuth about the axis less the
+    station's own (the tracer's base turns with the table), from the nominal geometry — a station guess off by 1 mm
+    turns that azimuth by about 0.06°, a few picometres of a 50 nm form."""
+    smap = proc.uncertainty.laser_tracer_sphere_map
+    if smap is None:
+        return data
+    nominal = np.deg2rad(data.nominal_angles_deg)
+    axis = np.array(proc.solver.axis_point_mm)
+
+    def fix(lengths: np.ndarray, guess: Sequence[float]) -> np.ndarray:
+        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
+        beam = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
+        rel = stations - axis
+        psi = np.arctan2(beam[..., 1], beam[..., 0]) - np.arctan2(rel[:, 1], rel[:, 0])[None, :]
+        return np.asarray(lengths, float) + smap.at(psi) * 1e-3
+
+    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
+    others = tuple(replace(o, lengths_mm=fix(o.lengths_mm, second)) for o in data.other_mounts)
+    return replace(data, lengths_mm=fix(data.lengths_mm, proc.solver.first_station_guess_mm), other_mounts=others)
+
+
 def not_included(proc: LaserTracerMultistation, data: MultistationData | None = None) -> list[str]:
     """Type B sources the procedure did not state: the budget is silent on them, and says so."""
     u = proc.uncertainty
@@ -160,7 +183,7 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
                    "(uncertainty.cmm_field_um); each estimate's residual test (against the whole budget) shows a field "
                    "only where the stations and dead paths cannot take it up: a smooth 1 µm field passes it unseen "
                    "while it moves the angles")
-    if sphere_form(proc)[0] == 0:
+    if sphere_form(proc)[0] == 0 and u.laser_tracer_sphere_map is None:
         out.append("laser tracer reference sphere form: not stated (uncertainty.laser_tracer_sphere_form_um), and the tracer "
                    "named (metadata.instruments.laser_tracer.id) is no product with a published figure: U excludes it. The "
                    "sphere is fixed to the tracer's base, which turns with the table, so its form (a LaserTRACER's: below "
@@ -201,7 +224,10 @@ def failure_causes(proc: LaserTracerMultistation, noise: StationNoiseModel) -> l
         out.append(f"the air left the stated ranges ({noise.air_note})")
     out.append("the CMM's geometry beyond its scales and squarenesses" + (f" exceeds the stated {u.cmm_field_um:g} µm field"
                                                                            if u.cmm_field_um > 0 else " (not stated)"))
-    if noise.sphere_form_um == 0:
+    if noise.sphere_map_u_um > 0:
+        out.append("the tracer's reference sphere is not as its certificate's map (laser_tracer_sphere_map) says, or "
+                   "the map's azimuth is not set as the tracer is mounted")
+    elif noise.sphere_form_um == 0:
         out.append("the tracer's reference sphere is out of round (its form not stated)")
     elif noise.sphere_form_assumed:
         out.append(f"the tracer's reference sphere is out of round beyond the {noise.sphere_form_assumed}'s specified "
@@ -457,7 +483,8 @@ class MultistationMethod:
         """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
         recommended one, its positioning-deviation table, and the truth of a simulated run."""
         angles = proc.stations.angles_deg()
-        data = corrected_for_air(multistation_data(store, angles, len(proc.points_array()), proc.mounts), proc)
+        data = corrected_for_sphere(corrected_for_air(multistation_data(store, angles, len(proc.points_array()),
+                                                                        proc.mounts), proc), proc)
         data = with_growth_unknown(corrected_for_expansion(data, proc), proc)
         guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
         noise, omitted = noise_model(proc, estimate_noise), not_included(proc, data)

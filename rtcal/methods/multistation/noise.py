@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
@@ -46,7 +48,17 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         mount_gradient_share=u.environment.mount_gradient_share if table_sensor(proc) else 0.0,
         mount_gradient_assumed=table_sensor(proc) and "mount_gradient_share" not in u.environment.model_fields_set,
         sphere_form_um=sphere_form(proc)[0], sphere_max_order=u.laser_tracer_sphere_max_order,
-        sphere_form_assumed=sphere_form(proc)[1])
+        sphere_form_assumed=sphere_form(proc)[1], **sphere_map_terms(proc))
+
+
+def sphere_map_terms(proc: LaserTracerMultistation) -> dict[str, Any]:
+    """The certified sphere map's standard uncertainty (its expanded U / 2) and note, when the lengths are corrected
+    by one (:func:`rtcal.methods.multistation.method.corrected_for_sphere`)."""
+    m = proc.uncertainty.laser_tracer_sphere_map
+    if m is None:
+        return {}
+    return {"sphere_map_u_um": m.expanded_uncertainty_um / 2.0,
+            "sphere_map_note": f"certificate {m.certificate}" if m.certificate else "its certificate, as stated"}
 
 
 def sphere_form(proc: LaserTracerMultistation) -> tuple[float, str]:
@@ -55,6 +67,8 @@ def sphere_form(proc: LaserTracerMultistation) -> tuple[float, str]:
     sphere is never round, and a budget silent on it is short by the form's whole effect (issue 44); (0, "") when the
     tracer is not a product with a published figure."""
     u = proc.uncertainty
+    if u.laser_tracer_sphere_map is not None:  # the map corrects the lengths: only its own uncertainty remains
+        return 0.0, ""
     if "laser_tracer_sphere_form_um" in u.model_fields_set:
         return float(u.laser_tracer_sphere_form_um), ""
     record = proc.metadata.instruments.get("laser_tracer")
