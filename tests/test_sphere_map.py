@@ -132,3 +132,18 @@ def test_the_corrected_run_has_the_round_spheres_errors(tmp_path):
     corrected = errors(path, lobed)
     assert np.max(np.abs(uncorrected - round_errors)) > 0.2
     assert np.max(np.abs(corrected - round_errors)) < 0.02
+
+
+def test_an_unstated_form_of_a_named_laser_tracer_is_its_class_assumed_and_said(tmp_path):
+    """Item 2(c): the procedure names an Etalon LaserTRACER and states no form: its specified class is the budget's
+    line, named as assumed (as the default α), in every estimate and in the certificate's method section."""
+    results = run_procedure(str(MC / "sphere_unstated.yaml"), MC / "sphere_bench.yaml", 7, tmp_path / "run",
+                            show_progress=False).results
+    for name, e in results.estimates.items():
+        line = next(c for c in e.uncertainty_budget.components if c.source.startswith(SPHERE_SOURCE))
+        assert line.source.endswith("the Etalon LaserTRACER's class assumed"), name
+        assert "assumed from the Etalon LaserTRACER's specification, not stated" in line.note
+        assert (line.input_sigma, line.unit) == (0.05, "µm (peak to valley)")
+        assert not any(n.startswith(SPHERE_SOURCE) for n in e.uncertainty_budget.not_included)
+    cert = (tmp_path / "run" / "certificate.json").read_text(encoding="utf-8")
+    assert "out of round within its tracer's specified class (assumed, not stated)" in cert
