@@ -235,7 +235,8 @@ def _goal_met(summary: dict) -> bool:
 
 
 @pytest.mark.campaign
-@pytest.mark.parametrize("case", ["gradient", "sphere", "aluminium", "cmm_field_600", "default_alpha"])
+@pytest.mark.parametrize("case", ["gradient", "sphere", "sphere_bench", "sphere_unstated", "aluminium", "cmm_field_600",
+                                  "default_alpha"])
 def test_where_the_room_breaks_the_budget_the_goal_holds_campaign(case):
     assert _goal_met(_case(case))
 
