@@ -232,6 +232,8 @@ def failure_causes(proc: LaserTracerMultistation, noise: StationNoiseModel) -> l
     elif noise.sphere_form_assumed:
         out.append(f"the tracer's reference sphere is out of round beyond the {noise.sphere_form_assumed}'s specified "
                    f"{noise.sphere_form_um:g} µm (assumed, not stated)")
+    else:
+        out.append(f"the tracer's reference sphere is out of round beyond the stated {noise.sphere_form_um:g} µm peak to valley")
     em = u.error_motions
     out.append("the table's error motions exceed their stated bounds" if max(em.radial_um, em.axial_um, em.tilt_arcsec) > 0
                else "the table's error motions (no bounds stated)")
