@@ -38,9 +38,9 @@ BUDGET = REPO / "tests" / "data" / "budget"
 # name: (procedure, bench (None: the procedure's), systematics drawn, what it shows)
 CASES: dict[str, tuple[Path, Path | None, bool, str]] = {
     "gradient": (MC / "gradient.yaml", None, True, "sensor 1 K/h, the tracer's mount 1.5 K/h"),
-    "sphere": (MC / "sphere.yaml", None, True, "sphere form stated 50 nm, drawn per trial"),
+    "sphere": (MC / "sphere.yaml", None, True, "sphere form stated 50 nm PV, a sphere within it drawn per trial"),
     "sphere_bench": (MC / "sphere.yaml", None, False, "the bench's 30 nm 2-lobe + 40 nm 3-lobe, fixed"),
-    "sphere_unstated": (MC / "sphere_unstated.yaml", None, False, "the same form, not stated"),
+    "sphere_unstated": (MC / "sphere_unstated.yaml", None, False, "the same form, not stated: the named LaserTRACER's 50 nm assumed"),
     "aluminium": (MC / "aluminium.yaml", None, True, "23 ppm/K table, no α stated (steel assumed)"),
     "air_step_low": (MC / "air_step_low.yaml", None, False, "1.8 K air step, no sensor, 0.02 µm tracer"),
     "air_step": (BUDGET / "air_step.yaml", None, False, "1.8 K air step, no sensor, 0.2 µm tracer"),
