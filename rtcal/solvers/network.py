@@ -45,6 +45,7 @@ from rtcal.solvers.station_budget import (
     AIR_DRIFT_SOURCE,
     StationNoiseModel,
     COURSE_KNOTS,
+    STEEP_SHARE,
     StationObservations,
     air_drift_source,
     observation_sources,
@@ -92,6 +93,7 @@ class NetworkOptions:
     estimate_variances: bool = True  # Type A sizes of tracer and CMM noise from the residuals
     max_iterations: int = 50
     check_residuals: bool = True  # the residuals' χ² against the stated noise (a dense Cholesky: a Monte Carlo skips it)
+    solve_air_course: bool = True  # no air sensor: the index's course over the run as unknowns, where the data see it
 
 
 @dataclass(frozen=True)
@@ -196,7 +198,7 @@ class _Layout:
     tilt ε_j (2, about the axis frame's x and y)."""
 
     def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool, mounts: int = 1,
-                 growth_mm_per_ppm: np.ndarray | None = None):
+                 growth_mm_per_ppm: np.ndarray | None = None, course_mm_per_ppm: np.ndarray | None = None):
         self.m, self.k, self.n, self.mounts = m, k, n, mounts
         self.c = slice(0, 3)
         self.a = slice(3, 5)
@@ -212,7 +214,11 @@ class _Layout:
         # each length moves by −growth·κ
         self.growth = growth_mm_per_ppm
         self.kappa = slice(self.eps.stop, self.eps.stop + (0 if growth_mm_per_ppm is None else 1))
-        self.g = self.kappa.stop  # number of global unknowns
+        # no air sensor: the uncorrected index's course over the run, ppm, as few dense columns (N × s: hats of the
+        # run's time and steps, times each length; :func:`_air_course`); each length reads long by course·g
+        self.course = course_mm_per_ppm
+        self.air = slice(self.kappa.stop, self.kappa.stop + (0 if course_mm_per_ppm is None else course_mm_per_ppm.shape[1]))
+        self.g = self.air.stop  # number of global unknowns
         self.free_points = free_points
         self.size = self.g + (3 * n if free_points else 0)
 
@@ -259,6 +265,8 @@ def _residuals(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg:
     f_len = np.linalg.norm(A[pi] - P[st], axis=1) - x[lay.d][seg] - obs
     if lay.growth is not None:
         f_len = f_len - lay.growth * x[lay.kappa.start]
+    if lay.course is not None:
+        f_len = f_len + lay.course @ x[lay.air]
     if not lay.free_points:
         return f_len, None
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
@@ -283,6 +291,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
     f_len = L - dead[seg] - obs
     if lay.growth is not None:
         f_len = f_len - lay.growth * x[lay.kappa.start]
+    if lay.course is not None:
+        f_len = f_len + lay.course @ x[lay.air]
     N = len(obs)
     rows = np.arange(N)
     Jg = np.zeros((N, lay.g))
@@ -321,6 +331,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
     Jg[rows, lay.d.start + seg] = -1.0
     if lay.growth is not None:
         Jg[:, lay.kappa.start] = -lay.growth
+    if lay.course is not None:
+        Jg[:, lay.air] = lay.course
     if not lay.free_points:
         return f_len, Jg, None, None, None, P, A
     M = cmm_matrix(q)
@@ -486,6 +498,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         f_len, Jg, Jp, f_pts, Jg_pts, P, A = model[:7]
         Minv = model[7] if lay.free_points else None
         L = f_len + x[lay.d][seg] + obs + (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
+        if lay.course is not None:
+            L = L - lay.course @ x[lay.air]
         return f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L
 
     def cost_of(x: np.ndarray, w_len, w_pts) -> float:
@@ -494,62 +508,166 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if f_pts is not None else 0.0) + prior
 
     converged, it, message = False, 0, ""
-    previous = None  # (x, θ, iterations, message) of the last converged pass
-    estimate = options.estimate_variances and noise.estimate
-    for _outer in range(6 if estimate else 1):
-        converged, mu = False, 1e-3
-        for it in range(1, options.max_iterations + 1):
-            f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
-            w_len, w_pts, _, _ = weights(theta, L, P, A)
-            cost = cost_of(x, w_len, w_pts)
-            pieces = _add_prior(_normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay), x,
-                                prior_idx, prior_sigma)
-            gn, gp, S_inv, blocks = _solve_step(*pieces, 0.0)
-            # converged: the undamped Gauss–Newton step (to first order the distance to the optimum) is
-            # below 1e-3 of every unknown's own standard deviation, or below 1e-10 of its unit (mm:
-            # 0.1 pm; rad: 2e-5″) where the data are exact
-            ratio = np.max(np.abs(gn) / (np.sqrt(np.abs(np.diag(S_inv))) + 1e-300))
-            if gp is not None:
-                sd_p = np.sqrt(np.abs(np.einsum("iaa->ia", blocks[0]))).ravel()  # a lower bound of each point's σ
-                ratio = max(ratio, np.max(np.abs(gp) / (sd_p + 1e-300)))
-            tiny = np.max(np.abs(gn)) < 1e-10 and (gp is None or np.max(np.abs(gp)) < 1e-10)
-            if ratio < 1e-3 or tiny:
-                converged, message = True, f"converged in {it} iterations"
+    fallback = None  # no air sensor: the adjustment without the air's course, kept for when the data cannot see it
+    air_pass = 0
+    while True:  # passes: the model; then, without an air sensor, the air's course (hats, then steps) beside it
+        previous = None  # (x, θ, iterations, message) of the last converged pass
+        estimate = options.estimate_variances and noise.estimate
+        for _outer in range(6 if estimate else 1):
+            converged, mu = False, 1e-3
+            for it in range(1, options.max_iterations + 1):
+                f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
+                w_len, w_pts, _, _ = weights(theta, L, P, A)
+                cost = cost_of(x, w_len, w_pts)
+                pieces = _add_prior(_normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay), x,
+                                    prior_idx, prior_sigma)
+                gn, gp, S_inv, blocks = _solve_step(*pieces, 0.0)
+                # converged: the undamped Gauss–Newton step (to first order the distance to the optimum) is
+                # below 1e-3 of every unknown's own standard deviation, or below 1e-10 of its unit (mm:
+                # 0.1 pm; rad: 2e-5″) where the data are exact
+                ratio = np.max(np.abs(gn) / (np.sqrt(np.abs(np.diag(S_inv))) + 1e-300))
+                if gp is not None:
+                    sd_p = np.sqrt(np.abs(np.einsum("iaa->ia", blocks[0]))).ravel()  # a lower bound of each point's σ
+                    ratio = max(ratio, np.max(np.abs(gp) / (sd_p + 1e-300)))
+                tiny = np.max(np.abs(gn)) < 1e-10 and (gp is None or np.max(np.abs(gp)) < 1e-10)
+                if ratio < 1e-3 or tiny:
+                    converged, message = True, f"converged in {it} iterations"
+                    break
+                while True:
+                    dgl, dp, _, _ = _solve_step(*pieces, mu)
+                    step = np.concatenate([dgl, dp]) if dp is not None else dgl
+                    trial_cost = cost_of(x + step, w_len, w_pts)
+                    if trial_cost <= cost or mu > 1e8:
+                        break
+                    mu *= 10.0
+                if trial_cost > cost or mu > 1e6:
+                    if ratio < 1e-2:  # the cost's rounding noise exceeds what is left to gain (many residuals)
+                        converged, message = True, f"converged in {it} iterations (at the rounding floor)"
+                        break
+                    if trial_cost > cost:
+                        message = "not converged: no step lowers the cost"
+                        break
+                x = x + step
+                mu = max(mu / 10.0, 1e-12)
+            else:
+                message = f"not converged: iteration limit ({options.max_iterations}) reached"
+            if not converged:
+                if previous is not None:  # re-weighting broke a converged solution (exact data): keep that one
+                    x, theta, it, message = previous
+                    converged = True
                 break
-            while True:
-                dgl, dp, _, _ = _solve_step(*pieces, mu)
-                step = np.concatenate([dgl, dp]) if dp is not None else dgl
-                trial_cost = cost_of(x + step, w_len, w_pts)
-                if trial_cost <= cost or mu > 1e8:
-                    break
-                mu *= 10.0
-            if trial_cost > cost or mu > 1e6:
-                if ratio < 1e-2:  # the cost's rounding noise exceeds what is left to gain (many residuals)
-                    converged, message = True, f"converged in {it} iterations (at the rounding floor)"
-                    break
-                if trial_cost > cost:
-                    message = "not converged: no step lowers the cost"
-                    break
-            x = x + step
-            mu = max(mu / 10.0, 1e-12)
-        else:
-            message = f"not converged: iteration limit ({options.max_iterations}) reached"
-        if not converged:
-            if previous is not None:  # re-weighting broke a converged solution (exact data): keep that one
-                x, theta, it, message = previous
-                converged = True
+            if not estimate:
+                break
+            previous = (x.copy(), theta.copy(), it, message)
+            new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi, (prior_idx, prior_sigma))
+            settled = np.max(np.abs(new_theta - theta) / theta) < 3e-3  # θ itself is known to a few 0.1 % at best
+            theta = new_theta
+            if settled:
+                break
+        if noise.air_index_bound <= 0 or not options.solve_air_course or not converged or air_pass == 2:
             break
-        if not estimate:
+        if air_pass == 1 and not _course_seen(_inverse_pieces(x, lay, evaluate, weights, theta, pi,
+                                                              (prior_idx, prior_sigma))[10], lay, noise):
+            converged = False  # the hats alone: where the data do not see them, the model without the course
             break
-        previous = (x.copy(), theta.copy(), it, message)
-        new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi, (prior_idx, prior_sigma))
-        settled = np.max(np.abs(new_theta - theta) / theta) < 3e-3  # θ itself is known to a few 0.1 % at best
-        theta = new_theta
-        if settled:
+        if air_pass == 0:
+            fallback = (x.copy(), theta.copy(), lay, it, converged, message)
+            air_mm = evaluate(x)[8]  # each length's whole distance, the course's sensitivity
+            columns = _air_hats(air_mm, run_fraction, noise, drop_constant=lay.q.stop > lay.q.start)
+        else:  # the hats follow a smooth course; where they jump, a free step at every reading there
+            columns = _air_steps(x[lay.air], np.asarray(lay.course), air_mm, run_fraction, noise)
+        air_pass += 1
+        if columns.shape[1] == 0:
             break
+        added = columns if lay.course is None else np.hstack([lay.course, columns])
+        wider = _Layout(m, len(seg_ids), n, lay.q.stop > lay.q.start, options.free_points, len(mounts), growth, added)
+        x = np.concatenate([x[: lay.g], np.zeros(wider.g - lay.g), x[lay.g :]])
+        lay = wider
+    if lay.course is not None and fallback is not None and not converged:
+        x, theta, lay, it, converged, message = fallback
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
                    (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals,
                    (seg, obs, points, data.point_visit_counts))
+
+
+def _air_hats(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel,
+              drop_constant: bool) -> np.ndarray:
+    """(N, K) mm per ppm: the uncorrected air index's course as piecewise-linear hats of the run's time
+    (:func:`rtcal.solvers.station_budget.course_nuisance`'s) times each length's distance, for the hats that
+    some reading falls under. Every length is checked against the CMM's points, so an index common to all lengths
+    at a time is observable; a constant index is only a scale, which the CMM's solved scales and the circle take up
+    exactly (``drop_constant``: the first hat goes, the course is then relative to the run's start)."""
+    hats = course_nuisance(distances_mm, distances_mm, run_fraction, replace(noise, material_temperature_bound_k=0.0))
+    if hats is None:
+        return np.zeros((len(distances_mm), 0))
+    hats = hats / noise.air_index_bound * 1e-6
+    used = np.flatnonzero(np.any(hats != 0.0, axis=0))
+    return hats[:, used[1:] if drop_constant else used]
+
+
+def _air_steps(course_ppm: np.ndarray, hats: np.ndarray, distances_mm: np.ndarray, run_fraction: np.ndarray,
+               noise: StationNoiseModel) -> np.ndarray:
+    """(N, s) mm per ppm: free steps of the air's course at every reading inside the knot intervals where the fitted
+    hats (``course_ppm`` on ``hats``) move by more than :data:`STEEP_SHARE` of the stated bound, as
+    :func:`rtcal.solvers.station_budget.course_refinement` gives the residual test: a step of the air (1.8 K in a
+    minute) falls between two knots, which the hats alone smear over the interval. None where the course is smooth;
+    none either when more than a quarter of the readings would need one (no bounded course does)."""
+    L = np.asarray(distances_mm, float) * 1e-6
+    t = np.nan_to_num(np.asarray(run_fraction, float))
+    knots = np.linspace(-1.0, 1.0, COURSE_KNOTS)
+    full = np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / (knots[1] - knots[0]), 0.0, None)
+    at_knots = np.linalg.lstsq(full, (hats @ course_ppm) / L, rcond=None)[0]  # the fitted index at each knot, ppm
+    steps = []
+    for k in np.flatnonzero(np.abs(np.diff(at_knots)) > STEEP_SHARE * noise.air_index_bound * 1e6):
+        steps += [L * (t >= tj) for tj in np.unique(t[(t > knots[k]) & (t <= knots[k + 1])])]
+    if not steps or len(steps) > len(t) // 4:
+        return np.zeros((len(t), 0))
+    return np.column_stack(steps)
+
+
+def _course_seen(S_inv: np.ndarray, lay: _Layout, noise: StationNoiseModel) -> bool:
+    """Whether the network knows the air's course better than its stated range does: the σ of its value at each knot
+    (its hats, before any step is added) below the range's rectangular σ (bound/√3). Not where the lengths at a time barely
+    differ (one point's lengths to stations at one distance: the course is then a dead path), nor with too few
+    lengths under a hat: the bounded worst case (:func:`rtcal.solvers.station_budget.bounded_course_component`) stays
+    there. The steps are not held to it: one at a single short length is poorly known, and moves little."""
+    sigma_ppm = np.sqrt(np.abs(np.diag(S_inv)[lay.air]))
+    return bool(np.all(np.isfinite(sigma_ppm)) and np.all(sigma_ppm < noise.air_index_bound * 1e6 / np.sqrt(3.0)))
+
+
+AIR_COURSE_SOURCE = "air refractive index (no sensor): estimated from the network"
+_WEIGHTED = ("tracer length noise", "CMM point noise", "stage repeatability")  # with the sensor noise: in the weights
+
+
+def _air_course_line(components: list[BudgetComponent], sources: list[Source], S_inv: np.ndarray, Z: np.ndarray,
+                     lay: _Layout, G: np.ndarray, noise: StationNoiseModel) -> list[BudgetComponent]:
+    """The budget with the air's course solved: the sources the weights hold (tracer, CMM points, a visit's
+    repeatability, the sensors' noise) each as it would act with the course known, and what estimating the course
+    adds to them as its own line: the course's estimation uncertainty carried into the deviations, G·K·C_g·Kᵀ·Gᵀ with
+    K the globals' response to the course, = G·(S⁻¹ − S_oo⁻¹)·Gᵀ (S_oo⁻¹ the other globals' block of the inverse
+    with the course fixed: S⁻¹'s Schur complement of its course block). ``Z``: the weighted reduced rows (globals × residuals)."""
+    course = np.arange(lay.air.start, lay.air.stop)
+    other = np.setdiff1d(np.arange(lay.g), course)
+    Soc = S_inv[np.ix_(other, course)]
+    S_oo = S_inv[np.ix_(other, other)] - Soc @ np.linalg.solve(S_inv[np.ix_(course, course)], Soc.T)
+    H_known = np.zeros((lay.g, Z.shape[1]))
+    H_known[other] = S_oo @ Z[other]
+    weighted = [i for i, src in enumerate(sources) if src.name in _WEIGHTED or src.note.endswith("; in the weights")]
+    known = propagate(H_known, [sources[i] for i in weighted], VarianceEstimate({}, {}, 0, True), G)
+    extra = sum((components[i].covariance_arcsec2 - k.covariance_arcsec2 for i, k in zip(weighted, known)),
+                np.zeros((len(G), len(G))))
+    out = list(components)
+    for i, k in zip(weighted, known):
+        out[i] = k
+    out.append(BudgetComponent(
+        AIR_COURSE_SOURCE, "A", float(np.sqrt(np.mean(np.abs(np.diag(S_inv)[course])))), "ppm (the course's σ, RMS)",
+        0.5 * (extra + extra.T), True,
+        f"no environment sensor, the lengths uncorrected ({noise.air_note or 'the air within the stated ranges'}): the "
+        f"index's course over the run solved beside the rotation ({lay.air.stop - lay.air.start} unknowns: a hat every "
+        f"1/{COURSE_KNOTS - 1} of the run and a step at each reading where it moves fast), the lengths checked against "
+        "the CMM's points; its estimation uncertainty as the network propagates it (a constant index is a scale, "
+        "which the angles do not see)"))
+    return out
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -671,6 +789,8 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
     L = np.linalg.norm(d, axis=1)
     e = d / L[:, None]
     r = L - x[lay.d][seg] - obs - (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
+    if lay.course is not None:
+        r = r + lay.course @ x[lay.air]
     J = np.array(Jg, float)
     if lay.q.stop > lay.q.start:
         for kq, (_, dM) in enumerate(cmm_matrix_derivatives()):
@@ -684,7 +804,8 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
     if motions:  # the error motions move the stations: each length by −u·δP of its station
         V = V.plus(Factored(Grouped(-e, np.asarray(st), len(P)).sparse(),
                             covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
-    course = course_nuisance(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis_dir), run_fraction, noise)
+    course = course_nuisance(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis_dir), run_fraction,
+                             noise if lay.course is None else replace(noise, air_index_bound=0.0))  # solved: in Jg
     steps = None if course is None else course_refinement(r, V, sp.csr_matrix(J / np.maximum(np.linalg.norm(J, axis=0),
                                                                                             1e-300)), course, run_fraction)
     if course is not None and lay.q.stop > lay.q.start:  # a constant course (the hats sum to 1) is a scale of every length, or of the radius: the
@@ -712,13 +833,13 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     G[:, lay.phi.start] -= ARCSEC_PER_RAD
     # the estimator's influence on the globals, H_g = C_g·Jᵀ·W, over lengths then point coordinates
     if blocks is None:
-        H_len = S_inv @ (Jg * w_len[:, None]).T
-        H_pts = np.zeros((lay.g, 0))
+        Z_len, Z_pts = Jg * w_len[:, None], np.zeros((0, lay.g))
     else:
         Npp_inv, B = blocks
         n = lay.n
-        H_len = S_inv @ (_reduced_rows(Jg, Jp, pi, B, n) * w_len[:, None]).T
-        H_pts = S_inv @ (_reduced_point_rows(Jg_pts, B, Minv, n) * w_pts[:, None]).T
+        Z_len = _reduced_rows(Jg, Jp, pi, B, n) * w_len[:, None]
+        Z_pts = _reduced_point_rows(Jg_pts, B, Minv, n) * w_pts[:, None]
+    H_len, H_pts = S_inv @ Z_len.T, S_inv @ Z_pts.T
     H = np.hstack([H_len, H_pts])
     N_len = len(f_len)
     zeros_pts = np.zeros(H_pts.shape[1])
@@ -779,6 +900,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(cmm_field_as_source(F_field, noise))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
+    if lay.course is not None:
+        components = _air_course_line(components, sources, S_inv, np.vstack([Z_len, Z_pts]).T, lay, G, noise)
     G_loc = np.zeros((4, lay.g))  # X0C, Y0C, A0C, B0C ← globals (c, a)
     J_loc = location_jacobian(x[lay.c], x[lay.a])
     G_loc[:, lay.c], G_loc[:, lay.a] = J_loc[:, :3], J_loc[:, 3:]
@@ -789,7 +912,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         radial = radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir)
         pad = np.zeros(len(zeros_pts))
         components += bounded_components(G @ H, np.concatenate([L_abs, pad]), np.concatenate([radial, pad]),
-                                         np.concatenate([np.nan_to_num(run_fraction), pad - 1.0]), noise)
+                                         np.concatenate([np.nan_to_num(run_fraction), pad - 1.0]),
+                                         noise if lay.course is None else replace(noise, air_index_bound=0.0))
     if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
