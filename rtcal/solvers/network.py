@@ -583,6 +583,7 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         wider = _Layout(m, len(seg_ids), n, lay.q.stop > lay.q.start, options.free_points, len(mounts), growth, added)
         x = np.concatenate([x[: lay.g], np.zeros(wider.g - lay.g), x[lay.g :]])
         lay = wider
+        theta = np.array([1.0, 1.0])  # the sizes the misfit of the model without the course inflated: as stated again
     if lay.course is not None and fallback is not None and not converged:
         x, theta, lay, it, converged, message = fallback
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
