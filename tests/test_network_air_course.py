@@ -63,13 +63,18 @@ def _no_course():
 
 
 def test_where_the_lengths_cannot_see_the_course_the_ranges_worst_case_stays():
-    """Each point on its own tracking segment with a 0.5 µm tracer: what the index does to a point's lengths at a
-    time is nearly its dead path (the lengths to the stations differ by the circle's ±65 mm only), the course is not
-    known better than its range, so the bounded worst case is the budget's line, and the course is not solved."""
-    noise = StationNoiseModel(length_noise_um=0.5, length_noise_ppm=0.0, point_noise_um=0.3, air_index_bound=2e-6)
-    measured, _ = _air_step(4402, 0.5, 0.3, 1.0, segments_per_point=True)
+    """Each point on its own tracking segment with a 1 µm tracer: what the index does to a point's lengths at a time
+    is nearly its dead path (the lengths to the stations differ by the circle's ±65 mm only), the course's σ at a knot
+    exceeds the span the ±2 ppm range allows (4 ppm), so the course is not solved and the bounded worst case is the
+    budget's line. The same readings on one segment (a point's lengths then differ from the others' through the whole
+    distance) see it: solved."""
+    noise = StationNoiseModel(length_noise_um=1.0, length_noise_ppm=0.0, point_noise_um=0.3, air_index_bound=2e-6)
+    measured, _ = _air_step(4402, 1.0, 0.3, 1.0, segments_per_point=True)
     lines = _lines(solve_network(measured, FIRST_GUESS_MM, noise=noise))
     assert AIR_DRIFT_SOURCE in lines and AIR_COURSE_SOURCE not in lines
+    measured, _ = _air_step(4402, 1.0, 0.3, 1.0, segments_per_point=False)
+    lines = _lines(solve_network(measured, FIRST_GUESS_MM, noise=noise))
+    assert AIR_COURSE_SOURCE in lines and AIR_DRIFT_SOURCE not in lines
 
 
 def test_with_an_air_sensor_nothing_is_solved_for_the_air():

@@ -411,12 +411,13 @@ def _solve_step(Ngg, bg, Npp, Ngp, bp, mu: float):
 
 def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, axis_point_mm: np.ndarray = np.zeros(3),
                   noise: StationNoiseModel = StationNoiseModel(), options: NetworkOptions = NetworkOptions(),
-                  mount_guesses_mm: list[np.ndarray] | None = None) -> NetworkEstimate:
+                  mount_guesses_mm: list[np.ndarray] | None = None, air: "_AirPass | None" = None) -> NetworkEstimate:
     """Adjust the whole network (see the module docstring); lengths in mm, NaN where skipped.
 
     With readings from other tracer mounts (``data.other_mounts``, ``mount_guesses_mm``: the
     tracer's centre at the first station on each, CMM frame, nominal) the adjustment also
-    separates each station's error motions from its rotation."""
+    separates each station's error motions from its rotation. ``air``: a pass with the uncorrected air's course
+    (internal; without an air sensor the adjustment adds it itself, :class:`_AirPass`)."""
     points = np.asarray(data.points_mm, float)
     nominal = np.deg2rad(np.asarray(data.nominal_angles_deg, float))
     n, m = np.asarray(data.lengths_mm).shape
@@ -440,7 +441,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
     growth = None if data.growth_mm_per_ppm is None else np.concatenate(
         [np.asarray(data.growth_mm_per_ppm[k], float)[np.isfinite(mounts[k][0])] for k in range(len(mounts))])
-    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts), growth)
+    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts), growth,
+                  None if air is None else air.course_mm_per_ppm)
     if len(obs) < lay.g + 1:
         raise ValueError(f"{len(obs)} lengths for {lay.g} unknowns of the network")
     if len(mounts) > 1 and (mount_guesses_mm is None or len(mount_guesses_mm) != len(mounts) - 1):
@@ -508,87 +510,98 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if f_pts is not None else 0.0) + prior
 
     converged, it, message = False, 0, ""
-    fallback = None  # no air sensor: the adjustment without the air's course, kept for when the data cannot see it
-    air_pass = 0
-    while True:  # passes: the model; then, without an air sensor, the air's course (hats, then steps) beside it
-        previous = None  # (x, θ, iterations, message) of the last converged pass
-        estimate = options.estimate_variances and noise.estimate
-        for _outer in range(6 if estimate else 1):
-            converged, mu = False, 1e-3
-            for it in range(1, options.max_iterations + 1):
-                f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
-                w_len, w_pts, _, _ = weights(theta, L, P, A)
-                cost = cost_of(x, w_len, w_pts)
-                pieces = _add_prior(_normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay), x,
-                                    prior_idx, prior_sigma)
-                gn, gp, S_inv, blocks = _solve_step(*pieces, 0.0)
-                # converged: the undamped Gauss–Newton step (to first order the distance to the optimum) is
-                # below 1e-3 of every unknown's own standard deviation, or below 1e-10 of its unit (mm:
-                # 0.1 pm; rad: 2e-5″) where the data are exact
-                ratio = np.max(np.abs(gn) / (np.sqrt(np.abs(np.diag(S_inv))) + 1e-300))
-                if gp is not None:
-                    sd_p = np.sqrt(np.abs(np.einsum("iaa->ia", blocks[0]))).ravel()  # a lower bound of each point's σ
-                    ratio = max(ratio, np.max(np.abs(gp) / (sd_p + 1e-300)))
-                tiny = np.max(np.abs(gn)) < 1e-10 and (gp is None or np.max(np.abs(gp)) < 1e-10)
-                if ratio < 1e-3 or tiny:
-                    converged, message = True, f"converged in {it} iterations"
+    if air is not None:  # a pass with the air's course: from the last pass's solution, the sizes as stated again
+        x = air.start.copy()  # (the misfit of the model without the course inflated them, and LM crawled from there)
+    previous = None  # (x, θ, iterations, message) of the last converged pass
+    estimate = options.estimate_variances and noise.estimate
+    for _outer in range(6 if estimate else 1):
+        converged, mu = False, 1e-3
+        for it in range(1, options.max_iterations + 1):
+            f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L = evaluate(x)
+            w_len, w_pts, _, _ = weights(theta, L, P, A)
+            cost = cost_of(x, w_len, w_pts)
+            pieces = _add_prior(_normal_equations(Jg, Jp, pi, Jg_pts, Minv, w_len, w_pts, f_len, f_pts, lay), x,
+                                prior_idx, prior_sigma)
+            gn, gp, S_inv, blocks = _solve_step(*pieces, 0.0)
+            # converged: the undamped Gauss–Newton step (to first order the distance to the optimum) is
+            # below 1e-3 of every unknown's own standard deviation, or below 1e-10 of its unit (mm:
+            # 0.1 pm; rad: 2e-5″) where the data are exact
+            ratio = np.max(np.abs(gn) / (np.sqrt(np.abs(np.diag(S_inv))) + 1e-300))
+            if gp is not None:
+                sd_p = np.sqrt(np.abs(np.einsum("iaa->ia", blocks[0]))).ravel()  # a lower bound of each point's σ
+                ratio = max(ratio, np.max(np.abs(gp) / (sd_p + 1e-300)))
+            tiny = np.max(np.abs(gn)) < 1e-10 and (gp is None or np.max(np.abs(gp)) < 1e-10)
+            if ratio < 1e-3 or tiny:
+                converged, message = True, f"converged in {it} iterations"
+                break
+            while True:
+                dgl, dp, _, _ = _solve_step(*pieces, mu)
+                step = np.concatenate([dgl, dp]) if dp is not None else dgl
+                trial_cost = cost_of(x + step, w_len, w_pts)
+                if trial_cost <= cost or mu > 1e8:
                     break
-                while True:
-                    dgl, dp, _, _ = _solve_step(*pieces, mu)
-                    step = np.concatenate([dgl, dp]) if dp is not None else dgl
-                    trial_cost = cost_of(x + step, w_len, w_pts)
-                    if trial_cost <= cost or mu > 1e8:
-                        break
-                    mu *= 10.0
-                if trial_cost > cost or mu > 1e6:
-                    if ratio < 1e-2:  # the cost's rounding noise exceeds what is left to gain (many residuals)
-                        converged, message = True, f"converged in {it} iterations (at the rounding floor)"
-                        break
-                    if trial_cost > cost:
-                        message = "not converged: no step lowers the cost"
-                        break
-                x = x + step
-                mu = max(mu / 10.0, 1e-12)
-            else:
-                message = f"not converged: iteration limit ({options.max_iterations}) reached"
-            if not converged:
-                if previous is not None:  # re-weighting broke a converged solution (exact data): keep that one
-                    x, theta, it, message = previous
-                    converged = True
-                break
-            if not estimate:
-                break
-            previous = (x.copy(), theta.copy(), it, message)
-            new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi, (prior_idx, prior_sigma))
-            settled = np.max(np.abs(new_theta - theta) / theta) < 3e-3  # θ itself is known to a few 0.1 % at best
-            theta = new_theta
-            if settled:
-                break
-        if noise.air_index_bound <= 0 or not options.solve_air_course or not converged or air_pass == 2:
+                mu *= 10.0
+            if trial_cost > cost or mu > 1e6:
+                if ratio < 1e-2:  # the cost's rounding noise exceeds what is left to gain (many residuals)
+                    converged, message = True, f"converged in {it} iterations (at the rounding floor)"
+                    break
+                if trial_cost > cost:
+                    message = "not converged: no step lowers the cost"
+                    break
+            x = x + step
+            mu = max(mu / 10.0, 1e-12)
+        else:
+            message = f"not converged: iteration limit ({options.max_iterations}) reached"
+        if not converged:
+            if previous is not None:  # re-weighting broke a converged solution (exact data): keep that one
+                x, theta, it, message = previous
+                converged = True
             break
-        if air_pass == 1 and not _course_seen(_inverse_pieces(x, lay, evaluate, weights, theta, pi,
-                                                              (prior_idx, prior_sigma))[10], lay, noise):
-            converged = False  # the hats alone: where the data do not see them, the model without the course
+        if not estimate:
             break
-        if air_pass == 0:
-            fallback = (x.copy(), theta.copy(), lay, it, converged, message)
-            air_mm = evaluate(x)[8]  # each length's whole distance, the course's sensitivity
-            columns = _air_hats(air_mm, run_fraction, noise, drop_constant=lay.q.stop > lay.q.start)
-        else:  # the hats follow a smooth course; where they jump, a free step at every reading there
-            columns = _air_steps(x[lay.air], np.asarray(lay.course), air_mm, run_fraction, noise)
-        air_pass += 1
-        if columns.shape[1] == 0:
+        previous = (x.copy(), theta.copy(), it, message)
+        new_theta = _variance_scales(x, lay, evaluate, weights, theta, pi, (prior_idx, prior_sigma))
+        settled = np.max(np.abs(new_theta - theta) / theta) < 3e-3  # θ itself is known to a few 0.1 % at best
+        theta = new_theta
+        if settled:
             break
-        added = columns if lay.course is None else np.hstack([lay.course, columns])
-        wider = _Layout(m, len(seg_ids), n, lay.q.stop > lay.q.start, options.free_points, len(mounts), growth, added)
-        x = np.concatenate([x[: lay.g], np.zeros(wider.g - lay.g), x[lay.g :]])
-        lay = wider
-        theta = np.array([1.0, 1.0])  # the sizes the misfit of the model without the course inflated: as stated again
-    if lay.course is not None and fallback is not None and not converged:
-        x, theta, lay, it, converged, message = fallback
+    if air is not None and air.steps_done and not converged:
+        raise _CourseUnseen("the steps' pass did not converge")
+    if air is not None and not air.steps_done and not (converged and _course_seen(
+            _inverse_pieces(x, lay, evaluate, weights, theta, pi, (prior_idx, prior_sigma))[10], lay, noise)):
+        raise _CourseUnseen("the hats' pass did not converge, or the lengths do not see the course")
+    if converged and noise.air_index_bound > 0 and options.solve_air_course and (air is None or not air.steps_done):
+        # no air sensor: the course beside the model (hats), then where the hats jump a free step at each reading
+        distances_mm = evaluate(x)[8] if air is None else air.distances_mm
+        columns = (_air_hats(distances_mm, run_fraction, noise, drop_constant=lay.q.stop > lay.q.start) if air is None
+                   else _air_steps(x[lay.air], np.asarray(lay.course), distances_mm, run_fraction, noise))
+        if columns.shape[1] and len(obs) > lay.g + columns.shape[1]:
+            course = columns if lay.course is None else np.hstack([lay.course, columns])
+            start = np.concatenate([x[: lay.g], np.zeros(columns.shape[1]), x[lay.g :]])
+            try:
+                return solve_network(data, first_station_guess_mm, axis_point_mm, noise, options, mount_guesses_mm,
+                                     _AirPass(course, start, distances_mm, steps_done=air is not None))
+            except _CourseUnseen:
+                pass  # the model as it is: without the course (the range's worst case), or the hats without steps
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
                    (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals,
                    (seg, obs, points, data.point_visit_counts))
+
+
+@dataclass(frozen=True)
+class _AirPass:
+    """A pass of the adjustment with the air's course (no sensor): its columns, where it starts (the last pass's
+    solution, zeros for the new columns), each length's distance (the course's sensitivity, mm) and whether the
+    steps are among the columns (the last pass)."""
+
+    course_mm_per_ppm: np.ndarray
+    start: np.ndarray
+    distances_mm: np.ndarray
+    steps_done: bool
+
+
+class _CourseUnseen(Exception):
+    """A pass with the air's course gave nothing to keep: the pass before it stands."""
 
 
 def _air_hats(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel,
