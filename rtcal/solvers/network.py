@@ -215,7 +215,7 @@ class _Layout:
         self.growth = growth_mm_per_ppm
         self.kappa = slice(self.eps.stop, self.eps.stop + (0 if growth_mm_per_ppm is None else 1))
         # no air sensor: the uncorrected index's course over the run, ppm, as few dense columns (N × s: hats of the
-        # run's time and steps, times each length; :func:`_air_course`); each length reads long by course·g
+        # run's time and steps, times each length; :func:`_air_hats`); each length reads long by course·g
         self.course = course_mm_per_ppm
         self.air = slice(self.kappa.stop, self.kappa.stop + (0 if course_mm_per_ppm is None else course_mm_per_ppm.shape[1]))
         self.g = self.air.stop  # number of global unknowns
