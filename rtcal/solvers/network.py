@@ -45,6 +45,7 @@ from rtcal.solvers.station_budget import (
     AIR_DRIFT_SOURCE,
     StationNoiseModel,
     COURSE_KNOTS,
+    STEEP_SHARE,
     StationObservations,
     air_drift_source,
     observation_sources,
@@ -92,6 +93,7 @@ class NetworkOptions:
     estimate_variances: bool = True  # Type A sizes of tracer and CMM noise from the residuals
     max_iterations: int = 50
     check_residuals: bool = True  # the residuals' χ² against the stated noise (a dense Cholesky: a Monte Carlo skips it)
+    solve_air_course: bool = True  # no air sensor: the index's course over the run as unknowns, where the data see it
 
 
 @dataclass(frozen=True)
@@ -196,7 +198,7 @@ class _Layout:
     tilt ε_j (2, about the axis frame's x and y)."""
 
     def __init__(self, m: int, k: int, n: int, solve_cmm: bool, free_points: bool, mounts: int = 1,
-                 growth_mm_per_ppm: np.ndarray | None = None):
+                 growth_mm_per_ppm: np.ndarray | None = None, course_mm_per_ppm: np.ndarray | None = None):
         self.m, self.k, self.n, self.mounts = m, k, n, mounts
         self.c = slice(0, 3)
         self.a = slice(3, 5)
@@ -212,7 +214,11 @@ class _Layout:
         # each length moves by −growth·κ
         self.growth = growth_mm_per_ppm
         self.kappa = slice(self.eps.stop, self.eps.stop + (0 if growth_mm_per_ppm is None else 1))
-        self.g = self.kappa.stop  # number of global unknowns
+        # no air sensor: the uncorrected index's course over the run, ppm, as few dense columns (N × s: hats of the
+        # run's time and steps, times each length; :func:`_air_hats`); each length reads long by course·g
+        self.course = course_mm_per_ppm
+        self.air = slice(self.kappa.stop, self.kappa.stop + (0 if course_mm_per_ppm is None else course_mm_per_ppm.shape[1]))
+        self.g = self.air.stop  # number of global unknowns
         self.free_points = free_points
         self.size = self.g + (3 * n if free_points else 0)
 
@@ -259,6 +265,8 @@ def _residuals(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg:
     f_len = np.linalg.norm(A[pi] - P[st], axis=1) - x[lay.d][seg] - obs
     if lay.growth is not None:
         f_len = f_len - lay.growth * x[lay.kappa.start]
+    if lay.course is not None:
+        f_len = f_len + lay.course @ x[lay.air]
     if not lay.free_points:
         return f_len, None
     q = x[lay.q] if lay.q.stop > lay.q.start else np.zeros(6)
@@ -283,6 +291,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
     f_len = L - dead[seg] - obs
     if lay.growth is not None:
         f_len = f_len - lay.growth * x[lay.kappa.start]
+    if lay.course is not None:
+        f_len = f_len + lay.course @ x[lay.air]
     N = len(obs)
     rows = np.arange(N)
     Jg = np.zeros((N, lay.g))
@@ -321,6 +331,8 @@ def _model(x: np.ndarray, lay: _Layout, pi: np.ndarray, st: np.ndarray, seg: np.
     Jg[rows, lay.d.start + seg] = -1.0
     if lay.growth is not None:
         Jg[:, lay.kappa.start] = -lay.growth
+    if lay.course is not None:
+        Jg[:, lay.air] = lay.course
     if not lay.free_points:
         return f_len, Jg, None, None, None, P, A
     M = cmm_matrix(q)
@@ -399,12 +411,13 @@ def _solve_step(Ngg, bg, Npp, Ngp, bp, mu: float):
 
 def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, axis_point_mm: np.ndarray = np.zeros(3),
                   noise: StationNoiseModel = StationNoiseModel(), options: NetworkOptions = NetworkOptions(),
-                  mount_guesses_mm: list[np.ndarray] | None = None) -> NetworkEstimate:
+                  mount_guesses_mm: list[np.ndarray] | None = None, air: "_AirPass | None" = None) -> NetworkEstimate:
     """Adjust the whole network (see the module docstring); lengths in mm, NaN where skipped.
 
     With readings from other tracer mounts (``data.other_mounts``, ``mount_guesses_mm``: the
     tracer's centre at the first station on each, CMM frame, nominal) the adjustment also
-    separates each station's error motions from its rotation."""
+    separates each station's error motions from its rotation. ``air``: a pass with the uncorrected air's course
+    (internal; without an air sensor the adjustment adds it itself, :class:`_AirPass`)."""
     points = np.asarray(data.points_mm, float)
     nominal = np.deg2rad(np.asarray(data.nominal_angles_deg, float))
     n, m = np.asarray(data.lengths_mm).shape
@@ -428,7 +441,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     seg_ids, seg = np.unique(np.concatenate(seg_l), return_inverse=True)
     growth = None if data.growth_mm_per_ppm is None else np.concatenate(
         [np.asarray(data.growth_mm_per_ppm[k], float)[np.isfinite(mounts[k][0])] for k in range(len(mounts))])
-    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts), growth)
+    lay = _Layout(m, len(seg_ids), n, options.solve_cmm and options.free_points, options.free_points, len(mounts), growth,
+                  None if air is None else air.course_mm_per_ppm)
     if len(obs) < lay.g + 1:
         raise ValueError(f"{len(obs)} lengths for {lay.g} unknowns of the network")
     if len(mounts) > 1 and (mount_guesses_mm is None or len(mount_guesses_mm) != len(mounts) - 1):
@@ -486,6 +500,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         f_len, Jg, Jp, f_pts, Jg_pts, P, A = model[:7]
         Minv = model[7] if lay.free_points else None
         L = f_len + x[lay.d][seg] + obs + (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
+        if lay.course is not None:
+            L = L - lay.course @ x[lay.air]
         return f_len, Jg, Jp, f_pts, Jg_pts, P, A, Minv, L
 
     def cost_of(x: np.ndarray, w_len, w_pts) -> float:
@@ -494,6 +510,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         return float(w_len @ f_len**2) + (float(w_pts @ f_pts**2) if f_pts is not None else 0.0) + prior
 
     converged, it, message = False, 0, ""
+    if air is not None:  # a pass with the air's course: from the last pass's solution, the sizes as stated again
+        x = air.start.copy()  # (the misfit of the model without the course inflated them, and LM crawled from there)
     previous = None  # (x, θ, iterations, message) of the last converged pass
     estimate = options.estimate_variances and noise.estimate
     for _outer in range(6 if estimate else 1):
@@ -547,9 +565,126 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
         theta = new_theta
         if settled:
             break
+    if air is not None and air.steps_done and not converged:
+        raise _CourseUnseen("the steps' pass did not converge")
+    if air is not None and not air.steps_done and not (converged and _course_seen(
+            _inverse_pieces(x, lay, evaluate, weights, theta, pi, (prior_idx, prior_sigma))[10], lay, noise)):
+        raise _CourseUnseen("the hats' pass did not converge, or the lengths do not see the course")
+    if converged and noise.air_index_bound > 0 and options.solve_air_course and (air is None or not air.steps_done):
+        # no air sensor: the course beside the model (hats), then where the hats jump a free step at each reading
+        distances_mm = evaluate(x)[8] if air is None else air.distances_mm
+        columns = (_air_hats(distances_mm, run_fraction, noise, drop_constant=lay.q.stop > lay.q.start) if air is None
+                   else _air_steps(x[lay.air], np.asarray(lay.course), distances_mm, run_fraction, noise))
+        if columns.shape[1] and len(obs) > lay.g + columns.shape[1]:
+            course = columns if lay.course is None else np.hstack([lay.course, columns])
+            start = np.concatenate([x[: lay.g], np.zeros(columns.shape[1]), x[lay.g :]])
+            try:
+                return solve_network(data, first_station_guess_mm, axis_point_mm, noise, options, mount_guesses_mm,
+                                     _AirPass(course, start, distances_mm, steps_done=air is not None))
+            except _CourseUnseen:
+                pass  # the model as it is: without the course (the range's worst case), or the hats without steps
     return _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, noise, it, converged, message,
                    (prior_idx, prior_sigma), run_fraction, material_offset, options.check_residuals,
                    (seg, obs, points, data.point_visit_counts))
+
+
+@dataclass(frozen=True)
+class _AirPass:
+    """A pass of the adjustment with the air's course (no sensor): its columns, where it starts (the last pass's
+    solution, zeros for the new columns), each length's distance (the course's sensitivity, mm) and whether the
+    steps are among the columns (the last pass)."""
+
+    course_mm_per_ppm: np.ndarray
+    start: np.ndarray
+    distances_mm: np.ndarray
+    steps_done: bool
+
+
+class _CourseUnseen(Exception):
+    """A pass with the air's course gave nothing to keep: the pass before it stands."""
+
+
+def _air_hats(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel,
+              drop_constant: bool) -> np.ndarray:
+    """(N, K) mm per ppm: the uncorrected air index's course as piecewise-linear hats of the run's time
+    (:func:`rtcal.solvers.station_budget.course_nuisance`'s) times each length's distance, for the hats that
+    some reading falls under. Every length is checked against the CMM's points, so an index common to all lengths
+    at a time is observable; a constant index is only a scale, which the CMM's solved scales and the circle take up
+    exactly (``drop_constant``: the first hat goes, the course is then relative to the run's start)."""
+    hats = course_nuisance(distances_mm, distances_mm, run_fraction, replace(noise, material_temperature_bound_k=0.0))
+    if hats is None:
+        return np.zeros((len(distances_mm), 0))
+    hats = hats / noise.air_index_bound * 1e-6
+    used = np.flatnonzero(np.any(hats != 0.0, axis=0))
+    return hats[:, used[1:] if drop_constant else used]
+
+
+def _air_steps(course_ppm: np.ndarray, hats: np.ndarray, distances_mm: np.ndarray, run_fraction: np.ndarray,
+               noise: StationNoiseModel) -> np.ndarray:
+    """(N, s) mm per ppm: free steps of the air's course at every reading inside the knot intervals where the fitted
+    hats (``course_ppm`` on ``hats``) move by more than :data:`STEEP_SHARE` of the stated bound, as
+    :func:`rtcal.solvers.station_budget.course_refinement` gives the residual test: a step of the air (1.8 K in a
+    minute) falls between two knots, which the hats alone smear over the interval. None where the course is smooth;
+    none either when more than a quarter of the readings would need one (no bounded course does)."""
+    L = np.asarray(distances_mm, float) * 1e-6
+    t = np.nan_to_num(np.asarray(run_fraction, float))
+    knots = np.linspace(-1.0, 1.0, COURSE_KNOTS)
+    full = np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / (knots[1] - knots[0]), 0.0, None)
+    at_knots = np.linalg.lstsq(full, (hats @ course_ppm) / L, rcond=None)[0]  # the fitted index at each knot, ppm
+    steps = []
+    for k in np.flatnonzero(np.abs(np.diff(at_knots)) > STEEP_SHARE * noise.air_index_bound * 1e6):
+        steps += [L * (t >= tj) for tj in np.unique(t[(t > knots[k]) & (t <= knots[k + 1])])]
+    if not steps or len(steps) > len(t) // 4:
+        return np.zeros((len(t), 0))
+    return np.column_stack(steps)
+
+
+def _course_seen(S_inv: np.ndarray, lay: _Layout, noise: StationNoiseModel) -> bool:
+    """Whether the lengths see the air's course at all: the σ of its value at each knot (its hats, before any step
+    is added) below 2·bound, the whole span the stated range allows the course relative to its start. Beyond that the
+    readings know less of the course than the statement does, and the model without it with the range's worst case
+    (:func:`rtcal.solvers.station_budget.bounded_course_component`) is the better answer: where the lengths at a time
+    barely differ (a point's lengths to stations at one distance, each point on its own tracking segment: the course
+    is then its dead path), with too few lengths under a hat, or a tracer too noisy for the range. A hat known worse
+    than the range's own σ is still worth solving: the adjustment propagates its σ (air_step: 0.2 µm tracer, hats to
+    ±2 ppm, a ±1.6 ppm range; coverage 98 %, σ/RMS 1.2 on 20 trials, docs/paper000.md)."""
+    sigma_ppm = np.sqrt(np.abs(np.diag(S_inv)[lay.air]))
+    return bool(np.all(np.isfinite(sigma_ppm)) and np.all(sigma_ppm < 2.0 * noise.air_index_bound * 1e6))
+
+
+AIR_COURSE_SOURCE = "air refractive index (no sensor): estimated from the network"
+_WEIGHTED = ("tracer length noise", "CMM point noise", "stage repeatability")  # with the sensor noise: in the weights
+
+
+def _air_course_line(components: list[BudgetComponent], sources: list[Source], S_inv: np.ndarray, Z: np.ndarray,
+                     lay: _Layout, G: np.ndarray, noise: StationNoiseModel) -> list[BudgetComponent]:
+    """The budget with the air's course solved: the sources the weights hold (tracer, CMM points, a visit's
+    repeatability, the sensors' noise) each as it would act with the course known, and what estimating the course
+    adds to them as its own line: the course's estimation uncertainty carried into the deviations, G·K·C_g·Kᵀ·Gᵀ with
+    K the globals' response to the course, = G·(S⁻¹ − S_oo⁻¹)·Gᵀ (S_oo⁻¹ the other globals' block of the inverse
+    with the course fixed: S⁻¹'s Schur complement of its course block). ``Z``: the weighted reduced rows (globals × residuals)."""
+    course = np.arange(lay.air.start, lay.air.stop)
+    other = np.setdiff1d(np.arange(lay.g), course)
+    Soc = S_inv[np.ix_(other, course)]
+    S_oo = S_inv[np.ix_(other, other)] - Soc @ np.linalg.solve(S_inv[np.ix_(course, course)], Soc.T)
+    H_known = np.zeros((lay.g, Z.shape[1]))
+    H_known[other] = S_oo @ Z[other]
+    weighted = [i for i, src in enumerate(sources) if src.name in _WEIGHTED or src.note.endswith("; in the weights")]
+    known = propagate(H_known, [sources[i] for i in weighted], VarianceEstimate({}, {}, 0, True), G)
+    extra = sum((components[i].covariance_arcsec2 - k.covariance_arcsec2 for i, k in zip(weighted, known)),
+                np.zeros((len(G), len(G))))
+    out = list(components)
+    for i, k in zip(weighted, known):
+        out[i] = k
+    out.append(BudgetComponent(
+        AIR_COURSE_SOURCE, "A", float(np.sqrt(np.mean(np.abs(np.diag(S_inv)[course])))), "ppm (the course's σ, RMS)",
+        0.5 * (extra + extra.T), True,
+        f"no environment sensor, the lengths uncorrected ({noise.air_note or 'the air within the stated ranges'}): the "
+        f"index's course over the run solved beside the rotation ({lay.air.stop - lay.air.start} unknowns: a hat every "
+        f"1/{COURSE_KNOTS - 1} of the run and a step at each reading where it moves fast), the lengths checked against "
+        "the CMM's points; its estimation uncertainty as the network propagates it (a constant index is a scale, "
+        "which the angles do not see)"))
+    return out
 
 
 def _error_motion_prior(lay: _Layout, noise: StationNoiseModel) -> tuple[np.ndarray, np.ndarray]:
@@ -671,6 +806,8 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
     L = np.linalg.norm(d, axis=1)
     e = d / L[:, None]
     r = L - x[lay.d][seg] - obs - (0.0 if lay.growth is None else lay.growth * x[lay.kappa.start])
+    if lay.course is not None:
+        r = r + lay.course @ x[lay.air]
     J = np.array(Jg, float)
     if lay.q.stop > lay.q.start:
         for kq, (_, dM) in enumerate(cmm_matrix_derivatives()):
@@ -684,7 +821,8 @@ def _lengths_check(x, lay, Jg, P, pi, st, nominal, visits, run_fraction, materia
     if motions:  # the error motions move the stations: each length by −u·δP of its station
         V = V.plus(Factored(Grouped(-e, np.asarray(st), len(P)).sparse(),
                             covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
-    course = course_nuisance(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis_dir), run_fraction, noise)
+    course = course_nuisance(L, radial_sensitivity_mm(e, P[st], x[lay.c], axis_dir), run_fraction,
+                             noise if lay.course is None else replace(noise, air_index_bound=0.0))  # solved: in Jg
     steps = None if course is None else course_refinement(r, V, sp.csr_matrix(J / np.maximum(np.linalg.norm(J, axis=0),
                                                                                             1e-300)), course, run_fraction)
     if course is not None and lay.q.stop > lay.q.start:  # a constant course (the hats sum to 1) is a scale of every length, or of the radius: the
@@ -712,13 +850,13 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
     G[:, lay.phi.start] -= ARCSEC_PER_RAD
     # the estimator's influence on the globals, H_g = C_g·Jᵀ·W, over lengths then point coordinates
     if blocks is None:
-        H_len = S_inv @ (Jg * w_len[:, None]).T
-        H_pts = np.zeros((lay.g, 0))
+        Z_len, Z_pts = Jg * w_len[:, None], np.zeros((0, lay.g))
     else:
         Npp_inv, B = blocks
         n = lay.n
-        H_len = S_inv @ (_reduced_rows(Jg, Jp, pi, B, n) * w_len[:, None]).T
-        H_pts = S_inv @ (_reduced_point_rows(Jg_pts, B, Minv, n) * w_pts[:, None]).T
+        Z_len = _reduced_rows(Jg, Jp, pi, B, n) * w_len[:, None]
+        Z_pts = _reduced_point_rows(Jg_pts, B, Minv, n) * w_pts[:, None]
+    H_len, H_pts = S_inv @ Z_len.T, S_inv @ Z_pts.T
     H = np.hstack([H_len, H_pts])
     N_len = len(f_len)
     zeros_pts = np.zeros(H_pts.shape[1])
@@ -779,6 +917,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(cmm_field_as_source(F_field, noise))
     variances = VarianceEstimate({}, {}, 0, True)
     components = propagate(H, sources, variances, G)
+    if lay.course is not None:
+        components = _air_course_line(components, sources, S_inv, np.vstack([Z_len, Z_pts]).T, lay, G, noise)
     G_loc = np.zeros((4, lay.g))  # X0C, Y0C, A0C, B0C ← globals (c, a)
     J_loc = location_jacobian(x[lay.c], x[lay.a])
     G_loc[:, lay.c], G_loc[:, lay.a] = J_loc[:, :3], J_loc[:, 3:]
@@ -789,7 +929,8 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         radial = radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir)
         pad = np.zeros(len(zeros_pts))
         components += bounded_components(G @ H, np.concatenate([L_abs, pad]), np.concatenate([radial, pad]),
-                                         np.concatenate([np.nan_to_num(run_fraction), pad - 1.0]), noise)
+                                         np.concatenate([np.nan_to_num(run_fraction), pad - 1.0]),
+                                         noise if lay.course is None else replace(noise, air_index_bound=0.0))
     if not lay.error_motions:
         d = A[pi] - P[st]
         e = d / np.linalg.norm(d, axis=1)[:, None]
