@@ -27,15 +27,15 @@ def test_balanced_normals_are_antithetic_with_exact_second_moments():
 
 
 def test_the_method_draws_as_many_numbers_each_time_and_pairs_mirror(tmp_path):
-    """The shipped procedure draws the CMM's 6 errors and 4 error-motion series of 6 orders (radial x, y;
-    tilt x, y; no axial bound): 54 numbers. A pair's benches have opposite CMM errors and error motions
+    """The shipped procedure draws the CMM's 6 errors, 4 error-motion series of 6 orders (radial x, y;
+    tilt x, y; no axial bound) and its LaserTRACER's sphere (its class assumed: a lobe's order and phase): 56 numbers. A pair's benches have opposite CMM errors and error motions
     half a period apart (a harmonic's phase + 180°)."""
     proc = load_procedure(SHIPPED)
     scenario, _ = resolve_scenario(SHIPPED, proc, None)
     counter = ScriptedNormals()
     METHODS[proc.method].draw_systematics(proc, scenario, counter)  # type: ignore[arg-type]
-    assert counter.used == 6 + 4 * 2 * proc.uncertainty.error_motions.max_order
-    specs = plan_trials(SHIPPED, proc, scenario, 108, 5, tmp_path, balanced=True)
+    assert counter.used == 6 + 4 * 2 * proc.uncertainty.error_motions.max_order + 2
+    specs = plan_trials(SHIPPED, proc, scenario, 112, 5, tmp_path, balanced=True)
     a, b = (yaml.safe_load(s.scenario_yaml) for s in specs[:2])
     assert a["cmm"]["scale_error_ppm"] == [-v for v in b["cmm"]["scale_error_ppm"]]
     ha, hb = a["stage"]["radial_motion_x"][0], b["stage"]["radial_motion_x"][0]
@@ -47,5 +47,5 @@ def test_too_few_or_odd_trials_are_refused_on_one_line(tmp_path, capsys):
     assert "--balanced: balanced draws come in antithetic pairs" in capsys.readouterr().err
     assert main(["uncertainty", str(SHIPPED), "--trials", "20", "--balanced", "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
-    assert "at least 54 pairs of trials" in err and len(err.strip().splitlines()) == 1
+    assert "at least 56 pairs of trials" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

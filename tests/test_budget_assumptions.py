@@ -91,15 +91,22 @@ def test_the_gradient_and_the_sphere_are_budget_lines_or_named():
     assert grad.mount_gradient_share == 0.5 and grad.mount_gradient_assumed  # not stated: ±50 % assumed, and said
     sphere = noise_model(load_procedure(MC / "sphere.yaml"))
     assert sphere.sphere_form_um == 0.05
-    assert any(n.startswith("laser tracer reference sphere form: not stated") for n in
-               not_included(load_procedure(MC / "sphere_unstated.yaml")))
+    unstated = load_procedure(MC / "sphere_unstated.yaml")  # names an Etalon LaserTRACER: its class is assumed
+    assumed = noise_model(unstated)
+    assert (assumed.sphere_form_um, assumed.sphere_form_assumed) == (0.05, "Etalon LaserTRACER")
+    assert not any(n.startswith("laser tracer reference sphere form") for n in not_included(unstated))
+    unnamed = unstated.model_copy(update={"metadata": unstated.metadata.model_copy(update={"instruments": {}})})
+    assert noise_model(unnamed).sphere_form_um == 0
+    assert any(n.startswith("laser tracer reference sphere form: not stated") and "U excludes it" in n
+               for n in not_included(unnamed))
     assert not any(n.startswith("laser tracer reference sphere form") for n in not_included(load_procedure(MC / "sphere.yaml")))
     no_sensor = noise_model(load_procedure(MC / "air_step_low.yaml"))
     assert no_sensor.mount_gradient_share == 0.0  # without a sensor the table's stated range holds the mount too
 
 
 def test_the_sphere_form_drawn_by_the_monte_carlo_is_what_the_budget_models():
-    """`rtcal uncertainty` draws the stated form as the budget's random lobes: σ = bound/√2 at every azimuth."""
+    """`rtcal uncertainty` draws a sphere within its stated form (a peak to valley, ISO 12181-1), with the budget's
+    σ = PV/(2√2) at every azimuth: never one out of its class (Gaussian lobes of that σ reach ≈ 1.9 × PV)."""
     proc = load_procedure(MC / "sphere.yaml")
     rng = np.random.default_rng(44)
     psi = np.linspace(0, 2 * np.pi, 7, endpoint=False)
@@ -107,8 +114,13 @@ def test_the_sphere_form_drawn_by_the_monte_carlo_is_what_the_budget_models():
     for _ in range(1200):
         lobes = MultistationMethod().draw_systematics(proc, _scenario(MC / "sphere_bench.yaml"), rng).laser_tracer.sphere_form
         values.append([sum(lo.amplitude_um * math.cos(lo.order * p + math.radians(lo.phase_deg)) for lo in lobes) for p in psi])
-    sd = np.std(np.array(values), axis=0)
-    np.testing.assert_allclose(sd, 0.05 / math.sqrt(2), rtol=0.08)  # 1200 draws: ±2 % (1σ) each
+    values_um = np.array(values)
+    np.testing.assert_allclose(np.sqrt(np.mean(values_um**2, axis=0)), 0.05 / (2 * math.sqrt(2)), rtol=0.08)
+    dense = np.linspace(0, 2 * np.pi, 721)
+    for _ in range(50):
+        lobes = MultistationMethod().draw_systematics(proc, _scenario(MC / "sphere_bench.yaml"), rng).laser_tracer.sphere_form
+        form = [sum(lo.amplitude_um * math.cos(lo.order * p + math.radians(lo.phase_deg)) for lo in lobes) for p in dense]
+        assert max(form) - min(form) <= 0.05 + 1e-9  # within the stated peak to valley
 
 
 def test_a_failed_test_never_moves_the_recommendation():
@@ -245,6 +257,23 @@ def _goal_met(summary: dict) -> bool:
 @pytest.mark.parametrize("case", ["gradient", "gradient_two_sensors", "sphere", "aluminium", "cmm_field_600", "default_alpha"])
 def test_where_the_room_breaks_the_budget_the_goal_holds_campaign(case):
     assert _goal_met(_case(case))
+
+
+@pytest.mark.campaign
+def test_a_sphere_within_its_stated_form_is_covered_on_two_seeds_campaign():
+    """The form stated as a peak to valley and a sphere within it drawn: the goal on 2 × 30 trials (seed 4400 alone
+    measured σ/RMS 1.39 with the old model: its draws' sphere error was 0.73 × its expectation, docs/paper000.md)."""
+    assert _goal_met(_case("sphere", seeds=(4400, 5500)))
+
+
+@pytest.mark.campaign
+def test_an_unstated_laser_tracer_sphere_is_budgeted_as_its_class_campaign():
+    """Not stated, the named LaserTRACER's 50 nm class is the budget's: the same figures as with it stated (before:
+    0.67–0.73 coverage, σ/RMS 0.52–0.57). The bench's sphere is 130 nm peak to valley, 2.6 × that class: docs/paper000.md
+    gives 0.90–0.96 over two seeds."""
+    unstated, stated = _case("sphere_unstated")["recommended_estimate"], _case("sphere_bench")["recommended_estimate"]
+    assert (unstated["coverage_k2"], unstated["ratio"]) == (stated["coverage_k2"], stated["ratio"])
+    assert unstated["coverage_k2"] >= 0.9
 
 
 @pytest.mark.campaign

@@ -763,7 +763,7 @@ def _finish(x, lay, evaluate, weights, theta, pi, st, seg_ids, nominal, visits, 
         sources.append(replace(src, effect=padded(src.effect, len(zeros_pts)), note=src.note + "; in the weights"))
     extra = mount_gradient_sources(radial_sensitivity_mm(unit, P[st], x[lay.c], axis_dir), material_offset, run_fraction,
                                    noise)
-    if noise.sphere_form_um > 0:
+    if noise.sphere_form_um > 0 or noise.sphere_map_u_um > 0:
         extra.append(sphere_form_source(unit, P[st], x[lay.c], axis_dir, noise))
     sources += [replace(src, effect=padded(src.effect, len(zeros_pts))) for src in extra]
     if noise.cmm_field_um > 0:  # the CMM reports each point off by the field: in the points' rows, or the lengths'

@@ -97,8 +97,11 @@ class StationNoiseModel:
     mount_gradient_share: float = 0.0  # with a sensor reading the table: how far the tracer's mount's temperature change
     #                                    may differ from the sensor's, as a share of the sensor's change (1σ)
     mount_gradient_assumed: bool = False  # the share is the default, not stated
-    sphere_form_um: float = 0.0  # the tracer's reference sphere's form error, bound (the lobes σ = bound/√2)
+    sphere_form_um: float = 0.0  # the tracer's reference sphere's form deviation, peak to valley (σ = PV/(2√2))
     sphere_max_order: int = 6  # its lobes' highest order
+    sphere_form_assumed: str = ""  # the tracer model whose specified form is assumed, none being stated ("": as stated)
+    sphere_map_u_um: float = 0.0  # the lengths corrected by the sphere's certified map: its standard uncertainty, µm
+    sphere_map_note: str = ""  # which certificate
     temperature_on_mount: bool = False  # the lengths corrected with a probe on the tracer's mount, not the table's sensor
 
 
@@ -250,7 +253,7 @@ def observation_sources(obs: StationObservations, stations_mm: np.ndarray, axis_
         sources.append(cmm_field_source(u, obs.point, pts, noise))
     sources += mount_gradient_sources(radial_sensitivity_mm(u, P, axis_center_mm, axis_direction), obs.material_offset_k,
                                       obs.run_fraction, noise)
-    if noise.sphere_form_um > 0:
+    if noise.sphere_form_um > 0 or noise.sphere_map_u_um > 0:
         sources.append(sphere_form_source(u, P, axis_center_mm, axis_direction, noise))
     for label, prefix, sigma, unit in (("CMM scales", "scale", noise.cmm_scale_ppm, "ppm"),
                                        ("CMM squarenesses", "squareness", noise.cmm_squareness_arcsec, "″")):
@@ -390,12 +393,15 @@ def sphere_form_source(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center
                        axis_direction: np.ndarray, noise: StationNoiseModel) -> Source:
     """The tracer's reference sphere is not round: each length reads off by the sphere's departure where its beam
     touches it, a function of the beam's direction in the tracer's base frame — fixed to the base, which turns with
-    the table, so each station sees the points through another part of the sphere. Modelled as lobes about the
-    tracer's vertical (the axis) of orders 2..K (order 0 is the dead path's, order 1 a shift of the centre that the
-    stations take up), a random series with σ = bound/√2 at every azimuth (as the error motions: the σ of a lobe that
-    reaches the bound) spread equally over the orders. The beam's azimuth in the base frame is its azimuth about the
-    axis less the station's own (the base turns with the station; the sign of the axis then does not matter: it turns
-    ψ into −ψ, which the random phases do not see). One set of 2(K − 1) inputs for the run (Type B, dense)."""
+    the table, so each station sees the points through another part of the sphere. The stated figure is a form
+    deviation as a sphere's specification or certificate gives it (ISO 12181-1 / ISO 1101: the minimum-zone peak to
+    valley F, the radius within ±F/2), not an amplitude. Modelled as lobes about the tracer's vertical (the axis) of
+    orders 2..K (order 0 is the dead path's, order 1 a shift of the centre that the stations take up), a random
+    series with σ = F/(2√2) at every azimuth — the σ of one lobe whose peak to valley is F, the shape that puts the
+    most of a given F into every direction — spread equally over the orders. The beam's azimuth in the base frame is
+    its azimuth about the axis less the station's own (the base turns with the station; the sign of the axis then
+    does not matter: it turns ψ into −ψ, which the random phases do not see). One set of 2(K − 1) inputs for the run
+    (Type B, dense)."""
     a = np.asarray(axis_direction, float) / np.linalg.norm(axis_direction)
     e1 = np.cross(a, [0.0, 1.0, 0.0] if abs(a[0]) > 0.9 else [1.0, 0.0, 0.0])
     e1 /= np.linalg.norm(e1)
@@ -404,11 +410,21 @@ def sphere_form_source(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center
     rel = np.asarray(stations_mm, float) - np.asarray(axis_center_mm, float)
     psi = np.arctan2(u @ e2, u @ e1) - np.arctan2(rel @ e2, rel @ e1)
     orders = np.arange(2, max(noise.sphere_max_order, 2) + 1)
-    s = noise.sphere_form_um * 1e-3 / np.sqrt(2.0) / np.sqrt(len(orders))
+    sigma_um = noise.sphere_map_u_um if noise.sphere_map_u_um > 0 else noise.sphere_form_um / (2.0 * np.sqrt(2.0))
+    s = sigma_um * 1e-3 / np.sqrt(len(orders))
     F = np.hstack([np.cos(np.outer(psi, orders)) * s, np.sin(np.outer(psi, orders)) * s])
-    return Source(SPHERE_SOURCE, "B", F, noise.sphere_form_um, "µm (bound)",
-                  f"the sphere's form within ±{noise.sphere_form_um:g} µm as stated: lobes of orders 2..{orders[-1]} about "
-                  "the tracer's vertical, fixed to its base that turns with the table (σ = bound/√2 in every direction)")
+    if noise.sphere_map_u_um > 0:  # the lengths were corrected by the certificate's map: what remains is its error
+        return Source(SPHERE_SOURCE + ": corrected by its certificate's map", "B", F, noise.sphere_map_u_um, "µm (1σ)",
+                      f"the lengths corrected by the sphere's map ({noise.sphere_map_note}); what remains is the map's "
+                      f"uncertainty, {noise.sphere_map_u_um:g} µm (1σ) in every direction, as lobes of orders "
+                      f"2..{orders[-1]} about the tracer's vertical")
+    origin = (f"assumed from the {noise.sphere_form_assumed}'s specification, not stated" if noise.sphere_form_assumed
+              else "as stated")
+    return Source(SPHERE_SOURCE + (f": not stated, the {noise.sphere_form_assumed}'s class assumed"
+                                   if noise.sphere_form_assumed else ""), "B", F, noise.sphere_form_um, "µm (peak to valley)",
+                  f"the sphere's form deviation {noise.sphere_form_um:g} µm peak to valley, {origin}: lobes of orders "
+                  f"2..{orders[-1]} about the tracer's vertical, fixed to its base that turns with the table (σ = PV/(2√2) "
+                  "in every direction)")
 
 
 AIR_NOISE_SOURCE = "air refractive index: sensor noise per reading"

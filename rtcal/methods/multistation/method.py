@@ -46,8 +46,8 @@ from simulators.truth import station_truth
 
 from rtcal.methods.multistation.noise import (AIR_QUANTITIES, DEFAULT_TABLE_EXPANSION_PPM_PER_K, DEFAULT_TABLE_EXPANSION_U_PPM_PER_K,
                                               DEFAULT_TABLE_MATERIAL, air_index_bound, air_index_noise, air_index_sigma,
-                                              noise_model, stated_air_ranges, stated_table_range, table_expansion,
-                                              mount_sensor, table_sensor)
+                                              noise_model, sphere_form, stated_air_ranges, stated_table_range,
+                                              table_expansion, mount_sensor, table_sensor)
 
 if TYPE_CHECKING:
     from rtcal.methods.multistation.planner import MultistationPlanner
@@ -146,6 +146,29 @@ def corrected_for_air(data: MultistationData, proc: LaserTracerMultistation) -> 
                    other_mounts=others)
 
 
+def corrected_for_sphere(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
+    """The lengths corrected by the reference sphere's certified map (``uncertainty.laser_tracer_sphere_map``): each
+    reads short by the sphere's deviation where its beam touches it, at the beam's azimuth about the axis less the
+    station's own (the tracer's base turns with the table), from the nominal geometry — a station guess off by 1 mm
+    turns that azimuth by about 0.06°, a few picometres of a 50 nm form."""
+    smap = proc.uncertainty.laser_tracer_sphere_map
+    if smap is None:
+        return data
+    nominal = np.deg2rad(data.nominal_angles_deg)
+    axis = np.array(proc.solver.axis_point_mm)
+
+    def fix(lengths: np.ndarray, guess: Sequence[float]) -> np.ndarray:
+        stations = initial_guesses(np.asarray(guess, float), nominal, axis, data.points_mm, lengths)[:, :3]
+        beam = np.asarray(data.points_mm, float)[:, None, :] - stations[None, :, :]
+        rel = stations - axis
+        psi = np.arctan2(beam[..., 1], beam[..., 0]) - np.arctan2(rel[:, 1], rel[:, 0])[None, :]
+        return np.asarray(lengths, float) + smap.at(psi) * 1e-3
+
+    second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
+    others = tuple(replace(o, lengths_mm=fix(o.lengths_mm, second)) for o in data.other_mounts)
+    return replace(data, lengths_mm=fix(data.lengths_mm, proc.solver.first_station_guess_mm), other_mounts=others)
+
+
 def not_included(proc: LaserTracerMultistation, data: MultistationData | None = None) -> list[str]:
     """Type B sources the procedure did not state: the budget is silent on them, and says so."""
     u = proc.uncertainty
@@ -173,10 +196,11 @@ def not_included(proc: LaserTracerMultistation, data: MultistationData | None = 
                    "(uncertainty.cmm_field_um); each estimate's residual test (against the whole budget) shows a field "
                    "only where the stations and dead paths cannot take it up: a smooth 1 µm field passes it unseen "
                    "while it moves the angles")
-    if u.laser_tracer_sphere_form_um == 0:
-        out.append("laser tracer reference sphere form: not stated (uncertainty.laser_tracer_sphere_form_um); the sphere is "
-                   "fixed to the tracer's base, which turns with the table, so its form (a LaserTRACER's: up to 50 nm) reads "
-                   "each point differently from each station and moves the angles")
+    if sphere_form(proc)[0] == 0 and u.laser_tracer_sphere_map is None:
+        out.append("laser tracer reference sphere form: not stated (uncertainty.laser_tracer_sphere_form_um), and the tracer "
+                   "named (metadata.instruments.laser_tracer.id) is no product with a published figure: U excludes it. The "
+                   "sphere is fixed to the tracer's base, which turns with the table, so its form (a LaserTRACER's: below "
+                   "50 nm peak to valley) reads each point differently from each station and moves the angles")
     if u.cmm_scale_ppm == 0 and u.cmm_squareness_arcsec == 0:
         out.append("CMM scale and squareness: not stated (uncertainty.cmm_scale_ppm, cmm_squareness_arcsec)")
     if u.stage_repeatability_arcsec == 0:
@@ -213,8 +237,16 @@ def failure_causes(proc: LaserTracerMultistation, noise: StationNoiseModel) -> l
         out.append(f"the air left the stated ranges ({noise.air_note})")
     out.append("the CMM's geometry beyond its scales and squarenesses" + (f" exceeds the stated {u.cmm_field_um:g} µm field"
                                                                            if u.cmm_field_um > 0 else " (not stated)"))
-    if u.laser_tracer_sphere_form_um == 0:
+    if noise.sphere_map_u_um > 0:
+        out.append("the tracer's reference sphere is not as its certificate's map (laser_tracer_sphere_map) says, or "
+                   "the map's azimuth is not set as the tracer is mounted")
+    elif noise.sphere_form_um == 0:
         out.append("the tracer's reference sphere is out of round (its form not stated)")
+    elif noise.sphere_form_assumed:
+        out.append(f"the tracer's reference sphere is out of round beyond the {noise.sphere_form_assumed}'s specified "
+                   f"{noise.sphere_form_um:g} µm (assumed, not stated)")
+    else:
+        out.append(f"the tracer's reference sphere is out of round beyond the stated {noise.sphere_form_um:g} µm peak to valley")
     em = u.error_motions
     out.append("the table's error motions exceed their stated bounds" if max(em.radial_um, em.axial_um, em.tilt_arcsec) > 0
                else "the table's error motions (no bounds stated)")
@@ -372,16 +404,15 @@ def _random_field(sigma_um: float, length_mm: float, rng: np.random.Generator) -
     return terms
 
 
-def _random_lobes(bound_um: float, max_order: int, rng: np.random.Generator) -> list[SphereLobe]:
-    """A reference sphere's form as the budget models it (:func:`rtcal.solvers.station_budget.sphere_form_source`):
-    per order 2..K a cosine and a sine coefficient N(0, σ²/(K − 1)), σ = bound/√2."""
-    orders = range(2, max(max_order, 2) + 1)
-    s = bound_um / np.sqrt(2.0) / np.sqrt(len(orders))
-    lobes = []
-    for k in orders:
-        a, b = (float(v) for v in rng.normal(0.0, s, 2))
-        lobes.append(SphereLobe(order=k, amplitude_um=float(np.hypot(a, b)), phase_deg=float(np.degrees(np.arctan2(-b, a)))))
-    return lobes
+def _random_lobes(form_um: float, max_order: int, rng: np.random.Generator) -> list[SphereLobe]:
+    """A reference sphere within its stated form deviation (peak to valley ``form_um``) as the budget models it
+    (:func:`rtcal.solvers.station_budget.sphere_form_source`): one lobe of that peak to valley, its order uniform in
+    2..K and its phase uniform — a sphere at its class's limit, whose coefficients have the budget's covariance
+    (σ² = PV²/8 spread equally over the orders). Gaussian lobes of that σ would be spheres far out of their class
+    (peak to valley ≈ 5σ, 1.9 × the stated F): not what a stated bound describes."""
+    orders = max(max_order, 2) - 1
+    order = 2 + min(int(rng.uniform(0.0, orders)), orders - 1)
+    return [SphereLobe(order=order, amplitude_um=form_um / 2.0, phase_deg=float(rng.uniform(-180.0, 180.0)))]
 
 
 def lm_parameters(proc: LaserTracerMultistation) -> LMParameters:
@@ -467,8 +498,8 @@ class MultistationMethod:
         """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
         recommended one, its positioning-deviation table, and the truth of a simulated run."""
         angles = proc.stations.angles_deg()
-        data = on_mount_probe(corrected_for_air(multistation_data(store, angles, len(proc.points_array()), proc.mounts),
-                                                proc), proc)
+        data = on_mount_probe(corrected_for_sphere(corrected_for_air(multistation_data(
+            store, angles, len(proc.points_array()), proc.mounts), proc), proc), proc)
         data = with_growth_unknown(corrected_for_expansion(data, proc), proc)
         guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
         noise = noise_model(proc, estimate_noise, mount_probe=data.mount_temperature_c is not None)
@@ -539,9 +570,9 @@ class MultistationMethod:
             "tilt_motion_x": _random_series(t, k, rng, AngularHarmonic), "tilt_motion_y": _random_series(t, k, rng, AngularHarmonic),
             "tilt_center_height_mm": em.tilt_center_z_mm - scenario.stage.axis_point_mm[2]})
         update = {"cmm": cmm, "stage": stage}
-        if u.laser_tracer_sphere_form_um > 0:  # the stated form replaces the bench's, drawn as the budget models it
+        if sphere_form(proc)[0] > 0:  # the stated (or assumed) form replaces the bench's, drawn as the budget models it
             update["laser_tracer"] = scenario.laser_tracer.model_copy(update={"sphere_form": _random_lobes(
-                u.laser_tracer_sphere_form_um, u.laser_tracer_sphere_max_order, rng)})
+                sphere_form(proc)[0], u.laser_tracer_sphere_max_order, rng)})
         ranges = stated_air_ranges(proc)
         if ranges:  # no sensor: the air at the run's first and last length anywhere in its range, linear between
             update["environment"] = self._drawn_air(proc, scenario, ranges, rng)

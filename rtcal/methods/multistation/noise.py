@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from rtcal.methods.multistation.procedure import LaserTracerMultistation
@@ -14,6 +16,13 @@ from rtcal.solvers.station_budget import StationNoiseModel
 DEFAULT_TABLE_MATERIAL = "steel"
 DEFAULT_TABLE_EXPANSION_PPM_PER_K = 11.5
 DEFAULT_TABLE_EXPANSION_U_PPM_PER_K = 2.0
+
+# The reference-sphere form a tracer's product specification states, peak to valley (ISO 12181-1 form deviation), µm:
+# assumed when the procedure states none and metadata.instruments.laser_tracer.id names the product. Etalon's
+# LaserTRACER (and -NG, -MT: the same stationary reference sphere) specifies its sphere's form deviation below 50 nm
+# (docs/paper000.md, "Where the room breaks the budget"). A tracer named otherwise, or not named, states none: the
+# budget then leaves the form out and says so (not_included).
+SPECIFIED_SPHERE_FORM_UM: dict[str, tuple[str, float]] = {"lasertracer": ("Etalon LaserTRACER", 0.05)}
 
 
 def noise_model(proc: LaserTracerMultistation, estimate: bool = True, mount_probe: bool | None = None) -> StationNoiseModel:
@@ -42,8 +51,36 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True, mount_prob
         cmm_field_um=u.cmm_field_um, cmm_field_length_mm=u.cmm_field_length_mm,
         mount_gradient_share=mount_gradient_share(proc, on_mount),
         mount_gradient_assumed=table_sensor(proc) and not on_mount and "mount_gradient_share" not in u.environment.model_fields_set,
-        sphere_form_um=u.laser_tracer_sphere_form_um, sphere_max_order=u.laser_tracer_sphere_max_order,
-        temperature_on_mount=on_mount)
+        sphere_form_um=sphere_form(proc)[0], sphere_max_order=u.laser_tracer_sphere_max_order,
+        sphere_form_assumed=sphere_form(proc)[1], temperature_on_mount=on_mount, **sphere_map_terms(proc))
+
+
+def sphere_map_terms(proc: LaserTracerMultistation) -> dict[str, Any]:
+    """The certified sphere map's standard uncertainty (its expanded U / 2) and note, when the lengths are corrected
+    by one (:func:`rtcal.methods.multistation.method.corrected_for_sphere`)."""
+    m = proc.uncertainty.laser_tracer_sphere_map
+    if m is None:
+        return {}
+    return {"sphere_map_u_um": m.expanded_uncertainty_um / 2.0,
+            "sphere_map_note": f"certificate {m.certificate}" if m.certificate else "its certificate, as stated"}
+
+
+def sphere_form(proc: LaserTracerMultistation) -> tuple[float, str]:
+    """(the reference sphere's form deviation PV, µm; the tracer model whose specification it is assumed from, or ""):
+    as stated; none stated, the named product's specified class (:data:`SPECIFIED_SPHERE_FORM_UM`) — a tracer's
+    sphere is never round, and a budget silent on it is short by the form's whole effect (issue 44); (0, "") when the
+    tracer is not a product with a published figure."""
+    u = proc.uncertainty
+    if u.laser_tracer_sphere_map is not None:  # the map corrects the lengths: only its own uncertainty remains
+        return 0.0, ""
+    if "laser_tracer_sphere_form_um" in u.model_fields_set:
+        return float(u.laser_tracer_sphere_form_um), ""
+    record = proc.metadata.instruments.get("laser_tracer")
+    name = "" if record is None else record.id.lower().replace(" ", "").replace("-", "")
+    for key, (model, form_um) in SPECIFIED_SPHERE_FORM_UM.items():
+        if key in name:
+            return form_um, model
+    return 0.0, ""
 
 
 AIR_QUANTITIES = (("air_temperature_k", "temperature", "K", 0), ("air_pressure_pa", "pressure", "Pa", 1),

@@ -345,8 +345,12 @@ class MultistationOutputs:
                          "than the α assumed, or such a gradient, moves the stations in a pattern the lengths "
                          "determine), and these lines then contribute only what the solution leaves; a gradient that "
                          "changes while the sensor's reading does not is not included")
-        if any(n.startswith("laser tracer reference sphere form") for n in names):
-            parts.append("the tracer's reference sphere is out of round within its stated form, fixed to the tracer's "
+        sphere = [n for n in names if n.startswith("laser tracer reference sphere form")]
+        if sphere:
+            within = ("as its certificate's map says, the lengths corrected by the map and only its uncertainty left"
+                      if "map" in sphere[0] else "within its tracer's specified class (assumed, not stated)"
+                      if sphere[0].endswith("assumed") else "within its stated form")
+            parts.append(f"the tracer's reference sphere is out of round {within}, fixed to the tracer's "
                          "base that turns with the table, so each station reads the points through another part of it "
                          "(a direction-dependent systematic of the tracer)")
         if not parts:

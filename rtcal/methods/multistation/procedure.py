@@ -194,6 +194,44 @@ class EnvironmentUncertainty(StrictModel):
         "mount_gradient_share is stated (then against the mount probe's change)"))
 
 
+class SphereMap(StrictModel):
+    """The tracer's reference sphere as its certificate measured it: the polar trace of its radius about the
+    tracer's vertical (a roundness certificate's table), which the lengths are corrected by; the budget then carries
+    only the map's own uncertainty."""
+
+    deviation_um: list[tuple[float, float]] = Field(min_length=8, max_length=3600, description=(
+        "rows [azimuth_deg, deviation_um]: the sphere's radius less its mean at each azimuth, µm (a bump toward the "
+        "beam positive: the tracer reads that direction short by it). Azimuth about the table's axis, counterclockwise "
+        "seen from above, 0° pointing from the axis out through the tracer's centre (the base turns with the table, "
+        "so this holds at every station); 0 ≤ azimuth < 360, increasing, no gap over 30° (linear between rows)"))
+    expanded_uncertainty_um: float = Field(gt=0.0, le=10.0, description=(
+        "the certificate's expanded uncertainty (k = 2) of those deviations, µm (e.g. 0.01)"))
+    certificate: str = Field("", max_length=200, description="the certificate's number, for the budget's note")
+
+    @model_validator(mode="after")
+    def _trace(self) -> "SphereMap":
+        az = [row[0] for row in self.deviation_um]
+        for k, (a, d) in enumerate(self.deviation_um):
+            if not (0.0 <= a < 360.0 and math.isfinite(d)) or abs(d) > 10.0:
+                raise ValueError(f"deviation_um row {k + 1} [{a:g}, {d:g}]: the azimuth must lie in 0 ≤ a < 360 and the "
+                                 "deviation within ±10 µm")
+            if k and a <= az[k - 1]:
+                raise ValueError(f"deviation_um row {k + 1}: azimuth {a:g}° does not increase (after {az[k - 1]:g}°); "
+                                 "list the certificate's trace in order")
+        gaps = np.diff(az + [az[0] + 360.0])
+        if gaps.max() > 30.0:
+            k = int(np.argmax(gaps))
+            raise ValueError(f"deviation_um: {gaps[k]:g}° between {az[k]:g}° and the next row; a lobe of order 6 needs a "
+                             "row every 30° at most: give the certificate's trace at that spacing or finer")
+        return self
+
+    def at(self, azimuth_rad: np.ndarray) -> np.ndarray:
+        """The deviation, µm, at azimuths (rad, any range): linear between the rows, periodic."""
+        az = np.array([row[0] for row in self.deviation_um])
+        dev = np.array([row[1] for row in self.deviation_um])
+        return np.asarray(np.interp(np.mod(np.degrees(azimuth_rad), 360.0), az, dev, period=360.0), float)
+
+
 class MultistationUncertainty(StrictModel):
     """What the lab knows about its instruments (1σ unless a bound): the uncertainty budget's inputs.
 
@@ -222,12 +260,17 @@ class MultistationUncertainty(StrictModel):
     table_expansion_u_ppm_per_k: float = Field(0.0, ge=0.0, le=100.0, description=(
         "standard uncertainty of that coefficient, ppm/K (e.g. 1.0)"))
     laser_tracer_sphere_form_um: float = Field(0.0, ge=0.0, le=100.0, description=(
-        "the form error of the tracer's reference sphere, µm: the bound of its departure from a sphere, from the "
-        "tracer's specification or certificate (Type B, e.g. 0.05 for the LaserTRACER class). Fixed to the tracer's "
-        "base, which turns with the table, it reads each point differently from each station: lobes about the "
-        "tracer's vertical, σ = bound/√2 in every direction (0: not stated, named in not_included)"))
+        "the form deviation of the tracer's reference sphere, µm, peak to valley (ISO 12181-1: the radius within ± half "
+        "of it), from the tracer's specification or certificate (Type B, e.g. 0.05 for the LaserTRACER class). Fixed to "
+        "the tracer's base, which turns with the table, it reads each point differently from each station: lobes about "
+        "the tracer's vertical, σ = PV/(2√2) in every direction. Not stated: the specified class of the product "
+        "metadata.instruments.laser_tracer.id names (an Etalon LaserTRACER's 0.05), said so in the budget; a tracer "
+        "with no published figure: named in not_included"))
     laser_tracer_sphere_max_order: int = Field(6, ge=2, le=360, description=(
         "the highest lobe order (lobes per turn) of that form (e.g. 6)"))
+    laser_tracer_sphere_map: SphereMap | None = Field(None, description=(
+        "the reference sphere's map from its certificate: the lengths are corrected by it and the budget carries its "
+        "uncertainty instead of the form (laser_tracer_sphere_form_um then unused)"))
 
 
 class MultistationVerification(VerificationBase):
