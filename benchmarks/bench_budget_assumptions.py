@@ -38,6 +38,8 @@ BUDGET = REPO / "tests" / "data" / "budget"
 # name: (procedure, bench (None: the procedure's), systematics drawn, what it shows)
 CASES: dict[str, tuple[Path, Path | None, bool, str]] = {
     "gradient": (MC / "gradient.yaml", None, True, "sensor 1 K/h, the tracer's mount 1.5 K/h"),
+    "gradient_two_sensors": (MC / "gradient_two_sensors.yaml", None, True,
+                             "the gradient bench, a second probe on the tracer's mount"),
     "sphere": (MC / "sphere.yaml", None, True, "sphere form stated 50 nm PV, a sphere within it drawn per trial"),
     "sphere_bench": (MC / "sphere.yaml", None, False, "the bench's 30 nm 2-lobe + 40 nm 3-lobe, fixed"),
     "sphere_unstated": (MC / "sphere_unstated.yaml", None, False, "the same form, not stated: the named LaserTRACER's 50 nm assumed"),

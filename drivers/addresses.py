@@ -47,6 +47,8 @@ TEXT_OPTIONS: dict[str, tuple[str, str]] = {
     "parity": (r"[NEO]", "N, E or O"),
     "token": (r"[A-Za-z0-9_-]{8,128}", "8 to 128 letters, digits, - or _"),
     "thermometer": (r"[^\s]{1,500}", "the address of a thermometer (socket://HOST:PORT or a device path)"),
+    "mount_thermometer": (r"[^\s]{1,500}", "the address of a second thermometer, its probe 2 on the tracer's mount "
+                                           "(socket://HOST:PORT or a device path)"),
     "axis": (r"[XYZABCUVWxyzabcuvw]|[1-9][0-9]?", "an axis letter X Y Z A B C U V W (LinuxCNC, e.g. C) or an axis "
                                                   "number 1 … 99 (PI GCS, e.g. 1)"),
 }
@@ -125,10 +127,9 @@ def _options(query: str) -> dict[str, str]:
             check_option(name, text, bounds)
         else:
             raise AddressError(f"unknown option {name!r} (known: {', '.join([*OPTIONS, *TEXT_OPTIONS])})")
-    if "thermometer" in options:
-        inner = parse_address(options["thermometer"])
-        if inner.scheme != "serial":
-            raise AddressError(f"option thermometer={options['thermometer'][:60]!r}: a serial or socket:// address")
+    for name in ("thermometer", "mount_thermometer"):
+        if name in options and parse_address(options[name]).scheme != "serial":
+            raise AddressError(f"option {name}={options[name][:60]!r}: a serial or socket:// address")
     if "steps_per_rev" in options or "gear" in options:
         check_step(float(options.get("steps_per_rev", DEFAULT_STEPS_PER_REV)), float(options.get("gear", DEFAULT_GEAR)),
                    ("steps_per_rev", "gear"))

@@ -36,7 +36,8 @@ AUTOCOLLIMATOR_RANGE_ARCSEC = 3_600.0  # autocollimators measure within about ±
 DIAL_RANGE_UM = 100_000.0  # a dial indicator's travel is at most 100 mm
 MACHINE_RANGE = 100_000.0  # a machine tool's joint beyond 100 m (or a hundred turns and more) is no reading
 ENVIRONMENT_RANGES = {"air_temperature_c": (-50.0, 100.0), "air_pressure_pa": (30_000.0, 150_000.0),
-                      "humidity_pct": (0.0, 100.0), "material_temperature_c": (-50.0, 100.0)}
+                      "humidity_pct": (0.0, 100.0), "material_temperature_c": (-50.0, 100.0),
+                      "mount_temperature_c": (-50.0, 100.0)}
 
 
 def shown_identity(text: Any) -> str:

@@ -95,6 +95,9 @@ DESCRIPTIONS: dict[str, dict[str, FieldDescription]] = {
                            FieldDescription("air_pressure_pa", "Pa", "the air pressure", may_be_nan=True),
                            FieldDescription("humidity_pct", "%", "the air's relative humidity", may_be_nan=True),
                            FieldDescription("material_temperature_c", "degC", "the table's material temperature",
+                                            may_be_nan=True, probe_nan="omit"),
+                           FieldDescription("mount_temperature_c", "degC", "a second material probe's: the region that "
+                                            "carries the tracer (its mount), where the table's sensor is elsewhere",
                                             may_be_nan=True, probe_nan="omit")),
     # a machine tool's joints as its controller reports them; a rotary axis the machine lacks reads NaN
     "machine_tool": _fields(*(FieldDescription(f"position_{a}_mm", "mm", f"the {a.upper()} joint's position the control "
@@ -408,12 +411,15 @@ class DialIndicator(Instrument):
 
 @dataclass(frozen=True)
 class EnvironmentReading:
-    """Air and material conditions at one moment: °C, Pa, % RH, °C (NaN: not measured by this sensor)."""
+    """Air and material conditions at one moment: °C, Pa, % RH, °C, °C (NaN: not measured by this sensor).
+    ``mount_temperature_c``: a second material probe on the region that carries the tracer (its mount), so that a
+    gradient between the table's sensor and the mount is measured, not budgeted."""
 
     air_temperature_c: float
     air_pressure_pa: float
     humidity_pct: float
     material_temperature_c: float = float("nan")
+    mount_temperature_c: float = float("nan")
 
 
 class EnvironmentSensor(Instrument):

@@ -1,6 +1,7 @@
 """Environment sensors: a Vaisala PTU300 (pressure, temperature, humidity) or PTB330 (a
 barometer), with the table's temperature from an OMEGA iTHX thermometer on the address's
-``thermometer=`` (docs/protocols/environment.md gives each fact's public source).
+``thermometer=``, and the tracer's mount's from a second iTHX's probe 2 on ``mount_thermometer=`` (an iTHX has two
+probes, the first the air's with a PTB330) (docs/protocols/environment.md gives each fact's public source).
 
 At open the driver stops RUN mode (``S``) and turns the factory-default echo off
 (``ECHO OFF``, which also ends the ``>`` prompts), each time reading what the unit sends until the
@@ -30,7 +31,8 @@ PRESSURE_PA = {"pa": 1.0, "hpa": 100.0, "mbar": 100.0, "kpa": 1000.0, "bar": 1e5
 QUIET_S = 0.25  # the line is done talking after this long without a byte (≈ 120 characters at 4800 baud)
 MAX_LISTING_LINES = 40  # the `?` listing is about 15 lines
 RANGES = {"air_temperature_c": (-40.0, 80.0, "air temperature °C"), "air_pressure_pa": (50000.0, 150000.0, "pressure Pa"),
-          "humidity_pct": (0.0, 100.0, "humidity %"), "material_temperature_c": (-40.0, 150.0, "material temperature °C")}
+          "humidity_pct": (0.0, 100.0, "humidity %"), "material_temperature_c": (-40.0, 150.0, "material temperature °C"),
+          "mount_temperature_c": (-40.0, 150.0, "mount temperature °C")}
 
 
 def celsius(value: float, unit: str) -> float:
@@ -90,13 +92,14 @@ class VaisalaPtu300(EnvironmentSensor):
     MEASURES_AIR = True  # a PTB330 is a barometer: air temperature and humidity come from the thermometer
 
     def __init__(self, address: Address, timeout_s: float = 1.0, **_: object):
-        thermometer = address.text("thermometer")
+        thermometer, mount_thermometer = address.text("thermometer"), address.text("mount_thermometer")
         if not self.MEASURES_AIR and not thermometer:
             raise AddressError(f"model {self.model} measures pressure only: give the air and table thermometer as "
                                "thermometer=socket://HOST:PORT (an OMEGA iTHX)")
         self.line = SerialLine(self.name, address, self.framing, timeout_s, b"\n")
         self.timeout_s = timeout_s
         self.thermometer: IthxThermometer | None = None
+        self.mount_thermometer: IthxThermometer | None = None  # a second iTHX, its probe 2 on the tracer's mount
         self.listing: dict[str, str] = {}
         try:
             self._command_until_quiet(b"S\r")  # RUN mode streams readings: stop it
@@ -108,6 +111,8 @@ class VaisalaPtu300(EnvironmentSensor):
                 raise InstrumentFault(self.name, f"FORM refused: {answer[:80]!r}")
             if thermometer:
                 self.thermometer = IthxThermometer(parse_address(thermometer), timeout_s, self.name)
+            if mount_thermometer:
+                self.mount_thermometer = IthxThermometer(parse_address(mount_thermometer), timeout_s, self.name)
         except BaseException:
             self.close()
             raise
@@ -206,12 +211,14 @@ class VaisalaPtu300(EnvironmentSensor):
         else:  # never: a barometer is not opened without its thermometer
             raise InstrumentFault(self.name, "no thermometer for the air temperature and humidity")
         material = self.thermometer.read("*SRTC2") if self.thermometer else math.nan
-        values = {"air_temperature_c": t, "air_pressure_pa": pressure_pa, "humidity_pct": rh, "material_temperature_c": material}
+        mount = self.mount_thermometer.read("*SRTC2") if self.mount_thermometer else math.nan
+        values = {"air_temperature_c": t, "air_pressure_pa": pressure_pa, "humidity_pct": rh, "material_temperature_c": material,
+                  "mount_temperature_c": mount}
         check_ranges(self.name, values)
         return EnvironmentReading(**values)
 
     def close(self) -> None:
-        for part in (self.line, self.thermometer):
+        for part in (self.line, self.thermometer, self.mount_thermometer):
             if part is not None:
                 try:
                     part.close()

@@ -357,16 +357,22 @@ class Bench:
         alpha = self.scenario.stage.thermal_expansion_ppm_per_k
         return alpha * 1e-6 * (self.environment()[3] - 20.0) if alpha else 0.0
 
-    def mount_growth(self) -> float:
-        """The relative radial growth of the region that carries the tracer: the table's, or with a gradient its own
-        temperature's (the table's start, drifting at ``mount_temperature_drift_k_per_h``, plus the table's profile)."""
+    def mount_temperature_c(self) -> float:
+        """The temperature of the region that carries the tracer now: the table's, or with a gradient its own (the
+        table's start, drifting at ``mount_temperature_drift_k_per_h``, plus the table's profile)."""
         e = self.scenario.environment
-        alpha = self.scenario.stage.thermal_expansion_ppm_per_k
-        if e.mount_temperature_drift_k_per_h is None or not alpha:
-            return self.table_growth()
+        if e.mount_temperature_drift_k_per_h is None:
+            return self.environment()[3]
         now = self.clock.now_s()
         dm = e.offsets(None if self.first_reading_s is None else now - self.first_reading_s)[3]
-        return alpha * 1e-6 * (e.material_temperature_c + e.mount_temperature_drift_k_per_h * now / 3600.0 + dm - 20.0)
+        return e.material_temperature_c + e.mount_temperature_drift_k_per_h * now / 3600.0 + dm
+
+    def mount_growth(self) -> float:
+        """The relative radial growth of the region that carries the tracer: α·(its temperature − 20 °C)."""
+        alpha = self.scenario.stage.thermal_expansion_ppm_per_k
+        if self.scenario.environment.mount_temperature_drift_k_per_h is None or not alpha:
+            return self.table_growth()
+        return alpha * 1e-6 * (self.mount_temperature_c() - 20.0)
 
     def air_index(self) -> float:
         """The refractive index of the air the tracer's beam runs through, now (Ciddor, He-Ne)."""

@@ -332,13 +332,15 @@ class SimDialIndicator(_Injecting, DialIndicator):
 
 
 class SimEnvironmentSensor(_Injecting, EnvironmentSensor):
-    """The bench's air and material conditions now, with the sensor's noise."""
+    """The bench's air and material conditions now, with the sensor's noise; ``mount_probe``: a second material
+    probe on the tracer's mount reads the temperature of the region that carries the tracer (its own noise)."""
 
     name = "environment"
 
-    def __init__(self, bench: Bench, inject: bool = True):
+    def __init__(self, bench: Bench, inject: bool = True, mount_probe: bool = False):
         self.bench = bench
         self.inject = inject
+        self.mount_probe = mount_probe
         self._rng = bench.rng("environment")
 
     def read(self) -> EnvironmentReading:
@@ -347,8 +349,11 @@ class SimEnvironmentSensor(_Injecting, EnvironmentSensor):
         e = self.bench.scenario.environment
         t, p, rh, tm = self.bench.environment()
         z = self._rng.standard_normal(4)
+        # the mount's noise drawn after the others' (and only with the probe): a bench without it draws as before
+        mount = self.bench.mount_temperature_c() + e.temperature_noise_k * float(self._rng.standard_normal()) \
+            if self.mount_probe else float("nan")
         return EnvironmentReading(t + e.temperature_noise_k * z[0], p + e.pressure_noise_pa * z[1],
-                                  rh + e.humidity_noise_pct * z[2], tm + e.temperature_noise_k * z[3])
+                                  rh + e.humidity_noise_pct * z[2], tm + e.temperature_noise_k * z[3], mount)
 
 
 class SimMachineTool(_Injecting, MachineTool):

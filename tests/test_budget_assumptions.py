@@ -29,7 +29,7 @@ from rtcal.methods.multistation.method import MultistationMethod, not_included
 from rtcal.methods.multistation.noise import noise_model
 from rtcal.results.model import ResidualTest, SolverStatus
 from rtcal.run.runner import run_procedure
-from rtcal.solvers.station_budget import MOUNT_GRADIENT_SOURCE, SPHERE_SOURCE
+from rtcal.solvers.station_budget import MOUNT_GRADIENT_SOURCE, SPHERE_SOURCE, THERMAL_MOUNT_SENSOR_SOURCE
 from simulators.bench import Bench
 from simulators.scenario import Scenario
 
@@ -201,6 +201,25 @@ def test_the_gradient_budget_line_is_in_every_estimate_and_the_method_section():
     assert "the table's sensor does not sit where the tracer is mounted" in cert
 
 
+@pytest.mark.campaign
+def test_a_probe_on_the_mount_measures_the_gradient_the_budget_no_longer_assumes():
+    """The gradient bench with a second probe on the tracer's mount (about 20 s): every estimate is corrected with the
+    mount's temperature, so no gradient line; the probe's stated uncertainty and noise are its lines, and the method
+    section says so. The store keeps both probes' readings raw."""
+    results, run_dir = _run(MC / "gradient_two_sensors.yaml")
+    for name, e in results.estimates.items():
+        lines = {c.source for c in e.uncertainty_budget.components}
+        assert MOUNT_GRADIENT_SOURCE not in lines and THERMAL_MOUNT_SENSOR_SOURCE in lines, name
+    cert = (run_dir / "certificate.json").read_text(encoding="utf-8")
+    assert "a second probe on the tracer's mount reads the region that carries the tracer" in cert
+    import sqlite3
+
+    with sqlite3.connect(run_dir / "run.sqlite") as db:
+        (table_c, mount_c), = db.execute("SELECT max(CASE WHEN quantity = 'material_temperature_c' THEN value END), "
+                                         "max(CASE WHEN quantity = 'mount_temperature_c' THEN value END) FROM readings")
+    assert mount_c - 20.0 == pytest.approx(1.5 * (table_c - 20.0), rel=0.1)  # the mount warms as at 1.5 K/h, the rim 1
+
+
 def test_the_sphere_budget_line_is_in_every_estimate():
     results, _ = _run(MC / "sphere.yaml")
     for name, e in results.estimates.items():
@@ -235,7 +254,7 @@ def _goal_met(summary: dict) -> bool:
 
 
 @pytest.mark.campaign
-@pytest.mark.parametrize("case", ["gradient", "sphere", "aluminium", "cmm_field_600", "default_alpha"])
+@pytest.mark.parametrize("case", ["gradient", "gradient_two_sensors", "sphere", "aluminium", "cmm_field_600", "default_alpha"])
 def test_where_the_room_breaks_the_budget_the_goal_holds_campaign(case):
     assert _goal_met(_case(case))
 

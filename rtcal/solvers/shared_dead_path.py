@@ -111,7 +111,8 @@ def least_squares_sparse(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[
                          max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, Any, bool, str]:
     """min ½‖f(x)‖² for a sparse Jacobian with few unknowns (stations and dead paths): Gauss–Newton on the p×p
     normal equations, Levenberg–Marquardt damped (µ·diag JᵀJ) while a full step does not lower the cost. Converged
-    when the undamped step is below :data:`STEP_TOLERANCE` of the unknowns, that last step taken (the
+    when the undamped step, or its change of every residual, is below :data:`STEP_TOLERANCE` of the unknowns, that
+    last step taken (the
     least-squares optimum to rounding, as MINPACK's xtol = 1e-15 before it), or when no step lowers the cost and the step is within 1e-9 of them
     (the rounding floor of many residuals). Returns x, f(x), J(x) (sparse), converged, how it ended."""
     x = np.asarray(x0, float).copy()
@@ -124,10 +125,14 @@ def least_squares_sparse(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[
         normal = np.asarray((J.T @ J).toarray())
         gn = _solve_normal(normal, -g)
         size = 1.0 + float(np.max(np.abs(x)))
-        if np.max(np.abs(gn)) <= STEP_TOLERANCE * size:  # taken too: the optimum to rounding, whatever the unknowns' size
-            x = x + gn
-            return x, fun(x), jac(x), True, (f"converged in {it} iterations (the last Gauss–Newton step below "
-                                               f"{STEP_TOLERANCE:g} of the unknowns)")
+        # or the step moves no length by as much: an unknown in other units (the growth κ, ppm/K, whose column is
+        # 1e-4 mm per unit) steps by more than the tolerance at rounding while the lengths no longer move
+        still = np.max(np.abs(gn)) <= STEP_TOLERANCE * size
+        if still or np.max(np.abs(J @ gn)) <= STEP_TOLERANCE * size:
+            x = x + gn  # taken too: the optimum to rounding, whatever the unknowns' size
+            return x, fun(x), jac(x), True, (f"converged in {it} iterations (the last Gauss–Newton step "
+                                               + ("below" if still else "moving no length by")
+                                               + f" {STEP_TOLERANCE:g} of the unknowns)")
         step, trial = gn, fun(x + gn)
         diag = np.diag(normal).copy()
         while float(trial @ trial) > cost:

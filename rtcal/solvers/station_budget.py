@@ -102,6 +102,7 @@ class StationNoiseModel:
     sphere_form_assumed: str = ""  # the tracer model whose specified form is assumed, none being stated ("": as stated)
     sphere_map_u_um: float = 0.0  # the lengths corrected by the sphere's certified map: its standard uncertainty, µm
     sphere_map_note: str = ""  # which certificate
+    temperature_on_mount: bool = False  # the lengths corrected with a probe on the tracer's mount, not the table's sensor
 
 
 @dataclass(frozen=True)
@@ -315,6 +316,7 @@ def radial_sensitivity_mm(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_cen
 
 THERMAL_SOURCE = "thermal expansion of the table (coefficient)"
 THERMAL_SENSOR_SOURCE = "thermal expansion: table temperature sensor"
+THERMAL_MOUNT_SENSOR_SOURCE = "thermal expansion: temperature probe on the tracer's mount"
 THERMAL_RANGE_SOURCE = "thermal expansion of the table (no temperature sensor)"
 
 
@@ -339,10 +341,13 @@ def table_expansion_sources(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_c
                              "0 for a table that does not grow)" if noise.table_expansion_assumed
                              else " α's standard uncertainty as stated")))
     if noise.table_expansion_ppm_per_k > 0 and noise.material_temperature_sigma_k > 0:
-        out.append(Source(THERMAL_SENSOR_SOURCE, "B",
+        on_mount = noise.temperature_on_mount
+        out.append(Source(THERMAL_MOUNT_SENSOR_SOURCE if on_mount else THERMAL_SENSOR_SOURCE, "B",
                           (s * noise.table_expansion_ppm_per_k * 1e-6 * noise.material_temperature_sigma_k)[:, None],
                           noise.material_temperature_sigma_k, "K",
-                          "the table temperature's sensor uncertainty as stated, one error for the run, times α"))
+                          ("the mount probe's uncertainty as stated (the lengths corrected with the temperature of the "
+                           "region that carries the tracer)" if on_mount else "the table temperature's sensor uncertainty "
+                           "as stated") + ", one error for the run, times α"))
     return out
 
 
@@ -424,6 +429,7 @@ def sphere_form_source(unit_mm: np.ndarray, stations_mm: np.ndarray, axis_center
 
 AIR_NOISE_SOURCE = "air refractive index: sensor noise per reading"
 THERMAL_NOISE_SOURCE = "thermal expansion: table temperature sensor noise per reading"
+THERMAL_MOUNT_NOISE_SOURCE = "thermal expansion: temperature probe on the tracer's mount, noise per reading"
 
 
 def sensor_noise_sources(distances_mm: np.ndarray, radial_mm: np.ndarray, material_offset_k: np.ndarray | None,
@@ -443,9 +449,11 @@ def sensor_noise_sources(distances_mm: np.ndarray, radial_mm: np.ndarray, materi
                           "Ciddor's sensitivities), independent from length to length"))
     if material_offset_k is not None and noise.material_temperature_bound_k <= 0 and noise.table_expansion_ppm_per_k > 0 \
             and noise.material_temperature_noise_k > 0:
-        out.append(Source(THERMAL_NOISE_SOURCE, "B", np.asarray(radial_mm, float) * noise.table_expansion_ppm_per_k * 1e-6
+        out.append(Source(THERMAL_MOUNT_NOISE_SOURCE if noise.temperature_on_mount else THERMAL_NOISE_SOURCE, "B",
+                          np.asarray(radial_mm, float) * noise.table_expansion_ppm_per_k * 1e-6
                           * noise.material_temperature_noise_k, noise.material_temperature_noise_k, "K",
-                          f"the table temperature's noise per reading as stated, times α = {noise.table_expansion_ppm_per_k:g} "
+                          f"the {'mount probe' if noise.temperature_on_mount else 'table temperature'}'s noise per reading "
+                          f"as stated, times α = {noise.table_expansion_ppm_per_k:g} "
                           "ppm/K, independent from length to length"))
     return out
 

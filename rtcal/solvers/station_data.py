@@ -17,6 +17,7 @@ class MountReadings:
     air_index: np.ndarray | None = None  # n×m refractive index of the air at each length (None: not measured)
     times_s: np.ndarray | None = None  # n×m time of each length on the run's clock, s (None: not known)
     material_temperature_c: np.ndarray | None = None  # n×m the table's temperature at each length (None: not measured)
+    mount_temperature_c: np.ndarray | None = None  # n×m the tracer's mount's, a second probe (None: not measured)
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,7 @@ class MultistationData:
     environment: dict | None = None  # summary of the recorded air and material conditions, for the report
     times_s: np.ndarray | None = None  # n×m time of each length on the run's clock, s (None: not known)
     material_temperature_c: np.ndarray | None = None  # n×m the table's temperature at each length (None: not measured)
+    mount_temperature_c: np.ndarray | None = None  # n×m the tracer's mount's, a second probe (None: not measured)
     # per mount n×m: how much each length shortens per ppm/K of the table's growth per sensed kelvin beyond the α it
     # was corrected with, mm (None: not solved — no sensor on a table that changes temperature)
     growth_mm_per_ppm: tuple[np.ndarray, ...] | None = None

@@ -57,23 +57,28 @@ def multistation_data(store: RunReadings, nominal_angles_deg: np.ndarray, n_poin
     with np.errstate(invalid="ignore", divide="ignore"):
         lengths = np.where(len_count > 0, len_sum / np.maximum(len_count, 1), np.nan)
         times = np.where(len_count > 0, time_sum / np.maximum(len_count, 1), np.nan)
-    index = summary = material = None
+    index = summary = material = mount = None
     if env:
         index = np.full((mounts, n_points, m), np.nan)
         material = np.full((mounts, n_points, m), np.nan)
+        mount = np.full((mounts, n_points, m), np.nan)
         for (k, i, j), q in env.items():
             if all(name in q for name in ("air_temperature_c", "air_pressure_pa", "humidity_pct")):
                 index[k, i, j] = ciddor_n(float(np.mean(q["air_temperature_c"])), float(np.mean(q["air_pressure_pa"])),
                                           float(np.mean(q["humidity_pct"])))
             if "material_temperature_c" in q:
                 material[k, i, j] = np.mean(q["material_temperature_c"])
+            if "mount_temperature_c" in q:
+                mount[k, i, j] = np.mean(q["mount_temperature_c"])
         summary = summarise_conditions(env.values())
         if not np.isfinite(material).any():  # a sensor without a table thermometer
             material = None
+        if not np.isfinite(mount).any():  # nor a second probe on the tracer's mount (the usual sensor)
+            mount = None
     others = tuple(MountReadings(lengths[k], segments[k], visits[k], None if index is None else index[k], times[k],
-                                 None if material is None else material[k])
+                                 None if material is None else material[k], None if mount is None else mount[k])
                    for k in range(1, mounts))
     return MultistationData(pos_sum / pos_count, lengths[0], segments[0], np.asarray(nominal_angles_deg, float),
                             int(np.sum(len_count > 0)), visits[0], pos_count[:, 0], others,
                             None if index is None else index[0], summary, times[0],
-                            None if material is None else material[0])
+                            None if material is None else material[0], None if mount is None else mount[0])

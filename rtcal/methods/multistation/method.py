@@ -47,7 +47,7 @@ from simulators.truth import station_truth
 from rtcal.methods.multistation.noise import (AIR_QUANTITIES, DEFAULT_TABLE_EXPANSION_PPM_PER_K, DEFAULT_TABLE_EXPANSION_U_PPM_PER_K,
                                               DEFAULT_TABLE_MATERIAL, air_index_bound, air_index_noise, air_index_sigma,
                                               noise_model, sphere_form, stated_air_ranges, stated_table_range,
-                                              table_expansion, table_sensor)
+                                              table_expansion, mount_sensor, table_sensor)
 
 if TYPE_CHECKING:
     from rtcal.methods.multistation.planner import MultistationPlanner
@@ -79,6 +79,19 @@ def _per_mount(data: MultistationData, proc: LaserTracerMultistation, offsets: S
     second = proc.second_mount.first_station_guess_mm if proc.second_mount else proc.solver.first_station_guess_mm
     out = [_growth_mm_per_ppm(data, proc, data.lengths_mm, offsets[0], proc.solver.first_station_guess_mm)]
     return out + [_growth_mm_per_ppm(data, proc, o.lengths_mm, off, second) for o, off in zip(data.other_mounts, offsets[1:])]
+
+
+def on_mount_probe(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
+    """With a second probe on the tracer's mount (:func:`mount_sensor`) that read every mount's lengths: the
+    temperature the stations grow with is the mount's, so the expansion's correction, its growth unknown and its
+    budget take the mount probe's readings in place of the table sensor's (the stations are the tracer's positions:
+    the table's rim does not move them). The table's readings stay in the store and the conditions; without the
+    mount's readings (a thermometer not given), the table's sensor and its gradient line as without the probe."""
+    recorded = [data.mount_temperature_c] + [o.mount_temperature_c for o in data.other_mounts]
+    if not mount_sensor(proc) or any(t is None for t in recorded):
+        return replace(data, mount_temperature_c=None)
+    others = tuple(replace(o, material_temperature_c=o.mount_temperature_c) for o in data.other_mounts)
+    return replace(data, material_temperature_c=data.mount_temperature_c, other_mounts=others)
 
 
 def corrected_for_expansion(data: MultistationData, proc: LaserTracerMultistation) -> MultistationData:
@@ -459,7 +472,7 @@ class MultistationMethod:
         return MultistationOutputs(results)
 
     def sim_instruments(self, proc: LaserTracerMultistation, bench: Bench) -> MultistationInstrumentSet:
-        env = SimEnvironmentSensor(bench) if proc.instruments.environment is not None else None
+        env = SimEnvironmentSensor(bench, mount_probe=mount_sensor(proc)) if proc.instruments.environment is not None else None
         return MultistationInstrumentSet(stage=SimStage(bench), cmm=SimCmm(bench), laser_tracer=SimLaserTracer(bench),
                                          environment=env)
 
@@ -485,11 +498,12 @@ class MultistationMethod:
         """Logged readings → every estimator that can run (a failure is recorded, not fatal), the
         recommended one, its positioning-deviation table, and the truth of a simulated run."""
         angles = proc.stations.angles_deg()
-        data = corrected_for_sphere(corrected_for_air(multistation_data(store, angles, len(proc.points_array()),
-                                                                        proc.mounts), proc), proc)
+        data = on_mount_probe(corrected_for_sphere(corrected_for_air(multistation_data(
+            store, angles, len(proc.points_array()), proc.mounts), proc), proc), proc)
         data = with_growth_unknown(corrected_for_expansion(data, proc), proc)
         guess, axis = np.array(proc.solver.first_station_guess_mm), np.array(proc.solver.axis_point_mm)
-        noise, omitted = noise_model(proc, estimate_noise), not_included(proc, data)
+        noise = noise_model(proc, estimate_noise, mount_probe=data.mount_temperature_c is not None)
+        omitted = not_included(proc, data)
         if table_sensor(proc) and data.material_offsets_k() is None:  # the sensor read no table temperature
             noise = replace(noise, material_temperature_sigma_k=0.0)
         segments = len(set(data.segments[np.isfinite(data.lengths_mm)].tolist()))

@@ -25,11 +25,14 @@ DEFAULT_TABLE_EXPANSION_U_PPM_PER_K = 2.0
 SPECIFIED_SPHERE_FORM_UM: dict[str, tuple[str, float]] = {"lasertracer": ("Etalon LaserTRACER", 0.05)}
 
 
-def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> StationNoiseModel:
+def noise_model(proc: LaserTracerMultistation, estimate: bool = True, mount_probe: bool | None = None) -> StationNoiseModel:
     """The procedure's ``uncertainty`` section as the solvers' noise model (``estimate``: Type A
     sizes from the readings; False: as stated, for a prediction). The tracer's noise is stated per
-    sample; a reading averages ``samples_per_reading`` of them."""
+    sample; a reading averages ``samples_per_reading`` of them. ``mount_probe``: whether the lengths are corrected
+    with a probe on the tracer's mount (default: as the procedure states, :func:`mount_sensor`; False where the
+    readings carry none)."""
     u = proc.uncertainty
+    on_mount = mount_sensor(proc) if mount_probe is None else mount_probe and mount_sensor(proc)
     em = u.error_motions
     per_reading = 1.0 / np.sqrt(proc.samples_per_reading)  # a reading averages its samples' independent noise
     return StationNoiseModel(
@@ -41,14 +44,15 @@ def noise_model(proc: LaserTracerMultistation, estimate: bool = True) -> Station
         air_index_sigma=air_index_sigma(proc), air_index_bound=air_index_bound(proc)[0], air_note=air_index_bound(proc)[1],
         table_expansion_ppm_per_k=table_expansion(proc)[0], table_expansion_u_ppm_per_k=table_expansion(proc)[1],
         table_expansion_assumed=table_expansion(proc)[2],
-        material_temperature_sigma_k=u.environment.material_temperature_k if table_sensor(proc) else 0.0,
+        material_temperature_sigma_k=(float(u.environment.mount_temperature_k or 0.0) if on_mount
+                                      else u.environment.material_temperature_k if table_sensor(proc) else 0.0),
         material_temperature_bound_k=stated_table_range(proc), air_index_noise=air_index_noise(proc),
         material_temperature_noise_k=u.environment.material_temperature_noise_k if table_sensor(proc) else 0.0,
         cmm_field_um=u.cmm_field_um, cmm_field_length_mm=u.cmm_field_length_mm,
-        mount_gradient_share=u.environment.mount_gradient_share if table_sensor(proc) else 0.0,
-        mount_gradient_assumed=table_sensor(proc) and "mount_gradient_share" not in u.environment.model_fields_set,
+        mount_gradient_share=mount_gradient_share(proc, on_mount),
+        mount_gradient_assumed=table_sensor(proc) and not on_mount and "mount_gradient_share" not in u.environment.model_fields_set,
         sphere_form_um=sphere_form(proc)[0], sphere_max_order=u.laser_tracer_sphere_max_order,
-        sphere_form_assumed=sphere_form(proc)[1], **sphere_map_terms(proc))
+        sphere_form_assumed=sphere_form(proc)[1], temperature_on_mount=on_mount, **sphere_map_terms(proc))
 
 
 def sphere_map_terms(proc: LaserTracerMultistation) -> dict[str, Any]:
@@ -96,6 +100,22 @@ def table_sensor(proc: LaserTracerMultistation) -> bool:
     """Whether an environment sensor reads the table's temperature with the lengths (the simulated one
     does; a real one whose readings carry no material temperature is treated as without, at analysis)."""
     return proc.instruments.environment is not None
+
+
+def mount_sensor(proc: LaserTracerMultistation) -> bool:
+    """Whether the procedure states a second material probe on the tracer's mount
+    (``uncertainty.environment.mount_temperature_k``), read with the table's sensor."""
+    return table_sensor(proc) and proc.uncertainty.environment.mount_temperature_k is not None
+
+
+def mount_gradient_share(proc: LaserTracerMultistation, on_mount: bool) -> float:
+    """The gradient line's share (1σ of the mount's change beyond the probe's the lengths were corrected with): with
+    the table's sensor as stated or 0.5 assumed; with a probe on the mount only as stated (the probe reads the region
+    that carries the tracer: what it cannot see, a lab states)."""
+    e = proc.uncertainty.environment
+    if not table_sensor(proc) or (on_mount and "mount_gradient_share" not in e.model_fields_set):
+        return 0.0
+    return float(e.mount_gradient_share)
 
 
 def table_expansion(proc: LaserTracerMultistation) -> tuple[float, float, str]:

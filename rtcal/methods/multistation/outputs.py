@@ -332,7 +332,12 @@ class MultistationOutputs:
         e = self.results.recommended_estimate()
         names = {c.source for c in e.uncertainty_budget.components} if e is not None else set()
         parts = []
-        if any(n.startswith("thermal expansion: the tracer's mount") for n in names):
+        if any(n.startswith("thermal expansion: temperature probe on the tracer's mount") for n in names):
+            parts.append("a second probe on the tracer's mount reads the region that carries the tracer: the lengths are "
+                         "corrected with its temperature, not the table sensor's, so a gradient between the two is "
+                         "measured rather than budgeted (the probe's stated uncertainty and noise are its lines; a "
+                         "gradient it cannot see, within the mount, is budgeted only where a share is stated)")
+        if any(n.startswith("thermal expansion: the tracer's mount against") for n in names):
             parts.append("the table's sensor does not sit where the tracer is mounted: the mount's temperature change may "
                          "differ from the sensor's by the stated share (or ±50 % when none is stated), a line of its own; "
                          "where the sensor reads the table change by 0.2 K or more over the run, the estimates that solve "

@@ -186,6 +186,12 @@ class EnvironmentUncertainty(StrictModel):
         "differ from the sensor's, as a share of the sensor's change over the run (1σ, e.g. 0.2; a motor under the "
         "table warms the mount faster than a sensor on the rim). Not stated: 0.5 is assumed and the budget says so; "
         "0: the sensor sits at the tracer's mount"))
+    mount_temperature_k: float | None = Field(None, ge=0.0, le=20.0, description=(
+        "with a second material probe on the tracer's mount (the environment's address's mount_thermometer=: a "
+        "second iTHX, its probe 2; in simulation the bench's mount region): its 1σ, K (e.g. 0.1; its noise per reading "
+        "is material_temperature_noise_k). Stated, the lengths are corrected with the mount's temperature, not the "
+        "table's, so a gradient between the two is measured, not budgeted: no gradient line unless "
+        "mount_gradient_share is stated (then against the mount probe's change)"))
 
 
 class SphereMap(StrictModel):

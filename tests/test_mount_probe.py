@@ -1,0 +1,110 @@
+"""Issue 44 item 1: a second material probe on the tracer's mount. The driver reads it from a second iTHX
+(`mount_thermometer=`, docs/protocols/environment.md), the simulator from the bench's mount region, the store keeps
+it raw beside the table's, and a procedure that states it corrects the lengths with the mount's temperature: the
+gradient between the table's sensor and the mount is then measured, not budgeted."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from rtcal.cli import main
+from rtcal.clock import VirtualClock
+from rtcal.methods import load_procedure
+from rtcal.methods.multistation.method import on_mount_probe
+from rtcal.methods.multistation.noise import noise_model
+from rtcal.solvers.station_budget import (
+    MOUNT_GRADIENT_SOURCE,
+    THERMAL_MOUNT_NOISE_SOURCE,
+    THERMAL_MOUNT_SENSOR_SOURCE,
+    THERMAL_SENSOR_SOURCE,
+    mount_gradient_sources,
+    sensor_noise_sources,
+    table_expansion_sources,
+)
+from rtcal.solvers.station_data import MountReadings, MultistationData
+from simulators.bench import Bench
+from simulators.instruments import SimEnvironmentSensor
+from simulators.scenario import Scenario
+from tests import emulators as emu
+from tests.emulators import Emulator, VaisalaEmulator
+
+MC = Path(__file__).resolve().parent / "data" / "mc"
+
+
+def _mount_ithx(line: bytes, state: dict) -> bytes:
+    """A second iTHX whose probe 2 touches the tracer's mount (its probe 1 hangs unused)."""
+    return {b"*SRTC": b"20.4\r", b"*SRTC2": b"21.3\r"}.get(line, b"Serial Time Out\r")
+
+
+def test_a_second_ithx_on_mount_thermometer_is_read_as_the_mounts_temperature(capsys):
+    with VaisalaEmulator("PTU300", echo=False) as unit, Emulator(emu.ithx) as table, Emulator(_mount_ithx) as mount:
+        code = main(["probe", "environment", f"{unit.url()}?model=vaisala-ptu300&thermometer={table.url()}"
+                     f"&mount_thermometer={mount.url()}", "--json", "--timeout-s", "2"])
+        out, err = capsys.readouterr()
+    assert code == 0, err
+    reading = json.loads(out)["reading"]
+    assert reading["material_temperature_c"] == pytest.approx(25.1)  # the table: the first iTHX's probe 2
+    assert reading["mount_temperature_c"] == pytest.approx(21.3)  # the mount: the second iTHX's probe 2
+    assert mount.requests == [b"*SRTC2"]
+
+
+def test_a_mount_thermometer_that_is_no_address_is_refused(capsys):
+    code = main(["probe", "environment", "/dev/ttyUSB1?model=vaisala-ptu300&mount_thermometer=ipp://cmm:1294",
+                 "--timeout-s", "1"])
+    _, err = capsys.readouterr()
+    assert code == 2 and "mount_thermometer=" in err and "Traceback" not in err
+
+
+def test_the_simulated_mount_probe_reads_the_mount_region_and_leaves_the_other_draws_alone():
+    sc = Scenario.model_validate(yaml.safe_load((MC / "gradient_bench.yaml").read_text(encoding="utf-8")))
+    clock = VirtualClock()
+    with_probe, without = SimEnvironmentSensor(Bench(sc, clock, 3), mount_probe=True), SimEnvironmentSensor(Bench(sc, clock, 3))
+    first, first_with = without.read(), with_probe.read()
+    assert math.isnan(first.mount_temperature_c) and first_with.mount_temperature_c == pytest.approx(20.0, abs=0.05)
+    # the mount's noise is drawn after the sensor's others: the same bench reads the same air and table with or without it
+    fields = ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")
+    assert [getattr(first_with, f) for f in fields] == [getattr(first, f) for f in fields]
+    clock.sleep(3600.0)
+    a = with_probe.read()
+    assert a.material_temperature_c == pytest.approx(21.0, abs=0.05)  # the table's sensor: 1 K/h
+    assert a.mount_temperature_c == pytest.approx(21.5, abs=0.05)  # the mount's region: as at 1.5 K/h
+
+
+def _data(table_c: float, mount_c: float | None) -> MultistationData:
+    n, m = 4, 3
+    full = lambda v: None if v is None else np.full((n, m), v)  # noqa: E731
+    other = MountReadings(np.ones((n, m)), np.zeros((n, m)), np.zeros((n, m)), None, None, full(table_c), full(mount_c))
+    return MultistationData(np.zeros((n, 3)), np.ones((n, m)), np.zeros((n, m)), np.zeros(m),
+                            other_mounts=(other,), material_temperature_c=full(table_c), mount_temperature_c=full(mount_c))
+
+
+def test_a_stated_mount_probe_corrects_with_the_mounts_temperature_and_budgets_no_gradient():
+    one, two = load_procedure(MC / "gradient.yaml"), load_procedure(MC / "gradient_two_sensors.yaml")
+    swapped = on_mount_probe(_data(21.0, 21.5), two)
+    assert np.all(swapped.material_temperature_c == 21.5) and np.all(swapped.other_mounts[0].material_temperature_c == 21.5)
+    assert np.all(on_mount_probe(_data(21.0, 21.5), one).material_temperature_c == 21.0)  # not stated: the table's
+    unread = on_mount_probe(_data(21.0, None), two)  # stated but not read (no mount_thermometer=): the table's
+    assert np.all(unread.material_temperature_c == 21.0) and unread.mount_temperature_c is None
+
+    radial, offset, frac = np.full(6, 60.0), np.linspace(0.0, 1.5, 6), np.linspace(-1, 1, 6)
+    unit, stations = np.tile([1.0, 0.0, 0.0], (6, 1)), np.tile([60.0, 0.0, 0.0], (6, 1))
+    names = lambda noise: {s.name for s in mount_gradient_sources(radial, offset, frac, noise)  # noqa: E731
+                           + table_expansion_sources(unit, stations, np.zeros(3), np.array([0, 0, 1.0]), offset, noise)
+                           + sensor_noise_sources(radial, radial, offset, noise) if s.name.startswith("thermal")}
+    assert names(noise_model(one)) >= {MOUNT_GRADIENT_SOURCE, THERMAL_SENSOR_SOURCE}
+    on_mount = noise_model(two)
+    assert on_mount.material_temperature_sigma_k == 0.05 and on_mount.mount_gradient_share == 0.0
+    assert names(on_mount) == {THERMAL_MOUNT_SENSOR_SOURCE, THERMAL_MOUNT_NOISE_SOURCE,
+                               "thermal expansion of the table (coefficient)"}
+    # the readings carry no mount temperature: the table's sensor, and its gradient line, as without the probe
+    fallback = noise_model(two, mount_probe=False)
+    assert fallback.mount_gradient_share == 0.5 and fallback.mount_gradient_assumed
+    stated = replace(on_mount, mount_gradient_share=0.1)  # a share stated against the mount probe stays a line
+    assert MOUNT_GRADIENT_SOURCE in names(stated)
