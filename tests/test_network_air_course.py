@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from rtcal.methods.multistation.procedure import GridPlan
-from rtcal.solvers.network import AIR_COURSE_SOURCE, solve_network
-from rtcal.solvers.station_budget import AIR_DRIFT_SOURCE, StationNoiseModel
+from rtcal.solvers.network import solve_network
+from rtcal.solvers.shared_dead_path import solve_shared_dead_path
+from rtcal.solvers.station_budget import AIR_COURSE_SOURCE, AIR_DRIFT_SOURCE, StationNoiseModel
 from rtcal.units import arcsec_to_rad
 from tests.synthetic import FIRST_GUESS_MM, PAPER_ANGLES_RAD, data, stations_mm
 
@@ -83,3 +84,36 @@ def test_with_an_air_sensor_nothing_is_solved_for_the_air():
     est = solve_network(measured, FIRST_GUESS_MM, noise=noise)
     assert AIR_COURSE_SOURCE not in _lines(est) and len(est.budget.components) == len(
         solve_network(measured, FIRST_GUESS_MM, noise=noise, options=_no_course()).budget.components)
+
+
+def test_shared_dead_path_solves_the_air_course_from_its_known_points():
+    """The same step for shared_dead_path, whose points are taken as known: the course (its constant too: no CMM scale
+    takes it) is solved beside the stations, its estimate is the budget's line instead of the range's worst case, the
+    deviation within U, U several times below the worst case's (the same data, the course not solved), and the
+    residual test, its J holding the course, passes."""
+    noise = StationNoiseModel(length_noise_um=0.02, length_noise_ppm=0.0, point_noise_um=0.05, air_index_bound=2e-6)
+    measured, truth = _air_step(4401, 0.02, 0.05, 1.5)
+    est = solve_shared_dead_path(measured, FIRST_GUESS_MM, noise=noise)
+    lines = {c.name: c.uncertainty_arcsec for c in est.budget.cumulative.components}
+    assert AIR_COURSE_SOURCE in lines and AIR_DRIFT_SOURCE not in lines
+    assert np.max(lines[AIR_COURSE_SOURCE]) > 0
+    U = 2.0 * est.budget.cumulative.uncertainty_arcsec
+    error = est.chain.cumulative_deviation_arcsec - truth
+    assert np.all(np.abs(error[1:]) <= U[1:]), (error, U)
+    assert est.budget.residual_check is not None and est.budget.residual_check.passed
+    unseen = solve_shared_dead_path(measured, FIRST_GUESS_MM, noise=noise, solve_air_course=False)
+    assert AIR_DRIFT_SOURCE in {c.name for c in unseen.budget.cumulative.components}
+    assert np.max(U) < np.max(2.0 * unseen.budget.cumulative.uncertainty_arcsec) / 4
+
+
+def test_shared_dead_path_keeps_the_ranges_worst_case_where_the_lengths_cannot_see_the_course():
+    """Each point on its own tracking segment with a 1 µm tracer (as for the network above): not solved, the bounded
+    worst case stays; with an air sensor nothing is solved for the air."""
+    noise = StationNoiseModel(length_noise_um=1.0, length_noise_ppm=0.0, point_noise_um=0.3, air_index_bound=2e-6)
+    measured, _ = _air_step(4402, 1.0, 0.3, 1.0, segments_per_point=True)
+    names = {c.name for c in solve_shared_dead_path(measured, FIRST_GUESS_MM, noise=noise).budget.cumulative.components}
+    assert AIR_DRIFT_SOURCE in names and AIR_COURSE_SOURCE not in names
+    sensed = StationNoiseModel(length_noise_um=0.02, length_noise_ppm=0.0, point_noise_um=0.05, air_index_sigma=1e-7)
+    measured, _ = _air_step(4403, 0.02, 0.05, 0.0)
+    names = {c.name for c in solve_shared_dead_path(measured, FIRST_GUESS_MM, noise=sensed).budget.cumulative.components}
+    assert AIR_COURSE_SOURCE not in names and AIR_DRIFT_SOURCE not in names
