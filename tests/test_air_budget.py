@@ -34,7 +34,7 @@ import yaml
 from rtcal.methods.multistation.method import not_included
 from rtcal.methods import load_procedure
 from rtcal.run.runner import run_procedure
-from rtcal.solvers.station_budget import AIR_DRIFT_SOURCE
+from rtcal.solvers.station_budget import AIR_COURSE_SOURCE, AIR_DRIFT_SOURCE
 
 REPO = Path(__file__).resolve().parents[1]
 MC = REPO / "tests" / "data" / "mc"
@@ -58,8 +58,10 @@ def _estimates(results) -> dict[str, dict[str, np.ndarray]]:
     out = {}
     for name, e in results.estimates.items():
         comps = {c.source: np.array([v or 0.0 for v in c.contribution_arcsec]) for c in e.uncertainty_budget.components}
+        # the air: the range's line, or the estimate of its course where the estimator solves it (network, shared_dead_path)
+        air = comps.get(AIR_DRIFT_SOURCE, comps.get(AIR_COURSE_SOURCE, np.zeros(len(e.cumulative_deviation_arcsec))))
         out[name] = {"cum": np.array(e.cumulative_deviation_arcsec, float), "u": np.array(e.cumulative_uncertainty_arcsec, float),
-                     "air": comps.get(AIR_DRIFT_SOURCE, np.zeros(len(e.cumulative_deviation_arcsec)))}
+                     "air": air}
     return out
 
 

@@ -280,7 +280,7 @@ def test_an_unstated_laser_tracer_sphere_is_budgeted_as_its_class_campaign():
 @pytest.mark.parametrize("case", ["air_step_low", "air_step"])
 def test_the_air_test_keeps_its_rate_without_a_sensor_campaign(case):
     """The course within the stated ranges: U covers, and the test fails at most at about its stated 1 % (30 trials:
-    at most 2 failures of each estimator). The network estimates the course (rtcal/solvers/network.py: _air_hats), so
+    at most 2 failures of each estimator). The network estimates the course (rtcal/solvers/station_budget.py: air_course_hats), so
     its U is no longer the range's worst case: σ/RMS within the goal's band (before: 28.9 and 1.91)."""
     summary = _case(case)
     assert summary["recommended_estimate"]["coverage_k2"] >= 0.95
