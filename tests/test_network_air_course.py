@@ -1,6 +1,7 @@
-"""Issue 44 item 4: without an air sensor the network solves the uncorrected index's course over the run (the lengths
-are checked against the CMM's points, so an index common to all lengths at a time is observable), and its U comes
-from that estimate instead of the stated range's worst case, which stays where the data cannot see the course."""
+"""Issue 44 item 4: without an air sensor the network and shared_dead_path solve the uncorrected index's course over
+the run (the lengths are checked against the CMM's points, so an index common to all lengths at a time is
+observable), and their U comes from that estimate instead of the stated range's worst case, which stays where the
+data cannot see the course."""
 
 from __future__ import annotations
 
