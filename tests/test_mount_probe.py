@@ -18,7 +18,10 @@ import yaml
 from rtcal.cli import main
 from rtcal.clock import VirtualClock
 from rtcal.methods import load_procedure
+from rtcal.deliverables.certificate import conditions, conditions_in_brief
+from rtcal.methods.conditions import summarise_conditions
 from rtcal.methods.multistation.method import on_mount_probe
+from rtcal.results.model import EnvironmentSummary
 from rtcal.methods.multistation.noise import noise_model
 from rtcal.solvers.station_budget import (
     MOUNT_GRADIENT_SOURCE,
@@ -162,3 +165,28 @@ def test_a_procedure_with_the_mount_probe_runs_over_sim_serve_as_in_process(tmp_
     a, b = (np.array(r.estimates.named("network").cumulative_deviation_arcsec, float) for r in (local, remote))
     u = np.array(local.estimates.named("network").cumulative_expanded_uncertainty_arcsec, float)
     assert np.max(np.abs(a - b)[1:] / u[1:]) < 1.0  # the first target is the reference: 0 ± 0
+
+
+def test_the_mount_probes_range_is_in_the_results_and_the_certificates_conditions():
+    """results.json's environment and the certificate's conditions table give the mount probe's range as the table's."""
+    mount = [20.02, 20.31, 20.58]
+    groups = [{"air_temperature_c": [20.0], "material_temperature_c": [20.0 + 0.1 * i], "mount_temperature_c": [t]}
+              for i, t in enumerate(mount)]
+    summary = EnvironmentSummary.model_validate(summarise_conditions(groups))
+    assert summary.mount_temperature_c is not None
+    assert (summary.mount_temperature_c.min, summary.mount_temperature_c.max) == (min(mount), max(mount))
+    assert summary.mount_temperature_c.mean == pytest.approx(sum(mount) / 3, abs=1e-4)
+
+    class Method:  # what the certificate asks of a method: the conditions its results recorded
+        def conditions(self, results: object) -> EnvironmentSummary:
+            return summary
+
+    rows = dict(conditions(None, Method()))  # type: ignore[arg-type]
+    row = [v for k, v in rows.items() if k.startswith("the tracer's mount") and k.endswith("/ °C")]
+    assert row == [f"{min(mount):g} – {max(mount):g} (mean {summary.mount_temperature_c.mean:g})"]
+    assert f"the tracer's mount's temperature (a second probe) {min(mount):g} – {max(mount):g} °C" in \
+        conditions_in_brief(None, Method())  # type: ignore[arg-type]
+    # without the probe: no row (the usual sensor)
+    assert "mount_temperature_c" not in summarise_conditions([{k: v for k, v in g.items() if k != "mount_temperature_c"}
+                                                              for g in groups])
+
