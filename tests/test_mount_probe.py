@@ -20,7 +20,7 @@ from rtcal.clock import VirtualClock
 from rtcal.methods import load_procedure
 from rtcal.deliverables.certificate import conditions, conditions_in_brief
 from rtcal.methods.conditions import summarise_conditions
-from rtcal.methods.multistation.method import on_mount_probe
+from rtcal.methods.multistation.method import failure_causes, on_mount_probe
 from rtcal.results.model import EnvironmentSummary
 from rtcal.methods.multistation.noise import noise_model
 from rtcal.solvers.station_budget import (
@@ -190,3 +190,17 @@ def test_the_mount_probes_range_is_in_the_results_and_the_certificates_condition
     assert "mount_temperature_c" not in summarise_conditions([{k: v for k, v in g.items() if k != "mount_temperature_c"}
                                                               for g in groups])
 
+
+def test_a_failed_test_with_the_mount_probe_names_the_probe_not_the_gradient():
+    """What a failed residual test means: with the lengths corrected by the mount probe, the probe not reading the
+    mount (within its stated uncertainty); with the table's sensor alone (or the probe not read), the gradient."""
+    one, two = load_procedure(MC / "gradient.yaml"), load_procedure(MC / "gradient_two_sensors.yaml")
+    probe = lambda causes: [c for c in causes if c.startswith("the probe on the tracer's mount")]  # noqa: E731
+    gradient = lambda causes: [c for c in causes if c.startswith("the tracer's mount changes temperature")]  # noqa: E731
+    with_probe = failure_causes(two, noise_model(two))
+    assert len(probe(with_probe)) == 1 and not gradient(with_probe)
+    assert "± 0.05 K" in probe(with_probe)[0]  # the probe's stated mount_temperature_k
+    for causes in (failure_causes(one, noise_model(one)), failure_causes(two, noise_model(two, mount_probe=False))):
+        assert not probe(causes) and len(gradient(causes)) == 1
+    stated = failure_causes(two, replace(noise_model(two), mount_gradient_share=0.1))  # a share stated with the probe
+    assert "beyond ± 10% of its change" in probe(stated)[0]
