@@ -16,8 +16,11 @@ for every estimator. The recommended estimator's U (k = 2) must cover its whole 
 with the air at 1.2–1.7 σ of its model and the noise random, U covers about 95 % of the targets
 (the cooler drift takes both quantities to the index's adverse ends at once, the corner of the
 model's distribution, where a target may fall just outside): at least 90 % of the targets over the
-runs are asserted. The same U without the air component covers far fewer — under 90 % is asserted,
-so a budget that forgot air fails this test.
+runs are asserted. The same U without the air component covers far fewer for an estimator that takes the air as its
+range's worst case (paper) — under 90 % is asserted over them, so a budget that forgot air fails this test. The
+network and shared_dead_path estimate the air's course from the lengths against the CMM's points where they know it
+(rtcal/solvers/station_budget.py: air_course_hats): their air line is that estimate's uncertainty, and the drift no
+longer needs it.
 
 The Monte Carlo with the air drawn within its ranges as the budget models it is the `air_drift` case
 of tests/test_uncertainty_campaign.py.
@@ -58,21 +61,21 @@ def _estimates(results) -> dict[str, dict[str, np.ndarray]]:
     out = {}
     for name, e in results.estimates.items():
         comps = {c.source: np.array([v or 0.0 for v in c.contribution_arcsec]) for c in e.uncertainty_budget.components}
-        # the air: the range's line, or the estimate of its course where the estimator solves it (network, shared_dead_path)
-        air = comps.get(AIR_DRIFT_SOURCE, comps.get(AIR_COURSE_SOURCE, np.zeros(len(e.cumulative_deviation_arcsec))))
         out[name] = {"cum": np.array(e.cumulative_deviation_arcsec, float), "u": np.array(e.cumulative_uncertainty_arcsec, float),
-                     "air": air}
+                     # the network and shared_dead_path estimate the course where the lengths know it: that line instead
+                     "air": comps.get(AIR_DRIFT_SOURCE, comps.get(AIR_COURSE_SOURCE, np.zeros(len(e.cumulative_deviation_arcsec))))}
     return out
 
 
-def _check_drift(tmp_path: Path, seed: int) -> tuple[int, int, int, list[str]]:
+def _check_drift(tmp_path: Path, seed: int) -> tuple[int, int, int, int, list[str]]:
     """Runs the still bench and both drifts with one seed: the targets of the recommended estimator whose
-    error U covers, their number, those U without the air component covers; a line of figures per drift."""
+    error U covers, their number; over the estimators that take the air as its range's worst case, the (estimator,
+    target) pairs U without the air component covers and their number; a line of figures per drift."""
     still = run_procedure(PROCEDURE, _bench(tmp_path, f"still{seed}", seed, None, 1.0), out_dir=tmp_path / f"still{seed}",
                           show_progress=False, outputs=False).results
     hours = still.measurement_duration_s / 3600.0
     base = _estimates(still)
-    covered = total = covered_without_air = 0
+    covered = total = covered_without_air = total_without = 0
     lines = []
     for label, drift in DRIFTS.items():
         r = run_procedure(PROCEDURE, _bench(tmp_path, f"{label}{seed}", seed, drift, hours), out_dir=tmp_path / f"{label}{seed}",
@@ -86,20 +89,26 @@ def _check_drift(tmp_path: Path, seed: int) -> tuple[int, int, int, list[str]]:
             assert np.all(np.abs(d[1:]) <= np.sqrt(6) * e["air"][1:] + 2e-3), (label, name, d, e["air"])
         rec = _estimates(r)[r.recommended]
         err = np.abs(rec["cum"] - truth)[1:]
-        U, U_without_air = 2 * rec["u"][1:], 2 * np.sqrt(np.clip(rec["u"] ** 2 - rec["air"] ** 2, 0, None))[1:]
+        U = 2 * rec["u"][1:]
         covered, total = covered + int(np.sum(err <= U)), total + len(err)
-        covered_without_air += int(np.sum(err <= U_without_air))
-        lines.append(f"seed {seed} {label}: {r.recommended} |error|/U max {np.max(err / U):.2f}, without air "
-                     f"{np.max(err / U_without_air):.2f}")
-    return covered, total, covered_without_air, lines
+        worst_case = [n for n, e in r.estimates.items() if any(c.source == AIR_DRIFT_SOURCE for c in e.uncertainty_budget.components)]
+        for name in worst_case:
+            e = _estimates(r)[name]
+            U_without_air = 2 * np.sqrt(np.clip(e["u"] ** 2 - e["air"] ** 2, 0, None))[1:]
+            covered_without_air += int(np.sum(np.abs(e["cum"] - truth)[1:] <= U_without_air))
+            total_without += len(U_without_air)
+        lines.append(f"seed {seed} {label}: {r.recommended} |error|/U max {np.max(err / U):.2f}; U without air covers "
+                     f"{covered_without_air}/{total_without} of {', '.join(worst_case)}")
+    return covered, total, covered_without_air, total_without, lines
 
 
-def _assert_covered(outcomes: list[tuple[int, int, int, list[str]]]) -> None:
-    covered, total, without = (sum(o[k] for o in outcomes) for k in range(3))
-    print(*(line for o in outcomes for line in o[3]), f"U covers {covered}/{total} targets, without air {without}/{total}",
-          sep="\n")
+def _assert_covered(outcomes: list[tuple[int, int, int, int, list[str]]]) -> None:
+    covered, total, without, total_without = (sum(o[k] for o in outcomes) for k in range(4))
+    print(*(line for o in outcomes for line in o[4]),
+          f"U covers {covered}/{total} targets, without air {without}/{total_without}", sep="\n")
     assert covered >= 0.9 * total, (covered, total)
-    assert without < 0.9 * total, ("the drift does not matter on this bench: the test could not fail", without, total)
+    assert total_without and without < 0.9 * total_without, (
+        "the drift does not matter on this bench: the test could not fail", without, total_without)
 
 
 def test_without_a_sensor_air_is_named_in_not_included_when_no_range_is_stated(tmp_path):

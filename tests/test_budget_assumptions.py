@@ -277,6 +277,14 @@ def test_an_unstated_laser_tracer_sphere_is_budgeted_as_its_class_campaign():
 
 
 @pytest.mark.campaign
+@pytest.mark.parametrize("case", ["sphere_in_class", "sphere_in_class_unstated"])
+def test_a_fixed_sphere_within_its_class_is_covered_campaign(case):
+    """The bench's two- and three-lobe sphere scaled into its class (48 nm peak to valley), stated or assumed from the
+    named LaserTRACER: covered (one fixed sphere is one draw of the class, so only coverage is asked of it)."""
+    assert _case(case, seeds=(4400, 5500))["recommended_estimate"]["coverage_k2"] >= 0.95
+
+
+@pytest.mark.campaign
 @pytest.mark.parametrize("case", ["air_step_low", "air_step"])
 def test_the_air_test_keeps_its_rate_without_a_sensor_campaign(case):
     """The course within the stated ranges: U covers, and the test fails at most at about its stated 1 % (30 trials:

@@ -134,3 +134,16 @@ def test_what_the_uncertainty_leaves_out_is_on_page_1(tmp_path):
     assert "The uncertainty stated does not include:" in page1
     for item in left_out:
         assert _flat(item) in page1
+
+
+def test_the_pdf_footer_keeps_the_certificate_number_beside_the_page_count():
+    """A long laboratory name once cut the footer at 120 characters, under "page N of M" and before the certificate's
+    number: the longest part is shortened instead, so the number stays whole and the line fits its room."""
+    from rtcal.deliverables.report import fit_footer
+
+    text = ("SIMULATED — NOT A CALIBRATION · Example Metrology Lab GmbH (simulated bench; accreditation D-K-00000-01-00)"
+            " · Certificate RT-2026-0042")
+    fitted = fit_footer(text, len, 100)
+    assert len(fitted) <= 100 and fitted.endswith("· Certificate RT-2026-0042") and fitted.startswith("SIMULATED")
+    assert "…" in fitted
+    assert fit_footer("Lab · Certificate 7", len, 100) == "Lab · Certificate 7"

@@ -14,6 +14,7 @@ from drivers.addresses import parse_address
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.vaisala import VaisalaPtu300
 from rtcal.solvers.air import ciddor_n, standard_air_n
+from rtcal.solvers.network import AIR_COURSE_SOURCE
 from rtcal.cli import main
 from simulators.bench import Bench
 from simulators.instruments import SimEnvironmentSensor, SimLaserTracer
@@ -139,11 +140,18 @@ def test_exact_lengths_in_drifting_air_are_corrected_exactly(tmp_path):
 
 def test_corrected_results_stay_within_the_steady_air_noise(tmp_path):
     """With noise: corrected in drifting air, the recommended estimate is within 4σ of the truth at
-    every target, σ being what the same run reports in steady air; uncorrected it is not."""
+    every target, σ being what the same run reports in steady air. Without the sensor an estimator that nothing
+    corrects is not (the drift matters on this bench: 1 K against the 0.1 K the procedure states); the network then
+    estimates the air's course from the lengths against the CMM's points (rtcal/solvers/network.py: _air_hats) and
+    its own U covers its error (|error|/U 0.98 at most: the course is 10× the stated range)."""
     drift, steady = _bench(tmp_path, True, True), _bench(tmp_path, False, True)
     _, u_steady, r = _errors(tmp_path, _procedure(tmp_path, True), steady, "steady")
     rec = r["recommended"]
     err, _, _ = _errors(tmp_path, _procedure(tmp_path, True), drift, "corrected")
     assert np.all(np.abs(err[rec][1:]) < 4 * u_steady[rec][1:]), (err[rec], u_steady[rec])
-    err, _, _ = _errors(tmp_path, _procedure(tmp_path, False), drift, "uncorrected")
-    assert np.max(np.abs(err[rec][1:]) / u_steady[rec][1:]) > 4, (err[rec], u_steady[rec])
+    err, u, r = _errors(tmp_path, _procedure(tmp_path, False), drift, "uncorrected")
+    # the drift matters: an estimator that takes it as the stated range's worst case is off by more than 4σ (steady)
+    assert max(np.max(np.abs(err[n][1:]) / u_steady[n][1:]) for n in ("paper", "shared_dead_path")) > 4, (err, u_steady)
+    budget = {c["source"] for c in r["estimates"]["network"]["uncertainty_budget"]["components"]}
+    assert AIR_COURSE_SOURCE in budget, budget
+    assert np.all(np.abs(err["network"][1:]) <= 2 * u["network"][1:]), (err["network"], u["network"])

@@ -59,7 +59,8 @@ def cmd_sim_serve(args: argparse.Namespace) -> int:
     elif args.kins:
         raise UserError("--kins: the kinematics LinuxCNC loads; give --machine linuxcnc")
     hub = SimulatorHub(scenario, seed=args.seed, host=args.host, serial=args.serial, modbus=args.modbus,
-                       environment=args.environment, ipp_idle_timeout_s=args.ipp_idle_timeout_s,
+                       environment=args.environment, mount_thermometer=args.mount_thermometer,
+                       ipp_idle_timeout_s=args.ipp_idle_timeout_s,
                        pace_serial=not args.no_pacing, comp=args.comp, machine=args.machine, kins=args.kins,
                        **STAGES[stage])  # type: ignore[arg-type]
     stop = threading.Event()
@@ -154,6 +155,10 @@ def add_sim(sub: Any) -> None:
                        help="serial replies at once instead of at each product's baud rate (faster tests)")
     serve.add_argument("--environment", choices=ENVIRONMENT_MODELS, default=ENVIRONMENT_MODELS[0],
                        help="the environment sensor's model (with an OMEGA iTHX thermometer on its thermometer=)")
+    serve.add_argument("--mount-thermometer", action="store_true",
+                       help="also serve a second iTHX, its probe 2 on the tracer's mount (the bench's mount region), and "
+                            "give its address as the environment's mount_thermometer= (a procedure that states "
+                            "uncertainty.environment.mount_temperature_k)")
     serve.add_argument("--ipp-idle-timeout-s", type=float, default=600.0,
                        help="release an I++ session whose client sends nothing for this long, and close its connection "
                             "(default 600 s; docs/faults.md)")

@@ -210,8 +210,10 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                 self.setFont(font, 7)
                 self.setStrokeColor(colors.HexColor("#3a5a80"))
                 self.line(15 * mm, 13 * mm, A4[0] - 15 * mm, 13 * mm)
-                self.drawString(15 * mm, 9 * mm, footer_left[:120])
-                self.drawRightString(A4[0] - 15 * mm, 9 * mm, f"page {self._pageNumber} of {total}")
+                page = f"page {self._pageNumber} of {total}"
+                room = width - pdfmetrics.stringWidth(page, font, 7) - 6 * mm
+                self.drawString(15 * mm, 9 * mm, fit_footer(footer_left, lambda t: pdfmetrics.stringWidth(t, font, 7), room))
+                self.drawRightString(A4[0] - 15 * mm, 9 * mm, page)
                 super().showPage()
             super().save()
 
@@ -232,6 +234,18 @@ def write_pdf(certificate: Certificate, path: Path) -> Path:
                           PageTemplate("later", [later])])
     doc.build(story, canvasmaker=NumberedCanvas)
     return path
+
+
+def fit_footer(text: str, width_of: Any, room: float) -> str:
+    """The footer's parts (" · "-joined: marking, laboratory, certificate number) within ``room``: the longest part
+    is shortened with "…" until the whole fits, so the certificate's number is never cut off by the page count."""
+    parts = text.split(" · ")
+    while width_of(" · ".join(parts)) > room:
+        longest = max(range(len(parts)), key=lambda i: len(parts[i]))
+        if len(parts[longest]) <= 8:
+            return " · ".join(parts)
+        parts[longest] = parts[longest][:-2].rstrip(" …") + "…"
+    return " · ".join(parts)
 
 
 def figure_definition(row: Any) -> str:

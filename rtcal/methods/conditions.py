@@ -19,7 +19,7 @@ def environment_read(what: str) -> Read:
     return Read("environment", ENVIRONMENT_FIELDS, None, None, what, optional=True)
 
 
-CONDITIONS = ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c")
+CONDITIONS = ("air_temperature_c", "air_pressure_pa", "humidity_pct", "material_temperature_c", "mount_temperature_c")
 
 
 def summarise_conditions(groups: Iterable[dict[str, list[float]]]) -> dict[str, dict[str, float]] | None:

@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler
 
 from rtcal.moved import moved
 
-SCHEMA_VERSION = "1.7"
+SCHEMA_VERSION = "1.8"
 # the first schema_version whose files carry each digest: a file of that version or later without it
 # was not written by rtcal (rtcal/run/integrity.py refuses it)
 STORE_DIGESTS_SINCE = (1, 2)
@@ -404,6 +404,8 @@ class EnvironmentSummary(NamedSet[Range]):
     air_pressure_pa: Range | None = Field(None, description="air pressure, Pa")
     humidity_pct: Range | None = Field(None, description="relative humidity, %")
     material_temperature_c: Range | None = Field(None, description="the table's (material) temperature, °C")
+    mount_temperature_c: Range | None = Field(
+        None, description="the tracer's mount's temperature (a second probe), °C")
 
 
 # -- the encoder Abbe-error method (seed 001) ---------------------------------------------------------

@@ -148,6 +148,9 @@ class SimulatorHub:
     serial: Literal["pty", "tcp"] = "pty"
     modbus: Literal["tcp", "rtu"] = "tcp"
     environment: Literal["vaisala-ptu300", "vaisala-ptb330"] = "vaisala-ptu300"
+    # a second iTHX, its probe 2 on the tracer's mount (the environment's mount_thermometer=); off by default, so that
+    # the environment's readings are those of the in-process run of a procedure without the probe, draw for draw
+    mount_thermometer: bool = False
     stage_model: Literal["oriental-az", "pi-gcs"] = "oriental-az"  # the stage's protocol: Modbus drive or PI GCS line
     cmm_homed: bool = True  # the I++ server starts homed (a run against an unhomed one needs `home: true`)
     pace_serial: bool = False  # serial replies at the product's baud rate (4800 baud: ~2 ms a character)
@@ -195,7 +198,7 @@ class SimulatorHub:
                 lines[name] = nest if self.joints_feed is None else FollowingLine(nest, self.joints_feed)
         # referenced, as a lab leaves its controller (an extra reference move would draw the table's noise anew)
         self.pi_gcs = PiGcsHandler(SimStage(b, inject=False), referenced=True) if self.stage_model == "pi-gcs" else None
-        self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False))
+        self.environment_now = EnvironmentNow(SimEnvironmentSensor(b, inject=False, mount_probe=self.mount_thermometer))
         lines["environment"] = VaisalaHandler(self.environment_now, self.environment.removeprefix("vaisala-").upper(),
                                               echo=self.echo)
         self.handlers: dict[str, LineHandler] = {name: FaultyLine(h, name, b) for name, h in lines.items()}
@@ -366,6 +369,9 @@ class SimulatorHub:
         self.addresses["encoder"] += f"&counts_per_rev={self.counts_per_rev}"
         thermometer = await self._serve_line("thermometer", IthxHandler(self.environment_now), tcp=True)  # an iServer
         self.addresses["environment"] += f"&thermometer={thermometer}"
+        if self.mount_thermometer:  # its own iServer, answering from the same moment as the others
+            mount = await self._serve_line("mount_thermometer", IthxHandler(self.environment_now, on_mount=True), tcp=True)
+            self.addresses["environment"] += f"&mount_thermometer={mount}"
         op = await asyncio.start_server(self._operator_client, h, 0, limit=MAX_OPERATOR_LINE)
         self._servers.append(op)
         self.addresses["operator"] = f"sim-operator://{h}:{op.sockets[0].getsockname()[1]}?token={self.operator_token}"

@@ -343,14 +343,15 @@ class VaisalaHandler:
 class IthxHandler:
     """OMEGA iTHX: ``*SRTC`` / ``*SRTC2`` → probe 1 / 2 °C, ``*SRTF``… °F, ``*SRH`` / ``*SRH2`` → % RH;
     CR ends requests and replies; one decimal, as the iServer prints them. Probe 1 hangs in the
-    beam's air, probe 2 touches the table."""
+    beam's air, probe 2 touches the table (``on_mount``: a second iTHX, its probe 2 on the tracer's mount)."""
 
     reply_terminator = b"\r"
     terminator = b"\r"
     COMMAND = re.compile(r"\*SR(TC|TF|H)(2?)")
 
-    def __init__(self, now: EnvironmentNow):
+    def __init__(self, now: EnvironmentNow, on_mount: bool = False):
         self.now = now
+        self.on_mount = on_mount
 
     def counted(self, request: bytes) -> bool:
         return False  # the barometer's SEND is the environment's one counted request
@@ -360,7 +361,8 @@ class IthxHandler:
         if m is None:
             return b"Serial Time Out\r"  # what msl-equipment saw an iTHX-W answer to a command it lacks
         r = self.now.latest()
-        celsius = r.material_temperature_c if m.group(2) else r.air_temperature_c
+        probe_2 = r.mount_temperature_c if self.on_mount else r.material_temperature_c
+        celsius = probe_2 if m.group(2) else r.air_temperature_c
         value = {"TC": celsius, "TF": celsius * 9.0 / 5.0 + 32.0, "H": r.humidity_pct}[m.group(1)]
         return f"{value:.1f}\r".encode()
 

@@ -227,7 +227,13 @@ def failure_causes(proc: LaserTracerMultistation, noise: StationNoiseModel) -> l
     elif noise.table_expansion_ppm_per_k > 0 and noise.material_temperature_bound_k <= 0:
         out.append(f"the table's expansion coefficient is not the stated {noise.table_expansion_ppm_per_k:g} ± "
                    f"{noise.table_expansion_u_ppm_per_k:g} ppm/K")
-    if noise.mount_gradient_share > 0 and noise.table_expansion_ppm_per_k > 0:
+    if noise.temperature_on_mount and noise.table_expansion_ppm_per_k > 0:
+        # the lengths were corrected with the mount probe: what the budget then assumes of the mount is the probe's
+        within = (f" beyond ± {noise.mount_gradient_share:.0%} of its change" if noise.mount_gradient_share > 0 else "")
+        out.append(f"the probe on the tracer's mount does not read the region that carries the tracer within its stated "
+                   f"± {noise.material_temperature_sigma_k:g} K (a poor contact, a lag behind the mount, or a gradient "
+                   f"within the mount{within})")
+    elif noise.mount_gradient_share > 0 and noise.table_expansion_ppm_per_k > 0:
         out.append(f"the tracer's mount changes temperature otherwise than the table's sensor reads (beyond ± "
                    f"{noise.mount_gradient_share:.0%} of its change{', assumed' if noise.mount_gradient_assumed else ''}: "
                    "a heat source under the table)")
