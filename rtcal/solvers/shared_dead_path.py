@@ -32,7 +32,7 @@ from rtcal.solvers.station_budget import (
     StationObservations,
     air_course_hats,
     air_course_seen,
-    air_course_steps,
+    air_course_tested_steps,
     station_budget,
 )
 from rtcal.solvers.station_data import MultistationData
@@ -84,9 +84,15 @@ def solve_shared_dead_path(
     fit = _adjust(points, pi, sj, seg_index, obs, m, k, growth, None, x0)
     x, f, J, converged, message = fit
     course: np.ndarray | None = None  # the air's course (no sensor): its columns, mm per ppm
+    observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts,
+                                       run_fraction,
+                                       None if (mo := data.material_offsets_k()) is None else mo[0][pi, sj])
     if converged and noise.air_index_bound > 0 and solve_air_course:
         # no air sensor: the course beside the model (hats; the points are known, so even its constant is seen), then
-        # where the hats jump a free step at each reading there; each pass kept only where the lengths see it
+        # where the course jumps a free step at each reading there, chosen as the residual test chooses them (its
+        # weighted fit of the hats on the fit without the course); each pass kept only where the lengths see it
+        centers0 = x[: 3 * m].reshape(m, 3)
+        chain0 = chain_from_stations(centers0, nominal_angles_rad)
         distances_mm = np.linalg.norm(points[pi] - x[: 3 * m].reshape(m, 3)[sj], axis=1)
         hats = air_course_hats(distances_mm, run_fraction, noise, drop_constant=False)
         p = len(x)
@@ -94,7 +100,8 @@ def solve_shared_dead_path(
             seen = _adjust(points, pi, sj, seg_index, obs, m, k, growth, hats, np.concatenate([x, np.zeros(hats.shape[1])]))
             if seen[3] and air_course_seen(_course_sigma_ppm(seen[2], seen[1], p), noise):
                 fit, course = seen, hats
-                steps = air_course_steps(seen[0][p:], hats, distances_mm, run_fraction, noise)
+                steps = air_course_tested_steps(J, f, observations, centers0, nominal_angles_rad, chain0.center_mm,
+                                                chain0.plane.normal, noise)
                 if steps.shape[1] and len(obs) > p + hats.shape[1] + steps.shape[1]:
                     both = np.hstack([hats, steps])
                     stepped = _adjust(points, pi, sj, seg_index, obs, m, k, growth, both,
@@ -104,9 +111,6 @@ def solve_shared_dead_path(
     x, f, J, converged, message = fit
     centers = x[: 3 * m].reshape(m, 3)
     chain = chain_from_stations(centers, nominal_angles_rad)
-    observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts,
-                                       run_fraction,
-                                       None if (mo := data.material_offsets_k()) is None else mo[0][pi, sj])
     budget = station_budget(J, f, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
                             chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise,
                             air_course_columns=None if course is None else np.arange(3 * m + k + g, len(x)))
