@@ -106,6 +106,12 @@ def solve_shared_dead_path(
                     both = np.hstack([hats, steps])
                     stepped = _adjust(points, pi, sj, seg_index, obs, m, k, growth, both,
                                       np.concatenate([seen[0], np.zeros(steps.shape[1])]))
+                    if not stepped[3]:  # a step the hats and the other steps already span (the test's SVD drops it
+                        # from its rank; the normal equations cannot): only the independent steps
+                        steps = _independent(np.asarray(seen[2].toarray()), steps)
+                        both = np.hstack([hats, steps])
+                        stepped = _adjust(points, pi, sj, seg_index, obs, m, k, growth, both,
+                                          np.concatenate([seen[0], np.zeros(steps.shape[1])]))
                     if stepped[3]:
                         fit, course = stepped, both
     x, f, J, converged, message = fit
@@ -150,6 +156,22 @@ def _adjust(points: np.ndarray, pi: np.ndarray, sj: np.ndarray, seg_index: np.nd
         return sp.hstack([J, sp.csr_matrix(C)]).tocsr() if C.shape[1] else J
 
     return least_squares_sparse(residuals, jacobian, x0)
+
+
+def _independent(J: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """The columns of ``steps`` that add to J's span and to each other's (pivoted QR of the steps projected off J, unit
+    columns), with 1e3 times the SVD's rank margin: the normal equations square J's condition, so a step nearly in
+    the span already stalls the adjustment that the residual test's SVD would still count."""
+    from scipy.linalg import qr
+
+    Q, sv, _ = np.linalg.svd(J / np.maximum(np.linalg.norm(J, axis=0), 1e-300), full_matrices=False)
+    Q = Q[:, sv > sv[0] * max(J.shape) * np.finfo(float).eps]
+    S = steps / np.linalg.norm(steps, axis=0)
+    rest = S - Q @ (Q.T @ S)
+    _, R, order = qr(rest, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    keep = np.sort(order[: int(np.sum(d > max(d[0], 1e-300) * max(S.shape) * np.finfo(float).eps * 1e3))])
+    return steps[:, keep]
 
 
 def _course_sigma_ppm(J: Any, f: np.ndarray, first: int) -> np.ndarray:
