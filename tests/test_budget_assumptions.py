@@ -298,7 +298,7 @@ def test_the_air_test_keeps_its_rate_without_a_sensor_campaign(case):
     for name, e in summary["estimators"].items():
         assert e["residual_test_failed"] is not None and e["residual_test_failed"] <= 2 / 30, name
     # shared_dead_path solves the course too (its points known): covered, and no longer the range's worst case
-    # (σ/RMS 12.8 and 2.51 when it quoted it; 1.23 and 1.24 now, seeds 4400 and 5500, docs/paper000.md)
+    # (σ/RMS 12.8 and 2.51 when it quoted it; 1.08 and 1.24 now, seeds 4400 and 5500, docs/paper000.md)
     sdp = summary["estimators"]["shared_dead_path"]["overall"]
     assert sdp["coverage_k2"] >= 0.95
     assert sdp["rms_reported_sigma_arcsec"] / sdp["rms_error_arcsec"] < (12.8 if case == "air_step_low" else 2.51) / 1.2
