@@ -16,10 +16,13 @@ for every estimator. The recommended estimator's U (k = 2) must cover its whole 
 with the air at 1.2–1.7 σ of its model and the noise random, U covers about 95 % of the targets
 (the cooler drift takes both quantities to the index's adverse ends at once, the corner of the
 model's distribution, where a target may fall just outside): at least 90 % of the targets over the
-runs are asserted. The same U without the air component covers far fewer for an estimator that takes the air as its
-range's worst case (paper, shared_dead_path) — under 90 % is asserted over them, so a budget that forgot air fails
-this test. The network estimates the air's course from the lengths against the CMM's points where they know it
-(rtcal/solvers/network.py: _air_hats): its air line is that estimate's uncertainty, and the drift no longer needs it.
+runs are asserted. The network and shared_dead_path estimate the air's course from the lengths against the CMM's
+points where they know it (rtcal/solvers/station_budget.py: air_course_hats): their air line is that estimate's
+uncertainty, and the drift no longer needs it. So that the drift is shown to matter on this bench, each drift run
+also solves shared_dead_path with the course NOT solved (``solve_air_course=False``: the air left to its range's worst
+case, as before the course was solved) beside paper, which takes the air so too: over these estimators the same U
+without the air component must cover under 90 % of the targets, so a budget that forgot air fails this test (the
+guard runs on estimators that exist in every run, so it cannot pass for want of one).
 
 The Monte Carlo with the air drawn within its ranges as the budget models it is the `air_drift` case
 of tests/test_uncertainty_campaign.py.
@@ -28,16 +31,17 @@ of tests/test_uncertainty_campaign.py.
 from __future__ import annotations
 
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
 import yaml
 
-from rtcal.methods.multistation.method import not_included
+from rtcal.methods.multistation import method
+from rtcal.methods.multistation.method import not_included, shared_dead_path_estimate
 from rtcal.methods import load_procedure
 from rtcal.run.runner import run_procedure
-from rtcal.solvers.station_budget import AIR_DRIFT_SOURCE
-from rtcal.solvers.network import AIR_COURSE_SOURCE
+from rtcal.solvers.station_budget import AIR_COURSE_SOURCE, AIR_DRIFT_SOURCE
 
 REPO = Path(__file__).resolve().parents[1]
 MC = REPO / "tests" / "data" / "mc"
@@ -58,19 +62,36 @@ def _bench(tmp: Path, name: str, seed: int, drift: tuple[float, float] | None, h
 
 
 def _estimates(results) -> dict[str, dict[str, np.ndarray]]:
-    out = {}
-    for name, e in results.estimates.items():
-        comps = {c.source: np.array([v or 0.0 for v in c.contribution_arcsec]) for c in e.uncertainty_budget.components}
-        out[name] = {"cum": np.array(e.cumulative_deviation_arcsec, float), "u": np.array(e.cumulative_uncertainty_arcsec, float),
-                     # the network estimates the course where the lengths know it (network._air_hats): that line instead
-                     "air": comps.get(AIR_DRIFT_SOURCE, comps.get(AIR_COURSE_SOURCE, np.zeros(len(e.cumulative_deviation_arcsec))))}
-    return out
+    return {name: _fields(e) for name, e in results.estimates.items()}
+
+
+def _fields(e) -> dict[str, np.ndarray]:
+    comps = {c.source: np.array([v or 0.0 for v in c.contribution_arcsec]) for c in e.uncertainty_budget.components}
+    return {"cum": np.array(e.cumulative_deviation_arcsec, float), "u": np.array(e.cumulative_uncertainty_arcsec, float),
+            # the network and shared_dead_path estimate the course where the lengths know it: that line instead
+            "air": comps.get(AIR_DRIFT_SOURCE, comps.get(AIR_COURSE_SOURCE, np.zeros(len(e.cumulative_deviation_arcsec))))}
+
+
+def _run_with_course_unsolved(tmp_path: Path, bench: Path, out: str):
+    """The run's results and shared_dead_path on the same data with the air's course NOT solved (its estimate as
+    results.json holds it): the estimator as it was before it solved the course, the air its range's worst case."""
+    solve, unsolved = method.solve_shared_dead_path, []
+
+    def both(*args, **kwargs):
+        unsolved.append(solve(*args, **kwargs, solve_air_course=False))
+        return solve(*args, **kwargs)
+
+    with mock.patch.object(method, "solve_shared_dead_path", both):
+        results = run_procedure(PROCEDURE, bench, out_dir=tmp_path / out, show_progress=False, outputs=False).results
+    assert len(unsolved) == 1
+    return results, shared_dead_path_estimate(unsolved[0], [])
 
 
 def _check_drift(tmp_path: Path, seed: int) -> tuple[int, int, int, int, list[str]]:
     """Runs the still bench and both drifts with one seed: the targets of the recommended estimator whose
-    error U covers, their number; over the estimators that take the air as its range's worst case, the (estimator,
-    target) pairs U without the air component covers and their number; a line of figures per drift."""
+    error U covers, their number; over the estimators that take the air as its range's worst case (paper, and
+    shared_dead_path with the course not solved), the (estimator, target) pairs U without the air component covers and
+    their number; a line of figures per drift."""
     still = run_procedure(PROCEDURE, _bench(tmp_path, f"still{seed}", seed, None, 1.0), out_dir=tmp_path / f"still{seed}",
                           show_progress=False, outputs=False).results
     hours = still.measurement_duration_s / 3600.0
@@ -78,8 +99,8 @@ def _check_drift(tmp_path: Path, seed: int) -> tuple[int, int, int, int, list[st
     covered = total = covered_without_air = total_without = 0
     lines = []
     for label, drift in DRIFTS.items():
-        r = run_procedure(PROCEDURE, _bench(tmp_path, f"{label}{seed}", seed, drift, hours), out_dir=tmp_path / f"{label}{seed}",
-                          show_progress=False, outputs=False).results
+        r, unsolved = _run_with_course_unsolved(tmp_path, _bench(tmp_path, f"{label}{seed}", seed, drift, hours),
+                                                f"{label}{seed}")
         assert abs(r.measurement_duration_s - still.measurement_duration_s) < 1.0  # the drift spans the run
         truth = np.array(r.truth.cumulative_deviation_arcsec, float)
         for name, e in _estimates(r).items():
@@ -91,9 +112,10 @@ def _check_drift(tmp_path: Path, seed: int) -> tuple[int, int, int, int, list[st
         err = np.abs(rec["cum"] - truth)[1:]
         U = 2 * rec["u"][1:]
         covered, total = covered + int(np.sum(err <= U)), total + len(err)
-        worst_case = [n for n, e in r.estimates.items() if any(c.source == AIR_DRIFT_SOURCE for c in e.uncertainty_budget.components)]
-        for name in worst_case:
-            e = _estimates(r)[name]
+        worst_case = {"paper": dict(r.estimates.items())["paper"], "shared_dead_path, course not solved": unsolved}
+        for name, model in worst_case.items():
+            assert any(c.source == AIR_DRIFT_SOURCE for c in model.uncertainty_budget.components), (name, "not the worst case")
+            e = _fields(model)
             U_without_air = 2 * np.sqrt(np.clip(e["u"] ** 2 - e["air"] ** 2, 0, None))[1:]
             covered_without_air += int(np.sum(np.abs(e["cum"] - truth)[1:] <= U_without_air))
             total_without += len(U_without_air)

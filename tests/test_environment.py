@@ -14,7 +14,7 @@ from drivers.addresses import parse_address
 from drivers.errors import InstrumentFault, InstrumentTimeout
 from drivers.vaisala import VaisalaPtu300
 from rtcal.solvers.air import ciddor_n, standard_air_n
-from rtcal.solvers.network import AIR_COURSE_SOURCE
+from rtcal.solvers.station_budget import AIR_COURSE_SOURCE
 from rtcal.cli import main
 from simulators.bench import Bench
 from simulators.instruments import SimEnvironmentSensor, SimLaserTracer

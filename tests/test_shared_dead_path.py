@@ -71,3 +71,20 @@ def test_a_solved_growth_converges_though_its_unit_steps_large_at_rounding():
     est = solve_shared_dead_path(d, FIRST_GUESS_MM)
     assert est.converged, est.message
     assert np.max(np.abs(est.chain.deviation_arcsec - truth)) < 0.3
+
+
+def test_a_step_the_course_already_spans_is_left_out():
+    """A step of the air's course that J (stations, dead paths, hats) and the other steps already span stalls the
+    normal equations (air_step_low, seed 4400 trial 6: "no step lowers the cost", the steps then all dropped and the
+    residual test failed): only the independent steps are kept."""
+    from rtcal.solvers.shared_dead_path import _independent
+
+    rng = np.random.default_rng(7)
+    J = rng.standard_normal((60, 5))
+    free = rng.standard_normal((60, 2))
+    spanned = J @ rng.standard_normal(5) * 1e-3
+    steps = np.column_stack([free[:, 0], spanned, free[:, 1], free[:, 0] - free[:, 1] + J[:, 1]])
+    kept = _independent(J, steps)
+    assert kept.shape[1] == 2  # two of the three steps beside J: the third is their difference beside J
+    assert not any(np.array_equal(c, spanned) for c in kept.T)
+    assert np.linalg.matrix_rank(np.column_stack([J, kept])) == 7

@@ -43,10 +43,14 @@ if TYPE_CHECKING:  # scipy.sparse loads where it is used: at import it costs eve
 
 from rtcal.solvers.station_budget import (
     AIR_DRIFT_SOURCE,
+    COURSE_NOISE_SOURCES,
     StationNoiseModel,
     COURSE_KNOTS,
-    STEEP_SHARE,
     StationObservations,
+    air_course_component,
+    air_course_hats,
+    air_course_seen,
+    air_course_steps,
     air_drift_source,
     observation_sources,
     bounded_components,
@@ -215,7 +219,7 @@ class _Layout:
         self.growth = growth_mm_per_ppm
         self.kappa = slice(self.eps.stop, self.eps.stop + (0 if growth_mm_per_ppm is None else 1))
         # no air sensor: the uncorrected index's course over the run, ppm, as few dense columns (N × s: hats of the
-        # run's time and steps, times each length; :func:`_air_hats`); each length reads long by course·g
+        # run's time and steps, times each length; :func:`rtcal.solvers.station_budget.air_course_hats`); each length reads long by course·g
         self.course = course_mm_per_ppm
         self.air = slice(self.kappa.stop, self.kappa.stop + (0 if course_mm_per_ppm is None else course_mm_per_ppm.shape[1]))
         self.g = self.air.stop  # number of global unknowns
@@ -573,8 +577,8 @@ def solve_network(data: MultistationData, first_station_guess_mm: np.ndarray, ax
     if converged and noise.air_index_bound > 0 and options.solve_air_course and (air is None or not air.steps_done):
         # no air sensor: the course beside the model (hats), then where the hats jump a free step at each reading
         distances_mm = evaluate(x)[8] if air is None else air.distances_mm
-        columns = (_air_hats(distances_mm, run_fraction, noise, drop_constant=lay.q.stop > lay.q.start) if air is None
-                   else _air_steps(x[lay.air], np.asarray(lay.course), distances_mm, run_fraction, noise))
+        columns = (air_course_hats(distances_mm, run_fraction, noise, drop_constant=lay.q.stop > lay.q.start) if air is None
+                   else air_course_steps(x[lay.air], np.asarray(lay.course), distances_mm, run_fraction, noise))
         if columns.shape[1] and len(obs) > lay.g + columns.shape[1]:
             course = columns if lay.course is None else np.hstack([lay.course, columns])
             start = np.concatenate([x[: lay.g], np.zeros(columns.shape[1]), x[lay.g :]])
@@ -604,56 +608,12 @@ class _CourseUnseen(Exception):
     """A pass with the air's course gave nothing to keep: the pass before it stands."""
 
 
-def _air_hats(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel,
-              drop_constant: bool) -> np.ndarray:
-    """(N, K) mm per ppm: the uncorrected air index's course as piecewise-linear hats of the run's time
-    (:func:`rtcal.solvers.station_budget.course_nuisance`'s) times each length's distance, for the hats that
-    some reading falls under. Every length is checked against the CMM's points, so an index common to all lengths
-    at a time is observable; a constant index is only a scale, which the CMM's solved scales and the circle take up
-    exactly (``drop_constant``: the first hat goes, the course is then relative to the run's start)."""
-    hats = course_nuisance(distances_mm, distances_mm, run_fraction, replace(noise, material_temperature_bound_k=0.0))
-    if hats is None:
-        return np.zeros((len(distances_mm), 0))
-    hats = hats / noise.air_index_bound * 1e-6
-    used = np.flatnonzero(np.any(hats != 0.0, axis=0))
-    return hats[:, used[1:] if drop_constant else used]
-
-
-def _air_steps(course_ppm: np.ndarray, hats: np.ndarray, distances_mm: np.ndarray, run_fraction: np.ndarray,
-               noise: StationNoiseModel) -> np.ndarray:
-    """(N, s) mm per ppm: free steps of the air's course at every reading inside the knot intervals where the fitted
-    hats (``course_ppm`` on ``hats``) move by more than :data:`STEEP_SHARE` of the stated bound, as
-    :func:`rtcal.solvers.station_budget.course_refinement` gives the residual test: a step of the air (1.8 K in a
-    minute) falls between two knots, which the hats alone smear over the interval. None where the course is smooth;
-    none either when more than a quarter of the readings would need one (no bounded course does)."""
-    L = np.asarray(distances_mm, float) * 1e-6
-    t = np.nan_to_num(np.asarray(run_fraction, float))
-    knots = np.linspace(-1.0, 1.0, COURSE_KNOTS)
-    full = np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / (knots[1] - knots[0]), 0.0, None)
-    at_knots = np.linalg.lstsq(full, (hats @ course_ppm) / L, rcond=None)[0]  # the fitted index at each knot, ppm
-    steps = []
-    for k in np.flatnonzero(np.abs(np.diff(at_knots)) > STEEP_SHARE * noise.air_index_bound * 1e6):
-        steps += [L * (t >= tj) for tj in np.unique(t[(t > knots[k]) & (t <= knots[k + 1])])]
-    if not steps or len(steps) > len(t) // 4:
-        return np.zeros((len(t), 0))
-    return np.column_stack(steps)
-
-
 def _course_seen(S_inv: np.ndarray, lay: _Layout, noise: StationNoiseModel) -> bool:
-    """Whether the lengths see the air's course at all: the σ of its value at each knot (its hats, before any step
-    is added) below 2·bound, the whole span the stated range allows the course relative to its start. Beyond that the
-    readings know less of the course than the statement does, and the model without it with the range's worst case
-    (:func:`rtcal.solvers.station_budget.bounded_course_component`) is the better answer: where the lengths at a time
-    barely differ (a point's lengths to stations at one distance, each point on its own tracking segment: the course
-    is then its dead path), with too few lengths under a hat, or a tracer too noisy for the range. A hat known worse
-    than the range's own σ is still worth solving: the adjustment propagates its σ (air_step: 0.2 µm tracer, hats to
-    ±2 ppm, a ±1.6 ppm range; coverage 98 %, σ/RMS 1.2 on 20 trials, docs/paper000.md)."""
-    sigma_ppm = np.sqrt(np.abs(np.diag(S_inv)[lay.air]))
-    return bool(np.all(np.isfinite(sigma_ppm)) and np.all(sigma_ppm < 2.0 * noise.air_index_bound * 1e6))
+    """Whether the lengths see the air's course: :func:`rtcal.solvers.station_budget.air_course_seen` on the σ of
+    its hats (before any step is added) from the adjustment's inverse."""
+    return air_course_seen(np.sqrt(np.abs(np.diag(S_inv)[lay.air])), noise)
 
 
-AIR_COURSE_SOURCE = "air refractive index (no sensor): estimated from the network"
-_WEIGHTED = ("tracer length noise", "CMM point noise", "stage repeatability")  # with the sensor noise: in the weights
 
 
 def _air_course_line(components: list[BudgetComponent], sources: list[Source], S_inv: np.ndarray, Z: np.ndarray,
@@ -669,21 +629,17 @@ def _air_course_line(components: list[BudgetComponent], sources: list[Source], S
     S_oo = S_inv[np.ix_(other, other)] - Soc @ np.linalg.solve(S_inv[np.ix_(course, course)], Soc.T)
     H_known = np.zeros((lay.g, Z.shape[1]))
     H_known[other] = S_oo @ Z[other]
-    weighted = [i for i, src in enumerate(sources) if src.name in _WEIGHTED or src.note.endswith("; in the weights")]
+    weighted = [i for i, src in enumerate(sources) if src.name in COURSE_NOISE_SOURCES]
     known = propagate(H_known, [sources[i] for i in weighted], VarianceEstimate({}, {}, 0, True), G)
     extra = sum((components[i].covariance_arcsec2 - k.covariance_arcsec2 for i, k in zip(weighted, known)),
                 np.zeros((len(G), len(G))))
     out = list(components)
     for i, k in zip(weighted, known):
         out[i] = k
-    out.append(BudgetComponent(
-        AIR_COURSE_SOURCE, "A", float(np.sqrt(np.mean(np.abs(np.diag(S_inv)[course])))), "ppm (the course's σ, RMS)",
-        0.5 * (extra + extra.T), True,
-        f"no environment sensor, the lengths uncorrected ({noise.air_note or 'the air within the stated ranges'}): the "
-        f"index's course over the run solved beside the rotation ({lay.air.stop - lay.air.start} unknowns: a hat every "
-        f"1/{COURSE_KNOTS - 1} of the run and a step at each reading where it moves fast), the lengths checked against "
-        "the CMM's points; its estimation uncertainty as the network propagates it (a constant index is a scale, "
-        "which the angles do not see)"))
+    out.append(air_course_component(
+        np.sqrt(np.abs(np.diag(S_inv)[course])), extra, lay.air.stop - lay.air.start, noise,
+        "the lengths checked against the CMM's points; its estimation uncertainty as the network propagates it (a "
+        "constant index is a scale, which the angles do not see)"))
     return out
 
 

@@ -30,6 +30,9 @@ from rtcal.solvers.station_budget import (
     StationBudget,
     StationNoiseModel,
     StationObservations,
+    air_course_hats,
+    air_course_seen,
+    air_course_tested_steps,
     station_budget,
 )
 from rtcal.solvers.station_data import MultistationData
@@ -52,8 +55,13 @@ def solve_shared_dead_path(
     first_station_guess_mm: np.ndarray,
     axis_point_mm: np.ndarray = np.zeros(3),
     noise: StationNoiseModel = StationNoiseModel(),
+    solve_air_course: bool = True,
 ) -> SharedDeadPathEstimate:
-    """Stations and segment dead paths from n×m lengths whose segment numbers are ``data.segments``."""
+    """Stations and segment dead paths from n×m lengths whose segment numbers are ``data.segments``.
+
+    Without an air sensor (``noise.air_index_bound``) and with ``solve_air_course`` the uncorrected index's course over
+    the run is solved beside them where the lengths see it (:func:`rtcal.solvers.station_budget.air_course_seen`);
+    elsewhere the budget quotes the stated range's worst case."""
     points = np.asarray(data.points_mm, dtype=float)
     lengths = np.asarray(data.lengths_mm, dtype=float)
     nominal_angles_rad = np.deg2rad(data.nominal_angles_deg)
@@ -72,12 +80,68 @@ def solve_shared_dead_path(
     growth = None if data.growth_mm_per_ppm is None else np.asarray(data.growth_mm_per_ppm[0], float)[valid]
     g = 0 if growth is None else 1
     x0 = np.concatenate([guess[:, :3].ravel(), d0, np.zeros(g)])
+    run_fraction = data.run_fraction()[0][pi, sj]
+    fit = _adjust(points, pi, sj, seg_index, obs, m, k, growth, None, x0)
+    x, f, J, converged, message = fit
+    course: np.ndarray | None = None  # the air's course (no sensor): its columns, mm per ppm
+    observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts,
+                                       run_fraction,
+                                       None if (mo := data.material_offsets_k()) is None else mo[0][pi, sj])
+    if converged and noise.air_index_bound > 0 and solve_air_course:
+        # no air sensor: the course beside the model (hats; the points are known, so even its constant is seen), then
+        # where the course jumps a free step at each reading there, chosen as the residual test chooses them (its
+        # weighted fit of the hats on the fit without the course); each pass kept only where the lengths see it
+        centers0 = x[: 3 * m].reshape(m, 3)
+        chain0 = chain_from_stations(centers0, nominal_angles_rad)
+        distances_mm = np.linalg.norm(points[pi] - x[: 3 * m].reshape(m, 3)[sj], axis=1)
+        hats = air_course_hats(distances_mm, run_fraction, noise, drop_constant=False)
+        p = len(x)
+        if hats.shape[1] and len(obs) > p + hats.shape[1]:
+            seen = _adjust(points, pi, sj, seg_index, obs, m, k, growth, hats, np.concatenate([x, np.zeros(hats.shape[1])]))
+            if seen[3] and air_course_seen(_course_sigma_ppm(seen[2], seen[1], p), noise):
+                fit, course = seen, hats
+                steps = air_course_tested_steps(J, f, observations, centers0, nominal_angles_rad, chain0.center_mm,
+                                                chain0.plane.normal, noise)
+                if steps.shape[1] and len(obs) > p + hats.shape[1] + steps.shape[1]:
+                    both = np.hstack([hats, steps])
+                    stepped = _adjust(points, pi, sj, seg_index, obs, m, k, growth, both,
+                                      np.concatenate([seen[0], np.zeros(steps.shape[1])]))
+                    if not stepped[3]:  # a step the hats and the other steps already span (the test's SVD drops it
+                        # from its rank; the normal equations cannot): only the independent steps
+                        steps = _independent(np.asarray(seen[2].toarray()), steps)
+                        both = np.hstack([hats, steps])
+                        stepped = _adjust(points, pi, sj, seg_index, obs, m, k, growth, both,
+                                          np.concatenate([seen[0], np.zeros(steps.shape[1])]))
+                    if stepped[3]:
+                        fit, course = stepped, both
+    x, f, J, converged, message = fit
+    centers = x[: 3 * m].reshape(m, 3)
+    chain = chain_from_stations(centers, nominal_angles_rad)
+    budget = station_budget(J, f, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
+                            chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise,
+                            air_course_columns=None if course is None else np.arange(3 * m + k + g, len(x)))
+    return SharedDeadPathEstimate(
+        centers, x[3 * m : 3 * m + k].copy(), seg_ids, float(np.sqrt(np.mean(f**2))) * 1e3,
+        chain, budget, converged, message,
+    )
+
+
+def _adjust(points: np.ndarray, pi: np.ndarray, sj: np.ndarray, seg_index: np.ndarray, obs: np.ndarray, m: int,
+            k: int, growth: np.ndarray | None, course_mm_per_ppm: np.ndarray | None,
+            x0: np.ndarray) -> tuple[np.ndarray, np.ndarray, Any, bool, str]:
+    """The least-squares adjustment of stations (3m), segment dead paths (k), the growth κ (when given) and the air's
+    course (its columns, when given: each length reads long by course·c)."""
     rows = np.arange(len(obs))
+    g = 0 if growth is None else 1
+    C = np.zeros((len(obs), 0)) if course_mm_per_ppm is None else np.asarray(course_mm_per_ppm, float)
+    c0 = 3 * m + k + g
 
     def residuals(x: np.ndarray) -> np.ndarray:
         centers = x[: 3 * m].reshape(m, 3)
         f = np.linalg.norm(points[pi] - centers[sj], axis=1) - x[3 * m : 3 * m + k][seg_index] - obs
-        return f if growth is None else f - growth * x[-1]
+        if growth is not None:
+            f = f - growth * x[3 * m + k]
+        return f + C @ x[c0:] if C.shape[1] else f
 
     def jacobian(x: np.ndarray) -> Any:
         import scipy.sparse as sp
@@ -88,20 +152,39 @@ def solve_shared_dead_path(
         values = np.column_stack([unit, -np.ones(len(obs))] + ([] if growth is None else [-growth]))
         cols = np.column_stack([3 * sj[:, None] + np.arange(3), 3 * m + seg_index]
                                + ([] if growth is None else [np.full(len(obs), 3 * m + k)]))
-        return sp.csr_matrix((values.ravel(), (np.repeat(rows, 4 + g), cols.ravel())), shape=(len(obs), 3 * m + k + g))
+        J = sp.csr_matrix((values.ravel(), (np.repeat(rows, 4 + g), cols.ravel())), shape=(len(obs), c0))
+        return sp.hstack([J, sp.csr_matrix(C)]).tocsr() if C.shape[1] else J
 
-    x, f, J, converged, message = least_squares_sparse(residuals, jacobian, x0)
-    centers = x[: 3 * m].reshape(m, 3)
-    chain = chain_from_stations(centers, nominal_angles_rad)
-    observations = StationObservations(pi, sj, data.stage_visits[pi, sj], points, data.point_visit_counts,
-                                       data.run_fraction()[0][pi, sj],
-                                       None if (mo := data.material_offsets_k()) is None else mo[0][pi, sj])
-    budget = station_budget(J, f, np.arange(3 * m).reshape(m, 3), observations, centers, nominal_angles_rad,
-                            chain.center_mm, chain.plane.normal, cumulative_function(nominal_angles_rad), noise)
-    return SharedDeadPathEstimate(
-        centers, x[3 * m : 3 * m + k].copy(), seg_ids, float(np.sqrt(np.mean(f**2))) * 1e3,
-        chain, budget, converged, message,
-    )
+    return least_squares_sparse(residuals, jacobian, x0)
+
+
+def _independent(J: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """The columns of ``steps`` that add to J's span and to each other's (pivoted QR of the steps projected off J, unit
+    columns), with 1e3 times the SVD's rank margin: the normal equations square J's condition, so a step nearly in
+    the span already stalls the adjustment that the residual test's SVD would still count."""
+    from scipy.linalg import qr
+
+    Q, sv, _ = np.linalg.svd(J / np.maximum(np.linalg.norm(J, axis=0), 1e-300), full_matrices=False)
+    Q = Q[:, sv > sv[0] * max(J.shape) * np.finfo(float).eps]
+    S = steps / np.linalg.norm(steps, axis=0)
+    rest = S - Q @ (Q.T @ S)
+    _, R, order = qr(rest, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    keep = np.sort(order[: int(np.sum(d > max(d[0], 1e-300) * max(S.shape) * np.finfo(float).eps * 1e3))])
+    return steps[:, keep]
+
+
+def _course_sigma_ppm(J: Any, f: np.ndarray, first: int) -> np.ndarray:
+    """The σ of the course's unknowns (columns ``first``…) as the least-squares fit knows them: (JᵀJ)⁻¹ times the
+    residuals' variance per degree of freedom (the estimator weighs every length alike; the stated sizes play no part
+    in it)."""
+    normal = np.asarray((J.T @ J).toarray())
+    dof = max(len(f) - normal.shape[0], 1)
+    try:
+        inverse = np.linalg.inv(normal)
+    except np.linalg.LinAlgError:
+        return np.full(normal.shape[0] - first, np.inf)
+    return np.sqrt(np.abs(np.diag(inverse)[first:]) * float(f @ f) / dof)
 
 
 STEP_TOLERANCE = 1e-13  # converged: the Gauss–Newton step below this share of the unknowns' size (mm: 0.1 pm at 1 m)

@@ -43,7 +43,7 @@ Jacobian is sparse (a length touches one station's coordinates and one dead path
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -582,6 +582,78 @@ def course_refinement(residuals: np.ndarray, covariance: Covariance, jacobian: A
     return np.column_stack(steps) if steps else np.zeros((N, 0))
 
 
+AIR_COURSE_SOURCE = "air refractive index (no sensor): its course estimated from the lengths"
+
+
+def air_course_hats(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel,
+                    drop_constant: bool) -> np.ndarray:
+    """(N, K) mm per ppm: the uncorrected air index's course as piecewise-linear hats of the run's time
+    (:func:`course_nuisance`'s) times each length's distance, for the hats that some reading falls under; an
+    estimator that solves them reads each length long by their sum. Every length is checked against points the
+    estimator knows (the CMM's), so an index common to all lengths at a time is observable; where the estimator also
+    solves the CMM's scales, a constant index is only a scale, which they and the circle take up exactly
+    (``drop_constant``: the first hat goes, the course is then relative to the run's start)."""
+    hats = course_nuisance(distances_mm, distances_mm, run_fraction,
+                           StationNoiseModel(air_index_bound=noise.air_index_bound))
+    if hats is None:
+        return np.zeros((len(distances_mm), 0))
+    hats = hats / noise.air_index_bound * 1e-6
+    used = np.flatnonzero(np.any(hats != 0.0, axis=0))
+    return hats[:, used[1:] if drop_constant else used]
+
+
+def air_course_steps(course_ppm: np.ndarray, hats: np.ndarray, distances_mm: np.ndarray, run_fraction: np.ndarray,
+                     noise: StationNoiseModel) -> np.ndarray:
+    """(N, s) mm per ppm: free steps of the air's course at every reading inside the knot intervals where the fitted
+    hats (``course_ppm`` on ``hats``, :func:`air_course_hats`) move by more than :data:`STEEP_SHARE` of the stated
+    bound, as :func:`course_refinement` gives the residual test: a step of the air (1.8 K in a minute) falls between
+    two knots, which the hats alone smear over the interval. None where the course is smooth; none either when more
+    than a quarter of the readings would need one (no bounded course does)."""
+    L = np.asarray(distances_mm, float) * 1e-6
+    t = np.nan_to_num(np.asarray(run_fraction, float))
+    knots = np.linspace(-1.0, 1.0, COURSE_KNOTS)
+    full = np.clip(1.0 - np.abs(t[:, None] - knots[None, :]) / (knots[1] - knots[0]), 0.0, None)
+    at_knots = np.linalg.lstsq(full, (hats @ course_ppm) / L, rcond=None)[0]  # the fitted index at each knot, ppm
+    steps = []
+    for k in np.flatnonzero(np.abs(np.diff(at_knots)) > STEEP_SHARE * noise.air_index_bound * 1e6):
+        steps += [L * (t >= tj) for tj in np.unique(t[(t > knots[k]) & (t <= knots[k + 1])])]
+    if not steps or len(steps) > len(t) // 4:
+        return np.zeros((len(t), 0))
+    return np.column_stack(steps)
+
+
+def air_course_seen(sigma_ppm: np.ndarray, noise: StationNoiseModel) -> bool:
+    """Whether the lengths see the air's course at all: the σ of its value at each knot (its hats, before any step
+    is added; ``sigma_ppm``) below 2·bound, the whole span the stated range allows the course relative to its start.
+    Beyond that the readings know less of the course than the statement does, and the model without it with the
+    range's worst case (:func:`bounded_course_component`) is the better answer: where the lengths at a time barely
+    differ (a point's lengths to stations at one distance, each point on its own tracking segment: the course is then
+    its dead path), with too few lengths under a hat, or a tracer too noisy for the range. A hat known worse than the
+    range's own σ is still worth solving: the estimator propagates its σ (air_step: 0.2 µm tracer, hats to ±2 ppm, a
+    ±1.6 ppm range; coverage 98 %, σ/RMS 1.2 on 20 trials, docs/paper000.md)."""
+    sigma_ppm = np.asarray(sigma_ppm, float)
+    return bool(np.all(np.isfinite(sigma_ppm)) and np.all(sigma_ppm < 2.0 * noise.air_index_bound * 1e6))
+
+
+# the per-reading noise an estimate of the air's course carries into the deviations: its own line, beside these
+COURSE_NOISE_SOURCES = ("tracer length noise", "CMM point noise", "stage repeatability", AIR_NOISE_SOURCE,
+                        THERMAL_NOISE_SOURCE, THERMAL_MOUNT_NOISE_SOURCE)
+
+
+def air_course_component(sigma_ppm: np.ndarray, covariance: np.ndarray, unknowns: int, noise: StationNoiseModel,
+                         how: str) -> BudgetComponent:
+    """The budget's line for the air's course solved (no sensor): its estimation uncertainty in the deviations
+    (``covariance``, what the readings' noise does through the course's estimate), its σ per unknown (RMS shown);
+    ``how``: what the estimator checks the lengths against and how it propagates."""
+    sigma_ppm = np.asarray(sigma_ppm, float)
+    return BudgetComponent(
+        AIR_COURSE_SOURCE, "A", float(np.sqrt(np.mean(sigma_ppm**2))) if sigma_ppm.size else 0.0,
+        "ppm (the course's σ, RMS)", 0.5 * (covariance + covariance.T), True,
+        f"no environment sensor, the lengths uncorrected ({noise.air_note or 'the air within the stated ranges'}): the "
+        f"index's course over the run solved beside the rotation ({unknowns} unknowns: a hat every "
+        f"1/{COURSE_KNOTS - 1} of the run and a step at each reading where it moves fast), {how}")
+
+
 def air_drift_source(distances_mm: np.ndarray, run_fraction: np.ndarray, noise: StationNoiseModel) -> Source:
     """The uncorrected air as a Type B source (:func:`air_drift_effect`), its σ in ppm of index."""
     return Source(AIR_DRIFT_SOURCE, "B", air_drift_effect(distances_mm, run_fraction, noise.air_index_bound),
@@ -624,6 +696,7 @@ def station_budget(
     axis_direction: np.ndarray,
     cumulative_of_stations: Callable[[np.ndarray], np.ndarray],
     noise: StationNoiseModel,
+    air_course_columns: np.ndarray | None = None,
 ) -> StationBudget:
     """The budget of the cumulative deviation of an estimate with Jacobian J (N×p, dense or
     scipy.sparse: a length touches one station and one dead path) and residuals f.
@@ -632,8 +705,14 @@ def station_budget(
     deviation follows from the stations by ``cumulative_of_stations``. The estimator's influence
     on the stations, J⁺ = (JᵀJ)⁺Jᵀ, goes through J's R factor (p×p, from row chunks); with the
     chain's G only G·J⁺ (m×N) is formed.
+
+    ``air_course_columns``: J's columns that are the uncorrected air's course the estimator solved (no sensor,
+    :func:`air_course_hats`): its estimation uncertainty is then a line of its own (:data:`AIR_COURSE_SOURCE`), the
+    range's worst case for the air goes, and the residual test's J holds the course.
     """
     J = _as_sparse(jacobian)
+    solved = air_course_columns is not None and len(air_course_columns) > 0
+    unsolved = replace(noise, air_index_bound=0.0) if solved else noise  # what is left to the range's worst case
     sources = observation_sources(obs, stations_mm, axis_center_mm, axis_direction, noise)
     variances = reml_scales(J, residuals, sources) if noise.estimate else VarianceEstimate({}, {}, 0, True)
     G = chain_jacobian(stations_mm, cumulative_of_stations)
@@ -644,18 +723,21 @@ def station_budget(
     stated_zero = noise.point_noise_um <= 0 or (noise.length_noise_um <= 0 and noise.length_noise_ppm <= 0)
     N = len(np.asarray(residuals))
     course = None if stated_zero else course_nuisance(L, radial, obs.run_fraction if obs.run_fraction is not None
-                                                      else np.linspace(-1, 1, N), noise)
+                                                      else np.linspace(-1, 1, N), unsolved)
     tested = J if course is None else _hstack(J, course)  # the residual test's J: the air's course free beside it
     R = r_factor(tested)  # J's R factor is its leading block: one pass over the rows for both
     # G·(rows of J⁺ for the stations) = (G·(JᵀJ)⁺[stations])·Jᵀ: the influence of every length on the output
     p = J.shape[1]
     influence = np.asarray((J @ (G @ pseudo_inverse_gram(R[:p, :p])[np.asarray(station_columns).ravel()]).T).T)
     components = propagate(influence, sources, variances, np.eye(len(G)))
+    if solved:
+        components = _air_course_line(components, J, R[:p, :p], np.asarray(air_course_columns), G, station_columns,
+                                      sources, variances, noise)
     if noise.air_index_bound > 0 or noise.material_temperature_bound_k > 0:
         # the uncorrected air and table as any course within their ranges, not the straight line the REML's V assumes
         components = [c for c in components if c.name != AIR_DRIFT_SOURCE]
         components += bounded_components(influence, L, radial, obs.run_fraction if obs.run_fraction is not None
-                                         else np.linspace(-1, 1, len(L)), noise)
+                                         else np.linspace(-1, 1, len(L)), unsolved)
     motions = error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise)
     for name, bound, unit, cov in motions:
         components.append(BudgetComponent(name, "B", bound, unit, G @ cov @ G.T, False,
@@ -663,10 +745,7 @@ def station_budget(
                                           "mount cannot separate them from the rotation"))
     check = None
     if not stated_zero:  # the whole budget as stated (Type A at θ = 1), every source that moves the residuals
-        V = Covariance.of_sources(sources)
-        if motions:  # the error motions move the stations: each length by −u·δP of its station
-            V = V.plus(Factored(Grouped(-diff / L[:, None], np.asarray(obs.station), len(stations_mm)).sparse(),
-                                covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
+        V = _tested_covariance(sources, motions, diff / L[:, None], obs.station, len(stations_mm))
         steps = np.zeros((N, 0)) if course is None else course_refinement(
             residuals, V, J, course, obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, N))
         if steps.shape[1]:  # the course's fast moves, free at every reading there
@@ -674,6 +753,69 @@ def station_budget(
         check = residual_check(residuals, V, 0, jacobian=tested, jacobian_r=R if not steps.shape[1] else None,
                                scored=scorable(sources, skip=(AIR_DRIFT_SOURCE,)))
     return StationBudget(DeviationBudget(components), variances, sources, check)
+
+
+def _tested_covariance(sources: list[Source], motions: list[Any], directions: np.ndarray, station: np.ndarray,
+                       stations: int) -> Covariance:
+    """The covariance the residual test holds the lengths to: every source as stated, the error motions through
+    each length's direction (``directions``, unit, station to point) at its station."""
+    V = Covariance.of_sources(sources)
+    if motions:  # the error motions move the stations: each length by −u·δP of its station
+        V = V.plus(Factored(Grouped(-directions, np.asarray(station), stations).sparse(),
+                            covariance_root(np.sum([cov for *_, cov in motions], axis=0))))
+    return V
+
+
+def air_course_tested_steps(jacobian: Any, residuals: np.ndarray, obs: StationObservations, stations_mm: np.ndarray,
+                            nominal_angles_rad: np.ndarray, axis_center_mm: np.ndarray, axis_direction: np.ndarray,
+                            noise: StationNoiseModel) -> np.ndarray:
+    """(N, s) mm per ppm: the steps of the air's course (no sensor) that the residual test would add
+    (:func:`course_refinement`: the hats fitted by generalised least squares with the budget's covariance beside J)
+    to an estimate without the course (``jacobian``, ``residuals``). An estimator that solves the course picks its
+    steps so, not from its own unweighted fit of the hats: where the two fits disagree on which knot interval moves
+    fast, a step the test would have freed is left out of the course and its misfit fails the test
+    (air_step_low: 4 of 60 trials failed, 0 with the test's choice)."""
+    J = _as_sparse(jacobian)
+    P = np.asarray(stations_mm, float)[obs.station]
+    diff = np.asarray(obs.points_mm, float)[obs.point] - P
+    L = np.linalg.norm(diff, axis=1)
+    t = obs.run_fraction if obs.run_fraction is not None else np.linspace(-1, 1, len(L))
+    air = StationNoiseModel(air_index_bound=noise.air_index_bound)
+    course = course_nuisance(L, L, t, air)
+    if course is None:
+        return np.zeros((len(L), 0))
+    sources = observation_sources(obs, stations_mm, axis_center_mm, axis_direction, noise)
+    motions = error_motion_covariances(stations_mm, nominal_angles_rad, axis_center_mm, noise)
+    V = _tested_covariance(sources, motions, diff / L[:, None], obs.station, len(stations_mm))
+    steps = course_refinement(residuals, V, J, course, t)
+    return steps / noise.air_index_bound * 1e-6  # course_nuisance's sensitivity is L·bound: per ppm, as the hats
+
+
+def _air_course_line(components: list[BudgetComponent], J: Any, R: np.ndarray, course: np.ndarray, G: np.ndarray,
+                     station_columns: np.ndarray, sources: list[Source], variances: VarianceEstimate,
+                     noise: StationNoiseModel) -> list[BudgetComponent]:
+    """The budget with the air's course solved (J's ``course`` columns): the readings' noise
+    (:data:`COURSE_NOISE_SOURCES`) each as it would act with the course known (J without those columns), and what
+    estimating the course adds to them as its own line, their difference: the course's estimation uncertainty
+    carried into the deviations. ``R``: J's R factor."""
+    keep = np.setdiff1d(np.arange(J.shape[1]), course)
+    J_known = J[:, keep]
+    stations = np.searchsorted(keep, np.asarray(station_columns).ravel())  # the stations come before the course
+    influence_known = np.asarray((J_known @ (G @ pseudo_inverse_gram(r_factor(J_known))[stations]).T).T)
+    noisy = [i for i, src in enumerate(sources) if src.name in COURSE_NOISE_SOURCES]
+    known = propagate(influence_known, [sources[i] for i in noisy], variances, np.eye(len(G)))
+    extra = sum((components[i].covariance_arcsec2 - kc.covariance_arcsec2 for i, kc in zip(noisy, known)),
+                np.zeros((len(G), len(G))))
+    K = np.asarray((J @ pseudo_inverse_gram(R)[course].T).T)  # the course's unknowns ← the lengths
+    sigma = np.sqrt(np.abs(np.diag(sum((c.covariance_arcsec2 for c in propagate(
+        K, [sources[i] for i in noisy], variances, np.eye(len(course)))), np.zeros((len(course), len(course)))))))
+    out = list(components)
+    for i, kc in zip(noisy, known):
+        out[i] = kc
+    out.append(air_course_component(
+        sigma, extra, len(course), noise, "the lengths checked against the points taken as known (so even a constant "
+        "index is seen); its estimation uncertainty through the least-squares fit"))
+    return out
 
 
 def covariance_root(cov: np.ndarray) -> np.ndarray:
