@@ -614,8 +614,6 @@ def _course_seen(S_inv: np.ndarray, lay: _Layout, noise: StationNoiseModel) -> b
     return air_course_seen(np.sqrt(np.abs(np.diag(S_inv)[lay.air])), noise)
 
 
-
-
 def _air_course_line(components: list[BudgetComponent], sources: list[Source], S_inv: np.ndarray, Z: np.ndarray,
                      lay: _Layout, G: np.ndarray, noise: StationNoiseModel) -> list[BudgetComponent]:
     """The budget with the air's course solved: the sources the weights hold (tracer, CMM points, a visit's

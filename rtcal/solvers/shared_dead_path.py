@@ -93,7 +93,7 @@ def solve_shared_dead_path(
         # weighted fit of the hats on the fit without the course); each pass kept only where the lengths see it
         centers0 = x[: 3 * m].reshape(m, 3)
         chain0 = chain_from_stations(centers0, nominal_angles_rad)
-        distances_mm = np.linalg.norm(points[pi] - x[: 3 * m].reshape(m, 3)[sj], axis=1)
+        distances_mm = np.linalg.norm(points[pi] - centers0[sj], axis=1)
         hats = air_course_hats(distances_mm, run_fraction, noise, drop_constant=False)
         p = len(x)
         if hats.shape[1] and len(obs) > p + hats.shape[1]:
